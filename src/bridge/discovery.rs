@@ -1,0 +1,1 @@
+//! Home Assistant device-based discovery (discovery helper).

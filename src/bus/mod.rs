@@ -1,0 +1,93 @@
+//! One task per serial line. [`spawn_line`] starts it: it owns the port (through
+//! [`crate::rtu::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
+//! command slots (read → write → read-back, nothing interleaved), tracks device health
+//! (offline after N failures, capped back-off probing) and line statistics, and reports
+//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll.
+
+pub mod health;
+pub mod line;
+pub mod scheduler;
+pub mod stats;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::{mpsc, oneshot, watch};
+
+use crate::profile::{CommandPlan, Profile, Value};
+use crate::rtu::transport::SerialSettings;
+use crate::rtu::SlaveId;
+
+pub use stats::LineStats;
+
+/// One configured device on a line.
+#[derive(Debug, Clone)]
+pub struct DeviceSpec {
+    pub name: String,
+    pub address: SlaveId,
+    pub profile: Arc<Profile>,
+    pub poll_interval: Duration,
+}
+
+/// One configured serial line with its devices.
+#[derive(Debug, Clone)]
+pub struct LineSpec {
+    pub name: String,
+    pub serial: SerialSettings,
+    /// None: derived from baud and the longest expected answer plus a device margin.
+    pub response_timeout: Option<Duration>,
+    /// Retries after a failed transaction (timeout, CRC, truncated answer).
+    pub retries: u32,
+    /// Consecutive failed polls after which a device is reported offline.
+    pub offline_after: u32,
+    /// The adapter echoes what it sends.
+    pub echo: bool,
+    /// Silence after a broadcast write.
+    pub broadcast_turnaround: Duration,
+    pub devices: Vec<DeviceSpec>,
+}
+
+/// What a line reports to the bridge.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LineEvent {
+    /// Freshly decoded values of a device (every field of the blocks just read).
+    Values {
+        device: String,
+        values: Vec<(String, Value)>,
+    },
+    Availability {
+        device: String,
+        online: bool,
+    },
+}
+
+/// How a command ended on the bus.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CommandOutcome {
+    /// Written, and the read-back shows the value.
+    Applied { detail: String },
+    /// Acknowledged, but the read-back differs.
+    NotApplied { detail: String },
+    /// Refused by the profile's rules on the fresh state: nothing written.
+    Rejected { detail: String },
+    /// An exception answer, no answer after the retries, or the port is gone.
+    Failed { detail: String },
+}
+
+/// A command for the line's queue.
+#[derive(Debug)]
+pub struct Command {
+    pub device: String,
+    pub plan: CommandPlan,
+    pub reply_tx: oneshot::Sender<CommandOutcome>,
+}
+
+/// The bridge's handle on a running line.
+#[derive(Debug, Clone)]
+pub struct LineHandle {
+    pub name: String,
+    pub command_tx: mpsc::Sender<Command>,
+    pub stats_rx: watch::Receiver<LineStats>,
+}
+
+pub use line::spawn_line;
