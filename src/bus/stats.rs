@@ -1,10 +1,81 @@
-//! Live statistics of a line and its devices.
+//! Live statistics of a line and its devices, published by the line task on a watch channel
+//! after every transaction and at least once a second.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
-/// A snapshot of a line's statistics, published on a watch channel after every transaction
-/// and at least once a second (the watchdog reads `heartbeat`).
-#[derive(Debug, Clone)]
+/// Counters and latencies of one device.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceStats {
+    pub name: String,
+    pub online: bool,
+    pub transactions: u64,
+    pub timeouts: u64,
+    pub crc_errors: u64,
+    pub exceptions: u64,
+    /// Consecutive failed polls (resets on success).
+    pub consecutive_failures: u32,
+    pub last_latency: Option<Duration>,
+    pub worst_latency: Option<Duration>,
+}
+
+/// A snapshot of a line's statistics.
+#[derive(Debug, Clone, PartialEq)]
 pub struct LineStats {
+    pub line: String,
+    /// Refreshed on every turn of the line's loop: the watchdog's proof that the task is alive.
     pub heartbeat: Instant,
+    pub port_open: bool,
+    pub transactions: u64,
+    pub timeouts: u64,
+    pub crc_errors: u64,
+    pub truncated: u64,
+    pub unexpected_answers: u64,
+    pub exceptions: u64,
+    pub late_answers: u64,
+    pub stray_bytes: u64,
+    /// Share of wall time the line carried frames and mandatory silences, over the last
+    /// measuring window (0.0–1.0).
+    pub bus_load: f64,
+    pub commands: u64,
+    /// Time from a command's arrival on the line to its outcome.
+    pub last_command_latency: Option<Duration>,
+    pub worst_command_latency: Option<Duration>,
+    pub devices: Vec<DeviceStats>,
+}
+
+impl LineStats {
+    /// Empty statistics of a line that has not run yet.
+    pub fn new(line: &str, devices: &[String], now: Instant) -> Self {
+        LineStats {
+            line: line.to_string(),
+            heartbeat: now,
+            port_open: false,
+            transactions: 0,
+            timeouts: 0,
+            crc_errors: 0,
+            truncated: 0,
+            unexpected_answers: 0,
+            exceptions: 0,
+            late_answers: 0,
+            stray_bytes: 0,
+            bus_load: 0.0,
+            commands: 0,
+            last_command_latency: None,
+            worst_command_latency: None,
+            devices: devices
+                .iter()
+                .map(|name| DeviceStats {
+                    name: name.clone(),
+                    online: false,
+                    transactions: 0,
+                    timeouts: 0,
+                    crc_errors: 0,
+                    exceptions: 0,
+                    consecutive_failures: 0,
+                    last_latency: None,
+                    worst_latency: None,
+                })
+                .collect(),
+        }
+    }
 }
