@@ -6,6 +6,7 @@
 
 pub mod health;
 pub mod line;
+pub mod plan;
 pub mod scheduler;
 pub mod stats;
 
