@@ -22,7 +22,7 @@ use tracing::Instrument;
 use super::health::{HealthChange, HealthPolicy};
 use super::plan::{read_answer_bytes, DevicePlan};
 use super::scheduler::{Due, PollOutcome, Scheduler};
-use super::slot::{self, SlotEnd};
+use super::slot::{self, SeenReads, SlotEnd};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
 use super::{Command, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats};
@@ -490,7 +490,8 @@ impl Line {
         };
         let span =
             tracing::info_span!("command", device = %spec.name, field = command.plan.field());
-        let end = slot::run_slot(&exchange, master, stats, &command.plan, attempts)
+        let mut seen = SeenReads::new();
+        let end = slot::run_slot(&exchange, master, stats, &command.plan, attempts, &mut seen)
             .instrument(span)
             .await;
         let now = Instant::now();
@@ -505,6 +506,7 @@ impl Line {
                 if answered {
                     self.contact(device, now).await;
                 }
+                self.publish_reads(device, seen, now).await;
             }
             SlotEnd::Settling { deadline } => {
                 self.settling.push(Settle {
@@ -516,6 +518,7 @@ impl Line {
                     next_read: now + SETTLE_REREAD,
                 });
                 self.contact(device, now).await;
+                self.publish_reads(device, seen, now).await;
             }
             SlotEnd::PortGone(error) => {
                 let detail = format!("the port failed: {error}");
@@ -546,7 +549,9 @@ impl Line {
             slave: spec.address,
             timeout: self.timeout,
         };
-        let result = slot::reread(&exchange, master, stats, &settle.plan, attempts).await;
+        let mut seen = SeenReads::new();
+        let result =
+            slot::reread(&exchange, master, stats, &settle.plan, attempts, &mut seen).await;
         let now = Instant::now();
         let outcome = match result {
             Ok(Verification::Applied) => CommandOutcome::Applied {
@@ -580,15 +585,60 @@ impl Line {
         };
         let device = settle.device;
         self.reply(settle.reply_tx, settle.arrived, outcome);
-        self.scheduler.refresh(device, now);
+        self.publish_reads(device, seen, now).await;
     }
 
-    /// The device answered a command: it is there, and its values are read again at once.
+    /// The device answered a command: it is there.
     async fn contact(&mut self, device: usize, now: Instant) {
         if let Some(change) = self.scheduler.record_contact(device, now) {
             self.availability_changed(device, change).await;
         }
-        self.scheduler.refresh(device, now);
+    }
+
+    /// Sends the values of the reads a command slot made that are poll blocks of the device
+    /// (they count as that block's poll); every other block is polled at once, so that what
+    /// the command changed is reported without waiting for a poll interval.
+    async fn publish_reads(&mut self, device: usize, seen: SeenReads, now: Instant) {
+        let Some(spec) = self.spec.devices.get(device) else {
+            return;
+        };
+        let profile = spec.profile.clone();
+        let name = spec.name.clone();
+        let mut values = Vec::new();
+        let mut covered = vec![false; profile.read_blocks().len()];
+        for (request, answer) in &seen {
+            let Some(block) = profile
+                .read_blocks()
+                .iter()
+                .position(|b| &b.request == request)
+            else {
+                continue;
+            };
+            for reading in profile.decode_block(block, answer) {
+                match reading.value {
+                    Ok(value) => values.push((reading.field, value)),
+                    Err(error) => {
+                        if let Some(stats) = self.stats.devices.get_mut(device) {
+                            stats.field_errors += 1;
+                        }
+                        tracing::warn!(device = %name, field = %reading.field, "invalid field data, not published: {error}");
+                    }
+                }
+            }
+            if let Some(flag) = covered.get_mut(block) {
+                *flag = true;
+            }
+            self.scheduler
+                .record_poll(device, block, PollOutcome::Answered, now);
+        }
+        self.scheduler.refresh_except(device, &covered, now);
+        if !values.is_empty() {
+            let event = LineEvent::Values {
+                device: name,
+                values,
+            };
+            let _ = self.events_tx.send(event).await;
+        }
     }
 
     fn reply(

@@ -35,16 +35,21 @@ impl DevicePlan {
     pub fn for_device(spec: &DeviceSpec) -> Self {
         let limits = spec.profile.limits();
         let poll_interval = spec.poll_interval.max(limits.min_poll_interval);
-        DevicePlan {
-            blocks: spec
-                .profile
+        // Nothing answers a read sent to the broadcast address: such a device is write-only.
+        let blocks = if spec.address == 0 {
+            Vec::new()
+        } else {
+            spec.profile
                 .read_blocks()
                 .iter()
                 .map(|block| BlockPlan {
                     class: block.class,
                     answer_bytes: read_answer_bytes(block),
                 })
-                .collect(),
+                .collect()
+        };
+        DevicePlan {
+            blocks,
             poll_interval,
             slow_interval: limits.slow_interval.max(poll_interval),
             startup_delay: limits.startup_delay,

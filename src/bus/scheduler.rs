@@ -242,10 +242,18 @@ impl<C> Scheduler<C> {
 
     /// Makes every block of `device` due at `now` (after a command, to send fresh values).
     pub fn refresh(&mut self, device: usize, now: Instant) {
+        self.refresh_except(device, &[], now);
+    }
+
+    /// Makes every block of `device` not marked in `skip` due at `now`.
+    pub fn refresh_except(&mut self, device: usize, skip: &[bool], now: Instant) {
         if let Some(slot) = self.devices.get_mut(device) {
-            slot.block_due
-                .iter_mut()
-                .for_each(|due| *due = (*due).min(now.max(slot.ready_at)));
+            let at = now.max(slot.ready_at);
+            for (block, due) in slot.block_due.iter_mut().enumerate() {
+                if !skip.get(block).copied().unwrap_or(false) {
+                    *due = (*due).min(at);
+                }
+            }
         }
     }
 

@@ -34,13 +34,19 @@ pub enum SlotEnd {
     PortGone(std::io::Error),
 }
 
+/// Reads made in a slot with their answers: the line publishes the values of those that are
+/// one of the device's poll blocks, instead of polling them again right away.
+pub type SeenReads = Vec<(Request, Response)>;
+
 /// Runs `plan` on the device of `exchange`. `attempts` bounds the reads and the slot repeats.
+/// Every read answered in the slot is added to `seen`.
 pub async fn run_slot(
     exchange: &Exchange<'_>,
     master: &mut Master,
     stats: &mut DeviceStats,
     plan: &CommandPlan,
     attempts: u32,
+    seen: &mut SeenReads,
 ) -> SlotEnd {
     if exchange.slave == 0 {
         return broadcast(master, plan).await;
@@ -48,10 +54,11 @@ pub async fn run_slot(
     let mut last_problem = String::from("not sent");
     let mut written = false;
     for _ in 0..attempts.max(1) {
-        let before = match read_all(exchange, master, stats, plan.reads_before(), attempts).await {
-            Ok(answers) => answers,
-            Err(failure) => return failed(failure),
-        };
+        let before =
+            match read_all(exchange, master, stats, plan.reads_before(), attempts, seen).await {
+                Ok(answers) => answers,
+                Err(failure) => return failed(failure),
+            };
         let writes = match plan.writes(&before) {
             Ok(writes) => writes,
             Err(rejection) => {
@@ -74,7 +81,7 @@ pub async fn run_slot(
             detail: format!("no answer to the write: {last_problem}"),
         });
     }
-    match reread(exchange, master, stats, plan, attempts).await {
+    match reread(exchange, master, stats, plan, attempts, seen).await {
         Ok(Verification::Applied) => SlotEnd::Done(CommandOutcome::Applied {
             detail: "read-back confirms the value".into(),
         }),
@@ -100,8 +107,9 @@ pub async fn reread(
     stats: &mut DeviceStats,
     plan: &CommandPlan,
     attempts: u32,
+    seen: &mut SeenReads,
 ) -> Result<Verification, Failure> {
-    let answers = read_all(exchange, master, stats, plan.readback(), attempts).await?;
+    let answers = read_all(exchange, master, stats, plan.readback(), attempts, seen).await?;
     Ok(plan.verify(&answers))
 }
 
@@ -149,10 +157,14 @@ async fn read_all(
     stats: &mut DeviceStats,
     requests: &[Request],
     attempts: u32,
+    seen: &mut SeenReads,
 ) -> Result<Vec<Response>, Failure> {
     let mut answers = Vec::with_capacity(requests.len());
     for request in requests {
-        answers.push(patiently(exchange, master, stats, request, attempts).await?);
+        let answer = patiently(exchange, master, stats, request, attempts).await?;
+        seen.retain(|(earlier, _)| earlier != request);
+        seen.push((request.clone(), answer.clone()));
+        answers.push(answer);
     }
     Ok(answers)
 }
