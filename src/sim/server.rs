@@ -19,6 +19,9 @@ use super::{lock, Addressing, Reply, SharedDevice};
 use crate::rtu::frame::Request;
 use crate::shutdown::Shutdown;
 
+/// How often the idle loop looks at the faults again.
+const FAULT_RECHECK: Duration = Duration::from_millis(50);
+
 /// How a line is served.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ServeOptions {
@@ -68,18 +71,18 @@ where
         discarding: false,
     };
     let mut chunk = [0u8; 512];
-    let mut next_idle_garbage: Option<tokio::time::Instant> = None;
+    // When idle garbage goes out next (or, without it, when to look at the faults again).
+    let mut idle_wake: Option<tokio::time::Instant> = None;
     loop {
         let silence_at = (!server.buffer.is_empty()).then(|| {
             tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5())
         });
-        match server.faults.idle_garbage_every() {
-            Some(every) if next_idle_garbage.is_none() => {
-                next_idle_garbage = Some(tokio::time::Instant::now() + every);
-            }
-            None => next_idle_garbage = None,
-            Some(_) => {}
-        }
+        // Faults change at run time: without idle garbage the loop still wakes now and then to
+        // notice it being switched on.
+        let idle_garbage = server.faults.idle_garbage_every();
+        let wake_at = *idle_wake.get_or_insert_with(|| {
+            tokio::time::Instant::now() + idle_garbage.unwrap_or(FAULT_RECHECK)
+        });
         tokio::select! {
             _ = shutdown.fired() => return Ok(()),
             read = server.stream.read(&mut chunk) => {
@@ -92,9 +95,9 @@ where
             _ = sleep_until_opt(silence_at), if silence_at.is_some() => {
                 server.silence().await?;
             }
-            _ = sleep_until_opt(next_idle_garbage), if next_idle_garbage.is_some() => {
-                next_idle_garbage = None;
-                if server.buffer.is_empty() {
+            _ = tokio::time::sleep_until(wake_at) => {
+                idle_wake = None;
+                if idle_garbage.is_some() && server.buffer.is_empty() {
                     let noise = random_bytes(&mut rand::thread_rng(), 3);
                     tracing::debug!(bytes = %hex(&noise), "idle garbage");
                     server.stream.write_all(&noise).await?;
