@@ -523,3 +523,27 @@ async fn power_up_handshake_keeps_the_device_quiet() {
         [1, 3, 12]
     );
 }
+
+#[tokio::test]
+async fn seed_plant_serves_both_lines() {
+    let plant = rtu2mqtt::sim::SeedPlant::spawn(false).unwrap();
+    let mut line_a = open(&plant.line_a.path());
+    let mut line_b = open(&plant.line_b.path());
+    assert_eq!(
+        exchange(&mut line_a, &hex(READ_ALL), 17).await[..3],
+        [1, 3, 12]
+    );
+    assert_eq!(
+        exchange(&mut line_a, &hex("81 01 00 00 00 16 A2 04"), 8).await[..3],
+        hex("81 01 03")[..]
+    );
+    assert_eq!(
+        exchange(&mut line_b, &hex("01 03 00 B2 00 02 64 2C"), 9).await,
+        hex("01 03 04 01 20 00 00 FA 05")
+    );
+    lock(&plant.valve).set_opening(55);
+    assert_eq!(
+        exchange(&mut line_b, &hex("01 03 00 74 00 01 C4 10"), 7).await[3..5],
+        [0, 55]
+    );
+}

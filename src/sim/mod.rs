@@ -10,7 +10,7 @@
 //!   answers after t3.5 (optionally paced at the wire's character rate), applying the
 //!   [`Faults`] of the moment and writing everything into the [`Journal`].
 //! - [`VirtualLine`]: a pty pair served in the background, whose slave path the gateway opens
-//!   like a real port.
+//!   like a real port; [`SeedPlant`] puts the three seed devices on two of them.
 //!
 //! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
 //! `simulate`.
@@ -21,6 +21,7 @@ pub mod dust_collector;
 pub mod faults;
 pub mod generic;
 pub mod journal;
+pub mod plant;
 pub mod server;
 pub mod valve;
 pub mod virtual_line;
@@ -36,6 +37,7 @@ pub use dust_collector::DustCollector;
 pub use faults::{FaultHandle, Faults, Occurrence};
 pub use generic::GenericDevice;
 pub use journal::{Journal, RequestRecord};
+pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;

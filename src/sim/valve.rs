@@ -276,6 +276,9 @@ impl Valve {
             None => 0.0,
         };
         self.last_advance = Some(now);
+        if self.mode_auto() {
+            self.regulate();
+        }
         if !self.jammed {
             let target = f64::from(self.target);
             let step = self.speed * elapsed;
@@ -288,6 +291,28 @@ impl Valve {
             }
         }
         self.update_measurements(now);
+    }
+
+    /// Auto mode (PID): a plain proportional law stands in for the PID. Opening the valve
+    /// lowers the measured differential pressure, so a pressure above the setpoint opens it.
+    fn regulate(&mut self) {
+        let pair = |register: u16| {
+            from_bcd_pair([
+                self.registers.get(&register).copied().unwrap_or(0),
+                self.registers.get(&(register + 1)).copied().unwrap_or(0),
+            ])
+        };
+        let (Some(measured), Some(setpoint)) = (pair(REG_MEASURED_1), pair(REG_SETPOINT)) else {
+            return;
+        };
+        // Hundredths of a unit → percent of opening, 1 % per 1.00 of error.
+        let error = (f64::from(measured) - f64::from(setpoint)) / 100.0;
+        let wanted = self.position + error;
+        let target = wanted.round().clamp(0.0, 100.0) as u16;
+        if target != self.target {
+            self.direction_close = f64::from(target) < self.position;
+            self.target = target;
+        }
     }
 
     fn update_measurements(&mut self, now: Instant) {
@@ -524,6 +549,36 @@ mod tests {
         assert_ne!(valve.status() & DIRECTION_CLOSE, 0);
         valve.advance(start + Duration::from_secs(80));
         assert_eq!(valve.status() & NOT_FULLY_CLOSED, 0, "fully closed reads 0");
+    }
+
+    #[test]
+    fn auto_mode_drives_the_pressure_to_the_setpoint() {
+        let start = Instant::now();
+        let mut valve = Valve::new(1);
+        valve.set_speed(20.0);
+        valve.advance(start);
+        valve.handle(
+            &Request::WriteSingleRegister {
+                address: REG_MODE,
+                value: 1,
+            },
+            start,
+        );
+        for second in 1..=120 {
+            valve.advance(start + Duration::from_secs(second));
+        }
+        let measured = from_bcd_pair([
+            valve.register(REG_MEASURED_1).unwrap(),
+            valve.register(REG_MEASURED_1 + 1).unwrap(),
+        ])
+        .unwrap();
+        // Setpoint 120.00; the wobble is ±3.00.
+        assert!((11_400..=12_600).contains(&measured), "measured {measured}");
+        assert!(
+            valve.opening() > 30,
+            "opened from 30 %: {}",
+            valve.opening()
+        );
     }
 
     #[test]
