@@ -122,3 +122,86 @@ fn check_table(table: &Json, place: &str, known: &[&str], problems: &mut Vec<Pro
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+
+[[lines]]
+name = "line-a"
+port = "/dev/ttyUSB0"
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 0x81
+poll_interval = "300ms"
+"#;
+
+    #[test]
+    fn reads_hex_addresses_durations_and_defaults() {
+        let raw = load_str(MINIMAL).unwrap();
+        assert_eq!(raw.mqtt.prefix, "plant");
+        assert!(raw.mqtt.discovery);
+        let device = &raw.lines[0].devices[0];
+        assert_eq!(device.address, 0x81);
+        assert_eq!(
+            device.poll_interval,
+            Some(std::time::Duration::from_millis(300))
+        );
+        assert_eq!(raw.lines[0].retries, 1);
+        assert_eq!(raw.gateway.command_ttl, std::time::Duration::from_secs(300));
+    }
+
+    #[test]
+    fn lists_every_unknown_key_with_its_place() {
+        let text = MINIMAL
+            .replace("client_id", "colour = 1\nclient_id")
+            .replace("poll_interval", "adress = 3\npoll_interval")
+            .replace("[[lines]]", "typo = true\n[[lines]]");
+        let problems = load_str(&text).unwrap_err();
+        let places: Vec<&str> = problems.0.iter().map(|p| p.place.as_str()).collect();
+        assert_eq!(
+            places,
+            ["mqtt.colour", "mqtt.typo", "lines[0].devices[0].adress"],
+            "{problems}"
+        );
+    }
+
+    #[test]
+    fn environment_overrides_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.toml");
+        std::fs::write(&path, MINIMAL).unwrap();
+        let env = HashMap::from([
+            ("RTU2MQTT__MQTT__PASSWORD".to_string(), "1e5".to_string()),
+            ("RTU2MQTT__MQTT__USERNAME".to_string(), "gw".to_string()),
+            ("RTU2MQTT__MQTT__KEEP_ALIVE".to_string(), "45s".to_string()),
+            (
+                "RTU2MQTT__GATEWAY__JSON_VIEW".to_string(),
+                "true".to_string(),
+            ),
+            ("RTU2MQTT_CONFIG".to_string(), "/elsewhere".to_string()),
+        ]);
+        let raw = load_file_with_env(&path, Some(env)).unwrap();
+        // Text stays text: a password that looks like a number is not reformatted.
+        assert_eq!(raw.mqtt.password.as_deref(), Some("1e5"));
+        assert_eq!(raw.mqtt.username.as_deref(), Some("gw"));
+        assert_eq!(raw.mqtt.keep_alive, std::time::Duration::from_secs(45));
+        assert!(raw.gateway.json_view);
+    }
+
+    #[test]
+    fn a_missing_file_and_bad_toml_are_reported() {
+        let missing = load_file_with_env(Path::new("/nonexistent/rtu2mqtt.toml"), None);
+        assert!(missing.unwrap_err().to_string().contains("cannot read"));
+        assert!(load_str("[mqtt\nurl=").is_err());
+        let wrong_type = load_str(&MINIMAL.replace("address = 0x81", "address = \"one\""));
+        assert!(wrong_type.unwrap_err().to_string().contains("address"));
+    }
+}

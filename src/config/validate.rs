@@ -713,3 +713,73 @@ fn resolve_profile(spec: &str, base: &Path) -> Result<Profile, String> {
     let _ = base;
     Err(format!("unknown profile {spec:?}"))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn broker_urls() {
+        assert_eq!(
+            parse_broker_url("mqtt://127.0.0.1:1883"),
+            Ok(BrokerEndpoint {
+                host: "127.0.0.1".into(),
+                port: 1883,
+                tls: false
+            })
+        );
+        assert_eq!(
+            parse_broker_url("mqtts://broker.example").map(|e| (e.port, e.tls)),
+            Ok((8883, true))
+        );
+        assert_eq!(
+            parse_broker_url("mqtt://[::1]:1884").map(|e| (e.host, e.port)),
+            Ok(("::1".to_string(), 1884))
+        );
+        for bad in [
+            "tcp://host:1883",
+            "mqtt://",
+            "mqtt://host:0",
+            "mqtt://host:99999",
+            "mqtt://user:pw@host",
+            "mqtt://host/path",
+            "mqtt://[::1",
+        ] {
+            assert!(parse_broker_url(bad).is_err(), "{bad} accepted");
+        }
+    }
+
+    #[test]
+    fn topic_prefixes() {
+        for good in ["plant", "site1/plant", "a-b_c"] {
+            assert_eq!(topic_prefix_problem(good), None, "{good}");
+        }
+        for bad in [
+            "", "pl+ant", "plant/#", "nul\0", "$SYS", "/plant", "plant/", "a//b",
+        ] {
+            assert!(topic_prefix_problem(bad).is_some(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn names() {
+        assert!(is_valid_name("dust_collector"));
+        assert!(is_valid_name("line-a"));
+        for bad in ["", "Dust", "a b", "a/b", "a+", "ä", &"x".repeat(65)] {
+            assert!(!is_valid_name(bad), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn password_file_must_not_be_world_readable() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("password");
+        std::fs::write(&path, "s3cret\n").unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644)).unwrap();
+        let error = read_password_file(&path).unwrap_err();
+        assert!(error.contains("0644"), "{error}");
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o640)).unwrap();
+        assert_eq!(read_password_file(&path).unwrap(), "s3cret");
+    }
+}
