@@ -538,6 +538,20 @@ impl Bridge {
             .collect()
     }
 
+    /// Renders the Prometheus text for the metrics endpoint from live line statistics.
+    pub fn metrics_renderer(&self) -> prometheus::Render {
+        let lines: Vec<_> = self
+            .lines
+            .iter()
+            .map(|line| line.stats_rx.clone())
+            .collect();
+        Arc::new(move || {
+            let stats: Vec<LineStats> = lines.iter().map(|rx| rx.borrow().clone()).collect();
+            // PENDING: the metrics module's renderer with the bridge's counters.
+            format!("rtu2mqtt_lines {}\n", stats.len())
+        })
+    }
+
     fn publish_stats(&mut self) {
         let doc = stats::gateway_stats_json(
             &self.settings.client_id,

@@ -75,10 +75,19 @@ pub enum FieldKind {
     Bool,
     /// A button: written once when pressed, never a state to hold.
     Momentary,
-    Integer { min: i64, max: i64 },
+    Integer {
+        min: i64,
+        max: i64,
+    },
     /// A fixed-point number with `precision` decimals.
-    Decimal { min: f64, max: f64, precision: u8 },
-    Enum { options: Vec<String> },
+    Decimal {
+        min: f64,
+        max: f64,
+        precision: u8,
+    },
+    Enum {
+        options: Vec<String>,
+    },
     Text,
 }
 

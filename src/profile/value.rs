@@ -6,7 +6,10 @@ pub enum Value {
     Bool(bool),
     Int(i64),
     /// A fixed-point number: `scaled / 10^precision`, kept exact (BCD 12.34 is 1234, 2).
-    Decimal { scaled: i64, precision: u8 },
+    Decimal {
+        scaled: i64,
+        precision: u8,
+    },
     /// An enumeration word (`opening`).
     Enum(String),
     Text(String),

@@ -42,7 +42,11 @@ pub fn expected_answer_len(request: &Request) -> usize {
 }
 
 /// Decodes a complete answer frame to `request` sent to `slave`.
-pub fn decode_answer(slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Answer, DecodeError> {
+pub fn decode_answer(
+    slave: SlaveId,
+    request: &Request,
+    frame: &[u8],
+) -> Result<Answer, DecodeError> {
     todo!("rtu helper")
 }
 

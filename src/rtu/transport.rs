@@ -28,9 +28,16 @@ pub struct SerialSettings {
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
     #[error("cannot open {path}: {source}")]
-    Open { path: String, source: std::io::Error },
+    Open {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: {setting} refused by the port: {source}")]
-    SettingRefused { path: String, setting: &'static str, source: std::io::Error },
+    SettingRefused {
+        path: String,
+        setting: &'static str,
+        source: std::io::Error,
+    },
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
 }
