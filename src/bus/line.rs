@@ -281,6 +281,7 @@ impl Line {
                 let options = MasterOptions {
                     echo: self.spec.echo,
                     broadcast_turnaround: self.spec.broadcast_turnaround,
+                    ..MasterOptions::default()
                 };
                 self.master = Some(Master::new(port, self.timing, options));
                 if self.stats.port_failures > 0 {
@@ -689,6 +690,7 @@ impl Line {
         stats.exceptions = counters.exceptions;
         stats.late_answers = counters.late_answers;
         stats.stray_bytes = counters.stray_bytes;
+        stats.wrong_address = counters.wrong_address;
         stats.wire_time = counters.wire_time;
         self.load_samples.push_back((now, counters.wire_time));
         while self
@@ -818,6 +820,7 @@ fn add_counters(a: WireCounters, b: WireCounters) -> WireCounters {
         exceptions: a.exceptions + b.exceptions,
         late_answers: a.late_answers + b.late_answers,
         stray_bytes: a.stray_bytes + b.stray_bytes,
+        wrong_address: a.wrong_address + b.wrong_address,
         wire_time: a.wire_time + b.wire_time,
     }
 }

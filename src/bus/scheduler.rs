@@ -7,8 +7,9 @@
 //!    commands for the others).
 //! 2. Polls are served earliest due first. Every block has its own due instant (fast blocks on
 //!    the device's poll interval, slow blocks on the slow interval); after a poll the block is
-//!    due again one interval after it was *due* (no drift); periods missed while the line was
-//!    held up are skipped, so a line that fell behind does not burst to catch up. Ties go to the
+//!    due again one interval after it was *due* (no drift); when the line fell behind that,
+//!    one interval after the poll started, so missed periods are skipped and never caught up
+//!    in a burst. Ties go to the
 //!    device served least recently, which makes back-to-back polling (interval 0) round-robin.
 //! 3. An offline device has no polls, only a probe (its cheapest block) on the back-off
 //!    schedule of [`super::health`]. That bounds what a dead device costs the line and it can
@@ -62,22 +63,24 @@ struct DeviceSlot {
     block_due: Vec<Instant>,
     /// Consecutive busy answers per block.
     busy_count: Vec<u32>,
+    /// When each block's last poll was handed out.
+    started: Vec<Instant>,
     health: DeviceHealth,
     /// Serial number of the last time the device was served: the fairness tie-breaker.
     last_served: u64,
 }
 
-/// The first instant `due + k·interval` (k ≥ 1) that is not before `now`: the cadence keeps
-/// its phase, and periods missed while the line was held up are skipped, not caught up.
-fn next_due_after(due: Instant, interval: Duration, now: Instant) -> Instant {
+/// When a block polled at `started` (it was due at `due`) is due again, the poll having ended
+/// at `now`: one interval after it was due, so the cadence does not drift; when the line fell
+/// behind that, one interval after the poll started (missed periods are skipped, not caught up
+/// in a burst), and never in the past. A device whose interval is shorter than a transaction
+/// is thus polled back to back with no idle gap.
+fn next_due_after(due: Instant, interval: Duration, started: Instant, now: Instant) -> Instant {
     let next = due + interval;
-    if next >= now || interval.is_zero() {
-        return next.max(now);
+    if next >= now {
+        return next;
     }
-    let behind = now.duration_since(next).as_nanos();
-    let periods = behind.div_ceil(interval.as_nanos());
-    let skip = u32::try_from(periods).unwrap_or(u32::MAX);
-    next + interval.saturating_mul(skip)
+    (started + interval).max(now)
 }
 
 /// The scheduler of one line. `C` is whatever the line keeps per queued command.
@@ -98,6 +101,7 @@ impl<C> Scheduler<C> {
                 DeviceSlot {
                     block_due: vec![ready_at; plan.blocks.len()],
                     busy_count: vec![0; plan.blocks.len()],
+                    started: vec![ready_at; plan.blocks.len()],
                     plan,
                     ready_at,
                     health: DeviceHealth::new(policy),
@@ -174,6 +178,13 @@ impl<C> Scheduler<C> {
         match best {
             Some((due, _, device, block, probe)) if due <= now => {
                 self.serve(device);
+                if let Some(started) = self
+                    .devices
+                    .get_mut(device)
+                    .and_then(|slot| slot.started.get_mut(block))
+                {
+                    *started = now;
+                }
                 if probe {
                     Due::Probe { device, block }
                 } else {
@@ -213,8 +224,9 @@ impl<C> Scheduler<C> {
         if let Some(count) = slot.busy_count.get_mut(block) {
             *count = 0;
         }
+        let started = slot.started.get(block).copied().unwrap_or(now);
         if let Some(due) = slot.block_due.get_mut(block) {
-            *due = next_due_after(*due, interval, now);
+            *due = next_due_after(*due, interval, started, now);
         }
         match outcome {
             PollOutcome::Answered => {

@@ -43,6 +43,8 @@ pub struct LineStats {
     pub exceptions: u64,
     pub late_answers: u64,
     pub stray_bytes: u64,
+    /// Frames from another address heard while waiting for an answer.
+    pub wrong_address: u64,
     /// Share of wall time the line carried frames and mandatory silences, over the last
     /// measuring window (0.0–1.0).
     pub bus_load: f64,
@@ -71,6 +73,7 @@ impl LineStats {
             exceptions: 0,
             late_answers: 0,
             stray_bytes: 0,
+            wrong_address: 0,
             bus_load: 0.0,
             wire_time: Duration::ZERO,
             commands: 0,
