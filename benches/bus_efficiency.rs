@@ -232,6 +232,11 @@ async fn measure(baud: u32, profile: Arc<Profile>) -> anyhow::Result<Figures> {
         .unwrap_or_default();
     let line_wire = stats_after.wire_time.saturating_sub(stats_before.wire_time);
     println!(
+        "{baud} baud: the line's own turnaround between back-to-back transactions: mean {:.1?}, worst {:.1?}",
+        stats_after.turnaround_mean.unwrap_or_default(),
+        stats_after.turnaround_worst.unwrap_or_default()
+    );
+    println!(
         "{baud} baud: {} transactions, wire+silences {:.3?} of {:.3?} wall; the line's own wire-time counter: {:.3?}",
         records.len(),
         wire,

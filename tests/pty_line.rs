@@ -592,6 +592,9 @@ async fn a_command_overtakes_queued_polls() {
     let stats = running.handle.stats_rx.borrow().clone();
     assert_eq!(stats.commands, 1);
     assert!(stats.last_command_latency.is_some());
+    // Polled back to back: the line measured its own time between transactions.
+    assert!(stats.turnaround_mean.is_some());
+    assert!(stats.turnaround_worst >= stats.turnaround_mean);
     running.stop().await;
 }
 
