@@ -248,6 +248,19 @@ impl Line {
         }
     }
 
+    /// Hands an event to the bridge. Waits when the bridge is behind (nothing is dropped), but
+    /// not past a shutdown; a bridge that is gone is not an error of the line.
+    async fn emit(&mut self, event: LineEvent) {
+        let events_tx = &self.events_tx;
+        let shutdown = &mut self.shutdown;
+        tokio::select! {
+            // A free place in the queue always wins, even during shutdown.
+            biased;
+            _ = events_tx.send(event) => {}
+            () = shutdown.fired() => {}
+        }
+    }
+
     fn accept_commands(&mut self, now: Instant) {
         while self.commands_open {
             match self.command_rx.try_recv() {
@@ -365,7 +378,7 @@ impl Line {
             device: spec.name.clone(),
             online,
         };
-        let _ = self.events_tx.send(event).await;
+        self.emit(event).await;
     }
 
     async fn run_poll(&mut self, device: usize, block: usize, attempts: u32) {
@@ -472,7 +485,7 @@ impl Line {
                 device: name,
                 values,
             };
-            let _ = self.events_tx.send(event).await;
+            self.emit(event).await;
         }
     }
 
@@ -645,7 +658,7 @@ impl Line {
                 device: name,
                 values,
             };
-            let _ = self.events_tx.send(event).await;
+            self.emit(event).await;
         }
     }
 
