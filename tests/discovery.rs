@@ -361,6 +361,13 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
     assert_eq!(gear["entity_category"], "config");
     assert!(component(&document, "alarm").get("command_topic").is_none());
     assert_eq!(component(&document, "level")["p"], "number");
+
+    // A boolean shown as a button must send what the gateway accepts for a boolean.
+    let mut reset = field("reset", FieldKind::Bool, true);
+    reset.ha.component = Some("button".to_string());
+    let (_, document) = device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[reset]);
+    assert_eq!(component(&document, "reset")["p"], "button");
+    assert_eq!(component(&document, "reset")["payload_press"], "ON");
 }
 
 #[test]

@@ -368,7 +368,14 @@ pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Jso
             put("payload_off", json!(PAYLOAD_OFF));
         }
         Platform::Button => {
-            put("payload_press", json!(PAYLOAD_PRESS));
+            // A boolean shown as a button (by a hint) takes `ON`; `PRESS` is for momentary
+            // fields only.
+            let press = if field.kind == FieldKind::Bool {
+                PAYLOAD_ON
+            } else {
+                PAYLOAD_PRESS
+            };
+            put("payload_press", json!(press));
         }
         Platform::Number => {
             let (min, max, step) = match &field.kind {
