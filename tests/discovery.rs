@@ -77,6 +77,7 @@ fn valve_fields() -> Vec<FieldInfo> {
         field("pid_invalid_flags", int(0, 127), false),
         field("measured_1", decimal(0.0, 9999.99, 2), false),
         field("setpoint", decimal(0.0, 9999.99, 2), true),
+        field("high_alarm_1", decimal(0.0, 9999.99, 2), true),
     ]
 }
 
@@ -321,7 +322,20 @@ fn entity_categories_mark_identity_data_as_diagnostic_and_leave_live_values_prim
     assert!(component(&valve, "pid_invalid_flags")
         .get("state_class")
         .is_none());
-    for name in ["opening", "measured_1", "jammed", "mode"] {
+    assert_eq!(
+        component(&valve, "high_alarm_1")["entity_category"],
+        "config"
+    );
+    let dust = document_of("dust_collector");
+    assert_eq!(
+        component(&dust, "pulse_interval")["entity_category"],
+        "config"
+    );
+    assert!(component(&dust, "gear").get("entity_category").is_none());
+    assert!(component(&dust, "temperature_alarm")
+        .get("entity_category")
+        .is_none());
+    for name in ["opening", "measured_1", "jammed", "mode", "setpoint"] {
         assert!(
             component(&valve, name).get("entity_category").is_none(),
             "{name}"

@@ -283,11 +283,38 @@ fn name_has_word(name: &str, words: &[&str]) -> bool {
     name.split(['_', '-']).any(|part| words.contains(&part))
 }
 
-/// `entity_category` when the profile gives none: `diagnostic` for identity and health data
-/// (versions, serial number, flag words, address and baud settings); otherwise none: live
-/// values and controls are primary entities. Settings are marked `config` by the profile.
+/// Words in a writable number's name that mark it as a setting (configured once, not operated).
+const SETTING_WORDS: &[&str] = &[
+    "alarm",
+    "ratio",
+    "scale",
+    "interval",
+    "duration",
+    "period",
+    "time",
+    "limit",
+    "threshold",
+    "offset",
+    "delay",
+    "calibration",
+];
+
+/// `entity_category` when the profile gives none: identity and health data (versions, serial
+/// number, flag words, address and baud code) is `diagnostic` when read-only and `config` when
+/// writable; writable numbers named like settings (alarm limits, ratios, full scales, intervals,
+/// durations) are `config`. Live values and controls stay primary entities.
 fn default_entity_category(field: &FieldInfo) -> Option<&'static str> {
-    name_has_word(&field.name, DIAGNOSTIC_WORDS).then_some("diagnostic")
+    let identity = name_has_word(&field.name, DIAGNOSTIC_WORDS);
+    if identity {
+        return Some(if field.writable {
+            "config"
+        } else {
+            "diagnostic"
+        });
+    }
+    let setting =
+        field.writable && is_numeric(&field.kind) && name_has_word(&field.name, SETTING_WORDS);
+    setting.then_some("config")
 }
 
 /// `device_class` from a unit when the profile gives none. Only classes valid for both
