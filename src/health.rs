@@ -2,7 +2,7 @@
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
 //! What enters: each line's [`LineStats`] (its `heartbeat` is refreshed on every turn of the
-//! line task) and the MQTT loop's [`LoopHeartbeat`]. What leaves: `READY=1` / `WATCHDOG=1` /
+//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels). What leaves: `READY=1` / `WATCHDOG=1` /
 //! `STATUS=` to systemd, a JSON [`StatusReport`] written atomically every few seconds, and,
 //! when a loop has been stuck longer than [`HealthSettings::stall_limit`], a shutdown followed
 //! by a non-zero exit ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so
@@ -14,8 +14,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::mpsc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
@@ -78,75 +77,6 @@ mod optional_path {
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<PathBuf>, D::Error> {
         let text = String::deserialize(d)?;
         Ok((!text.is_empty()).then(|| PathBuf::from(text)))
-    }
-}
-
-/// The MQTT loop's proof of life, shared between the loop (which beats) and the watchdog
-/// thread (which reads). Cheap to clone; lock-free.
-#[derive(Debug, Clone)]
-pub struct LoopHeartbeat {
-    inner: Arc<HeartbeatInner>,
-}
-
-#[derive(Debug)]
-struct HeartbeatInner {
-    origin: Instant,
-    /// Milliseconds since `origin` of the last beat.
-    last_beat_ms: AtomicU64,
-    connected: AtomicBool,
-    /// Milliseconds since `origin` of the last change of `connected`.
-    connection_changed_ms: AtomicU64,
-    /// The loop's promise: it turns at least this often (the MQTT keep-alive for a rumqttc
-    /// loop, whose `poll` returns at least once per keep-alive while connected).
-    max_quiet: Duration,
-}
-
-impl LoopHeartbeat {
-    /// A heartbeat for a loop that turns at least every `max_quiet`; it starts beaten and
-    /// disconnected.
-    pub fn new(max_quiet: Duration) -> Self {
-        LoopHeartbeat {
-            inner: Arc::new(HeartbeatInner {
-                origin: Instant::now(),
-                last_beat_ms: AtomicU64::new(0),
-                connected: AtomicBool::new(false),
-                connection_changed_ms: AtomicU64::new(0),
-                max_quiet,
-            }),
-        }
-    }
-
-    /// Called on every turn of the loop.
-    pub fn beat(&self) {
-        self.inner
-            .last_beat_ms
-            .store(self.elapsed_ms(), Ordering::Relaxed);
-    }
-
-    /// Called on ConnAck (true) and on a connection error (false).
-    pub fn set_connected(&self, connected: bool) {
-        let was = self.inner.connected.swap(connected, Ordering::Relaxed);
-        if was != connected {
-            self.inner
-                .connection_changed_ms
-                .store(self.elapsed_ms(), Ordering::Relaxed);
-        }
-        self.beat();
-    }
-
-    /// What the watchdog reads.
-    pub fn snapshot(&self) -> LoopSnapshot {
-        let at = |ms: u64| self.inner.origin + Duration::from_millis(ms);
-        LoopSnapshot {
-            last_beat: at(self.inner.last_beat_ms.load(Ordering::Relaxed)),
-            connected: self.inner.connected.load(Ordering::Relaxed),
-            connection_changed: at(self.inner.connection_changed_ms.load(Ordering::Relaxed)),
-            max_quiet: self.inner.max_quiet,
-        }
-    }
-
-    fn elapsed_ms(&self) -> u64 {
-        u64::try_from(self.inner.origin.elapsed().as_millis()).unwrap_or(u64::MAX)
     }
 }
 
@@ -401,7 +331,17 @@ pub fn systemd_watchdog_period() -> Option<Duration> {
 pub struct Watchdog {
     settings: HealthSettings,
     lines: Vec<watch::Receiver<LineStats>>,
-    mqtt: LoopHeartbeat,
+    mqtt: MqttProbe,
+}
+
+/// Where the watchdog reads the MQTT loop's life.
+#[derive(Debug, Clone)]
+pub struct MqttProbe {
+    /// Refreshed on every turn of the loop.
+    pub heartbeat: watch::Receiver<Instant>,
+    pub connected: watch::Receiver<bool>,
+    /// The loop's promise: it turns at least this often.
+    pub max_quiet: Duration,
 }
 
 /// A running [`Watchdog`]; [`WatchdogHandle::stop`] ends it and removes the status file.
@@ -411,7 +351,7 @@ pub struct WatchdogHandle {
 }
 
 impl Watchdog {
-    pub fn new(settings: HealthSettings, mqtt: LoopHeartbeat) -> Self {
+    pub fn new(settings: HealthSettings, mqtt: MqttProbe) -> Self {
         Watchdog {
             settings,
             lines: Vec::new(),
@@ -444,16 +384,24 @@ impl Watchdog {
         let pid = std::process::id();
         let mut file_warned = false;
         let mut was_healthy = true;
+        // The connection state's last change, as seen by this thread (to the interval).
+        let mut connected = *self.mqtt.connected.borrow();
+        let mut connection_changed = Instant::now();
         loop {
+            let now = Instant::now();
+            let connected_now = *self.mqtt.connected.borrow();
+            if connected_now != connected {
+                connected = connected_now;
+                connection_changed = now;
+            }
+            let mqtt = LoopSnapshot {
+                last_beat: *self.mqtt.heartbeat.borrow(),
+                connected,
+                connection_changed,
+                max_quiet: self.mqtt.max_quiet,
+            };
             let lines: Vec<LineStats> = self.lines.iter().map(|rx| rx.borrow().clone()).collect();
-            let assessment = assess(
-                Instant::now(),
-                wall_clock_ms(),
-                pid,
-                &lines,
-                &self.mqtt.snapshot(),
-                &self.settings,
-            );
+            let assessment = assess(now, wall_clock_ms(), pid, &lines, &mqtt, &self.settings);
             let report = &assessment.report;
             if let Some(path) = &self.settings.status_file {
                 match write_status_file(path, report) {
@@ -745,27 +693,21 @@ mod tests {
     }
 
     #[test]
-    fn heartbeat_tracks_connection_changes() {
-        let heartbeat = LoopHeartbeat::new(Duration::from_secs(30));
-        assert!(!heartbeat.snapshot().connected);
-        heartbeat.set_connected(true);
-        let snapshot = heartbeat.snapshot();
-        assert!(snapshot.connected);
-        assert_eq!(snapshot.max_quiet, Duration::from_secs(30));
-        assert!(snapshot.last_beat >= snapshot.connection_changed);
-    }
-
-    #[test]
     fn watchdog_writes_then_removes_the_status_file() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("health");
         let mut health = settings();
         health.status_file = Some(path.clone());
         health.interval = Duration::from_millis(100);
-        let heartbeat = LoopHeartbeat::new(Duration::from_secs(30));
-        heartbeat.set_connected(true);
+        let (_heartbeat_tx, heartbeat) = watch::channel(Instant::now());
+        let (_connected_tx, connected) = watch::channel(true);
+        let probe = MqttProbe {
+            heartbeat,
+            connected,
+            max_quiet: Duration::from_secs(1),
+        };
         let (_stats_tx, stats_rx) = watch::channel(line("a", Instant::now()));
-        let mut watchdog = Watchdog::new(health, heartbeat);
+        let mut watchdog = Watchdog::new(health, probe);
         watchdog.watch_line(stats_rx);
         let (trigger, _token) = crate::shutdown::channel();
         let handle = watchdog.spawn(trigger).unwrap();
