@@ -67,6 +67,10 @@ enum Act {
     EchoThenAnswer,
     /// Sends nothing (a broadcast).
     Ignore,
+    /// Sends these bytes instead of an answer.
+    Raw(Vec<u8>),
+    /// Sends these bytes and the answer right behind them, as one burst.
+    NoiseThenAnswer(Vec<u8>),
 }
 
 /// What the device saw of one request.
@@ -95,7 +99,16 @@ fn answer_for(sequence: u16, request: &Request) -> Response {
 }
 
 /// Runs the script on `port`: one act per request, then returns what it saw.
-fn spawn_device(mut port: Port, script: Vec<Act>) -> JoinHandle<Vec<Seen>> {
+/// The device's end is handed back with what it saw, so it stays open until the master is
+/// done: closing a pty end can make the other end's pending input unreadable (EIO).
+type DeviceRun = JoinHandle<(Vec<Seen>, Port)>;
+
+/// What the device saw, once its script is done; closes its end.
+async fn seen_by(device: DeviceRun) -> Vec<Seen> {
+    device.await.unwrap().0
+}
+
+fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
     tokio::spawn(async move {
         let t3_5 = timing().t3_5;
         let mut seen = Vec::new();
@@ -121,7 +134,10 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> JoinHandle<Vec<Seen>> {
                 first_byte_at.get_or_insert(at);
                 frame.extend_from_slice(&buf[..count]);
             }
-            let silence_before = last_sent_drained.map(|drained| first_byte_at.unwrap() - drained);
+            // None when the device's own last transmission ended after this request began to
+            // arrive (it talked over the master: nothing the master could have heard first).
+            let silence_before = last_sent_drained
+                .and_then(|drained| first_byte_at.unwrap().checked_duration_since(drained));
             let (slave, request) = codec::decode_request(&frame).unwrap();
             seen.push(Seen {
                 frame: frame.clone(),
@@ -154,7 +170,7 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> JoinHandle<Vec<Seen>> {
                 Act::Truncated(keep) => Some(send(&mut port, answer[..keep].to_vec()).await),
                 Act::AnswerThenGarbage(garbage, pause) => {
                     let drained = send(&mut port, answer).await;
-                    tokio::time::sleep(pause).await;
+                    sleep_until_precise(drained + pause).await;
                     Some(drained.max(send(&mut port, garbage).await))
                 }
                 Act::WrongAddressFirst(other) => {
@@ -163,6 +179,12 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> JoinHandle<Vec<Seen>> {
                     sleep_until_precise(drained + t3_5).await;
                     Some(send(&mut port, answer).await)
                 }
+                Act::NoiseThenAnswer(mut noise) => {
+                    noise.extend_from_slice(&answer);
+                    Some(send(&mut port, noise).await)
+                }
+                Act::Raw(bytes) if bytes.is_empty() => None,
+                Act::Raw(bytes) => Some(send(&mut port, bytes).await),
                 Act::EchoThenAnswer => {
                     send(&mut port, frame).await;
                     Some(send(&mut port, answer).await)
@@ -172,7 +194,7 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> JoinHandle<Vec<Seen>> {
                 last_sent_drained = drained;
             }
         }
-        seen
+        (seen, port)
     })
 }
 
@@ -180,7 +202,7 @@ async fn send(port: &mut Port, bytes: Vec<u8>) -> Instant {
     port.write_frame(&bytes).await.unwrap()
 }
 
-fn connect(script: Vec<Act>, options: MasterOptions) -> (Master, JoinHandle<Vec<Seen>>) {
+fn connect(script: Vec<Act>, options: MasterOptions) -> (Master, DeviceRun) {
     let (near, far) = SerialStream::pair().unwrap();
     let master = Master::new(
         Port::from_stream(near, &settings("master-pty")).unwrap(),
@@ -219,7 +241,7 @@ async fn normal_answer() {
     let (mut master, device) = connect(vec![Act::Answer], MasterOptions::default());
     let response = master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
     assert_eq!(response, Response::HoldingRegisters(vec![1, 1]));
-    let seen = device.await.unwrap();
+    let seen = seen_by(device).await;
     assert_eq!(
         seen[0].frame,
         codec::encode_request(DEVICE, &read_two()).unwrap()
@@ -258,7 +280,7 @@ async fn exception_answer() {
         Response::HoldingRegisters(vec![2, 2])
     );
     assert_eq!(master.counters().exceptions, 1);
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -274,7 +296,7 @@ async fn timeout_then_recovery() {
     );
     let counters = master.counters();
     assert_eq!((counters.timeouts, counters.late_answers), (1, 0));
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -297,7 +319,7 @@ async fn late_answer_is_counted_and_never_taken_for_the_next() {
         ),
         (1, 1, 0)
     );
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -310,7 +332,7 @@ async fn bad_crc() {
         Response::HoldingRegisters(vec![2, 2])
     );
     assert_eq!(master.counters().crc_errors, 1);
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -329,7 +351,7 @@ async fn truncated_answer() {
         Response::HoldingRegisters(vec![2, 2])
     );
     assert_eq!(master.counters().truncated, 1);
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -353,16 +375,16 @@ async fn garbage_before_a_request_is_flushed_and_counted() {
     );
     let counters = master.counters();
     assert_eq!((counters.stray_bytes, counters.late_answers), (3, 0));
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
 async fn garbage_during_the_silence_restarts_it() {
-    // The garbage comes 2 ms after the answer, while the master is already waiting out t3.5
+    // The garbage comes 1 ms after the answer, while the master is already waiting out t3.5
     // for its next request: the device must still see t3.5 after the garbage.
     let (mut master, device) = connect(
         vec![
-            Act::AnswerThenGarbage(vec![0x55], Duration::from_millis(2)),
+            Act::AnswerThenGarbage(vec![0x55], Duration::from_millis(1)),
             Act::Answer,
         ],
         MasterOptions::default(),
@@ -373,7 +395,7 @@ async fn garbage_during_the_silence_restarts_it() {
         Response::HoldingRegisters(vec![2, 2])
     );
     assert_eq!(master.counters().stray_bytes, 1);
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -392,7 +414,69 @@ async fn answer_from_another_address_is_ignored() {
     );
     let counters = master.counters();
     assert_eq!((counters.wrong_address, counters.unexpected), (1, 0));
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn noise_just_before_the_answer_is_skipped() {
+    // A turn-around glitch (0x00, 0xFF) and a byte that is our address but not followed by our
+    // function: both dropped, counted as stray, and the answer behind them is taken.
+    let (mut master, device) = connect(
+        vec![
+            Act::NoiseThenAnswer(vec![0x00, 0xFF]),
+            Act::NoiseThenAnswer(vec![DEVICE]),
+        ],
+        MasterOptions::default(),
+    );
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![1, 1])
+    );
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![2, 2])
+    );
+    let counters = master.counters();
+    assert_eq!(
+        (
+            counters.stray_bytes,
+            counters.unexpected,
+            counters.crc_errors
+        ),
+        (3, 0, 0)
+    );
+    assert_silences(&seen_by(device).await);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn answer_with_another_function_is_unexpected() {
+    let other_function = {
+        let mut frame = vec![DEVICE, 0x04, 0x04, 0x00, 0x01, 0x00, 0x01];
+        let crc = rtu2mqtt::rtu::crc::crc16(&frame);
+        frame.extend(crc.to_le_bytes());
+        frame
+    };
+    let (mut master, device) = connect(
+        vec![Act::Raw(other_function), Act::Answer],
+        MasterOptions::default(),
+    );
+    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    assert!(
+        matches!(
+            result,
+            Err(Error::UnexpectedReply(codec::DecodeError::WrongFunction {
+                expected: 0x03,
+                found: 0x04
+            }))
+        ),
+        "{result:?}"
+    );
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![2, 2])
+    );
+    assert_eq!(master.counters().unexpected, 1);
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -417,7 +501,7 @@ async fn echo_is_stripped_when_configured() {
             quantity: 3
         }
     );
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -436,7 +520,7 @@ async fn unannounced_echo_is_detected_and_stripped() {
     );
     let counters = master.counters();
     assert_eq!((counters.unexpected, counters.stray_bytes), (0, 0));
-    assert_silences(&device.await.unwrap());
+    assert_silences(&seen_by(device).await);
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -447,7 +531,7 @@ async fn silence_of_t3_5_before_every_request_in_a_burst() {
         let response = master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
         assert_eq!(response, Response::HoldingRegisters(vec![sequence; 2]));
     }
-    let seen = device.await.unwrap();
+    let seen = seen_by(device).await;
     assert_eq!(seen.len(), 12);
     assert_silences(&seen);
     let silences: Vec<_> = seen
@@ -479,7 +563,7 @@ async fn broadcast_keeps_the_line_silent_for_the_turnaround() {
         master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
         Response::HoldingRegisters(vec![2, 2])
     );
-    let seen = device.await.unwrap();
+    let seen = seen_by(device).await;
     assert_eq!(seen[0].frame, codec::encode_request(0, &write).unwrap());
 }
 
@@ -498,7 +582,7 @@ async fn out_of_spec_request_is_refused_before_the_wire() {
     // The device sees only the valid request that follows.
     master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
     assert_eq!(
-        device.await.unwrap()[0].frame,
+        seen_by(device).await[0].frame,
         codec::encode_request(DEVICE, &read_two()).unwrap()
     );
 }
@@ -523,7 +607,7 @@ async fn frame_recorder_writes_one_line_per_frame() {
     let recording = SharedBuffer::default();
     master.record_frames_to(Box::new(recording.clone()));
     master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
-    device.await.unwrap();
+    seen_by(device).await;
     let text = String::from_utf8(recording.0.lock().unwrap().clone()).unwrap();
     let lines: Vec<Vec<&str>> = text.lines().map(|line| line.split(' ').collect()).collect();
     assert_eq!(lines.len(), 2, "{text}");
@@ -533,5 +617,31 @@ async fn frame_recorder_writes_one_line_per_frame() {
         let (seconds, micros) = line[0].split_once('.').unwrap();
         assert!(seconds.parse::<u64>().unwrap() > 1_600_000_000);
         assert_eq!(micros.len(), 6);
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 24, ..Default::default() })]
+
+    /// Whatever a device sends back, the master returns (no panic, no hang) and the next
+    /// transaction gets its own answer.
+    #[test]
+    fn any_answer_bytes_leave_the_master_working(
+        answer in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..40),
+        our_address_first in proptest::prelude::any::<bool>(),
+    ) {
+        let mut answer = answer;
+        if our_address_first && !answer.is_empty() {
+            answer[0] = DEVICE;
+        }
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        runtime.block_on(async {
+            let short = Duration::from_millis(60);
+            let (mut master, device) = connect(vec![Act::Raw(answer), Act::Answer], MasterOptions::default());
+            let _ = master.transact(DEVICE, &read_two(), short).await;
+            let next = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+            assert_eq!(next.unwrap(), Response::HoldingRegisters(vec![2, 2]));
+            assert_silences(&seen_by(device).await);
+        });
     }
 }

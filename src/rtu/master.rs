@@ -86,7 +86,8 @@ pub struct WireCounters {
     pub exceptions: u64,
     /// Answers (or parts) that arrived after their request's timeout.
     pub late_answers: u64,
-    /// Bytes found on the line before a request was sent.
+    /// Bytes found on the line outside any frame: before a request was sent, or as noise just
+    /// before an answer.
     pub stray_bytes: u64,
     /// Frames from another address heard while waiting for an answer (ignored, as the
     /// serial-line specification says).
@@ -304,6 +305,14 @@ impl Master {
         }
     }
 
+    /// Bytes before an answer that belong to no frame (a transceiver's turn-around glitch,
+    /// a stray byte just as the answer starts): counted as stray and dropped.
+    fn absorb_noise(&mut self, bytes: &[u8], seen: Instant) {
+        let late_window_open = std::mem::replace(&mut self.late_window_open, false);
+        self.absorb_unsolicited(bytes, seen);
+        self.late_window_open = late_window_open;
+    }
+
     /// Writes `frame`, waits for the drain and returns its instant.
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "tx");
@@ -340,6 +349,11 @@ impl Master {
                     tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
                 }
                 received.drain(..sent.len());
+            }
+            if let Some(noise) = noise_before_answer(slave, request.function(), &received) {
+                let rest = received.split_off(noise);
+                self.absorb_noise(&received, last_byte_at);
+                received = rest;
             }
             let framing = self.framing(slave, request, sent, &received);
             if let Framing::Foreign = framing {
@@ -563,4 +577,25 @@ fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
     let frame = received.get(..length)?;
     let (carried, computed) = carried_and_computed(frame)?;
     (carried == computed).then_some(length)
+}
+
+/// How many bytes at the start of `received` are noise before our answer: the head is neither
+/// our answer's (our address, our function or its exception) nor another device's frame
+/// (a known function code), and our answer's head starts further on. `None`: nothing to skip
+/// (yet).
+fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) -> Option<usize> {
+    let ours = |code: u8| code == function.value() || code == function.value() | 0x80;
+    let known = |code: u8| FunctionCode::from_u8(code & 0x7F).is_some();
+    let head_function = *received.get(1)?;
+    let plausible_head = if received[0] == slave {
+        ours(head_function)
+    } else {
+        known(head_function)
+    };
+    if plausible_head {
+        return None;
+    }
+    (1..received.len()).find(|&start| {
+        received[start] == slave && received.get(start + 1).is_none_or(|&code| ours(code))
+    })
 }
