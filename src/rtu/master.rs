@@ -596,6 +596,6 @@ fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) 
         return None;
     }
     (1..received.len()).find(|&start| {
-        received[start] == slave && received.get(start + 1).is_none_or(|&code| ours(code))
+        received[start] == slave && received.get(start + 1).map_or(true, |&code| ours(code))
     })
 }
