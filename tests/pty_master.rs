@@ -69,6 +69,8 @@ enum Act {
     Ignore,
     /// Sends these bytes instead of an answer.
     Raw(Vec<u8>),
+    /// Sends these bytes in pieces without a gap for this long, then nothing.
+    Babble(Duration),
     /// Sends these bytes and the answer right behind them, as one burst.
     NoiseThenAnswer(Vec<u8>),
 }
@@ -182,6 +184,15 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
                 Act::NoiseThenAnswer(mut noise) => {
                     noise.extend_from_slice(&answer);
                     Some(send(&mut port, noise).await)
+                }
+                Act::Babble(duration) => {
+                    let until = Instant::now() + duration;
+                    let mut drained = Instant::now();
+                    while Instant::now() < until {
+                        drained = send(&mut port, vec![0x42; 16]).await;
+                        tokio::time::sleep(Duration::from_millis(1)).await;
+                    }
+                    Some(drained)
                 }
                 Act::Raw(bytes) if bytes.is_empty() => None,
                 Act::Raw(bytes) => Some(send(&mut port, bytes).await),
@@ -476,6 +487,22 @@ async fn answer_with_another_function_is_unexpected() {
         Response::HoldingRegisters(vec![2, 2])
     );
     assert_eq!(master.counters().unexpected, 1);
+    assert_silences(&seen_by(device).await);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn babbling_line_ends_in_timeout_then_recovers() {
+    let (mut master, device) = connect(
+        vec![Act::Babble(TIMEOUT * 2), Act::Answer],
+        MasterOptions::default(),
+    );
+    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![2, 2])
+    );
+    assert!(master.counters().wrong_address > 0);
     assert_silences(&seen_by(device).await);
 }
 

@@ -365,6 +365,16 @@ impl Master {
                     received = rest;
                     continue;
                 }
+                // No frame is longer: a line that babbles without a gap is dropped in pieces,
+                // and the response timeout still ends the wait.
+                if received.len() >= MAX_FRAME_LEN {
+                    self.ignore_foreign_frame(&received);
+                    received.clear();
+                    if Instant::now() >= answer_deadline {
+                        return Err(Error::Timeout(timeout));
+                    }
+                    continue;
+                }
             }
             if let Framing::Complete(length) = framing {
                 let trailing = received.split_off(length);
