@@ -609,3 +609,46 @@ fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) 
         received[start] == slave && received.get(start + 1).map_or(true, |&code| ours(code))
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
+        codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
+    }
+
+    #[test]
+    fn noise_is_found_only_before_our_answer_head() {
+        let ours = answer(0x11, &[1, 2]);
+        let read = FunctionCode::ReadHoldingRegisters;
+        assert_eq!(noise_before_answer(0x11, read, &ours), None);
+        let mut noisy = vec![0x00, 0xFF];
+        noisy.extend_from_slice(&ours);
+        assert_eq!(noise_before_answer(0x11, read, &noisy), Some(2));
+        // Another device's frame is not noise: it is read to its end.
+        let foreign = answer(0x22, &[1, 2]);
+        assert_eq!(noise_before_answer(0x11, read, &foreign), None);
+        // Our address with a wrong function and no answer head behind it: not skipped.
+        assert_eq!(
+            noise_before_answer(0x11, read, &[0x11, 0x04, 0x04, 0x00]),
+            None
+        );
+        // Too little to tell.
+        assert_eq!(noise_before_answer(0x11, read, &[0x00]), None);
+    }
+
+    #[test]
+    fn foreign_frame_is_complete_only_with_its_length_and_crc() {
+        let foreign = answer(0x22, &[7, 8]);
+        assert_eq!(complete_foreign_frame(&foreign[..foreign.len() - 1]), None);
+        let mut followed = foreign.clone();
+        followed.extend_from_slice(&answer(0x11, &[1, 2]));
+        assert_eq!(complete_foreign_frame(&followed), Some(foreign.len()));
+        let mut corrupted = foreign.clone();
+        corrupted[3] ^= 0x01;
+        assert_eq!(complete_foreign_frame(&corrupted), None);
+        let exception = codec::encode_exception(0x22, 0x03, ExceptionCode::IllegalDataAddress);
+        assert_eq!(complete_foreign_frame(&exception), Some(5));
+    }
+}
