@@ -71,6 +71,8 @@ enum Act {
     Raw(Vec<u8>),
     /// Sends these bytes in pieces without a gap for this long, then nothing.
     Babble(Duration),
+    /// Sends the answer's first bytes, pauses, then the rest.
+    PauseMidAnswer(usize, Duration),
     /// Sends these bytes and the answer right behind them, as one burst.
     NoiseThenAnswer(Vec<u8>),
 }
@@ -193,6 +195,11 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
                         tokio::time::sleep(Duration::from_millis(1)).await;
                     }
                     Some(drained)
+                }
+                Act::PauseMidAnswer(split, pause) => {
+                    let drained = send(&mut port, answer[..split].to_vec()).await;
+                    sleep_until_precise(drained + pause).await;
+                    Some(send(&mut port, answer[split..].to_vec()).await)
                 }
                 Act::Raw(bytes) if bytes.is_empty() => None,
                 Act::Raw(bytes) => Some(send(&mut port, bytes).await),
@@ -502,7 +509,49 @@ async fn babbling_line_ends_in_timeout_then_recovers() {
         master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
         Response::HoldingRegisters(vec![2, 2])
     );
-    assert!(master.counters().wrong_address > 0);
+    assert!(master.counters().stray_bytes >= 256);
+    assert_silences(&seen_by(device).await);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn gap_inside_an_answer_follows_the_inter_character_limit() {
+    // Default limit (t1.5 + 5 ms, 6.6 ms at 9600): a 50 ms pause cuts the answer, whose rest
+    // is then discarded as stray before the next request; a 100 ms limit takes it whole.
+    let script = vec![
+        Act::PauseMidAnswer(4, Duration::from_millis(50)),
+        Act::Answer,
+    ];
+    let (mut master, device) = connect(script, MasterOptions::default());
+    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    assert!(
+        matches!(result, Err(Error::Truncated { needed: 9, got: 4 })),
+        "{result:?}"
+    );
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![2, 2])
+    );
+    assert_eq!(
+        (master.counters().truncated, master.counters().stray_bytes),
+        (1, 5)
+    );
+    // No silence check here: the device broke its own frame, so the master rightly sent the
+    // next request after t3.5 of silence while the device was still pausing; the device only
+    // reads that request after its late rest, which the harness cannot tell from a late request.
+    seen_by(device).await;
+
+    let lenient = MasterOptions {
+        inter_char_timeout: Some(Duration::from_millis(100)),
+        ..MasterOptions::default()
+    };
+    let (mut master, device) = connect(
+        vec![Act::PauseMidAnswer(4, Duration::from_millis(50))],
+        lenient,
+    );
+    assert_eq!(
+        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
+        Response::HoldingRegisters(vec![1, 1])
+    );
     assert_silences(&seen_by(device).await);
 }
 

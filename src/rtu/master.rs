@@ -8,6 +8,7 @@ use std::io::Write;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tokio::time::Instant;
+use tracing::Instrument;
 
 use super::clock::{sleep_until_precise, SPIN_WINDOW};
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
@@ -192,11 +193,15 @@ impl Master {
         request: &Request,
         timeout: Duration,
     ) -> Result<Response, Error> {
-        let frame = codec::encode_request(slave, request)?;
-        self.wait_for_silence(timeout).await?;
-        let drained_at = self.send(&frame).await?;
+        let span = tracing::debug_span!(
+            "transaction",
+            port = %self.port.path(),
+            slave,
+            function = ?request.function()
+        );
         let result = self
-            .receive_answer(slave, request, &frame, drained_at, timeout)
+            .exchange(slave, request, timeout)
+            .instrument(span)
             .await;
         match &result {
             Ok(_) => {}
@@ -214,6 +219,20 @@ impl Master {
             Err(Error::Io(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
         }
         result
+    }
+
+    /// Silence, request, answer: the transaction without its accounting.
+    async fn exchange(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Response, Error> {
+        let frame = codec::encode_request(slave, request)?;
+        self.wait_for_silence(timeout).await?;
+        let drained_at = self.send(&frame).await?;
+        self.receive_answer(slave, request, &frame, drained_at, timeout)
+            .await
     }
 
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
@@ -368,7 +387,7 @@ impl Master {
                 // No frame is longer: a line that babbles without a gap is dropped in pieces,
                 // and the response timeout still ends the wait.
                 if received.len() >= MAX_FRAME_LEN {
-                    self.ignore_foreign_frame(&received);
+                    self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
                         return Err(Error::Timeout(timeout));
@@ -401,7 +420,7 @@ impl Master {
             }
             match framing {
                 Framing::Foreign => {
-                    self.ignore_foreign_frame(&received);
+                    self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
                         return Err(Error::Timeout(timeout));
@@ -531,6 +550,19 @@ impl Master {
         self.counters.wrong_address += 1;
         self.took_frame(frame);
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "frame for another address ignored");
+    }
+
+    /// Bytes for another address that never made a whole frame: a frame for another device
+    /// when they start like one (a known function code), noise otherwise.
+    fn drop_unframed(&mut self, bytes: &[u8], seen: Instant) {
+        let starts_like_a_frame = bytes
+            .get(1)
+            .is_some_and(|&code| FunctionCode::from_u8(code & 0x7F).is_some());
+        if starts_like_a_frame {
+            self.ignore_foreign_frame(bytes);
+        } else {
+            self.absorb_noise(bytes, seen);
+        }
     }
 
     /// Accounts for a received frame (log, recorder, wire time).

@@ -412,6 +412,17 @@ mod tests {
     }
 
     #[test]
+    fn not_a_tty_is_an_open_error() {
+        let mut not_a_tty = settings(Parity::None);
+        not_a_tty.path = "/dev/null".into();
+        not_a_tty.rs485 = None;
+        assert!(matches!(
+            Port::open(&not_a_tty),
+            Err(TransportError::Open { .. })
+        ));
+    }
+
+    #[test]
     fn missing_device_is_an_open_error() {
         let mut missing = settings(Parity::None);
         missing.path = "/dev/does-not-exist-rtu2mqtt".into();
