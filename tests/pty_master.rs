@@ -83,6 +83,9 @@ struct Seen {
     frame: Vec<u8>,
     /// From the drain of the device's previous transmission to this request's first byte.
     silence_before: Option<Duration>,
+    /// When the request's first and last bytes were read.
+    first_byte_at: Instant,
+    last_byte_at: Instant,
 }
 
 fn answer_for(sequence: u16, request: &Request) -> Response {
@@ -123,6 +126,7 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
             // Read one request frame, noting when its first byte arrived.
             let mut frame = Vec::new();
             let mut first_byte_at = None;
+            let mut last_byte_read = Instant::now();
             loop {
                 if let Ok(Some(length)) = request_frame_len(&frame) {
                     if frame.len() >= length {
@@ -136,6 +140,7 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
                     .unwrap()
                     .expect("the master sent the next request");
                 first_byte_at.get_or_insert(at);
+                last_byte_read = at;
                 frame.extend_from_slice(&buf[..count]);
             }
             // None when the device's own last transmission ended after this request began to
@@ -146,6 +151,8 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
             seen.push(Seen {
                 frame: frame.clone(),
                 silence_before,
+                first_byte_at: first_byte_at.unwrap(),
+                last_byte_at: last_byte_read,
             });
             let answer = codec::encode_answer(slave, &answer_for(sequence, &request));
             // A device waits t3.5 after the request before it answers.
@@ -648,6 +655,14 @@ async fn broadcast_keeps_the_line_silent_for_the_turnaround() {
     );
     let seen = seen_by(device).await;
     assert_eq!(seen[0].frame, codec::encode_request(0, &write).unwrap());
+    // The device notes the broadcast when it reads it, which a loaded host can delay by a few
+    // ms after the master's drain; a master that skipped the turnaround would leave only t3.5.
+    let read_delay_allowance = Duration::from_millis(5);
+    let quiet = seen[1].first_byte_at - seen[0].last_byte_at;
+    assert!(
+        quiet + read_delay_allowance >= turnaround,
+        "only {quiet:?} after the broadcast"
+    );
 }
 
 #[tokio::test(flavor = "current_thread")]
