@@ -240,6 +240,31 @@ async fn emergency_stop_toggles_on_the_wire() {
 }
 
 #[tokio::test]
+async fn noise_before_a_request_spoils_it_like_on_a_wire() {
+    let (line, dust, _) = line_a();
+    let mut port = open(&line.path());
+    // Noise and a valid frame in one burst make one bad frame for a device framing by silence.
+    let burst = [&hex("5A A5")[..], &hex(GEAR_8)[..]].concat();
+    port.write_all(&burst).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(line.journal().writes_to(1), 0);
+    let records = line.journal().requests();
+    assert_eq!(records.len(), 1);
+    assert_eq!(records[0].frame, burst);
+    assert!(!records[0].crc_ok);
+    // Noise that looks like the start of a read: the 8 bytes framed are bad, the rest of the
+    // burst is ignored up to the silence.
+    let burst = [&hex("01 03")[..], &hex(GEAR_8)[..]].concat();
+    port.write_all(&burst).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(line.journal().discarded_bytes(), 2);
+    lock(&dust).set_power(true);
+    // After the silence the device listens again.
+    assert_eq!(exchange(&mut port, &hex(GEAR_8), 8).await, hex(GEAR_8));
+    assert_eq!(lock(&dust).gear(), 8);
+}
+
+#[tokio::test]
 async fn wrong_address_gets_no_answer() {
     let (line, _, _) = line_a();
     let mut port = open(&line.path());
@@ -422,6 +447,20 @@ async fn fault_knobs_do_what_they_say() {
     let sent = Instant::now();
     exchange(&mut port, &read, 17).await;
     assert!(sent.elapsed() >= delay, "late answer");
+    faults.clear();
+
+    let pause = Duration::from_millis(100);
+    faults.update(|f| f.pause_mid_answer = Some(pause));
+    port.write_all(&read).await.unwrap();
+    let mut first = [0u8; 1];
+    tokio::time::timeout(ANSWER_TIMEOUT, port.read_exact(&mut first))
+        .await
+        .unwrap()
+        .unwrap();
+    let first_byte = Instant::now();
+    let rest = read_exactly(&mut port, 16).await;
+    assert!(first_byte.elapsed() >= pause / 2, "gap inside the answer");
+    assert_eq!([&first[..], &rest[..]].concat()[..15], good[..15]);
     faults.clear();
 
     faults.update(|f| f.idle_garbage_every = Some(Duration::from_millis(20)));

@@ -155,6 +155,12 @@ struct Server<S> {
 impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     async fn received(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let now = Instant::now();
+        if self.discarding
+            && now.saturating_duration_since(self.last_byte_at) >= self.options.timing.t3_5()
+        {
+            // The silence that ended the bad burst came while nothing was pending.
+            self.discarding = false;
+        }
         if self.buffer.is_empty() {
             self.first_byte_at = now;
         }
@@ -216,19 +222,19 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             answer: None,
         };
         tracing::debug!(frame = %hex(&frame), crc_ok = record.crc_ok, "request");
+        if self.faults.echo() {
+            // The adapter hears whatever goes out, valid or not.
+            self.stream.write_all(&frame).await?;
+            self.stream.flush().await?;
+        }
         if !record.crc_ok {
-            self.discarding = !self.buffer.is_empty();
-            if self.discarding {
-                self.journal.count_discarded(self.buffer.len());
-                self.buffer.clear();
-            }
+            // Like a device framing by silence, ignore the rest of this burst.
+            self.discarding = true;
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
             self.idle_since = Some(ended);
             self.journal.record(record);
             return Ok(());
-        }
-        if self.faults.echo() {
-            self.stream.write_all(&frame).await?;
-            self.stream.flush().await?;
         }
         let answer = self.dispatch(&frame);
         let Some((address, mut bytes)) = answer else {
