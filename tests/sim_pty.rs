@@ -10,7 +10,7 @@ use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::rtu::ExceptionCode;
 use rtu2mqtt::sim::{
     air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
-    VirtualLine, WireTiming,
+    VirtualLine,
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_serial::SerialStream;
@@ -474,9 +474,9 @@ async fn pacing_delays_the_answer_by_its_wire_time() {
     let options = ServeOptions::new(9600, Parity::None).paced(true);
     let line = VirtualLine::spawn(options, vec![shared]).unwrap();
     let mut port = open(&line.path());
-    let timing = WireTiming::new(9600, Parity::None);
+    let timing = options.timing;
     // Request 8 bytes + t3.5 + answer 17 bytes at 9600 8N1: about 29 ms.
-    let minimum = timing.frame_time(8) + timing.t3_5() + timing.frame_time(17);
+    let minimum = timing.frame_time(8) + timing.t3_5 + timing.frame_time(17);
     for _ in 0..3 {
         let sent = Instant::now();
         exchange(&mut port, &hex(READ_ALL), 17).await;

@@ -41,7 +41,6 @@ pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;
-pub use wire::WireTiming;
 
 /// What a device does with a request addressed to it.
 #[derive(Debug, Clone, PartialEq, Eq)]

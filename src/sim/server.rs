@@ -14,9 +14,12 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::faults::{random_bytes, FaultHandle};
 use super::journal::{Journal, RequestRecord};
-use super::wire::{self, FrameLen, RequestError, WireTiming};
+use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
+use crate::rtu::clock::sleep_until_precise;
+use crate::rtu::codec::{encode_answer, encode_exception, hex};
 use crate::rtu::frame::Request;
+use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::shutdown::Shutdown;
 
 /// How often the idle loop looks at the faults again.
@@ -25,16 +28,21 @@ const FAULT_RECHECK: Duration = Duration::from_millis(50);
 /// How a line is served.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ServeOptions {
-    pub timing: WireTiming,
+    pub timing: LineTiming,
     /// Pace answers at the wire's character rate (a pty delivers bytes instantly).
     pub pace: bool,
 }
 
 impl ServeOptions {
-    /// 9600 baud with `parity`, unpaced.
-    pub fn new(baud: u32, parity: crate::rtu::timing::Parity) -> Self {
+    /// `baud` with 8 data bits, `parity` and 1 stop bit, unpaced.
+    pub fn new(baud: u32, parity: Parity) -> Self {
+        let format = CharFormat {
+            data_bits: 8,
+            parity,
+            stop_bits: 1,
+        };
         Self {
-            timing: WireTiming::new(baud, parity),
+            timing: LineTiming::new(baud, format),
             pace: false,
         }
     }
@@ -75,7 +83,7 @@ where
     let mut idle_wake: Option<tokio::time::Instant> = None;
     loop {
         let silence_at = (!server.buffer.is_empty()).then(|| {
-            tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5())
+            tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5)
         });
         // Faults change at run time: without idle garbage the loop still wakes now and then to
         // notice it being switched on.
@@ -114,28 +122,6 @@ async fn sleep_until_opt(deadline: Option<tokio::time::Instant>) {
     }
 }
 
-/// Sleeps until `deadline` with sub-millisecond precision: the timer wheel's 1 ms ticks for
-/// the bulk, then yielding to the runtime until the instant has passed.
-pub async fn sleep_until_precise(deadline: Instant) {
-    const COARSE_MARGIN: Duration = Duration::from_micros(1500);
-    let now = Instant::now();
-    if deadline > now + COARSE_MARGIN {
-        tokio::time::sleep_until(tokio::time::Instant::from_std(deadline - COARSE_MARGIN)).await;
-    }
-    while Instant::now() < deadline {
-        tokio::task::yield_now().await;
-    }
-}
-
-/// Bytes as spaced hex, for logs.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02X}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
 struct Server<S> {
     stream: S,
     options: ServeOptions,
@@ -156,7 +142,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     async fn received(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let now = Instant::now();
         if self.discarding
-            && now.saturating_duration_since(self.last_byte_at) >= self.options.timing.t3_5()
+            && now.saturating_duration_since(self.last_byte_at) >= self.options.timing.t3_5
         {
             // The silence that ended the bad burst came while nothing was pending.
             self.discarding = false;
@@ -244,7 +230,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         };
         let faults = self.faults.for_answer(address);
         if let Some(code) = faults.exception {
-            bytes = wire::encode_exception(address, frame[1], code);
+            bytes = encode_exception(address, frame[1], code);
         }
         if let Some(wrong) = faults.wrong_address {
             bytes[0] = wrong;
@@ -268,7 +254,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         }
         let mut out = faults.garbage_before;
         out.extend_from_slice(&bytes);
-        let starts = ended + timing.t3_5() + faults.delay;
+        let starts = ended + timing.t3_5 + faults.delay;
         self.send(&out, starts, faults.pause_mid_answer).await?;
         record.answer = Some(out);
         self.journal.record(record);
@@ -308,11 +294,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             let address = device.address();
             if addressing == Addressing::Answer && answer.is_none() {
                 answer = match reply {
-                    Reply::Normal(response) => {
-                        Some((address, wire::encode_answer(address, &response)))
-                    }
+                    Reply::Normal(response) => Some((address, encode_answer(address, &response))),
                     Reply::Exception(code) => {
-                        Some((address, wire::encode_exception(address, function, code)))
+                        Some((address, encode_exception(address, function, code)))
                     }
                     Reply::Silent => None,
                 };
@@ -345,7 +329,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             if self.options.pace {
                 at += timing.frame_time(part.len());
             }
-            sleep_until_precise(at).await;
+            sleep_until_precise(tokio::time::Instant::from_std(at)).await;
             self.stream.write_all(part).await?;
             self.stream.flush().await?;
         }
