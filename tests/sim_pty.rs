@@ -859,3 +859,36 @@ async fn valve_profile_against_the_simulator() {
     );
     assert!(lock(&valve).mode_auto());
 }
+
+#[tokio::test]
+async fn master_leaves_t3_5_between_frames_on_a_paced_line() {
+    let (_, shared) = share(DustCollector::new(1));
+    let options = ServeOptions::new(9600, Parity::None).paced(true);
+    let line = VirtualLine::spawn(options, vec![shared]).unwrap();
+    let mut master = master_on(&line, Parity::None);
+    let read = Request::ReadHoldingRegisters {
+        start: 0x1000,
+        quantity: 6,
+    };
+    let started = Instant::now();
+    let count = 10;
+    for _ in 0..count {
+        master.transact(1, &read, MASTER_TIMEOUT).await.unwrap();
+    }
+    let elapsed = started.elapsed();
+    let journal = line.journal();
+    assert_eq!(journal.frames(), vec![hex(READ_ALL); count]);
+    let min_silence = journal.min_silence().unwrap();
+    assert!(
+        min_silence >= options.timing.t3_5,
+        "silence {min_silence:?} < t3.5 {:?}",
+        options.timing.t3_5
+    );
+    // Wire minimum per transaction: request, t3.5, answer, t3.5.
+    let wire = options.timing.frame_time(8 + 17) + options.timing.t3_5 * 2;
+    println!(
+        "{count} paced transactions in {elapsed:?}: {:?} each, wire minimum {wire:?}, \
+         smallest silence before a request {min_silence:?}",
+        elapsed / count as u32
+    );
+}
