@@ -205,8 +205,16 @@ impl Valve {
         self.opening_at(Instant::now())
     }
 
+    /// Whole percent, cut toward where the valve comes from: the register shows the commanded
+    /// value only once the motor has got there.
     fn opening_at(&self, now: Instant) -> u16 {
-        self.position_at(now).round().clamp(0.0, 100.0) as u16
+        let position = self.position_at(now);
+        let shown = if f64::from(self.target) >= position {
+            (position + 1e-9).floor()
+        } else {
+            (position - 1e-9).ceil()
+        };
+        shown.clamp(0.0, 100.0) as u16
     }
 
     /// Commits the motion so far before a change of how the motor moves.
