@@ -892,3 +892,20 @@ async fn master_leaves_t3_5_between_frames_on_a_paced_line() {
         elapsed / count as u32
     );
 }
+
+#[tokio::test]
+async fn long_noise_never_stops_the_line() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    // 2 KiB of pseudo-random bytes in one burst (longer than any frame).
+    let noise: Vec<u8> = (0u32..2048)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    port.write_all(&noise).await.unwrap();
+    let _ = listen(&mut port).await;
+    assert!(line.journal().discarded_bytes() > 0);
+    assert_eq!(
+        exchange(&mut port, &hex(READ_ALL), 17).await,
+        hex("01 03 0C 20 40 00 03 00 0A 00 05 00 00 00 18 35 F4")
+    );
+}

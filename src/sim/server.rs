@@ -22,6 +22,9 @@ use crate::rtu::frame::Request;
 use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::shutdown::Shutdown;
 
+/// The longest RTU frame (address, PDU of at most 253 bytes, CRC).
+const MAX_FRAME_LEN: usize = 256;
+
 /// How often the idle loop looks at the faults again.
 const FAULT_RECHECK: Duration = Duration::from_millis(50);
 
@@ -152,6 +155,17 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         }
         self.buffer.extend_from_slice(bytes);
         self.last_byte_at = now;
+        if self.buffer.len() > MAX_FRAME_LEN && !self.discarding {
+            // Longer than any RTU frame: noise. Ignore it up to the next silence.
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
+            self.discarding = true;
+        }
+        if self.discarding {
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
+            return Ok(());
+        }
         // Frames whose length is known are handled as soon as they are complete, as a device
         // would after its t3.5 (the wait is added before the answer).
         while !self.discarding {
