@@ -14,6 +14,23 @@
 //!
 //! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
 //! `simulate`.
+//!
+//! ```no_run
+//! # async fn example() -> std::io::Result<()> {
+//! use rtu2mqtt::rtu::timing::Parity;
+//! use rtu2mqtt::sim::{lock, share, AirShower, DustCollector, Occurrence, ServeOptions, VirtualLine};
+//!
+//! let (dust, dust_shared) = share(DustCollector::new(1));
+//! let (_shower, shower_shared) = share(AirShower::new());
+//! let options = ServeOptions::new(9600, Parity::None).paced(true);
+//! let line = VirtualLine::spawn(options, vec![dust_shared, shower_shared])?;
+//! // The gateway opens `line.path()` (/dev/pts/N) like a real port.
+//! line.faults().update(|f| f.drop = Occurrence::next(2));
+//! lock(&dust).set_power(true);
+//! let seen = line.journal().frames();
+//! # let _ = seen; Ok(())
+//! # }
+//! ```
 
 pub mod air_shower;
 pub mod cli;
