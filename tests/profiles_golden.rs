@@ -735,3 +735,199 @@ fn shower_decodes_every_field() {
         ]
     );
 }
+
+// --- the fourth profile, a file only --------------------------------------------------------
+
+fn th_sensor() -> Profile {
+    rtu2mqtt::profile::registry::load_file(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/profiles/generic-th-sensor.toml"
+    )))
+    .unwrap()
+}
+
+#[test]
+fn th_sensor_decodes_floats_in_both_word_orders() {
+    let profile = th_sensor();
+    assert_eq!(
+        profile.read_blocks()[0].request,
+        Request::ReadInputRegisters {
+            start: 0,
+            quantity: 8
+        }
+    );
+    // 23.45 °C = 0x41BB999A (high word first); 56.7 % = 0x4262CCCD (high word first);
+    // dew point -3.5 °C = -35 tenths = 0xFFDD; 1234.5 h = 0x449A5000, low word first.
+    let answer = Response::InputRegisters(vec![
+        0x41BB, 0x999A, 0x4262, 0xCCCD, 0xFFDD, 0x0000, 0x5000, 0x449A,
+    ]);
+    let text: Vec<(String, String)> = profile
+        .decode_block(0, &answer)
+        .into_iter()
+        .map(|r| (r.field, r.value.unwrap().to_text()))
+        .collect();
+    assert_eq!(
+        text,
+        [
+            ("temperature", "23.45"),
+            ("humidity", "56.7"),
+            ("dew_point", "-3.5"),
+            ("operating_hours", "1234.5"),
+        ]
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+    );
+    // A NaN float is an error for that field, not a number.
+    let answer = Response::InputRegisters(vec![0x7FC0, 0, 0x4262, 0xCCCD, 0, 0, 0, 0]);
+    let readings = profile.decode_block(0, &answer);
+    assert!(readings[0].value.is_err());
+    assert!(readings[1].value.is_ok());
+}
+
+#[test]
+fn th_sensor_settings_are_written_without_code() {
+    let profile = th_sensor();
+    let plan = plan(&profile, "temperature_offset", "-1.5");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0100,
+            value: (-15i16) as u16
+        }]
+    );
+    assert!(rejection(&profile, "temperature_offset", "10.5").contains("-10.0–10.0"));
+    assert!(rejection(&profile, "temperature", "20").contains("read-only"));
+    let plan = self::plan(&profile, "alarm_enabled", "ON");
+    assert_eq!(
+        plan.writes(&[Response::HoldingRegisters(vec![0xFFF6, 0x8000])])
+            .unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0101,
+            value: 0x8001
+        }]
+    );
+}
+
+// --- the device side, for simulators --------------------------------------------------------
+
+/// Every profile: an image seeded from plausible values decodes to exactly those values, and
+/// each plan's writes applied through the profile's write frames read back as applied.
+#[test]
+fn simulated_images_round_trip_through_every_profile() {
+    for profile in [dust(), valve(), shower(), th_sensor()] {
+        let mut images: Vec<_> = (0..profile.read_blocks().len())
+            .map(|b| profile.initial_image(b).unwrap())
+            .collect();
+        let answer_of = |images: &[rtu2mqtt::profile::BlockImage], b: usize| match (
+            &images[b],
+            &profile.read_blocks()[b].request,
+        ) {
+            (rtu2mqtt::profile::BlockImage::Words(w), Request::ReadInputRegisters { .. }) => {
+                Response::InputRegisters(w.clone())
+            }
+            (rtu2mqtt::profile::BlockImage::Words(w), _) => Response::HoldingRegisters(w.clone()),
+            (rtu2mqtt::profile::BlockImage::Bits(bits), _) => Response::Coils(bits.clone()),
+        };
+        for (b, _) in profile.read_blocks().iter().enumerate() {
+            for r in profile.decode_block(b, &answer_of(&images, b)) {
+                let value = r.value.unwrap_or_else(|e| panic!("{}: {e}", r.field));
+                if let Some(plausible) = profile.plausible_value(&r.field) {
+                    if r.field != "wind" {
+                        assert_eq!(value, plausible, "{} {}", profile.name(), r.field);
+                    }
+                }
+            }
+        }
+        for info in profile.fields().iter().filter(|f| f.writable) {
+            if profile.toggle_fields().contains(&info.name.as_str())
+                || profile.momentary_fields().contains(&info.name.as_str())
+            {
+                continue;
+            }
+            // Booleans go ON and back OFF so that no forbidden combination builds up.
+            let texts: Vec<String> = match &info.kind {
+                rtu2mqtt::profile::FieldKind::Bool => vec!["ON".into(), "OFF".into()],
+                rtu2mqtt::profile::FieldKind::Integer { max, .. } => vec![max.to_string()],
+                rtu2mqtt::profile::FieldKind::Decimal { min, .. } => vec![format!("{}", min + 1.0)],
+                rtu2mqtt::profile::FieldKind::Enum { options } => {
+                    vec![options.last().unwrap().clone(), options[0].clone()]
+                }
+                _ => continue,
+            };
+            for text in texts {
+                let plan = profile
+                    .plan_command(&info.name, &text, &DeviceState::new())
+                    .unwrap();
+                let before: Vec<Response> = plan
+                    .reads_before()
+                    .iter()
+                    .map(|read| {
+                        let b = profile
+                            .read_blocks()
+                            .iter()
+                            .position(|blk| &blk.request == read)
+                            .unwrap();
+                        answer_of(&images, b)
+                    })
+                    .collect();
+                for write in plan.writes(&before).unwrap() {
+                    assert!(
+                        profile.apply_write(&mut images, &write),
+                        "{} {write:?}",
+                        info.name
+                    );
+                }
+                let b = profile
+                    .read_blocks()
+                    .iter()
+                    .position(|blk| blk.request == plan.readback()[0])
+                    .unwrap();
+                assert_eq!(
+                    plan.verify(&[answer_of(&images, b)]),
+                    Verification::Applied,
+                    "{} {}={text}",
+                    profile.name(),
+                    info.name
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn apply_write_refuses_addresses_outside_the_write_frames() {
+    let profile = dust();
+    let mut images = vec![profile.initial_image(0).unwrap()];
+    assert!(!profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x1001,
+            value: 1
+        }
+    ));
+    assert!(!profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x2000,
+            value: 1
+        }
+    ));
+    assert!(profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x1006,
+            value: 42
+        }
+    ));
+    assert_eq!(
+        reading(
+            &profile,
+            0,
+            &Response::HoldingRegisters(match &images[0] {
+                rtu2mqtt::profile::BlockImage::Words(w) => w.clone(),
+                _ => panic!(),
+            }),
+            "pulse_duration"
+        ),
+        Value::Int(42)
+    );
+}

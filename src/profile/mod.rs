@@ -6,6 +6,7 @@
 
 pub mod codec;
 pub mod command;
+pub mod raw;
 pub mod registry;
 pub mod schema;
 pub mod value;

@@ -436,6 +436,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
 
     let mut defs = Vec::new();
     let mut infos = Vec::new();
+    let mut places = Vec::new();
     let mut seen = HashMap::new();
     for (i, field) in file.fields.iter().enumerate() {
         let place = format!("fields[{i}] ({})", field.name);
@@ -463,11 +464,10 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         ) {
             defs.push(def);
             infos.push(info);
+            places.push(place);
         }
     }
-    if problems.list.is_empty() {
-        check_overlaps(&file.fields, &defs, &blocks, problems);
-    }
+    check_overlaps(&places, &infos, &defs, &blocks, problems);
 
     let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); blocks.len()];
     for def in &defs {
@@ -1213,7 +1213,8 @@ fn field_kind(
 
 /// Checks that no two fields share a bit, except overlay fields, which are views by design.
 fn check_overlaps(
-    sections: &[FieldSection],
+    places: &[String],
+    infos: &[FieldInfo],
     defs: &[FieldDef],
     blocks: &[ReadBlock],
     problems: &mut Problems<'_>,
@@ -1228,10 +1229,10 @@ fn check_overlaps(
             let slot = owners.entry((def.block, offset)).or_default();
             if let Some(&(_, other)) = slot.iter().find(|(m, _)| m & mask != 0) {
                 problems.add(
-                    format!("fields[{i}] ({})", sections[i].name),
+                    places[i].clone(),
                     format!(
                         "overlaps field `{}` at offset {offset} of block `{}`",
-                        sections[other].name, blocks[def.block].name
+                        infos[other].name, blocks[def.block].name
                     ),
                 );
             } else {
@@ -1254,7 +1255,7 @@ fn check_overlaps(
             });
         if !covered {
             problems.add(
-                format!("fields[{i}] ({}).overlay", sections[i].name),
+                format!("{}.overlay", places[i]),
                 "an overlay field must only cover bits that other fields own",
             );
         }
