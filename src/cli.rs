@@ -5,7 +5,11 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand};
 
 #[derive(Debug, Parser)]
-#[command(name = "rtu2mqtt", version, about = "Modbus RTU (RS485) to MQTT gateway")]
+#[command(
+    name = "rtu2mqtt",
+    version,
+    about = "Modbus RTU (RS485) to MQTT gateway"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -16,13 +20,21 @@ pub enum Command {
     /// Run the gateway daemon.
     Run {
         /// Configuration file.
-        #[arg(long, env = "RTU2MQTT_CONFIG", default_value = "/etc/rtu2mqtt/config.toml")]
+        #[arg(
+            long,
+            env = "RTU2MQTT_CONFIG",
+            default_value = "/etc/rtu2mqtt/config.toml"
+        )]
         config: PathBuf,
     },
     /// Validate the configuration and profiles and print each line's poll plan; touches no port
     /// and no broker.
     Check {
-        #[arg(long, env = "RTU2MQTT_CONFIG", default_value = "/etc/rtu2mqtt/config.toml")]
+        #[arg(
+            long,
+            env = "RTU2MQTT_CONFIG",
+            default_value = "/etc/rtu2mqtt/config.toml"
+        )]
         config: PathBuf,
     },
     /// The whole seed plant with no hardware: simulated devices on virtual serial lines, an

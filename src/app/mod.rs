@@ -1,5 +1,6 @@
 //! Wiring for the daemon: load and validate the config, start one bus task per line and the
-//! MQTT bridge, run until SIGTERM/SIGINT, then stop cleanly.
+//! MQTT bridge, run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the library
+//! entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
 pub mod demo;
@@ -7,8 +8,130 @@ pub mod logging;
 
 use std::path::Path;
 use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use tokio::sync::{mpsc, oneshot};
+
+use crate::bridge::{prometheus, Bridge, BridgeHealth};
+use crate::bus::{spawn_line, LineHandle};
+use crate::config::{self, Config};
+use crate::shutdown::{self, Shutdown};
+
+/// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
+const LINE_EVENTS: usize = 1024;
+/// How long the lines get to finish their transaction after the bridge has stopped.
+const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
+
+/// What a caller gets once everything has started.
+#[derive(Debug, Clone)]
+pub struct Running {
+    /// One handle per configured line (statistics with heartbeats, command queues).
+    pub lines: Vec<LineHandle>,
+    /// The bridge's heartbeat and connection state.
+    pub bridge: BridgeHealth,
+}
+
+/// Optional observers of [`run_gateway`].
+#[derive(Debug, Default)]
+pub struct Hooks {
+    /// Receives [`Running`] once the lines and the bridge are started (systemd `READY=1`,
+    /// the watchdog, tests).
+    pub ready_tx: Option<oneshot::Sender<Running>>,
+}
+
+/// Runs the gateway described by `config` until `shutdown` fires: the lines finish their
+/// transaction on the wire, the bridge publishes `offline` and disconnects.
+pub async fn run_gateway(config: Config, shutdown: Shutdown, hooks: Hooks) -> anyhow::Result<()> {
+    for warning in &config.warnings {
+        tracing::warn!("configuration: {warning}");
+    }
+    let metrics_listener = match config.gateway.metrics_listen {
+        Some(address) => Some(
+            prometheus::bind(address)
+                .await
+                .with_context(|| format!("metrics endpoint on {address}"))?,
+        ),
+        None => None,
+    };
+
+    let (events_tx, events_rx) = mpsc::channel(LINE_EVENTS);
+    let mut handles = Vec::new();
+    let mut line_tasks = Vec::new();
+    for spec in &config.lines {
+        tracing::info!(line = %spec.name, port = %spec.serial.path, devices = spec.devices.len(), "starting line");
+        let (handle, task) = spawn_line(spec.clone(), events_tx.clone(), shutdown.clone());
+        handles.push(handle);
+        line_tasks.push(task);
+    }
+    drop(events_tx);
+
+    let (bridge, bridge_health) = Bridge::new(&config, handles.clone())?;
+    if let Some(listener) = metrics_listener {
+        let render = bridge.metrics_renderer();
+        tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
+    }
+    if let Some(ready_tx) = hooks.ready_tx {
+        let _ = ready_tx.send(Running {
+            lines: handles,
+            bridge: bridge_health,
+        });
+    }
+    bridge.run(events_rx, shutdown).await;
+
+    for task in line_tasks {
+        match tokio::time::timeout(LINE_STOP_GRACE, task).await {
+            Ok(Ok(())) => {}
+            Ok(Err(error)) => tracing::error!(%error, "a line task ended abnormally"),
+            Err(_) => tracing::warn!("a line did not stop in time"),
+        }
+    }
+    Ok(())
+}
 
 /// `rtu2mqtt run`.
-pub fn run(config: &Path) -> anyhow::Result<ExitCode> {
-    todo!("bridge helper")
+pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
+    let config = match config::load(path) {
+        Ok(config) => config,
+        Err(problems) => {
+            eprintln!("rtu2mqtt: {}: {problems}", path.display());
+            return Ok(ExitCode::FAILURE);
+        }
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let (trigger, shutdown) = shutdown::channel();
+        let signals = tokio::spawn(stop_on_signals(trigger));
+        let result = run_gateway(config, shutdown, Hooks::default()).await;
+        signals.abort();
+        result
+    })?;
+    tracing::info!("stopped");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
+async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (Ok(mut terminate), Ok(mut interrupt)) = (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+    ) else {
+        tracing::error!("cannot install signal handlers: stop with SIGKILL");
+        return;
+    };
+    tokio::select! {
+        _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
+        _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
+    }
+    trigger.fire();
+    tokio::select! {
+        _ = terminate.recv() => {},
+        _ = interrupt.recv() => {},
+    }
+    tracing::warn!("second signal: exiting without a clean stop");
+    std::process::exit(130);
 }

@@ -1,2 +1,136 @@
-//! The gateway configuration: serde structs, `config` layering (file < `RTU2MQTT__*`
-//! environment), and complete validation that names the place of every problem.
+//! The gateway configuration: serde structs ([`schema`]), `config` layering (file <
+//! `RTU2MQTT__*` environment, [`load`]), and complete validation ([`validate`]) that names the
+//! place of every problem before anything is opened. [`plan`] computes each line's poll plan
+//! and bus load from the wire timing, for validation and `rtu2mqtt check`.
+//!
+//! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
+//! profiles, and the MQTT and gateway settings, all checked.
+
+pub mod load;
+pub mod plan;
+pub mod schema;
+pub mod validate;
+
+use std::fmt;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::bus::LineSpec;
+
+/// A validated gateway configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub mqtt: MqttSettings,
+    pub gateway: GatewayOptions,
+    pub lines: Vec<LineSpec>,
+    /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
+    pub warnings: Vec<Problem>,
+}
+
+/// How to reach the broker, checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttSettings {
+    pub host: String,
+    pub port: u16,
+    /// Present for `mqtts://`.
+    pub tls: Option<TlsSettings>,
+    pub client_id: String,
+    /// Topic prefix (`plant`).
+    pub prefix: String,
+    pub username: Option<String>,
+    /// From the file, the environment or `password_file`.
+    pub password: Option<String>,
+    pub keep_alive: Duration,
+    pub clean_session: bool,
+    pub inflight: u16,
+    pub discovery: bool,
+    pub discovery_prefix: String,
+}
+
+/// TLS files (checked to exist; read when connecting).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsSettings {
+    pub ca_file: PathBuf,
+    /// Client certificate and key.
+    pub client_auth: Option<(PathBuf, PathBuf)>,
+}
+
+/// Per-gateway behaviour of the bridge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatewayOptions {
+    pub command_ttl: Duration,
+    pub json_view: bool,
+    pub stats_interval: Duration,
+    pub metrics_listen: Option<SocketAddr>,
+    pub frame_log: Option<PathBuf>,
+    pub allow_raw_writes: bool,
+    pub max_payload: usize,
+}
+
+/// One problem with its place in the file (`lines[0].devices[1].address`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Problem {
+    /// Empty when the problem is about the whole file.
+    pub place: String,
+    pub reason: String,
+}
+
+impl Problem {
+    pub fn new(place: impl Into<String>, reason: impl Into<String>) -> Self {
+        Problem {
+            place: place.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.place.is_empty() {
+            write!(f, "{}", self.reason)
+        } else {
+            write!(f, "{}: {}", self.place, self.reason)
+        }
+    }
+}
+
+/// Every problem found in a configuration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Problems(pub Vec<Problem>);
+
+impl Problems {
+    pub fn one(place: impl Into<String>, reason: impl Into<String>) -> Self {
+        Problems(vec![Problem::new(place, reason)])
+    }
+}
+
+impl fmt::Display for Problems {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let count = self.0.len();
+        write!(
+            f,
+            "{count} problem{} in the configuration:",
+            if count == 1 { "" } else { "s" }
+        )?;
+        for problem in &self.0 {
+            write!(f, "\n  - {problem}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Problems {}
+
+/// Reads, overrides from the environment and validates the configuration at `path`.
+pub fn load(path: &Path) -> Result<Config, Problems> {
+    let raw = load::load_file(path)?;
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    validate::validate(&raw, base)
+}
+
+/// Parses and validates configuration text (profile paths relative to `base`).
+pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
+    let raw = load::load_str(text)?;
+    validate::validate(&raw, base)
+}

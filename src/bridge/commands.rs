@@ -1,0 +1,310 @@
+//! The command book: which commands wait and which are on the bus. Newest per field wins (an
+//! older waiting command is superseded), a command waits while its device is offline, while a
+//! command for the same field is still on the bus, or while the field's minimum write interval
+//! runs; it expires after its time to live. QoS 1 redeliveries (DUP) are recognised so a write
+//! never runs twice because of one. Pure: the clock is passed in.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::{Duration, Instant};
+
+/// How long a received QoS 1 message is remembered for spotting its redelivery.
+const REDELIVERY_WINDOW: Duration = Duration::from_secs(60);
+/// Bound on remembered messages.
+const REDELIVERY_MEMORY: usize = 256;
+
+/// One command on its way: waiting or on the bus.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TrackedCommand {
+    pub id: u64,
+    pub device: String,
+    pub field: String,
+    /// The command text as received (trimmed).
+    pub text: String,
+    pub received: Instant,
+    pub expires: Instant,
+    /// The field's minimum time between two writes.
+    pub min_write_interval: Option<Duration>,
+}
+
+/// What became of a submitted command.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Admission {
+    /// Waiting; `superseded` is the older command of the same field it replaced.
+    Queued { superseded: Option<TrackedCommand> },
+    /// Same text as the command already waiting for this field: nothing new to do.
+    AlreadyWaiting,
+}
+
+type Key = (String, String);
+
+#[derive(Debug)]
+pub struct CommandBook {
+    ttl: Duration,
+    next_id: u64,
+    waiting: HashMap<Key, TrackedCommand>,
+    on_bus: HashMap<Key, TrackedCommand>,
+    last_write: HashMap<Key, Instant>,
+    recent: VecDeque<(Instant, String, u16, Vec<u8>)>,
+}
+
+impl CommandBook {
+    pub fn new(ttl: Duration) -> Self {
+        CommandBook {
+            ttl,
+            next_id: 1,
+            waiting: HashMap::new(),
+            on_bus: HashMap::new(),
+            last_write: HashMap::new(),
+            recent: VecDeque::new(),
+        }
+    }
+
+    /// True when this QoS 1 message is a redelivery (DUP) of one seen within the window.
+    /// Every message is remembered.
+    pub fn is_redelivery(
+        &mut self,
+        topic: &str,
+        pkid: u16,
+        payload: &[u8],
+        dup: bool,
+        now: Instant,
+    ) -> bool {
+        while let Some((seen, ..)) = self.recent.front() {
+            if now.duration_since(*seen) > REDELIVERY_WINDOW
+                || self.recent.len() > REDELIVERY_MEMORY
+            {
+                self.recent.pop_front();
+            } else {
+                break;
+            }
+        }
+        let seen = self
+            .recent
+            .iter()
+            .any(|(_, t, id, p)| *id == pkid && t == topic && p.as_slice() == payload);
+        if dup && seen {
+            return true;
+        }
+        self.recent
+            .push_back((now, topic.to_string(), pkid, payload.to_vec()));
+        false
+    }
+
+    /// Queues a validated command. An older waiting command for the same field is superseded.
+    pub fn submit(
+        &mut self,
+        device: &str,
+        field: &str,
+        text: &str,
+        min_write_interval: Option<Duration>,
+        now: Instant,
+    ) -> Admission {
+        let key = (device.to_string(), field.to_string());
+        if self.waiting.get(&key).is_some_and(|w| w.text == text) {
+            return Admission::AlreadyWaiting;
+        }
+        let command = TrackedCommand {
+            id: self.next_id,
+            device: device.to_string(),
+            field: field.to_string(),
+            text: text.to_string(),
+            received: now,
+            expires: now + self.ttl,
+            min_write_interval,
+        };
+        self.next_id += 1;
+        let superseded = self.waiting.insert(key, command);
+        Admission::Queued { superseded }
+    }
+
+    /// Waiting commands that may go to the bus now (device online, field not on the bus, write
+    /// interval over), moved to "on the bus".
+    pub fn take_ready(
+        &mut self,
+        now: Instant,
+        is_online: impl Fn(&str) -> bool,
+    ) -> Vec<TrackedCommand> {
+        let ready: Vec<Key> = self
+            .waiting
+            .iter()
+            .filter(|(key, command)| {
+                is_online(&key.0)
+                    && !self.on_bus.contains_key(*key)
+                    && self.write_allowed_at(key, command) <= now
+            })
+            .map(|(key, _)| key.clone())
+            .collect();
+        let mut taken: Vec<TrackedCommand> = ready
+            .into_iter()
+            .filter_map(|key| {
+                let command = self.waiting.remove(&key)?;
+                self.on_bus.insert(key, command.clone());
+                Some(command)
+            })
+            .collect();
+        taken.sort_by_key(|command| command.id);
+        taken
+    }
+
+    /// Waiting commands whose time to live has passed, removed.
+    pub fn take_expired(&mut self, now: Instant) -> Vec<TrackedCommand> {
+        let expired: Vec<Key> = self
+            .waiting
+            .iter()
+            .filter(|(_, command)| command.expires <= now)
+            .map(|(key, _)| key.clone())
+            .collect();
+        let mut taken: Vec<TrackedCommand> = expired
+            .into_iter()
+            .filter_map(|key| self.waiting.remove(&key))
+            .collect();
+        taken.sort_by_key(|command| command.id);
+        taken
+    }
+
+    /// A command left the bus (any outcome). `wrote`: frames were written (starts the field's
+    /// write interval).
+    pub fn finish(&mut self, device: &str, field: &str, wrote: bool, now: Instant) {
+        let key = (device.to_string(), field.to_string());
+        self.on_bus.remove(&key);
+        if wrote {
+            self.last_write.insert(key, now);
+        }
+    }
+
+    /// Puts a command that could not be handed to the bus back to waiting (unless a newer one
+    /// arrived meanwhile).
+    pub fn requeue(&mut self, command: TrackedCommand) {
+        let key = (command.device.clone(), command.field.clone());
+        self.on_bus.remove(&key);
+        self.waiting.entry(key).or_insert(command);
+    }
+
+    /// A newer command for this field is waiting.
+    pub fn has_waiting(&self, device: &str, field: &str) -> bool {
+        self.waiting
+            .contains_key(&(device.to_string(), field.to_string()))
+    }
+
+    pub fn on_bus_count(&self) -> usize {
+        self.on_bus.len()
+    }
+
+    pub fn waiting_count(&self) -> usize {
+        self.waiting.len()
+    }
+
+    /// Every waiting command, removed (shutdown: they stay retained in the broker).
+    pub fn drain_waiting(&mut self) -> Vec<TrackedCommand> {
+        self.waiting.drain().map(|(_, command)| command).collect()
+    }
+
+    fn write_allowed_at(&self, key: &Key, command: &TrackedCommand) -> Instant {
+        match (self.last_write.get(key), command.min_write_interval) {
+            (Some(last), Some(interval)) => *last + interval,
+            _ => command.received,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TTL: Duration = Duration::from_secs(300);
+
+    #[test]
+    fn waits_for_the_device_then_runs_once() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        assert!(matches!(
+            book.submit("dust", "gear", "8", None, start),
+            Admission::Queued { superseded: None }
+        ));
+        assert!(book.take_ready(start, |_| false).is_empty());
+        let ready = book.take_ready(start, |_| true);
+        assert_eq!(ready.len(), 1);
+        assert_eq!(ready[0].text, "8");
+        assert!(book.take_ready(start, |_| true).is_empty());
+    }
+
+    #[test]
+    fn newest_per_field_wins() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("dust", "gear", "3", None, start);
+        let Admission::Queued {
+            superseded: Some(older),
+        } = book.submit("dust", "gear", "8", None, start)
+        else {
+            panic!("not superseded")
+        };
+        assert_eq!(older.text, "3");
+        assert_eq!(
+            book.submit("dust", "gear", "8", None, start),
+            Admission::AlreadyWaiting
+        );
+        // Another field is independent.
+        book.submit("dust", "power", "ON", None, start);
+        let ready = book.take_ready(start, |_| true);
+        let texts: Vec<&str> = ready.iter().map(|c| c.text.as_str()).collect();
+        assert_eq!(texts, ["8", "ON"]);
+    }
+
+    #[test]
+    fn one_command_per_field_on_the_bus() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("dust", "gear", "3", None, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.submit("dust", "gear", "4", None, start);
+        assert!(book.take_ready(start, |_| true).is_empty());
+        assert!(book.has_waiting("dust", "gear"));
+        book.finish("dust", "gear", true, start);
+        assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
+    }
+
+    #[test]
+    fn expires_after_its_time_to_live() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("dust", "gear", "3", None, start);
+        assert!(book
+            .take_expired(start + TTL - Duration::from_secs(1))
+            .is_empty());
+        let expired = book.take_expired(start + TTL);
+        assert_eq!(expired.len(), 1);
+        assert!(book.take_ready(start + TTL, |_| true).is_empty());
+    }
+
+    #[test]
+    fn minimum_write_interval_delays() {
+        let start = Instant::now();
+        let interval = Some(Duration::from_secs(10));
+        let mut book = CommandBook::new(TTL);
+        book.submit("valve", "setpoint", "1", interval, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.finish("valve", "setpoint", true, start);
+        book.submit("valve", "setpoint", "2", interval, start);
+        assert!(book
+            .take_ready(start + Duration::from_secs(9), |_| true)
+            .is_empty());
+        assert_eq!(
+            book.take_ready(start + Duration::from_secs(10), |_| true)[0].text,
+            "2"
+        );
+    }
+
+    #[test]
+    fn recognises_qos1_redelivery() {
+        let now = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        assert!(!book.is_redelivery("p/d/f/set", 7, b"ON", false, now));
+        assert!(book.is_redelivery("p/d/f/set", 7, b"ON", true, now));
+        // The same text again, not flagged DUP, is a new command.
+        assert!(!book.is_redelivery("p/d/f/set", 7, b"ON", false, now));
+        // Outside the window it is new again.
+        let later = now + REDELIVERY_WINDOW + Duration::from_secs(1);
+        assert!(!book.is_redelivery("p/d/f/set", 8, b"ON", true, later));
+    }
+}

@@ -1,0 +1,209 @@
+//! The MQTT connection (rumqttc): client options from the validated settings (Last Will,
+//! credentials, TLS, bounds), and the task that polls rumqttc's event loop, turning what it
+//! sees into [`LinkEvent`]s for the bridge. rumqttc reconnects on the very next poll, so this
+//! task waits a capped, jittered exponential back-off after every connection error; a
+//! connection that dies young (a client-id takeover, an auth refusal) keeps the back-off
+//! growing instead of resetting it.
+
+use std::time::{Duration, Instant};
+
+use anyhow::Context as _;
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet,
+    Publish, QoS, TlsConfiguration, Transport,
+};
+use tokio::sync::mpsc;
+
+use super::payload::OFFLINE;
+use super::topics::Topics;
+use crate::config::MqttSettings;
+
+/// First wait after a connection error.
+pub const BACKOFF_INITIAL: Duration = Duration::from_millis(250);
+/// Longest wait between two connection attempts.
+pub const BACKOFF_MAX: Duration = Duration::from_secs(30);
+/// A connection that lived this long resets the back-off.
+const STABLE_CONNECTION: Duration = Duration::from_secs(10);
+/// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
+/// costs a message, never a blocked bridge).
+pub const REQUEST_QUEUE: usize = 4096;
+/// Incoming packets above this end the connection in rumqttc: large enough for any sane
+/// command, small enough to bound memory.
+pub const MAX_INCOMING_PACKET: usize = 256 * 1024;
+/// Discovery configs of big devices are a few KiB.
+pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
+
+/// What the event loop task reports to the bridge.
+#[derive(Debug)]
+pub enum LinkEvent {
+    /// A ConnAck: (re)subscribe, announce, republish.
+    Connected { session_present: bool },
+    /// The connection is gone (the task backs off and retries).
+    Disconnected { reason: String },
+    /// An incoming publish.
+    Message(Publish),
+    /// Our Disconnect went out: the task ends.
+    Closed,
+}
+
+/// The client's options: Last Will `offline` (retained) on the gateway status topic.
+pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttOptions> {
+    let mut options = MqttOptions::new(&settings.client_id, &settings.host, settings.port);
+    options
+        .set_keep_alive(settings.keep_alive)
+        .set_clean_session(settings.clean_session)
+        .set_inflight(settings.inflight)
+        .set_max_packet_size(MAX_INCOMING_PACKET, MAX_OUTGOING_PACKET)
+        .set_request_channel_capacity(REQUEST_QUEUE)
+        .set_last_will(LastWill::new(
+            topics.gateway_status(),
+            OFFLINE,
+            QoS::AtLeastOnce,
+            true,
+        ));
+    if let Some(username) = &settings.username {
+        options.set_credentials(username, settings.password.clone().unwrap_or_default());
+    }
+    if let Some(tls) = &settings.tls {
+        let ca = std::fs::read(&tls.ca_file)
+            .with_context(|| format!("reading ca_file {}", tls.ca_file.display()))?;
+        let client_auth = match &tls.client_auth {
+            Some((cert, key)) => Some((
+                std::fs::read(cert)
+                    .with_context(|| format!("reading cert_file {}", cert.display()))?,
+                std::fs::read(key)
+                    .with_context(|| format!("reading key_file {}", key.display()))?,
+            )),
+            None => None,
+        };
+        options.set_transport(Transport::tls_with_config(TlsConfiguration::Simple {
+            ca,
+            alpn: None,
+            client_auth,
+        }));
+    }
+    Ok(options)
+}
+
+/// The client handle and its event loop.
+pub fn connect(
+    settings: &MqttSettings,
+    topics: &Topics,
+) -> anyhow::Result<(AsyncClient, EventLoop)> {
+    let options = options(settings, topics)?;
+    Ok(AsyncClient::new(options, REQUEST_QUEUE))
+}
+
+/// Capped exponential back-off with ±20 % jitter (so a fleet does not reconnect in step).
+#[derive(Debug, Clone)]
+pub struct Backoff {
+    next: Duration,
+}
+
+impl Default for Backoff {
+    fn default() -> Self {
+        Backoff {
+            next: BACKOFF_INITIAL,
+        }
+    }
+}
+
+impl Backoff {
+    /// The wait before the next attempt; doubles the one after (up to the cap).
+    pub fn next_wait(&mut self) -> Duration {
+        let base = self.next;
+        self.next = (self.next * 2).min(BACKOFF_MAX);
+        let jitter = rand::random::<f64>() * 0.4 + 0.8;
+        base.mul_f64(jitter).min(BACKOFF_MAX)
+    }
+
+    pub fn reset(&mut self) {
+        self.next = BACKOFF_INITIAL;
+    }
+}
+
+/// Polls `eventloop` until our Disconnect goes out or the bridge is gone.
+pub fn spawn_event_loop(
+    mut eventloop: EventLoop,
+    events_tx: mpsc::Sender<LinkEvent>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut backoff = Backoff::default();
+        let mut connected_since: Option<Instant> = None;
+        let mut reported_down = false;
+        loop {
+            let event = match eventloop.poll().await {
+                Ok(Event::Incoming(Packet::ConnAck(connack))) => {
+                    connected_since = Some(Instant::now());
+                    reported_down = false;
+                    tracing::info!(session_present = connack.session_present, "MQTT connected");
+                    LinkEvent::Connected {
+                        session_present: connack.session_present,
+                    }
+                }
+                Ok(Event::Incoming(Packet::Publish(publish))) => LinkEvent::Message(publish),
+                Ok(Event::Outgoing(Outgoing::Disconnect)) => {
+                    let _ = events_tx.send(LinkEvent::Closed).await;
+                    return;
+                }
+                Ok(_) => continue,
+                Err(error) => {
+                    if let Some(since) = connected_since.take() {
+                        if since.elapsed() >= STABLE_CONNECTION {
+                            backoff.reset();
+                        }
+                    }
+                    let wait = backoff.next_wait();
+                    log_connection_error(&error, wait, reported_down);
+                    if !reported_down {
+                        reported_down = true;
+                        let down = LinkEvent::Disconnected {
+                            reason: error.to_string(),
+                        };
+                        if events_tx.send(down).await.is_err() {
+                            return;
+                        }
+                    }
+                    tokio::time::sleep(wait).await;
+                    if events_tx.is_closed() {
+                        return;
+                    }
+                    continue;
+                }
+            };
+            if events_tx.send(event).await.is_err() {
+                return;
+            }
+        }
+    })
+}
+
+/// One line per attempt: a warning when the link goes down, then quieter while it stays down.
+fn log_connection_error(error: &ConnectionError, wait: Duration, already_down: bool) {
+    let wait = humantime::format_duration(Duration::from_millis(wait.as_millis() as u64));
+    if already_down {
+        tracing::debug!(%error, retry_in = %wait, "MQTT still unreachable");
+    } else {
+        tracing::warn!(%error, retry_in = %wait, "MQTT connection lost");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_grows_to_its_cap_and_resets() {
+        let mut backoff = Backoff::default();
+        let mut previous_base = Duration::ZERO;
+        for _ in 0..20 {
+            let wait = backoff.next_wait();
+            assert!(wait <= BACKOFF_MAX);
+            assert!(wait >= BACKOFF_INITIAL.mul_f64(0.8));
+            previous_base = previous_base.max(wait);
+        }
+        assert!(previous_base >= BACKOFF_MAX.mul_f64(0.8));
+        backoff.reset();
+        assert!(backoff.next_wait() <= BACKOFF_INITIAL.mul_f64(1.2));
+    }
+}

@@ -1,0 +1,209 @@
+//! The bridge's memory of every configured device: last decoded values (the state commands are
+//! planned against), availability, and what has been published, so that state goes out on
+//! change, in full after every (re)connect, and in full when a device comes back online.
+//! Bounded by the configuration: only configured devices are kept, one value per field.
+
+use std::collections::HashMap;
+
+use crate::profile::{DeviceState, Value};
+
+#[derive(Debug, Default)]
+struct DeviceCache {
+    state: DeviceState,
+    /// Text last handed to MQTT per field.
+    published: HashMap<String, String>,
+    /// None until the line has said anything about the device.
+    online: Option<bool>,
+    /// Publish every field with the next values (the device just came back).
+    republish_next: bool,
+}
+
+/// Latest values and availability of the configured devices.
+#[derive(Debug, Default)]
+pub struct StateCache {
+    devices: HashMap<String, DeviceCache>,
+    /// Device names in configuration order, for stable republishing.
+    order: Vec<String>,
+}
+
+/// One state message to publish.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StateUpdate {
+    pub device: String,
+    pub field: String,
+    pub text: String,
+}
+
+impl StateCache {
+    pub fn new<'a>(devices: impl IntoIterator<Item = &'a str>) -> Self {
+        let mut cache = StateCache::default();
+        for name in devices {
+            cache.order.push(name.to_string());
+            cache
+                .devices
+                .insert(name.to_string(), DeviceCache::default());
+        }
+        cache
+    }
+
+    pub fn contains(&self, device: &str) -> bool {
+        self.devices.contains_key(device)
+    }
+
+    /// Device names in configuration order.
+    pub fn devices(&self) -> &[String] {
+        &self.order
+    }
+
+    /// The last known values of `device` (empty when unknown).
+    pub fn state(&self, device: &str) -> Option<&DeviceState> {
+        self.devices.get(device).map(|cache| &cache.state)
+    }
+
+    pub fn is_online(&self, device: &str) -> bool {
+        self.devices
+            .get(device)
+            .and_then(|cache| cache.online)
+            .unwrap_or(false)
+    }
+
+    /// Stores fresh values. When `connected`, returns the fields to publish (changed ones, or
+    /// all of them right after the device came back) and records them as published.
+    pub fn update(
+        &mut self,
+        device: &str,
+        values: Vec<(String, Value)>,
+        connected: bool,
+    ) -> Vec<StateUpdate> {
+        let Some(cache) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let mut updates = Vec::new();
+        let everything = cache.republish_next;
+        for (field, value) in values {
+            let text = value.to_text();
+            if connected && (everything || cache.published.get(&field) != Some(&text)) {
+                cache.published.insert(field.clone(), text.clone());
+                updates.push(StateUpdate {
+                    device: device.to_string(),
+                    field: field.clone(),
+                    text,
+                });
+            }
+            cache.state.insert(field, value);
+        }
+        if connected {
+            cache.republish_next = false;
+        }
+        updates
+    }
+
+    /// Records availability; true when it changed. A device coming back gets every field
+    /// republished with its next values.
+    pub fn set_online(&mut self, device: &str, online: bool) -> bool {
+        let Some(cache) = self.devices.get_mut(device) else {
+            return false;
+        };
+        let changed = cache.online != Some(online);
+        if changed && online {
+            cache.republish_next = true;
+        }
+        cache.online = Some(online);
+        changed
+    }
+
+    /// Every known value, for the full republish after a (re)connect; recorded as published.
+    pub fn republish_all(&mut self) -> Vec<StateUpdate> {
+        let mut updates = Vec::new();
+        for device in &self.order {
+            let Some(cache) = self.devices.get_mut(device) else {
+                continue;
+            };
+            let mut fields: Vec<&String> = cache.state.keys().collect();
+            fields.sort();
+            let mut published = HashMap::new();
+            for field in fields {
+                let text = cache.state[field].to_text();
+                published.insert(field.clone(), text.clone());
+                updates.push(StateUpdate {
+                    device: device.clone(),
+                    field: field.clone(),
+                    text,
+                });
+            }
+            cache.published = published;
+        }
+        updates
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn values(pairs: &[(&str, i64)]) -> Vec<(String, Value)> {
+        pairs
+            .iter()
+            .map(|(field, value)| (field.to_string(), Value::Int(*value)))
+            .collect()
+    }
+
+    fn fields(updates: &[StateUpdate]) -> Vec<&str> {
+        updates.iter().map(|u| u.field.as_str()).collect()
+    }
+
+    #[test]
+    fn publishes_changes_only() {
+        let mut cache = StateCache::new(["dust"]);
+        let first = cache.update("dust", values(&[("gear", 5), ("fan_speed", 0)]), true);
+        assert_eq!(fields(&first), ["gear", "fan_speed"]);
+        let second = cache.update("dust", values(&[("gear", 5), ("fan_speed", 1200)]), true);
+        assert_eq!(fields(&second), ["fan_speed"]);
+        assert_eq!(second[0].text, Value::Int(1200).to_text());
+    }
+
+    #[test]
+    fn caches_while_disconnected_and_republishes_everything() {
+        let mut cache = StateCache::new(["dust", "valve"]);
+        assert!(cache
+            .update("dust", values(&[("gear", 5)]), false)
+            .is_empty());
+        cache.update("valve", values(&[("opening", 40)]), false);
+        cache.update("dust", values(&[("gear", 6)]), false);
+        let all = cache.republish_all();
+        assert_eq!(all.len(), 2);
+        assert_eq!(all[0].device, "dust");
+        assert_eq!(all[0].text, Value::Int(6).to_text());
+        // Already published: no change, nothing new.
+        assert!(cache
+            .update("dust", values(&[("gear", 6)]), true)
+            .is_empty());
+        assert_eq!(cache.state("dust").unwrap()["gear"], Value::Int(6));
+    }
+
+    #[test]
+    fn a_device_coming_back_republishes_its_fields() {
+        let mut cache = StateCache::new(["dust"]);
+        assert!(!cache.is_online("dust"));
+        assert!(cache.set_online("dust", true));
+        cache.update("dust", values(&[("gear", 5)]), true);
+        assert!(cache.set_online("dust", false));
+        assert!(!cache.set_online("dust", false));
+        assert!(cache.set_online("dust", true));
+        let again = cache.update("dust", values(&[("gear", 5)]), true);
+        assert_eq!(fields(&again), ["gear"]);
+        assert!(cache
+            .update("dust", values(&[("gear", 5)]), true)
+            .is_empty());
+    }
+
+    #[test]
+    fn unknown_devices_are_not_kept() {
+        let mut cache = StateCache::new(["dust"]);
+        assert!(cache
+            .update("intruder", values(&[("x", 1)]), true)
+            .is_empty());
+        assert!(!cache.set_online("intruder", true));
+        assert!(cache.state("intruder").is_none());
+    }
+}

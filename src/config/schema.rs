@@ -1,0 +1,231 @@
+//! The configuration file as written (serde): every table denies unknown keys, durations are
+//! humantime strings (`"300ms"`), addresses plain integers (TOML accepts `0x81`). Nothing here
+//! is checked beyond its type; `validate` turns it into the gateway's settings.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use crate::rtu::timing::Parity;
+
+/// The whole file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    pub mqtt: RawMqtt,
+    #[serde(default)]
+    pub gateway: RawGateway,
+    #[serde(default)]
+    pub lines: Vec<RawLine>,
+}
+
+/// `[mqtt]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMqtt {
+    /// `mqtt://host:port` or `mqtts://host:port`.
+    pub url: String,
+    /// Unique per gateway; also the gateway's id in topics.
+    pub client_id: String,
+    #[serde(default = "default_prefix")]
+    pub prefix: String,
+    pub username: Option<String>,
+    pub password: Option<String>,
+    /// Read at start; must not be readable by others.
+    pub password_file: Option<PathBuf>,
+    pub ca_file: Option<PathBuf>,
+    pub cert_file: Option<PathBuf>,
+    pub key_file: Option<PathBuf>,
+    #[serde(default = "default_keep_alive", with = "humantime_serde")]
+    pub keep_alive: Duration,
+    /// false: the broker keeps our subscription and queues QoS 1 commands while we are away.
+    #[serde(default)]
+    pub clean_session: bool,
+    #[serde(default = "default_inflight")]
+    pub inflight: u16,
+    #[serde(default = "default_true")]
+    pub discovery: bool,
+    #[serde(default = "default_discovery_prefix")]
+    pub discovery_prefix: String,
+}
+
+/// `[gateway]`: behaviour of the bridge.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawGateway {
+    /// How long a command for an offline device waits before it expires.
+    #[serde(default = "default_command_ttl", with = "humantime_serde")]
+    pub command_ttl: Duration,
+    /// Also publish every device's state as one JSON object on `<prefix>/<device>/json`.
+    #[serde(default)]
+    pub json_view: bool,
+    #[serde(default = "default_stats_interval", with = "humantime_serde")]
+    pub stats_interval: Duration,
+    /// `127.0.0.1:9184`: serve Prometheus `/metrics` there (off when absent).
+    pub metrics_listen: Option<String>,
+    /// Record every frame with its timestamp to this file (off when absent).
+    pub frame_log: Option<PathBuf>,
+    /// Accept raw register writes over MQTT (off: only profile fields can be written).
+    #[serde(default)]
+    pub allow_raw_writes: bool,
+    /// Largest accepted command payload in bytes.
+    #[serde(default = "default_max_payload")]
+    pub max_payload: usize,
+}
+
+impl Default for RawGateway {
+    fn default() -> Self {
+        RawGateway {
+            command_ttl: default_command_ttl(),
+            json_view: false,
+            stats_interval: default_stats_interval(),
+            metrics_listen: None,
+            frame_log: None,
+            allow_raw_writes: false,
+            max_payload: default_max_payload(),
+        }
+    }
+}
+
+/// `[[lines]]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLine {
+    pub name: String,
+    pub port: String,
+    /// Default: the first device's profile default.
+    pub baud: Option<u32>,
+    /// Default: the first device's profile default.
+    pub parity: Option<Parity>,
+    #[serde(default = "default_data_bits")]
+    pub data_bits: u8,
+    #[serde(default = "default_stop_bits")]
+    pub stop_bits: u8,
+    #[serde(default, with = "humantime_serde")]
+    pub response_timeout: Option<Duration>,
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    #[serde(default = "default_offline_after")]
+    pub offline_after: u32,
+    /// The adapter echoes what it sends.
+    #[serde(default)]
+    pub echo: bool,
+    #[serde(default = "default_broadcast_turnaround", with = "humantime_serde")]
+    pub broadcast_turnaround: Duration,
+    /// Kernel RS485 mode for UARTs that drive the transceiver themselves.
+    pub rs485: Option<RawRs485>,
+    #[serde(default)]
+    pub devices: Vec<RawDevice>,
+}
+
+/// `[lines.rs485]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawRs485 {
+    #[serde(default = "default_true")]
+    pub rts_on_send: bool,
+    #[serde(default, with = "humantime_serde")]
+    pub delay_before_send: Duration,
+    #[serde(default, with = "humantime_serde")]
+    pub delay_after_send: Duration,
+}
+
+/// `[[lines.devices]]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawDevice {
+    pub name: String,
+    /// A built-in profile name or a path to a profile file (relative to the config file).
+    pub profile: String,
+    /// Wide on purpose: an out-of-range address gets a message naming the profile's range.
+    pub address: i64,
+    /// Default: the profile's default poll interval.
+    #[serde(default, with = "humantime_serde")]
+    pub poll_interval: Option<Duration>,
+}
+
+/// Known keys of every table, for listing all unknown keys at once (serde stops at the first).
+pub const MQTT_KEYS: &[&str] = &[
+    "url",
+    "client_id",
+    "prefix",
+    "username",
+    "password",
+    "password_file",
+    "ca_file",
+    "cert_file",
+    "key_file",
+    "keep_alive",
+    "clean_session",
+    "inflight",
+    "discovery",
+    "discovery_prefix",
+];
+pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "lines"];
+pub const GATEWAY_KEYS: &[&str] = &[
+    "command_ttl",
+    "json_view",
+    "stats_interval",
+    "metrics_listen",
+    "frame_log",
+    "allow_raw_writes",
+    "max_payload",
+];
+pub const LINE_KEYS: &[&str] = &[
+    "name",
+    "port",
+    "baud",
+    "parity",
+    "data_bits",
+    "stop_bits",
+    "response_timeout",
+    "retries",
+    "offline_after",
+    "echo",
+    "broadcast_turnaround",
+    "rs485",
+    "devices",
+];
+pub const RS485_KEYS: &[&str] = &["rts_on_send", "delay_before_send", "delay_after_send"];
+pub const DEVICE_KEYS: &[&str] = &["name", "profile", "address", "poll_interval"];
+
+fn default_prefix() -> String {
+    "plant".to_string()
+}
+fn default_keep_alive() -> Duration {
+    Duration::from_secs(30)
+}
+fn default_inflight() -> u16 {
+    100
+}
+fn default_true() -> bool {
+    true
+}
+fn default_discovery_prefix() -> String {
+    "homeassistant".to_string()
+}
+fn default_command_ttl() -> Duration {
+    Duration::from_secs(300)
+}
+fn default_stats_interval() -> Duration {
+    Duration::from_secs(60)
+}
+fn default_max_payload() -> usize {
+    1024
+}
+fn default_data_bits() -> u8 {
+    8
+}
+fn default_stop_bits() -> u8 {
+    1
+}
+fn default_retries() -> u32 {
+    1
+}
+fn default_offline_after() -> u32 {
+    3
+}
+fn default_broadcast_turnaround() -> Duration {
+    Duration::from_millis(200)
+}

@@ -1,0 +1,286 @@
+//! Test support: a real mosquitto on a free loopback port (temporary config, killed on drop,
+//! restartable on the same port) and a small rumqttc client that records what it receives.
+
+#![allow(dead_code)]
+
+use std::net::{TcpListener, TcpStream};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use tokio::sync::mpsc;
+
+pub const MOSQUITTO: &str = "/usr/sbin/mosquitto";
+
+/// A mosquitto broker owned by a test.
+pub struct Mosquitto {
+    pub port: u16,
+    child: Option<Child>,
+    dir: tempfile::TempDir,
+}
+
+impl Mosquitto {
+    /// Starts a broker on a free 127.0.0.1 port and waits until it accepts connections.
+    pub fn start() -> Mosquitto {
+        let port = free_port();
+        let dir = tempfile::tempdir().expect("temp dir");
+        let mut broker = Mosquitto {
+            port,
+            child: None,
+            dir,
+        };
+        broker.launch();
+        broker
+    }
+
+    pub fn url(&self) -> String {
+        format!("mqtt://127.0.0.1:{}", self.port)
+    }
+
+    fn config_path(&self) -> PathBuf {
+        self.dir.path().join("mosquitto.conf")
+    }
+
+    fn launch(&mut self) {
+        let config = format!(
+            "listener {} 127.0.0.1\nallow_anonymous true\npersistence false\n\
+             log_dest file {}\nlog_type all\n",
+            self.port,
+            self.dir.path().join("mosquitto.log").display()
+        );
+        std::fs::write(self.config_path(), config).expect("write mosquitto.conf");
+        let child = Command::new(MOSQUITTO)
+            .arg("-c")
+            .arg(self.config_path())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start mosquitto");
+        self.child = Some(child);
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(Instant::now() < deadline, "mosquitto did not start");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// SIGKILL: no Will for anyone, retained messages gone (no persistence).
+    pub fn kill(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+
+    /// Starts again on the same port.
+    pub fn restart(&mut self) {
+        self.kill();
+        self.launch();
+    }
+
+    /// The broker's log so far (for failure messages).
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(self.dir.path().join("mosquitto.log")).unwrap_or_default()
+    }
+}
+
+impl Drop for Mosquitto {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A port nobody listens on right now.
+pub fn free_port() -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind a free port");
+    listener.local_addr().expect("local address").port()
+}
+
+/// One message as a subscriber saw it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Message {
+    pub topic: String,
+    pub payload: Vec<u8>,
+    pub retain: bool,
+}
+
+impl Message {
+    pub fn text(&self) -> String {
+        String::from_utf8_lossy(&self.payload).into_owned()
+    }
+
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_slice(&self.payload).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+enum ClientEvent {
+    Message(Message),
+    SubAck,
+}
+
+/// A test's MQTT client: subscribe, publish, wait for messages.
+pub struct TestClient {
+    pub client: AsyncClient,
+    rx: mpsc::UnboundedReceiver<ClientEvent>,
+    /// Everything received so far, in order.
+    pub received: Vec<Message>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl TestClient {
+    /// Connects (clean session) and waits for the ConnAck.
+    pub async fn connect(port: u16, id: &str) -> TestClient {
+        let mut options = MqttOptions::new(id, "127.0.0.1", port);
+        options.set_keep_alive(Duration::from_secs(5));
+        options.set_max_packet_size(1024 * 1024, 1024 * 1024);
+        let (client, mut eventloop) = AsyncClient::new(options, 100);
+        let (tx, rx) = mpsc::unbounded_channel();
+        let (connected_tx, connected_rx) = tokio::sync::oneshot::channel();
+        let task = tokio::spawn(async move {
+            let mut connected_tx = Some(connected_tx);
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                        if let Some(tx) = connected_tx.take() {
+                            let _ = tx.send(());
+                        }
+                    }
+                    Ok(Event::Incoming(Packet::Publish(publish))) => {
+                        let message = Message {
+                            topic: publish.topic.clone(),
+                            payload: publish.payload.to_vec(),
+                            retain: publish.retain,
+                        };
+                        if tx.send(ClientEvent::Message(message)).is_err() {
+                            return;
+                        }
+                    }
+                    Ok(Event::Incoming(Packet::SubAck(_))) => {
+                        if tx.send(ClientEvent::SubAck).is_err() {
+                            return;
+                        }
+                    }
+                    Ok(_) => {}
+                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+                }
+            }
+        });
+        tokio::time::timeout(Duration::from_secs(10), connected_rx)
+            .await
+            .expect("test client connect timed out")
+            .expect("test client event loop ended");
+        TestClient {
+            client,
+            rx,
+            received: Vec::new(),
+            task,
+        }
+    }
+
+    /// Subscribes and waits for the SubAck.
+    pub async fn subscribe(&mut self, filter: &str) {
+        self.client
+            .subscribe(filter, QoS::AtLeastOnce)
+            .await
+            .expect("subscribe");
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            match tokio::time::timeout_at(deadline, self.rx.recv()).await {
+                Ok(Some(ClientEvent::SubAck)) => return,
+                Ok(Some(ClientEvent::Message(message))) => self.received.push(message),
+                _ => panic!("no SubAck for {filter}"),
+            }
+        }
+    }
+
+    pub async fn publish(&self, topic: &str, payload: impl Into<Vec<u8>>, retain: bool) {
+        self.client
+            .publish(topic, QoS::AtLeastOnce, retain, payload.into())
+            .await
+            .expect("publish");
+    }
+
+    /// Waits for the next message on `topic` that satisfies `accept` (messages received
+    /// earlier are looked at first, from the oldest not yet taken).
+    pub async fn wait_for(
+        &mut self,
+        topic: &str,
+        timeout: Duration,
+        accept: impl Fn(&Message) -> bool,
+    ) -> Message {
+        self.try_wait_for(topic, timeout, accept)
+            .await
+            .unwrap_or_else(|| {
+                let seen: Vec<String> = self
+                    .received
+                    .iter()
+                    .filter(|m| m.topic == topic)
+                    .map(|m| m.text())
+                    .collect();
+                panic!("no matching message on {topic} within {timeout:?}; seen there: {seen:?}")
+            })
+    }
+
+    /// Like [`wait_for`] but None on timeout.
+    pub async fn try_wait_for(
+        &mut self,
+        topic: &str,
+        timeout: Duration,
+        accept: impl Fn(&Message) -> bool,
+    ) -> Option<Message> {
+        if let Some(index) = self
+            .received
+            .iter()
+            .position(|m| m.topic == topic && accept(m))
+        {
+            return Some(self.received.remove(index));
+        }
+        let deadline = tokio::time::Instant::now() + timeout;
+        loop {
+            match tokio::time::timeout_at(deadline, self.rx.recv()).await {
+                Ok(Some(ClientEvent::Message(message))) => {
+                    if message.topic == topic && accept(&message) {
+                        return Some(message);
+                    }
+                    self.received.push(message);
+                }
+                Ok(Some(ClientEvent::SubAck)) => {}
+                _ => return None,
+            }
+        }
+    }
+
+    /// Waits for the next message on `topic`, whatever it says.
+    pub async fn next_on(&mut self, topic: &str, timeout: Duration) -> Message {
+        self.wait_for(topic, timeout, |_| true).await
+    }
+
+    /// Collects everything arriving for `duration` into `received`.
+    pub async fn settle(&mut self, duration: Duration) {
+        let deadline = tokio::time::Instant::now() + duration;
+        while let Ok(Some(event)) = tokio::time::timeout_at(deadline, self.rx.recv()).await {
+            if let ClientEvent::Message(message) = event {
+                self.received.push(message);
+            }
+        }
+    }
+
+    /// Forgets what was received so far (after settling).
+    pub fn forget(&mut self) {
+        self.received.clear();
+    }
+
+    /// Messages received on `topic` (not yet taken by a wait).
+    pub fn on(&self, topic: &str) -> Vec<&Message> {
+        self.received.iter().filter(|m| m.topic == topic).collect()
+    }
+}
+
+impl Drop for TestClient {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
