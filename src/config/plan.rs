@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::profile::PollClass;
-use crate::rtu::codec::{encode_request, expected_answer_len};
+use crate::rtu::codec::{expected_answer_len, expected_request_len};
 use crate::rtu::timing::LineTiming;
 
 /// One device's share of its line.
@@ -66,7 +66,9 @@ pub fn transaction_wire_time(
     address: u8,
     request: &crate::rtu::Request,
 ) -> Duration {
-    let request_len = encode_request(address, request).len();
+    // Same length for every address; the address stays in the signature for callers.
+    let _ = address;
+    let request_len = expected_request_len(request);
     let answer_len = expected_answer_len(request);
     timing.frame_time(request_len) + timing.frame_time(answer_len) + 2 * timing.t3_5
 }
