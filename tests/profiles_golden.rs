@@ -931,3 +931,242 @@ fn apply_write_refuses_addresses_outside_the_write_frames() {
         Value::Int(42)
     );
 }
+
+// --- byte for byte, through the RTU codec ---------------------------------------------------
+
+mod bytes {
+    use super::*;
+    use rtu2mqtt::rtu::codec::{decode_answer, encode_request, hex, Answer};
+
+    fn frames(slave: u8, requests: &[Request]) -> Vec<String> {
+        requests
+            .iter()
+            .map(|r| hex(&encode_request(slave, r).unwrap()))
+            .collect()
+    }
+
+    #[test]
+    fn dust_collector_frames() {
+        let profile = dust();
+        assert_eq!(
+            frames(1, &[profile.read_blocks()[0].request.clone()]),
+            ["01 03 10 00 00 06 C1 08"]
+        );
+        let gear = plan(&profile, "gear", "8");
+        assert_eq!(
+            frames(1, &gear.writes(&[]).unwrap()),
+            ["01 06 10 02 00 08 2D 0C"]
+        );
+        // Power on + pulse on, gear 5, PV 2, SV 10 in one FC10, from a device in standby.
+        let group = profile
+            .plan_group(
+                "settings",
+                &[
+                    ("power", "ON"),
+                    ("pulse_cleaning", "ON"),
+                    ("gear", "5"),
+                    ("pulse_interval", "2"),
+                    ("pulse_duration", "10"),
+                ],
+                &DeviceState::new(),
+            )
+            .unwrap();
+        assert_eq!(group.field(), "settings");
+        let standby = Response::HoldingRegisters(vec![0x0000, 3, 0, 0, 0, 21]);
+        assert_eq!(
+            frames(1, &group.writes(&[standby]).unwrap()),
+            ["01 10 10 00 00 04 08 03 00 00 05 00 02 00 0A 25 38"]
+        );
+        let after = Response::HoldingRegisters(vec![0x0300, 5, 2, 10, 1400, 21]);
+        assert_eq!(group.verify(&[after]), Verification::Applied);
+        let ignored = Response::HoldingRegisters(vec![0x0000, 3, 0, 0, 0, 21]);
+        match group.verify(&[ignored]) {
+            Verification::NotApplied(detail) => {
+                assert!(
+                    detail.contains("power reads OFF after writing ON"),
+                    "{detail}"
+                );
+                assert!(detail.contains("gear reads 3 after writing 5"), "{detail}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn dust_group_keeps_unnamed_status_bits_and_refuses_strays() {
+        let profile = dust();
+        let group = profile
+            .plan_group("settings", &[("gear", "4")], &DeviceState::new())
+            .unwrap();
+        let fresh = Response::HoldingRegisters(vec![0x42F1, 3, 7, 9, 0, 21]);
+        assert_eq!(
+            group.writes(&[fresh]).unwrap(),
+            vec![Request::WriteMultipleRegisters {
+                start: 0x1000,
+                values: vec![0x42F1, 4, 7, 9]
+            }]
+        );
+        let refuse = |values: &[(&str, &str)]| {
+            profile
+                .plan_group("settings", values, &DeviceState::new())
+                .unwrap_err()
+                .0
+        };
+        assert!(refuse(&[("fan_speed", "3")]).contains("read-only"));
+        assert!(refuse(&[("gear", "11")]).contains("gear must be an integer 1–10"));
+        assert!(refuse(&[("gear", "4"), ("gear", "5")]).contains("twice"));
+        assert!(refuse(&[]).contains("no values"));
+        assert!(profile
+            .plan_group("nope", &[("gear", "4")], &DeviceState::new())
+            .is_err());
+    }
+
+    #[test]
+    fn air_shower_frames() {
+        let profile = shower();
+        assert_eq!(
+            frames(0x81, &[profile.read_blocks()[0].request.clone()]),
+            ["81 01 00 00 00 16 A2 04"]
+        );
+        // The document's answer example: light on.
+        let request = profile.read_blocks()[0].request.clone();
+        let answer = match decode_answer(
+            0x81,
+            &request,
+            &[0x81, 0x01, 0x03, 0x00, 0x01, 0x00, 0x22, 0x1E],
+        )
+        .unwrap()
+        {
+            Answer::Normal(response) => response,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(reading(&profile, 0, &answer, "light"), Value::Bool(true));
+        assert_eq!(
+            reading(&profile, 0, &answer, "emergency_stop"),
+            Value::Bool(false)
+        );
+
+        // (field, command, coils set on the device before, golden frame)
+        let cases: &[(&str, &str, &[usize], &str)] = &[
+            ("light", "OFF", &[8], "81 0F 00 00 00 0C 02 00 00 84 76"),
+            (
+                "emergency_stop",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 01 00 85 E6",
+            ),
+            (
+                "front_door_lock",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 02 00 85 16",
+            ),
+            (
+                "rear_door_lock",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 04 00 86 B6",
+            ),
+            ("strong_wind", "ON", &[], "81 0F 00 00 00 0C 02 08 00 83 B6"),
+            ("breeze", "ON", &[], "81 0F 00 00 00 0C 02 10 00 89 B6"),
+            (
+                "front_door_open",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 20 00 9D B6",
+            ),
+            (
+                "rear_door_open",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 40 00 B5 B6",
+            ),
+            (
+                "tunnel_extension",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 80 00 E5 B6",
+            ),
+            ("light", "ON", &[], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+            ("buzzer", "ON", &[], "81 0F 00 00 00 0C 02 00 02 05 B7"),
+            (
+                "voice_start",
+                "PRESS",
+                &[],
+                "81 0F 00 00 00 0C 02 00 04 85 B5",
+            ),
+            (
+                "voice_door",
+                "PRESS",
+                &[],
+                "81 0F 00 00 00 0C 02 00 08 85 B0",
+            ),
+            (
+                "rear_door_lock",
+                "ON",
+                &[1],
+                "81 0F 00 00 00 0C 02 06 00 87 D6",
+            ),
+            (
+                "strong_wind",
+                "ON",
+                &[1, 2],
+                "81 0F 00 00 00 0C 02 0E 00 80 16",
+            ),
+            (
+                "wind",
+                "strong",
+                &[1, 2],
+                "81 0F 00 00 00 0C 02 0E 00 80 16",
+            ),
+            (
+                "light",
+                "ON",
+                &[1, 2, 3],
+                "81 0F 00 00 00 0C 02 0E 01 41 D6",
+            ),
+            // E-stop active + light ON: coil 0 written 0, the e-stop stays active.
+            ("light", "ON", &[0], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+            // Voice coils read back as 1 are written 0.
+            ("light", "ON", &[10, 11], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+        ];
+        for (field, text, before, golden) in cases {
+            let plan = plan(&profile, field, text);
+            let reads = frames(0x81, plan.reads_before());
+            assert_eq!(reads, ["81 01 00 00 00 16 A2 04"], "{field}");
+            let writes = plan.writes(&[coils(before)]).unwrap();
+            assert_eq!(
+                frames(0x81, &writes),
+                [*golden],
+                "{field}={text} from {before:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn valve_setpoint_frames_are_standard_fc06() {
+        let profile = valve();
+        let plan = plan(&profile, "setpoint", "45.67");
+        let written = frames(1, &plan.writes(&[]).unwrap());
+        // Standard single-register layout: address, 06, register, value, CRC (low byte first).
+        assert_eq!(written.len(), 2);
+        assert!(
+            written[0].starts_with("01 06 00 B2 00 45 "),
+            "{}",
+            written[0]
+        );
+        assert!(
+            written[1].starts_with("01 06 00 B3 00 67 "),
+            "{}",
+            written[1]
+        );
+        for frame in &written {
+            let bytes: Vec<u8> = frame
+                .split(' ')
+                .map(|b| u8::from_str_radix(b, 16).unwrap())
+                .collect();
+            let crc = rtu2mqtt::rtu::crc::crc16(&bytes[..6]);
+            assert_eq!(&bytes[6..], &crc.to_le_bytes());
+        }
+    }
+}

@@ -352,6 +352,8 @@ pub struct Compiled {
     pub defs: Vec<FieldDef>,
     pub infos: Vec<FieldInfo>,
     pub forbidden: Vec<Forbidden>,
+    /// The `[[write_frames]]` by name, in file order.
+    pub named_frames: Vec<(String, WriteFrame)>,
 }
 
 /// Collects problems with their places.
@@ -491,6 +493,15 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     }
 
     let forbidden = build_forbidden(&file.forbidden, &infos, &defs, problems);
+    let named_frames = file
+        .write_frames
+        .iter()
+        .filter_map(|section| {
+            frames
+                .get(&section.name)
+                .map(|frame| (section.name.clone(), frame.clone()))
+        })
+        .collect();
 
     Compiled {
         name: file.device.name,
@@ -504,6 +515,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         defs,
         infos,
         forbidden,
+        named_frames,
     }
 }
 
