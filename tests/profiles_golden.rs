@@ -796,9 +796,27 @@ fn th_sensor_settings_are_written_without_code() {
     );
     assert!(rejection(&profile, "temperature_offset", "10.5").contains("-10.0–10.0"));
     assert!(rejection(&profile, "temperature", "20").contains("read-only"));
+    // A scaled word: one raw count is 5 s.
+    let plan = self::plan(&profile, "report_interval", "60");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0102,
+            value: 12
+        }]
+    );
+    assert!(rejection(&profile, "report_interval", "62").contains("multiple of the step 5"));
+    assert!(rejection(&profile, "report_interval", "0").contains("5–3600"));
+    let settings = Response::HoldingRegisters(vec![0xFFF6, 0x8001, 12]);
+    let texts: Vec<String> = profile
+        .decode_block(1, &settings)
+        .into_iter()
+        .map(|r| r.value.unwrap().to_text())
+        .collect();
+    assert_eq!(texts, ["-1.0", "ON", "60"]);
     let plan = self::plan(&profile, "alarm_enabled", "ON");
     assert_eq!(
-        plan.writes(&[Response::HoldingRegisters(vec![0xFFF6, 0x8000])])
+        plan.writes(&[Response::HoldingRegisters(vec![0xFFF6, 0x8000, 12])])
             .unwrap(),
         vec![Request::WriteSingleRegister {
             address: 0x0101,

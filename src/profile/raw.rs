@@ -3,7 +3,7 @@
 //! simulator honours quirks such as the dust collector's FC06 addresses stepping by 2 while its
 //! read block is consecutive). Pure: the simulator owns the images and the behaviour.
 
-use super::codec::BlockImage;
+use super::codec::{BlockImage, FieldCodec, NumberType};
 use super::schema::{block_quantity, Behaviour};
 use super::{FieldKind, Profile, Value};
 use crate::rtu::Request;
@@ -12,10 +12,24 @@ impl Profile {
     /// A plausible value for a field: the middle of a number's range, the first option of an
     /// enumeration, OFF for booleans, zeros for text. Always encodable by the field's codec.
     pub fn plausible_value(&self, field: &str) -> Option<Value> {
-        let info = self.field(field)?;
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)?;
+        let info = &self.inner.infos[index];
+        // Scaled integer words only hold whole multiples of their step.
+        let step = match (&self.inner.defs[index].codec, &info.kind) {
+            (FieldCodec::Number { ty, factor, .. }, _) if !matches!(ty, NumberType::F32(_)) => {
+                *factor
+            }
+            _ => 1,
+        };
         Some(match &info.kind {
             FieldKind::Bool | FieldKind::Momentary => Value::Bool(false),
-            FieldKind::Integer { min, max } => Value::Int(min + (max - min) / 2),
+            FieldKind::Integer { min, max } => {
+                Value::Int(on_step(min + (max - min) / 2, *min, step))
+            }
             FieldKind::Decimal {
                 min,
                 max,
@@ -24,8 +38,12 @@ impl Profile {
                 let factor = 10f64.powi(i32::from(*precision));
                 // Keep sensor-like magnitudes for unbounded floats.
                 let (min, max) = (min.max(-1000.0), max.min(1000.0));
+                let (low, middle) = (
+                    (min * factor).round() as i64,
+                    ((min + max) / 2.0 * factor).round() as i64,
+                );
                 Value::Decimal {
-                    scaled: ((min + max) / 2.0 * factor).round() as i64,
+                    scaled: on_step(middle, low, step),
                     precision: *precision,
                 }
             }
@@ -124,5 +142,15 @@ impl Profile {
             .filter(|(def, _)| def.behaviour == behaviour)
             .map(|(_, info)| info.name.as_str())
             .collect()
+    }
+}
+
+/// `value` moved down to a multiple of `step`, or up when that falls below `min`.
+fn on_step(value: i64, min: i64, step: i64) -> i64 {
+    let down = value - value.rem_euclid(step);
+    if down < min {
+        down + step
+    } else {
+        down
     }
 }

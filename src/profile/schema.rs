@@ -248,25 +248,30 @@ enum CodecSection {
     U16 {
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     I16 {
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     U32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     I32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     F32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     Bcd {
         int_digits: u8,
@@ -845,13 +850,42 @@ fn build_codec(
             }
         }
     };
-    let check_decimals = |decimals: u8, problems: &mut Problems<'_>| {
+    // `decimals` places shown; `scale` the value of one raw count (default 10^-decimals).
+    // scale × 10^decimals must be a whole number so values stay exact.
+    let mut number = |ty: NumberType, decimals: u8, scale: Option<f64>| -> Option<FieldCodec> {
         if decimals > 6 {
             problems.add(
                 format!("{place}.codec.decimals"),
                 format!("{decimals} decimals: at most 6"),
             );
+            return None;
         }
+        let factor = match scale {
+            // Integers count the last shown place; a float is the value itself.
+            None if matches!(ty, NumberType::F32(_)) => 10i64.pow(u32::from(decimals)),
+            None => 1,
+            Some(scale) => {
+                let counts = scale * 10f64.powi(i32::from(decimals));
+                if !(counts.is_finite() && (1.0..=1e9).contains(&counts))
+                    || (counts - counts.round()).abs() > 1e-6
+                {
+                    problems.add(
+                        format!("{place}.codec.scale"),
+                        format!(
+                            "scale {scale} is not a positive whole number of the last shown \
+                             place with {decimals} decimals (raise `decimals`)"
+                        ),
+                    );
+                    return None;
+                }
+                counts.round() as i64
+            }
+        };
+        Some(FieldCodec::Number {
+            ty,
+            decimals,
+            factor,
+        })
     };
     Some(match section {
         CodecSection::Bit { bit, invert } => {
@@ -904,50 +938,23 @@ fn build_codec(
                 options: options.clone(),
             }
         }
-        CodecSection::U16 { decimals } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::U16,
-                decimals: *decimals,
-            }
-        }
-        CodecSection::I16 { decimals } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::I16,
-                decimals: *decimals,
-            }
-        }
+        CodecSection::U16 { decimals, scale } => number(NumberType::U16, *decimals, *scale)?,
+        CodecSection::I16 { decimals, scale } => number(NumberType::I16, *decimals, *scale)?,
         CodecSection::U32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::U32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::U32(*word_order), *decimals, *scale)?,
         CodecSection::I32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::I32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::I32(*word_order), *decimals, *scale)?,
         CodecSection::F32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::F32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::F32(*word_order), *decimals, *scale)?,
         CodecSection::Bcd {
             int_digits,
             frac_digits,
