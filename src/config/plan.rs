@@ -61,13 +61,7 @@ impl LinePlan {
 }
 
 /// Wire time of one transaction: request, answer and the t3.5 silence after each.
-pub fn transaction_wire_time(
-    timing: &LineTiming,
-    address: u8,
-    request: &crate::rtu::Request,
-) -> Duration {
-    // Same length for every address; the address stays in the signature for callers.
-    let _ = address;
+pub fn transaction_wire_time(timing: &LineTiming, request: &crate::rtu::Request) -> Duration {
     let request_len = expected_request_len(request);
     let answer_len = expected_answer_len(request);
     timing.frame_time(request_len) + timing.frame_time(answer_len) + 2 * timing.t3_5
@@ -88,7 +82,7 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
         bus_load: 0.0,
     };
     for block in device.profile.read_blocks() {
-        let wire = transaction_wire_time(timing, device.address, &block.request);
+        let wire = transaction_wire_time(timing, &block.request);
         match block.class {
             PollClass::Fast => {
                 plan.fast_blocks += 1;
