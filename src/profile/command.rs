@@ -43,7 +43,10 @@ pub struct CommandPlan {
     /// (field index, commanded value), parsed and normalised to each field's kind.
     targets: Vec<(usize, Value)>,
     reads_before: Vec<Request>,
+    /// Block offset of the first coil or register `reads_before` returns.
+    before_base: u16,
     readback: Vec<Request>,
+    readback_base: u16,
 }
 
 impl CommandPlan {
@@ -55,13 +58,14 @@ impl CommandPlan {
         frame: WriteFrame,
         targets: Vec<(usize, Value)>,
     ) -> Self {
-        let block_request = profile.blocks[frame.block].request.clone();
         // A fresh read is needed unless the targets fill the frame completely and nothing
         // depends on the device's current state (toggles, forbidden combinations).
         let is_bits = profile.block_kinds[frame.block].is_bits();
         let mut covered = vec![0u16; usize::from(frame.count)];
+        let mut target_span = (u16::MAX, 0u16);
         for (field, _) in &targets {
             let def = &profile.defs[*field];
+            target_span = widen(target_span, def.offset, def.codec.width());
             for (offset, mask) in def.codec.footprint(def.offset) {
                 if let Some(slot) = offset
                     .checked_sub(frame.offset)
@@ -73,26 +77,40 @@ impl CommandPlan {
         }
         let full = if is_bits { 1 } else { 0xFFFF };
         let frame_filled = covered.iter().all(|mask| *mask == full);
-        let depends_on_state = targets.iter().any(|(field, _)| {
-            profile.defs[*field].behaviour == Behaviour::Toggle
-                || profile.forbidden.iter().any(|rule| {
-                    rule.when
-                        .iter()
-                        .any(|(f, _)| footprints_meet(&profile, *f, *field))
-                })
-        });
-        let reads_before = if frame_filled && !depends_on_state {
-            Vec::new()
+        let mut before_span = (frame.offset, frame.offset + frame.count);
+        let mut depends_on_state = false;
+        for (field, _) in &targets {
+            depends_on_state |= profile.defs[*field].behaviour == Behaviour::Toggle;
+            for rule in &profile.forbidden {
+                if rule
+                    .when
+                    .iter()
+                    .any(|(f, _)| footprints_meet(&profile, *f, *field))
+                {
+                    depends_on_state = true;
+                    for (f, _) in &rule.when {
+                        let def = &profile.defs[*f];
+                        before_span = widen(before_span, def.offset, def.codec.width());
+                    }
+                }
+            }
+        }
+        let (reads_before, before_base) = if frame_filled && !depends_on_state {
+            (Vec::new(), 0)
         } else {
-            vec![block_request.clone()]
+            let (request, base) = run_read(&profile, frame.block, before_span);
+            (vec![request], base)
         };
+        let (readback, readback_base) = run_read(&profile, frame.block, target_span);
         Self {
             profile,
             label,
             frame,
             targets,
             reads_before,
-            readback: vec![block_request],
+            before_base,
+            readback: vec![readback],
+            readback_base,
         }
     }
 
@@ -123,23 +141,48 @@ impl CommandPlan {
         super::schema::block_quantity(&self.profile.blocks[self.frame.block].request) as usize
     }
 
+    /// An image of the whole block, all zero.
+    fn empty_image(&self) -> BlockImage {
+        if self.profile.block_kinds[self.frame.block].is_bits() {
+            BlockImage::Bits(vec![false; self.block_len()])
+        } else {
+            BlockImage::Words(vec![0; self.block_len()])
+        }
+    }
+
+    /// The answer to `request` (a part of the block from offset `base`) placed in an image of
+    /// the whole block, zeros elsewhere. None when the answer does not fit the request.
+    fn place(&self, answer: &Response, request: &Request, base: u16) -> Option<BlockImage> {
+        let len = super::schema::block_quantity(request) as usize;
+        let part = image_of(answer, len)?;
+        let mut image = self.empty_image();
+        let base = usize::from(base);
+        match (&mut image, part) {
+            (BlockImage::Words(all), BlockImage::Words(words)) => {
+                all.get_mut(base..base + len)?
+                    .copy_from_slice(words.get(..len)?);
+            }
+            (BlockImage::Bits(all), BlockImage::Bits(bits)) => {
+                all.get_mut(base..base + len)?
+                    .copy_from_slice(bits.get(..len)?);
+            }
+            _ => return None,
+        }
+        Some(image)
+    }
+
     /// The write requests, computed from the fresh answers to `reads_before()`. Empty when the
     /// device already is in the commanded state (a toggle field asked for its current state).
     pub fn writes(&self, before: &[Response]) -> Result<Vec<Request>, Rejection> {
         let profile = &self.profile;
         let frame = &self.frame;
         let name = &self.label;
-        let block_len = self.block_len();
         let fresh = if self.reads_before.is_empty() {
-            if profile.block_kinds[frame.block].is_bits() {
-                BlockImage::Bits(vec![false; block_len])
-            } else {
-                BlockImage::Words(vec![0; block_len])
-            }
+            self.empty_image()
         } else {
             before
                 .first()
-                .and_then(|answer| image_of(answer, block_len))
+                .and_then(|answer| self.place(answer, &self.reads_before[0], self.before_base))
                 .ok_or_else(|| {
                     Rejection(format!(
                         "{name}: the read before the write did not return block `{}`",
@@ -239,7 +282,7 @@ impl CommandPlan {
         let profile = &self.profile;
         let Some(image) = answers
             .first()
-            .and_then(|answer| image_of(answer, self.block_len()))
+            .and_then(|answer| self.place(answer, &self.readback[0], self.readback_base))
         else {
             return Verification::NotApplied(format!("{}: no usable read-back", self.label));
         };
@@ -293,6 +336,46 @@ pub(crate) fn image_of(answer: &Response, expected_len: usize) -> Option<BlockIm
         BlockImage::Bits(bits) => bits.len(),
     };
     (len >= expected_len).then_some(image)
+}
+
+/// `span` (start, end) widened to cover `width` places from `offset`.
+fn widen(span: (u16, u16), offset: u16, width: u16) -> (u16, u16) {
+    (span.0.min(offset), span.1.max(offset + width))
+}
+
+/// The read that covers `span` of a block using only the block's used runs (the reads the
+/// device is known to accept even when it refuses the merged block), and its block offset.
+fn run_read(profile: &Compiled, block: usize, span: (u16, u16)) -> (Request, u16) {
+    let read = &profile.blocks[block];
+    let (mut start, mut end) = span;
+    for &(run_start, run_len) in &read.used_runs {
+        let run_end = run_start + run_len;
+        if run_start < span.1 && span.0 < run_end {
+            start = start.min(run_start);
+            end = end.max(run_end);
+        }
+    }
+    let quantity = end.saturating_sub(start);
+    let request = match read.request {
+        Request::ReadCoils { start: first, .. } => Request::ReadCoils {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadDiscreteInputs { start: first, .. } => Request::ReadDiscreteInputs {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadInputRegisters { start: first, .. } => Request::ReadInputRegisters {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadHoldingRegisters { start: first, .. } => Request::ReadHoldingRegisters {
+            start: first + start,
+            quantity,
+        },
+        ref other => other.clone(),
+    };
+    (request, start)
 }
 
 fn inside_frame(offset: u16, width: u16, frame: &WriteFrame) -> bool {

@@ -6,7 +6,7 @@
 use super::codec::{BlockImage, FieldCodec, NumberType};
 use super::schema::{block_quantity, Behaviour};
 use super::{FieldKind, Profile, Value};
-use crate::rtu::Request;
+use crate::rtu::{Request, Response};
 
 impl Profile {
     /// A plausible value for a field: the middle of a number's range, the first option of an
@@ -124,6 +124,43 @@ impl Profile {
         true
     }
 
+    /// Answers a read request from the block images (one per `read_blocks()` entry) when one
+    /// block of the same kind covers it: the whole block or any part of it. None otherwise (a
+    /// real device would answer exception 02).
+    pub fn answer_read(&self, images: &[BlockImage], request: &Request) -> Option<Response> {
+        let (start, quantity) = read_span(request)?;
+        self.inner
+            .blocks
+            .iter()
+            .zip(images)
+            .find_map(|(block, image)| {
+                let (first, len) = read_span(&block.request)?;
+                if std::mem::discriminant(&block.request) != std::mem::discriminant(request)
+                    || start < first
+                    || u32::from(start) + u32::from(quantity) > u32::from(first) + u32::from(len)
+                {
+                    return None;
+                }
+                let from = usize::from(start - first);
+                let to = from + usize::from(quantity);
+                Some(match (request, image) {
+                    (Request::ReadCoils { .. }, BlockImage::Bits(bits)) => {
+                        Response::Coils(bits.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadDiscreteInputs { .. }, BlockImage::Bits(bits)) => {
+                        Response::DiscreteInputs(bits.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadHoldingRegisters { .. }, BlockImage::Words(words)) => {
+                        Response::HoldingRegisters(words.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadInputRegisters { .. }, BlockImage::Words(words)) => {
+                        Response::InputRegisters(words.get(from..to)?.to_vec())
+                    }
+                    _ => return None,
+                })
+            })
+    }
+
     /// Names of the toggle fields (write 1 flips the state), for simulators.
     pub fn toggle_fields(&self) -> Vec<&str> {
         self.fields_with(Behaviour::Toggle)
@@ -152,5 +189,16 @@ fn on_step(value: i64, min: i64, step: i64) -> i64 {
         down + step
     } else {
         down
+    }
+}
+
+/// (start, quantity) of a read request.
+fn read_span(request: &Request) -> Option<(u16, u16)> {
+    match *request {
+        Request::ReadCoils { start, quantity }
+        | Request::ReadDiscreteInputs { start, quantity }
+        | Request::ReadHoldingRegisters { start, quantity }
+        | Request::ReadInputRegisters { start, quantity } => Some((start, quantity)),
+        _ => None,
     }
 }

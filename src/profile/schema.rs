@@ -129,6 +129,10 @@ struct BlockSection {
     count: u16,
     #[serde(default = "default_poll")]
     poll: String,
+    /// The block is always read with exactly this request (the vendor's own example), never
+    /// split into the runs its fields use: gaps are readable on this device.
+    #[serde(default)]
+    read_whole: bool,
 }
 
 fn default_poll() -> String {
@@ -483,8 +487,12 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let blocks = blocks
         .into_iter()
         .zip(used)
-        .map(|(mut block, spans)| {
+        .zip(&file.blocks)
+        .map(|((mut block, spans), section)| {
             block.used_runs = merge_runs(spans);
+            if section.read_whole && !block.used_runs.is_empty() {
+                block.used_runs = vec![(0, section.count)];
+            }
             block
         })
         .collect::<Vec<_>>();
