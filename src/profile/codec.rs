@@ -1,5 +1,15 @@
 //! The closed set of field codecs: bits, bit groups with enumerations, inverted bits, words,
 //! scaled numbers, packed BCD integer + fraction pairs, low-byte chars, byte strings, coils.
+//!
+//! A codec turns the raw registers or coils at a field's place into a [`Value`] and back into
+//! a [`RawPatch`] (what to change in the block image). Command text is parsed here too, against
+//! the field's [`FieldKind`], so that every refusal names the field and the allowed values.
+//! Nothing here knows about frames, devices or time.
+
+use serde::Deserialize;
+
+use super::command::Rejection;
+use super::{FieldInfo, FieldKind, Value};
 
 /// Why a field has no value in a block answer.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -8,4 +18,605 @@ pub enum FieldError {
     InvalidBcd(u16),
     #[error("{0}")]
     Invalid(String),
+}
+
+/// Order of the two registers of a 32-bit value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WordOrder {
+    /// The first register holds the high word (Modbus "big endian", most devices).
+    HighFirst,
+    /// The first register holds the low word ("word swapped").
+    LowFirst,
+}
+
+/// How a byte string is shown.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ByteFormat {
+    /// Two upper-case hex digits per byte (`0A1B2C`).
+    #[default]
+    Hex,
+    /// Each byte in decimal (`0:1:30` with separator `:`).
+    Decimal,
+}
+
+/// Which bytes of each register a byte string takes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ByteSource {
+    /// The low byte only (the "Char" registers of many Chinese devices).
+    #[default]
+    Low,
+    /// High byte, then low byte.
+    Both,
+}
+
+/// Register number types.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NumberType {
+    U16,
+    I16,
+    U32(WordOrder),
+    I32(WordOrder),
+    F32(WordOrder),
+}
+
+/// A compiled field codec.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FieldCodec {
+    /// One bit of a word; `invert`: ON when the bit is 0.
+    Bit { bit: u8, invert: bool },
+    /// `width` bits from `bit` upwards, as an integer or, with options, an enumeration
+    /// (option i ⇔ raw value i).
+    Bits {
+        bit: u8,
+        width: u8,
+        options: Vec<String>,
+    },
+    /// One coil or discrete input.
+    Coil { invert: bool },
+    /// `width` coils from the field's offset (coil i is bit i of the raw value), as an integer
+    /// or an enumeration.
+    Coils { width: u8, options: Vec<String> },
+    /// A register number, `decimals` implied decimal places (raw 1234, 2 → 12.34).
+    Number { ty: NumberType, decimals: u8 },
+    /// Packed BCD over two registers: integer part, then fraction part.
+    Bcd { int_digits: u8, frac_digits: u8 },
+    /// The low byte of one register.
+    Char,
+    /// A read-only byte string over `registers` registers.
+    Bytes {
+        registers: u16,
+        format: ByteFormat,
+        separator: String,
+        bytes: ByteSource,
+    },
+}
+
+/// A change to a block image: at `offset` (block-relative), replace the bits in `mask` with
+/// `bits`. For coil blocks `mask` is 1 and `bits` 0 or 1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RawPatch {
+    pub offset: u16,
+    pub mask: u16,
+    pub bits: u16,
+}
+
+/// The raw data of a block: words or bits.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BlockImage {
+    Words(Vec<u16>),
+    Bits(Vec<bool>),
+}
+
+impl BlockImage {
+    /// Applies patches; places outside the image are ignored (validated profiles never make them).
+    pub fn apply(&mut self, patches: &[RawPatch]) {
+        for patch in patches {
+            let index = usize::from(patch.offset);
+            match self {
+                Self::Words(words) => {
+                    if let Some(word) = words.get_mut(index) {
+                        *word = (*word & !patch.mask) | (patch.bits & patch.mask);
+                    }
+                }
+                Self::Bits(bits) => {
+                    if let Some(bit) = bits.get_mut(index) {
+                        if patch.mask & 1 != 0 {
+                            *bit = patch.bits & 1 != 0;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn pow10(decimals: u8) -> i64 {
+    10i64.pow(u32::from(decimals))
+}
+
+fn enum_or_int(raw: u16, options: &[String]) -> Result<Value, FieldError> {
+    if options.is_empty() {
+        return Ok(Value::Int(i64::from(raw)));
+    }
+    options
+        .get(usize::from(raw))
+        .map(|word| Value::Enum(word.clone()))
+        .ok_or_else(|| FieldError::Invalid(format!("raw value {raw} has no option")))
+}
+
+fn raw_of_enum(value: &Value, options: &[String], width: u8) -> Result<u16, String> {
+    let limit = (1u32 << width) - 1;
+    let raw = match value {
+        Value::Enum(word) if !options.is_empty() => options
+            .iter()
+            .position(|o| o == word)
+            .ok_or_else(|| format!("unknown option `{word}`"))?,
+        Value::Int(v) if options.is_empty() && *v >= 0 && *v as u64 <= u64::from(limit) => {
+            *v as usize
+        }
+        other => return Err(format!("{other:?} does not fit {width} bits")),
+    };
+    u16::try_from(raw).map_err(|_| "option index too large".to_string())
+}
+
+/// Decodes `digits` packed BCD digits of `word`; digits above them must be zero.
+fn bcd_digits(word: u16, digits: u8) -> Result<i64, FieldError> {
+    let mut value = 0i64;
+    for position in (0..4u8).rev() {
+        let nibble = (word >> (4 * position)) & 0xF;
+        if nibble > 9 {
+            return Err(FieldError::InvalidBcd(word));
+        }
+        if position >= digits && nibble != 0 {
+            return Err(FieldError::Invalid(format!(
+                "BCD word {word:#06x} has more than {digits} digits"
+            )));
+        }
+        value = value * 10 + i64::from(nibble);
+    }
+    Ok(value)
+}
+
+fn to_bcd(mut value: i64) -> u16 {
+    let mut word = 0u16;
+    for position in 0..4 {
+        word |= ((value % 10) as u16) << (4 * position);
+        value /= 10;
+    }
+    word
+}
+
+impl FieldCodec {
+    /// Registers or coils the field covers.
+    pub fn width(&self) -> u16 {
+        match self {
+            Self::Bit { .. } | Self::Bits { .. } | Self::Coil { .. } | Self::Char => 1,
+            Self::Coils { width, .. } => u16::from(*width),
+            Self::Number { ty, .. } => match ty {
+                NumberType::U16 | NumberType::I16 => 1,
+                _ => 2,
+            },
+            Self::Bcd { .. } => 2,
+            Self::Bytes { registers, .. } => *registers,
+        }
+    }
+
+    /// True for codecs of coil / discrete-input blocks.
+    pub fn is_bit_codec(&self) -> bool {
+        matches!(self, Self::Coil { .. } | Self::Coils { .. })
+    }
+
+    pub fn is_writable(&self) -> bool {
+        !matches!(self, Self::Bytes { .. })
+    }
+
+    /// The bits the field occupies: (block offset, mask) for each register or coil.
+    pub fn footprint(&self, offset: u16) -> Vec<(u16, u16)> {
+        match self {
+            Self::Bit { bit, .. } => vec![(offset, 1 << bit)],
+            Self::Bits { bit, width, .. } => {
+                vec![(offset, (((1u32 << width) - 1) << bit) as u16)]
+            }
+            Self::Char => vec![(offset, 0xFFFF)],
+            _ if self.is_bit_codec() => (0..self.width()).map(|i| (offset + i, 1)).collect(),
+            _ => (0..self.width()).map(|i| (offset + i, 0xFFFF)).collect(),
+        }
+    }
+
+    /// The kind and widest range the codec can represent.
+    pub fn natural_kind(&self) -> FieldKind {
+        match self {
+            Self::Bit { .. } | Self::Coil { .. } => FieldKind::Bool,
+            Self::Bits { width, options, .. } | Self::Coils { width, options } => {
+                if options.is_empty() {
+                    FieldKind::Integer {
+                        min: 0,
+                        max: (1i64 << width) - 1,
+                    }
+                } else {
+                    FieldKind::Enum {
+                        options: options.clone(),
+                    }
+                }
+            }
+            Self::Char => FieldKind::Integer { min: 0, max: 255 },
+            Self::Number { ty, decimals } => {
+                let (min, max) = match ty {
+                    NumberType::U16 => (0, i64::from(u16::MAX)),
+                    NumberType::I16 => (i64::from(i16::MIN), i64::from(i16::MAX)),
+                    NumberType::U32(_) => (0, i64::from(u32::MAX)),
+                    NumberType::I32(_) => (i64::from(i32::MIN), i64::from(i32::MAX)),
+                    NumberType::F32(_) => {
+                        return FieldKind::Decimal {
+                            min: f64::from(f32::MIN),
+                            max: f64::from(f32::MAX),
+                            precision: *decimals,
+                        }
+                    }
+                };
+                if *decimals == 0 {
+                    FieldKind::Integer { min, max }
+                } else {
+                    let scale = pow10(*decimals) as f64;
+                    FieldKind::Decimal {
+                        min: min as f64 / scale,
+                        max: max as f64 / scale,
+                        precision: *decimals,
+                    }
+                }
+            }
+            Self::Bcd {
+                int_digits,
+                frac_digits,
+            } => {
+                let scaled_max = pow10(int_digits + frac_digits) - 1;
+                FieldKind::Decimal {
+                    min: 0.0,
+                    max: scaled_max as f64 / pow10(*frac_digits) as f64,
+                    precision: *frac_digits,
+                }
+            }
+            Self::Bytes { .. } => FieldKind::Text,
+        }
+    }
+
+    /// Decodes the field at `offset` of a block image.
+    pub fn decode(&self, image: &BlockImage, offset: u16) -> Result<Value, FieldError> {
+        let start = usize::from(offset);
+        let end = start + usize::from(self.width());
+        let short = || FieldError::Invalid("the answer is shorter than the block".to_string());
+        match image {
+            BlockImage::Words(words) => {
+                let words = words.get(start..end).ok_or_else(short)?;
+                self.decode_words(words)
+            }
+            BlockImage::Bits(bits) => {
+                let bits = bits.get(start..end).ok_or_else(short)?;
+                match self {
+                    Self::Coil { invert } => Ok(Value::Bool(bits[0] != *invert)),
+                    Self::Coils { options, .. } => {
+                        let raw = bits
+                            .iter()
+                            .enumerate()
+                            .fold(0u16, |acc, (i, b)| acc | (u16::from(*b) << i));
+                        enum_or_int(raw, options)
+                    }
+                    _ => Err(FieldError::Invalid(
+                        "register codec on a bit block".to_string(),
+                    )),
+                }
+            }
+        }
+    }
+
+    fn decode_words(&self, words: &[u16]) -> Result<Value, FieldError> {
+        let first = words[0];
+        let pair = || (u32::from(words[0]), u32::from(words[1]));
+        let join = |order: WordOrder| {
+            let (a, b) = pair();
+            match order {
+                WordOrder::HighFirst => (a << 16) | b,
+                WordOrder::LowFirst => (b << 16) | a,
+            }
+        };
+        match self {
+            Self::Bit { bit, invert } => Ok(Value::Bool(((first >> bit) & 1 == 1) != *invert)),
+            Self::Bits {
+                bit,
+                width,
+                options,
+            } => {
+                let raw = (u32::from(first) >> bit) & ((1u32 << width) - 1);
+                enum_or_int(raw as u16, options)
+            }
+            Self::Char => Ok(Value::Int(i64::from(first & 0xFF))),
+            Self::Number { ty, decimals } => {
+                let raw = match ty {
+                    NumberType::U16 => i64::from(first),
+                    NumberType::I16 => i64::from(first as i16),
+                    NumberType::U32(order) => i64::from(join(*order)),
+                    NumberType::I32(order) => i64::from(join(*order) as i32),
+                    NumberType::F32(order) => {
+                        let float = f64::from(f32::from_bits(join(*order)));
+                        if !float.is_finite() {
+                            return Err(FieldError::Invalid(format!("not a number: {float}")));
+                        }
+                        let scaled = (float * pow10(*decimals) as f64).round();
+                        if scaled.abs() > 9.0e15 {
+                            return Err(FieldError::Invalid(format!("out of range: {float}")));
+                        }
+                        return Ok(Value::Decimal {
+                            scaled: scaled as i64,
+                            precision: *decimals,
+                        });
+                    }
+                };
+                Ok(if *decimals == 0 {
+                    Value::Int(raw)
+                } else {
+                    Value::Decimal {
+                        scaled: raw,
+                        precision: *decimals,
+                    }
+                })
+            }
+            Self::Bcd {
+                int_digits,
+                frac_digits,
+            } => {
+                let integer = bcd_digits(words[0], *int_digits)?;
+                let fraction = bcd_digits(words[1], *frac_digits)?;
+                Ok(Value::Decimal {
+                    scaled: integer * pow10(*frac_digits) + fraction,
+                    precision: *frac_digits,
+                })
+            }
+            Self::Bytes {
+                format,
+                separator,
+                bytes,
+                ..
+            } => {
+                let raw: Vec<u8> = words
+                    .iter()
+                    .flat_map(|w| match bytes {
+                        ByteSource::Low => vec![(w & 0xFF) as u8],
+                        ByteSource::Both => vec![(w >> 8) as u8, (w & 0xFF) as u8],
+                    })
+                    .collect();
+                let parts: Vec<String> = raw
+                    .iter()
+                    .map(|b| match format {
+                        ByteFormat::Hex => format!("{b:02X}"),
+                        ByteFormat::Decimal => b.to_string(),
+                    })
+                    .collect();
+                Ok(Value::Text(parts.join(separator)))
+            }
+            Self::Coil { .. } | Self::Coils { .. } => Err(FieldError::Invalid(
+                "bit codec on a register block".to_string(),
+            )),
+        }
+    }
+
+    /// The raw change that writes `value` into the field's place (`offset` block-relative).
+    /// The value must already have the field's kind (see [`parse_command`]).
+    pub fn encode(&self, offset: u16, value: &Value) -> Result<Vec<RawPatch>, String> {
+        let word = |rel: u16, mask: u16, bits: u16| RawPatch {
+            offset: offset + rel,
+            mask,
+            bits,
+        };
+        let number = |decimals: u8| -> Result<i64, String> {
+            match value {
+                Value::Int(v) => v
+                    .checked_mul(pow10(decimals))
+                    .ok_or_else(|| "number too large".to_string()),
+                Value::Decimal { scaled, precision } if *precision <= decimals => scaled
+                    .checked_mul(pow10(decimals - precision))
+                    .ok_or_else(|| "number too large".to_string()),
+                Value::Decimal { scaled, precision } => {
+                    let divisor = pow10(precision - decimals);
+                    if scaled % divisor != 0 {
+                        return Err(format!("{} has too many decimals", value.to_text()));
+                    }
+                    Ok(scaled / divisor)
+                }
+                other => Err(format!("{other:?} is not a number")),
+            }
+        };
+        let fits = |raw: i64, min: i64, max: i64| {
+            if raw < min || raw > max {
+                Err(format!("{} is out of the codec's range", value.to_text()))
+            } else {
+                Ok(raw)
+            }
+        };
+        match self {
+            Self::Bit { bit, invert } => {
+                let Value::Bool(on) = value else {
+                    return Err(format!("{value:?} is not ON/OFF"));
+                };
+                let set = *on != *invert;
+                Ok(vec![word(0, 1 << bit, if set { 1 << bit } else { 0 })])
+            }
+            Self::Bits {
+                bit,
+                width,
+                options,
+            } => {
+                let raw = raw_of_enum(value, options, *width)?;
+                let mask = (((1u32 << width) - 1) << bit) as u16;
+                Ok(vec![word(0, mask, raw << bit)])
+            }
+            Self::Coil { invert } => {
+                let Value::Bool(on) = value else {
+                    return Err(format!("{value:?} is not ON/OFF"));
+                };
+                Ok(vec![word(0, 1, u16::from(*on != *invert))])
+            }
+            Self::Coils { width, options } => {
+                let raw = raw_of_enum(value, options, *width)?;
+                Ok((0..u16::from(*width))
+                    .map(|i| word(i, 1, (raw >> i) & 1))
+                    .collect())
+            }
+            Self::Char => {
+                let raw = fits(number(0)?, 0, 255)?;
+                Ok(vec![word(0, 0xFFFF, raw as u16)])
+            }
+            Self::Number { ty, decimals } => {
+                let split = |raw: u32, order: WordOrder| {
+                    let (high, low) = ((raw >> 16) as u16, raw as u16);
+                    match order {
+                        WordOrder::HighFirst => vec![word(0, 0xFFFF, high), word(1, 0xFFFF, low)],
+                        WordOrder::LowFirst => vec![word(0, 0xFFFF, low), word(1, 0xFFFF, high)],
+                    }
+                };
+                match ty {
+                    NumberType::U16 => {
+                        let raw = fits(number(*decimals)?, 0, i64::from(u16::MAX))?;
+                        Ok(vec![word(0, 0xFFFF, raw as u16)])
+                    }
+                    NumberType::I16 => {
+                        let raw =
+                            fits(number(*decimals)?, i64::from(i16::MIN), i64::from(i16::MAX))?;
+                        Ok(vec![word(0, 0xFFFF, raw as i16 as u16)])
+                    }
+                    NumberType::U32(order) => {
+                        let raw = fits(number(*decimals)?, 0, i64::from(u32::MAX))?;
+                        Ok(split(raw as u32, *order))
+                    }
+                    NumberType::I32(order) => {
+                        let raw =
+                            fits(number(*decimals)?, i64::from(i32::MIN), i64::from(i32::MAX))?;
+                        Ok(split(raw as i32 as u32, *order))
+                    }
+                    NumberType::F32(order) => {
+                        let scaled = number(*decimals)?;
+                        let float = scaled as f64 / pow10(*decimals) as f64;
+                        Ok(split((float as f32).to_bits(), *order))
+                    }
+                }
+            }
+            Self::Bcd {
+                int_digits,
+                frac_digits,
+            } => {
+                let scaled = number(*frac_digits)?;
+                let scaled = fits(scaled, 0, pow10(int_digits + frac_digits) - 1)?;
+                let divisor = pow10(*frac_digits);
+                Ok(vec![
+                    word(0, 0xFFFF, to_bcd(scaled / divisor)),
+                    word(1, 0xFFFF, to_bcd(scaled % divisor)),
+                ])
+            }
+            Self::Bytes { .. } => Err("a byte string is read-only".to_string()),
+        }
+    }
+}
+
+fn format_limit(value: f64, precision: u8) -> String {
+    format!("{value:.*}", usize::from(precision))
+}
+
+/// Parses command text for a field against its kind and range. The accepted words:
+/// booleans `ON`/`OFF`, `true`/`false`, `1`/`0` (any case, surrounding blanks ignored);
+/// momentary fields `PRESS` or `ON` (also `true`, `1`); integers in decimal; decimals with at
+/// most the field's precision; enumerations by their word (any case).
+pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
+    let name = &info.name;
+    let trimmed = text.trim();
+    // Numbers are shown as sent (`got 11`), anything else quoted (`got "abc"`), shortened.
+    let short: String = trimmed.chars().take(40).collect();
+    let shown = if trimmed.parse::<f64>().is_ok_and(f64::is_finite) {
+        short
+    } else {
+        format!("\"{short}\"")
+    };
+    let lower = trimmed.to_ascii_lowercase();
+    match &info.kind {
+        FieldKind::Bool => match lower.as_str() {
+            "on" | "true" | "1" => Ok(Value::Bool(true)),
+            "off" | "false" | "0" => Ok(Value::Bool(false)),
+            _ => Err(Rejection(format!(
+                "{name} must be ON or OFF (also on/off, true/false, 1/0), got {shown}"
+            ))),
+        },
+        FieldKind::Momentary => match lower.as_str() {
+            "press" | "on" | "true" | "1" => Ok(Value::Bool(true)),
+            _ => Err(Rejection(format!(
+                "{name} is a button: send PRESS (or ON), got {shown}"
+            ))),
+        },
+        FieldKind::Integer { min, max } => {
+            let refuse = || {
+                Rejection(format!(
+                    "{name} must be an integer {min}–{max}, got {shown}"
+                ))
+            };
+            let value: i64 = match trimmed.parse::<i64>() {
+                Ok(v) => v,
+                Err(_) => {
+                    // Accept "8.0" as 8, refuse "8.5" and anything that is not a number.
+                    let float: f64 = trimmed.parse().map_err(|_| refuse())?;
+                    if !float.is_finite() || float.fract() != 0.0 || float.abs() > 9.0e15 {
+                        return Err(refuse());
+                    }
+                    float as i64
+                }
+            };
+            if value < *min || value > *max {
+                return Err(refuse());
+            }
+            Ok(Value::Int(value))
+        }
+        FieldKind::Decimal {
+            min,
+            max,
+            precision,
+        } => {
+            let range = format!(
+                "{}–{}",
+                format_limit(*min, *precision),
+                format_limit(*max, *precision)
+            );
+            let refuse = |why: &str| {
+                Rejection(format!(
+                    "{name} must be {why} {range} with at most {precision} decimals, got {shown}"
+                ))
+            };
+            let float: f64 = trimmed.parse().map_err(|_| refuse("a number"))?;
+            if !float.is_finite() {
+                return Err(refuse("a finite number"));
+            }
+            let factor = pow10(*precision) as f64;
+            let scaled = (float * factor).round();
+            if ((float * factor) - scaled).abs() > 1e-6 * scaled.abs().max(1.0) {
+                return Err(refuse("a number"));
+            }
+            // Compare in scaled units so 0.1 + rounding never slips past a limit.
+            if scaled < (min * factor).round() || scaled > (max * factor).round() {
+                return Err(refuse("a number"));
+            }
+            Ok(Value::Decimal {
+                scaled: scaled as i64,
+                precision: *precision,
+            })
+        }
+        FieldKind::Enum { options } => options
+            .iter()
+            .find(|o| **o == lower)
+            .map(|o| Value::Enum(o.clone()))
+            .ok_or_else(|| {
+                Rejection(format!(
+                    "{name} must be one of {}, got {shown}",
+                    options.join(", ")
+                ))
+            }),
+        FieldKind::Text => Err(Rejection(format!("{name} is read-only text"))),
+    }
 }

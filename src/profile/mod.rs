@@ -12,12 +12,15 @@ pub mod value;
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
+use std::sync::Arc;
 use std::time::Duration;
 
 use crate::rtu::timing::Parity;
 use crate::rtu::{Request, Response};
 
+pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Rejection, Verification};
+pub use schema::{ProfileError, ProfileErrors};
 pub use value::Value;
 
 /// Last known decoded values of one device, by field name.
@@ -26,8 +29,8 @@ pub type DeviceState = HashMap<String, Value>;
 /// A validated device profile.
 #[derive(Debug, Clone)]
 pub struct Profile {
-    // Filled in by `schema` loading; private to this module tree.
-    pub(crate) inner: schema::Compiled,
+    // Shared with the command plans made from it.
+    pub(crate) inner: Arc<schema::Compiled>,
 }
 
 /// How often a block is read.
@@ -124,25 +127,42 @@ pub struct FieldReading {
 }
 
 impl Profile {
+    /// Parses and validates a profile from TOML text; `source` (a path or `built-in NAME`)
+    /// prefixes the place of every problem.
+    pub fn from_toml(text: &str, source: &str) -> Result<Self, ProfileErrors> {
+        schema::compile(text, source).map(|compiled| Self {
+            inner: Arc::new(compiled),
+        })
+    }
+
     /// The profile's name (`ruiwan-dust-collector`).
     pub fn name(&self) -> &str {
-        todo!("profile helper")
+        &self.inner.name
     }
 
     pub fn manufacturer(&self) -> &str {
-        todo!("profile helper")
+        &self.inner.manufacturer
     }
 
     pub fn model(&self) -> &str {
-        todo!("profile helper")
+        &self.inner.model
+    }
+
+    pub fn description(&self) -> &str {
+        &self.inner.description
+    }
+
+    /// The address the device usually has (the air shower's fixed 0x81), if the profile says.
+    pub fn default_address(&self) -> Option<u8> {
+        self.inner.default_address
     }
 
     pub fn limits(&self) -> &Limits {
-        todo!("profile helper")
+        &self.inner.limits
     }
 
     pub fn fields(&self) -> &[FieldInfo] {
-        todo!("profile helper")
+        &self.inner.infos
     }
 
     pub fn field(&self, name: &str) -> Option<&FieldInfo> {
@@ -150,12 +170,50 @@ impl Profile {
     }
 
     pub fn read_blocks(&self) -> &[ReadBlock] {
-        todo!("profile helper")
+        &self.inner.blocks
     }
 
-    /// Decodes the answer to `read_blocks()[block]` into its fields' values.
+    /// Names of the fields decoded from `read_blocks()[block]`.
+    pub fn block_fields(&self, block: usize) -> Vec<&str> {
+        self.inner
+            .defs
+            .iter()
+            .zip(&self.inner.infos)
+            .filter(|(def, _)| def.block == block)
+            .map(|(_, info)| info.name.as_str())
+            .collect()
+    }
+
+    /// Decodes the answer to `read_blocks()[block]` into its fields' values. An answer of the
+    /// wrong kind or length gives every field of the block an error; a bad field (invalid BCD)
+    /// gives an error for that field only.
     pub fn decode_block(&self, block: usize, answer: &Response) -> Vec<FieldReading> {
-        todo!("profile helper")
+        let Some(read) = self.inner.blocks.get(block) else {
+            return Vec::new();
+        };
+        let expected = schema::block_quantity(&read.request) as usize;
+        let image = command::image_of(answer, expected).filter(|image| {
+            matches!(
+                (image, self.inner.block_kinds[block].is_bits()),
+                (BlockImage::Bits(_), true) | (BlockImage::Words(_), false)
+            )
+        });
+        self.inner
+            .defs
+            .iter()
+            .zip(&self.inner.infos)
+            .filter(|(def, _)| def.block == block)
+            .map(|(def, info)| FieldReading {
+                field: info.name.clone(),
+                value: match &image {
+                    Some(image) => def.codec.decode(image, def.offset),
+                    None => Err(FieldError::Invalid(format!(
+                        "the answer does not fit block `{}`",
+                        read.name
+                    ))),
+                },
+            })
+            .collect()
     }
 
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
@@ -166,6 +224,87 @@ impl Profile {
         text: &str,
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
-        todo!("profile helper")
+        let inner = &self.inner;
+        let index = inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}` for {}", inner.name)))?;
+        let info = &inner.infos[index];
+        if !info.writable {
+            return Err(Rejection(format!("{field} is read-only")));
+        }
+        let target = codec::parse_command(info, text)?;
+        let def = &inner.defs[index];
+        let encoded = def
+            .codec
+            .encode(def.offset, &target)
+            .map_err(|why| Rejection(format!("{field}: {why}")))?;
+
+        // Judge forbidden combinations on the last known state with the command applied. Fields
+        // not known yet are left to the fresh read in `CommandPlan::writes`.
+        let block_len = schema::block_quantity(&inner.blocks[def.block].request) as usize;
+        let mut image = if inner.block_kinds[def.block].is_bits() {
+            BlockImage::Bits(vec![false; block_len])
+        } else {
+            BlockImage::Words(vec![0; block_len])
+        };
+        let mut known = vec![false; inner.defs.len()];
+        for (i, other) in inner.defs.iter().enumerate() {
+            if other.block != def.block || other.overlay {
+                continue;
+            }
+            if let Some(patches) = state
+                .get(&inner.infos[i].name)
+                .and_then(|value| other.codec.encode(other.offset, value).ok())
+            {
+                image.apply(&patches);
+                known[i] = true;
+            }
+        }
+        image.apply(&encoded);
+        let touched = def.codec.footprint(def.offset);
+        command::check_forbidden(inner, index, &target, |i| {
+            let other = &inner.defs[i];
+            let hit = other
+                .codec
+                .footprint(other.offset)
+                .iter()
+                .any(|(o, m)| touched.iter().any(|(to, tm)| o == to && m & tm != 0));
+            (known[i] || hit)
+                .then(|| other.codec.decode(&image, other.offset).ok())
+                .flatten()
+        })?;
+        Ok(CommandPlan::new(Arc::clone(&self.inner), index, target))
+    }
+
+    /// The raw change that puts `value` into a field's place: the block index and the patches
+    /// to apply to that block's image. For simulators seeding plausible values and for tests;
+    /// the value must have the field's kind (e.g. from [`Profile::parse_value`]).
+    pub fn encode_value_raw(
+        &self,
+        field: &str,
+        value: &Value,
+    ) -> Result<(usize, Vec<RawPatch>), Rejection> {
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
+        let def = &self.inner.defs[index];
+        def.codec
+            .encode(def.offset, value)
+            .map(|patches| (def.block, patches))
+            .map_err(|why| Rejection(format!("{field}: {why}")))
+    }
+
+    /// Parses text into a value of the field's kind, with the same rules as commands, whether
+    /// or not the field is writable.
+    pub fn parse_value(&self, field: &str, text: &str) -> Result<Value, Rejection> {
+        let info = self
+            .field(field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
+        codec::parse_command(info, text)
     }
 }

@@ -1,9 +1,186 @@
 //! Built-in profiles (compiled into the binary) and loading a profile by name or by path.
+//!
+//! The built-ins are the files in `config/profiles/`, included at compile time, so the binary
+//! works alone and the files users copy are exactly what runs.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+use super::{FieldKind, Profile, ProfileErrors};
+
+/// (name, TOML text) of every built-in profile.
+const BUILT_IN: &[(&str, &str)] = &[
+    (
+        "ruiwan-dust-collector",
+        include_str!("../../config/profiles/ruiwan-dust-collector.toml"),
+    ),
+    (
+        "wuzhou-valve",
+        include_str!("../../config/profiles/wuzhou-valve.toml"),
+    ),
+    (
+        "lixian-air-shower",
+        include_str!("../../config/profiles/lixian-air-shower.toml"),
+    ),
+];
+
+/// Why a profile could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    #[error(
+        "no built-in profile `{name}` (built-in: {known}); a profile file path must end in .toml"
+    )]
+    UnknownBuiltIn { name: String, known: String },
+    #[error("cannot read profile {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Invalid(#[from] ProfileErrors),
+}
+
+/// Names of the built-in profiles.
+pub fn built_in_names() -> Vec<&'static str> {
+    BUILT_IN.iter().map(|(name, _)| *name).collect()
+}
+
+/// A built-in profile by name.
+pub fn built_in(name: &str) -> Result<Profile, LoadError> {
+    let (_, text) = BUILT_IN
+        .iter()
+        .find(|(known, _)| *known == name)
+        .ok_or_else(|| LoadError::UnknownBuiltIn {
+            name: name.to_string(),
+            known: built_in_names().join(", "),
+        })?;
+    Ok(Profile::from_toml(text, &format!("built-in {name}"))?)
+}
+
+/// Loads a profile file.
+pub fn load_file(path: &Path) -> Result<Profile, LoadError> {
+    let text = std::fs::read_to_string(path).map_err(|source| LoadError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
+    Ok(Profile::from_toml(&text, &path.display().to_string())?)
+}
+
+/// Loads a profile as a device names it in the configuration: a built-in name, or a path to a
+/// file (anything containing `/` or ending in `.toml`). Relative paths are taken relative to
+/// `base` (the configuration file's directory) when given.
+pub fn load(reference: &str, base: Option<&Path>) -> Result<Profile, LoadError> {
+    if reference.contains('/') || reference.ends_with(".toml") {
+        let path = Path::new(reference);
+        let path = match base {
+            Some(base) if path.is_relative() => base.join(path),
+            _ => path.to_path_buf(),
+        };
+        load_file(&path)
+    } else {
+        built_in(reference)
+    }
+}
+
+fn describe_kind(kind: &FieldKind) -> String {
+    match kind {
+        FieldKind::Bool => "ON/OFF".to_string(),
+        FieldKind::Momentary => "button (PRESS)".to_string(),
+        FieldKind::Integer { min, max } => format!("integer {min}–{max}"),
+        FieldKind::Decimal {
+            min,
+            max,
+            precision,
+        } => {
+            let p = usize::from(*precision);
+            format!("decimal {min:.p$}–{max:.p$}")
+        }
+        FieldKind::Enum { options } => options.join(" | "),
+        FieldKind::Text => "text".to_string(),
+    }
+}
+
+/// A readable listing of one profile: its blocks and its fields with access, kind and unit.
+pub fn describe(profile: &Profile) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let limits = profile.limits();
+    let _ = writeln!(
+        out,
+        "{}: {} {}",
+        profile.name(),
+        profile.manufacturer(),
+        profile.model()
+    );
+    if !profile.description().is_empty() {
+        let _ = writeln!(out, "  {}", profile.description());
+    }
+    let _ = writeln!(
+        out,
+        "  line: {} baud, parity {:?}, addresses {}–{}, poll ≥ {}, slow every {}",
+        limits.default_baud,
+        limits.default_parity,
+        limits.address_range.start(),
+        limits.address_range.end(),
+        humantime::format_duration(limits.min_poll_interval),
+        humantime::format_duration(limits.slow_interval),
+    );
+    for block in profile.read_blocks() {
+        let _ = writeln!(
+            out,
+            "  block {:<14} {:?} ({:?})",
+            block.name, block.request, block.class
+        );
+    }
+    let width = profile
+        .fields()
+        .iter()
+        .map(|f| f.name.len())
+        .max()
+        .unwrap_or(0);
+    for field in profile.fields() {
+        let access = if field.writable { "rw" } else { "ro" };
+        let unit = field.unit.as_deref().unwrap_or("");
+        let _ = writeln!(
+            out,
+            "  {:<width$}  {access}  {:<28} {unit:<4} {}",
+            field.name,
+            describe_kind(&field.kind),
+            field.description,
+        );
+    }
+    out
+}
 
 /// `rtu2mqtt profiles`: prints every built-in profile (and the files given) with its fields.
 pub fn print_profiles(paths: &[PathBuf]) -> anyhow::Result<ExitCode> {
-    todo!("profile helper")
+    let mut failed = false;
+    for name in built_in_names() {
+        match built_in(name) {
+            Ok(profile) => println!("{}", describe(&profile)),
+            Err(err) => {
+                eprintln!("{err}");
+                failed = true;
+            }
+        }
+    }
+    for path in paths {
+        match load_file(path) {
+            Ok(profile) => println!(
+                "{} ({})\n{}",
+                profile.name(),
+                path.display(),
+                describe(&profile)
+            ),
+            Err(err) => {
+                eprintln!("{err}");
+                failed = true;
+            }
+        }
+    }
+    Ok(if failed {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    })
 }

@@ -1,5 +1,1334 @@
-//! The profile file format (serde) and its compilation into a validated [`super::Profile`].
+//! The profile file format (serde) and its compilation into a validated [`Compiled`] profile.
+//!
+//! Everything a profile file can get wrong is caught here, at load, with the file and the key:
+//! unknown keys and codecs (serde), duplicate names, blocks over the device's read limits, fields
+//! outside their block or overlapping another field, write rules on read-only blocks or outside
+//! the device's write limits, bad ranges and enumerations. What leaves this module is known to be
+//! consistent, so decoding and command planning never have to re-check the profile.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::codec::{ByteFormat, ByteSource, FieldCodec, NumberType, WordOrder};
+use super::{FieldInfo, FieldKind, HaHints, Limits, PollClass, ReadBlock};
+use crate::rtu::timing::Parity;
+use crate::rtu::Request;
+
+/// One problem in a profile, with its place (`file: fields[3] (gear).write.address`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{place}: {reason}")]
+pub struct ProfileError {
+    pub place: String,
+    pub reason: String,
+}
+
+/// Every problem found in one profile.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub struct ProfileErrors(pub Vec<ProfileError>);
+
+impl std::fmt::Display for ProfileErrors {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let lines: Vec<String> = self.0.iter().map(ToString::to_string).collect();
+        f.write_str(&lines.join("\n"))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The file format, as written by users.
+// ---------------------------------------------------------------------------------------------
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ProfileFile {
+    device: DeviceSection,
+    line: LineSection,
+    #[serde(default)]
+    blocks: Vec<BlockSection>,
+    #[serde(default)]
+    write_frames: Vec<WriteFrameSection>,
+    #[serde(default)]
+    fields: Vec<FieldSection>,
+    #[serde(default)]
+    forbidden: Vec<ForbiddenSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DeviceSection {
+    name: String,
+    manufacturer: String,
+    model: String,
+    #[serde(default)]
+    description: String,
+}
+
+fn default_baud() -> u32 {
+    9600
+}
+fn default_parity() -> String {
+    "none".into()
+}
+fn default_address_range() -> [u8; 2] {
+    [1, 247]
+}
+fn default_min_poll() -> Duration {
+    Duration::from_millis(100)
+}
+fn default_slow() -> Duration {
+    Duration::from_secs(60)
+}
+fn default_max_registers() -> u16 {
+    125
+}
+fn default_max_write_registers() -> u16 {
+    123
+}
+fn default_max_bits() -> u16 {
+    2000
+}
+fn default_max_write_bits() -> u16 {
+    1968
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LineSection {
+    #[serde(default = "default_baud")]
+    baud: u32,
+    #[serde(default = "default_parity")]
+    parity: String,
+    #[serde(default = "default_address_range")]
+    address_range: [u8; 2],
+    default_address: Option<u8>,
+    #[serde(default = "default_min_poll", with = "humantime_serde")]
+    min_poll_interval: Duration,
+    #[serde(default, with = "humantime_serde")]
+    poll_interval: Option<Duration>,
+    #[serde(default = "default_slow", with = "humantime_serde")]
+    slow_interval: Duration,
+    #[serde(default, with = "humantime_serde")]
+    startup_delay: Option<Duration>,
+    #[serde(default = "default_max_registers")]
+    max_read_registers: u16,
+    #[serde(default = "default_max_write_registers")]
+    max_write_registers: u16,
+    #[serde(default = "default_max_bits")]
+    max_read_bits: u16,
+    #[serde(default = "default_max_write_bits")]
+    max_write_bits: u16,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BlockSection {
+    name: String,
+    function: u8,
+    start: u16,
+    count: u16,
+    #[serde(default = "default_poll")]
+    poll: String,
+}
+
+fn default_poll() -> String {
+    "fast".into()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WriteFrameSection {
+    name: String,
+    function: u8,
+    /// Device address of the first coil or register written.
+    address: u16,
+    /// The block whose fresh read supplies the bits the command does not change.
+    block: String,
+    /// Block offset of the first coil or register written.
+    offset: u16,
+    count: u16,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FieldSection {
+    name: String,
+    block: String,
+    offset: u16,
+    codec: CodecSection,
+    #[serde(default)]
+    description: String,
+    unit: Option<String>,
+    /// `[min, max]` for numbers: the allowed command range and the Home Assistant range.
+    range: Option<[f64; 2]>,
+    write: Option<WriteSection>,
+    #[serde(default)]
+    behaviour: Behaviour,
+    #[serde(default, with = "humantime_serde")]
+    min_write_interval: Option<Duration>,
+    #[serde(default, with = "humantime_serde")]
+    settle_window: Option<Duration>,
+    /// A convenience view over bits that other fields own (the air shower's `wind`).
+    #[serde(default)]
+    overlay: bool,
+    #[serde(default)]
+    ha: HaSection,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum WriteSection {
+    /// The name of a shared `[[write_frames]]` entry.
+    Frame(String),
+    /// A frame of the field's own registers or coils.
+    Own(OwnWrite),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OwnWrite {
+    function: u8,
+    address: u16,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HaSection {
+    component: Option<String>,
+    device_class: Option<String>,
+    state_class: Option<String>,
+    icon: Option<String>,
+    entity_category: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ForbiddenSection {
+    /// Field name → value text; the combination is refused when every one of them holds.
+    when: BTreeMap<String, String>,
+    reason: String,
+}
+
+/// How a written field behaves on the device.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Behaviour {
+    /// A state: written as commanded, written back as read when another field of its frame is.
+    #[default]
+    State,
+    /// Writing 1 flips the state; written 1 only to change it, 0 otherwise.
+    Toggle,
+    /// A button: written 1 once when pressed, 0 otherwise.
+    Momentary,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum CodecSection {
+    Bit {
+        bit: u8,
+        #[serde(default)]
+        invert: bool,
+    },
+    Bits {
+        bit: u8,
+        width: u8,
+        #[serde(default)]
+        options: Vec<String>,
+    },
+    Coil {
+        #[serde(default)]
+        invert: bool,
+    },
+    Coils {
+        width: u8,
+        #[serde(default)]
+        options: Vec<String>,
+    },
+    U16 {
+        #[serde(default)]
+        decimals: u8,
+    },
+    I16 {
+        #[serde(default)]
+        decimals: u8,
+    },
+    U32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+    },
+    I32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+    },
+    F32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+    },
+    Bcd {
+        int_digits: u8,
+        frac_digits: u8,
+    },
+    Char,
+    Bytes {
+        registers: u16,
+        #[serde(default)]
+        format: ByteFormat,
+        #[serde(default)]
+        separator: String,
+        #[serde(default)]
+        bytes: ByteSource,
+    },
+}
+
+// ---------------------------------------------------------------------------------------------
+// The compiled form.
+// ---------------------------------------------------------------------------------------------
+
+/// What a block holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BlockKind {
+    Coils,
+    DiscreteInputs,
+    HoldingRegisters,
+    InputRegisters,
+}
+
+impl BlockKind {
+    pub fn is_bits(self) -> bool {
+        matches!(self, Self::Coils | Self::DiscreteInputs)
+    }
+
+    pub fn is_writable(self) -> bool {
+        matches!(self, Self::Coils | Self::HoldingRegisters)
+    }
+}
+
+/// One write frame: the device addresses written and the block offsets they mirror.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriteFrame {
+    pub function: u8,
+    pub address: u16,
+    pub block: usize,
+    pub offset: u16,
+    pub count: u16,
+}
+
+/// A compiled field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldDef {
+    pub block: usize,
+    pub offset: u16,
+    pub codec: FieldCodec,
+    pub write: Option<WriteFrame>,
+    pub behaviour: Behaviour,
+    pub settle_window: Option<Duration>,
+    pub overlay: bool,
+}
+
+/// A compiled forbidden combination.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Forbidden {
+    /// (field index, value that must hold).
+    pub when: Vec<(usize, super::Value)>,
+    pub reason: String,
+}
 
 /// The compiled, validated form of a profile.
-#[derive(Debug, Clone)]
-pub struct Compiled {}
+#[derive(Debug, Clone, PartialEq)]
+pub struct Compiled {
+    pub name: String,
+    pub manufacturer: String,
+    pub model: String,
+    pub description: String,
+    pub default_address: Option<u8>,
+    pub limits: Limits,
+    pub blocks: Vec<ReadBlock>,
+    pub block_kinds: Vec<BlockKind>,
+    /// Parallel to `infos`.
+    pub defs: Vec<FieldDef>,
+    pub infos: Vec<FieldInfo>,
+    pub forbidden: Vec<Forbidden>,
+}
+
+/// Collects problems with their places.
+struct Problems<'a> {
+    source: &'a str,
+    list: Vec<ProfileError>,
+}
+
+impl Problems<'_> {
+    fn add(&mut self, place: impl std::fmt::Display, reason: impl Into<String>) {
+        self.list.push(ProfileError {
+            place: format!("{}: {place}", self.source),
+            reason: reason.into(),
+        });
+    }
+}
+
+/// Parses and validates a profile. `source` names the file (or built-in) in error places.
+pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
+    let file: ProfileFile = toml::from_str(text).map_err(|err| {
+        let place = match err.span() {
+            Some(span) => {
+                let before = &text[..span.start.min(text.len())];
+                let line = before.matches('\n').count() + 1;
+                let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                format!("{source}:{line}:{column}")
+            }
+            None => source.to_string(),
+        };
+        ProfileErrors(vec![ProfileError {
+            place,
+            reason: err.message().to_string(),
+        }])
+    })?;
+    let mut problems = Problems {
+        source,
+        list: Vec::new(),
+    };
+    let compiled = build(file, &mut problems);
+    if problems.list.is_empty() {
+        Ok(compiled)
+    } else {
+        Err(ProfileErrors(problems.list))
+    }
+}
+
+fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-')
+}
+
+fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
+    let limits = build_limits(&file.line, problems);
+    if !valid_name(&file.device.name) {
+        problems.add(
+            "device.name",
+            format!(
+                "`{}` must be lower-case letters, digits, `-` or `_`",
+                file.device.name
+            ),
+        );
+    }
+
+    let (blocks, block_kinds) = build_blocks(&file.blocks, &limits, problems);
+    let block_index: HashMap<&str, usize> = file
+        .blocks
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (b.name.as_str(), i))
+        .collect();
+
+    let frames = build_write_frames(
+        &file.write_frames,
+        &block_index,
+        &blocks,
+        &block_kinds,
+        &limits,
+        problems,
+    );
+
+    let mut defs = Vec::new();
+    let mut infos = Vec::new();
+    let mut seen = HashMap::new();
+    for (i, field) in file.fields.iter().enumerate() {
+        let place = format!("fields[{i}] ({})", field.name);
+        if !valid_name(&field.name) || field.name.contains('-') {
+            problems.add(
+                format!("{place}.name"),
+                "a field name must be lower-case letters, digits or `_`",
+            );
+        }
+        if seen.insert(field.name.clone(), i).is_some() {
+            problems.add(
+                format!("{place}.name"),
+                format!("duplicate field name `{}`", field.name),
+            );
+        }
+        if let Some((def, info)) = build_field(
+            field,
+            &place,
+            &block_index,
+            &blocks,
+            &block_kinds,
+            &frames,
+            &limits,
+            problems,
+        ) {
+            defs.push(def);
+            infos.push(info);
+        }
+    }
+    if problems.list.is_empty() {
+        check_overlaps(&file.fields, &defs, &blocks, problems);
+    }
+
+    let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); blocks.len()];
+    for def in &defs {
+        used[def.block].push((def.offset, def.codec.width()));
+    }
+    let blocks = blocks
+        .into_iter()
+        .zip(used)
+        .map(|(mut block, spans)| {
+            block.used_runs = merge_runs(spans);
+            block
+        })
+        .collect::<Vec<_>>();
+    for (i, block) in blocks.iter().enumerate() {
+        if block.used_runs.is_empty() && problems.list.is_empty() {
+            problems.add(
+                format!("blocks[{i}] ({})", block.name),
+                "no field uses this block",
+            );
+        }
+    }
+
+    let forbidden = build_forbidden(&file.forbidden, &infos, &defs, problems);
+
+    Compiled {
+        name: file.device.name,
+        manufacturer: file.device.manufacturer,
+        model: file.device.model,
+        description: file.device.description,
+        default_address: file.line.default_address,
+        limits,
+        blocks,
+        block_kinds,
+        defs,
+        infos,
+        forbidden,
+    }
+}
+
+fn build_limits(line: &LineSection, problems: &mut Problems<'_>) -> Limits {
+    let parity = match line.parity.as_str() {
+        "none" => Parity::None,
+        "even" => Parity::Even,
+        "odd" => Parity::Odd,
+        other => {
+            problems.add(
+                "line.parity",
+                format!("`{other}` is not one of none, even, odd"),
+            );
+            Parity::None
+        }
+    };
+    let [low, high] = line.address_range;
+    if low == 0 || low > high || high > 253 {
+        problems.add(
+            "line.address_range",
+            format!("[{low}, {high}] must be within 1–253 with the lower bound first"),
+        );
+    }
+    if let Some(address) = line.default_address {
+        if address < low || address > high {
+            problems.add(
+                "line.default_address",
+                format!("{address} is outside the address range {low}–{high}"),
+            );
+        }
+    }
+    if line.min_poll_interval.is_zero() {
+        problems.add("line.min_poll_interval", "must be more than zero");
+    }
+    let poll_interval = line.poll_interval.unwrap_or(line.min_poll_interval);
+    if poll_interval < line.min_poll_interval {
+        problems.add(
+            "line.poll_interval",
+            "is shorter than the line's min_poll_interval",
+        );
+    }
+    if line.slow_interval < poll_interval {
+        problems.add(
+            "line.slow_interval",
+            "is shorter than the fast poll interval",
+        );
+    }
+    for (key, value, max) in [
+        ("max_read_registers", line.max_read_registers, 125),
+        ("max_write_registers", line.max_write_registers, 123),
+        ("max_read_bits", line.max_read_bits, 2000),
+        ("max_write_bits", line.max_write_bits, 1968),
+    ] {
+        if value == 0 || value > max {
+            problems.add(
+                format!("line.{key}"),
+                format!("{value} must be 1–{max} (the Modbus limit)"),
+            );
+        }
+    }
+    if ![
+        300u32, 600, 1200, 2400, 4800, 9600, 14400, 19200, 38400, 57600, 115200,
+    ]
+    .contains(&line.baud)
+    {
+        problems.add(
+            "line.baud",
+            format!("{} is not a usual serial baud rate", line.baud),
+        );
+    }
+    Limits {
+        address_range: low..=high,
+        min_poll_interval: line.min_poll_interval,
+        default_poll_interval: poll_interval,
+        slow_interval: line.slow_interval,
+        startup_delay: line.startup_delay.unwrap_or_default(),
+        default_baud: line.baud,
+        default_parity: parity,
+        max_read_registers: line.max_read_registers,
+        max_write_registers: line.max_write_registers,
+        max_read_bits: line.max_read_bits,
+        max_write_bits: line.max_write_bits,
+    }
+}
+
+fn build_blocks(
+    sections: &[BlockSection],
+    limits: &Limits,
+    problems: &mut Problems<'_>,
+) -> (Vec<ReadBlock>, Vec<BlockKind>) {
+    let mut blocks = Vec::new();
+    let mut kinds = Vec::new();
+    let mut names = HashMap::new();
+    for (i, section) in sections.iter().enumerate() {
+        let place = format!("blocks[{i}] ({})", section.name);
+        if names.insert(section.name.as_str(), i).is_some() {
+            problems.add(
+                format!("{place}.name"),
+                format!("duplicate block name `{}`", section.name),
+            );
+        }
+        let (start, quantity) = (section.start, section.count);
+        let (kind, request, max) = match section.function {
+            1 => (
+                BlockKind::Coils,
+                Request::ReadCoils { start, quantity },
+                limits.max_read_bits,
+            ),
+            2 => (
+                BlockKind::DiscreteInputs,
+                Request::ReadDiscreteInputs { start, quantity },
+                limits.max_read_bits,
+            ),
+            3 => (
+                BlockKind::HoldingRegisters,
+                Request::ReadHoldingRegisters { start, quantity },
+                limits.max_read_registers,
+            ),
+            4 => (
+                BlockKind::InputRegisters,
+                Request::ReadInputRegisters { start, quantity },
+                limits.max_read_registers,
+            ),
+            other => {
+                problems.add(
+                    format!("{place}.function"),
+                    format!("{other} is not a read function (1, 2, 3 or 4)"),
+                );
+                (
+                    BlockKind::HoldingRegisters,
+                    Request::ReadHoldingRegisters { start, quantity },
+                    limits.max_read_registers,
+                )
+            }
+        };
+        if quantity == 0 || quantity > max {
+            problems.add(
+                format!("{place}.count"),
+                format!("{quantity} must be 1–{max} (this device's read limit)"),
+            );
+        }
+        if u32::from(start) + u32::from(quantity) > 0x1_0000 {
+            problems.add(
+                format!("{place}.count"),
+                "the block runs past address 0xFFFF",
+            );
+        }
+        let class = match section.poll.as_str() {
+            "fast" => PollClass::Fast,
+            "slow" => PollClass::Slow,
+            other => {
+                problems.add(
+                    format!("{place}.poll"),
+                    format!("`{other}` is not one of fast, slow"),
+                );
+                PollClass::Fast
+            }
+        };
+        blocks.push(ReadBlock {
+            name: section.name.clone(),
+            request,
+            class,
+            used_runs: Vec::new(),
+        });
+        kinds.push(kind);
+    }
+    (blocks, kinds)
+}
+
+fn check_write_function(
+    function: u8,
+    kind: BlockKind,
+    count: u16,
+    limits: &Limits,
+    place: &str,
+    problems: &mut Problems<'_>,
+) {
+    if !kind.is_writable() {
+        problems.add(
+            place,
+            "a write rule on a read-only block (discrete inputs or input registers)",
+        );
+        return;
+    }
+    let ok = match (kind.is_bits(), function) {
+        (true, 5) => {
+            if count != 1 {
+                problems.add(place, "function 5 writes exactly one coil");
+            }
+            true
+        }
+        (true, 15) => {
+            if count > limits.max_write_bits {
+                problems.add(
+                    place,
+                    format!(
+                        "{count} coils exceed the device's write limit {}",
+                        limits.max_write_bits
+                    ),
+                );
+            }
+            true
+        }
+        (false, 6) => true,
+        (false, 16) => {
+            if count > limits.max_write_registers {
+                problems.add(
+                    place,
+                    format!(
+                        "{count} registers exceed the device's write limit {}",
+                        limits.max_write_registers
+                    ),
+                );
+            }
+            true
+        }
+        _ => false,
+    };
+    if !ok {
+        let allowed = if kind.is_bits() {
+            "5 or 15 for coils"
+        } else {
+            "6 or 16 for registers"
+        };
+        problems.add(
+            place,
+            format!("write function {function} does not fit the block (use {allowed})"),
+        );
+    }
+}
+
+fn build_write_frames(
+    sections: &[WriteFrameSection],
+    block_index: &HashMap<&str, usize>,
+    blocks: &[ReadBlock],
+    kinds: &[BlockKind],
+    limits: &Limits,
+    problems: &mut Problems<'_>,
+) -> HashMap<String, WriteFrame> {
+    let mut frames = HashMap::new();
+    for (i, section) in sections.iter().enumerate() {
+        let place = format!("write_frames[{i}] ({})", section.name);
+        let Some(&block) = block_index.get(section.block.as_str()) else {
+            problems.add(
+                format!("{place}.block"),
+                format!("no block named `{}`", section.block),
+            );
+            continue;
+        };
+        let block_len = block_quantity(&blocks[block].request);
+        if section.count == 0 || u32::from(section.offset) + u32::from(section.count) > block_len {
+            problems.add(
+                format!("{place}.count"),
+                format!(
+                    "offsets {}..{} are not inside block `{}` of {block_len}",
+                    section.offset,
+                    u32::from(section.offset) + u32::from(section.count),
+                    section.block
+                ),
+            );
+        }
+        check_write_function(
+            section.function,
+            kinds[block],
+            section.count,
+            limits,
+            &format!("{place}.function"),
+            problems,
+        );
+        let frame = WriteFrame {
+            function: section.function,
+            address: section.address,
+            block,
+            offset: section.offset,
+            count: section.count,
+        };
+        if frames.insert(section.name.clone(), frame).is_some() {
+            problems.add(
+                format!("{place}.name"),
+                format!("duplicate write frame `{}`", section.name),
+            );
+        }
+    }
+    frames
+}
+
+/// Number of coils or registers a read request covers.
+pub fn block_quantity(request: &Request) -> u32 {
+    match request {
+        Request::ReadCoils { quantity, .. }
+        | Request::ReadDiscreteInputs { quantity, .. }
+        | Request::ReadHoldingRegisters { quantity, .. }
+        | Request::ReadInputRegisters { quantity, .. } => u32::from(*quantity),
+        _ => 0,
+    }
+}
+
+fn build_codec(
+    section: &CodecSection,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<FieldCodec> {
+    let check_options = |options: &[String], width: u8, problems: &mut Problems<'_>| {
+        if options.len() > 1usize << width {
+            problems.add(
+                format!("{place}.codec.options"),
+                format!("{} options do not fit {width} bits", options.len()),
+            );
+        }
+        let mut seen = std::collections::HashSet::new();
+        for option in options {
+            if option.is_empty()
+                || !option
+                    .chars()
+                    .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+            {
+                problems.add(
+                    format!("{place}.codec.options"),
+                    format!("option `{option}` must be a lower-case word"),
+                );
+            }
+            if !seen.insert(option) {
+                problems.add(
+                    format!("{place}.codec.options"),
+                    format!("duplicate option `{option}`"),
+                );
+            }
+        }
+    };
+    let check_decimals = |decimals: u8, problems: &mut Problems<'_>| {
+        if decimals > 6 {
+            problems.add(
+                format!("{place}.codec.decimals"),
+                format!("{decimals} decimals: at most 6"),
+            );
+        }
+    };
+    Some(match section {
+        CodecSection::Bit { bit, invert } => {
+            if *bit > 15 {
+                problems.add(
+                    format!("{place}.codec.bit"),
+                    format!("bit {bit} is not 0–15"),
+                );
+                return None;
+            }
+            FieldCodec::Bit {
+                bit: *bit,
+                invert: *invert,
+            }
+        }
+        CodecSection::Bits {
+            bit,
+            width,
+            options,
+        } => {
+            if *width == 0 || u32::from(*bit) + u32::from(*width) > 16 {
+                problems.add(
+                    format!("{place}.codec.width"),
+                    format!(
+                        "bits {bit}..{} do not fit a word",
+                        u32::from(*bit) + u32::from(*width)
+                    ),
+                );
+                return None;
+            }
+            check_options(options, *width, problems);
+            FieldCodec::Bits {
+                bit: *bit,
+                width: *width,
+                options: options.clone(),
+            }
+        }
+        CodecSection::Coil { invert } => FieldCodec::Coil { invert: *invert },
+        CodecSection::Coils { width, options } => {
+            if *width == 0 || *width > 16 {
+                problems.add(
+                    format!("{place}.codec.width"),
+                    "a coil group has 1–16 coils",
+                );
+                return None;
+            }
+            check_options(options, *width, problems);
+            FieldCodec::Coils {
+                width: *width,
+                options: options.clone(),
+            }
+        }
+        CodecSection::U16 { decimals } => {
+            check_decimals(*decimals, problems);
+            FieldCodec::Number {
+                ty: NumberType::U16,
+                decimals: *decimals,
+            }
+        }
+        CodecSection::I16 { decimals } => {
+            check_decimals(*decimals, problems);
+            FieldCodec::Number {
+                ty: NumberType::I16,
+                decimals: *decimals,
+            }
+        }
+        CodecSection::U32 {
+            word_order,
+            decimals,
+        } => {
+            check_decimals(*decimals, problems);
+            FieldCodec::Number {
+                ty: NumberType::U32(*word_order),
+                decimals: *decimals,
+            }
+        }
+        CodecSection::I32 {
+            word_order,
+            decimals,
+        } => {
+            check_decimals(*decimals, problems);
+            FieldCodec::Number {
+                ty: NumberType::I32(*word_order),
+                decimals: *decimals,
+            }
+        }
+        CodecSection::F32 {
+            word_order,
+            decimals,
+        } => {
+            check_decimals(*decimals, problems);
+            FieldCodec::Number {
+                ty: NumberType::F32(*word_order),
+                decimals: *decimals,
+            }
+        }
+        CodecSection::Bcd {
+            int_digits,
+            frac_digits,
+        } => {
+            if *int_digits == 0 || *int_digits > 4 || *frac_digits > 4 {
+                problems.add(
+                    format!("{place}.codec"),
+                    "a BCD pair has 1–4 integer digits and 0–4 fraction digits",
+                );
+                return None;
+            }
+            FieldCodec::Bcd {
+                int_digits: *int_digits,
+                frac_digits: *frac_digits,
+            }
+        }
+        CodecSection::Char => FieldCodec::Char,
+        CodecSection::Bytes {
+            registers,
+            format,
+            separator,
+            bytes,
+        } => {
+            if *registers == 0 || *registers > 125 {
+                problems.add(
+                    format!("{place}.codec.registers"),
+                    "a byte string spans 1–125 registers",
+                );
+                return None;
+            }
+            FieldCodec::Bytes {
+                registers: *registers,
+                format: *format,
+                separator: separator.clone(),
+                bytes: *bytes,
+            }
+        }
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn build_field(
+    field: &FieldSection,
+    place: &str,
+    block_index: &HashMap<&str, usize>,
+    blocks: &[ReadBlock],
+    kinds: &[BlockKind],
+    frames: &HashMap<String, WriteFrame>,
+    limits: &Limits,
+    problems: &mut Problems<'_>,
+) -> Option<(FieldDef, FieldInfo)> {
+    let Some(&block) = block_index.get(field.block.as_str()) else {
+        problems.add(
+            format!("{place}.block"),
+            format!("no block named `{}`", field.block),
+        );
+        return None;
+    };
+    let codec = build_codec(&field.codec, place, problems)?;
+    let kind = kinds[block];
+    if codec.is_bit_codec() != kind.is_bits() {
+        let what = if kind.is_bits() {
+            "a coil or discrete-input block needs codec `coil` or `coils`"
+        } else {
+            "codec `coil`/`coils` needs a coil or discrete-input block"
+        };
+        problems.add(format!("{place}.codec"), what);
+        return None;
+    }
+    let block_len = block_quantity(&blocks[block].request);
+    let end = u32::from(field.offset) + u32::from(codec.width());
+    if end > block_len {
+        problems.add(
+            format!("{place}.offset"),
+            format!(
+                "the field covers offsets {}..{end}, outside block `{}` of {block_len}",
+                field.offset, field.block
+            ),
+        );
+        return None;
+    }
+
+    let write = match &field.write {
+        None => None,
+        Some(WriteSection::Frame(name)) => match frames.get(name) {
+            Some(frame) => {
+                if frame.block != block {
+                    problems.add(
+                        format!("{place}.write"),
+                        format!(
+                            "write frame `{name}` mirrors another block than `{}`",
+                            field.block
+                        ),
+                    );
+                    return None;
+                }
+                let frame_end = u32::from(frame.offset) + u32::from(frame.count);
+                if field.offset < frame.offset || end > frame_end {
+                    problems.add(
+                        format!("{place}.write"),
+                        format!("the field is not inside write frame `{name}`"),
+                    );
+                    return None;
+                }
+                Some(frame.clone())
+            }
+            None => {
+                problems.add(
+                    format!("{place}.write"),
+                    format!("no write frame named `{name}`"),
+                );
+                return None;
+            }
+        },
+        Some(WriteSection::Own(own)) => {
+            let count = codec.width();
+            check_write_function(
+                own.function,
+                kind,
+                count,
+                limits,
+                &format!("{place}.write.function"),
+                problems,
+            );
+            Some(WriteFrame {
+                function: own.function,
+                address: own.address,
+                block,
+                offset: field.offset,
+                count,
+            })
+        }
+    };
+    if write.is_some() && !kind.is_writable() {
+        // Reported by check_write_function for own frames; frames of their own are checked too.
+        return None;
+    }
+    if write.is_some() && !codec.is_writable() {
+        problems.add(
+            format!("{place}.write"),
+            "this codec cannot be written (byte strings are read-only)",
+        );
+    }
+    if field.behaviour != Behaviour::State {
+        if write.is_none() {
+            problems.add(
+                format!("{place}.behaviour"),
+                "toggle and momentary fields must be writable",
+            );
+        }
+        if !matches!(codec, FieldCodec::Bit { .. } | FieldCodec::Coil { .. }) {
+            problems.add(
+                format!("{place}.behaviour"),
+                "toggle and momentary need a single bit or coil",
+            );
+        }
+    }
+    if field.settle_window.is_some() && write.is_none() {
+        problems.add(
+            format!("{place}.settle_window"),
+            "only a writable field has a settle window",
+        );
+    }
+    if field.min_write_interval.is_some() && write.is_none() {
+        problems.add(
+            format!("{place}.min_write_interval"),
+            "only a writable field has a minimum write interval",
+        );
+    }
+
+    let field_kind = field_kind(field, &codec, write.is_some(), place, problems)?;
+    let def = FieldDef {
+        block,
+        offset: field.offset,
+        codec,
+        write,
+        behaviour: field.behaviour,
+        settle_window: field.settle_window,
+        overlay: field.overlay,
+    };
+    let info = FieldInfo {
+        name: field.name.clone(),
+        description: field.description.clone(),
+        kind: field_kind,
+        writable: def.write.is_some(),
+        unit: field.unit.clone(),
+        ha: HaHints {
+            component: field.ha.component.clone(),
+            device_class: field.ha.device_class.clone(),
+            state_class: field.ha.state_class.clone(),
+            unit: field.unit.clone(),
+            icon: field.ha.icon.clone(),
+            entity_category: field.ha.entity_category.clone(),
+        },
+        min_write_interval: field.min_write_interval,
+    };
+    Some((def, info))
+}
+
+fn field_kind(
+    field: &FieldSection,
+    codec: &FieldCodec,
+    writable: bool,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<FieldKind> {
+    let natural = codec.natural_kind();
+    let kind = match (natural, field.range) {
+        (FieldKind::Integer { min, max }, Some([low, high])) => {
+            if low.fract() != 0.0 || high.fract() != 0.0 {
+                problems.add(
+                    format!("{place}.range"),
+                    "an integer field needs an integer range",
+                );
+                return None;
+            }
+            let (low, high) = (low as i64, high as i64);
+            if low > high || low < min || high > max {
+                problems.add(
+                    format!("{place}.range"),
+                    format!("[{low}, {high}] must be ordered and within the codec's {min}–{max}"),
+                );
+                return None;
+            }
+            FieldKind::Integer {
+                min: low,
+                max: high,
+            }
+        }
+        (
+            FieldKind::Decimal {
+                min,
+                max,
+                precision,
+            },
+            Some([low, high]),
+        ) => {
+            if !(low.is_finite() && high.is_finite()) || low > high || low < min || high > max {
+                problems.add(
+                    format!("{place}.range"),
+                    format!("[{low}, {high}] must be ordered and within the codec's {min}–{max}"),
+                );
+                return None;
+            }
+            FieldKind::Decimal {
+                min: low,
+                max: high,
+                precision,
+            }
+        }
+        (kind, Some(_)) => {
+            problems.add(format!("{place}.range"), "only numbers have a range");
+            kind
+        }
+        (kind, None) => kind,
+    };
+    let kind = match (kind, field.behaviour) {
+        (FieldKind::Bool, Behaviour::Momentary) => FieldKind::Momentary,
+        (kind, _) => kind,
+    };
+    if writable && field.range.is_none() && matches!(codec, FieldCodec::Number { .. }) {
+        problems.add(
+            format!("{place}.range"),
+            "a writable number needs a range [min, max]",
+        );
+    }
+    if matches!(kind, FieldKind::Enum { ref options } if options.is_empty()) {
+        problems.add(
+            format!("{place}.codec.options"),
+            "an enumeration needs options",
+        );
+    }
+    Some(kind)
+}
+
+/// Checks that no two fields share a bit, except overlay fields, which are views by design.
+fn check_overlaps(
+    sections: &[FieldSection],
+    defs: &[FieldDef],
+    blocks: &[ReadBlock],
+    problems: &mut Problems<'_>,
+) {
+    // (block, offset) → (mask, owning field index)
+    let mut owners: HashMap<(usize, u16), Vec<(u16, usize)>> = HashMap::new();
+    for (i, def) in defs.iter().enumerate() {
+        if def.overlay {
+            continue;
+        }
+        for (offset, mask) in def.codec.footprint(def.offset) {
+            let slot = owners.entry((def.block, offset)).or_default();
+            if let Some(&(_, other)) = slot.iter().find(|(m, _)| m & mask != 0) {
+                problems.add(
+                    format!("fields[{i}] ({})", sections[i].name),
+                    format!(
+                        "overlaps field `{}` at offset {offset} of block `{}`",
+                        sections[other].name, blocks[def.block].name
+                    ),
+                );
+            } else {
+                slot.push((mask, i));
+            }
+        }
+    }
+    for (i, def) in defs.iter().enumerate() {
+        if !def.overlay {
+            continue;
+        }
+        let covered = def
+            .codec
+            .footprint(def.offset)
+            .into_iter()
+            .all(|(offset, mask)| {
+                owners.get(&(def.block, offset)).is_some_and(|slot| {
+                    slot.iter().fold(0u16, |acc, (m, _)| acc | m) & mask == mask
+                })
+            });
+        if !covered {
+            problems.add(
+                format!("fields[{i}] ({}).overlay", sections[i].name),
+                "an overlay field must only cover bits that other fields own",
+            );
+        }
+    }
+}
+
+fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
+    spans.sort_unstable();
+    let mut runs: Vec<(u16, u16)> = Vec::new();
+    for (offset, len) in spans {
+        match runs.last_mut() {
+            Some((start, run_len))
+                if u32::from(offset) <= u32::from(*start) + u32::from(*run_len) =>
+            {
+                let end = (u32::from(offset) + u32::from(len))
+                    .max(u32::from(*start) + u32::from(*run_len));
+                *run_len = (end - u32::from(*start)) as u16;
+            }
+            _ => runs.push((offset, len)),
+        }
+    }
+    runs
+}
+
+fn build_forbidden(
+    sections: &[ForbiddenSection],
+    infos: &[FieldInfo],
+    defs: &[FieldDef],
+    problems: &mut Problems<'_>,
+) -> Vec<Forbidden> {
+    let mut out = Vec::new();
+    for (i, section) in sections.iter().enumerate() {
+        let place = format!("forbidden[{i}]");
+        let mut when = Vec::new();
+        for (name, text) in &section.when {
+            let Some(index) = infos.iter().position(|info| &info.name == name) else {
+                problems.add(
+                    format!("{place}.when.{name}"),
+                    format!("no field named `{name}`"),
+                );
+                continue;
+            };
+            if defs[index].overlay {
+                problems.add(
+                    format!("{place}.when.{name}"),
+                    "name the fields that own the bits, not an overlay",
+                );
+            }
+            match super::codec::parse_command(&infos[index], text) {
+                Ok(value) => when.push((index, value)),
+                Err(rejection) => problems.add(format!("{place}.when.{name}"), rejection.0),
+            }
+        }
+        if when.len() < 2 {
+            problems.add(
+                format!("{place}.when"),
+                "a forbidden combination names at least two fields",
+            );
+        }
+        if let Some(&(first, _)) = when.first() {
+            if when
+                .iter()
+                .any(|(f, _)| defs[*f].block != defs[first].block)
+            {
+                problems.add(
+                    format!("{place}.when"),
+                    "the fields of a forbidden combination must share one block",
+                );
+            }
+        }
+        out.push(Forbidden {
+            when,
+            reason: section.reason.clone(),
+        });
+    }
+    out
+}

@@ -4,10 +4,15 @@
 //! expected length with an inter-character gap limit and a response timeout, and an answer
 //! arriving after its timeout is discarded and counted, never taken for the next request's.
 
-use std::time::Duration;
+use std::io::Write;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use super::codec::DecodeError;
-use super::frame::{ExceptionCode, Request, Response, SlaveId};
+use tokio::time::Instant;
+
+use super::clock::{sleep_until_precise, SPIN_WINDOW};
+use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
+use super::crc::carried_and_computed;
+use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 use super::timing::LineTiming;
 use super::transport::Port;
 
@@ -26,7 +31,20 @@ pub enum Error {
     Exception(ExceptionCode),
     #[error("serial i/o: {0}")]
     Io(#[from] std::io::Error),
+    /// The request cannot be framed (quantity out of the specification's range); nothing sent.
+    #[error("request not sent: {0}")]
+    InvalidRequest(#[from] EncodeError),
+    /// Bytes kept arriving for this long without a t3.5 silence; nothing sent.
+    #[error("line never went silent within {0:?}")]
+    LineBusy(Duration),
 }
+
+/// Added to t1.5 for the default inter-character gap limit. USB serial adapters hand received
+/// bytes over in bursts (CP210x/CH340 about every 1–2 ms, FTDI every `latency_timer` ms,
+/// 16 by default), so a strict t1.5 would cut good answers; 5 ms covers the common adapters
+/// and a busy host. With an FTDI adapter, set its latency_timer to 1 or raise
+/// [`MasterOptions::inter_char_timeout`].
+pub const DEFAULT_GAP_ALLOWANCE: Duration = Duration::from_millis(5);
 
 /// Per-line behaviour of the master.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -35,6 +53,26 @@ pub struct MasterOptions {
     pub echo: bool,
     /// Silence after a broadcast before the line is driven again.
     pub broadcast_turnaround: Duration,
+    /// Longest silence between two bytes of one answer before it is declared truncated.
+    /// `None`: t1.5 + [`DEFAULT_GAP_ALLOWANCE`].
+    pub inter_char_timeout: Option<Duration>,
+    /// After a timeout, how long the line is watched for the late answer before the next
+    /// request goes out (counted from the timeout). `None`: the timed-out request's own
+    /// timeout, so answers up to twice the timeout late are caught and never taken for the
+    /// next request's. Only paid when the next request follows at once.
+    pub late_answer_guard: Option<Duration>,
+}
+
+impl Default for MasterOptions {
+    fn default() -> Self {
+        MasterOptions {
+            echo: false,
+            // The serial-line specification suggests 100–200 ms for a broadcast's turnaround.
+            broadcast_turnaround: Duration::from_millis(100),
+            inter_char_timeout: None,
+            late_answer_guard: None,
+        }
+    }
 }
 
 /// Wire-level counters kept by the master (monotonic).
@@ -50,38 +88,479 @@ pub struct WireCounters {
     pub late_answers: u64,
     /// Bytes found on the line before a request was sent.
     pub stray_bytes: u64,
+    /// Frames from another address heard while waiting for an answer (ignored, as the
+    /// serial-line specification says).
+    pub wrong_address: u64,
     /// Wire time of all frames sent and received plus the mandatory silences, for bus load.
     pub wire_time: Duration,
 }
 
-pub struct Master {}
+/// How far the bytes received so far go towards an answer.
+enum Framing {
+    /// Not enough bytes to tell; wait for more (or give up at the gap limit).
+    NeedMore { needed: usize },
+    /// An answer of this many bytes is complete at the start of the buffer.
+    Complete(usize),
+    /// A frame for someone else: read it to its end (a gap), then drop it.
+    Foreign,
+    /// The bytes so far repeat our own request: possibly an echo.
+    EchoCandidate,
+    /// A function code that is neither ours nor our exception: read to a gap, then reject.
+    UnknownLength,
+}
+
+/// Runs transactions on one line.
+pub struct Master {
+    port: Port,
+    timing: LineTiming,
+    options: MasterOptions,
+    counters: WireCounters,
+    /// Last instant a byte was seen on the line in either direction (drain instant for ours).
+    last_activity: Instant,
+    /// After a timeout: the line is watched for the late answer until then.
+    late_guard_until: Option<Instant>,
+    /// The previous transaction timed out and no request has been sent since.
+    late_window_open: bool,
+    /// The late answer of the previous transaction has already been counted.
+    late_answer_counted: bool,
+    /// An unannounced adapter echo has been reported.
+    echo_warned: bool,
+    recorder: Option<Box<dyn Write + Send>>,
+}
+
+impl std::fmt::Debug for Master {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Master")
+            .field("port", &self.port)
+            .field("timing", &self.timing)
+            .field("options", &self.options)
+            .field("counters", &self.counters)
+            .finish_non_exhaustive()
+    }
+}
+
+fn unix_time_micros() -> String {
+    let since_epoch = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap_or_default();
+    format!(
+        "{}.{:06}",
+        since_epoch.as_secs(),
+        since_epoch.subsec_micros()
+    )
+}
 
 impl Master {
     pub fn new(port: Port, timing: LineTiming, options: MasterOptions) -> Self {
-        todo!("rtu helper")
+        Master {
+            port,
+            timing,
+            options,
+            counters: WireCounters::default(),
+            // The line's state before we opened it is unknown: treat it as just used.
+            last_activity: Instant::now(),
+            late_guard_until: None,
+            late_window_open: false,
+            late_answer_counted: false,
+            echo_warned: false,
+            recorder: None,
+        }
     }
 
-    /// Sends `request` to `slave` and waits for its answer.
+    /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (for bug
+    /// reports). A write error stops the recording with a warning.
+    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+        self.recorder = Some(writer);
+    }
+
+    /// The gap between two bytes of one answer beyond which it is declared truncated.
+    pub fn inter_char_timeout(&self) -> Duration {
+        self.options
+            .inter_char_timeout
+            .unwrap_or(self.timing.t1_5 + DEFAULT_GAP_ALLOWANCE)
+    }
+
+    /// Sends `request` to `slave` and waits for its answer. `timeout` runs from the instant the
+    /// request left the transmit buffer until the answer's first byte is seen (USB adapters
+    /// may hand that byte over only with the whole frame: see
+    /// [`LineTiming::default_response_timeout`]); once the answer has started, only the
+    /// inter-character gap limit applies.
     pub async fn transact(
         &mut self,
         slave: SlaveId,
         request: &Request,
         timeout: Duration,
     ) -> Result<Response, Error> {
-        todo!("rtu helper")
+        let frame = codec::encode_request(slave, request)?;
+        self.wait_for_silence(timeout).await?;
+        let drained_at = self.send(&frame).await?;
+        let result = self
+            .receive_answer(slave, request, &frame, drained_at, timeout)
+            .await;
+        match &result {
+            Ok(_) => {}
+            Err(Error::Timeout(_)) => {
+                self.counters.timeouts += 1;
+                let guard = self.options.late_answer_guard.unwrap_or(timeout);
+                self.late_guard_until = Some(Instant::now() + guard);
+                self.late_window_open = true;
+                self.late_answer_counted = false;
+            }
+            Err(Error::Crc) => self.counters.crc_errors += 1,
+            Err(Error::Truncated { .. }) => self.counters.truncated += 1,
+            Err(Error::Exception(_)) => self.counters.exceptions += 1,
+            Err(Error::UnexpectedReply(_)) => self.counters.unexpected += 1,
+            Err(Error::Io(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
+        }
+        result
     }
 
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
     /// for the turnaround delay.
     pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
-        todo!("rtu helper")
+        let frame = codec::encode_request(0, request)?;
+        self.wait_for_silence(
+            self.options
+                .broadcast_turnaround
+                .max(Duration::from_secs(1)),
+        )
+        .await?;
+        let drained_at = self.send(&frame).await?;
+        sleep_until_precise(drained_at + self.options.broadcast_turnaround).await;
+        Ok(())
     }
 
     pub fn counters(&self) -> WireCounters {
-        todo!("rtu helper")
+        self.counters
     }
 
     pub fn timing(&self) -> LineTiming {
-        todo!("rtu helper")
+        self.timing
     }
+
+    /// The port's path or label, for logs.
+    pub fn port_path(&self) -> &str {
+        self.port.path()
+    }
+
+    /// Waits until the line has been silent for t3.5 (and any late-answer guard has passed),
+    /// taking and counting every byte that arrives meanwhile; each byte restarts the silence.
+    async fn wait_for_silence(&mut self, patience: Duration) -> Result<(), Error> {
+        let give_up = self
+            .late_guard_until
+            .unwrap_or_else(Instant::now)
+            .max(Instant::now())
+            + patience;
+        let mut chunk = [0u8; MAX_FRAME_LEN];
+        loop {
+            let pending = self.port.take_pending()?;
+            if !pending.is_empty() {
+                self.absorb_unsolicited(&pending, Instant::now());
+            }
+            let mut quiet_at = self.last_activity + self.timing.t3_5;
+            if let Some(guard) = self.late_guard_until {
+                quiet_at = quiet_at.max(guard);
+            }
+            let now = Instant::now();
+            if now >= quiet_at {
+                self.late_guard_until = None;
+                return Ok(());
+            }
+            if now >= give_up {
+                return Err(Error::LineBusy(patience));
+            }
+            // Listen with the coarse timer until shortly before the silence is complete, then
+            // finish precisely; bytes in the last stretch are caught by the next take_pending.
+            let coarse_until = quiet_at
+                .checked_sub(SPIN_WINDOW)
+                .unwrap_or(now)
+                .min(give_up);
+            if coarse_until > now {
+                if let Some((count, seen)) = self.port.read_until(&mut chunk, coarse_until).await? {
+                    let bytes = chunk[..count].to_vec();
+                    self.absorb_unsolicited(&bytes, seen);
+                    continue;
+                }
+            }
+            sleep_until_precise(quiet_at).await;
+        }
+    }
+
+    /// Bytes nobody asked for: part of a late answer while the late window is open, stray
+    /// bytes otherwise. Either way they restart the line's silence.
+    fn absorb_unsolicited(&mut self, bytes: &[u8], seen: Instant) {
+        self.last_activity = self.last_activity.max(seen);
+        self.counters.wire_time += self.timing.frame_time(bytes.len());
+        self.record("rx", bytes);
+        if self.late_window_open {
+            if !self.late_answer_counted {
+                self.counters.late_answers += 1;
+                self.late_answer_counted = true;
+            }
+            tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "late answer discarded");
+        } else {
+            self.counters.stray_bytes += bytes.len() as u64;
+            tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "stray bytes discarded");
+        }
+    }
+
+    /// Writes `frame`, waits for the drain and returns its instant.
+    async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
+        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "tx");
+        self.record("tx", frame);
+        self.counters.requests += 1;
+        self.late_window_open = false;
+        let drained_at = self.port.write_frame(frame).await?;
+        self.last_activity = drained_at;
+        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        Ok(drained_at)
+    }
+
+    /// Reads the answer to `request` (sent as `sent` at `drained_at`) and decodes it.
+    async fn receive_answer(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        sent: &[u8],
+        drained_at: Instant,
+        timeout: Duration,
+    ) -> Result<Response, Error> {
+        let answer_deadline = drained_at + timeout;
+        if self.options.echo {
+            self.strip_echo(sent, answer_deadline, timeout).await?;
+        }
+        let gap_limit = self.inter_char_timeout();
+        let mut received: Vec<u8> = Vec::new();
+        let mut last_byte_at = drained_at;
+        let mut chunk = [0u8; MAX_FRAME_LEN];
+        loop {
+            if self.is_unannounced_echo(request, sent, &received) {
+                if !self.echo_warned {
+                    self.echo_warned = true;
+                    tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
+                }
+                received.drain(..sent.len());
+            }
+            let framing = self.framing(slave, request, sent, &received);
+            if let Framing::Foreign = framing {
+                // Another device's frame whose length and CRC check out ends here; whatever
+                // follows may be our answer.
+                if let Some(length) = complete_foreign_frame(&received) {
+                    let rest = received.split_off(length);
+                    self.ignore_foreign_frame(&received);
+                    received = rest;
+                    continue;
+                }
+            }
+            if let Framing::Complete(length) = framing {
+                let trailing = received.split_off(length);
+                self.took_frame(&received);
+                if !trailing.is_empty() {
+                    self.absorb_unsolicited(&trailing, last_byte_at);
+                }
+                return self.decode(slave, request, &received);
+            }
+            let wait_until = if received.is_empty() {
+                answer_deadline
+            } else {
+                last_byte_at + gap_limit
+            };
+            if let Some((count, seen)) = self.port.read_until(&mut chunk, wait_until).await? {
+                received.extend_from_slice(&chunk[..count]);
+                last_byte_at = seen;
+                self.last_activity = seen;
+                continue;
+            }
+            // Nothing more arrived in time.
+            if received.is_empty() {
+                return Err(Error::Timeout(timeout));
+            }
+            match framing {
+                Framing::Foreign => {
+                    self.ignore_foreign_frame(&received);
+                    received.clear();
+                    if Instant::now() >= answer_deadline {
+                        return Err(Error::Timeout(timeout));
+                    }
+                }
+                _ => {
+                    // A short answer that happened to match the start of our request, a frame
+                    // cut short, or one of unknown length: decode what there is.
+                    self.took_frame(&received);
+                    let needed = match framing {
+                        Framing::NeedMore { needed } => needed,
+                        _ => received.len(),
+                    };
+                    if received.len() < needed {
+                        return Err(Error::Truncated {
+                            needed,
+                            got: received.len(),
+                        });
+                    }
+                    return self.decode(slave, request, &received);
+                }
+            }
+        }
+    }
+
+    /// Reads our own frame back from an echoing adapter.
+    async fn strip_echo(
+        &mut self,
+        sent: &[u8],
+        deadline: Instant,
+        timeout: Duration,
+    ) -> Result<(), Error> {
+        let mut echoed = Vec::with_capacity(sent.len());
+        let mut chunk = [0u8; MAX_FRAME_LEN];
+        while echoed.len() < sent.len() {
+            let want = sent.len() - echoed.len();
+            match self.port.read_until(&mut chunk[..want], deadline).await? {
+                Some((count, seen)) => {
+                    echoed.extend_from_slice(&chunk[..count]);
+                    self.last_activity = seen;
+                }
+                None => break,
+            }
+        }
+        if echoed == sent {
+            return Ok(());
+        }
+        self.record("rx", &echoed);
+        tracing::warn!(port = %self.port.path(), sent = %codec::hex(sent), echoed = %codec::hex(&echoed), "echo differs from the frame sent");
+        if echoed.is_empty() {
+            return Err(Error::Timeout(timeout));
+        }
+        Err(Error::UnexpectedReply(DecodeError::Malformed(
+            "adapter echo differs from the frame sent",
+        )))
+    }
+
+    /// Our own complete request at the start of what was received, on a line not configured
+    /// for echo (single writes excepted: their answer is a copy of the request).
+    fn is_unannounced_echo(&self, request: &Request, sent: &[u8], received: &[u8]) -> bool {
+        let answer_may_equal_request = matches!(
+            request.function(),
+            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
+        );
+        !self.options.echo && !answer_may_equal_request && received.starts_with(sent)
+    }
+
+    /// Where the bytes received so far stand.
+    fn framing(&self, slave: SlaveId, request: &Request, sent: &[u8], received: &[u8]) -> Framing {
+        let function = request.function();
+        let (Some(&address), Some(&found_function)) = (received.first(), received.get(1)) else {
+            return match received.first() {
+                Some(&address) if address != slave => Framing::Foreign,
+                _ => Framing::NeedMore {
+                    needed: codec::expected_answer_len(request),
+                },
+            };
+        };
+        if address != slave {
+            return Framing::Foreign;
+        }
+        // Single writes are answered with a copy of the request: no echo can be told from them.
+        let answer_may_equal_request = matches!(
+            function,
+            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
+        );
+        if !self.options.echo
+            && !answer_may_equal_request
+            && received.len() < sent.len()
+            && sent.starts_with(received)
+        {
+            return Framing::EchoCandidate;
+        }
+        let needed = if found_function == function.value() | 0x80 {
+            codec::EXCEPTION_FRAME_LEN
+        } else if found_function == function.value() {
+            if request.is_read() {
+                match received.get(2) {
+                    // Framed by the byte count the device claims; the decoder checks it.
+                    Some(&count) => 5 + usize::from(count),
+                    None => {
+                        return Framing::NeedMore {
+                            needed: codec::expected_answer_len(request),
+                        }
+                    }
+                }
+            } else {
+                codec::expected_answer_len(request)
+            }
+        } else {
+            return if received.len() >= MAX_FRAME_LEN {
+                Framing::Complete(MAX_FRAME_LEN)
+            } else {
+                Framing::UnknownLength
+            };
+        };
+        if received.len() >= needed {
+            Framing::Complete(needed)
+        } else {
+            Framing::NeedMore { needed }
+        }
+    }
+
+    /// A frame for another address: counted and dropped; listening goes on (serial-line
+    /// specification 2.4.1).
+    fn ignore_foreign_frame(&mut self, frame: &[u8]) {
+        self.counters.wrong_address += 1;
+        self.took_frame(frame);
+        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "frame for another address ignored");
+    }
+
+    /// Accounts for a received frame (log, recorder, wire time).
+    fn took_frame(&mut self, frame: &[u8]) {
+        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "rx");
+        self.record("rx", frame);
+        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+    }
+
+    fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Response, Error> {
+        match codec::decode_answer(slave, request, frame) {
+            Ok(Answer::Normal(response)) => Ok(response),
+            Ok(Answer::Exception(code)) => Err(Error::Exception(code)),
+            Err(DecodeError::BadCrc { .. }) => Err(Error::Crc),
+            Err(DecodeError::Truncated { needed, got }) => Err(Error::Truncated { needed, got }),
+            Err(other) => Err(Error::UnexpectedReply(other)),
+        }
+    }
+
+    fn record(&mut self, direction: &str, bytes: &[u8]) {
+        let Some(writer) = self.recorder.as_mut() else {
+            return;
+        };
+        let line = format!(
+            "{} {direction} {}\n",
+            unix_time_micros(),
+            codec::hex(bytes).replace(' ', "")
+        );
+        if let Err(error) = writer
+            .write_all(line.as_bytes())
+            .and_then(|()| writer.flush())
+        {
+            tracing::warn!(port = %self.port.path(), %error, "frame recording stopped");
+            self.recorder = None;
+        }
+    }
+}
+
+/// The length of the answer frame at the start of `received` when its function code gives the
+/// length, all of it has arrived and its CRC is right (`None` otherwise).
+fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
+    let function = *received.get(1)?;
+    let length = if function & 0x80 != 0 {
+        codec::EXCEPTION_FRAME_LEN
+    } else {
+        match FunctionCode::from_u8(function)? {
+            FunctionCode::ReadCoils
+            | FunctionCode::ReadDiscreteInputs
+            | FunctionCode::ReadHoldingRegisters
+            | FunctionCode::ReadInputRegisters => 5 + usize::from(*received.get(2)?),
+            _ => 8,
+        }
+    };
+    let frame = received.get(..length)?;
+    let (carried, computed) = carried_and_computed(frame)?;
+    (carried == computed).then_some(length)
 }

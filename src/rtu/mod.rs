@@ -1,10 +1,12 @@
 //! The Modbus RTU wire protocol: everything between a [`frame::Request`] and the bytes on an
 //! RS485 line.
 //!
-//! `crc`, `frame`, `codec` and `timing` are pure (no I/O, no tokio). `transport` is the only code
-//! in the crate that touches a serial port; `master` runs one transaction at a time on it with
-//! the serial-line specification's timing.
+//! `crc`, `frame`, `codec` and `timing` are pure (no I/O, no tokio). `clock` holds the precise
+//! sleep the line's silences need. `transport` is the only code in the crate that touches a
+//! serial port; `master` runs one transaction at a time on it with the serial-line
+//! specification's timing.
 
+pub mod clock;
 pub mod codec;
 pub mod crc;
 pub mod frame;

@@ -20,6 +20,25 @@ pub struct CharFormat {
     pub stop_bits: u8,
 }
 
+impl CharFormat {
+    /// Bits of one character: one start bit, the data bits, a parity bit if any, stop bits.
+    pub fn bits_per_char(&self) -> u32 {
+        let parity = if self.parity == Parity::None { 0 } else { 1 };
+        1 + u32::from(self.data_bits) + parity + u32::from(self.stop_bits)
+    }
+}
+
+/// Above this rate the specification fixes t1.5 and t3.5 instead of scaling them.
+pub const FIXED_TIMING_ABOVE_BAUD: u32 = 19_200;
+/// t1.5 above 19200 baud.
+pub const FIXED_T1_5: Duration = Duration::from_micros(750);
+/// t3.5 above 19200 baud.
+pub const FIXED_T3_5: Duration = Duration::from_micros(1750);
+/// Allowance in [`LineTiming::default_response_timeout`] for what is neither wire time nor the
+/// device: USB serial adapters hand received bytes over in 1–16 ms latency-timer batches and a
+/// busy host schedules late.
+pub const HOST_LATENCY_ALLOWANCE: Duration = Duration::from_millis(20);
+
 /// The timing of one serial line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LineTiming {
@@ -33,12 +52,113 @@ pub struct LineTiming {
 }
 
 impl LineTiming {
+    /// The timing of a line at `baud` with `format`. A baud of 0 is treated as 1 so that a bad
+    /// setting gives absurdly slow timing rather than a division by zero.
     pub fn new(baud: u32, format: CharFormat) -> Self {
-        todo!("rtu helper")
+        let baud = baud.max(1);
+        let char_nanos = u64::from(format.bits_per_char()) * 1_000_000_000u64 / u64::from(baud);
+        let char_time = Duration::from_nanos(char_nanos);
+        let (t1_5, t3_5) = if baud > FIXED_TIMING_ABOVE_BAUD {
+            (FIXED_T1_5, FIXED_T3_5)
+        } else {
+            (
+                Duration::from_nanos(char_nanos * 3 / 2),
+                Duration::from_nanos(char_nanos * 7 / 2),
+            )
+        };
+        LineTiming {
+            baud,
+            char_time,
+            t1_5,
+            t3_5,
+        }
     }
 
     /// Wire time of a frame of `bytes` characters.
     pub fn frame_time(&self, bytes: usize) -> Duration {
-        todo!("rtu helper")
+        self.char_time
+            .saturating_mul(u32::try_from(bytes).unwrap_or(u32::MAX))
+    }
+
+    /// A response timeout for a device whose longest answer is `longest_answer_bytes`: the
+    /// answer's wire time, the device's own turnaround `device_margin` (from its document or
+    /// measured), t3.5 and [`HOST_LATENCY_ALLOWANCE`]. Measured from the instant our request
+    /// left the transmit buffer to the last byte of the answer.
+    pub fn default_response_timeout(
+        &self,
+        longest_answer_bytes: usize,
+        device_margin: Duration,
+    ) -> Duration {
+        self.frame_time(longest_answer_bytes) + self.t3_5 + device_margin + HOST_LATENCY_ALLOWANCE
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EIGHT_N_ONE: CharFormat = CharFormat {
+        data_bits: 8,
+        parity: Parity::None,
+        stop_bits: 1,
+    };
+    const EIGHT_E_ONE: CharFormat = CharFormat {
+        data_bits: 8,
+        parity: Parity::Even,
+        stop_bits: 1,
+    };
+
+    #[test]
+    fn nine_thousand_six_hundred_eight_n_one() {
+        let timing = LineTiming::new(9600, EIGHT_N_ONE);
+        // 10 bits at 9600 baud: 1041.666 µs.
+        assert_eq!(timing.char_time, Duration::from_nanos(1_041_666));
+        assert_eq!(timing.t1_5, Duration::from_nanos(1_562_499));
+        assert_eq!(timing.t3_5, Duration::from_nanos(3_645_831));
+        assert_eq!(timing.frame_time(8), Duration::from_nanos(8 * 1_041_666));
+    }
+
+    #[test]
+    fn parity_adds_a_bit() {
+        let timing = LineTiming::new(9600, EIGHT_E_ONE);
+        // 11 bits at 9600 baud: 1145.833 µs.
+        assert_eq!(timing.char_time, Duration::from_nanos(1_145_833));
+        let two_stop = LineTiming::new(
+            9600,
+            CharFormat {
+                stop_bits: 2,
+                ..EIGHT_E_ONE
+            },
+        );
+        assert_eq!(two_stop.char_time, Duration::from_nanos(1_250_000));
+    }
+
+    #[test]
+    fn fixed_above_19200() {
+        let at_19200 = LineTiming::new(19_200, EIGHT_N_ONE);
+        assert_eq!(at_19200.t3_5, Duration::from_nanos(520_833 * 7 / 2));
+        let at_38400 = LineTiming::new(38_400, EIGHT_N_ONE);
+        assert_eq!(at_38400.t1_5, Duration::from_micros(750));
+        assert_eq!(at_38400.t3_5, Duration::from_micros(1750));
+        assert_eq!(at_38400.char_time, Duration::from_nanos(260_416));
+    }
+
+    #[test]
+    fn zero_baud_does_not_divide_by_zero() {
+        let timing = LineTiming::new(0, EIGHT_N_ONE);
+        assert_eq!(timing.char_time, Duration::from_secs(10));
+    }
+
+    #[test]
+    fn response_timeout_adds_wire_time_and_margins() {
+        let timing = LineTiming::new(9600, EIGHT_N_ONE);
+        let timeout = timing.default_response_timeout(17, Duration::from_millis(50));
+        assert_eq!(
+            timeout,
+            timing.frame_time(17)
+                + timing.t3_5
+                + Duration::from_millis(50)
+                + HOST_LATENCY_ALLOWANCE
+        );
     }
 }

@@ -4,9 +4,15 @@
 //! transmit buffer has drained (tcdrain), reads bytes with deadlines, discards stray input, and
 //! optionally switches the kernel's RS485 mode on.
 
+use std::io;
+use std::os::fd::{AsRawFd, BorrowedFd};
 use std::time::Duration;
 
-use super::timing::CharFormat;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::time::Instant;
+use tokio_serial::{DataBits, SerialPort, SerialPortBuilderExt, SerialStream, StopBits};
+
+use super::timing::{CharFormat, Parity};
 
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -43,11 +49,370 @@ pub enum TransportError {
 }
 
 /// An open serial line.
-pub struct Port {}
+pub struct Port {
+    stream: SerialStream,
+    path: String,
+    pseudo_terminal: bool,
+}
+
+impl std::fmt::Debug for Port {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Port")
+            .field("path", &self.path)
+            .field("pseudo_terminal", &self.pseudo_terminal)
+            .finish()
+    }
+}
+
+/// The error a read gets when the port has gone away (EOF: the other end of a pty closed, a
+/// USB adapter was unplugged). Never retried in a loop by this module.
+fn port_gone(path: &str) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::UnexpectedEof,
+        format!("{path}: serial port closed"),
+    )
+}
+
+fn io_error(error: tokio_serial::Error) -> io::Error {
+    io::Error::from(error)
+}
 
 impl Port {
-    /// Opens the port with `settings`.
+    /// Opens the port with `settings`: exclusive access (TIOCEXCL), baud, character format and
+    /// the optional kernel RS485 mode.
     pub fn open(settings: &SerialSettings) -> Result<Port, TransportError> {
-        todo!("rtu helper")
+        // Opened as 8N1 first (every port takes that), then each setting is applied and checked
+        // on its own so that a refusal names the setting.
+        let stream = tokio_serial::new(&settings.path, settings.baud)
+            .data_bits(DataBits::Eight)
+            .parity(tokio_serial::Parity::None)
+            .stop_bits(StopBits::One)
+            .flow_control(tokio_serial::FlowControl::None)
+            .open_native_async()
+            .map_err(|source| TransportError::Open {
+                path: settings.path.clone(),
+                source: io_error(source),
+            })?;
+        Port::from_stream(stream, settings)
+    }
+
+    /// Wraps an already open stream (one end of `SerialStream::pair()` in tests and simulators)
+    /// and applies `settings` to it; `settings.path` only names it in logs and errors.
+    pub fn from_stream(
+        mut stream: SerialStream,
+        settings: &SerialSettings,
+    ) -> Result<Port, TransportError> {
+        let path = settings.path.clone();
+        let pseudo_terminal = is_pseudo_terminal(&stream, &path);
+        if let Err(error) = stream.set_exclusive(true) {
+            // Exclusive access is a safeguard, not a requirement for talking on the line.
+            tracing::warn!(path = %path, %error, "cannot get exclusive access (TIOCEXCL)");
+        }
+        let mut port = Port {
+            stream,
+            path,
+            pseudo_terminal,
+        };
+        port.apply_format(settings.baud, settings.format)?;
+        if let Some(rs485) = &settings.rs485 {
+            port.enable_rs485(rs485)?;
+        }
+        Ok(port)
+    }
+
+    /// The path (or label) the port was opened with.
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// True when the port is a pseudo-terminal (tests, simulators, socat bridges): the kernel
+    /// ignores or refuses line settings there, and nothing is sent at a real baud rate.
+    pub fn is_pseudo_terminal(&self) -> bool {
+        self.pseudo_terminal
+    }
+
+    fn apply_format(&mut self, baud: u32, format: CharFormat) -> Result<(), TransportError> {
+        let data_bits = match format.data_bits {
+            5 => DataBits::Five,
+            6 => DataBits::Six,
+            7 => DataBits::Seven,
+            _ => DataBits::Eight,
+        };
+        let parity = match format.parity {
+            Parity::None => tokio_serial::Parity::None,
+            Parity::Even => tokio_serial::Parity::Even,
+            Parity::Odd => tokio_serial::Parity::Odd,
+        };
+        let stop_bits = if format.stop_bits >= 2 {
+            StopBits::Two
+        } else {
+            StopBits::One
+        };
+        let results = [
+            (
+                "baud rate",
+                self.stream
+                    .set_baud_rate(baud)
+                    .and_then(|()| self.check(self.stream.baud_rate()? == baud)),
+            ),
+            (
+                "data bits",
+                self.stream
+                    .set_data_bits(data_bits)
+                    .and_then(|()| self.check(self.stream.data_bits()? == data_bits)),
+            ),
+            (
+                "parity",
+                self.stream
+                    .set_parity(parity)
+                    .and_then(|()| self.check(self.stream.parity()? == parity)),
+            ),
+            (
+                "stop bits",
+                self.stream
+                    .set_stop_bits(stop_bits)
+                    .and_then(|()| self.check(self.stream.stop_bits()? == stop_bits)),
+            ),
+        ];
+        for (setting, result) in results {
+            if let Err(error) = result {
+                let source = io_error(error);
+                if self.pseudo_terminal {
+                    tracing::warn!(path = %self.path, setting, %source, "pseudo-terminal does not take this setting; running without it");
+                } else {
+                    return Err(TransportError::SettingRefused {
+                        path: self.path.clone(),
+                        setting,
+                        source,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A setting that was accepted but reads back different was silently ignored.
+    fn check(&self, applied: bool) -> tokio_serial::Result<()> {
+        if applied {
+            Ok(())
+        } else {
+            Err(tokio_serial::Error::new(
+                tokio_serial::ErrorKind::InvalidInput,
+                "accepted but not applied",
+            ))
+        }
+    }
+
+    /// Switches the kernel's RS485 mode on (TIOCSRS485). A pty or a UART driver without RS485
+    /// support answers ENOTTY: on a pty that is a warning, on a real port an error.
+    fn enable_rs485(&mut self, rs485: &Rs485Settings) -> Result<(), TransportError> {
+        let mut config = SerialRs485 {
+            flags: SER_RS485_ENABLED
+                | if rs485.rts_on_send {
+                    SER_RS485_RTS_ON_SEND
+                } else {
+                    SER_RS485_RTS_AFTER_SEND
+                },
+            delay_rts_before_send: u32::try_from(rs485.delay_before_send.as_millis())
+                .unwrap_or(u32::MAX),
+            delay_rts_after_send: u32::try_from(rs485.delay_after_send.as_millis())
+                .unwrap_or(u32::MAX),
+            padding: [0; 5],
+        };
+        // SAFETY: TIOCSRS485 reads a `struct serial_rs485`, which `SerialRs485` lays out exactly
+        // (repr(C), 32 bytes); the fd is open for the lifetime of `self.stream`.
+        let status = unsafe { libc::ioctl(self.stream.as_raw_fd(), libc::TIOCSRS485, &mut config) };
+        if status == 0 {
+            return Ok(());
+        }
+        let source = io::Error::last_os_error();
+        if self.pseudo_terminal {
+            tracing::warn!(path = %self.path, %source, "pseudo-terminal has no RS485 mode; running without it");
+            Ok(())
+        } else {
+            Err(TransportError::SettingRefused {
+                path: self.path.clone(),
+                setting: "rs485 mode",
+                source,
+            })
+        }
+    }
+
+    /// Writes `frame` and waits until the transmit buffer has drained (tcdrain), returning the
+    /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
+    pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
+        self.stream.write_all(frame).await?;
+        self.stream.flush().await?;
+        // tcdrain blocks the calling thread for the frame's wire time; it runs on the blocking
+        // pool on a duplicate of the descriptor, which works on a current_thread runtime too.
+        // SAFETY: the descriptor is open for the lifetime of `self.stream`, which outlives this
+        // borrow; the duplicate is owned and closed by the blocking task.
+        let duplicate =
+            unsafe { BorrowedFd::borrow_raw(self.stream.as_raw_fd()) }.try_clone_to_owned()?;
+        let drained = tokio::task::spawn_blocking(move || {
+            nix::sys::termios::tcdrain(&duplicate).map(|()| Instant::now())
+        })
+        .await
+        .map_err(io::Error::other)?;
+        drained.map_err(io::Error::from)
+    }
+
+    /// Reads what has arrived into `buf`, waiting until `deadline` for at least one byte.
+    /// `Ok(None)` when the deadline passed first; the instant is when the bytes were seen.
+    pub async fn read_until(
+        &mut self,
+        buf: &mut [u8],
+        deadline: Instant,
+    ) -> io::Result<Option<(usize, Instant)>> {
+        match tokio::time::timeout_at(deadline, self.stream.read(buf)).await {
+            Err(_elapsed) => Ok(None),
+            Ok(Ok(0)) if !buf.is_empty() => Err(port_gone(&self.path)),
+            Ok(Ok(count)) => Ok(Some((count, Instant::now()))),
+            Ok(Err(error)) => Err(error),
+        }
+    }
+
+    /// Takes every byte already waiting in the receive buffer without waiting for more.
+    pub fn take_pending(&mut self) -> io::Result<Vec<u8>> {
+        let mut pending = Vec::new();
+        let mut chunk = [0u8; 256];
+        loop {
+            match self.stream.try_read(&mut chunk) {
+                Ok(0) => return Err(port_gone(&self.path)),
+                Ok(count) => pending.extend_from_slice(&chunk[..count]),
+                Err(error) if error.kind() == io::ErrorKind::WouldBlock => return Ok(pending),
+                Err(error) if error.kind() == io::ErrorKind::Interrupted => continue,
+                Err(error) => return Err(error),
+            }
+        }
+    }
+
+    /// Discards pending input, returning how many bytes were thrown away.
+    pub fn discard_input(&mut self) -> io::Result<usize> {
+        self.take_pending().map(|bytes| bytes.len())
+    }
+}
+
+const SER_RS485_ENABLED: u32 = 1;
+const SER_RS485_RTS_ON_SEND: u32 = 1 << 1;
+const SER_RS485_RTS_AFTER_SEND: u32 = 1 << 2;
+
+/// Linux `struct serial_rs485` (include/uapi/linux/serial.h).
+#[repr(C)]
+struct SerialRs485 {
+    flags: u32,
+    /// Milliseconds.
+    delay_rts_before_send: u32,
+    /// Milliseconds.
+    delay_rts_after_send: u32,
+    padding: [u32; 5],
+}
+
+/// Whether `stream` is a pseudo-terminal: the device number of a Unix98 pty slave (majors
+/// 136–143), a BSD-style pty (majors 2 and 3), the pty multiplexer (5, 2), or a path that
+/// resolves under /dev/pts (socat links).
+fn is_pseudo_terminal(stream: &SerialStream, path: &str) -> bool {
+    let by_device = nix::sys::stat::fstat(stream.as_raw_fd()).is_ok_and(|status| {
+        let device = status.st_rdev;
+        let (major, minor) = (libc::major(device), libc::minor(device));
+        (136..=143).contains(&major) || major == 2 || major == 3 || (major == 5 && minor == 2)
+    });
+    let by_path =
+        std::fs::canonicalize(path).is_ok_and(|resolved| resolved.starts_with("/dev/pts"));
+    by_device || by_path
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(parity: Parity) -> SerialSettings {
+        SerialSettings {
+            path: "pty".into(),
+            baud: 9600,
+            format: CharFormat {
+                data_bits: 8,
+                parity,
+                stop_bits: 1,
+            },
+            rs485: Some(Rs485Settings {
+                rts_on_send: true,
+                delay_before_send: Duration::ZERO,
+                delay_after_send: Duration::ZERO,
+            }),
+        }
+    }
+
+    #[test]
+    fn rs485_struct_has_the_kernel_size() {
+        assert_eq!(std::mem::size_of::<SerialRs485>(), 32);
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn pty_with_parity_and_rs485_opens_and_carries_bytes() {
+        let (near, far) = SerialStream::pair().unwrap();
+        let mut near = Port::from_stream(near, &settings(Parity::Even)).unwrap();
+        let mut far = Port::from_stream(far, &settings(Parity::None)).unwrap();
+        assert!(near.is_pseudo_terminal() && far.is_pseudo_terminal());
+        let sent = near.write_frame(&[0x01, 0x03, 0x10, 0x00]).await.unwrap();
+        let mut buf = [0u8; 16];
+        let mut got = Vec::new();
+        while got.len() < 4 {
+            let (count, seen) = far
+                .read_until(&mut buf, Instant::now() + Duration::from_secs(5))
+                .await
+                .unwrap()
+                .unwrap();
+            assert!(seen >= sent);
+            got.extend_from_slice(&buf[..count]);
+        }
+        assert_eq!(got, [0x01, 0x03, 0x10, 0x00]);
+        assert_eq!(
+            far.read_until(&mut buf, Instant::now() + Duration::from_millis(20))
+                .await
+                .unwrap(),
+            None
+        );
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn pending_input_is_counted_and_discarded() {
+        let (near, far) = SerialStream::pair().unwrap();
+        let mut near = Port::from_stream(near, &settings(Parity::None)).unwrap();
+        let mut far = Port::from_stream(far, &settings(Parity::None)).unwrap();
+        near.write_frame(&[0xAA; 7]).await.unwrap();
+        // The bytes cross the pty at once, but give a busy machine time to move them.
+        let mut discarded = 0;
+        let give_up = Instant::now() + Duration::from_secs(5);
+        while discarded < 7 && Instant::now() < give_up {
+            discarded += far.discard_input().unwrap();
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        assert_eq!(discarded, 7);
+        assert_eq!(far.discard_input().unwrap(), 0);
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn closed_other_end_is_an_error_not_a_spin() {
+        let (near, far) = SerialStream::pair().unwrap();
+        let near = Port::from_stream(near, &settings(Parity::None)).unwrap();
+        let mut far = Port::from_stream(far, &settings(Parity::None)).unwrap();
+        drop(near);
+        let mut buf = [0u8; 8];
+        let result = far
+            .read_until(&mut buf, Instant::now() + Duration::from_secs(5))
+            .await;
+        assert!(result.is_err(), "{result:?}");
+    }
+
+    #[test]
+    fn missing_device_is_an_open_error() {
+        let mut missing = settings(Parity::None);
+        missing.path = "/dev/does-not-exist-rtu2mqtt".into();
+        missing.rs485 = None;
+        assert!(matches!(
+            Port::open(&missing),
+            Err(TransportError::Open { .. })
+        ));
     }
 }

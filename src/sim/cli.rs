@@ -1,7 +1,52 @@
-//! `rtu2mqtt simulate`.
+//! `rtu2mqtt simulate`: one simulated device on a serial port (a socat pty or a real adapter
+//! for bench tests). The three seed devices by their profile names; any other profile (built-in
+//! name or file) as a generic device built from its read blocks. Logs every request; Ctrl-C
+//! stops.
 
 use std::path::Path;
 use std::process::ExitCode;
+
+use anyhow::{bail, Context};
+
+use super::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
+use crate::rtu::timing::Parity;
+use crate::sim::faults::FaultHandle;
+
+/// Parses `none | even | odd`.
+pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
+    match text.to_ascii_lowercase().as_str() {
+        "none" | "n" => Ok(Parity::None),
+        "even" | "e" => Ok(Parity::Even),
+        "odd" | "o" => Ok(Parity::Odd),
+        other => bail!("parity `{other}`: expected none, even or odd"),
+    }
+}
+
+/// The simulated device for `profile` at `address` (the profile's usual address if None).
+pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
+    Ok(match profile {
+        "ruiwan-dust-collector" => share(DustCollector::new(address.unwrap_or(1))).1,
+        "wuzhou-valve" => {
+            let address = address.unwrap_or(1);
+            if !(1..=253).contains(&address) {
+                bail!("the valve takes addresses 1–253, not {address}");
+            }
+            share(Valve::new(address)).1
+        }
+        "lixian-air-shower" => {
+            if address.is_some_and(|a| a != super::air_shower::ADDRESS) {
+                bail!("the air shower's address is fixed at 0x81");
+            }
+            share(AirShower::new()).1
+        }
+        other => generic_device(other, address)?,
+    })
+}
+
+fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
+    let _ = address;
+    bail!("profile `{profile}`: not a seed device, and profile loading is not available yet")
+}
 
 pub fn simulate(
     profile: &str,
@@ -11,5 +56,82 @@ pub fn simulate(
     parity: &str,
     pace: bool,
 ) -> anyhow::Result<ExitCode> {
-    todo!("sim helper")
+    let parity = parse_parity(parity)?;
+    let device = device_for_profile(profile, address)?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the runtime")?;
+    runtime.block_on(async move {
+        let stream = open_port(port, baud, parity)?;
+        let (kind, device_address) = {
+            let device = super::lock(&device);
+            (device.kind(), device.address())
+        };
+        tracing::info!(
+            port = %port.display(), baud, ?parity, pace, kind, address = device_address,
+            "simulating"
+        );
+        let (trigger, shutdown) = crate::shutdown::channel();
+        tokio::spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                trigger.fire();
+            }
+        });
+        let journal = Journal::new();
+        let options = ServeOptions::new(baud, parity).paced(pace);
+        let served = super::serve(stream, options, vec![device], FaultHandle::default(), journal.clone(), shutdown);
+        tokio::pin!(served);
+        // Log each request as it comes, while serving.
+        let mut ticker = tokio::time::interval(std::time::Duration::from_millis(100));
+        let result = loop {
+            tokio::select! {
+                result = &mut served => break result,
+                _ = ticker.tick() => {
+                    for record in journal.drain_requests() {
+                        tracing::info!(
+                            request = %super::server::hex(&record.frame),
+                            answer = %record.answer.as_deref().map(super::server::hex).unwrap_or_else(|| "-".into()),
+                            crc_ok = record.crc_ok,
+                            "frame"
+                        );
+                    }
+                }
+            }
+        };
+        result.with_context(|| format!("serving {}", port.display()))?;
+        tracing::info!("simulator stopped");
+        Ok(ExitCode::SUCCESS)
+    })
+}
+
+/// Opens `port` with the line's settings. A pseudo-terminal that refuses the parity setting is
+/// used anyway with a warning (ptys carry no parity); a real port must accept it.
+fn open_port(port: &Path, baud: u32, parity: Parity) -> anyhow::Result<tokio_serial::SerialStream> {
+    let path = port.to_string_lossy().into_owned();
+    let builder = |parity: Parity| {
+        tokio_serial::new(path.clone(), baud)
+            .data_bits(tokio_serial::DataBits::Eight)
+            .stop_bits(tokio_serial::StopBits::One)
+            .parity(match parity {
+                Parity::None => tokio_serial::Parity::None,
+                Parity::Even => tokio_serial::Parity::Even,
+                Parity::Odd => tokio_serial::Parity::Odd,
+            })
+    };
+    match tokio_serial::SerialStream::open(&builder(parity)) {
+        Ok(stream) => Ok(stream),
+        Err(error) if parity != Parity::None && is_pty(port) => {
+            tracing::warn!(%error, "the pseudo-terminal refuses parity; running without (ptys carry none)");
+            tokio_serial::SerialStream::open(&builder(Parity::None))
+                .with_context(|| format!("opening {path}"))
+        }
+        Err(error) => Err(error).with_context(|| format!("opening {path}")),
+    }
+}
+
+fn is_pty(port: &Path) -> bool {
+    std::fs::canonicalize(port)
+        .map(|real| real.starts_with("/dev/pts"))
+        .unwrap_or(false)
 }

@@ -1,4 +1,158 @@
 //! Simulated devices built from profiles, with per-device behaviour, wire pacing and fault
 //! injection, served on a (pseudo-)serial port.
+//!
+//! - [`SimDevice`]: one simulated device as a pure request → [`Reply`] function with a clock
+//!   passed in. The seed devices ([`DustCollector`], [`Valve`], [`AirShower`]) are written by
+//!   hand from `DEVICES.md` with their quirks, not derived from our profiles, so a profile bug is
+//!   caught by them rather than copied into them; [`GenericDevice`] is built from a profile's
+//!   read blocks for every other profile.
+//! - [`server::serve`]: frames requests on a byte stream, hands them to the addressed device,
+//!   answers after t3.5 (optionally paced at the wire's character rate), applying the
+//!   [`Faults`] of the moment and writing everything into the [`Journal`].
+//! - [`VirtualLine`]: a pty pair served in the background, whose slave path the gateway opens
+//!   like a real port; [`SeedPlant`] puts the three seed devices on two of them.
+//!
+//! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
+//! `simulate`.
 
+pub mod air_shower;
 pub mod cli;
+pub mod dust_collector;
+pub mod faults;
+pub mod generic;
+pub mod journal;
+pub mod plant;
+pub mod server;
+pub mod valve;
+pub mod virtual_line;
+pub mod wire;
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+
+pub use air_shower::AirShower;
+pub use dust_collector::DustCollector;
+pub use faults::{FaultHandle, Faults, Occurrence};
+pub use generic::GenericDevice;
+pub use journal::{Journal, RequestRecord};
+pub use plant::SeedPlant;
+pub use server::{serve, ServeOptions};
+pub use valve::Valve;
+pub use virtual_line::VirtualLine;
+pub use wire::WireTiming;
+
+/// What a device does with a request addressed to it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Reply {
+    Normal(Response),
+    Exception(ExceptionCode),
+    /// The device acted (or not) but sends nothing back.
+    Silent,
+}
+
+/// Whether a device takes a frame sent to `address`, and whether it answers it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Addressing {
+    /// Not for this device.
+    NotMine,
+    /// Act on it and answer (with the device's own address).
+    Answer,
+    /// Act on it without answering (broadcast).
+    ActSilently,
+}
+
+/// A device to put on a simulated line.
+pub trait SimDevice: Send {
+    /// The device's address (the one its answers carry).
+    fn address(&self) -> SlaveId;
+
+    /// How the device treats a frame sent to `address`. The default is standard Modbus:
+    /// its own address answered, broadcast 0 acted on silently.
+    fn addressing(&self, address: SlaveId) -> Addressing {
+        if address == self.address() {
+            Addressing::Answer
+        } else if address == 0 {
+            Addressing::ActSilently
+        } else {
+            Addressing::NotMine
+        }
+    }
+
+    /// Handles one decoded request at time `now`.
+    fn handle(&mut self, request: &Request, now: Instant) -> Reply;
+
+    /// Handles a CRC-valid request with a function code outside the decoded set.
+    fn handle_unknown_function(&mut self, _function: u8, _now: Instant) -> Reply {
+        Reply::Exception(ExceptionCode::IllegalFunction)
+    }
+
+    /// Protocol violations seen so far (writes that changed what must not be changed).
+    fn violations(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// A short name for logs.
+    fn kind(&self) -> &'static str;
+}
+
+/// A device shared between the line serving it and the test or demo inspecting it.
+pub type SharedDevice = Arc<Mutex<dyn SimDevice>>;
+
+/// Wraps a device for a line, keeping a typed handle: `let (dust, shared) = share(d)`.
+pub fn share<D: SimDevice + 'static>(device: D) -> (Arc<Mutex<D>>, SharedDevice) {
+    let typed = Arc::new(Mutex::new(device));
+    let shared: SharedDevice = typed.clone();
+    (typed, shared)
+}
+
+/// Locks a shared device even if a panicking holder poisoned the lock: the simulated state is
+/// plain data and stays usable.
+pub fn lock<D: ?Sized>(device: &Mutex<D>) -> std::sync::MutexGuard<'_, D> {
+    device
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Packed BCD of `value` in `digits` nibbles (the valve's Float halves); None when it does not
+/// fit.
+pub fn to_bcd(value: u32, digits: u32) -> Option<u16> {
+    if digits > 4 || value >= 10u32.pow(digits) {
+        return None;
+    }
+    let mut out = 0u16;
+    let mut rest = value;
+    for i in 0..digits {
+        out |= ((rest % 10) as u16) << (4 * i);
+        rest /= 10;
+    }
+    Some(out)
+}
+
+/// The number in packed BCD `word`; None when a nibble is above 9.
+pub fn from_bcd(word: u16) -> Option<u32> {
+    let mut value = 0u32;
+    for i in (0..4).rev() {
+        let nibble = u32::from((word >> (4 * i)) & 0xF);
+        if nibble > 9 {
+            return None;
+        }
+        value = value * 10 + nibble;
+    }
+    Some(value)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bcd_round_trips_and_rejects_bad_nibbles() {
+        assert_eq!(to_bcd(1234, 4), Some(0x1234));
+        assert_eq!(to_bcd(34, 2), Some(0x0034));
+        assert_eq!(to_bcd(100, 2), None);
+        assert_eq!(from_bcd(0x0012), Some(12));
+        assert_eq!(from_bcd(0x001A), None);
+    }
+}

@@ -1,0 +1,118 @@
+//! What a simulated line saw and did, for tests to inspect: every request frame as received
+//! (with its arrival time and the silence before it), the bytes sent back, writes per device,
+//! and bytes that were not a frame.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::rtu::frame::SlaveId;
+
+/// One frame received by the simulated line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RequestRecord {
+    /// The frame exactly as received (CRC included).
+    pub frame: Vec<u8>,
+    /// When its first byte arrived.
+    pub arrived: Instant,
+    /// Silence on the line before the first byte (since the end of the previous frame in
+    /// either direction); None for the first frame.
+    pub silence_before: Option<Duration>,
+    pub crc_ok: bool,
+    /// The bytes sent back for it (after faults), None when nothing was sent.
+    pub answer: Option<Vec<u8>>,
+}
+
+#[derive(Debug, Default)]
+struct Inner {
+    requests: Vec<RequestRecord>,
+    writes: BTreeMap<SlaveId, u32>,
+    discarded_bytes: usize,
+}
+
+/// The shared journal of one line.
+#[derive(Debug, Clone, Default)]
+pub struct Journal {
+    inner: Arc<Mutex<Inner>>,
+}
+
+impl Journal {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub(crate) fn record(&self, record: RequestRecord) {
+        super::lock(&self.inner).requests.push(record);
+    }
+
+    pub(crate) fn count_write(&self, address: SlaveId) {
+        *super::lock(&self.inner).writes.entry(address).or_insert(0) += 1;
+    }
+
+    pub(crate) fn count_discarded(&self, bytes: usize) {
+        super::lock(&self.inner).discarded_bytes += bytes;
+    }
+
+    /// Every frame received so far.
+    pub fn requests(&self) -> Vec<RequestRecord> {
+        super::lock(&self.inner).requests.clone()
+    }
+
+    /// The frames received so far, bytes only.
+    pub fn frames(&self) -> Vec<Vec<u8>> {
+        super::lock(&self.inner)
+            .requests
+            .iter()
+            .map(|r| r.frame.clone())
+            .collect()
+    }
+
+    /// Takes the frames received so far out of the journal (counters stay).
+    pub fn drain_requests(&self) -> Vec<RequestRecord> {
+        std::mem::take(&mut super::lock(&self.inner).requests)
+    }
+
+    pub fn request_count(&self) -> usize {
+        super::lock(&self.inner).requests.len()
+    }
+
+    /// Write requests (CRC-valid, addressed to the device) the device received.
+    pub fn writes_to(&self, address: SlaveId) -> u32 {
+        super::lock(&self.inner)
+            .writes
+            .get(&address)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Bytes received that did not make a frame (noise, truncated frames).
+    pub fn discarded_bytes(&self) -> usize {
+        super::lock(&self.inner).discarded_bytes
+    }
+
+    /// The smallest silence seen before a request (None before the second request).
+    pub fn min_silence(&self) -> Option<Duration> {
+        super::lock(&self.inner)
+            .requests
+            .iter()
+            .filter_map(|r| r.silence_before)
+            .min()
+    }
+
+    pub fn clear(&self) {
+        *super::lock(&self.inner) = Inner::default();
+    }
+
+    /// Waits until at least `count` frames were received, or `timeout` passed; returns the
+    /// number received.
+    pub async fn wait_for_requests(&self, count: usize, timeout: Duration) -> usize {
+        let deadline = tokio::time::Instant::now() + timeout;
+        loop {
+            let seen = self.request_count();
+            if seen >= count || tokio::time::Instant::now() >= deadline {
+                return seen;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+}

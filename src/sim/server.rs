@@ -1,0 +1,354 @@
+//! Serves simulated devices on one byte stream (a pty end or a real serial port): frames the
+//! requests, hands each to the device it addresses, and answers after the line's t3.5 silence,
+//! optionally paced as a wire would (the request ends one request-wire-time after its first
+//! byte, the answer is complete one answer-wire-time after it starts), with the line's faults
+//! applied and everything written into its journal.
+//!
+//! Framing follows a real device: a frame's length is known from its function code, a bad CRC
+//! makes the device ignore everything up to the next silence, and a function code it does not
+//! know ends at the next silence.
+
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+
+use super::faults::{random_bytes, FaultHandle};
+use super::journal::{Journal, RequestRecord};
+use super::wire::{self, FrameLen, RequestError, WireTiming};
+use super::{lock, Addressing, Reply, SharedDevice};
+use crate::rtu::frame::Request;
+use crate::shutdown::Shutdown;
+
+/// How often the idle loop looks at the faults again.
+const FAULT_RECHECK: Duration = Duration::from_millis(50);
+
+/// How a line is served.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ServeOptions {
+    pub timing: WireTiming,
+    /// Pace answers at the wire's character rate (a pty delivers bytes instantly).
+    pub pace: bool,
+}
+
+impl ServeOptions {
+    /// 9600 baud with `parity`, unpaced.
+    pub fn new(baud: u32, parity: crate::rtu::timing::Parity) -> Self {
+        Self {
+            timing: WireTiming::new(baud, parity),
+            pace: false,
+        }
+    }
+
+    pub fn paced(mut self, pace: bool) -> Self {
+        self.pace = pace;
+        self
+    }
+}
+
+/// Serves `devices` on `stream` until `shutdown` fires or the stream ends (EOF: Ok; an I/O
+/// error: Err).
+pub async fn serve<S>(
+    stream: S,
+    options: ServeOptions,
+    devices: Vec<SharedDevice>,
+    faults: FaultHandle,
+    journal: Journal,
+    mut shutdown: Shutdown,
+) -> std::io::Result<()>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    let mut server = Server {
+        stream,
+        options,
+        devices,
+        faults,
+        journal,
+        buffer: Vec::new(),
+        first_byte_at: Instant::now(),
+        last_byte_at: Instant::now(),
+        idle_since: None,
+        discarding: false,
+    };
+    let mut chunk = [0u8; 512];
+    // When idle garbage goes out next (or, without it, when to look at the faults again).
+    let mut idle_wake: Option<tokio::time::Instant> = None;
+    loop {
+        let silence_at = (!server.buffer.is_empty()).then(|| {
+            tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5())
+        });
+        // Faults change at run time: without idle garbage the loop still wakes now and then to
+        // notice it being switched on.
+        let idle_garbage = server.faults.idle_garbage_every();
+        let wake_at = *idle_wake.get_or_insert_with(|| {
+            tokio::time::Instant::now() + idle_garbage.unwrap_or(FAULT_RECHECK)
+        });
+        tokio::select! {
+            _ = shutdown.fired() => return Ok(()),
+            read = server.stream.read(&mut chunk) => {
+                let count = read?;
+                if count == 0 {
+                    return Ok(());
+                }
+                server.received(&chunk[..count]).await?;
+            }
+            _ = sleep_until_opt(silence_at), if silence_at.is_some() => {
+                server.silence().await?;
+            }
+            _ = tokio::time::sleep_until(wake_at) => {
+                idle_wake = None;
+                if idle_garbage.is_some() && server.buffer.is_empty() {
+                    let noise = random_bytes(&mut rand::thread_rng(), 3);
+                    tracing::debug!(bytes = %hex(&noise), "idle garbage");
+                    server.stream.write_all(&noise).await?;
+                    server.stream.flush().await?;
+                }
+            }
+        }
+    }
+}
+
+async fn sleep_until_opt(deadline: Option<tokio::time::Instant>) {
+    if let Some(deadline) = deadline {
+        tokio::time::sleep_until(deadline).await;
+    }
+}
+
+/// Sleeps until `deadline` with sub-millisecond precision: the timer wheel's 1 ms ticks for
+/// the bulk, then yielding to the runtime until the instant has passed.
+pub async fn sleep_until_precise(deadline: Instant) {
+    const COARSE_MARGIN: Duration = Duration::from_micros(1500);
+    let now = Instant::now();
+    if deadline > now + COARSE_MARGIN {
+        tokio::time::sleep_until(tokio::time::Instant::from_std(deadline - COARSE_MARGIN)).await;
+    }
+    while Instant::now() < deadline {
+        tokio::task::yield_now().await;
+    }
+}
+
+/// Bytes as spaced hex, for logs.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|b| format!("{b:02X}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+struct Server<S> {
+    stream: S,
+    options: ServeOptions,
+    devices: Vec<SharedDevice>,
+    faults: FaultHandle,
+    journal: Journal,
+    /// Bytes of the frame being received.
+    buffer: Vec<u8>,
+    first_byte_at: Instant,
+    last_byte_at: Instant,
+    /// When the line last fell silent (end of the previous frame either way).
+    idle_since: Option<Instant>,
+    /// After a bad CRC a device ignores everything until the next silence.
+    discarding: bool,
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
+    async fn received(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let now = Instant::now();
+        if self.buffer.is_empty() {
+            self.first_byte_at = now;
+        }
+        self.buffer.extend_from_slice(bytes);
+        self.last_byte_at = now;
+        // Frames whose length is known are handled as soon as they are complete, as a device
+        // would after its t3.5 (the wait is added before the answer).
+        while !self.discarding {
+            match wire::request_frame_len(&self.buffer) {
+                FrameLen::Known(len) if self.buffer.len() >= len => {
+                    let frame: Vec<u8> = self.buffer.drain(..len).collect();
+                    let arrived = self.first_byte_at;
+                    self.first_byte_at = self.last_byte_at;
+                    self.frame(frame, arrived).await?;
+                }
+                _ => break,
+            }
+        }
+        Ok(())
+    }
+
+    /// The line fell silent for t3.5 with bytes pending: they end here.
+    async fn silence(&mut self) -> std::io::Result<()> {
+        let pending = std::mem::take(&mut self.buffer);
+        let was_discarding = std::mem::replace(&mut self.discarding, false);
+        if was_discarding {
+            self.journal.count_discarded(pending.len());
+            return Ok(());
+        }
+        match wire::request_frame_len(&pending) {
+            FrameLen::UntilSilence => self.frame(pending, self.first_byte_at).await,
+            _ => {
+                tracing::debug!(bytes = %hex(&pending), "incomplete frame discarded");
+                self.journal.count_discarded(pending.len());
+                self.idle_since = Some(self.last_byte_at);
+                Ok(())
+            }
+        }
+    }
+
+    /// One complete frame that arrived with its first byte at `arrived`.
+    async fn frame(&mut self, frame: Vec<u8>, arrived: Instant) -> std::io::Result<()> {
+        let timing = self.options.timing;
+        let silence_before = self
+            .idle_since
+            .map(|idle| arrived.saturating_duration_since(idle));
+        // When the request is over on the wire.
+        let ended = if self.options.pace {
+            self.last_byte_at
+                .max(arrived + timing.frame_time(frame.len()))
+        } else {
+            self.last_byte_at
+        };
+        let mut record = RequestRecord {
+            frame: frame.clone(),
+            arrived,
+            silence_before,
+            crc_ok: wire::crc_ok(&frame),
+            answer: None,
+        };
+        tracing::debug!(frame = %hex(&frame), crc_ok = record.crc_ok, "request");
+        if !record.crc_ok {
+            self.discarding = !self.buffer.is_empty();
+            if self.discarding {
+                self.journal.count_discarded(self.buffer.len());
+                self.buffer.clear();
+            }
+            self.idle_since = Some(ended);
+            self.journal.record(record);
+            return Ok(());
+        }
+        if self.faults.echo() {
+            self.stream.write_all(&frame).await?;
+            self.stream.flush().await?;
+        }
+        let answer = self.dispatch(&frame);
+        let Some((address, mut bytes)) = answer else {
+            self.idle_since = Some(ended);
+            self.journal.record(record);
+            return Ok(());
+        };
+        let faults = self.faults.for_answer(address);
+        if let Some(code) = faults.exception {
+            bytes = wire::encode_exception(address, frame[1], code);
+        }
+        if let Some(wrong) = faults.wrong_address {
+            bytes[0] = wrong;
+            bytes.truncate(bytes.len() - 2);
+            bytes = wire::with_crc(bytes);
+        }
+        if faults.corrupt_crc {
+            if let Some(last) = bytes.last_mut() {
+                *last ^= 0x01;
+            }
+        }
+        if faults.truncate_bytes > 0 {
+            let keep = bytes.len().saturating_sub(faults.truncate_bytes).max(1);
+            bytes.truncate(keep);
+        }
+        if faults.drop {
+            tracing::debug!("answer dropped by fault injection");
+            self.idle_since = Some(ended);
+            self.journal.record(record);
+            return Ok(());
+        }
+        let mut out = faults.garbage_before;
+        out.extend_from_slice(&bytes);
+        let starts = ended + timing.t3_5() + faults.delay;
+        self.send(&out, starts, faults.pause_mid_answer).await?;
+        record.answer = Some(out);
+        self.journal.record(record);
+        Ok(())
+    }
+
+    /// Hands a CRC-valid frame to the devices; the answer's address and bytes, if any.
+    fn dispatch(&mut self, frame: &[u8]) -> Option<(u8, Vec<u8>)> {
+        let now = Instant::now();
+        let decoded = wire::decode_request(frame);
+        let target = frame[0];
+        let function = frame[1];
+        let mut answer = None;
+        for device in &self.devices {
+            let mut device = lock(device);
+            if self.faults.is_silenced(device.address()) {
+                continue;
+            }
+            let addressing = device.addressing(target);
+            if addressing == Addressing::NotMine {
+                continue;
+            }
+            let reply = match &decoded {
+                Ok((_, request)) => {
+                    if is_write(request) {
+                        self.journal.count_write(device.address());
+                    }
+                    device.handle(request, now)
+                }
+                Err(RequestError::UnknownFunction(code)) => {
+                    device.handle_unknown_function(*code, now)
+                }
+                Err(RequestError::Malformed) => Reply::Silent,
+            };
+            // The address after handling: a device whose address was just changed answers
+            // from the new one.
+            let address = device.address();
+            if addressing == Addressing::Answer && answer.is_none() {
+                answer = match reply {
+                    Reply::Normal(response) => {
+                        Some((address, wire::encode_answer(address, &response)))
+                    }
+                    Reply::Exception(code) => {
+                        Some((address, wire::encode_exception(address, function, code)))
+                    }
+                    Reply::Silent => None,
+                };
+            }
+        }
+        answer
+    }
+
+    /// Sends `bytes` so that they start at `starts` (and, paced, are complete one wire time
+    /// later), with an optional gap in the middle.
+    async fn send(
+        &mut self,
+        bytes: &[u8],
+        starts: Instant,
+        pause: Option<Duration>,
+    ) -> std::io::Result<()> {
+        let timing = self.options.timing;
+        let (head, tail) = match pause {
+            Some(_) => bytes.split_at(bytes.len() / 2),
+            None => (bytes, &[][..]),
+        };
+        let mut at = starts;
+        for (i, part) in [head, tail].into_iter().enumerate() {
+            if part.is_empty() {
+                continue;
+            }
+            if i == 1 {
+                at += pause.unwrap_or_default();
+            }
+            if self.options.pace {
+                at += timing.frame_time(part.len());
+            }
+            sleep_until_precise(at).await;
+            self.stream.write_all(part).await?;
+            self.stream.flush().await?;
+        }
+        tracing::debug!(answer = %hex(bytes), "answer");
+        self.idle_since = Some(Instant::now().max(at));
+        Ok(())
+    }
+}
+
+fn is_write(request: &Request) -> bool {
+    !request.is_read()
+}

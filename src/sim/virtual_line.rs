@@ -1,0 +1,164 @@
+//! A virtual serial line: a pty pair whose master end is served by the simulated devices in a
+//! background task, and whose slave path (`/dev/pts/N`) the gateway opens like a real port.
+//!
+//! The line keeps its own slave fd open so the master end never reads EIO when the gateway
+//! closes and reopens the port. [`VirtualLine::unplug`] closes both ends (the gateway then sees
+//! the hang-up a pulled USB adapter gives) and [`VirtualLine::replug`] brings a new pty up with
+//! the same devices, faults and journal; with [`VirtualLine::with_link`] a symlink keeps one
+//! stable path across replugs, like `/dev/serial/by-id`.
+
+use std::path::{Path, PathBuf};
+
+use tokio::task::JoinHandle;
+use tokio_serial::{SerialPort, SerialStream};
+
+use super::faults::FaultHandle;
+use super::journal::Journal;
+use super::server::{serve, ServeOptions};
+use super::SharedDevice;
+use crate::shutdown::{self, ShutdownTrigger};
+
+/// The serving side of one plugged-in pty.
+struct Plugged {
+    slave_path: PathBuf,
+    /// Held open so the master never sees EIO while the gateway has the port closed.
+    _slave: SerialStream,
+    stop: ShutdownTrigger,
+    task: JoinHandle<std::io::Result<()>>,
+}
+
+/// A served pty pair.
+pub struct VirtualLine {
+    options: ServeOptions,
+    devices: Vec<SharedDevice>,
+    faults: FaultHandle,
+    journal: Journal,
+    link: Option<PathBuf>,
+    plugged: Option<Plugged>,
+}
+
+impl VirtualLine {
+    /// Creates a pty pair and serves `devices` on it. Needs a tokio runtime.
+    pub fn spawn(options: ServeOptions, devices: Vec<SharedDevice>) -> std::io::Result<Self> {
+        let mut line = Self {
+            options,
+            devices,
+            faults: FaultHandle::default(),
+            journal: Journal::new(),
+            link: None,
+            plugged: None,
+        };
+        line.plug()?;
+        Ok(line)
+    }
+
+    /// Like [`VirtualLine::spawn`], with a symlink at `link` to the slave (kept pointing at the
+    /// current pty across replugs).
+    pub fn with_link(
+        options: ServeOptions,
+        devices: Vec<SharedDevice>,
+        link: &Path,
+    ) -> std::io::Result<Self> {
+        let mut line = Self::spawn(options, devices)?;
+        line.link = Some(link.to_path_buf());
+        line.update_link()?;
+        Ok(line)
+    }
+
+    fn plug(&mut self) -> std::io::Result<()> {
+        let (master, slave) = SerialStream::pair().map_err(std::io::Error::from)?;
+        let slave_path = slave
+            .name()
+            .map(PathBuf::from)
+            .ok_or_else(|| std::io::Error::other("pty slave without a path"))?;
+        let (stop, token) = shutdown::channel();
+        let task = tokio::spawn(serve(
+            master,
+            self.options,
+            self.devices.clone(),
+            self.faults.clone(),
+            self.journal.clone(),
+            token,
+        ));
+        tracing::debug!(path = %slave_path.display(), "virtual line plugged");
+        self.plugged = Some(Plugged {
+            slave_path,
+            _slave: slave,
+            stop,
+            task,
+        });
+        Ok(())
+    }
+
+    fn update_link(&self) -> std::io::Result<()> {
+        let (Some(link), Some(plugged)) = (&self.link, &self.plugged) else {
+            return Ok(());
+        };
+        // Replace atomically: a new symlink beside it, renamed over the old one.
+        let temporary = link.with_extension("tmp-link");
+        let _ = std::fs::remove_file(&temporary);
+        std::os::unix::fs::symlink(&plugged.slave_path, &temporary)?;
+        std::fs::rename(&temporary, link)
+    }
+
+    /// The path to open: the symlink if there is one, else the pty slave (`/dev/pts/N`).
+    /// While unplugged, the last path.
+    pub fn path(&self) -> PathBuf {
+        match (&self.link, &self.plugged) {
+            (Some(link), _) => link.clone(),
+            (None, Some(plugged)) => plugged.slave_path.clone(),
+            (None, None) => PathBuf::new(),
+        }
+    }
+
+    /// The pty slave's own path (None while unplugged).
+    pub fn slave_path(&self) -> Option<&Path> {
+        self.plugged.as_ref().map(|p| p.slave_path.as_path())
+    }
+
+    pub fn faults(&self) -> &FaultHandle {
+        &self.faults
+    }
+
+    pub fn journal(&self) -> &Journal {
+        &self.journal
+    }
+
+    pub fn devices(&self) -> &[SharedDevice] {
+        &self.devices
+    }
+
+    pub fn is_plugged(&self) -> bool {
+        self.plugged.is_some()
+    }
+
+    /// Stops serving and closes both pty ends: the gateway's reads end, its writes fail.
+    pub async fn unplug(&mut self) {
+        if let Some(plugged) = self.plugged.take() {
+            plugged.stop.fire();
+            if let Err(error) = plugged.task.await {
+                tracing::warn!(%error, "virtual line task ended abnormally");
+            }
+            tracing::debug!(path = %plugged.slave_path.display(), "virtual line unplugged");
+        }
+    }
+
+    /// A new pty with the same devices, faults and journal (the slave path changes; the link,
+    /// if any, follows it).
+    pub async fn replug(&mut self) -> std::io::Result<()> {
+        self.unplug().await;
+        self.plug()?;
+        self.update_link()
+    }
+}
+
+impl Drop for VirtualLine {
+    fn drop(&mut self) {
+        if let Some(plugged) = &self.plugged {
+            plugged.stop.fire();
+        }
+        if let Some(link) = &self.link {
+            let _ = std::fs::remove_file(link);
+        }
+    }
+}

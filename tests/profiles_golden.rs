@@ -1,0 +1,737 @@
+//! Golden encode/decode tests of the built-in profiles against `/work/shared/DEVICES.md`:
+//! commands become exactly the documented requests (and bytes), raw answers become exactly the
+//! documented values, and the device-protecting rules hold (read-modify-write, toggle,
+//! momentary, forbidden combinations, refusals with reasons).
+
+use rtu2mqtt::profile::registry::built_in;
+use rtu2mqtt::profile::{
+    CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
+};
+use rtu2mqtt::rtu::{Request, Response};
+
+fn dust() -> Profile {
+    built_in("ruiwan-dust-collector").unwrap()
+}
+fn valve() -> Profile {
+    built_in("wuzhou-valve").unwrap()
+}
+fn shower() -> Profile {
+    built_in("lixian-air-shower").unwrap()
+}
+
+fn state(pairs: &[(&str, Value)]) -> DeviceState {
+    pairs
+        .iter()
+        .map(|(name, value)| (name.to_string(), value.clone()))
+        .collect()
+}
+
+fn plan(profile: &Profile, field: &str, text: &str) -> CommandPlan {
+    profile
+        .plan_command(field, text, &DeviceState::new())
+        .unwrap_or_else(|r| panic!("{field}={text} rejected: {r}"))
+}
+
+fn rejection(profile: &Profile, field: &str, text: &str) -> String {
+    match profile.plan_command(field, text, &DeviceState::new()) {
+        Err(Rejection(reason)) => reason,
+        Ok(plan) => panic!("{field}={text} accepted: {plan:?}"),
+    }
+}
+
+/// Coils 0..22 of the air shower with the given coils set.
+fn coils(set: &[usize]) -> Response {
+    let mut bits = vec![false; 22];
+    for &i in set {
+        bits[i] = true;
+    }
+    Response::Coils(bits)
+}
+
+/// The 12-bit coil frame `81 0F 00 00 00 0C 02 b0 b1` as a request.
+fn coil_frame(b0: u8, b1: u8) -> Request {
+    let values = (0..12)
+        .map(|i| {
+            let byte = if i < 8 { b0 } else { b1 };
+            byte >> (i % 8) & 1 == 1
+        })
+        .collect();
+    Request::WriteMultipleCoils { start: 0, values }
+}
+
+fn reading(profile: &Profile, block: usize, answer: &Response, field: &str) -> Value {
+    profile
+        .decode_block(block, answer)
+        .into_iter()
+        .find(|r| r.field == field)
+        .unwrap_or_else(|| panic!("no field {field} in block {block}"))
+        .value
+        .unwrap_or_else(|e| panic!("{field}: {e}"))
+}
+
+// --- dust collector -----------------------------------------------------------------------
+
+#[test]
+fn dust_read_block_is_the_documented_read() {
+    let profile = dust();
+    let blocks = profile.read_blocks();
+    assert_eq!(blocks.len(), 1);
+    assert_eq!(
+        blocks[0].request,
+        Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6
+        }
+    );
+    assert_eq!(blocks[0].used_runs, vec![(0, 6)]);
+    assert_eq!(profile.limits().min_poll_interval.as_millis(), 1000);
+    assert_eq!(profile.limits().startup_delay.as_secs(), 3);
+}
+
+#[test]
+fn dust_gear_8_is_a_single_fc06_at_the_table_address() {
+    let plan = plan(&dust(), "gear", "8");
+    assert!(plan.reads_before().is_empty());
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x1002,
+            value: 8
+        }]
+    );
+    // Read-back: the whole block; word 1 is the gear.
+    assert_eq!(
+        plan.readback(),
+        &[Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6
+        }]
+    );
+    let applied = Response::HoldingRegisters(vec![0x0200, 8, 2, 10, 1450, 35]);
+    assert_eq!(plan.verify(&[applied]), Verification::Applied);
+    // In standby the device acknowledges but keeps the old gear.
+    let standby = Response::HoldingRegisters(vec![0x0000, 3, 2, 10, 0, 20]);
+    match plan.verify(&[standby]) {
+        Verification::NotApplied(detail) => assert!(detail.contains("gear reads 3"), "{detail}"),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn dust_power_on_keeps_the_internal_bits_as_read() {
+    let plan = plan(&dust(), "power", "ON");
+    assert_eq!(
+        plan.reads_before(),
+        &[Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6
+        }]
+    );
+    // Status word with internal bits 0x40F0 set, the filter alarm on, power off.
+    let fresh = Response::HoldingRegisters(vec![0x40F2, 5, 2, 10, 0, 25]);
+    assert_eq!(
+        plan.writes(&[fresh]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x1000,
+            value: 0x42F2
+        }]
+    );
+    let plan = self::plan(&dust(), "pulse_cleaning", "off");
+    let fresh = Response::HoldingRegisters(vec![0xA3FF, 5, 2, 10, 0, 25]);
+    assert_eq!(
+        plan.writes(&[fresh]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x1000,
+            value: 0xA2FF
+        }]
+    );
+}
+
+#[test]
+fn dust_power_without_a_fresh_read_is_refused() {
+    let plan = plan(&dust(), "power", "ON");
+    assert!(plan.writes(&[]).is_err());
+    assert!(plan
+        .writes(&[Response::HoldingRegisters(vec![0x0000])])
+        .is_err());
+}
+
+#[test]
+fn dust_decodes_every_field() {
+    let profile = dust();
+    // Power on, pulse on, fan alarm; gear 5, PV 2, SV 10, fan 1450, temperature 35.
+    let answer = Response::HoldingRegisters(vec![0x0304, 5, 2, 10, 1450, 35]);
+    let readings = profile.decode_block(0, &answer);
+    assert_eq!(readings.len(), profile.fields().len());
+    let text: Vec<(String, String)> = readings
+        .into_iter()
+        .map(|r| (r.field, r.value.unwrap().to_text()))
+        .collect();
+    let expect = [
+        ("power", "ON"),
+        ("pulse_cleaning", "ON"),
+        ("fan_alarm", "ON"),
+        ("filter_alarm", "OFF"),
+        ("temperature_alarm", "OFF"),
+        ("gear", "5"),
+        ("pulse_interval", "2"),
+        ("pulse_duration", "10"),
+        ("fan_speed", "1450"),
+        ("temperature", "35"),
+    ];
+    let expect: Vec<(String, String)> = expect
+        .iter()
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect();
+    assert_eq!(text, expect);
+}
+
+#[test]
+fn dust_gear_refusals_name_the_field_and_range() {
+    let profile = dust();
+    assert_eq!(
+        rejection(&profile, "gear", "11"),
+        "gear must be an integer 1–10, got 11"
+    );
+    assert_eq!(
+        rejection(&profile, "gear", "abc"),
+        "gear must be an integer 1–10, got \"abc\""
+    );
+    assert_eq!(
+        rejection(&profile, "gear", "8.5"),
+        "gear must be an integer 1–10, got 8.5"
+    );
+    for bad in [
+        "0",
+        "-1",
+        "NaN",
+        "inf",
+        "",
+        " ",
+        "1e3",
+        "99999999999999999999",
+    ] {
+        let reason = rejection(&profile, "gear", bad);
+        assert!(
+            reason.starts_with("gear must be an integer 1–10"),
+            "{reason}"
+        );
+    }
+    assert!(rejection(&profile, "fan_speed", "5").contains("read-only"));
+    assert!(rejection(&profile, "nonexistent", "5").contains("unknown field"));
+    assert!(rejection(&profile, "power", "maybe").starts_with("power must be ON or OFF"));
+    // Accepted spellings.
+    assert_eq!(plan(&profile, "gear", " 8 ").target(), &Value::Int(8));
+    assert_eq!(plan(&profile, "gear", "8.0").target(), &Value::Int(8));
+    for on in ["ON", "on", "On", "true", "1", " ON\n"] {
+        assert_eq!(plan(&profile, "power", on).target(), &Value::Bool(true));
+    }
+    for off in ["OFF", "off", "false", "0"] {
+        assert_eq!(plan(&profile, "power", off).target(), &Value::Bool(false));
+    }
+}
+
+// --- valve ----------------------------------------------------------------------------------
+
+#[test]
+fn valve_setpoint_is_two_fc06_integer_then_fraction() {
+    let plan = plan(&valve(), "setpoint", "45.67");
+    assert!(plan.reads_before().is_empty());
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![
+            Request::WriteSingleRegister {
+                address: 0x00B2,
+                value: 0x0045
+            },
+            Request::WriteSingleRegister {
+                address: 0x00B3,
+                value: 0x0067
+            },
+        ]
+    );
+    let plan = self::plan(&valve(), "high_alarm_ratio_2", "1234.5");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![
+            Request::WriteSingleRegister {
+                address: 0x00D6,
+                value: 0x1234
+            },
+            Request::WriteSingleRegister {
+                address: 0x00D7,
+                value: 0x0050
+            },
+        ]
+    );
+}
+
+#[test]
+fn valve_setpoint_refusals() {
+    let profile = valve();
+    let reason = rejection(&profile, "setpoint", "45.678");
+    assert!(reason.contains("at most 2 decimals"), "{reason}");
+    let reason = rejection(&profile, "setpoint", "10000");
+    assert!(reason.contains("0.00–9999.99"), "{reason}");
+    for bad in ["-1", "NaN", "inf", "-inf", "abc", ""] {
+        let reason = rejection(&profile, "setpoint", bad);
+        assert!(reason.starts_with("setpoint must be"), "{bad}: {reason}");
+    }
+}
+
+#[test]
+fn valve_opening_settles_within_a_window() {
+    let plan = plan(&valve(), "opening", "60");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x74,
+            value: 60
+        }]
+    );
+    assert_eq!(plan.settle_window().map(|d| d.as_secs()), Some(60));
+    assert_eq!(
+        plan.readback(),
+        &[Request::ReadHoldingRegisters {
+            start: 0x74,
+            quantity: 1
+        }]
+    );
+    assert_eq!(
+        plan.verify(&[Response::HoldingRegisters(vec![35])]),
+        Verification::Settling
+    );
+    assert_eq!(
+        plan.verify(&[Response::HoldingRegisters(vec![60])]),
+        Verification::Applied
+    );
+    assert!(rejection(&valve(), "opening", "101").contains("0–100"));
+}
+
+#[test]
+fn valve_mode_keeps_reserved_bits() {
+    let plan = plan(&valve(), "mode", "auto");
+    assert_eq!(
+        plan.reads_before(),
+        &[Request::ReadHoldingRegisters {
+            start: 0x19,
+            quantity: 1
+        }]
+    );
+    assert_eq!(
+        plan.writes(&[Response::HoldingRegisters(vec![0x00A4])])
+            .unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x19,
+            value: 0x00A5
+        }]
+    );
+    assert!(rejection(&valve(), "mode", "pid").contains("manual, auto"));
+    assert_eq!(
+        self::plan(&valve(), "mode", "MANUAL").target(),
+        &Value::Enum("manual".into())
+    );
+}
+
+fn block_index(profile: &Profile, name: &str) -> usize {
+    profile
+        .read_blocks()
+        .iter()
+        .position(|b| b.name == name)
+        .unwrap()
+}
+
+#[test]
+fn valve_live_fast_and_configuration_slow() {
+    use rtu2mqtt::profile::PollClass;
+    let profile = valve();
+    let fast: Vec<u16> = profile
+        .read_blocks()
+        .iter()
+        .filter(|b| b.class == PollClass::Fast)
+        .map(|b| match b.request {
+            Request::ReadHoldingRegisters { start, .. } => start,
+            _ => panic!(),
+        })
+        .collect();
+    assert_eq!(fast, vec![0x19, 0x74, 0x90]);
+    let live = &profile.read_blocks()[block_index(&profile, "live")];
+    assert_eq!(live.used_runs, vec![(0, 4), (18, 4)]);
+    let config = &profile.read_blocks()[block_index(&profile, "configuration")];
+    assert_eq!(config.class, PollClass::Slow);
+    assert_eq!(config.used_runs, vec![(0, 2), (10, 12), (30, 14), (46, 9)]);
+}
+
+#[test]
+fn valve_decodes_every_field() {
+    let profile = valve();
+    let mut decoded = std::collections::HashMap::new();
+    let answers = [
+        ("mode", Response::HoldingRegisters(vec![0x0001])),
+        ("opening", Response::HoldingRegisters(vec![0x0040])),
+        ("live", {
+            let mut words = vec![0u16; 22];
+            // motor opening (bit 2), not fully open (bit 4 = 1), fully closed reached (bit 5 = 0),
+            // direction close (bit 6), open switch failed (bit 1).
+            words[0] = 0b0101_0110;
+            words[1] = 0x05;
+            words[2] = 0x00;
+            words[3] = 0x81;
+            words[18] = 0x0012;
+            words[19] = 0x0034;
+            words[20] = 0x0100;
+            words[21] = 0x0005;
+            Response::HoldingRegisters(words)
+        }),
+        ("identity", {
+            Response::HoldingRegisters(vec![
+                0x0001, 0x0012, 0x0034, 0x0056, 0x0078, 0x009A, 0x00BC, 0x00DE, 0x0011, 0x0002,
+                0x0006,
+            ])
+        }),
+        ("configuration", {
+            let mut words = vec![0u16; 55];
+            words[0] = 0x0045;
+            words[1] = 0x0067;
+            words[10] = 0x0100;
+            words[12] = 0x0200;
+            words[14] = 0x0080;
+            words[16] = 0x0090;
+            words[18] = 0x0010;
+            words[20] = 0x0020;
+            words[30] = 0x0064;
+            words[31] = 0x00FF;
+            words[32] = 0x0000;
+            words[33] = 0x0032;
+            words[34] = 0x0001;
+            words[35] = 0x0050;
+            words[42] = 0x0002;
+            words[46..55].copy_from_slice(&[0, 1, 30, 0, 5, 0, 0, 0, 10]);
+            Response::HoldingRegisters(words)
+        }),
+    ];
+    for (block, answer) in &answers {
+        for r in profile.decode_block(block_index(&profile, block), answer) {
+            decoded.insert(r.field.clone(), r.value.unwrap().to_text());
+        }
+    }
+    assert_eq!(decoded.len(), profile.fields().len(), "every field decoded");
+    let expect = [
+        ("mode", "auto"),
+        ("opening", "64"),
+        ("closed_switch_failed", "OFF"),
+        ("open_switch_failed", "ON"),
+        ("motor", "opening"),
+        ("fully_open", "OFF"),
+        ("fully_closed", "ON"),
+        ("direction", "close"),
+        ("jammed", "OFF"),
+        ("pid_invalid_flags", "5"),
+        ("alarm_invalid_flags", "129"),
+        ("measured_1", "12.34"),
+        ("measured_2", "100.05"),
+        ("station_address", "1"),
+        ("serial_number", "123456789ABCDE"),
+        ("software_version", "17"),
+        ("baud_code", "6"),
+        ("setpoint", "45.67"),
+        ("full_scale_1", "100.00"),
+        ("high_alarm_opening_1", "100"),
+        ("high_alarm_opening_2", "255"),
+        ("high_alarm_ratio_1", "1.50"),
+        ("regulation_ratio", "2.00"),
+        ("sample_period", "0:1:30"),
+        ("integral_time", "0:5:0"),
+        ("derivative_time", "0:0:10"),
+    ];
+    for (field, text) in expect {
+        assert_eq!(decoded[field], text, "{field}");
+    }
+}
+
+#[test]
+fn valve_invalid_bcd_fails_that_field_only() {
+    let profile = valve();
+    let mut words = vec![0u16; 22];
+    words[18] = 0x001A; // nibble A: invalid
+    words[19] = 0x0034;
+    words[20] = 0x0012;
+    words[21] = 0x0034;
+    let readings = profile.decode_block(
+        block_index(&profile, "live"),
+        &Response::HoldingRegisters(words),
+    );
+    for r in readings {
+        match r.field.as_str() {
+            "measured_1" => assert_eq!(r.value, Err(FieldError::InvalidBcd(0x001A))),
+            "measured_2" => assert_eq!(
+                r.value,
+                Ok(Value::Decimal {
+                    scaled: 1234,
+                    precision: 2
+                })
+            ),
+            _ => assert!(r.value.is_ok(), "{}: {:?}", r.field, r.value),
+        }
+    }
+    // An invalid fraction nibble too.
+    let mut words = vec![0u16; 22];
+    words[19] = 0x00F0;
+    let readings = profile.decode_block(
+        block_index(&profile, "live"),
+        &Response::HoldingRegisters(words),
+    );
+    let m1 = readings.iter().find(|r| r.field == "measured_1").unwrap();
+    assert_eq!(m1.value, Err(FieldError::InvalidBcd(0x00F0)));
+}
+
+#[test]
+fn valve_motor_raw_3_is_an_error_not_a_guess() {
+    let profile = valve();
+    let mut words = vec![0u16; 22];
+    words[0] = 0b1100;
+    let readings = profile.decode_block(
+        block_index(&profile, "live"),
+        &Response::HoldingRegisters(words),
+    );
+    let motor = readings.iter().find(|r| r.field == "motor").unwrap();
+    assert!(motor.value.is_err());
+}
+
+#[test]
+fn short_or_wrong_answers_give_errors_not_panics() {
+    let profile = valve();
+    let live = block_index(&profile, "live");
+    for answer in [
+        Response::HoldingRegisters(vec![1, 2]),
+        Response::Coils(vec![true; 22]),
+        Response::WriteSingleRegister {
+            address: 0,
+            value: 0,
+        },
+    ] {
+        let readings = profile.decode_block(live, &answer);
+        assert!(!readings.is_empty());
+        assert!(readings.iter().all(|r| r.value.is_err()));
+    }
+    assert!(profile
+        .decode_block(99, &Response::HoldingRegisters(vec![]))
+        .is_empty());
+}
+
+// --- air shower -----------------------------------------------------------------------------
+
+#[test]
+fn shower_read_is_the_documented_22_coils() {
+    let profile = shower();
+    assert_eq!(
+        profile.read_blocks()[0].request,
+        Request::ReadCoils {
+            start: 0,
+            quantity: 22
+        }
+    );
+    assert_eq!(profile.default_address(), Some(0x81));
+    // Answer example `81 01 03 00 01 00`: light on.
+    let answer = coils(&[8]);
+    assert_eq!(reading(&profile, 0, &answer, "light"), Value::Bool(true));
+    assert_eq!(
+        reading(&profile, 0, &answer, "wind"),
+        Value::Enum("off".into())
+    );
+}
+
+/// Every single-coil golden frame of DEVICES.md, from an all-clear device.
+#[test]
+fn shower_every_documented_single_write() {
+    let profile = shower();
+    let cases: [(&str, &str, u8, u8); 12] = [
+        ("emergency_stop", "ON", 0x01, 0x00),
+        ("front_door_lock", "ON", 0x02, 0x00),
+        ("rear_door_lock", "ON", 0x04, 0x00),
+        ("strong_wind", "ON", 0x08, 0x00),
+        ("breeze", "ON", 0x10, 0x00),
+        ("front_door_open", "ON", 0x20, 0x00),
+        ("rear_door_open", "ON", 0x40, 0x00),
+        ("tunnel_extension", "ON", 0x80, 0x00),
+        ("light", "ON", 0x00, 0x01),
+        ("buzzer", "ON", 0x00, 0x02),
+        ("voice_start", "PRESS", 0x00, 0x04),
+        ("voice_door", "PRESS", 0x00, 0x08),
+    ];
+    for (field, text, b0, b1) in cases {
+        let plan = plan(&profile, field, text);
+        assert_eq!(
+            plan.reads_before(),
+            &[Request::ReadCoils {
+                start: 0,
+                quantity: 22
+            }],
+            "{field}"
+        );
+        assert_eq!(
+            plan.writes(&[coils(&[])]).unwrap(),
+            vec![coil_frame(b0, b1)],
+            "{field}"
+        );
+    }
+    // All clear: light OFF on a device with only the light on.
+    let plan = plan(&profile, "light", "OFF");
+    assert_eq!(plan.writes(&[coils(&[8])]).unwrap(), vec![coil_frame(0, 0)]);
+}
+
+#[test]
+fn shower_documented_combinations_by_read_modify_write() {
+    let profile = shower();
+    // Both locks: rear lock on while front lock is on.
+    let plan = plan(&profile, "rear_door_lock", "ON");
+    assert_eq!(
+        plan.writes(&[coils(&[1])]).unwrap(),
+        vec![coil_frame(0x06, 0)]
+    );
+    // Both locks + strong.
+    let plan = self::plan(&profile, "strong_wind", "ON");
+    assert_eq!(
+        plan.writes(&[coils(&[1, 2])]).unwrap(),
+        vec![coil_frame(0x0E, 0)]
+    );
+    // Light + both locks + strong, with the inputs (coils 16..21) set: not part of the frame.
+    let plan = self::plan(&profile, "light", "ON");
+    assert_eq!(
+        plan.writes(&[coils(&[1, 2, 3, 16, 17, 20])]).unwrap(),
+        vec![coil_frame(0x0E, 0x01)]
+    );
+}
+
+#[test]
+fn shower_estop_active_and_light_on_keeps_coil_0_at_0() {
+    let profile = shower();
+    let plan = plan(&profile, "light", "ON");
+    assert_eq!(
+        plan.writes(&[coils(&[0, 5, 6])]).unwrap(),
+        vec![coil_frame(0x60, 0x01)]
+    );
+}
+
+#[test]
+fn shower_estop_is_a_toggle() {
+    let profile = shower();
+    // Already active: a command for ON writes nothing.
+    let on = plan(&profile, "emergency_stop", "ON");
+    assert_eq!(on.writes(&[coils(&[0])]).unwrap(), Vec::<Request>::new());
+    assert_eq!(on.verify(&[coils(&[0])]), Verification::Applied);
+    // Active, command OFF: write 1 (which clears it), keeping the other coils.
+    let off = plan(&profile, "emergency_stop", "OFF");
+    assert_eq!(
+        off.writes(&[coils(&[0, 8])]).unwrap(),
+        vec![coil_frame(0x01, 0x01)]
+    );
+    // Inactive, command OFF: nothing.
+    assert_eq!(off.writes(&[coils(&[8])]).unwrap(), Vec::<Request>::new());
+    assert_eq!(off.verify(&[coils(&[])]), Verification::Applied);
+    assert!(matches!(
+        off.verify(&[coils(&[0])]),
+        Verification::NotApplied(_)
+    ));
+}
+
+#[test]
+fn shower_voice_buttons_are_momentary() {
+    let profile = shower();
+    // A voice coil read back as 1 is written 0 by another command.
+    let plan = plan(&profile, "buzzer", "ON");
+    assert_eq!(
+        plan.writes(&[coils(&[10, 11])]).unwrap(),
+        vec![coil_frame(0, 0x02)]
+    );
+    for text in ["PRESS", "press", "ON", "on"] {
+        let plan = self::plan(&profile, "voice_start", text);
+        assert_eq!(
+            plan.writes(&[coils(&[])]).unwrap(),
+            vec![coil_frame(0, 0x04)]
+        );
+        assert_eq!(plan.verify(&[coils(&[])]), Verification::Applied);
+    }
+    assert!(rejection(&profile, "voice_start", "OFF").contains("PRESS"));
+}
+
+#[test]
+fn shower_strong_while_breeze_is_rejected() {
+    let profile = shower();
+    // From the last known state, before the bus.
+    let known = state(&[
+        ("breeze", Value::Bool(true)),
+        ("strong_wind", Value::Bool(false)),
+    ]);
+    let reason = profile
+        .plan_command("strong_wind", "ON", &known)
+        .unwrap_err()
+        .0;
+    assert!(reason.contains("strong wind and breeze"), "{reason}");
+    assert!(reason.contains("strong_wind ON and breeze ON"), "{reason}");
+    // Unknown state: planned, then refused on the fresh read, nothing written.
+    let plan = plan(&profile, "strong_wind", "ON");
+    let reason = plan.writes(&[coils(&[4])]).unwrap_err().0;
+    assert!(reason.contains("strong wind and breeze"), "{reason}");
+    // Breeze while strong: likewise.
+    let plan = self::plan(&profile, "breeze", "ON");
+    assert!(plan.writes(&[coils(&[3])]).is_err());
+    // Turning breeze off with strong on is fine.
+    let plan = self::plan(&profile, "breeze", "OFF");
+    assert_eq!(
+        plan.writes(&[coils(&[3])]).unwrap(),
+        vec![coil_frame(0x08, 0)]
+    );
+}
+
+#[test]
+fn shower_wind_select_sets_both_coils() {
+    let profile = shower();
+    let plan = plan(&profile, "wind", "strong");
+    assert_eq!(
+        plan.writes(&[coils(&[4, 8])]).unwrap(),
+        vec![coil_frame(0x08, 0x01)]
+    );
+    let plan = self::plan(&profile, "wind", "breeze");
+    assert_eq!(
+        plan.writes(&[coils(&[3])]).unwrap(),
+        vec![coil_frame(0x10, 0)]
+    );
+    assert_eq!(plan.verify(&[coils(&[4])]), Verification::Applied);
+    let plan = self::plan(&profile, "wind", "off");
+    assert_eq!(
+        plan.writes(&[coils(&[3, 1])]).unwrap(),
+        vec![coil_frame(0x02, 0)]
+    );
+    assert!(rejection(&profile, "wind", "hurricane").contains("off, strong, breeze"));
+    // Both coils on is not a wind mode: an error, not a guess.
+    let readings = profile.decode_block(0, &coils(&[3, 4]));
+    let wind = readings.iter().find(|r| r.field == "wind").unwrap();
+    assert!(wind.value.is_err());
+}
+
+#[test]
+fn shower_decodes_every_field() {
+    let profile = shower();
+    let answer = coils(&[1, 2, 3, 8, 16, 18, 21]);
+    let readings = profile.decode_block(0, &answer);
+    assert_eq!(readings.len(), profile.fields().len());
+    let on: Vec<String> = readings
+        .into_iter()
+        .filter(|r| r.value == Ok(Value::Bool(true)) || r.field == "wind")
+        .map(|r| format!("{}={}", r.field, r.value.unwrap().to_text()))
+        .collect();
+    assert_eq!(
+        on,
+        [
+            "front_door_lock=ON",
+            "rear_door_lock=ON",
+            "strong_wind=ON",
+            "wind=strong",
+            "light=ON",
+            "front_door_closed=ON",
+            "photo_sensor_1=ON",
+            "prefilter_expired=ON"
+        ]
+    );
+}

@@ -1,0 +1,549 @@
+//! The simulated devices over real pseudo-terminals, driven with raw frames: every golden
+//! frame of DEVICES.md gets the device's documented answer, the devices' quirks hold on the
+//! wire, and every fault knob does what it says. Expected answers were computed independently
+//! of the crate (CRC-16/MODBUS by hand), so a CRC bug in the simulator shows here.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use rtu2mqtt::rtu::timing::Parity;
+use rtu2mqtt::rtu::ExceptionCode;
+use rtu2mqtt::sim::{
+    air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
+    VirtualLine, WireTiming,
+};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_serial::SerialStream;
+
+/// How long an expected answer may take on a busy machine.
+const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long to listen before concluding that nothing is coming.
+const QUIET_WINDOW: Duration = Duration::from_millis(300);
+
+fn hex(text: &str) -> Vec<u8> {
+    text.split_whitespace()
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+fn open(path: &Path) -> SerialStream {
+    let builder = tokio_serial::new(path.to_string_lossy(), 9600);
+    SerialStream::open(&builder).unwrap()
+}
+
+/// Sends `request` and reads exactly `answer_len` bytes.
+async fn exchange(port: &mut SerialStream, request: &[u8], answer_len: usize) -> Vec<u8> {
+    port.write_all(request).await.unwrap();
+    read_exactly(port, answer_len).await
+}
+
+async fn read_exactly(port: &mut SerialStream, len: usize) -> Vec<u8> {
+    let mut answer = vec![0u8; len];
+    tokio::time::timeout(ANSWER_TIMEOUT, port.read_exact(&mut answer))
+        .await
+        .unwrap_or_else(|_| panic!("no {len}-byte answer within {ANSWER_TIMEOUT:?}"))
+        .unwrap();
+    answer
+}
+
+/// Whatever arrives within the quiet window.
+async fn listen(port: &mut SerialStream) -> Vec<u8> {
+    let mut got = Vec::new();
+    let deadline = tokio::time::Instant::now() + QUIET_WINDOW;
+    let mut chunk = [0u8; 256];
+    while let Ok(Ok(n)) = tokio::time::timeout_at(deadline, port.read(&mut chunk)).await {
+        if n == 0 {
+            break;
+        }
+        got.extend_from_slice(&chunk[..n]);
+    }
+    got
+}
+
+fn line_a() -> (
+    VirtualLine,
+    std::sync::Arc<std::sync::Mutex<DustCollector>>,
+    std::sync::Arc<std::sync::Mutex<AirShower>>,
+) {
+    let (dust, dust_shared) = share(DustCollector::new(1));
+    let (shower, shower_shared) = share(AirShower::new());
+    let line = VirtualLine::spawn(
+        ServeOptions::new(9600, Parity::None),
+        vec![dust_shared, shower_shared],
+    )
+    .unwrap();
+    (line, dust, shower)
+}
+
+const READ_ALL: &str = "01 03 10 00 00 06 C1 08";
+const GEAR_8: &str = "01 06 10 02 00 08 2D 0C";
+const POWER_ON_FC10: &str = "01 10 10 00 00 04 08 03 00 00 05 00 02 00 0A 25 38";
+const SHOWER_WRITE_ANSWER: &str = "81 0F 00 00 00 0C 4A 0E";
+
+#[tokio::test]
+async fn dust_collector_golden_frames() {
+    let (line, dust, _) = line_a();
+    let mut port = open(&line.path());
+    // Off, gear 3, PV 10, SV 5, fan 0, 24 °C, internal bits 0x2040.
+    assert_eq!(
+        exchange(&mut port, &hex(READ_ALL), 17).await,
+        hex("01 03 0C 20 40 00 03 00 0A 00 05 00 00 00 18 35 F4")
+    );
+    // FC06 answers echo the request; in standby the gear stays.
+    assert_eq!(exchange(&mut port, &hex(GEAR_8), 8).await, hex(GEAR_8));
+    assert_eq!(lock(&dust).gear(), 3);
+    // The FC10 that powers on applies everything.
+    assert_eq!(
+        exchange(&mut port, &hex(POWER_ON_FC10), 8).await,
+        hex("01 10 10 00 00 04 C5 0A")
+    );
+    {
+        let dust = lock(&dust);
+        assert!(dust.power() && dust.pulse_cleaning());
+        assert_eq!(
+            (dust.gear(), dust.pulse_interval(), dust.pulse_duration()),
+            (5, 2, 10)
+        );
+        // The golden frame writes 0x0300 over internal bits 0x2040: recorded.
+        assert_eq!(rtu2mqtt::sim::SimDevice::violations(&*dust).len(), 1);
+    }
+    let answer = exchange(&mut port, &hex(READ_ALL), 17).await;
+    assert_eq!(&answer[..11], &hex("01 03 0C 23 40 00 05 00 02 00 0A")[..]);
+    // Now on, the gear write is applied.
+    assert_eq!(exchange(&mut port, &hex(GEAR_8), 8).await, hex(GEAR_8));
+    assert_eq!(lock(&dust).gear(), 8);
+    assert_eq!(line.journal().writes_to(1), 3);
+    assert_eq!(line.journal().writes_to(0x81), 0);
+}
+
+#[tokio::test]
+async fn dust_collector_exceptions() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    // Seven words: bad quantity.
+    assert_eq!(
+        exchange(&mut port, &hex("01 03 10 00 00 07 00 C8"), 5).await,
+        hex("01 83 03 01 31")
+    );
+    // Gear 11: bad value.
+    assert_eq!(
+        exchange(&mut port, &hex("01 06 10 02 00 0B 6D 0D"), 5).await,
+        hex("01 86 03 02 61")
+    );
+    // Unknown function 0x2B: bad function.
+    assert_eq!(
+        exchange(&mut port, &hex("01 2B 0E 01 00 70 77"), 5).await,
+        hex("01 AB 01 9E F0")
+    );
+}
+
+#[tokio::test]
+async fn air_shower_golden_frames() {
+    let (line, _, shower) = line_a();
+    let mut port = open(&line.path());
+    lock(&shower).set_coil(air_shower::LIGHT, true);
+    // The document's 22-coil read; doors closed (coils 16/17 on) and the light on.
+    assert_eq!(
+        exchange(&mut port, &hex("81 01 00 00 00 16 A2 04"), 8).await,
+        hex("81 01 03 00 01 03 62 1F")
+    );
+    let writes = [
+        "81 0F 00 00 00 0C 02 00 00 84 76",
+        "81 0F 00 00 00 0C 02 02 00 85 16",
+        "81 0F 00 00 00 0C 02 04 00 86 B6",
+        "81 0F 00 00 00 0C 02 08 00 83 B6",
+        "81 0F 00 00 00 0C 02 10 00 89 B6",
+        "81 0F 00 00 00 0C 02 20 00 9D B6",
+        "81 0F 00 00 00 0C 02 40 00 B5 B6",
+        "81 0F 00 00 00 0C 02 80 00 E5 B6",
+        "81 0F 00 00 00 0C 02 00 01 45 B6",
+        "81 0F 00 00 00 0C 02 00 02 05 B7",
+        "81 0F 00 00 00 0C 02 00 04 85 B5",
+        "81 0F 00 00 00 0C 02 00 08 85 B0",
+        "81 0F 00 00 00 0C 02 06 00 87 D6",
+        "81 0F 00 00 00 0C 02 0E 00 80 16",
+        "81 0F 00 00 00 0C 02 0E 01 41 D6",
+    ];
+    for frame in writes {
+        assert_eq!(
+            exchange(&mut port, &hex(frame), 8).await,
+            hex(SHOWER_WRITE_ANSWER),
+            "{frame}"
+        );
+    }
+    // Read after the voice coils have fallen back (they are buttons).
+    let coils = lock(&shower).coils_at(Instant::now() + air_shower::VOICE_HOLD);
+    let on: Vec<usize> = (0..12).filter(|i| coils[*i]).collect();
+    assert_eq!(on, vec![1, 2, 3, 8], "light + both locks + strong");
+    assert_eq!(lock(&shower).voice_presses(), [1, 1]);
+    assert_eq!(line.journal().frames()[1..], writes.map(hex)[..]);
+}
+
+#[tokio::test]
+async fn air_shower_exceptions_and_silence() {
+    let (line, _, shower) = line_a();
+    let mut port = open(&line.path());
+    // Strong wind + breeze: exception 03, nothing applied.
+    assert_eq!(
+        exchange(&mut port, &hex("81 0F 00 00 00 0C 02 18 00 8E 76"), 5).await,
+        hex("81 8F 03 05 D9")
+    );
+    assert!(!lock(&shower).coils()[air_shower::STRONG_WIND]);
+    // 17 coils from 0: address out of range.
+    assert_eq!(
+        exchange(&mut port, &hex("81 0F 00 00 00 11 03 00 00 00 9B 9D"), 5).await,
+        hex("81 8F 02 C4 19")
+    );
+    // A function it does not have.
+    assert_eq!(
+        exchange(&mut port, &hex("81 03 00 00 00 01 9B CA"), 5).await,
+        hex("81 83 01 81 18")
+    );
+    // Bad CRC: no answer, and the line still works afterwards.
+    port.write_all(&hex("81 0F 00 00 00 0C 02 00 01 45 B7"))
+        .await
+        .unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert!(!lock(&shower).coils()[air_shower::LIGHT]);
+    assert_eq!(
+        exchange(&mut port, &hex("81 01 00 00 00 18 23 C0"), 8).await[..3],
+        hex("81 01 03")[..]
+    );
+    let records = line.journal().requests();
+    assert!(!records[3].crc_ok && records[3].answer.is_none());
+}
+
+#[tokio::test]
+async fn emergency_stop_toggles_on_the_wire() {
+    let (line, _, shower) = line_a();
+    let mut port = open(&line.path());
+    let estop = hex("81 0F 00 00 00 0C 02 01 00 85 E6");
+    assert_eq!(
+        exchange(&mut port, &estop, 8).await,
+        hex(SHOWER_WRITE_ANSWER)
+    );
+    // E-stop on, both door-closed sensors 0.
+    assert_eq!(
+        exchange(&mut port, &hex("81 01 00 00 00 18 23 C0"), 8).await[3..6],
+        [0x01, 0x00, 0x00]
+    );
+    // Writing 0 leaves it; writing 1 again clears it.
+    exchange(&mut port, &hex("81 0F 00 00 00 0C 02 00 00 84 76"), 8).await;
+    assert!(lock(&shower).emergency_stop());
+    exchange(&mut port, &estop, 8).await;
+    assert!(!lock(&shower).emergency_stop());
+    assert_eq!(lock(&shower).toggles(), &[true, false]);
+    assert_eq!(
+        exchange(&mut port, &hex("81 01 00 00 00 18 23 C0"), 8).await[3..6],
+        [0x00, 0x00, 0x03]
+    );
+}
+
+#[tokio::test]
+async fn wrong_address_gets_no_answer() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    // Address 2 and address 9 are nobody on line A.
+    port.write_all(&hex("02 03 10 00 00 06 C1 3B"))
+        .await
+        .unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    port.write_all(&hex("09 06 10 02 00 08 2C 44"))
+        .await
+        .unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(line.journal().request_count(), 2);
+}
+
+fn line_b() -> (VirtualLine, std::sync::Arc<std::sync::Mutex<Valve>>) {
+    let (valve, shared) = share(Valve::new(1));
+    let line = VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![shared]).unwrap();
+    (line, valve)
+}
+
+#[tokio::test]
+async fn valve_bcd_values_and_exceptions() {
+    let (line, valve) = line_b();
+    let mut port = open(&line.path());
+    // Setpoint 120.00 as the BCD pair 0x0120, 0x0000.
+    assert_eq!(
+        exchange(&mut port, &hex("01 03 00 B2 00 02 64 2C"), 9).await,
+        hex("01 03 04 01 20 00 00 FA 05")
+    );
+    // Measured values: valid BCD pairs.
+    let measured = exchange(&mut port, &hex("01 03 00 A2 00 04 E5 EB"), 13).await;
+    for nibble_byte in &measured[3..11] {
+        assert!(
+            nibble_byte >> 4 <= 9 && nibble_byte & 0xF <= 9,
+            "{measured:02X?}"
+        );
+    }
+    // A merged block over unmapped registers: exception 02 when strict…
+    assert_eq!(
+        exchange(&mut port, &hex("01 03 00 74 00 20 04 08"), 5).await,
+        hex("01 83 02 C0 F1")
+    );
+    // …zeros when lenient.
+    lock(&valve).set_lenient(true);
+    let block = exchange(&mut port, &hex("01 03 00 74 00 20 04 08"), 5 + 64).await;
+    assert_eq!(&block[..5], &[0x01, 0x03, 0x40, 0x00, 30]);
+    // Broadcast 0x00 is answered (from the device's own address).
+    assert_eq!(
+        exchange(&mut port, &hex("00 03 00 B2 00 02 65 FD"), 9).await,
+        hex("01 03 04 01 20 00 00 FA 05")
+    );
+}
+
+#[tokio::test]
+async fn valve_silent_broadcast_and_baud_write() {
+    let (line, valve) = line_b();
+    let mut port = open(&line.path());
+    // 0xFF: acted on, not answered.
+    port.write_all(&hex("FF 06 00 74 00 50 DC 32"))
+        .await
+        .unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(lock(&valve).target(), 80);
+    // A baud write is not answered either.
+    port.write_all(&hex("01 06 00 0A 00 07 E8 0A"))
+        .await
+        .unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(lock(&valve).baud_switches(), &[7]);
+    assert_eq!(line.journal().writes_to(1), 2);
+}
+
+#[tokio::test]
+async fn valve_opening_moves_over_the_wire() {
+    let (line, valve) = line_b();
+    lock(&valve).set_speed(50.0);
+    let mut port = open(&line.path());
+    // Opening to 0x50 = 80 %.
+    let write = hex("01 06 00 74 00 50 C9 EC");
+    assert_eq!(exchange(&mut port, &write, 8).await, write);
+    let status = exchange(&mut port, &hex("01 03 00 90 00 01 84 27"), 7).await;
+    assert_eq!(
+        status[4] & 0x0C,
+        valve::MOTOR_OPENING as u8,
+        "motor opening right after the write"
+    );
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let opening = exchange(&mut port, &hex("01 03 00 74 00 01 C4 10"), 7).await;
+        if opening[4] == 80 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "never reached 80 %: {opening:02X?}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let status = exchange(&mut port, &hex("01 03 00 90 00 01 84 27"), 7).await;
+    assert_eq!(status[4] & 0x0C, 0, "motor stopped");
+}
+
+#[tokio::test]
+async fn fault_knobs_do_what_they_say() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    let read = hex(READ_ALL);
+    let faults = line.faults();
+
+    faults.update(|f| f.drop = Occurrence::next(1));
+    port.write_all(&read).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new(), "dropped");
+    assert_eq!(
+        exchange(&mut port, &read, 17).await[..3],
+        [1, 3, 12],
+        "only one dropped"
+    );
+
+    faults.update(|f| f.corrupt_crc = Occurrence::next(1));
+    let corrupt = exchange(&mut port, &read, 17).await;
+    let good = exchange(&mut port, &read, 17).await;
+    assert_eq!(corrupt[..15], good[..15]);
+    assert_ne!(corrupt[15..], good[15..]);
+
+    faults.update(|f| {
+        f.truncate = Occurrence::next(1);
+        f.truncate_bytes = 3;
+    });
+    port.write_all(&read).await.unwrap();
+    assert_eq!(
+        listen(&mut port).await,
+        good[..14].to_vec(),
+        "truncated by 3"
+    );
+
+    faults.update(|f| {
+        f.wrong_address = Occurrence::next(1);
+        f.wrong_address_value = 9;
+    });
+    port.write_all(&read).await.unwrap();
+    let misaddressed = listen(&mut port).await;
+    assert_eq!(misaddressed[0], 9);
+    assert_eq!(misaddressed[1..15], good[1..15]);
+
+    faults.update(|f| {
+        f.exception = Occurrence::next(1);
+        f.exception_code = Some(ExceptionCode::ServerDeviceBusy);
+    });
+    assert_eq!(exchange(&mut port, &read, 5).await, hex("01 83 06 C1 32"));
+
+    faults.update(|f| {
+        f.garbage_before = Occurrence::next(1);
+        f.garbage_bytes = 4;
+    });
+    port.write_all(&read).await.unwrap();
+    let with_garbage = listen(&mut port).await;
+    assert_eq!(with_garbage.len(), 4 + 17);
+    assert_eq!(with_garbage[4..19], good[..15]);
+
+    faults.update(|f| f.echo = true);
+    port.write_all(&read).await.unwrap();
+    let echoed = listen(&mut port).await;
+    assert_eq!(echoed[..8], read[..]);
+    assert_eq!(echoed.len(), 8 + 17);
+    faults.update(|f| f.echo = false);
+
+    faults.silence(1, true);
+    port.write_all(&read).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new(), "silenced");
+    // The other device on the line still answers.
+    assert_eq!(
+        exchange(&mut port, &hex("81 01 00 00 00 18 23 C0"), 8).await[..3],
+        hex("81 01 03")[..]
+    );
+    faults.silence(1, false);
+
+    let delay = Duration::from_millis(150);
+    faults.update(|f| f.delay = delay);
+    let sent = Instant::now();
+    exchange(&mut port, &read, 17).await;
+    assert!(sent.elapsed() >= delay, "late answer");
+    faults.clear();
+
+    faults.update(|f| f.idle_garbage_every = Some(Duration::from_millis(20)));
+    assert!(!listen(&mut port).await.is_empty(), "idle garbage");
+    faults.clear();
+}
+
+#[tokio::test]
+async fn pacing_delays_the_answer_by_its_wire_time() {
+    let (dust, shared) = share(DustCollector::new(1));
+    let options = ServeOptions::new(9600, Parity::None).paced(true);
+    let line = VirtualLine::spawn(options, vec![shared]).unwrap();
+    let mut port = open(&line.path());
+    let timing = WireTiming::new(9600, Parity::None);
+    // Request 8 bytes + t3.5 + answer 17 bytes at 9600 8N1: about 29 ms.
+    let minimum = timing.frame_time(8) + timing.t3_5() + timing.frame_time(17);
+    for _ in 0..3 {
+        let sent = Instant::now();
+        exchange(&mut port, &hex(READ_ALL), 17).await;
+        let took = sent.elapsed();
+        assert!(
+            took >= minimum,
+            "answer after {took:?}, wire needs {minimum:?}"
+        );
+        println!("paced transaction: {took:?} (wire minimum {minimum:?})");
+    }
+    drop(dust);
+}
+
+#[tokio::test]
+async fn journal_records_frames_and_silences() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    exchange(&mut port, &hex(READ_ALL), 17).await;
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    exchange(&mut port, &hex(GEAR_8), 8).await;
+    let records = line.journal().requests();
+    assert_eq!(records.len(), 2);
+    assert_eq!(records[0].frame, hex(READ_ALL));
+    assert_eq!(records[1].frame, hex(GEAR_8));
+    assert_eq!(records[0].silence_before, None);
+    let silence = records[1].silence_before.unwrap();
+    assert!(silence >= Duration::from_millis(20), "{silence:?}");
+    assert!(records[1].arrived > records[0].arrived);
+    assert_eq!(records[1].answer.as_deref(), Some(&hex(GEAR_8)[..]));
+}
+
+#[tokio::test]
+async fn unplug_and_replug_through_a_stable_link() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyRS485");
+    let (_, shared) = share(DustCollector::new(1));
+    let mut line =
+        VirtualLine::with_link(ServeOptions::new(9600, Parity::None), vec![shared], &link).unwrap();
+    let first = line.slave_path().unwrap().to_path_buf();
+    let mut port = open(&link);
+    exchange(&mut port, &hex(READ_ALL), 17).await;
+
+    line.unplug().await;
+    assert!(!line.is_plugged());
+    // The gateway's open port is dead: a read ends or fails at once.
+    let mut buffer = [0u8; 8];
+    let read = tokio::time::timeout(ANSWER_TIMEOUT, port.read(&mut buffer)).await;
+    assert!(matches!(read, Ok(Ok(0)) | Ok(Err(_))), "{read:?}");
+    drop(port);
+
+    line.replug().await.unwrap();
+    let second = line.slave_path().unwrap().to_path_buf();
+    assert_eq!(
+        std::fs::canonicalize(&link).unwrap(),
+        std::fs::canonicalize(&second).unwrap()
+    );
+    let mut port = open(&link);
+    exchange(&mut port, &hex(READ_ALL), 17).await;
+    assert_eq!(line.journal().request_count(), 2);
+    println!("replugged {} → {}", first.display(), second.display());
+}
+
+#[tokio::test]
+async fn power_up_handshake_keeps_the_device_quiet() {
+    let powered_up = Instant::now();
+    let handshake = Duration::from_secs(1);
+    let device = DustCollector::new(1).with_power_up_handshake(powered_up, handshake);
+    let (_, shared) = share(device);
+    let line = VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![shared]).unwrap();
+    let mut port = open(&line.path());
+    port.write_all(&hex(READ_ALL)).await.unwrap();
+    assert_eq!(
+        listen(&mut port).await,
+        Vec::<u8>::new(),
+        "quiet during the handshake"
+    );
+    let record = &line.journal().requests()[0];
+    assert!(record.arrived < powered_up + handshake);
+    assert!(record.answer.is_none());
+    tokio::time::sleep_until(tokio::time::Instant::from_std(powered_up + handshake)).await;
+    assert_eq!(
+        exchange(&mut port, &hex(READ_ALL), 17).await[..3],
+        [1, 3, 12]
+    );
+}
+
+#[tokio::test]
+async fn seed_plant_serves_both_lines() {
+    let plant = rtu2mqtt::sim::SeedPlant::spawn(false).unwrap();
+    let mut line_a = open(&plant.line_a.path());
+    let mut line_b = open(&plant.line_b.path());
+    assert_eq!(
+        exchange(&mut line_a, &hex(READ_ALL), 17).await[..3],
+        [1, 3, 12]
+    );
+    assert_eq!(
+        exchange(&mut line_a, &hex("81 01 00 00 00 16 A2 04"), 8).await[..3],
+        hex("81 01 03")[..]
+    );
+    assert_eq!(
+        exchange(&mut line_b, &hex("01 03 00 B2 00 02 64 2C"), 9).await,
+        hex("01 03 04 01 20 00 00 FA 05")
+    );
+    lock(&plant.valve).set_opening(55);
+    assert_eq!(
+        exchange(&mut line_b, &hex("01 03 00 74 00 01 C4 10"), 7).await[3..5],
+        [0, 55]
+    );
+}
