@@ -62,13 +62,16 @@ fn check_prints_the_poll_plan() {
         "per fast cycle:",
         "bus load",
     ] {
-        assert!(stdout.contains(expected), "{expected:?} missing in:\n{stdout}");
+        assert!(
+            stdout.contains(expected),
+            "{expected:?} missing in:\n{stdout}"
+        );
     }
     // The /dev/ttyUSB0 names deserve a warning, not an error.
     assert!(stdout.contains("warning: lines[0].port"), "{stdout}");
 }
 
-const MANY_MISTAKES: &str = r#"
+const MANY_MISTAKES: &str = r##"
 [mqtt]
 url = "mqtt://127.0.0.1:1883"
 client_id = "edge1"
@@ -107,7 +110,7 @@ port = "/dev/ttyS2"
 name = "dust_collector"
 profile = "no-such-profile"
 address = 1
-"#;
+"##;
 
 #[test]
 fn every_problem_is_listed_with_its_place() {
@@ -169,5 +172,8 @@ fn environment_overrides_reach_the_settings() {
 fn a_missing_file_is_a_clear_error() {
     let (ok, _, stderr) = check(Path::new("/nonexistent/rtu2mqtt.toml"));
     assert!(!ok);
-    assert!(stderr.contains("cannot read the configuration file"), "{stderr}");
+    assert!(
+        stderr.contains("cannot read the configuration file"),
+        "{stderr}"
+    );
 }

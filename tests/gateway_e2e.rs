@@ -155,7 +155,9 @@ impl Harness {
         };
         harness.start_gateway().await;
         for device in ["dust_collector", "air_shower", "valve"] {
-            harness.wait_text(&format!("plant/{device}/availability"), "online").await;
+            harness
+                .wait_text(&format!("plant/{device}/availability"), "online")
+                .await;
         }
         harness
     }
@@ -181,7 +183,11 @@ impl Harness {
     /// Publishes a command and returns its result JSON.
     async fn command(&mut self, device: &str, field: &str, payload: &[u8]) -> serde_json::Value {
         self.client
-            .publish(&format!("plant/{device}/{field}/set"), payload.to_vec(), false)
+            .publish(
+                &format!("plant/{device}/{field}/set"),
+                payload.to_vec(),
+                false,
+            )
             .await;
         self.result(device, field).await
     }
@@ -255,12 +261,7 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
             }
         }
     }
-    let value = |topic: &str| {
-        late.on(topic)
-            .last()
-            .map(|m| m.text())
-            .unwrap_or_default()
-    };
+    let value = |topic: &str| late.on(topic).last().map(|m| m.text()).unwrap_or_default();
     let (gear, interval, duration) = {
         let dust = sim::lock(&h.plant.dust_collector);
         (dust.gear(), dust.pulse_interval(), dust.pulse_duration())
@@ -268,8 +269,14 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     assert_eq!(value("plant/dust_collector/power"), "ON");
     assert_eq!(value("plant/dust_collector/pulse_cleaning"), "OFF");
     assert_eq!(value("plant/dust_collector/gear"), gear.to_string());
-    assert_eq!(value("plant/dust_collector/pulse_interval"), interval.to_string());
-    assert_eq!(value("plant/dust_collector/pulse_duration"), duration.to_string());
+    assert_eq!(
+        value("plant/dust_collector/pulse_interval"),
+        interval.to_string()
+    );
+    assert_eq!(
+        value("plant/dust_collector/pulse_duration"),
+        duration.to_string()
+    );
     assert_eq!(value("plant/dust_collector/fan_alarm"), "OFF");
     let coils = sim::lock(&h.plant.air_shower).coils();
     let on_off = |on: bool| if on { "ON" } else { "OFF" };
@@ -302,7 +309,10 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
         .next_on(&format!("plant/gateway/{}/stats", h.client_id), ANSWER)
         .await
         .json();
-    assert!(stats["lines"][0]["transactions"].as_u64().unwrap_or(0) > 0, "{stats}");
+    assert!(
+        stats["lines"][0]["transactions"].as_u64().unwrap_or(0) > 0,
+        "{stats}"
+    );
     h.stop_gateway().await;
 }
 
@@ -347,7 +357,10 @@ async fn air_shower_commands_respect_the_coil_rules() {
     // Light ON with all coils off: the document's frame.
     let result = h.command("air_shower", "light", b"ON").await;
     assert_eq!(result["outcome"], "applied", "{result}");
-    assert_sent(&h.frames(&h.plant.line_a), "81 0F 00 00 00 0C 02 00 01 45 B6");
+    assert_sent(
+        &h.frames(&h.plant.line_a),
+        "81 0F 00 00 00 0C 02 00 01 45 B6",
+    );
 
     // Strong wind while breeze is on: rejected, nothing written.
     sim::lock(&h.plant.air_shower).set_coil(COIL_BREEZE, true);
@@ -355,8 +368,14 @@ async fn air_shower_commands_respect_the_coil_rules() {
     h.plant.line_a.journal().clear();
     let result = h.command("air_shower", "strong_wind", b"ON").await;
     assert_eq!(result["outcome"], "rejected", "{result}");
-    assert!(result["detail"].as_str().unwrap_or("").contains("breeze"), "{result}");
-    assert_eq!(writes(&h.frames(&h.plant.line_a), SHOWER), Vec::<String>::new());
+    assert!(
+        result["detail"].as_str().unwrap_or("").contains("breeze"),
+        "{result}"
+    );
+    assert_eq!(
+        writes(&h.frames(&h.plant.line_a), SHOWER),
+        Vec::<String>::new()
+    );
     sim::lock(&h.plant.air_shower).set_coil(COIL_BREEZE, false);
     h.wait_text("plant/air_shower/breeze", "OFF").await;
 
@@ -399,7 +418,9 @@ async fn a_retained_command_runs_once_is_cleared_and_is_not_replayed() {
     assert_eq!(outcome(&result), "applied", "{result}");
     // The gateway clears it: an empty retained message on the same topic.
     h.client
-        .wait_for("plant/dust_collector/gear/set", ANSWER, |m| m.payload.is_empty())
+        .wait_for("plant/dust_collector/gear/set", ANSWER, |m| {
+            m.payload.is_empty()
+        })
         .await;
     let mut late = TestClient::connect(h.broker.port, "retained-late").await;
     late.subscribe("plant/dust_collector/gear/set").await;
@@ -410,9 +431,13 @@ async fn a_retained_command_runs_once_is_cleared_and_is_not_replayed() {
     h.stop_gateway().await;
     h.plant.line_a.journal().clear();
     h.start_gateway().await;
-    h.wait_text("plant/dust_collector/availability", "online").await;
+    h.wait_text("plant/dust_collector/availability", "online")
+        .await;
     h.client.settle(Duration::from_secs(2)).await;
-    assert_eq!(writes(&h.frames(&h.plant.line_a), DUST), Vec::<String>::new());
+    assert_eq!(
+        writes(&h.frames(&h.plant.line_a), DUST),
+        Vec::<String>::new()
+    );
     assert!(h.client.on("plant/dust_collector/gear/result").is_empty());
     h.stop_gateway().await;
 }
@@ -424,7 +449,11 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
     sim::lock(&plant.dust_collector).set_power(true);
     let sender = TestClient::connect(broker.port, "f25-sender").await;
     sender
-        .publish("plant/dust_collector/pulse_interval/set", b"12".to_vec(), true)
+        .publish(
+            "plant/dust_collector/pulse_interval/set",
+            b"12".to_vec(),
+            true,
+        )
         .await;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let mut observer = TestClient::connect(broker.port, "f25-observer").await;
@@ -433,7 +462,9 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
     for round in 0..2 {
         let gateway = Gateway::start(fast(&plant_config(&broker, &plant, "f25-gw", ""))).await;
         observer
-            .wait_for("plant/dust_collector/availability", ANSWER, |m| m.text() == "online")
+            .wait_for("plant/dust_collector/availability", ANSWER, |m| {
+                m.text() == "online"
+            })
             .await;
         if round == 0 {
             let result = observer
@@ -458,9 +489,14 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     .await;
     h.plant.line_a.faults().silence(DUST, true);
     let went = std::time::Instant::now();
-    h.wait_text("plant/dust_collector/availability", "offline").await;
+    h.wait_text("plant/dust_collector/availability", "offline")
+        .await;
     // Bounded: offline_after × (retries + 1) × timeout plus scheduling slack.
-    assert!(went.elapsed() < Duration::from_secs(10), "{:?}", went.elapsed());
+    assert!(
+        went.elapsed() < Duration::from_secs(10),
+        "{:?}",
+        went.elapsed()
+    );
     // The air shower on the same line stays online.
     assert!(h
         .client
@@ -478,12 +514,16 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     let first = h.result("dust_collector", "gear").await;
     assert_eq!(first["value"], "4");
     assert_eq!(outcome(&first), "expired", "{first}");
-    assert!(first["detail"].as_str().unwrap_or("").contains("superseded"));
+    assert!(first["detail"]
+        .as_str()
+        .unwrap_or("")
+        .contains("superseded"));
     h.client.settle(Duration::from_secs(1)).await;
     assert!(h.client.on("plant/dust_collector/gear/result").is_empty());
 
     h.plant.line_a.faults().silence(DUST, false);
-    h.wait_text("plant/dust_collector/availability", "online").await;
+    h.wait_text("plant/dust_collector/availability", "online")
+        .await;
     let result = h.result("dust_collector", "gear").await;
     assert_eq!(result["value"], "6");
     assert_eq!(outcome(&result), "applied", "{result}");
@@ -501,11 +541,17 @@ async fn a_command_for_a_device_offline_past_its_time_to_live_expires() {
         .await;
     let result = h.result("valve", "opening").await;
     assert_eq!(outcome(&result), "expired", "{result}");
-    assert!(result["detail"].as_str().unwrap_or("").contains("offline"), "{result}");
+    assert!(
+        result["detail"].as_str().unwrap_or("").contains("offline"),
+        "{result}"
+    );
     h.client
         .wait_for("plant/valve/opening/set", ANSWER, |m| m.payload.is_empty())
         .await;
-    assert_eq!(writes(&h.frames(&h.plant.line_b), VALVE), Vec::<String>::new());
+    assert_eq!(
+        writes(&h.frames(&h.plant.line_b), VALVE),
+        Vec::<String>::new()
+    );
     h.stop_gateway().await;
 }
 
@@ -572,7 +618,12 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         ("dust_collector", "gear", b"2.5".to_vec(), ""),
         ("dust_collector", "gear", b"NaN".to_vec(), ""),
         ("dust_collector", "fan_speed", b"100".to_vec(), "read-only"),
-        ("dust_collector", "no_such_field", b"1".to_vec(), "unknown field"),
+        (
+            "dust_collector",
+            "no_such_field",
+            b"1".to_vec(),
+            "unknown field",
+        ),
         ("air_shower", "light", b"maybe".to_vec(), ""),
         ("valve", "setpoint", b"12.345.6".to_vec(), ""),
     ];
@@ -587,7 +638,9 @@ async fn bad_payloads_are_rejected_without_a_frame() {
     h.client
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
         .await;
-    h.client.publish("plant/dust_collector/gear/set/x", b"1".to_vec(), false).await;
+    h.client
+        .publish("plant/dust_collector/gear/set/x", b"1".to_vec(), false)
+        .await;
     h.client.settle(Duration::from_secs(1)).await;
     assert!(h.client.on("plant/intruder/gear/result").is_empty());
     for writes_on in [
