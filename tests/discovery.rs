@@ -9,9 +9,9 @@ use rand::SeedableRng;
 use serde_json::{json, Value as Json};
 
 use rtu2mqtt::bridge::discovery::{
-    device_config, device_config_from_fields, gateway_config, is_ha_online, is_stale_config,
-    platform_for, reannounce_delay, removal, unique_id_collisions, DiscoveryContext, Platform,
-    REANNOUNCE_DELAY,
+    all_configs, device_config, device_config_from_fields, gateway_config, is_ha_online,
+    is_stale_config, platform_for, reannounce_delay, removal, unique_id_collisions,
+    DiscoveryContext, Platform, REANNOUNCE_DELAY,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload, json_view_topic};
 use rtu2mqtt::bridge::metrics::{prometheus_text, BridgeSnapshot};
@@ -838,4 +838,34 @@ fn json_view_is_typed_and_in_field_order_whatever_the_map() {
     assert_eq!(json_view_payload(&reversed), text.into_bytes());
     assert_eq!(json_view_topic("plant", "valve"), "plant/valve");
     assert_eq!(json_view(&DeviceState::new()), json!({}));
+}
+
+#[test]
+fn all_configs_lead_with_the_gateway_and_follow_the_configured_devices() {
+    let ctx = context();
+    let documents = built_in_documents();
+    let devices: Vec<(&str, &Profile)> = documents
+        .iter()
+        .map(|(device, profile, _)| (*device, profile))
+        .collect();
+    let lines = vec!["line-a".to_string(), "line-b".to_string()];
+    let messages = all_configs(&ctx, &lines, &devices);
+    let topics: Vec<&str> = messages.iter().map(|(topic, _)| topic.as_str()).collect();
+    assert_eq!(
+        topics,
+        vec![
+            "homeassistant/device/rtu2mqtt-edge1_gateway/config",
+            "homeassistant/device/rtu2mqtt-edge1_dust_collector/config",
+            "homeassistant/device/rtu2mqtt-edge1_valve/config",
+            "homeassistant/device/rtu2mqtt-edge1_air_shower/config",
+        ]
+    );
+    for ((_, payload), (_, _, document)) in messages[1..].iter().zip(&documents) {
+        assert_eq!(&serde_json::from_str::<Json>(payload).unwrap(), document);
+    }
+    let gateway: Json = serde_json::from_str(&messages[0].1).unwrap();
+    assert_eq!(
+        gateway["dev"]["identifiers"][0],
+        documents[0].2["dev"]["via_device"]
+    );
 }

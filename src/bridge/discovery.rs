@@ -27,6 +27,7 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
+use crate::config::MqttSettings;
 use crate::profile::{FieldInfo, FieldKind, HaHints, Profile};
 
 /// The default Home Assistant discovery prefix.
@@ -69,6 +70,15 @@ impl DiscoveryContext {
             client_id: client_id.to_string(),
             prefix: prefix.to_string(),
             discovery_prefix: DEFAULT_DISCOVERY_PREFIX.to_string(),
+        }
+    }
+
+    /// The context of a gateway's MQTT settings (client id, prefix, discovery prefix).
+    pub fn from_settings(settings: &MqttSettings) -> Self {
+        DiscoveryContext {
+            client_id: settings.client_id.clone(),
+            prefix: settings.prefix.clone(),
+            discovery_prefix: settings.discovery_prefix.clone(),
         }
     }
 
@@ -557,6 +567,24 @@ pub fn device_config(ctx: &DiscoveryContext, device: &str, profile: &Profile) ->
         profile.name(),
         profile.fields(),
     )
+}
+
+/// Every discovery message of a gateway, ready to publish retained: the gateway's own document
+/// first (so `via_device` resolves), then one per configured device in the order given.
+/// `lines` are the configured line names, `devices` the configured devices with their profiles.
+pub fn all_configs(
+    ctx: &DiscoveryContext,
+    lines: &[String],
+    devices: &[(&str, &Profile)],
+) -> Vec<(String, String)> {
+    let gateway = gateway_config(ctx, lines);
+    let devices = devices
+        .iter()
+        .map(|(device, profile)| device_config(ctx, device, profile));
+    std::iter::once(gateway)
+        .chain(devices)
+        .map(|(topic, document)| (topic, document.to_string()))
+        .collect()
 }
 
 /// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
