@@ -14,8 +14,7 @@ use rtu2mqtt::bridge::discovery::{
     DiscoveryContext, Platform, REANNOUNCE_DELAY,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload, json_view_topic};
-use rtu2mqtt::bridge::metrics::{prometheus_text, BridgeSnapshot};
-use rtu2mqtt::bridge::stats::{gateway_stats_json, BridgeCounters};
+use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bus::LineStats;
 use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
@@ -417,20 +416,18 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
     line_b.crc_errors = 3;
     line_b.devices[0].online = true;
     // Given in the other order than configured: sensors select lines by name.
-    let stats = gateway_stats_json(
-        "rtu2mqtt-edge1",
-        Duration::from_secs(77),
-        true,
-        &BridgeCounters::default(),
-        2,
-        &[line_b, line_a],
-    );
+    let bridge = BridgeStats {
+        uptime: Duration::from_secs(77),
+        waiting_commands: 2,
+        ..BridgeStats::default()
+    };
+    let stats = stats_json(&[line_b, line_a], &bridge);
 
     let expected: &[(&str, f64)] = &[
         ("devices_online", 2.0),
         ("waiting_commands", 2.0),
         ("uptime", 77.0),
-        ("line_a_bus_load", 42.4),
+        ("line_a_bus_load_percent", 42.4),
         ("line_a_transactions", 17.0),
         ("line_a_crc_errors", 0.0),
         ("line_b_crc_errors", 3.0),
@@ -460,49 +457,29 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
     }
 }
 
-/// Evaluates the few Jinja forms the gateway's sensors use (as Home Assistant would) on a
-/// statistics document: a dotted path from `value_json`, a line picked by name with
-/// `selectattr('name', 'eq', …) | first`, a ratio shown as a rounded percentage, and the count
-/// of online devices over all lines.
+/// Follows a `{{ value_json.a['b'].c }}` template through a statistics document, as Home
+/// Assistant would, to the number it shows.
 fn render_stats_template(document: &Json, template: &str) -> Option<f64> {
-    let expression = template
+    let path = template
         .trim()
         .strip_prefix("{{")?
         .strip_suffix("}}")?
-        .trim();
-    let devices_online = "value_json.lines | map(attribute='devices') | sum(start=[]) \
-        | selectattr('online') | list | length";
-    if expression == devices_online {
-        let count = document["lines"]
-            .as_array()?
-            .iter()
-            .flat_map(|line| line["devices"].as_array().into_iter().flatten())
-            .filter(|device| device["online"] == true)
-            .count();
-        return Some(count as f64);
-    }
-    if let Some(inner) = expression
-        .strip_prefix('(')
-        .and_then(|e| e.strip_suffix(" * 100) | round(1)"))
-    {
-        let ratio = render_stats_template(document, &format!("{{{{ {inner} }}}}"))?;
-        return Some((ratio * 1000.0).round() / 10.0);
-    }
-    let (start, path) =
-        match expression.strip_prefix("(value_json.lines | selectattr('name', 'eq', '") {
-            Some(rest) => {
-                let (name, path) = rest.split_once("') | first)")?;
-                let line = document["lines"]
-                    .as_array()?
-                    .iter()
-                    .find(|line| line["name"] == name)?;
-                (line, path)
-            }
-            None => (document, expression.strip_prefix("value_json")?),
-        };
-    let mut current = start;
-    for key in path.split('.').skip(1) {
-        current = current.get(key)?;
+        .trim()
+        .strip_prefix("value_json")?;
+    let mut current = document;
+    let mut rest = path;
+    while !rest.is_empty() {
+        if let Some(after) = rest.strip_prefix("['") {
+            let end = after.find("']")?;
+            current = current.get(&after[..end])?;
+            rest = &after[end + 2..];
+        } else if let Some(after) = rest.strip_prefix('.') {
+            let end = after.find(['.', '[']).unwrap_or(after.len());
+            current = current.get(&after[..end])?;
+            rest = &after[end..];
+        } else {
+            return None;
+        }
     }
     current.as_f64()
 }
@@ -626,18 +603,16 @@ fn sample_lines() -> Vec<LineStats> {
 
 #[test]
 fn prometheus_text_is_well_formed_with_contiguous_families_and_escaped_labels() {
-    let bridge = BridgeSnapshot {
+    let bridge = BridgeStats {
         uptime: Duration::from_secs(3600),
         mqtt_connected: true,
+        mqtt_connects: 2,
+        published: 99,
         waiting_commands: 1,
-        counters: BridgeCounters {
-            connects: 2,
-            published: 99,
-            commands_received: 4,
-            commands_applied: 3,
-            commands_rejected: 1,
-            ..BridgeCounters::default()
-        },
+        commands_received: 4,
+        commands_applied: 3,
+        commands_rejected: 1,
+        ..BridgeStats::default()
     };
     let text = prometheus_text(&sample_lines(), &bridge);
     assert!(text.ends_with('\n'));
@@ -687,7 +662,6 @@ fn prometheus_text_is_well_formed_with_contiguous_families_and_escaped_labels() 
     assert!(text.contains("rtu2mqtt_mqtt_connected 1\n"));
     assert!(text.contains("rtu2mqtt_uptime_seconds 3600\n"));
     assert!(text.contains("rtu2mqtt_commands_waiting 1\n"));
-    assert!(text.contains("rtu2mqtt_commands_finished_total 4\n"));
     assert!(text.contains("rtu2mqtt_mqtt_connects_total 2\n"));
 }
 
@@ -868,4 +842,29 @@ fn all_configs_lead_with_the_gateway_and_follow_the_configured_devices() {
         gateway["dev"]["identifiers"][0],
         documents[0].2["dev"]["via_device"]
     );
+}
+
+#[test]
+fn stats_json_carries_lines_devices_and_bridge_counters() {
+    let bridge = BridgeStats {
+        commands_failed: 2,
+        waiting_commands: 1,
+        ..BridgeStats::default()
+    };
+    let stats = stats_json(&sample_lines(), &bridge);
+    let line = &stats["lines"]["line-a"];
+    assert_eq!(line["transactions"], 1234);
+    assert_eq!(line["bus_load_percent"], 25.0);
+    assert_eq!(line["command_latency_ms"], 180.0);
+    assert_eq!(line["worst_command_latency_ms"], Json::Null);
+    let device = &line["devices"]["dust_collector"];
+    assert_eq!(device["online"], true);
+    assert_eq!(device["failures"], 4);
+    assert_eq!(device["latency_ms"], 41.5);
+    assert_eq!(stats["devices_online"], 1);
+    assert_eq!(stats["devices_total"], 3);
+    assert_eq!(stats["commands"]["failed"], 2);
+    assert_eq!(stats["commands"]["waiting"], 1);
+    let text = stats.to_string();
+    assert_eq!(serde_json::from_str::<Json>(&text).unwrap(), stats);
 }

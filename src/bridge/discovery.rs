@@ -588,27 +588,24 @@ pub fn all_configs(
 }
 
 /// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
-/// JSON, name suffix, unit, state class). `bus_load` is a ratio there and a percentage here.
+/// JSON, name suffix, unit, state class).
 const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
-    ("bus_load", "bus load", Some("%"), "measurement"),
+    ("bus_load_percent", "bus load", Some("%"), "measurement"),
     ("transactions", "transactions", None, "total_increasing"),
     ("timeouts", "timeouts", None, "total_increasing"),
     ("crc_errors", "CRC errors", None, "total_increasing"),
     ("exceptions", "exceptions", None, "total_increasing"),
 ];
 
-/// The Jinja expression selecting a line's entry in the stats JSON's `lines` list by name
-/// (not by position, so a reordered configuration cannot mix lines up).
+/// The Jinja expression of a line's entry in the stats JSON: bracket access by name, since
+/// line names may hold `-`, which a dotted path would read as a minus.
 pub fn line_selector(line: &str) -> String {
-    format!(
-        "(value_json.lines | selectattr('name', 'eq', {}) | first)",
-        jinja_string(line)
-    )
+    format!("value_json.lines[{}]", jinja_string(line))
 }
 
 /// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
 /// topic, and from the statistics JSON on `<prefix>/gateway/<client_id>/stats`
-/// ([`super::stats::gateway_stats_json`]) the number of devices online, waiting commands,
+/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
 /// uptime, and per line its bus load and counters. It is what every device's `via_device`
 /// points at.
 pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json) {
@@ -653,9 +650,7 @@ pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json
         stats_sensor(
             "devices_online",
             "Devices online",
-            "{{ value_json.lines | map(attribute='devices') | sum(start=[]) \
-             | selectattr('online') | list | length }}"
-                .to_string(),
+            "{{ value_json.devices_online }}".to_string(),
             "measurement",
         ),
     );
@@ -664,14 +659,14 @@ pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json
         stats_sensor(
             "waiting_commands",
             "Waiting commands",
-            "{{ value_json.mqtt.waiting_commands }}".to_string(),
+            "{{ value_json.commands.waiting }}".to_string(),
             "measurement",
         ),
     );
     let mut uptime = stats_sensor(
         "uptime",
         "Uptime",
-        "{{ value_json.uptime_s }}".to_string(),
+        "{{ value_json.uptime_seconds }}".to_string(),
         "measurement",
     );
     if let Some(map) = uptime.as_object_mut() {
@@ -685,10 +680,7 @@ pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json
         let selector = line_selector(line);
         for (key, label, unit, state_class) in LINE_SENSORS {
             let component_id = format!("{line_key}_{key}");
-            let template = match *unit {
-                Some("%") => format!("{{{{ ({selector}.{key} * 100) | round(1) }}}}"),
-                _ => format!("{{{{ {selector}.{key} }}}}"),
-            };
+            let template = format!("{{{{ {selector}.{key} }}}}");
             let mut sensor = stats_sensor(
                 &component_id,
                 &format!("{line} {label}"),

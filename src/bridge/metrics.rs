@@ -1,27 +1,50 @@
-//! The Prometheus text exposition (format 0.0.4) of the line statistics and the bridge's own
-//! counters, served by [`super::prometheus`]. (The same figures as JSON on
-//! `<prefix>/gateway/<client_id>/stats` are [`super::stats::gateway_stats_json`].)
+//! Observability documents from the line statistics and the bridge's own counters: the
+//! Prometheus text exposition (format 0.0.4) and the JSON published on
+//! `<prefix>/gateway/<client_id>/stats`.
 //!
-//! Pure: snapshots in, text out. Metric names and labels are a stable interface for dashboards
-//! and alerts: add, never rename.
+//! Pure: snapshots in, text or JSON out. The bridge (or a metrics endpoint) owns the timing
+//! and the transport. Metric names, labels and JSON keys are a stable interface for
+//! dashboards and alerts: add, never rename.
 
 use std::fmt::Write as _;
 use std::time::Duration;
 
-use super::stats::BridgeCounters;
+use serde_json::{json, Map, Value as Json};
+
 use crate::bus::stats::DeviceStats;
 use crate::bus::LineStats;
 
-/// What the exposition needs from the bridge besides the lines' statistics.
+/// The bridge's own counters, kept by the bridge and snapshotted for each document.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct BridgeSnapshot {
+pub struct BridgeStats {
     /// Time since the gateway started.
     pub uptime: Duration,
     /// The MQTT session is up.
     pub mqtt_connected: bool,
+    /// Successful (re)connections to the broker, the first one included.
+    pub mqtt_connects: u64,
+    /// Losses of the broker connection.
+    pub mqtt_disconnects: u64,
+    /// Messages handed to the MQTT client.
+    pub published: u64,
+    /// Publishes dropped because the client's queue was full.
+    pub publish_failures: u64,
     /// Commands waiting for an offline device or their turn on the line.
-    pub waiting_commands: usize,
-    pub counters: BridgeCounters,
+    pub waiting_commands: u64,
+    /// QoS 1 redeliveries of a command recognised and not run again.
+    pub redeliveries_ignored: u64,
+    /// Commands for devices that are not configured.
+    pub unknown_device_commands: u64,
+    /// Messages received on `…/set` topics (empty clearing payloads excluded).
+    pub commands_received: u64,
+    /// Outcomes of commands, by outcome.
+    pub commands_applied: u64,
+    pub commands_not_applied: u64,
+    pub commands_rejected: u64,
+    pub commands_failed: u64,
+    pub commands_expired: u64,
+    /// Fields whose raw data was invalid (bad BCD): not published, counted here.
+    pub invalid_values: u64,
 }
 
 /// One metric family: its name, type and help, then its samples.
@@ -190,9 +213,8 @@ fn device_failures(device: &DeviceStats) -> u64 {
 /// load and command latency; per device whether it is online, its counters and latency; the
 /// bridge's MQTT and command counters. Samples of one family are contiguous, as the format
 /// requires; a latency never measured has no sample.
-pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeSnapshot) -> String {
+pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
     let mut out = String::new();
-    let counters = &bridge.counters;
 
     let mut family = Family::start(
         &mut out,
@@ -230,47 +252,42 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeSnapshot) -> String {
         (
             "rtu2mqtt_mqtt_connects_total",
             "Successful connections to the broker, the first one included.",
-            counters.connects,
+            bridge.mqtt_connects,
         ),
         (
             "rtu2mqtt_mqtt_disconnects_total",
             "Losses of the broker connection.",
-            counters.disconnects,
+            bridge.mqtt_disconnects,
         ),
         (
             "rtu2mqtt_mqtt_published_total",
             "Messages handed to the MQTT client.",
-            counters.published,
+            bridge.published,
         ),
         (
             "rtu2mqtt_mqtt_publish_failures_total",
             "Publishes dropped because the client's queue was full.",
-            counters.publish_failures,
-        ),
-        (
-            "rtu2mqtt_commands_received_total",
-            "Commands received on set topics for configured devices.",
-            counters.commands_received,
+            bridge.publish_failures,
         ),
         (
             "rtu2mqtt_command_redeliveries_ignored_total",
             "QoS 1 redeliveries of a command recognised and not run again.",
-            counters.redeliveries_ignored,
+            bridge.redeliveries_ignored,
         ),
         (
             "rtu2mqtt_unknown_device_commands_total",
             "Commands for devices that are not configured.",
-            counters.unknown_device_commands,
+            bridge.unknown_device_commands,
         ),
         (
-            "rtu2mqtt_commands_finished_total",
-            "Commands with an outcome, all outcomes together.",
-            counters
-                .commands_applied
-                .saturating_add(counters.commands_not_applied)
-                .saturating_add(counters.commands_rejected)
-                .saturating_add(counters.commands_failed)
-                .saturating_add(counters.commands_expired),
+            "rtu2mqtt_commands_received_total",
+            "Commands received on set topics.",
+            bridge.commands_received,
+        ),
+        (
+            "rtu2mqtt_invalid_values_total",
+            "Field values not published because their raw data was invalid.",
+            bridge.invalid_values,
         ),
     ];
     for (name, help, value) in bridge_counters {
@@ -285,11 +302,11 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeSnapshot) -> String {
         "Command outcomes, by outcome.",
     );
     for (outcome, value) in [
-        ("applied", counters.commands_applied),
-        ("not_applied", counters.commands_not_applied),
-        ("rejected", counters.commands_rejected),
-        ("failed", counters.commands_failed),
-        ("expired", counters.commands_expired),
+        ("applied", bridge.commands_applied),
+        ("not_applied", bridge.commands_not_applied),
+        ("rejected", bridge.commands_rejected),
+        ("failed", bridge.commands_failed),
+        ("expired", bridge.commands_expired),
     ] {
         family.sample(&[("outcome", outcome)], value as f64);
     }
@@ -411,4 +428,90 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeSnapshot) -> String {
     }
 
     out
+}
+
+fn millis(latency: Option<Duration>) -> Json {
+    latency.map_or(Json::Null, |latency| {
+        json!((latency.as_secs_f64() * 1000.0 * 1000.0).round() / 1000.0)
+    })
+}
+
+fn device_json(device: &DeviceStats) -> Json {
+    json!({
+        "online": device.online,
+        "transactions": device.transactions,
+        "timeouts": device.timeouts,
+        "crc_errors": device.crc_errors,
+        "exceptions": device.exceptions,
+        "failures": device_failures(device),
+        "consecutive_failures": device.consecutive_failures,
+        "latency_ms": millis(device.last_latency),
+        "worst_latency_ms": millis(device.worst_latency),
+    })
+}
+
+fn line_json(line: &LineStats) -> Json {
+    let devices: Map<String, Json> = line
+        .devices
+        .iter()
+        .map(|device| (device.name.clone(), device_json(device)))
+        .collect();
+    json!({
+        "port_open": line.port_open,
+        "transactions": line.transactions,
+        "timeouts": line.timeouts,
+        "crc_errors": line.crc_errors,
+        "truncated": line.truncated,
+        "unexpected_answers": line.unexpected_answers,
+        "exceptions": line.exceptions,
+        "late_answers": line.late_answers,
+        "stray_bytes": line.stray_bytes,
+        // Percent with one decimal: what a person reads on a dashboard.
+        "bus_load_percent": (line.bus_load * 1000.0).round() / 10.0,
+        "commands": line.commands,
+        "command_latency_ms": millis(line.last_command_latency),
+        "worst_command_latency_ms": millis(line.worst_command_latency),
+        "devices": devices,
+    })
+}
+
+/// The statistics document for `<prefix>/gateway/<client_id>/stats`: gateway-wide figures at
+/// the top (`uptime_seconds`, `devices_online`, `devices_total`, `mqtt`, `commands`), then
+/// `lines.<line>` with the line's counters, `bus_load_percent`, latencies in milliseconds and
+/// `devices.<device>`. Latencies never measured are `null`. The gateway's Home Assistant
+/// sensors read these keys (see [`super::discovery::gateway_config`]).
+pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
+    let all_devices = lines.iter().flat_map(|line| line.devices.iter());
+    let devices_total = all_devices.clone().count();
+    let devices_online = all_devices.filter(|device| device.online).count();
+    let line_documents: Map<String, Json> = lines
+        .iter()
+        .map(|line| (line.line.clone(), line_json(line)))
+        .collect();
+    json!({
+        "version": env!("CARGO_PKG_VERSION"),
+        "uptime_seconds": bridge.uptime.as_secs(),
+        "devices_online": devices_online,
+        "devices_total": devices_total,
+        "mqtt": {
+            "connected": bridge.mqtt_connected,
+            "connects": bridge.mqtt_connects,
+            "disconnects": bridge.mqtt_disconnects,
+            "published": bridge.published,
+            "publish_failures": bridge.publish_failures,
+        },
+        "commands": {
+            "waiting": bridge.waiting_commands,
+            "received": bridge.commands_received,
+            "redeliveries_ignored": bridge.redeliveries_ignored,
+            "unknown_device": bridge.unknown_device_commands,
+            "applied": bridge.commands_applied,
+            "not_applied": bridge.commands_not_applied,
+            "rejected": bridge.commands_rejected,
+            "failed": bridge.commands_failed,
+            "expired": bridge.commands_expired,
+        },
+        "invalid_values": bridge.invalid_values,
+        "lines": line_documents,
+    })
 }
