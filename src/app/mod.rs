@@ -114,7 +114,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
 }
 
 /// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
+pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
     use tokio::signal::unix::{signal, SignalKind};
     let (Ok(mut terminate), Ok(mut interrupt)) = (
         signal(SignalKind::terminate()),

@@ -180,7 +180,8 @@ impl PlantView {
         &mut self.devices[index].1
     }
 
-    /// A device's state (for tests and the final summary).
+    /// A device's state.
+    #[cfg(test)]
     pub fn device(&self, name: &str) -> Option<&DeviceView> {
         self.devices
             .iter()
