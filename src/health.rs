@@ -20,7 +20,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-use crate::bus::LineStats;
+use crate::bridge::BridgeHealth;
+use crate::bus::{LineHandle, LineStats};
 use crate::shutdown::ShutdownTrigger;
 
 /// Exit status of a process ended by its own watchdog (EX_SOFTWARE): `Restart=on-failure` and
@@ -29,6 +30,13 @@ pub const EXIT_STUCK: i32 = 70;
 
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
+
+/// Environment variable naming another status file (empty: write none), for running the
+/// daemon by hand where `/run/rtu2mqtt` is not writable.
+pub const STATUS_FILE_ENV: &str = "RTU2MQTT_STATUS_FILE";
+
+/// How often the bridge loop promises to turn (it beats at least every 250 ms).
+const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
 
 /// How the health machinery behaves. Deserializable so that the configuration can carry it as
 /// a `[health]` table; every key has a default.
@@ -58,6 +66,53 @@ impl Default for HealthSettings {
             interval: Duration::from_secs(5),
             stale_after: Duration::from_secs(15),
             stall_limit: Duration::from_secs(60),
+        }
+    }
+}
+
+impl HealthSettings {
+    /// The defaults, with the status file from [`STATUS_FILE_ENV`] when set.
+    pub fn from_env() -> Self {
+        let mut settings = HealthSettings::default();
+        if let Some(path) = std::env::var_os(STATUS_FILE_ENV) {
+            settings.status_file = (!path.is_empty()).then(|| PathBuf::from(path));
+        }
+        settings
+    }
+}
+
+/// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
+/// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
+pub fn supervise(
+    settings: HealthSettings,
+    lines: &[LineHandle],
+    bridge: &BridgeHealth,
+    shutdown: ShutdownTrigger,
+) -> Option<WatchdogHandle> {
+    let mut watchdog = Watchdog::new(
+        settings,
+        MqttProbe {
+            heartbeat: bridge.heartbeat.clone(),
+            connected: bridge.connected.clone(),
+            max_quiet: BRIDGE_MAX_QUIET,
+        },
+    );
+    for line in lines {
+        watchdog.watch_line(line.stats_rx.clone());
+    }
+    let devices: usize = lines
+        .iter()
+        .map(|l| l.stats_rx.borrow().devices.len())
+        .sum();
+    notify_ready(&format!(
+        "{devices} devices on {} line(s); connecting to MQTT",
+        lines.len()
+    ));
+    match watchdog.spawn(shutdown) {
+        Ok(handle) => Some(handle),
+        Err(error) => {
+            tracing::error!(%error, "cannot start the watchdog thread");
+            None
         }
     }
 }

@@ -16,6 +16,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::bridge::{prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
+use crate::health;
 use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -104,8 +105,27 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .context("starting the async runtime")?;
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
-        let signals = tokio::spawn(stop_on_signals(trigger));
-        let result = run_gateway(config, shutdown, Hooks::default()).await;
+        let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        // READY=1 and the watchdog once the lines and the bridge run; STOPPING=1 on shutdown.
+        let (ready_tx, ready_rx) = oneshot::channel::<Running>();
+        let supervision = tokio::spawn(async move {
+            let running = ready_rx.await.ok()?;
+            let settings = health::HealthSettings::from_env();
+            health::supervise(settings, &running.lines, &running.bridge, trigger)
+        });
+        let mut stopping = shutdown.clone();
+        let announce_stop = tokio::spawn(async move {
+            stopping.fired().await;
+            health::notify_stopping();
+        });
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+        };
+        let result = run_gateway(config, shutdown, hooks).await;
+        if let Ok(Some(watchdog)) = supervision.await {
+            watchdog.stop();
+        }
+        announce_stop.abort();
         signals.abort();
         result
     })?;
