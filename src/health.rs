@@ -38,24 +38,18 @@ pub const STATUS_FILE_ENV: &str = "RTU2MQTT_STATUS_FILE";
 /// How often the bridge loop promises to turn (it beats at least every 250 ms).
 const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
 
-/// How the health machinery behaves. Deserializable so that the configuration can carry it as
-/// a `[health]` table; every key has a default.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+/// How the health machinery behaves.
+#[derive(Debug, Clone, PartialEq)]
 pub struct HealthSettings {
-    /// Where the status file is written; `None` (an empty string in TOML) writes none.
-    #[serde(with = "optional_path")]
+    /// Where the status file is written; `None` writes none.
     pub status_file: Option<PathBuf>,
     /// How often the status is assessed, written and (when healthy) the systemd watchdog pinged.
     /// Shortened automatically to a third of systemd's `WatchdogSec`.
-    #[serde(with = "humantime_serde")]
     pub interval: Duration,
     /// A loop whose heartbeat is older than this is not alive: the status turns unhealthy and
     /// the systemd watchdog is no longer pinged.
-    #[serde(with = "humantime_serde")]
     pub stale_after: Duration,
     /// A loop stuck this long ends the process with [`EXIT_STUCK`]. Zero disables the exit.
-    #[serde(with = "humantime_serde")]
     pub stall_limit: Duration,
 }
 
@@ -114,24 +108,6 @@ pub fn supervise(
             tracing::error!(%error, "cannot start the watchdog thread");
             None
         }
-    }
-}
-
-mod optional_path {
-    use std::path::PathBuf;
-
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(path: &Option<PathBuf>, s: S) -> Result<S::Ok, S::Error> {
-        match path {
-            Some(path) => s.serialize_str(&path.to_string_lossy()),
-            None => s.serialize_str(""),
-        }
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<PathBuf>, D::Error> {
-        let text = String::deserialize(d)?;
-        Ok((!text.is_empty()).then(|| PathBuf::from(text)))
     }
 }
 
@@ -735,16 +711,6 @@ mod tests {
         assert_eq!(code, ExitCode::SUCCESS);
         let missing = check_status_file(&dir.path().join("nope"), Duration::from_secs(30));
         assert_eq!(missing.unwrap(), ExitCode::FAILURE);
-    }
-
-    #[test]
-    fn settings_deserialize_with_defaults() {
-        let parsed: HealthSettings = toml::from_str("stall_limit = \"2m\"").unwrap();
-        assert_eq!(parsed.stall_limit, Duration::from_secs(120));
-        assert_eq!(parsed.status_file, Some(PathBuf::from(DEFAULT_STATUS_FILE)));
-        let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
-        assert_eq!(none.status_file, None);
-        assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
     }
 
     #[test]
