@@ -25,6 +25,7 @@ use self::view::{log_line, PlantView};
 use super::{run_gateway, Hooks};
 use crate::broker::{self, BrokerError};
 use crate::config::{self, Config};
+use crate::rtu::timing::{CharFormat, Parity};
 use crate::shutdown::{self, Shutdown};
 use crate::sim::{lock, SeedPlant};
 
@@ -194,12 +195,17 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
             .iter()
             .flat_map(|line| &line.devices)
             .map(|device| {
-                let fields = device.profile.fields().iter().map(|f| f.name.clone());
+                let fields = device
+                    .profile
+                    .fields()
+                    .iter()
+                    .map(|field| (field.name.clone(), field.ha.entity_category.is_some()));
                 (device.name.clone(), fields.collect())
             })
             .collect::<Vec<_>>(),
     );
     let intro = introduction(&endpoint, &config);
+    let hints = table_hints(&endpoint, &config);
 
     let (trigger, shutdown) = shutdown::channel();
     let signals = tokio::spawn(super::stop_on_signals(trigger.clone()));
@@ -254,39 +260,20 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
             }
             Some(line) = log_rx.recv() => {
                 if keep_log_line(&line) {
-                    recent_log.push_back(line);
-                    if recent_log.len() > LOG_LINES_SHOWN {
-                        recent_log.pop_front();
-                    }
+                    remember_log_line(&mut recent_log, line);
                     dirty = true;
                 }
             }
             _ = redraw.tick() => {
                 if table && dirty {
                     dirty = false;
-                    let width = terminal_width();
                     let header = format!(
                         "rtu2mqtt demo: {} fields published, {}s",
                         view.published_fields(),
                         started.elapsed().as_secs()
                     );
-                    let mut screen = view.render_table(&header, width);
-                    screen.push('\n');
-                    screen.push_str(&intro);
-                    if !recent_log.is_empty() {
-                        screen.push_str("\nlog:\n");
-                        for line in &recent_log {
-                            let clipped: String = line.chars().take(width.saturating_sub(3)).collect();
-                            screen.push_str(&format!("  {clipped}\n"));
-                        }
-                    }
-                    let mut frame = String::from("\x1b[H");
-                    for line in screen.lines() {
-                        frame.push_str(line);
-                        frame.push_str("\x1b[K\n");
-                    }
-                    frame.push_str("\x1b[J");
-                    let _ = stdout.write_all(frame.as_bytes());
+                    let screen = compose_screen(&view, &header, &hints, &recent_log, terminal_size());
+                    let _ = stdout.write_all(screen.as_bytes());
                     let _ = stdout.flush();
                 }
             }
@@ -336,14 +323,14 @@ fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String {
         let devices: Vec<String> = line
             .devices
             .iter()
-            .map(|d| format!("{} @{}", d.name, d.address))
+            .map(|d| format!("{} at address {}", d.name, address_text(d.address)))
             .collect();
         text.push_str(&format!(
-            "  {} on {} ({} baud, {:?}): {}\n",
+            "  {} on {} ({} {}): {}\n",
             line.name,
             line.serial.path,
             line.serial.baud,
-            line.serial.format,
+            format_text(&line.serial.format),
             devices.join(", ")
         ));
     }
@@ -358,13 +345,120 @@ fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String {
     text
 }
 
-/// The broker's own connection chatter is hidden under the table; its warnings are not.
-fn keep_log_line(line: &str) -> bool {
-    !line.trim().is_empty() && !(line.contains("rumqttd") && line.contains("INFO"))
+/// The table's lines under the plant: where things run and how to poke them.
+fn table_hints(endpoint: &BrokerEndpoint, config: &Config) -> String {
+    let options = endpoint.client_options();
+    let prefix = &config.mqtt.prefix;
+    let lines: Vec<String> = config
+        .lines
+        .iter()
+        .map(|line| {
+            format!(
+                "{} {} {}",
+                line.name,
+                line.serial.path,
+                format_text(&line.serial.format)
+            )
+        })
+        .collect();
+    format!(
+        "{} ({}) · {}\n\
+         try: mosquitto_pub {options}-t {prefix}/dust_collector/gear/set -m 8\n     \
+         mosquitto_pub {options}-t {prefix}/valve/opening/set -m 40\n     \
+         mosquitto_pub {options}-t {prefix}/air_shower/emergency_stop/set -m ON    Ctrl-C stops\n",
+        endpoint.url(),
+        endpoint.origin,
+        lines.join(" · ")
+    )
 }
 
-/// Columns of the terminal on stdout (100 when unknown).
-fn terminal_width() -> usize {
+/// One frame of the live table: cursor home, the plant (compact when the full table would not
+/// fit the terminal), the hints, the latest log lines as room allows, each line cleared to its
+/// end, and the rest of the screen cleared.
+fn compose_screen(
+    view: &PlantView,
+    header: &str,
+    hints: &str,
+    log: &VecDeque<String>,
+    (width, height): (usize, usize),
+) -> String {
+    let hint_lines = hints.lines().count();
+    let mut table = view.render_table(header, width, false);
+    if table.lines().count() + hint_lines + 1 > height {
+        table = view.render_table(header, width, true);
+    }
+    let mut lines: Vec<String> = table.lines().map(str::to_string).collect();
+    lines.extend(hints.lines().map(str::to_string));
+    let room = height.saturating_sub(lines.len() + 1);
+    if room > 1 && !log.is_empty() {
+        lines.push("log:".to_string());
+        let shown = log.len().min(room - 1);
+        for line in log.iter().skip(log.len() - shown) {
+            lines.push(format!("  {}", without_timestamp(line)));
+        }
+    }
+    let mut frame = String::from("\x1b[H");
+    for line in lines.iter().take(height.saturating_sub(1).max(1)) {
+        let clipped: String = line.chars().take(width).collect();
+        frame.push_str(&clipped);
+        frame.push_str("\x1b[K\n");
+    }
+    frame.push_str("\x1b[J");
+    frame
+}
+
+/// A log line without its leading RFC 3339 timestamp (the table is live; the time is now).
+fn without_timestamp(line: &str) -> &str {
+    match line.split_once(' ') {
+        Some((first, rest)) if first.len() >= 20 && first.ends_with('Z') && first.contains('T') => {
+            rest.trim_start()
+        }
+        _ => line,
+    }
+}
+
+/// `8N1`, `8E1`: the way serial settings are written on device labels.
+fn format_text(format: &CharFormat) -> String {
+    let parity = match format.parity {
+        Parity::None => 'N',
+        Parity::Even => 'E',
+        Parity::Odd => 'O',
+    };
+    format!("{}{parity}{}", format.data_bits, format.stop_bits)
+}
+
+/// `1`, `129 (0x81)`: decimal, with hex where the device's documents use it.
+fn address_text(address: u8) -> String {
+    if address > 9 {
+        format!("{address} (0x{address:02X})")
+    } else {
+        address.to_string()
+    }
+}
+
+/// Keeps the latest [`LOG_LINES_SHOWN`] lines, dropping ordinary lines before warnings and
+/// errors (the pty's parity warning should not scroll away behind routine news).
+fn remember_log_line(recent: &mut VecDeque<String>, line: String) {
+    recent.push_back(line);
+    if recent.len() > LOG_LINES_SHOWN {
+        let is_alarm = |line: &String| line.contains(" WARN ") || line.contains("ERROR ");
+        match recent.iter().position(|line| !is_alarm(line)) {
+            Some(ordinary) => {
+                recent.remove(ordinary);
+            }
+            None => {
+                recent.pop_front();
+            }
+        }
+    }
+}
+
+fn keep_log_line(line: &str) -> bool {
+    !line.trim().is_empty()
+}
+
+/// Columns and rows of the terminal on stdout (100 × 40 when unknown).
+fn terminal_size() -> (usize, usize) {
     nix::ioctl_read_bad!(window_size, libc::TIOCGWINSZ, libc::winsize);
     let mut size = libc::winsize {
         ws_row: 0,
@@ -375,8 +469,10 @@ fn terminal_width() -> usize {
     // SAFETY: TIOCGWINSZ writes one `winsize` into the struct we own; a failure leaves it zero.
     let result = unsafe { window_size(libc::STDOUT_FILENO, &mut size) };
     match result {
-        Ok(_) if size.ws_col >= 40 => usize::from(size.ws_col),
-        _ => 100,
+        Ok(_) if size.ws_col >= 40 && size.ws_row >= 10 => {
+            (usize::from(size.ws_col), usize::from(size.ws_row))
+        }
+        _ => (100, 40),
     }
 }
 
@@ -469,6 +565,49 @@ mod tests {
         assert_eq!(config.mqtt.client_id, DEMO_CLIENT_ID);
         let hints = introduction(&endpoint, &config);
         assert!(hints.contains("mosquitto_pub -p 18830 -t plant/dust_collector/gear/set -m 8"));
+        assert!(hints.contains("(9600 8E1): valve at address 1"), "{hints}");
+        assert!(
+            hints.contains("air_shower at address 129 (0x81)"),
+            "{hints}"
+        );
+    }
+
+    #[test]
+    fn warnings_outlive_ordinary_log_lines() {
+        let mut recent = VecDeque::new();
+        remember_log_line(&mut recent, "t  WARN parity ignored".to_string());
+        for i in 0..20 {
+            remember_log_line(&mut recent, format!("t  INFO news {i}"));
+        }
+        assert_eq!(recent.len(), LOG_LINES_SHOWN);
+        assert_eq!(recent[0], "t  WARN parity ignored");
+        assert_eq!(recent[LOG_LINES_SHOWN - 1], "t  INFO news 19");
+    }
+
+    #[test]
+    fn log_lines_lose_their_timestamp_under_the_table() {
+        assert_eq!(
+            without_timestamp("2026-11-22T02:56:06.029508Z  INFO rtu2mqtt::bridge: up"),
+            "INFO rtu2mqtt::bridge: up"
+        );
+        assert_eq!(without_timestamp("plain words"), "plain words");
+    }
+
+    #[test]
+    fn the_screen_fits_the_terminal() {
+        let fields: Vec<(String, bool)> =
+            (0..40).map(|i| (format!("setting_{i}"), i >= 4)).collect();
+        let view = PlantView::new("plant", &[("valve".to_string(), fields)]);
+        let log: VecDeque<String> = (0..10).map(|i| format!("log line {i}")).collect();
+        let hints = "a\nb\nc\n";
+        let tall = compose_screen(&view, "header", hints, &log, (80, 60));
+        assert!(tall.contains("setting_39"));
+        assert!(tall.contains("log line 9"));
+        let short = compose_screen(&view, "header", hints, &log, (80, 12));
+        assert!(!short.contains("setting_39"), "{short}");
+        assert!(short.contains("+ 36 settings and diagnostics not shown"));
+        assert!(short.matches('\n').count() <= 11, "{short}");
+        assert!(short.starts_with("\x1b[H") && short.ends_with("\x1b[J"));
     }
 
     #[test]
