@@ -12,6 +12,8 @@
 
 pub mod commands;
 pub mod discovery;
+pub mod json_view;
+pub mod metrics;
 pub mod mqtt;
 pub mod payload;
 pub mod prometheus;

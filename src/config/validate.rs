@@ -709,9 +709,7 @@ fn resolve(base: &Path, path: &Path) -> PathBuf {
 
 /// A built-in profile by name, else a profile file (relative to the config file).
 fn resolve_profile(spec: &str, base: &Path) -> Result<Profile, String> {
-    // PENDING: the registry's loader lands with the profile work.
-    let _ = base;
-    Err(format!("unknown profile {spec:?}"))
+    crate::profile::registry::load(spec, Some(base)).map_err(|err| err.to_string())
 }
 
 #[cfg(test)]

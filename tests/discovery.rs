@@ -1,0 +1,656 @@
+//! Home Assistant discovery documents, their removal, the gateway's statistics document and the
+//! Prometheus text: pure functions checked on fields shaped like the three seed devices'.
+
+use std::collections::HashSet;
+use std::time::{Duration, Instant};
+
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use serde_json::Value as Json;
+
+use rtu2mqtt::bridge::discovery::{
+    device_config_from_fields, gateway_config, is_ha_online, is_stale_config, platform_for,
+    reannounce_delay, removal, unique_id_collisions, DiscoveryContext, Platform, REANNOUNCE_DELAY,
+};
+use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
+use rtu2mqtt::bus::LineStats;
+use rtu2mqtt::profile::{FieldInfo, FieldKind, HaHints};
+
+fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
+    FieldInfo {
+        name: name.to_string(),
+        description: String::new(),
+        kind,
+        writable,
+        unit: None,
+        ha: HaHints::default(),
+        min_write_interval: None,
+    }
+}
+
+fn with_unit(mut field: FieldInfo, unit: &str) -> FieldInfo {
+    field.unit = Some(unit.to_string());
+    field
+}
+
+fn int(min: i64, max: i64) -> FieldKind {
+    FieldKind::Integer { min, max }
+}
+
+fn decimal(min: f64, max: f64, precision: u8) -> FieldKind {
+    FieldKind::Decimal {
+        min,
+        max,
+        precision,
+    }
+}
+
+fn options(words: &[&str]) -> FieldKind {
+    FieldKind::Enum {
+        options: words.iter().map(|w| w.to_string()).collect(),
+    }
+}
+
+fn dust_collector_fields() -> Vec<FieldInfo> {
+    vec![
+        field("power", FieldKind::Bool, true),
+        field("pulse_cleaning", FieldKind::Bool, true),
+        field("fan_alarm", FieldKind::Bool, false),
+        field("filter_alarm", FieldKind::Bool, false),
+        field("temperature_alarm", FieldKind::Bool, false),
+        field("gear", int(1, 10), true),
+        with_unit(field("pulse_interval", int(0, 99), true), "min"),
+        with_unit(field("pulse_duration", int(0, 99), true), "s"),
+        field("fan_speed", int(0, 65535), false),
+        with_unit(field("temperature", int(0, 65535), false), "°C"),
+    ]
+}
+
+fn valve_fields() -> Vec<FieldInfo> {
+    vec![
+        field("serial_number", FieldKind::Text, false),
+        field("software_version", int(0, 255), false),
+        field("mode", options(&["manual", "auto"]), true),
+        with_unit(field("opening", int(0, 100), true), "%"),
+        field("motor", options(&["stopped", "opening", "closing"]), false),
+        field("jammed", FieldKind::Bool, false),
+        field("pid_invalid_flags", int(0, 127), false),
+        field("measured_1", decimal(0.0, 9999.99, 2), false),
+        field("setpoint", decimal(0.0, 9999.99, 2), true),
+        field("high_alarm_1", decimal(0.0, 9999.99, 2), true),
+    ]
+}
+
+fn air_shower_fields() -> Vec<FieldInfo> {
+    vec![
+        field("emergency_stop", FieldKind::Bool, true),
+        field("front_door_lock", FieldKind::Bool, true),
+        field("voice_start", FieldKind::Momentary, true),
+        field("voice_door", FieldKind::Momentary, true),
+        field("front_door_closed", FieldKind::Bool, false),
+        field("hepa_filter_expired", FieldKind::Bool, false),
+    ]
+}
+
+fn context() -> DiscoveryContext {
+    DiscoveryContext::new("rtu2mqtt-edge1", "plant")
+}
+
+/// The three seed devices' documents: (device, fields, topic, document).
+fn seed_documents() -> Vec<(&'static str, Vec<FieldInfo>, String, Json)> {
+    let ctx = context();
+    [
+        ("dust_collector", dust_collector_fields(), "Ruiwan", "dust"),
+        ("valve", valve_fields(), "Wuzhou", "valve"),
+        ("air_shower", air_shower_fields(), "Lixian", "shower"),
+    ]
+    .into_iter()
+    .map(|(device, fields, manufacturer, model)| {
+        let (topic, document) =
+            device_config_from_fields(&ctx, device, manufacturer, model, "profile", &fields);
+        (device, fields, topic, document)
+    })
+    .collect()
+}
+
+fn component<'d>(document: &'d Json, field: &str) -> &'d Json {
+    &document["cmps"][field]
+}
+
+fn platform_of<'d>(document: &'d Json, field: &str) -> &'d str {
+    component(document, field)["p"].as_str().unwrap_or("<none>")
+}
+
+fn document_of(device: &str) -> Json {
+    seed_documents()
+        .into_iter()
+        .find(|(name, ..)| *name == device)
+        .map(|(.., document)| document)
+        .unwrap()
+}
+
+#[test]
+fn each_seed_field_becomes_the_component_its_kind_and_access_call_for() {
+    let shower = document_of("air_shower");
+    assert_eq!(platform_of(&shower, "emergency_stop"), "switch");
+    assert_eq!(platform_of(&shower, "voice_start"), "button");
+    assert_eq!(platform_of(&shower, "front_door_closed"), "binary_sensor");
+
+    let dust = document_of("dust_collector");
+    assert_eq!(platform_of(&dust, "temperature"), "sensor");
+    assert_eq!(platform_of(&dust, "fan_alarm"), "binary_sensor");
+    assert_eq!(platform_of(&dust, "gear"), "number");
+
+    let valve = document_of("valve");
+    assert_eq!(platform_of(&valve, "mode"), "select");
+    assert_eq!(platform_of(&valve, "jammed"), "binary_sensor");
+    assert_eq!(platform_of(&valve, "motor"), "sensor");
+    assert_eq!(platform_of(&valve, "opening"), "number");
+    assert_eq!(platform_of(&valve, "serial_number"), "sensor");
+}
+
+#[test]
+fn components_carry_the_keys_of_their_platform() {
+    let shower = document_of("air_shower");
+    let estop = component(&shower, "emergency_stop");
+    assert_eq!(estop["payload_on"], "ON");
+    assert_eq!(estop["payload_off"], "OFF");
+    assert_eq!(estop["state_topic"], "plant/air_shower/emergency_stop");
+    let voice = component(&shower, "voice_start");
+    assert_eq!(voice["payload_press"], "PRESS");
+    assert!(voice.get("state_topic").is_none(), "a button has no state");
+
+    let dust = document_of("dust_collector");
+    let gear = component(&dust, "gear");
+    assert_eq!(gear["min"], 1);
+    assert_eq!(gear["max"], 10);
+    assert_eq!(gear["step"], 1);
+    assert_eq!(gear["mode"], "box");
+    let temperature = component(&dust, "temperature");
+    assert_eq!(temperature["unit_of_measurement"], "°C");
+    assert_eq!(temperature["device_class"], "temperature");
+    assert_eq!(temperature["state_class"], "measurement");
+    assert_eq!(
+        component(&dust, "pulse_duration")["device_class"],
+        "duration"
+    );
+
+    let valve = document_of("valve");
+    let opening = component(&valve, "opening");
+    assert_eq!(opening["min"], 0);
+    assert_eq!(opening["max"], 100);
+    assert_eq!(opening["step"], 1);
+    assert_eq!(opening["unit_of_measurement"], "%");
+    let setpoint = component(&valve, "setpoint");
+    assert_eq!(setpoint["step"], 0.01);
+    assert_eq!(setpoint["max"], 9999.99);
+    assert_eq!(
+        component(&valve, "measured_1")["suggested_display_precision"],
+        2
+    );
+    let mode = component(&valve, "mode");
+    assert_eq!(mode["options"], serde_json::json!(["manual", "auto"]));
+    let motor = component(&valve, "motor");
+    assert_eq!(motor["device_class"], "enum");
+    assert_eq!(
+        motor["options"],
+        serde_json::json!(["stopped", "opening", "closing"])
+    );
+    // Home Assistant refuses an enumeration sensor with a state class or a unit.
+    assert!(motor.get("state_class").is_none());
+    assert!(motor.get("unit_of_measurement").is_none());
+    assert_eq!(component(&valve, "jammed")["device_class"], "problem");
+}
+
+#[test]
+fn command_topics_are_the_set_topics_of_writable_fields_only_and_never_retained() {
+    let ctx = context();
+    for (device, fields, _, document) in seed_documents() {
+        for field in &fields {
+            let config = component(&document, &field.name);
+            assert!(config.is_object(), "{device}/{} missing", field.name);
+            if field.writable {
+                assert_eq!(
+                    config["command_topic"].as_str(),
+                    Some(format!("plant/{device}/{}/set", field.name).as_str())
+                );
+                assert_eq!(
+                    config["command_topic"].as_str(),
+                    Some(ctx.command_topic(device, &field.name).as_str())
+                );
+                assert_eq!(config["retain"], false, "{device}/{}", field.name);
+            } else {
+                assert!(
+                    config.get("command_topic").is_none(),
+                    "{device}/{} is read-only",
+                    field.name
+                );
+            }
+            if let Some(state) = config.get("state_topic") {
+                assert_eq!(
+                    state.as_str(),
+                    Some(format!("plant/{device}/{}", field.name).as_str())
+                );
+            }
+        }
+        assert_eq!(
+            document["cmps"].as_object().map(|c| c.len()),
+            Some(fields.len()),
+            "one component per field of {device}"
+        );
+    }
+}
+
+#[test]
+fn device_documents_carry_dev_origin_and_both_availabilities() {
+    for (device, _, topic, document) in seed_documents() {
+        assert_eq!(
+            topic,
+            format!("homeassistant/device/rtu2mqtt-edge1_{device}/config")
+        );
+        // Valid JSON on the wire: it survives a round trip through text.
+        let text = document.to_string();
+        let parsed: Json = serde_json::from_str(&text).unwrap();
+        assert_eq!(parsed, document);
+
+        let dev = &document["dev"];
+        assert_eq!(
+            dev["identifiers"],
+            serde_json::json!([format!("rtu2mqtt-edge1_{device}")])
+        );
+        assert_eq!(dev["name"], device);
+        assert!(dev["manufacturer"].is_string());
+        assert!(dev["model"].is_string());
+        assert_eq!(dev["via_device"], "rtu2mqtt-edge1");
+
+        let origin = &document["o"];
+        assert_eq!(origin["name"], "rtu2mqtt");
+        assert_eq!(origin["sw_version"], env!("CARGO_PKG_VERSION"));
+        assert!(origin["support_url"].is_string());
+
+        let topics: Vec<&str> = document["availability"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|a| a["topic"].as_str())
+            .collect();
+        assert_eq!(
+            topics,
+            vec![
+                "plant/gateway/rtu2mqtt-edge1/status".to_string(),
+                format!("plant/{device}/availability"),
+            ]
+        );
+        assert_eq!(document["availability_mode"], "all");
+    }
+}
+
+#[test]
+fn unique_ids_are_unique_across_devices_and_the_gateway_and_follow_the_pattern() {
+    let ctx = context();
+    let mut seen = HashSet::new();
+    for (device, fields, _, document) in seed_documents() {
+        for field in &fields {
+            let id = component(&document, &field.name)["unique_id"]
+                .as_str()
+                .unwrap()
+                .to_string();
+            assert_eq!(id, format!("rtu2mqtt-edge1_{device}_{}", field.name));
+            assert!(seen.insert(id.clone()), "duplicate {id}");
+        }
+    }
+    let (_, gateway) = gateway_config(&ctx, &["line-a".to_string(), "line-b".to_string()]);
+    for (_, config) in gateway["cmps"].as_object().unwrap() {
+        let id = config["unique_id"].as_str().unwrap().to_string();
+        assert!(seen.insert(id.clone()), "duplicate {id}");
+    }
+    // Stable: the same input gives the same document.
+    assert_eq!(seed_documents()[0].3, seed_documents()[0].3);
+}
+
+#[test]
+fn entity_categories_mark_identity_data_as_diagnostic_and_leave_live_values_primary() {
+    let valve = document_of("valve");
+    for name in ["serial_number", "software_version", "pid_invalid_flags"] {
+        assert_eq!(
+            component(&valve, name)["entity_category"],
+            "diagnostic",
+            "{name}"
+        );
+    }
+    // A flag word is not a measurement to graph.
+    assert!(component(&valve, "pid_invalid_flags")
+        .get("state_class")
+        .is_none());
+    assert_eq!(
+        component(&valve, "high_alarm_1")["entity_category"],
+        "config"
+    );
+    let dust = document_of("dust_collector");
+    assert_eq!(
+        component(&dust, "pulse_interval")["entity_category"],
+        "config"
+    );
+    assert!(component(&dust, "gear").get("entity_category").is_none());
+    assert!(component(&dust, "temperature_alarm")
+        .get("entity_category")
+        .is_none());
+    for name in ["opening", "measured_1", "jammed", "mode", "setpoint"] {
+        assert!(
+            component(&valve, name).get("entity_category").is_none(),
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_field() {
+    let mut gear = field("gear", int(1, 10), true);
+    gear.ha = HaHints {
+        component: Some("sensor".to_string()),
+        device_class: Some("power_factor".to_string()),
+        state_class: Some("total".to_string()),
+        unit: Some("steps".to_string()),
+        icon: Some("mdi:fan".to_string()),
+        entity_category: Some("config".to_string()),
+    };
+    let mut alarm = field("alarm", FieldKind::Bool, false);
+    alarm.ha.component = Some("switch".to_string());
+    let mut unknown = field("level", int(0, 9), true);
+    unknown.ha.component = Some("light".to_string());
+
+    assert_eq!(platform_for(&gear), Platform::Sensor);
+    assert_eq!(platform_for(&alarm), Platform::BinarySensor);
+    assert_eq!(platform_for(&unknown), Platform::Number);
+
+    let ctx = context();
+    let (_, document) =
+        device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[gear, alarm, unknown]);
+    let gear = component(&document, "gear");
+    assert_eq!(gear["p"], "sensor");
+    assert_eq!(gear["device_class"], "power_factor");
+    assert_eq!(gear["state_class"], "total");
+    assert_eq!(gear["unit_of_measurement"], "steps");
+    assert_eq!(gear["icon"], "mdi:fan");
+    assert_eq!(gear["entity_category"], "config");
+    assert!(component(&document, "alarm").get("command_topic").is_none());
+    assert_eq!(component(&document, "level")["p"], "number");
+
+    // A boolean shown as a button must send what the gateway accepts for a boolean.
+    let mut reset = field("reset", FieldKind::Bool, true);
+    reset.ha.component = Some("button".to_string());
+    let (_, document) = device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[reset]);
+    assert_eq!(component(&document, "reset")["p"], "button");
+    assert_eq!(component(&document, "reset")["payload_press"], "ON");
+}
+
+#[test]
+fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
+    let ctx = context();
+    let lines = vec!["line-a".to_string(), "line-b".to_string()];
+    let (topic, document) = gateway_config(&ctx, &lines);
+    assert_eq!(topic, "homeassistant/device/rtu2mqtt-edge1_gateway/config");
+    assert_eq!(
+        document["dev"]["identifiers"],
+        serde_json::json!(["rtu2mqtt-edge1"])
+    );
+    assert_eq!(document["o"]["name"], "rtu2mqtt");
+    let status = &document["cmps"]["status"];
+    assert_eq!(status["p"], "binary_sensor");
+    assert_eq!(status["device_class"], "connectivity");
+    assert_eq!(status["state_topic"], "plant/gateway/rtu2mqtt-edge1/status");
+    assert_eq!(status["payload_on"], "online");
+
+    let mut stats_line = LineStats::new("line-a", &["dust_collector".to_string()], Instant::now());
+    stats_line.bus_load = 0.4237;
+    stats_line.transactions = 17;
+    stats_line.devices[0].online = true;
+    let other = LineStats::new("line-b", &["valve".to_string()], Instant::now());
+    let stats = stats_json(&[stats_line, other], &BridgeStats::default());
+
+    let mut templates = 0;
+    for (id, config) in document["cmps"].as_object().unwrap() {
+        let Some(template) = config["value_template"].as_str() else {
+            continue;
+        };
+        assert_eq!(
+            config["state_topic"], "plant/gateway/rtu2mqtt-edge1/stats",
+            "{id}"
+        );
+        let value = resolve_template(&stats, template)
+            .unwrap_or_else(|| panic!("{id}: {template} reads nothing in {stats}"));
+        assert!(value.is_number(), "{id}: {template} gives {value}");
+        templates += 1;
+    }
+    assert!(templates >= 2 + 2 * 4, "only {templates} stats sensors");
+    assert_eq!(stats["lines"]["line-a"]["bus_load_percent"], 42.4);
+    assert_eq!(stats["devices_online"], 1);
+    assert_eq!(stats["devices_total"], 2);
+}
+
+/// Follows a `{{ value_json.a['b'].c }}` template through a JSON document.
+fn resolve_template<'j>(document: &'j Json, template: &str) -> Option<&'j Json> {
+    let path = template
+        .trim()
+        .strip_prefix("{{")?
+        .strip_suffix("}}")?
+        .trim()
+        .strip_prefix("value_json")?;
+    let mut current = document;
+    let mut rest = path;
+    while !rest.is_empty() {
+        if let Some(after) = rest.strip_prefix("['") {
+            let end = after.find("']")?;
+            current = current.get(&after[..end])?;
+            rest = &after[end + 2..];
+        } else if let Some(after) = rest.strip_prefix('.') {
+            let end = after.find(['.', '[']).unwrap_or(after.len());
+            current = current.get(&after[..end])?;
+            rest = &after[end..];
+        } else {
+            return None;
+        }
+    }
+    Some(current)
+}
+
+#[test]
+fn only_configs_this_gateway_published_for_removed_devices_are_stale() {
+    let ctx = context();
+    let configured = vec!["valve".to_string(), "air_shower".to_string()];
+    let ours = |device: &str| {
+        device_config_from_fields(&ctx, device, "m", "n", "p", &valve_fields())
+            .1
+            .to_string()
+            .into_bytes()
+    };
+    let removed_topic = "homeassistant/device/rtu2mqtt-edge1_old_pump/config";
+    assert!(is_stale_config(
+        &ctx,
+        removed_topic,
+        &ours("old_pump"),
+        &configured
+    ));
+    assert!(!is_stale_config(
+        &ctx,
+        "homeassistant/device/rtu2mqtt-edge1_valve/config",
+        &ours("valve"),
+        &configured
+    ));
+    // Another gateway whose client id extends ours: same topic shape, not our document.
+    let other = DiscoveryContext::new("rtu2mqtt-edge1_b", "plant");
+    let theirs = device_config_from_fields(&other, "pump", "m", "n", "p", &valve_fields())
+        .1
+        .to_string();
+    assert!(!is_stale_config(
+        &ctx,
+        "homeassistant/device/rtu2mqtt-edge1_b_pump/config",
+        theirs.as_bytes(),
+        &configured
+    ));
+    assert!(!is_stale_config(&ctx, removed_topic, b"", &configured));
+    assert!(!is_stale_config(
+        &ctx,
+        removed_topic,
+        b"{not json",
+        &configured
+    ));
+    let gateway = gateway_config(&ctx, &[]).1.to_string();
+    assert!(!is_stale_config(
+        &ctx,
+        &ctx.gateway_config_topic(),
+        gateway.as_bytes(),
+        &configured
+    ));
+    assert!(!is_stale_config(
+        &ctx,
+        "homeassistant/sensor/rtu2mqtt-edge1_x/config",
+        &ours("x"),
+        &configured
+    ));
+
+    let (topic, payload) = removal(&ctx, "old_pump");
+    assert_eq!(topic, removed_topic);
+    assert!(payload.is_empty());
+    assert_eq!(ctx.config_filter(), "homeassistant/device/+/config");
+}
+
+#[test]
+fn home_assistant_birth_message_is_recognised_and_nothing_else() {
+    assert!(is_ha_online(b"online"));
+    assert!(is_ha_online(b" online\n"));
+    assert!(is_ha_online(b"ONLINE"));
+    assert!(!is_ha_online(b"offline"));
+    assert!(!is_ha_online(b""));
+    assert!(!is_ha_online(b"onlinex"));
+    assert!(!is_ha_online(&[0xff, 0xfe, 0x00]));
+    assert_eq!(context().ha_status_topic(), "homeassistant/status");
+}
+
+#[test]
+fn reannounce_delays_stay_in_range_and_vary() {
+    let mut rng = StdRng::seed_from_u64(7);
+    let delays: Vec<Duration> = (0..200).map(|_| reannounce_delay(&mut rng)).collect();
+    assert!(delays.iter().all(|d| REANNOUNCE_DELAY.contains(d)));
+    let distinct: HashSet<Duration> = delays.iter().copied().collect();
+    assert!(distinct.len() > 100, "delays do not spread: {distinct:?}");
+}
+
+#[test]
+fn colliding_unique_ids_are_reported() {
+    let ctx = context();
+    let a = vec![field("b_c", FieldKind::Bool, false)];
+    let ab = vec![field("c", FieldKind::Bool, false)];
+    let sound = valve_fields();
+    assert_eq!(
+        unique_id_collisions(&ctx, &[("a", &a), ("a_b", &ab)]),
+        vec!["rtu2mqtt-edge1_a_b_c".to_string()]
+    );
+    assert!(unique_id_collisions(&ctx, &[("valve", &sound), ("valve2", &sound)]).is_empty());
+}
+
+fn sample_lines() -> Vec<LineStats> {
+    let now = Instant::now();
+    let mut line = LineStats::new(
+        "line-a",
+        &["dust_collector".to_string(), "odd \"name\\\n".to_string()],
+        now,
+    );
+    line.port_open = true;
+    line.transactions = 1234;
+    line.timeouts = 5;
+    line.crc_errors = 2;
+    line.bus_load = 0.25;
+    line.last_command_latency = Some(Duration::from_millis(180));
+    line.devices[0].online = true;
+    line.devices[0].transactions = 1000;
+    line.devices[0].timeouts = 3;
+    line.devices[0].crc_errors = 1;
+    line.devices[0].last_latency = Some(Duration::from_micros(41_500));
+    let idle = LineStats::new("line-b", &["valve".to_string()], now);
+    vec![line, idle]
+}
+
+#[test]
+fn prometheus_text_is_well_formed_with_contiguous_families_and_escaped_labels() {
+    let bridge = BridgeStats {
+        uptime: Duration::from_secs(3600),
+        mqtt_connected: true,
+        mqtt_connects: 2,
+        published: 99,
+        commands_received: 4,
+        commands_applied: 3,
+        commands_rejected: 1,
+        ..BridgeStats::default()
+    };
+    let text = prometheus_text(&sample_lines(), &bridge);
+    assert!(text.ends_with('\n'));
+
+    let mut declared: Vec<String> = Vec::new();
+    let mut typed: HashSet<String> = HashSet::new();
+    let mut current: Option<String> = None;
+    for line in text.lines() {
+        if let Some(rest) = line.strip_prefix("# HELP ") {
+            let name = rest.split(' ').next().unwrap().to_string();
+            assert!(!declared.contains(&name), "{name} declared twice");
+            declared.push(name.clone());
+            current = Some(name);
+        } else if let Some(rest) = line.strip_prefix("# TYPE ") {
+            let mut parts = rest.split(' ');
+            let name = parts.next().unwrap();
+            assert_eq!(Some(name), current.as_deref());
+            assert!(matches!(parts.next(), Some("counter" | "gauge")));
+            typed.insert(name.to_string());
+        } else {
+            let name_end = line.find(['{', ' ']).unwrap();
+            let name = &line[..name_end];
+            assert_eq!(
+                Some(name),
+                current.as_deref(),
+                "sample out of its family: {line}"
+            );
+            assert!(typed.contains(name));
+            let value = line.rsplit(' ').next().unwrap();
+            assert!(value.parse::<f64>().is_ok(), "bad value in {line}");
+        }
+    }
+
+    assert!(text.contains("rtu2mqtt_line_transactions_total{line=\"line-a\"} 1234\n"));
+    assert!(text.contains("rtu2mqtt_line_transactions_total{line=\"line-b\"} 0\n"));
+    assert!(text.contains("rtu2mqtt_line_bus_load_ratio{line=\"line-a\"} 0.25\n"));
+    assert!(text.contains("rtu2mqtt_line_command_latency_seconds{line=\"line-a\"} 0.18\n"));
+    assert!(!text.contains("rtu2mqtt_line_command_latency_seconds{line=\"line-b\"}"));
+    assert!(text.contains("rtu2mqtt_device_online{line=\"line-a\",device=\"dust_collector\"} 1\n"));
+    assert!(text
+        .contains("rtu2mqtt_device_failures_total{line=\"line-a\",device=\"dust_collector\"} 4\n"));
+    assert!(text.contains(
+        "rtu2mqtt_device_latency_seconds{line=\"line-a\",device=\"dust_collector\"} 0.0415\n"
+    ));
+    assert!(text.contains("device=\"odd \\\"name\\\\\\n\"} 0\n"));
+    assert!(text.contains("rtu2mqtt_command_outcomes_total{outcome=\"applied\"} 3\n"));
+    assert!(text.contains("rtu2mqtt_mqtt_connected 1\n"));
+    assert!(text.contains("rtu2mqtt_uptime_seconds 3600\n"));
+}
+
+#[test]
+fn stats_json_carries_lines_devices_and_bridge_counters() {
+    let bridge = BridgeStats {
+        commands_failed: 2,
+        ..BridgeStats::default()
+    };
+    let stats = stats_json(&sample_lines(), &bridge);
+    let line = &stats["lines"]["line-a"];
+    assert_eq!(line["transactions"], 1234);
+    assert_eq!(line["bus_load_percent"], 25.0);
+    assert_eq!(line["command_latency_ms"], 180.0);
+    assert_eq!(line["worst_command_latency_ms"], Json::Null);
+    let device = &line["devices"]["dust_collector"];
+    assert_eq!(device["online"], true);
+    assert_eq!(device["failures"], 4);
+    assert_eq!(device["latency_ms"], 41.5);
+    assert_eq!(stats["devices_online"], 1);
+    assert_eq!(stats["devices_total"], 3);
+    assert_eq!(stats["commands"]["failed"], 2);
+    let text = stats.to_string();
+    assert_eq!(serde_json::from_str::<Json>(&text).unwrap(), stats);
+}
