@@ -348,6 +348,33 @@ async fn late_answer_is_counted_and_never_taken_for_the_next() {
 }
 
 #[tokio::test(flavor = "current_thread")]
+async fn late_answer_heard_while_talking_to_another_address() {
+    // The next request goes to another address: no guard, it goes out after t3.5; the late
+    // answer arrives while that request's answer is awaited and is ignored, counted late.
+    let late = TIMEOUT.mul_f64(1.3);
+    let (mut master, device) =
+        connect(vec![Act::Late(late), Act::Answer], MasterOptions::default());
+    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
+    let response = master
+        .transact(DEVICE + 1, &read_two(), TIMEOUT)
+        .await
+        .unwrap();
+    assert_eq!(response, Response::HoldingRegisters(vec![2, 2]));
+    let counters = master.counters();
+    assert_eq!(
+        (
+            counters.timeouts,
+            counters.late_answers,
+            counters.wrong_address
+        ),
+        (1, 1, 0)
+    );
+    let seen = seen_by(device).await;
+    assert_eq!(seen[1].frame[0], DEVICE + 1);
+}
+
+#[tokio::test(flavor = "current_thread")]
 async fn bad_crc() {
     let (mut master, device) = connect(vec![Act::BadCrc, Act::Answer], MasterOptions::default());
     let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
