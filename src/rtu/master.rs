@@ -3,6 +3,12 @@
 //! drained), stray bytes are flushed and counted before a request, answers are framed by
 //! expected length with an inter-character gap limit and a response timeout, and an answer
 //! arriving after its timeout is discarded and counted, never taken for the next request's.
+//!
+//! While an answer is awaited: frames from other addresses are read to their end and ignored
+//! (serial-line specification 2.4.1), noise just before the answer is skipped, and an adapter's
+//! echo of the request is stripped (announced with `echo`, or detected and reported once).
+//! After a timeout, the next request to the same address waits out a late-answer guard; the
+//! late answer, whenever it comes, is counted in `late_answers`.
 
 use std::io::Write;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
