@@ -1363,3 +1363,83 @@ fn seed_simulators_apply_what_the_profiles_plan() {
     assert_eq!(device.target(), 80);
     assert_eq!(device.violations(), Vec::<String>::new());
 }
+
+// --- bad input never panics ------------------------------------------------------------------
+
+mod robustness {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Parsed once: the cases only exercise decoding and planning.
+    fn profiles() -> &'static [Profile] {
+        static PROFILES: std::sync::OnceLock<Vec<Profile>> = std::sync::OnceLock::new();
+        PROFILES.get_or_init(|| vec![dust(), valve(), shower(), th_sensor()])
+    }
+
+    fn any_answer() -> impl Strategy<Value = Response> {
+        prop_oneof![
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::HoldingRegisters),
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::InputRegisters),
+            proptest::collection::vec(any::<bool>(), 0..40).prop_map(Response::Coils),
+            (any::<u16>(), any::<u16>())
+                .prop_map(|(address, value)| Response::WriteSingleRegister { address, value }),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn decoding_any_answer_never_panics(answer in any_answer(), block in 0usize..6) {
+            for profile in profiles() {
+                let readings = profile.decode_block(block, &answer);
+                if block < profile.read_blocks().len() {
+                    prop_assert_eq!(readings.len(), profile.block_fields(block).len());
+                }
+                for reading in readings {
+                    if let Ok(value) = reading.value {
+                        let _ = value.to_text();
+                        let _ = value.to_json();
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn any_command_text_is_planned_or_refused(text in ".{0,24}", pick in any::<usize>()) {
+            for profile in profiles() {
+                let field = &profile.fields()[pick % profile.fields().len()].name;
+                match profile.plan_command(field, &text, &DeviceState::new()) {
+                    Ok(plan) => prop_assert_eq!(plan.field(), field.as_str()),
+                    Err(Rejection(reason)) => prop_assert!(!reason.is_empty()),
+                }
+            }
+        }
+
+        #[test]
+        fn writes_and_verify_take_any_fresh_answer(
+            answer in any_answer(),
+            pick in any::<usize>(),
+        ) {
+            for profile in profiles() {
+                let writable: Vec<_> = profile.fields().iter().filter(|f| f.writable).collect();
+                let Some(info) = writable.get(pick % writable.len().max(1)) else { continue };
+                let text = match &info.kind {
+                    rtu2mqtt::profile::FieldKind::Bool => "ON".to_string(),
+                    rtu2mqtt::profile::FieldKind::Momentary => "PRESS".to_string(),
+                    rtu2mqtt::profile::FieldKind::Integer { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Decimal { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Enum { options } => options[0].clone(),
+                    rtu2mqtt::profile::FieldKind::Text => continue,
+                };
+                let plan = profile
+                    .plan_command(&info.name, &text, &DeviceState::new())
+                    .unwrap();
+                let _ = plan.writes(std::slice::from_ref(&answer));
+                let _ = plan.writes(&[]);
+                let _ = plan.verify(std::slice::from_ref(&answer));
+                let _ = plan.verify(&[]);
+            }
+        }
+    }
+}
