@@ -236,28 +236,31 @@ pub fn describe(profile: &Profile) -> String {
 
 /// `rtu2mqtt profiles`: prints every built-in profile (and the files given) with its fields.
 pub fn print_profiles(paths: &[PathBuf]) -> anyhow::Result<ExitCode> {
-    let mut failed = false;
+    use std::io::Write as _;
+    let mut listing = String::new();
+    let mut problems = String::new();
     for name in built_in_names() {
         match built_in(name) {
-            Ok(profile) => println!("{}", describe(&profile)),
-            Err(err) => {
-                eprintln!("{err}");
-                failed = true;
-            }
+            Ok(profile) => listing.push_str(&format!("{}\n", describe(&profile))),
+            Err(err) => problems.push_str(&format!("{err}\n")),
         }
     }
     for path in paths {
         match load_file(path) {
-            Ok(profile) => println!("{}  file: {}\n", describe(&profile), path.display()),
-            Err(err) => {
-                eprintln!("{err}");
-                failed = true;
-            }
+            Ok(profile) => listing.push_str(&format!(
+                "{}  file: {}\n\n",
+                describe(&profile),
+                path.display()
+            )),
+            Err(err) => problems.push_str(&format!("{err}\n")),
         }
     }
-    Ok(if failed {
-        ExitCode::FAILURE
-    } else {
+    // A closed pipe (`rtu2mqtt profiles | head`) is not an error worth a panic.
+    let _ = std::io::stdout().lock().write_all(listing.as_bytes());
+    let _ = std::io::stderr().lock().write_all(problems.as_bytes());
+    Ok(if problems.is_empty() {
         ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     })
 }
