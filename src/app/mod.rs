@@ -16,6 +16,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::bridge::{prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
+use crate::health;
 use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -102,11 +103,43 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let health_settings = config.health.clone();
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
-        let signals = tokio::spawn(stop_on_signals(trigger));
-        let result = run_gateway(config, shutdown, Hooks::default()).await;
+        let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        let (ready_tx, ready_rx) = oneshot::channel::<Running>();
+        let watchdog_trigger = trigger.clone();
+        // Readiness for systemd and the internal watchdog once lines and bridge run.
+        let supervision = tokio::spawn(async move {
+            let running = ready_rx.await.ok()?;
+            let probe = health::MqttProbe {
+                heartbeat: running.bridge.heartbeat.clone(),
+                connected: running.bridge.connected.clone(),
+                // The bridge turns every tick; leave room for a busy machine.
+                max_quiet: crate::bridge::TICK * 8,
+            };
+            let mut watchdog = health::Watchdog::new(health_settings, probe);
+            for line in &running.lines {
+                watchdog.watch_line(line.stats_rx.clone());
+            }
+            let handle = match watchdog.spawn(watchdog_trigger) {
+                Ok(handle) => Some(handle),
+                Err(error) => {
+                    tracing::error!(%error, "cannot start the watchdog thread");
+                    None
+                }
+            };
+            health::notify_ready(&format!("{} lines started", running.lines.len()));
+            handle
+        });
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+        };
+        let result = run_gateway(config, shutdown, hooks).await;
         signals.abort();
+        if let Ok(Some(watchdog)) = supervision.await {
+            watchdog.stop();
+        }
         result
     })?;
     tracing::info!("stopped");
@@ -127,6 +160,7 @@ async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
         _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
         _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
     }
+    health::notify_stopping();
     trigger.fire();
     tokio::select! {
         _ = terminate.recv() => {},
