@@ -1443,3 +1443,65 @@ mod robustness {
         }
     }
 }
+
+#[test]
+fn partial_reads_decode_the_fields_inside_them() {
+    let profile = valve();
+    let text = |request: Request, answer: Response| -> Vec<String> {
+        profile
+            .decode_read(&request, &answer)
+            .into_iter()
+            .map(|r| format!("{}={}", r.field, r.value.unwrap().to_text()))
+            .collect()
+    };
+    // The setpoint's read-back in a command slot.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            Response::HoldingRegisters(vec![0x0045, 0x0067])
+        ),
+        ["setpoint=45.67"]
+    );
+    // A used run of the live block: the measured values only.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xA2,
+                quantity: 4
+            },
+            Response::HoldingRegisters(vec![0x0012, 0x0034, 0x0001, 0x0000])
+        ),
+        ["measured_1=12.34", "measured_2=1.00"]
+    );
+    // Half a BCD pair is not decoded; a read outside every block gives nothing.
+    assert!(text(
+        Request::ReadHoldingRegisters {
+            start: 0xA3,
+            quantity: 2
+        },
+        Response::HoldingRegisters(vec![0x0034, 0x0001])
+    )
+    .is_empty());
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0x50,
+                quantity: 1
+            },
+            &Response::HoldingRegisters(vec![1])
+        )
+        .is_empty());
+    // A short answer gives nothing rather than a panic.
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            &Response::HoldingRegisters(vec![0x0045])
+        )
+        .is_empty());
+}

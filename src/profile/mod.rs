@@ -217,6 +217,47 @@ impl Profile {
             .collect()
     }
 
+    /// Decodes the answer to any read inside one block (a whole block, one of its used runs,
+    /// or a command slot's read): the values of the fields that lie entirely inside the read.
+    /// Empty when no block of the profile contains the read.
+    pub fn decode_read(&self, request: &Request, answer: &Response) -> Vec<FieldReading> {
+        let Some((start, quantity)) = raw::read_span(request) else {
+            return Vec::new();
+        };
+        let inner = &self.inner;
+        let Some(block) = inner.blocks.iter().position(|block| {
+            raw::read_span(&block.request).is_some_and(|(first, len)| {
+                std::mem::discriminant(&block.request) == std::mem::discriminant(request)
+                    && start >= first
+                    && u32::from(start) + u32::from(quantity) <= u32::from(first) + u32::from(len)
+            })
+        }) else {
+            return Vec::new();
+        };
+        let Some((first, _)) = raw::read_span(&inner.blocks[block].request) else {
+            return Vec::new();
+        };
+        let base = start - first;
+        let Some(part) = command::image_of(answer, usize::from(quantity)) else {
+            return Vec::new();
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter(|(def, _)| {
+                def.block == block
+                    && def.offset >= base
+                    && u32::from(def.offset) + u32::from(def.codec.width())
+                        <= u32::from(base) + u32::from(quantity)
+            })
+            .map(|(def, info)| FieldReading {
+                field: info.name.clone(),
+                value: def.codec.decode(&part, def.offset - base),
+            })
+            .collect()
+    }
+
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
     /// last known state, and plans the bus slot that carries it out.
     pub fn plan_command(
