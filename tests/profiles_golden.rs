@@ -324,6 +324,20 @@ fn valve_opening_settles_within_a_window() {
         Verification::Applied
     );
     assert!(rejection(&valve(), "opening", "101").contains("0–100"));
+    // Alarm openings: 0–100 %, or 255 to disable the alarm.
+    let disable = self::plan(&valve(), "low_alarm_opening_1", "255");
+    assert_eq!(
+        disable.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0xD2,
+            value: 0xFF
+        }]
+    );
+    assert_eq!(
+        rejection(&valve(), "low_alarm_opening_1", "150"),
+        "low_alarm_opening_1 must be an integer 0–100 or 255, got 150"
+    );
+    assert!(rejection(&valve(), "low_alarm_opening_1", "x").ends_with("or 255, got \"x\""));
 }
 
 #[test]

@@ -353,10 +353,21 @@ impl Profile {
         if !info.writable {
             return Err(Rejection(format!("{field} is read-only")));
         }
-        let target = codec::parse_command(info, text)?;
+        let def = &inner.defs[index];
+        let target = match codec::parse_command(info, text) {
+            Ok(value) => value,
+            Err(rejection) if def.also.is_empty() => return Err(rejection),
+            Err(rejection) => match text.trim().parse::<i64>() {
+                Ok(value) if def.also.contains(&value) => Value::Int(value),
+                _ => {
+                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
+                    let or = format!(" or {}, got ", list.join(", "));
+                    return Err(Rejection(rejection.0.replacen(", got ", &or, 1)));
+                }
+            },
+        };
         // Kinds and ranges are validated against the codec at load, so this only fails on a
         // profile bug; refuse rather than write something else.
-        let def = &inner.defs[index];
         def.codec
             .encode(def.offset, &target)
             .map_err(|why| Rejection(format!("{field}: {why}")))?;
