@@ -2,7 +2,8 @@
 //! one of the built-in copies), validated completely at load, and then answers every question
 //! the rest of the gateway has about a device: which blocks to poll, how raw words become field
 //! values, which fields exist and how they are exposed, and how a command on a field becomes the
-//! frames of one bus slot. Everything here is pure: no I/O, no clock, no tokio.
+//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
+//! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 
 pub mod codec;
 pub mod command;

@@ -390,7 +390,7 @@ pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
     let file: ProfileFile = toml::from_str(text).map_err(|err| {
         let place = match err.span() {
             Some(span) => {
-                let before = &text[..span.start.min(text.len())];
+                let before = text.get(..span.start).unwrap_or(text);
                 let line = before.matches('\n').count() + 1;
                 let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
                 format!("{source}:{line}:{column}")
