@@ -576,7 +576,7 @@ fn validate_lines(
             let limits = device.profile.limits();
             if limits.default_parity != parity || limits.default_baud != baud {
                 warnings.push(Problem::new(
-                    format!("{place}"),
+                    place.clone(),
                     format!(
                         "device {} ({}) usually runs at {} baud, parity {:?}; the line is set \
                          to {baud} baud, parity {parity:?}",
