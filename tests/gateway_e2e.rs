@@ -311,7 +311,11 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     let opening = sim::lock(&h.plant.valve).opening();
     assert_eq!(value("plant/valve/opening"), opening.to_string());
     assert_eq!(value("plant/valve/mode"), "manual");
-    // The gateway itself.
+    // The gateway itself: its readiness hook shows both lines and a live, connected bridge.
+    let running = &h.gateway.as_ref().unwrap().running;
+    assert_eq!(running.lines.len(), 2);
+    assert!(*running.bridge.connected.borrow());
+    assert!(running.bridge.heartbeat.borrow().elapsed() < Duration::from_secs(5));
     h.wait_text(&format!("plant/gateway/{}/status", h.client_id), "online")
         .await;
     // Statistics go out every second; a later document counts the polls.
@@ -416,12 +420,13 @@ async fn valve_setpoint_lands_as_packed_bcd() {
     let mut h = Harness::start("valve").await;
     let result = h.command("valve", "setpoint", b"45.67").await;
     assert_eq!(result["outcome"], "applied", "{result}");
-    let valve = sim::lock(&h.plant.valve);
-    assert_eq!(valve.register(0xB2), Some(0x0045));
-    assert_eq!(valve.register(0xB3), Some(0x0067));
-    drop(valve);
+    let (integer, fraction) = {
+        let valve = sim::lock(&h.plant.valve);
+        (valve.register(0xB2), valve.register(0xB3))
+    };
+    assert_eq!(integer, Some(0x0045));
+    assert_eq!(fraction, Some(0x0067));
     h.wait_text("plant/valve/setpoint", "45.67").await;
-    let _ = VALVE;
     h.stop_gateway().await;
 }
 
@@ -659,6 +664,22 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         assert!(!detail.is_empty(), "{result}");
         assert!(detail.contains(reason), "{device}/{field}: {result}");
     }
+    // A retained payload far over the limit (but under the client's packet bound) is
+    // rejected and cleared, so it does not come back after every reconnect.
+    h.client
+        .publish(
+            "plant/dust_collector/pulse_interval/set",
+            vec![b'7'; 300_000],
+            true,
+        )
+        .await;
+    let result = h.result("dust_collector", "pulse_interval").await;
+    assert_eq!(outcome(&result), "rejected", "{result}");
+    h.client
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.payload.is_empty()
+        })
+        .await;
     // A command for a device that is not configured gets nothing back, and nothing happens.
     h.client
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
