@@ -716,3 +716,41 @@ async fn a_clean_stop_announces_offline() {
             .await;
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connects_over_tls_with_a_client_certificate_and_a_password_file() {
+    let (broker, tls_port, certs) = Mosquitto::start_tls();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut observer = TestClient::connect(broker.port, "tls-observer").await;
+    observer.subscribe("plant/#").await;
+    let dir = certs.path().display();
+    let text = plant_config(&broker, &plant, "tls-gw", "").replace(
+        &format!("url = \"{}\"", broker.url()),
+        &format!(
+            "url = \"mqtts://127.0.0.1:{tls_port}\"\nusername = \"gateway\"\n\
+                 password_file = \"{dir}/password\"\nca_file = \"{dir}/ca.crt\"\n\
+                 cert_file = \"{dir}/client.crt\"\nkey_file = \"{dir}/client.key\""
+        ),
+    );
+    let config = fast(&text);
+    assert!(config.mqtt.tls.is_some());
+    assert_eq!(config.mqtt.password.as_deref(), Some("s3cret"));
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/gateway/tls-gw/status", ANSWER, |m| {
+            m.text() == "online"
+        })
+        .await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    gateway.stop().await;
+    // The broker saw the gateway log in with its user name (on the TLS listener: it is the
+    // only one the configuration names).
+    let log = broker.log();
+    assert!(
+        log.lines()
+            .any(|line| line.contains("as tls-gw") && line.contains("u'gateway'")),
+        "no authenticated connection of the gateway in the broker log:\n{log}"
+    );
+}
