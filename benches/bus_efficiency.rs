@@ -1,1 +1,254 @@
-fn main() {}
+//! Bus efficiency of one line polling a paced simulated device back to back (the air shower's
+//! 22-coil read with its minimum interval and start-up delay lifted), with commands injected
+//! while it polls. Prints figures; asserts nothing.
+//!
+//! efficiency = (wire time of every request and answer + the two mandatory t3.5 silences of
+//!              each transaction) / wall time
+//!
+//! measured from the simulator's journal (what really arrived on its end of the pty and what it
+//! sent back, paced at the character rate). Also printed: reads/s, command latency (mean, p99),
+//! the line's own bus-load figure, process RSS and CPU time.
+//!
+//! Run: `cargo bench --bench bus_efficiency` (about 25 s).
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::sync::{mpsc, oneshot};
+
+use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
+use rtu2mqtt::profile::{DeviceState, Profile};
+use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt::rtu::transport::SerialSettings;
+use rtu2mqtt::shutdown;
+use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+
+const AIR_SHOWER_TOML: &str = include_str!("../config/profiles/lixian-air-shower.toml");
+const WARM_UP: Duration = Duration::from_secs(2);
+const MEASURE: Duration = Duration::from_secs(8);
+const COMMAND_EVERY: Duration = Duration::from_millis(250);
+
+struct Figures {
+    baud: u32,
+    efficiency: f64,
+    line_bus_load: f64,
+    reads_per_second: f64,
+    transactions: usize,
+    commands: usize,
+    mean_latency: Duration,
+    p99_latency: Duration,
+    min_silence: Option<Duration>,
+    cpu: Duration,
+    wall: Duration,
+}
+
+fn main() -> anyhow::Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let profile = Arc::new(fast_air_shower()?);
+    let mut all = Vec::new();
+    for baud in [9600, 38400] {
+        all.push(runtime.block_on(measure(baud, profile.clone()))?);
+    }
+    println!();
+    println!(
+        "{:>6} {:>10} {:>9} {:>8} {:>6} {:>5} {:>9} {:>9} {:>10} {:>7}",
+        "baud",
+        "efficiency",
+        "bus_load",
+        "reads/s",
+        "txns",
+        "cmds",
+        "cmd_mean",
+        "cmd_p99",
+        "min_t3.5",
+        "cpu%"
+    );
+    for f in &all {
+        println!(
+            "{:>6} {:>10.3} {:>9.3} {:>8.1} {:>6} {:>5} {:>9.1?} {:>9.1?} {:>10} {:>7.1}",
+            f.baud,
+            f.efficiency,
+            f.line_bus_load,
+            f.reads_per_second,
+            f.transactions,
+            f.commands,
+            f.mean_latency,
+            f.p99_latency,
+            f.min_silence
+                .map_or("-".to_string(), |s| format!("{:.2?}", s)),
+            100.0 * f.cpu.as_secs_f64() / f.wall.as_secs_f64(),
+        );
+    }
+    println!("process RSS: {} kB", rss_kb().unwrap_or(0));
+    println!("(efficiency target ≥ 0.95; cpu% is the whole process, simulator included)");
+    Ok(())
+}
+
+fn fast_air_shower() -> anyhow::Result<Profile> {
+    let text = AIR_SHOWER_TOML
+        .replace(
+            "min_poll_interval = \"500ms\"",
+            "min_poll_interval = \"1ms\"",
+        )
+        .replace("startup_delay = \"1s\"", "startup_delay = \"0s\"");
+    Profile::from_toml(&text, "air shower, back to back")
+        .map_err(|e| anyhow::anyhow!("profile: {e:?}"))
+}
+
+async fn measure(baud: u32, profile: Arc<Profile>) -> anyhow::Result<Figures> {
+    let format = CharFormat {
+        data_bits: 8,
+        parity: Parity::None,
+        stop_bits: 1,
+    };
+    let timing = LineTiming::new(baud, format);
+    let (_shower, shared) = share(AirShower::new());
+    let line = VirtualLine::spawn(
+        ServeOptions::new(baud, Parity::None).paced(true),
+        vec![shared],
+    )?;
+    let spec = LineSpec {
+        name: format!("bench-{baud}"),
+        serial: SerialSettings {
+            path: line.path().to_string_lossy().into_owned(),
+            baud,
+            format,
+            rs485: None,
+        },
+        response_timeout: None,
+        retries: 1,
+        offline_after: 3,
+        echo: false,
+        broadcast_turnaround: Duration::from_millis(100),
+        devices: vec![DeviceSpec {
+            name: "air_shower".into(),
+            address: 0x81,
+            profile: profile.clone(),
+            poll_interval: Duration::ZERO,
+        }],
+    };
+    let (events_tx, mut events_rx) = mpsc::channel(4096);
+    let (trigger, token) = shutdown::channel();
+    let (handle, task) = spawn_line(spec, events_tx, token);
+    let mut state = DeviceState::new();
+    let drain = |state: &mut DeviceState, events_rx: &mut mpsc::Receiver<LineEvent>| {
+        while let Ok(event) = events_rx.try_recv() {
+            if let LineEvent::Values { values, .. } = event {
+                state.extend(values);
+            }
+        }
+    };
+
+    tokio::time::sleep(WARM_UP).await;
+    drain(&mut state, &mut events_rx);
+    let journal = line.journal();
+    let skip = journal.request_count();
+    let stats_before = handle.stats_rx.borrow().clone();
+    let cpu_before = cpu_time();
+    let started = Instant::now();
+    let mut latencies = Vec::new();
+    let mut light = false;
+    while started.elapsed() < MEASURE {
+        tokio::time::sleep(COMMAND_EVERY).await;
+        drain(&mut state, &mut events_rx);
+        light = !light;
+        let text = if light { "ON" } else { "OFF" };
+        let plan = profile
+            .plan_command("light", text, &state)
+            .map_err(|e| anyhow::anyhow!("command: {e}"))?;
+        let (reply_tx, reply_rx) = oneshot::channel();
+        let sent = Instant::now();
+        handle
+            .command_tx
+            .send(Command {
+                device: "air_shower".into(),
+                plan,
+                reply_tx,
+            })
+            .await?;
+        let outcome = reply_rx.await?;
+        latencies.push(sent.elapsed());
+        if !matches!(outcome, CommandOutcome::Applied { .. }) {
+            eprintln!("command outcome: {outcome:?}");
+        }
+    }
+    let wall = started.elapsed();
+    let cpu = cpu_time().saturating_sub(cpu_before);
+    let stats_after = handle.stats_rx.borrow().clone();
+    trigger.fire();
+    task.await?;
+
+    // Journal records between the measuring window's ends.
+    let end = started + wall;
+    let records: Vec<_> = journal
+        .requests()
+        .into_iter()
+        .skip(skip)
+        .filter(|r| r.arrived >= started && r.arrived < end)
+        .collect();
+    let mut wire = Duration::ZERO;
+    let mut reads = 0usize;
+    for record in &records {
+        wire += timing.frame_time(record.frame.len()) + timing.t3_5;
+        if let Some(answer) = &record.answer {
+            wire += timing.frame_time(answer.len()) + timing.t3_5;
+        }
+        if record.frame.get(1) == Some(&0x01) {
+            reads += 1;
+        }
+    }
+    let min_silence = records.iter().filter_map(|r| r.silence_before).min();
+    latencies.sort_unstable();
+    let mean_latency = if latencies.is_empty() {
+        Duration::ZERO
+    } else {
+        latencies.iter().sum::<Duration>() / latencies.len() as u32
+    };
+    let p99_latency = latencies
+        .get((latencies.len() * 99).div_ceil(100).saturating_sub(1))
+        .copied()
+        .unwrap_or_default();
+    let line_wire = stats_after.wire_time.saturating_sub(stats_before.wire_time);
+    println!(
+        "{baud} baud: {} transactions, wire+silences {:.3?} of {:.3?} wall; the line's own wire-time counter: {:.3?}",
+        records.len(),
+        wire,
+        wall,
+        line_wire
+    );
+    Ok(Figures {
+        baud,
+        efficiency: wire.as_secs_f64() / wall.as_secs_f64(),
+        line_bus_load: line_wire.as_secs_f64() / wall.as_secs_f64(),
+        reads_per_second: reads as f64 / wall.as_secs_f64(),
+        transactions: records.len(),
+        commands: latencies.len(),
+        mean_latency,
+        p99_latency,
+        min_silence,
+        cpu,
+        wall,
+    })
+}
+
+fn rss_kb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+fn cpu_time() -> Duration {
+    // SAFETY: getrusage only writes the struct it is given, which is fully owned here.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let ok = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } == 0;
+    if !ok {
+        return Duration::ZERO;
+    }
+    let micros = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
+    };
+    micros(usage.ru_utime) + micros(usage.ru_stime)
+}

@@ -6,15 +6,17 @@ use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rand::SeedableRng;
-use serde_json::Value as Json;
+use serde_json::{json, Value as Json};
 
 use rtu2mqtt::bridge::discovery::{
-    device_config_from_fields, gateway_config, is_ha_online, is_stale_config, platform_for,
-    reannounce_delay, removal, unique_id_collisions, DiscoveryContext, Platform, REANNOUNCE_DELAY,
+    all_configs, device_config, device_config_from_fields, gateway_config, is_ha_online,
+    is_stale_config, platform_for, reannounce_delay, removal, unique_id_collisions,
+    DiscoveryContext, Platform, REANNOUNCE_DELAY,
 };
+use rtu2mqtt::bridge::json_view::{json_view, json_view_payload, json_view_topic};
 use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bus::LineStats;
-use rtu2mqtt::profile::{FieldInfo, FieldKind, HaHints};
+use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
     FieldInfo {
@@ -401,13 +403,38 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
     assert_eq!(status["state_topic"], "plant/gateway/rtu2mqtt-edge1/status");
     assert_eq!(status["payload_on"], "online");
 
-    let mut stats_line = LineStats::new("line-a", &["dust_collector".to_string()], Instant::now());
-    stats_line.bus_load = 0.4237;
-    stats_line.transactions = 17;
-    stats_line.devices[0].online = true;
-    let other = LineStats::new("line-b", &["valve".to_string()], Instant::now());
-    let stats = stats_json(&[stats_line, other], &BridgeStats::default());
+    // The statistics document the bridge publishes on the stats topic.
+    let mut line_a = LineStats::new(
+        "line-a",
+        &["dust_collector".to_string(), "air_shower".to_string()],
+        Instant::now(),
+    );
+    line_a.bus_load = 0.4237;
+    line_a.transactions = 17;
+    line_a.devices[1].online = true;
+    let mut line_b = LineStats::new("line-b", &["valve".to_string()], Instant::now());
+    line_b.crc_errors = 3;
+    line_b.devices[0].online = true;
+    // Given in the other order than configured: sensors select lines by name.
+    let bridge = BridgeStats {
+        uptime: Duration::from_secs(77),
+        waiting_commands: 2,
+        ..BridgeStats::default()
+    };
+    let stats = stats_json(&[line_b, line_a], &bridge);
 
+    let expected: &[(&str, f64)] = &[
+        ("devices_online", 2.0),
+        ("waiting_commands", 2.0),
+        ("uptime", 77.0),
+        ("line_a_bus_load_percent", 42.4),
+        ("line_a_transactions", 17.0),
+        ("line_a_crc_errors", 0.0),
+        ("line_b_crc_errors", 3.0),
+        ("line_b_transactions", 0.0),
+        ("line_b_timeouts", 0.0),
+        ("line_b_exceptions", 0.0),
+    ];
     let mut templates = 0;
     for (id, config) in document["cmps"].as_object().unwrap() {
         let Some(template) = config["value_template"].as_str() else {
@@ -417,19 +444,22 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
             config["state_topic"], "plant/gateway/rtu2mqtt-edge1/stats",
             "{id}"
         );
-        let value = resolve_template(&stats, template)
+        let value = render_stats_template(&stats, template)
             .unwrap_or_else(|| panic!("{id}: {template} reads nothing in {stats}"));
-        assert!(value.is_number(), "{id}: {template} gives {value}");
+        if let Some((_, want)) = expected.iter().find(|(key, _)| key == id) {
+            assert!((value - want).abs() < 1e-9, "{id}: {value} != {want}");
+        }
         templates += 1;
     }
-    assert!(templates >= 2 + 2 * 4, "only {templates} stats sensors");
-    assert_eq!(stats["lines"]["line-a"]["bus_load_percent"], 42.4);
-    assert_eq!(stats["devices_online"], 1);
-    assert_eq!(stats["devices_total"], 2);
+    assert_eq!(templates, 3 + 2 * 5, "stats sensors");
+    for (id, _) in expected {
+        assert!(document["cmps"].get(*id).is_some(), "no sensor {id}");
+    }
 }
 
-/// Follows a `{{ value_json.a['b'].c }}` template through a JSON document.
-fn resolve_template<'j>(document: &'j Json, template: &str) -> Option<&'j Json> {
+/// Follows a `{{ value_json.a['b'].c }}` template through a statistics document, as Home
+/// Assistant would, to the number it shows.
+fn render_stats_template(document: &Json, template: &str) -> Option<f64> {
     let path = template
         .trim()
         .strip_prefix("{{")?
@@ -451,7 +481,7 @@ fn resolve_template<'j>(document: &'j Json, template: &str) -> Option<&'j Json> 
             return None;
         }
     }
-    Some(current)
+    current.as_f64()
 }
 
 #[test]
@@ -578,6 +608,7 @@ fn prometheus_text_is_well_formed_with_contiguous_families_and_escaped_labels() 
         mqtt_connected: true,
         mqtt_connects: 2,
         published: 99,
+        waiting_commands: 1,
         commands_received: 4,
         commands_applied: 3,
         commands_rejected: 1,
@@ -630,12 +661,194 @@ fn prometheus_text_is_well_formed_with_contiguous_families_and_escaped_labels() 
     assert!(text.contains("rtu2mqtt_command_outcomes_total{outcome=\"applied\"} 3\n"));
     assert!(text.contains("rtu2mqtt_mqtt_connected 1\n"));
     assert!(text.contains("rtu2mqtt_uptime_seconds 3600\n"));
+    assert!(text.contains("rtu2mqtt_commands_waiting 1\n"));
+    assert!(text.contains("rtu2mqtt_mqtt_connects_total 2\n"));
+}
+
+/// The built-in profiles of the seed plant, as configured in `config/rtu2mqtt.toml`.
+fn built_in_documents() -> Vec<(&'static str, Profile, Json)> {
+    let ctx = context();
+    [
+        ("dust_collector", "ruiwan-dust-collector"),
+        ("valve", "wuzhou-valve"),
+        ("air_shower", "lixian-air-shower"),
+    ]
+    .into_iter()
+    .map(|(device, name)| {
+        let profile = registry::built_in(name).unwrap();
+        let (topic, document) = device_config(&ctx, device, &profile);
+        assert_eq!(
+            topic,
+            format!("homeassistant/device/rtu2mqtt-edge1_{device}/config")
+        );
+        (device, profile, document)
+    })
+    .collect()
+}
+
+#[test]
+fn built_in_profiles_give_the_expected_component_for_every_seed_field() {
+    let documents = built_in_documents();
+    let document = |device: &str| {
+        documents
+            .iter()
+            .find(|(name, ..)| *name == device)
+            .map(|(.., document)| document)
+            .unwrap()
+    };
+    let shower = document("air_shower");
+    let dust = document("dust_collector");
+    let valve = document("valve");
+    assert_eq!(platform_of(shower, "emergency_stop"), "switch");
+    assert_eq!(platform_of(shower, "voice_start"), "button");
+    assert_eq!(component(shower, "voice_start")["payload_press"], "PRESS");
+    assert_eq!(platform_of(dust, "temperature"), "sensor");
+    assert_eq!(platform_of(valve, "mode"), "select");
+    assert_eq!(
+        component(valve, "mode")["options"],
+        serde_json::json!(["manual", "auto"])
+    );
+    assert_eq!(platform_of(valve, "jammed"), "binary_sensor");
+    let gear = component(dust, "gear");
+    assert_eq!(
+        (&gear["p"], &gear["min"], &gear["max"], &gear["step"]),
+        (&json!("number"), &json!(1), &json!(10), &json!(1))
+    );
+    assert_eq!(gear["mode"], "box");
+    let opening = component(valve, "opening");
+    assert_eq!(
+        (&opening["p"], &opening["min"], &opening["max"]),
+        (&json!("number"), &json!(0), &json!(100))
+    );
+}
+
+#[test]
+fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones() {
+    let ctx = context();
+    let mut unique_ids = HashSet::new();
+    for (device, profile, document) in built_in_documents() {
+        // Valid JSON with the keys Home Assistant requires of a device document.
+        let reparsed: Json = serde_json::from_str(&document.to_string()).unwrap();
+        assert_eq!(reparsed, document);
+        assert_eq!(document["dev"]["manufacturer"], profile.manufacturer());
+        assert_eq!(document["dev"]["model"], profile.model());
+        assert_eq!(document["dev"]["via_device"], "rtu2mqtt-edge1");
+        assert_eq!(document["o"]["name"], "rtu2mqtt");
+        assert_eq!(document["availability_mode"], "all");
+        assert_eq!(document["availability"].as_array().map(Vec::len), Some(2));
+
+        let components = document["cmps"].as_object().unwrap();
+        assert_eq!(components.len(), profile.fields().len(), "{device}");
+        for field in profile.fields() {
+            let config = &components[&field.name];
+            let platform = config["p"].as_str().unwrap();
+            assert!(
+                Platform::from_name(platform).is_some(),
+                "{device}/{}: {platform}",
+                field.name
+            );
+            assert!(unique_ids.insert(config["unique_id"].as_str().unwrap().to_string()));
+            match config.get("command_topic") {
+                Some(topic) => {
+                    assert!(field.writable, "{device}/{} is read-only", field.name);
+                    assert_eq!(
+                        topic.as_str(),
+                        Some(ctx.command_topic(device, &field.name).as_str())
+                    );
+                    assert_eq!(config["retain"], false);
+                }
+                None => assert!(!field.writable, "{device}/{} has no command", field.name),
+            }
+            if platform != "button" {
+                assert_eq!(
+                    config["state_topic"].as_str(),
+                    Some(format!("plant/{device}/{}", field.name).as_str())
+                );
+            }
+            if let Some(category) = config.get("entity_category") {
+                assert!(category == "config" || category == "diagnostic");
+            }
+            // Home Assistant refuses these combinations outright.
+            if config["device_class"] == "enum" {
+                assert!(config.get("state_class").is_none());
+                assert!(config.get("unit_of_measurement").is_none());
+            }
+        }
+        let fields: Vec<FieldInfo> = profile.fields().to_vec();
+        assert!(unique_id_collisions(&ctx, &[(device, &fields)]).is_empty());
+    }
+}
+
+#[test]
+fn json_view_is_typed_and_in_field_order_whatever_the_map() {
+    let mut state = DeviceState::new();
+    state.insert("temperature".to_string(), Value::Int(41));
+    state.insert("power".to_string(), Value::Bool(true));
+    state.insert(
+        "measured_1".to_string(),
+        Value::Decimal {
+            scaled: 1234,
+            precision: 2,
+        },
+    );
+    state.insert("motor".to_string(), Value::Enum("opening".to_string()));
+    state.insert("serial_number".to_string(), Value::Text("0a1b".to_string()));
+    let view = json_view(&state);
+    assert_eq!(view["temperature"], 41);
+    assert_eq!(view["power"], true);
+    assert_eq!(view["measured_1"], 12.34);
+    assert_eq!(view["motor"], "opening");
+    assert_eq!(view["serial_number"], "0a1b");
+    let text = String::from_utf8(json_view_payload(&state)).unwrap();
+    assert_eq!(
+        text,
+        r#"{"measured_1":12.34,"motor":"opening","power":true,"serial_number":"0a1b","temperature":41}"#
+    );
+    // The same values inserted in another order give the same bytes.
+    let mut reversed = DeviceState::new();
+    for (key, value) in state.iter().collect::<Vec<_>>().into_iter().rev() {
+        reversed.insert(key.clone(), value.clone());
+    }
+    assert_eq!(json_view_payload(&reversed), text.into_bytes());
+    assert_eq!(json_view_topic("plant", "valve"), "plant/valve");
+    assert_eq!(json_view(&DeviceState::new()), json!({}));
+}
+
+#[test]
+fn all_configs_lead_with_the_gateway_and_follow_the_configured_devices() {
+    let ctx = context();
+    let documents = built_in_documents();
+    let devices: Vec<(&str, &Profile)> = documents
+        .iter()
+        .map(|(device, profile, _)| (*device, profile))
+        .collect();
+    let lines = vec!["line-a".to_string(), "line-b".to_string()];
+    let messages = all_configs(&ctx, &lines, &devices);
+    let topics: Vec<&str> = messages.iter().map(|(topic, _)| topic.as_str()).collect();
+    assert_eq!(
+        topics,
+        vec![
+            "homeassistant/device/rtu2mqtt-edge1_gateway/config",
+            "homeassistant/device/rtu2mqtt-edge1_dust_collector/config",
+            "homeassistant/device/rtu2mqtt-edge1_valve/config",
+            "homeassistant/device/rtu2mqtt-edge1_air_shower/config",
+        ]
+    );
+    for ((_, payload), (_, _, document)) in messages[1..].iter().zip(&documents) {
+        assert_eq!(&serde_json::from_str::<Json>(payload).unwrap(), document);
+    }
+    let gateway: Json = serde_json::from_str(&messages[0].1).unwrap();
+    assert_eq!(
+        gateway["dev"]["identifiers"][0],
+        documents[0].2["dev"]["via_device"]
+    );
 }
 
 #[test]
 fn stats_json_carries_lines_devices_and_bridge_counters() {
     let bridge = BridgeStats {
         commands_failed: 2,
+        waiting_commands: 1,
         ..BridgeStats::default()
     };
     let stats = stats_json(&sample_lines(), &bridge);
@@ -651,6 +864,7 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
     assert_eq!(stats["devices_online"], 1);
     assert_eq!(stats["devices_total"], 3);
     assert_eq!(stats["commands"]["failed"], 2);
+    assert_eq!(stats["commands"]["waiting"], 1);
     let text = stats.to_string();
     assert_eq!(serde_json::from_str::<Json>(&text).unwrap(), stats);
 }

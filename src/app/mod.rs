@@ -112,35 +112,28 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
         let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        // READY=1 and the watchdog once the lines and the bridge run; STOPPING=1 on shutdown.
         let (ready_tx, ready_rx) = oneshot::channel::<Running>();
         let watchdog_trigger = trigger.clone();
-        // Readiness for systemd and the internal watchdog once lines and bridge run.
         let supervision = tokio::spawn(async move {
             let running = ready_rx.await.ok()?;
-            let probe = health::MqttProbe {
-                heartbeat: running.bridge.heartbeat.clone(),
-                connected: running.bridge.connected.clone(),
-                // The bridge turns every tick; leave room for a busy machine.
-                max_quiet: crate::bridge::TICK * 8,
-            };
-            let mut watchdog = health::Watchdog::new(health_settings, probe);
-            for line in &running.lines {
-                watchdog.watch_line(line.stats_rx.clone());
-            }
-            let handle = match watchdog.spawn(watchdog_trigger) {
-                Ok(handle) => Some(handle),
-                Err(error) => {
-                    tracing::error!(%error, "cannot start the watchdog thread");
-                    None
-                }
-            };
-            health::notify_ready(&format!("{} lines started", running.lines.len()));
-            handle
+            health::supervise(
+                health_settings,
+                &running.lines,
+                &running.bridge,
+                watchdog_trigger,
+            )
+        });
+        let mut stopping = shutdown.clone();
+        let announce_stop = tokio::spawn(async move {
+            stopping.fired().await;
+            health::notify_stopping();
         });
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
         };
         let result = run_gateway(config, shutdown, hooks).await;
+        announce_stop.abort();
         signals.abort();
         if let Ok(Some(watchdog)) = supervision.await {
             watchdog.stop();
@@ -152,7 +145,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
 }
 
 /// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
+pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
     use tokio::signal::unix::{signal, SignalKind};
     let (Ok(mut terminate), Ok(mut interrupt)) = (
         signal(SignalKind::terminate()),

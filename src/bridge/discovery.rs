@@ -27,6 +27,7 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
+use crate::config::MqttSettings;
 use crate::profile::{FieldInfo, FieldKind, HaHints, Profile};
 
 /// The default Home Assistant discovery prefix.
@@ -69,6 +70,15 @@ impl DiscoveryContext {
             client_id: client_id.to_string(),
             prefix: prefix.to_string(),
             discovery_prefix: DEFAULT_DISCOVERY_PREFIX.to_string(),
+        }
+    }
+
+    /// The context of a gateway's MQTT settings (client id, prefix, discovery prefix).
+    pub fn from_settings(settings: &MqttSettings) -> Self {
+        DiscoveryContext {
+            client_id: settings.client_id.clone(),
+            prefix: settings.prefix.clone(),
+            discovery_prefix: settings.discovery_prefix.clone(),
         }
     }
 
@@ -559,8 +569,26 @@ pub fn device_config(ctx: &DiscoveryContext, device: &str, profile: &Profile) ->
     )
 }
 
-/// A line's statistics exposed on the gateway device: (key in the stats JSON, name suffix,
-/// unit, state class, device class).
+/// Every discovery message of a gateway, ready to publish retained: the gateway's own document
+/// first (so `via_device` resolves), then one per configured device in the order given.
+/// `lines` are the configured line names, `devices` the configured devices with their profiles.
+pub fn all_configs(
+    ctx: &DiscoveryContext,
+    lines: &[String],
+    devices: &[(&str, &Profile)],
+) -> Vec<(String, String)> {
+    let gateway = gateway_config(ctx, lines);
+    let devices = devices
+        .iter()
+        .map(|(device, profile)| device_config(ctx, device, profile));
+    std::iter::once(gateway)
+        .chain(devices)
+        .map(|(topic, document)| (topic, document.to_string()))
+        .collect()
+}
+
+/// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
+/// JSON, name suffix, unit, state class).
 const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("bus_load_percent", "bus load", Some("%"), "measurement"),
     ("transactions", "transactions", None, "total_increasing"),
@@ -569,10 +597,17 @@ const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("exceptions", "exceptions", None, "total_increasing"),
 ];
 
+/// The Jinja expression of a line's entry in the stats JSON: bracket access by name, since
+/// line names may hold `-`, which a dotted path would read as a minus.
+pub fn line_selector(line: &str) -> String {
+    format!("value_json.lines[{}]", jinja_string(line))
+}
+
 /// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
-/// topic, the number of devices online, uptime, and per line its bus load and error counters
-/// read from the stats JSON on `<prefix>/gateway/<client_id>/stats`. It is what every device's
-/// `via_device` points at.
+/// topic, and from the statistics JSON on `<prefix>/gateway/<client_id>/stats`
+/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
+/// uptime, and per line its bus load and counters. It is what every device's `via_device`
+/// points at.
 pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json) {
     let status_topic = ctx.gateway_status_topic();
     let stats_topic = ctx.gateway_stats_topic();
@@ -582,6 +617,18 @@ pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json
         "payload_available": ONLINE,
         "payload_not_available": OFFLINE,
     }]);
+    let stats_sensor = |key: &str, name: &str, template: String, state_class: &str| {
+        json!({
+            "p": "sensor",
+            "name": name,
+            "unique_id": unique(key),
+            "state_topic": stats_topic,
+            "value_template": template,
+            "state_class": state_class,
+            "availability": stats_availability,
+            "entity_category": "diagnostic",
+        })
+    };
 
     let mut components = Map::new();
     // No availability on the status itself: it must show `offline`, not `unavailable`.
@@ -600,50 +647,46 @@ pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json
     );
     components.insert(
         "devices_online".to_string(),
-        json!({
-            "p": "sensor",
-            "name": "Devices online",
-            "unique_id": unique("devices_online"),
-            "state_topic": stats_topic,
-            "value_template": "{{ value_json.devices_online }}",
-            "state_class": "measurement",
-            "availability": stats_availability,
-            "entity_category": "diagnostic",
-        }),
+        stats_sensor(
+            "devices_online",
+            "Devices online",
+            "{{ value_json.devices_online }}".to_string(),
+            "measurement",
+        ),
     );
     components.insert(
-        "uptime".to_string(),
-        json!({
-            "p": "sensor",
-            "name": "Uptime",
-            "unique_id": unique("uptime"),
-            "state_topic": stats_topic,
-            "value_template": "{{ value_json.uptime_seconds }}",
-            "unit_of_measurement": "s",
-            "device_class": "duration",
-            "state_class": "measurement",
-            "availability": stats_availability,
-            "entity_category": "diagnostic",
-        }),
+        "waiting_commands".to_string(),
+        stats_sensor(
+            "waiting_commands",
+            "Waiting commands",
+            "{{ value_json.commands.waiting }}".to_string(),
+            "measurement",
+        ),
     );
+    let mut uptime = stats_sensor(
+        "uptime",
+        "Uptime",
+        "{{ value_json.uptime_seconds }}".to_string(),
+        "measurement",
+    );
+    if let Some(map) = uptime.as_object_mut() {
+        map.insert("unit_of_measurement".to_string(), json!("s"));
+        map.insert("device_class".to_string(), json!("duration"));
+    }
+    components.insert("uptime".to_string(), uptime);
+
     for line in lines {
         let line_key = line.replace('-', "_");
+        let selector = line_selector(line);
         for (key, label, unit, state_class) in LINE_SENSORS {
             let component_id = format!("{line_key}_{key}");
-            let mut sensor = json!({
-                "p": "sensor",
-                "name": format!("{line} {label}"),
-                "unique_id": unique(&component_id),
-                "state_topic": stats_topic,
-                // Bracket access: line names may hold `-`, which a dotted path would misread.
-                "value_template": format!(
-                    "{{{{ value_json.lines[{}].{key} }}}}",
-                    jinja_string(line)
-                ),
-                "state_class": state_class,
-                "availability": stats_availability,
-                "entity_category": "diagnostic",
-            });
+            let template = format!("{{{{ {selector}.{key} }}}}");
+            let mut sensor = stats_sensor(
+                &component_id,
+                &format!("{line} {label}"),
+                template,
+                state_class,
+            );
             if let (Some(unit), Some(map)) = (unit, sensor.as_object_mut()) {
                 map.insert("unit_of_measurement".to_string(), json!(unit));
             }

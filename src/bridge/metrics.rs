@@ -23,8 +23,18 @@ pub struct BridgeStats {
     pub mqtt_connected: bool,
     /// Successful (re)connections to the broker, the first one included.
     pub mqtt_connects: u64,
+    /// Losses of the broker connection.
+    pub mqtt_disconnects: u64,
     /// Messages handed to the MQTT client.
     pub published: u64,
+    /// Publishes dropped because the client's queue was full.
+    pub publish_failures: u64,
+    /// Commands waiting for an offline device or their turn on the line.
+    pub waiting_commands: u64,
+    /// QoS 1 redeliveries of a command recognised and not run again.
+    pub redeliveries_ignored: u64,
+    /// Commands for devices that are not configured.
+    pub unknown_device_commands: u64,
     /// Messages received on `…/set` topics (empty clearing payloads excluded).
     pub commands_received: u64,
     /// Outcomes of commands, by outcome.
@@ -230,16 +240,44 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
     );
     family.sample(&[], flag(bridge.mqtt_connected));
 
-    let bridge_counters: [(&str, &str, u64); 4] = [
+    let mut family = Family::start(
+        &mut out,
+        "rtu2mqtt_commands_waiting",
+        "gauge",
+        "Commands waiting for their device or their turn on the line.",
+    );
+    family.sample(&[], bridge.waiting_commands as f64);
+
+    let bridge_counters: [(&str, &str, u64); 8] = [
         (
             "rtu2mqtt_mqtt_connects_total",
             "Successful connections to the broker, the first one included.",
             bridge.mqtt_connects,
         ),
         (
+            "rtu2mqtt_mqtt_disconnects_total",
+            "Losses of the broker connection.",
+            bridge.mqtt_disconnects,
+        ),
+        (
             "rtu2mqtt_mqtt_published_total",
             "Messages handed to the MQTT client.",
             bridge.published,
+        ),
+        (
+            "rtu2mqtt_mqtt_publish_failures_total",
+            "Publishes dropped because the client's queue was full.",
+            bridge.publish_failures,
+        ),
+        (
+            "rtu2mqtt_command_redeliveries_ignored_total",
+            "QoS 1 redeliveries of a command recognised and not run again.",
+            bridge.redeliveries_ignored,
+        ),
+        (
+            "rtu2mqtt_unknown_device_commands_total",
+            "Commands for devices that are not configured.",
+            bridge.unknown_device_commands,
         ),
         (
             "rtu2mqtt_commands_received_total",
@@ -441,7 +479,7 @@ fn line_json(line: &LineStats) -> Json {
 /// the top (`uptime_seconds`, `devices_online`, `devices_total`, `mqtt`, `commands`), then
 /// `lines.<line>` with the line's counters, `bus_load_percent`, latencies in milliseconds and
 /// `devices.<device>`. Latencies never measured are `null`. The gateway's Home Assistant
-/// sensors read these keys (see `discovery::gateway_config`).
+/// sensors read these keys (see [`super::discovery::gateway_config`]).
 pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
     let all_devices = lines.iter().flat_map(|line| line.devices.iter());
     let devices_total = all_devices.clone().count();
@@ -458,10 +496,15 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
         "mqtt": {
             "connected": bridge.mqtt_connected,
             "connects": bridge.mqtt_connects,
+            "disconnects": bridge.mqtt_disconnects,
             "published": bridge.published,
+            "publish_failures": bridge.publish_failures,
         },
         "commands": {
+            "waiting": bridge.waiting_commands,
             "received": bridge.commands_received,
+            "redeliveries_ignored": bridge.redeliveries_ignored,
+            "unknown_device": bridge.unknown_device_commands,
             "applied": bridge.commands_applied,
             "not_applied": bridge.commands_not_applied,
             "rejected": bridge.commands_rejected,

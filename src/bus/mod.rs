@@ -6,8 +6,11 @@
 
 pub mod health;
 pub mod line;
+pub mod plan;
 pub mod scheduler;
+pub mod slot;
 pub mod stats;
+pub mod transaction;
 
 use std::sync::Arc;
 use std::time::Duration;

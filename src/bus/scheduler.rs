@@ -1,1 +1,306 @@
-//! (bus helper)
+//! What a line does next, as a pure function of time: the clock is passed in, nothing here
+//! sleeps or touches a port (paused-clock and explicit-instant tests drive it).
+//!
+//! Rules, in order:
+//! 1. Queued commands run before any poll, first come first served, as soon as their device's
+//!    start-up delay has passed (a command for a device still starting up does not hold back
+//!    commands for the others).
+//! 2. Polls are served earliest due first. Every block has its own due instant (fast blocks on
+//!    the device's poll interval, slow blocks on the slow interval); after a poll the block is
+//!    due again one interval after it was *due* (no drift); when the line fell behind that,
+//!    one interval after the poll started, so missed periods are skipped and never caught up
+//!    in a burst. Ties go to the
+//!    device served least recently, which makes back-to-back polling (interval 0) round-robin.
+//! 3. An offline device has no polls, only a probe (its cheapest block) on the back-off
+//!    schedule of [`super::health`]. That bounds what a dead device costs the line and it can
+//!    never starve the others: its failing polls push its own due instants, not theirs.
+//! 4. Exception 06 (busy) re-schedules the block a short while later without counting as a
+//!    failure; other devices use the line meanwhile.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use super::health::{Availability, DeviceHealth, HealthChange, HealthPolicy};
+use super::plan::DevicePlan;
+
+/// How long a block answered with exception 06 (busy) waits before it is read again.
+pub const BUSY_RETRY_DELAY: Duration = Duration::from_millis(100);
+
+/// Consecutive busy answers after which the block counts as failed (a device that is busy
+/// forever is as good as absent).
+pub const BUSY_LIMIT: u32 = 10;
+
+/// What the line should do next.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Due<C> {
+    /// Run this command's slot now.
+    Command { device: usize, command: C },
+    /// Read this block now.
+    Poll { device: usize, block: usize },
+    /// Read this block now as the probe of an offline device (one attempt, no retries).
+    Probe { device: usize, block: usize },
+    /// Nothing is due before this instant (a command arriving earlier changes that).
+    Wait(Instant),
+    /// No devices and no commands: wait for a command.
+    Idle,
+}
+
+/// How a poll ended, as far as scheduling and health care.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PollOutcome {
+    /// The device answered (values, or an exception other than busy).
+    Answered,
+    /// Exception 06: the device is there but cannot serve now.
+    Busy,
+    /// No usable answer after the retries.
+    Failed,
+}
+
+#[derive(Debug)]
+struct DeviceSlot {
+    plan: DevicePlan,
+    ready_at: Instant,
+    block_due: Vec<Instant>,
+    /// Consecutive busy answers per block.
+    busy_count: Vec<u32>,
+    /// When each block's last poll was handed out.
+    started: Vec<Instant>,
+    health: DeviceHealth,
+    /// Serial number of the last time the device was served: the fairness tie-breaker.
+    last_served: u64,
+}
+
+/// When a block polled at `started` (it was due at `due`) is due again, the poll having ended
+/// at `now`: one interval after it was due, so the cadence does not drift; when the line fell
+/// behind that, one interval after the poll started (missed periods are skipped, not caught up
+/// in a burst), and never in the past. A device whose interval is shorter than a transaction
+/// is thus polled back to back with no idle gap.
+fn next_due_after(due: Instant, interval: Duration, started: Instant, now: Instant) -> Instant {
+    let next = due + interval;
+    if next >= now {
+        return next;
+    }
+    (started + interval).max(now)
+}
+
+/// The scheduler of one line. `C` is whatever the line keeps per queued command.
+#[derive(Debug)]
+pub struct Scheduler<C> {
+    devices: Vec<DeviceSlot>,
+    commands: VecDeque<(usize, C)>,
+    serial: u64,
+}
+
+impl<C> Scheduler<C> {
+    /// A scheduler for `plans` (indexed like the line's devices) started at `start`.
+    pub fn new(plans: Vec<DevicePlan>, policy: HealthPolicy, start: Instant) -> Self {
+        let devices = plans
+            .into_iter()
+            .map(|plan| {
+                let ready_at = start + plan.startup_delay;
+                DeviceSlot {
+                    block_due: vec![ready_at; plan.blocks.len()],
+                    busy_count: vec![0; plan.blocks.len()],
+                    started: vec![ready_at; plan.blocks.len()],
+                    plan,
+                    ready_at,
+                    health: DeviceHealth::new(policy),
+                    last_served: 0,
+                }
+            })
+            .collect();
+        Scheduler {
+            devices,
+            commands: VecDeque::new(),
+            serial: 0,
+        }
+    }
+
+    /// Queues a command for `device`; it runs before the next poll.
+    pub fn push_command(&mut self, device: usize, command: C) {
+        self.commands.push_back((device, command));
+    }
+
+    /// Commands queued and not yet handed out.
+    pub fn queued_commands(&self) -> usize {
+        self.commands.len()
+    }
+
+    /// Takes every queued command out (the line is shutting down and answers them itself).
+    pub fn drain_commands(&mut self) -> Vec<(usize, C)> {
+        self.commands.drain(..).collect()
+    }
+
+    /// What to do at `now`. A command or a poll handed out here is the line's to run; report a
+    /// poll's end with [`Scheduler::record_poll`].
+    pub fn next_due(&mut self, now: Instant) -> Due<C> {
+        let mut earliest: Option<Instant> = None;
+        if let Some(position) = self.commands.iter().position(|(device, _)| {
+            self.devices
+                .get(*device)
+                .map_or(true, |slot| slot.ready_at <= now)
+        }) {
+            if let Some((device, command)) = self.commands.remove(position) {
+                self.serve(device);
+                return Due::Command { device, command };
+            }
+        }
+        for (device, _) in &self.commands {
+            if let Some(slot) = self.devices.get(*device) {
+                earliest = Some(earliest.map_or(slot.ready_at, |e| e.min(slot.ready_at)));
+            }
+        }
+
+        // (due, last_served, device, block, probe)
+        let mut best: Option<(Instant, u64, usize, usize, bool)> = None;
+        for (index, slot) in self.devices.iter().enumerate() {
+            let candidate = if slot.health.is_offline() {
+                match (slot.health.next_probe(), slot.plan.probe_block()) {
+                    (Some(at), Some(block)) => Some((at.max(slot.ready_at), block, true)),
+                    _ => None,
+                }
+            } else {
+                slot.block_due
+                    .iter()
+                    .enumerate()
+                    .min_by_key(|(_, due)| **due)
+                    .map(|(block, due)| (*due, block, false))
+            };
+            if let Some((due, block, probe)) = candidate {
+                let key = (due, slot.last_served, index, block, probe);
+                let better = best.map_or(true, |b| (key.0, key.1) < (b.0, b.1));
+                if better {
+                    best = Some(key);
+                }
+            }
+        }
+
+        match best {
+            Some((due, _, device, block, probe)) if due <= now => {
+                self.serve(device);
+                if let Some(started) = self
+                    .devices
+                    .get_mut(device)
+                    .and_then(|slot| slot.started.get_mut(block))
+                {
+                    *started = now;
+                }
+                if probe {
+                    Due::Probe { device, block }
+                } else {
+                    Due::Poll { device, block }
+                }
+            }
+            Some((due, ..)) => Due::Wait(earliest.map_or(due, |e| e.min(due))),
+            None => earliest.map_or(Due::Idle, Due::Wait),
+        }
+    }
+
+    /// Records how a poll or probe of `block` ended at `now`; returns an availability change.
+    pub fn record_poll(
+        &mut self,
+        device: usize,
+        block: usize,
+        outcome: PollOutcome,
+        now: Instant,
+    ) -> Option<HealthChange> {
+        let slot = self.devices.get_mut(device)?;
+        let interval = slot.plan.interval_of(block);
+        let was_offline = slot.health.is_offline();
+        let outcome = match outcome {
+            PollOutcome::Busy => {
+                let count = slot.busy_count.get_mut(block)?;
+                *count += 1;
+                if *count < BUSY_LIMIT {
+                    if let Some(due) = slot.block_due.get_mut(block) {
+                        *due = now + BUSY_RETRY_DELAY;
+                    }
+                    return None;
+                }
+                PollOutcome::Failed
+            }
+            other => other,
+        };
+        if let Some(count) = slot.busy_count.get_mut(block) {
+            *count = 0;
+        }
+        let started = slot.started.get(block).copied().unwrap_or(now);
+        if let Some(due) = slot.block_due.get_mut(block) {
+            *due = next_due_after(*due, interval, started, now);
+        }
+        match outcome {
+            PollOutcome::Answered => {
+                let change = slot.health.record_success();
+                if was_offline {
+                    // Back from the dead: read everything at once so every value is re-sent.
+                    slot.block_due.iter_mut().for_each(|due| *due = now);
+                }
+                change
+            }
+            _ => slot.health.record_failure(now),
+        }
+    }
+
+    /// The device answered outside a poll (a command slot): that proves it is there.
+    pub fn record_contact(&mut self, device: usize, now: Instant) -> Option<HealthChange> {
+        let slot = self.devices.get_mut(device)?;
+        let was_offline = slot.health.is_offline();
+        let change = slot.health.record_success();
+        if was_offline {
+            slot.block_due.iter_mut().for_each(|due| *due = now);
+        }
+        change
+    }
+
+    /// Makes every block of `device` due at `now` (after a command, to send fresh values).
+    pub fn refresh(&mut self, device: usize, now: Instant) {
+        self.refresh_except(device, &[], now);
+    }
+
+    /// Makes every block of `device` not marked in `skip` due at `now`.
+    pub fn refresh_except(&mut self, device: usize, skip: &[bool], now: Instant) {
+        if let Some(slot) = self.devices.get_mut(device) {
+            let at = now.max(slot.ready_at);
+            for (block, due) in slot.block_due.iter_mut().enumerate() {
+                if !skip.get(block).copied().unwrap_or(false) {
+                    *due = (*due).min(at);
+                }
+            }
+        }
+    }
+
+    /// The port is gone: every device is offline. Returns the devices that changed.
+    pub fn port_lost(&mut self, now: Instant) -> Vec<usize> {
+        self.devices
+            .iter_mut()
+            .enumerate()
+            .filter_map(|(index, slot)| slot.health.force_offline(now).map(|_| index))
+            .collect()
+    }
+
+    /// The port is back: probe every offline device at once.
+    pub fn port_restored(&mut self, now: Instant) {
+        for slot in &mut self.devices {
+            slot.health.probe_soon(now);
+        }
+    }
+
+    pub fn availability(&self, device: usize) -> Availability {
+        self.devices
+            .get(device)
+            .map_or(Availability::Unknown, |slot| slot.health.availability())
+    }
+
+    pub fn consecutive_failures(&self, device: usize) -> u32 {
+        self.devices
+            .get(device)
+            .map_or(0, |slot| slot.health.consecutive_failures())
+    }
+
+    fn serve(&mut self, device: usize) {
+        self.serial += 1;
+        if let Some(slot) = self.devices.get_mut(device) {
+            slot.last_served = self.serial;
+        }
+    }
+}

@@ -12,6 +12,14 @@ pub struct DeviceStats {
     pub timeouts: u64,
     pub crc_errors: u64,
     pub exceptions: u64,
+    /// Answers that were truncated, from another address or function, or malformed.
+    pub bad_answers: u64,
+    /// Polls that delivered values.
+    pub polls_ok: u64,
+    /// Polls that gave no usable answer after their retries (probes included).
+    pub polls_failed: u64,
+    /// Fields whose raw data was invalid (bad BCD): not published, counted here.
+    pub field_errors: u64,
     /// Consecutive failed polls (resets on success).
     pub consecutive_failures: u32,
     pub last_latency: Option<Duration>,
@@ -25,6 +33,8 @@ pub struct LineStats {
     /// Refreshed on every turn of the line's loop: the watchdog's proof that the task is alive.
     pub heartbeat: Instant,
     pub port_open: bool,
+    /// Times the port failed (EOF, EIO) or could not be opened.
+    pub port_failures: u64,
     pub transactions: u64,
     pub timeouts: u64,
     pub crc_errors: u64,
@@ -33,9 +43,13 @@ pub struct LineStats {
     pub exceptions: u64,
     pub late_answers: u64,
     pub stray_bytes: u64,
+    /// Frames from another address heard while waiting for an answer.
+    pub wrong_address: u64,
     /// Share of wall time the line carried frames and mandatory silences, over the last
     /// measuring window (0.0–1.0).
     pub bus_load: f64,
+    /// Wire time of all frames and mandatory silences since the line started.
+    pub wire_time: Duration,
     pub commands: u64,
     /// Time from a command's arrival on the line to its outcome.
     pub last_command_latency: Option<Duration>,
@@ -50,6 +64,7 @@ impl LineStats {
             line: line.to_string(),
             heartbeat: now,
             port_open: false,
+            port_failures: 0,
             transactions: 0,
             timeouts: 0,
             crc_errors: 0,
@@ -58,7 +73,9 @@ impl LineStats {
             exceptions: 0,
             late_answers: 0,
             stray_bytes: 0,
+            wrong_address: 0,
             bus_load: 0.0,
+            wire_time: Duration::ZERO,
             commands: 0,
             last_command_latency: None,
             worst_command_latency: None,
@@ -71,6 +88,10 @@ impl LineStats {
                     timeouts: 0,
                     crc_errors: 0,
                     exceptions: 0,
+                    bad_answers: 0,
+                    polls_ok: 0,
+                    polls_failed: 0,
+                    field_errors: 0,
                     consecutive_failures: 0,
                     last_latency: None,
                     worst_latency: None,

@@ -86,7 +86,8 @@ pub struct WireCounters {
     pub exceptions: u64,
     /// Answers (or parts) that arrived after their request's timeout.
     pub late_answers: u64,
-    /// Bytes found on the line before a request was sent.
+    /// Bytes found on the line outside any frame: before a request was sent, or as noise just
+    /// before an answer.
     pub stray_bytes: u64,
     /// Frames from another address heard while waiting for an answer (ignored, as the
     /// serial-line specification says).
@@ -304,6 +305,14 @@ impl Master {
         }
     }
 
+    /// Bytes before an answer that belong to no frame (a transceiver's turn-around glitch,
+    /// a stray byte just as the answer starts): counted as stray and dropped.
+    fn absorb_noise(&mut self, bytes: &[u8], seen: Instant) {
+        let late_window_open = std::mem::replace(&mut self.late_window_open, false);
+        self.absorb_unsolicited(bytes, seen);
+        self.late_window_open = late_window_open;
+    }
+
     /// Writes `frame`, waits for the drain and returns its instant.
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "tx");
@@ -341,6 +350,11 @@ impl Master {
                 }
                 received.drain(..sent.len());
             }
+            if let Some(noise) = noise_before_answer(slave, request.function(), &received) {
+                let rest = received.split_off(noise);
+                self.absorb_noise(&received, last_byte_at);
+                received = rest;
+            }
             let framing = self.framing(slave, request, sent, &received);
             if let Framing::Foreign = framing {
                 // Another device's frame whose length and CRC check out ends here; whatever
@@ -349,6 +363,16 @@ impl Master {
                     let rest = received.split_off(length);
                     self.ignore_foreign_frame(&received);
                     received = rest;
+                    continue;
+                }
+                // No frame is longer: a line that babbles without a gap is dropped in pieces,
+                // and the response timeout still ends the wait.
+                if received.len() >= MAX_FRAME_LEN {
+                    self.ignore_foreign_frame(&received);
+                    received.clear();
+                    if Instant::now() >= answer_deadline {
+                        return Err(Error::Timeout(timeout));
+                    }
                     continue;
                 }
             }
@@ -563,4 +587,68 @@ fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
     let frame = received.get(..length)?;
     let (carried, computed) = carried_and_computed(frame)?;
     (carried == computed).then_some(length)
+}
+
+/// How many bytes at the start of `received` are noise before our answer: the head is neither
+/// our answer's (our address, our function or its exception) nor another device's frame
+/// (a known function code), and our answer's head starts further on. `None`: nothing to skip
+/// (yet).
+fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) -> Option<usize> {
+    let ours = |code: u8| code == function.value() || code == function.value() | 0x80;
+    let known = |code: u8| FunctionCode::from_u8(code & 0x7F).is_some();
+    let head_function = *received.get(1)?;
+    let plausible_head = if received[0] == slave {
+        ours(head_function)
+    } else {
+        known(head_function)
+    };
+    if plausible_head {
+        return None;
+    }
+    (1..received.len()).find(|&start| {
+        received[start] == slave && received.get(start + 1).map_or(true, |&code| ours(code))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
+        codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
+    }
+
+    #[test]
+    fn noise_is_found_only_before_our_answer_head() {
+        let ours = answer(0x11, &[1, 2]);
+        let read = FunctionCode::ReadHoldingRegisters;
+        assert_eq!(noise_before_answer(0x11, read, &ours), None);
+        let mut noisy = vec![0x00, 0xFF];
+        noisy.extend_from_slice(&ours);
+        assert_eq!(noise_before_answer(0x11, read, &noisy), Some(2));
+        // Another device's frame is not noise: it is read to its end.
+        let foreign = answer(0x22, &[1, 2]);
+        assert_eq!(noise_before_answer(0x11, read, &foreign), None);
+        // Our address with a wrong function and no answer head behind it: not skipped.
+        assert_eq!(
+            noise_before_answer(0x11, read, &[0x11, 0x04, 0x04, 0x00]),
+            None
+        );
+        // Too little to tell.
+        assert_eq!(noise_before_answer(0x11, read, &[0x00]), None);
+    }
+
+    #[test]
+    fn foreign_frame_is_complete_only_with_its_length_and_crc() {
+        let foreign = answer(0x22, &[7, 8]);
+        assert_eq!(complete_foreign_frame(&foreign[..foreign.len() - 1]), None);
+        let mut followed = foreign.clone();
+        followed.extend_from_slice(&answer(0x11, &[1, 2]));
+        assert_eq!(complete_foreign_frame(&followed), Some(foreign.len()));
+        let mut corrupted = foreign.clone();
+        corrupted[3] ^= 0x01;
+        assert_eq!(complete_foreign_frame(&corrupted), None);
+        let exception = codec::encode_exception(0x22, 0x03, ExceptionCode::IllegalDataAddress);
+        assert_eq!(complete_foreign_frame(&exception), Some(5));
+    }
 }

@@ -240,9 +240,15 @@ impl Port {
 
     /// Writes `frame` and waits until the transmit buffer has drained (tcdrain), returning the
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
+    /// On a pseudo-terminal the instant the write returned.
     pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
         self.stream.write_all(frame).await?;
         self.stream.flush().await?;
+        if self.pseudo_terminal {
+            // A pty has no transmitter: the bytes are readable on the other side as soon as
+            // the write returns, and tcdrain there would only add the blocking pool's latency.
+            return Ok(Instant::now());
+        }
         // tcdrain blocks the calling thread for the frame's wire time; it runs on the blocking
         // pool on a duplicate of the descriptor, which works on a current_thread runtime too.
         // SAFETY: the descriptor is open for the lifetime of `self.stream`, which outlives this

@@ -1,0 +1,104 @@
+//! One request/answer exchange with retries, as the line task runs it: a tracing span per
+//! transaction (line, device, function), per-device counters and latencies, and a result that
+//! says what the caller must do (use the answer, handle an exception, give up, or close a port
+//! that is gone). The timing on the wire is the master's; nothing here sleeps.
+
+use std::time::{Duration, Instant};
+
+use tracing::Instrument;
+
+use crate::rtu::master::{Error as MasterError, Master};
+use crate::rtu::{ExceptionCode, Request, Response, SlaveId};
+
+use super::stats::DeviceStats;
+
+/// Why an exchange gave no normal answer.
+#[derive(Debug)]
+pub enum Failure {
+    /// The device answered with an exception (not retried: it is the device's word).
+    Exception(ExceptionCode),
+    /// No usable answer after every attempt; the last problem, for logs and outcomes.
+    NoAnswer(String),
+    /// The port failed (EOF, EIO): it must be closed and reopened.
+    PortGone(std::io::Error),
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Failure::Exception(code) => write!(f, "device answered {code}"),
+            Failure::NoAnswer(last) => write!(f, "no answer ({last})"),
+            Failure::PortGone(error) => write!(f, "port failed: {error}"),
+        }
+    }
+}
+
+/// What every exchange of one line shares.
+#[derive(Debug, Clone)]
+pub struct Exchange<'a> {
+    pub line: &'a str,
+    pub device: &'a str,
+    pub slave: SlaveId,
+    pub timeout: Duration,
+}
+
+impl Exchange<'_> {
+    /// Sends `request` up to `attempts` times (at least once) until a normal or exception
+    /// answer arrives.
+    pub async fn run(
+        &self,
+        master: &mut Master,
+        stats: &mut DeviceStats,
+        request: &Request,
+        attempts: u32,
+    ) -> Result<Response, Failure> {
+        let mut last = String::from("not sent");
+        for attempt in 0..attempts.max(1) {
+            let span = tracing::debug_span!(
+                "transaction",
+                line = self.line,
+                device = self.device,
+                function = request.function().value(),
+                attempt
+            );
+            let started = Instant::now();
+            let result = master
+                .transact(self.slave, request, self.timeout)
+                .instrument(span)
+                .await;
+            stats.transactions += 1;
+            match result {
+                Ok(response) => {
+                    record_latency(stats, started.elapsed());
+                    return Ok(response);
+                }
+                Err(MasterError::Exception(code)) => {
+                    stats.exceptions += 1;
+                    record_latency(stats, started.elapsed());
+                    return Err(Failure::Exception(code));
+                }
+                Err(MasterError::Io(error)) => return Err(Failure::PortGone(error)),
+                Err(error) => {
+                    match error {
+                        MasterError::Timeout(_) => stats.timeouts += 1,
+                        MasterError::Crc => stats.crc_errors += 1,
+                        _ => stats.bad_answers += 1,
+                    }
+                    tracing::debug!(
+                        line = self.line,
+                        device = self.device,
+                        attempt,
+                        "transaction failed: {error}"
+                    );
+                    last = error.to_string();
+                }
+            }
+        }
+        Err(Failure::NoAnswer(last))
+    }
+}
+
+fn record_latency(stats: &mut DeviceStats, latency: Duration) {
+    stats.last_latency = Some(latency);
+    stats.worst_latency = Some(stats.worst_latency.map_or(latency, |w| w.max(latency)));
+}
