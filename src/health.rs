@@ -20,7 +20,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-use crate::bus::LineStats;
+use crate::bridge::BridgeHealth;
+use crate::bus::{LineHandle, LineStats};
 use crate::shutdown::ShutdownTrigger;
 
 /// Exit status of a process ended by its own watchdog (EX_SOFTWARE): `Restart=on-failure` and
@@ -29,6 +30,13 @@ pub const EXIT_STUCK: i32 = 70;
 
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
+
+/// Environment variable naming another status file (empty: write none), for running the
+/// daemon by hand where `/run/rtu2mqtt` is not writable.
+pub const STATUS_FILE_ENV: &str = "RTU2MQTT_STATUS_FILE";
+
+/// How often the bridge loop promises to turn (it beats at least every 250 ms).
+const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
 
 /// How the health machinery behaves. Deserializable so that the configuration can carry it as
 /// a `[health]` table; every key has a default.
@@ -51,17 +59,6 @@ pub struct HealthSettings {
     pub stall_limit: Duration,
 }
 
-impl Default for HealthSettings {
-    fn default() -> Self {
-        HealthSettings {
-            status_file: Some(PathBuf::from(DEFAULT_STATUS_FILE)),
-            interval: Duration::from_secs(5),
-            stale_after: Duration::from_secs(15),
-            stall_limit: Duration::from_secs(60),
-        }
-    }
-}
-
 mod optional_path {
     use std::path::PathBuf;
 
@@ -77,6 +74,64 @@ mod optional_path {
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<PathBuf>, D::Error> {
         let text = String::deserialize(d)?;
         Ok((!text.is_empty()).then(|| PathBuf::from(text)))
+    }
+}
+
+impl Default for HealthSettings {
+    fn default() -> Self {
+        HealthSettings {
+            status_file: Some(PathBuf::from(DEFAULT_STATUS_FILE)),
+            interval: Duration::from_secs(5),
+            stale_after: Duration::from_secs(15),
+            stall_limit: Duration::from_secs(60),
+        }
+    }
+}
+
+impl HealthSettings {
+    /// The defaults, with the status file from [`STATUS_FILE_ENV`] when set.
+    pub fn from_env() -> Self {
+        let mut settings = HealthSettings::default();
+        if let Some(path) = std::env::var_os(STATUS_FILE_ENV) {
+            settings.status_file = (!path.is_empty()).then(|| PathBuf::from(path));
+        }
+        settings
+    }
+}
+
+/// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
+/// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
+pub fn supervise(
+    settings: HealthSettings,
+    lines: &[LineHandle],
+    bridge: &BridgeHealth,
+    shutdown: ShutdownTrigger,
+) -> Option<WatchdogHandle> {
+    let mut watchdog = Watchdog::new(
+        settings,
+        MqttProbe {
+            heartbeat: bridge.heartbeat.clone(),
+            connected: bridge.connected.clone(),
+            max_quiet: BRIDGE_MAX_QUIET,
+        },
+    );
+    for line in lines {
+        watchdog.watch_line(line.stats_rx.clone());
+    }
+    let devices: usize = lines
+        .iter()
+        .map(|l| l.stats_rx.borrow().devices.len())
+        .sum();
+    notify_ready(&format!(
+        "{devices} devices on {} line(s); connecting to MQTT",
+        lines.len()
+    ));
+    match watchdog.spawn(shutdown) {
+        Ok(handle) => Some(handle),
+        Err(error) => {
+            tracing::error!(%error, "cannot start the watchdog thread");
+            None
+        }
     }
 }
 
@@ -680,16 +735,6 @@ mod tests {
         assert_eq!(code, ExitCode::SUCCESS);
         let missing = check_status_file(&dir.path().join("nope"), Duration::from_secs(30));
         assert_eq!(missing.unwrap(), ExitCode::FAILURE);
-    }
-
-    #[test]
-    fn settings_deserialize_with_defaults() {
-        let parsed: HealthSettings = toml::from_str("stall_limit = \"2m\"").unwrap();
-        assert_eq!(parsed.stall_limit, Duration::from_secs(120));
-        assert_eq!(parsed.status_file, Some(PathBuf::from(DEFAULT_STATUS_FILE)));
-        let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
-        assert_eq!(none.status_file, None);
-        assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
     }
 
     #[test]

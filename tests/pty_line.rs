@@ -284,7 +284,8 @@ async fn reads_every_block_of_the_three_devices() {
         .await;
     assert!(complete_a, "line A values: {:?}", a.latest);
     assert!(
-        a.until(Duration::from_secs(10), |r| r.values_of("dust_collector") >= 3)
+        a.until(Duration::from_secs(10), |r| r.values_of("dust_collector")
+            >= 3)
             .await
     );
     assert!(complete_b, "line B values: {:?}", b.latest);

@@ -130,4 +130,10 @@ fn unit_verifies_and_scores_ok_where_systemd_analyze_exists() {
         .and_then(|number| number.parse::<f64>().ok())
         .expect("an exposure level");
     assert!(score <= 2.0, "exposure {score}");
+    let readme = include_str!("../README.md");
+    let claimed = format!("rates it **{score:.1} OK**");
+    assert!(
+        readme.contains(&claimed),
+        "README.md must report the measured exposure: {claimed}"
+    );
 }

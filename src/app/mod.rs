@@ -16,6 +16,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::bridge::{prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
+use crate::health;
 use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -102,11 +103,36 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let health_settings = config.health.clone();
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
-        let signals = tokio::spawn(stop_on_signals(trigger));
-        let result = run_gateway(config, shutdown, Hooks::default()).await;
+        let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        // READY=1 and the watchdog once the lines and the bridge run; STOPPING=1 on shutdown.
+        let (ready_tx, ready_rx) = oneshot::channel::<Running>();
+        let watchdog_trigger = trigger.clone();
+        let supervision = tokio::spawn(async move {
+            let running = ready_rx.await.ok()?;
+            health::supervise(
+                health_settings,
+                &running.lines,
+                &running.bridge,
+                watchdog_trigger,
+            )
+        });
+        let mut stopping = shutdown.clone();
+        let announce_stop = tokio::spawn(async move {
+            stopping.fired().await;
+            health::notify_stopping();
+        });
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+        };
+        let result = run_gateway(config, shutdown, hooks).await;
+        announce_stop.abort();
         signals.abort();
+        if let Ok(Some(watchdog)) = supervision.await {
+            watchdog.stop();
+        }
         result
     })?;
     tracing::info!("stopped");
@@ -114,7 +140,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
 }
 
 /// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
+pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
     use tokio::signal::unix::{signal, SignalKind};
     let (Ok(mut terminate), Ok(mut interrupt)) = (
         signal(SignalKind::terminate()),
@@ -127,6 +153,7 @@ async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
         _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
         _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
     }
+    health::notify_stopping();
     trigger.fire();
     tokio::select! {
         _ = terminate.recv() => {},

@@ -253,6 +253,28 @@ impl TestClient {
         }
     }
 
+    /// Like [`wait_for`], ignoring what arrived on `topic` before this call (a state change
+    /// that has to happen from now on, not one seen at start-up).
+    pub async fn wait_for_new(
+        &mut self,
+        topic: &str,
+        timeout: Duration,
+        accept: impl Fn(&Message) -> bool,
+    ) -> Message {
+        self.drain();
+        self.received.retain(|m| m.topic != topic);
+        self.wait_for(topic, timeout, accept).await
+    }
+
+    /// Moves whatever has arrived into `received` without waiting.
+    pub fn drain(&mut self) {
+        while let Ok(event) = self.rx.try_recv() {
+            if let ClientEvent::Message(message) = event {
+                self.received.push(message);
+            }
+        }
+    }
+
     /// Waits for the next message on `topic`, whatever it says.
     pub async fn next_on(&mut self, topic: &str, timeout: Duration) -> Message {
         self.wait_for(topic, timeout, |_| true).await

@@ -50,6 +50,9 @@ pub enum Change {
 pub struct DeviceView {
     /// Field values in display order (the profile's order when known, else first seen).
     pub fields: Vec<(String, String)>,
+    /// Settings and diagnostics (Home Assistant's entity categories), left out of a compact
+    /// table.
+    pub secondary: Vec<String>,
     pub online: Option<bool>,
 }
 
@@ -68,16 +71,24 @@ pub struct PlantView {
 const RESULTS_SHOWN: usize = 4;
 
 impl PlantView {
-    /// A view of the devices under `prefix`, listed in `devices` order with their fields in
-    /// the given order (so the table does not reshuffle as values arrive).
-    pub fn new(prefix: &str, devices: &[(String, Vec<String>)]) -> Self {
+    /// A view of the devices under `prefix`, listed in `devices` order with their fields
+    /// (name, secondary) in the given order, so the table does not reshuffle as values arrive.
+    pub fn new(prefix: &str, devices: &[(String, Vec<(String, bool)>)]) -> Self {
         PlantView {
             prefix: prefix.to_string(),
             devices: devices
                 .iter()
                 .map(|(name, fields)| {
                     let view = DeviceView {
-                        fields: fields.iter().map(|f| (f.clone(), String::new())).collect(),
+                        fields: fields
+                            .iter()
+                            .map(|(f, _)| (f.clone(), String::new()))
+                            .collect(),
+                        secondary: fields
+                            .iter()
+                            .filter(|(_, secondary)| *secondary)
+                            .map(|(f, _)| f.clone())
+                            .collect(),
                         online: None,
                     };
                     (name.clone(), view)
@@ -180,7 +191,8 @@ impl PlantView {
         &mut self.devices[index].1
     }
 
-    /// A device's state (for tests and the final summary).
+    /// A device's state.
+    #[cfg(test)]
     pub fn device(&self, name: &str) -> Option<&DeviceView> {
         self.devices
             .iter()
@@ -198,46 +210,86 @@ impl PlantView {
 
     /// The table: a header line, then per device its availability and its fields as
     /// `name value` cells in aligned columns fitting `width`, then the latest outcomes.
-    pub fn render_table(&self, header: &str, width: usize) -> String {
+    /// `compact` leaves settings and diagnostics out (counted on the device's line).
+    pub fn render_table(&self, header: &str, width: usize, compact: bool) -> String {
         let width = width.max(40);
         let mut out = String::new();
-        let _ = writeln!(out, "{header}");
+        let _ = write!(out, "{header}");
         for (gateway, status) in &self.gateways {
-            let _ = writeln!(out, "gateway {gateway}: {status}");
+            let _ = write!(out, "  (gateway {gateway} {status})");
         }
+        out.push('\n');
         for (name, view) in &self.devices {
             let availability = match view.online {
                 Some(true) => "online",
                 Some(false) => "OFFLINE",
                 None => "waiting for the first poll",
             };
-            let _ = writeln!(out, "\n{name} [{availability}]");
-            let cells: Vec<String> = view
+            let shown: Vec<&(String, String)> = view
                 .fields
+                .iter()
+                .filter(|(field, _)| !compact || !view.secondary.contains(field))
+                .collect();
+            let hidden = view.fields.len() - shown.len();
+            let _ = write!(out, "{name} [{availability}]");
+            if hidden > 0 {
+                let _ = write!(out, "  + {hidden} settings and diagnostics not shown");
+            }
+            out.push('\n');
+            let cells: Vec<String> = shown
                 .iter()
                 .map(|(field, value)| {
                     let value = if value.is_empty() { "·" } else { value };
                     format!("{field} {value}")
                 })
                 .collect();
-            let cell_width = cells.iter().map(|c| c.chars().count()).max().unwrap_or(0) + 2;
-            let columns = ((width - 2) / cell_width.max(1)).max(1);
-            for row in cells.chunks(columns) {
-                let mut line = String::from("  ");
-                for cell in row {
-                    let _ = write!(line, "{cell:<cell_width$}");
-                }
-                let _ = writeln!(out, "{}", line.trim_end());
+            for line in grid(&cells, width - 2) {
+                let _ = writeln!(out, "  {line}");
             }
         }
         if !self.results.is_empty() {
-            let _ = writeln!(out, "\nlatest commands:");
+            let _ = writeln!(out, "latest commands:");
             for result in &self.results {
                 let _ = writeln!(out, "  {result}");
             }
         }
         out
     }
+}
+
+/// `cells` in as many aligned columns as fit `width` (each column as wide as its widest cell,
+/// two spaces apart), row by row.
+fn grid(cells: &[String], width: usize) -> Vec<String> {
+    let lengths: Vec<usize> = cells.iter().map(|c| c.chars().count()).collect();
+    let mut columns = cells.len().max(1);
+    let widths = loop {
+        let widths: Vec<usize> = (0..columns)
+            .map(|column| {
+                lengths
+                    .iter()
+                    .skip(column)
+                    .step_by(columns)
+                    .max()
+                    .copied()
+                    .unwrap_or(0)
+            })
+            .collect();
+        let total = widths.iter().sum::<usize>() + 2 * (columns - 1);
+        if total <= width || columns == 1 {
+            break widths;
+        }
+        columns -= 1;
+    };
+    cells
+        .chunks(columns)
+        .map(|row| {
+            let mut line = String::new();
+            for (cell, cell_width) in row.iter().zip(&widths) {
+                let _ = write!(line, "{cell:<cell_width$}  ");
+            }
+            line.trim_end().to_string()
+        })
+        .collect()
 }
 
 /// `(outcome, value, detail)` of a `…/result` payload; a payload that is not the contract's
@@ -308,9 +360,15 @@ mod tests {
             &[
                 (
                     "dust_collector".to_string(),
-                    vec!["power".to_string(), "gear".to_string()],
+                    vec![("power".to_string(), false), ("gear".to_string(), false)],
                 ),
-                ("valve".to_string(), vec!["opening".to_string()]),
+                (
+                    "valve".to_string(),
+                    vec![
+                        ("opening".to_string(), false),
+                        ("setpoint".to_string(), true),
+                    ],
+                ),
             ],
         )
     }
@@ -383,7 +441,7 @@ mod tests {
         view.apply("plant/valve/opening", b"40");
         view.apply("plant/valve/availability", b"online");
         view.apply("plant/new_device/x", b"1");
-        let table = view.render_table("header", 80);
+        let table = view.render_table("header", 80, false);
         let dust = table.find("dust_collector [waiting").unwrap();
         let valve = table.find("valve [online]").unwrap();
         let new = table.find("new_device").unwrap();
@@ -398,18 +456,30 @@ mod tests {
 
     #[test]
     fn table_wraps_to_the_width() {
-        let fields: Vec<String> = (0..12).map(|i| format!("field_{i}")).collect();
+        let fields: Vec<(String, bool)> = (0..12).map(|i| (format!("field_{i}"), false)).collect();
         let mut view = PlantView::new("p", &[("d".to_string(), fields)]);
         for i in 0..12 {
             view.apply(&format!("p/d/field_{i}"), b"123");
         }
-        let narrow = view.render_table("h", 40);
-        let wide = view.render_table("h", 200);
+        let narrow = view.render_table("h", 40, false);
+        let wide = view.render_table("h", 200, false);
         assert!(narrow.lines().count() > wide.lines().count());
         assert!(
             narrow.lines().all(|line| line.chars().count() <= 40),
             "{narrow}"
         );
+    }
+
+    #[test]
+    fn grid_columns_take_their_own_widths() {
+        let cells: Vec<String> = ["a 1", "long_name 2", "b 3", "c 4"]
+            .iter()
+            .map(|c| c.to_string())
+            .collect();
+        assert_eq!(grid(&cells, 100), vec!["a 1  long_name 2  b 3  c 4"]);
+        assert_eq!(grid(&cells, 16), vec!["a 1  long_name 2", "b 3  c 4"]);
+        assert_eq!(grid(&cells, 5).len(), 4);
+        assert!(grid(&[], 10).is_empty());
     }
 
     #[test]
