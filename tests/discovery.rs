@@ -891,6 +891,9 @@ client_id = "{client_id}"
 prefix = "plant"
 discovery = true
 
+[gateway]
+json_view = true
+
 [[lines]]
 name = "line-a"
 port = "{line_a}"
@@ -1001,6 +1004,34 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
     assert!(
         late.on(&old_pump_topic).is_empty(),
         "the removed device's config is still retained"
+    );
+
+    // The JSON view: one retained, typed document per device, keyed by the profile's fields.
+    let view = observer
+        // Blocks arrive one by one: wait for the one holding the status word too.
+        .wait_for("plant/valve", ANSWER, |m| {
+            let view = m.json();
+            view.get("opening").is_some_and(Json::is_number) && view.get("jammed").is_some()
+        })
+        .await
+        .json();
+    assert!(view["mode"].is_string(), "{view}");
+    assert!(view["jammed"].is_boolean(), "{view}");
+    let valve_profile = &devices[1].1;
+    for key in view.as_object().unwrap().keys() {
+        assert!(
+            valve_profile.field(key).is_some(),
+            "{key} is not a valve field"
+        );
+    }
+    // A client arriving now gets the view at once, from the broker.
+    late.subscribe("plant/valve").await;
+    let retained_view = late.next_on("plant/valve", ANSWER).await;
+    assert!(retained_view.retain);
+    assert!(
+        retained_view.json()["opening"].is_number(),
+        "{}",
+        retained_view.text()
     );
 
     // Every command topic announced is one the gateway listens to and maps to its field: a
