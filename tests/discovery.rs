@@ -366,6 +366,8 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
     };
     let mut alarm = field("alarm", FieldKind::Bool, false);
     alarm.ha.component = Some("switch".to_string());
+    let mut limit = field("limit", int(0, 9), true);
+    limit.ha.entity_category = Some("config".to_string());
     let mut unknown = field("level", int(0, 9), true);
     unknown.ha.component = Some("light".to_string());
 
@@ -375,16 +377,18 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
 
     let ctx = context();
     let (_, document) =
-        device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[gear, alarm, unknown]);
+        device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[gear, alarm, limit, unknown]);
     let gear = component(&document, "gear");
     assert_eq!(gear["p"], "sensor");
     assert_eq!(gear["device_class"], "power_factor");
     assert_eq!(gear["state_class"], "total");
     assert_eq!(gear["unit_of_measurement"], "steps");
     assert_eq!(gear["icon"], "mdi:fan");
-    assert_eq!(gear["entity_category"], "config");
+    // Home Assistant accepts no `config` sensor: shown as a sensor, a setting is diagnostic.
+    assert_eq!(gear["entity_category"], "diagnostic");
     assert!(component(&document, "alarm").get("command_topic").is_none());
     assert_eq!(component(&document, "level")["p"], "number");
+    assert_eq!(component(&document, "limit")["entity_category"], "config");
 
     // A boolean shown as a button must send what the gateway accepts for a boolean.
     let mut reset = field("reset", FieldKind::Bool, true);
@@ -775,6 +779,9 @@ fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones()
             }
             if let Some(category) = config.get("entity_category") {
                 assert!(category == "config" || category == "diagnostic");
+                if platform == "sensor" || platform == "binary_sensor" {
+                    assert_eq!(category, "diagnostic", "{device}/{}", field.name);
+                }
             }
             // Home Assistant refuses these combinations outright.
             if config["device_class"] == "enum" {
