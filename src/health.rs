@@ -31,10 +31,6 @@ pub const EXIT_STUCK: i32 = 70;
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 
-/// Environment variable naming another status file (empty: write none), for running the
-/// daemon by hand where `/run/rtu2mqtt` is not writable.
-pub const STATUS_FILE_ENV: &str = "RTU2MQTT_STATUS_FILE";
-
 /// How often the bridge loop promises to turn (it beats at least every 250 ms).
 const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
 
@@ -85,17 +81,6 @@ impl Default for HealthSettings {
             stale_after: Duration::from_secs(15),
             stall_limit: Duration::from_secs(60),
         }
-    }
-}
-
-impl HealthSettings {
-    /// The defaults, with the status file from [`STATUS_FILE_ENV`] when set.
-    pub fn from_env() -> Self {
-        let mut settings = HealthSettings::default();
-        if let Some(path) = std::env::var_os(STATUS_FILE_ENV) {
-            settings.status_file = (!path.is_empty()).then(|| PathBuf::from(path));
-        }
-        settings
     }
 }
 
@@ -735,6 +720,16 @@ mod tests {
         assert_eq!(code, ExitCode::SUCCESS);
         let missing = check_status_file(&dir.path().join("nope"), Duration::from_secs(30));
         assert_eq!(missing.unwrap(), ExitCode::FAILURE);
+    }
+
+    #[test]
+    fn settings_deserialize_with_defaults() {
+        let parsed: HealthSettings = toml::from_str("stall_limit = \"2m\"").unwrap();
+        assert_eq!(parsed.stall_limit, Duration::from_secs(120));
+        assert_eq!(parsed.status_file, Some(PathBuf::from(DEFAULT_STATUS_FILE)));
+        let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
+        assert_eq!(none.status_file, None);
+        assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
     }
 
     #[test]
