@@ -363,8 +363,27 @@ pub fn notify_stopping() {
 
 /// systemd's watchdog period (`WatchdogSec=`), when the service manager asks for pings.
 pub fn systemd_watchdog_period() -> Option<Duration> {
-    let mut usec = 0u64;
-    sd_notify::watchdog_enabled(false, &mut usec).then(|| Duration::from_micros(usec))
+    watchdog_period_from(
+        std::env::var("WATCHDOG_USEC").ok().as_deref(),
+        std::env::var("WATCHDOG_PID").ok().as_deref(),
+        std::process::id(),
+    )
+}
+
+/// `sd_watchdog_enabled(3)`'s rule: `WATCHDOG_USEC` set to a positive number, and
+/// `WATCHDOG_PID` either unset or our pid (the variables may have leaked to a child).
+/// (sd-notify's own `watchdog_enabled` also requires `WATCHDOG_PID`, which systemd sets but a
+/// bare `NOTIFY_SOCKET` harness may not.)
+pub fn watchdog_period_from(
+    usec: Option<&str>,
+    pid: Option<&str>,
+    own_pid: u32,
+) -> Option<Duration> {
+    let usec = usec?.trim().parse::<u64>().ok().filter(|usec| *usec > 0)?;
+    match pid {
+        Some(pid) if pid.trim().parse::<u32>().ok() != Some(own_pid) => None,
+        _ => Some(Duration::from_micros(usec)),
+    }
 }
 
 /// The internal watchdog, before it runs: the loops it watches.
@@ -720,6 +739,17 @@ mod tests {
         assert_eq!(code, ExitCode::SUCCESS);
         let missing = check_status_file(&dir.path().join("nope"), Duration::from_secs(30));
         assert_eq!(missing.unwrap(), ExitCode::FAILURE);
+    }
+
+    #[test]
+    fn watchdog_period_follows_sd_watchdog_enabled() {
+        let period = Some(Duration::from_secs(30));
+        assert_eq!(watchdog_period_from(Some("30000000"), None, 7), period);
+        assert_eq!(watchdog_period_from(Some("30000000"), Some("7"), 7), period);
+        assert_eq!(watchdog_period_from(Some("30000000"), Some("8"), 7), None);
+        assert_eq!(watchdog_period_from(Some("0"), None, 7), None);
+        assert_eq!(watchdog_period_from(Some("soon"), None, 7), None);
+        assert_eq!(watchdog_period_from(None, Some("7"), 7), None);
     }
 
     #[test]
