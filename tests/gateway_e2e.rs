@@ -311,7 +311,11 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     let opening = sim::lock(&h.plant.valve).opening();
     assert_eq!(value("plant/valve/opening"), opening.to_string());
     assert_eq!(value("plant/valve/mode"), "manual");
-    // The gateway itself.
+    // The gateway itself: its readiness hook shows both lines and a live, connected bridge.
+    let running = &h.gateway.as_ref().unwrap().running;
+    assert_eq!(running.lines.len(), 2);
+    assert!(*running.bridge.connected.borrow());
+    assert!(running.bridge.heartbeat.borrow().elapsed() < Duration::from_secs(5));
     h.wait_text(&format!("plant/gateway/{}/status", h.client_id), "online")
         .await;
     // Statistics go out every second; a later document counts the polls.
@@ -416,12 +420,13 @@ async fn valve_setpoint_lands_as_packed_bcd() {
     let mut h = Harness::start("valve").await;
     let result = h.command("valve", "setpoint", b"45.67").await;
     assert_eq!(result["outcome"], "applied", "{result}");
-    let valve = sim::lock(&h.plant.valve);
-    assert_eq!(valve.register(0xB2), Some(0x0045));
-    assert_eq!(valve.register(0xB3), Some(0x0067));
-    drop(valve);
+    let (integer, fraction) = {
+        let valve = sim::lock(&h.plant.valve);
+        (valve.register(0xB2), valve.register(0xB3))
+    };
+    assert_eq!(integer, Some(0x0045));
+    assert_eq!(fraction, Some(0x0067));
     h.wait_text("plant/valve/setpoint", "45.67").await;
-    let _ = VALVE;
     h.stop_gateway().await;
 }
 
@@ -659,6 +664,22 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         assert!(!detail.is_empty(), "{result}");
         assert!(detail.contains(reason), "{device}/{field}: {result}");
     }
+    // A retained payload far over the limit (but under the client's packet bound) is
+    // rejected and cleared, so it does not come back after every reconnect.
+    h.client
+        .publish(
+            "plant/dust_collector/pulse_interval/set",
+            vec![b'7'; 300_000],
+            true,
+        )
+        .await;
+    let result = h.result("dust_collector", "pulse_interval").await;
+    assert_eq!(outcome(&result), "rejected", "{result}");
+    h.client
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.payload.is_empty()
+        })
+        .await;
     // A command for a device that is not configured gets nothing back, and nothing happens.
     h.client
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
@@ -694,4 +715,42 @@ async fn a_clean_stop_announces_offline() {
         h.wait_text(&format!("plant/{device}/availability"), "offline")
             .await;
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connects_over_tls_with_a_client_certificate_and_a_password_file() {
+    let (broker, tls_port, certs) = Mosquitto::start_tls();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut observer = TestClient::connect(broker.port, "tls-observer").await;
+    observer.subscribe("plant/#").await;
+    let dir = certs.path().display();
+    let text = plant_config(&broker, &plant, "tls-gw", "").replace(
+        &format!("url = \"{}\"", broker.url()),
+        &format!(
+            "url = \"mqtts://127.0.0.1:{tls_port}\"\nusername = \"gateway\"\n\
+                 password_file = \"{dir}/password\"\nca_file = \"{dir}/ca.crt\"\n\
+                 cert_file = \"{dir}/client.crt\"\nkey_file = \"{dir}/client.key\""
+        ),
+    );
+    let config = fast(&text);
+    assert!(config.mqtt.tls.is_some());
+    assert_eq!(config.mqtt.password.as_deref(), Some("s3cret"));
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/gateway/tls-gw/status", ANSWER, |m| {
+            m.text() == "online"
+        })
+        .await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    gateway.stop().await;
+    // The broker saw the gateway log in with its user name (on the TLS listener: it is the
+    // only one the configuration names).
+    let log = broker.log();
+    assert!(
+        log.lines()
+            .any(|line| line.contains("as tls-gw") && line.contains("u'gateway'")),
+        "no authenticated connection of the gateway in the broker log:\n{log}"
+    );
 }

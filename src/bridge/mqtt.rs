@@ -27,9 +27,10 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
 /// costs a message, never a blocked bridge).
 pub const REQUEST_QUEUE: usize = 4096;
-/// Incoming packets above this end the connection in rumqttc: large enough for any sane
-/// command, small enough to bound memory.
-pub const MAX_INCOMING_PACKET: usize = 256 * 1024;
+/// Incoming packets above this end the connection in rumqttc, and a retained one would do so
+/// again after every reconnect. Far above any sane command, so that an oversized retained
+/// command is received, rejected by the payload limit and cleared instead; still a bound.
+pub const MAX_INCOMING_PACKET: usize = 1024 * 1024;
 /// Discovery configs of big devices are a few KiB.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
 
