@@ -44,7 +44,7 @@ use crate::shutdown::Shutdown;
 pub const TICK: Duration = Duration::from_millis(250);
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
-/// How long shutdown waits for commands on the bus and for the Disconnect to go out.
+/// How long shutdown waits for commands on the bus, and then for the Disconnect to complete.
 const STOP_GRACE: Duration = Duration::from_secs(3);
 
 /// Liveness of the bridge for the watchdog and the status file.
@@ -679,7 +679,8 @@ impl Bridge {
             if let Err(error) = self.client.try_disconnect() {
                 tracing::warn!(%error, "cannot queue the MQTT disconnect");
             }
-            let closed = tokio::time::timeout_at(deadline, async {
+            // Its own bound: the event loop waits up to its close grace for the broker.
+            let closed = tokio::time::timeout(STOP_GRACE, async {
                 while let Some(event) = self.link_rx.recv().await {
                     if matches!(event, LinkEvent::Closed) {
                         break;
