@@ -158,7 +158,6 @@ pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
         _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
         _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
     }
-    health::notify_stopping();
     trigger.fire();
     tokio::select! {
         _ = terminate.recv() => {},

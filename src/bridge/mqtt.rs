@@ -34,6 +34,9 @@ pub const MAX_INCOMING_PACKET: usize = 1024 * 1024;
 /// Discovery configs of big devices are a few KiB.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
 
+/// How long the event loop waits for the broker to close after our Disconnect.
+const CLOSE_GRACE: Duration = Duration::from_secs(2);
+
 /// What the event loop task reports to the bridge.
 #[derive(Debug)]
 pub enum LinkEvent {
@@ -144,6 +147,11 @@ pub fn spawn_event_loop(
                 }
                 Ok(Event::Incoming(Packet::Publish(publish))) => LinkEvent::Message(publish),
                 Ok(Event::Outgoing(Outgoing::Disconnect)) => {
+                    // Read until the broker closes: dropping a socket with unread acks in it
+                    // resets the connection, which can lose what was just sent (the offline
+                    // announcements) and makes the broker publish our Will.
+                    let drain = async { while eventloop.poll().await.is_ok() {} };
+                    let _ = tokio::time::timeout(CLOSE_GRACE, drain).await;
                     let _ = events_tx.send(LinkEvent::Closed).await;
                     return;
                 }

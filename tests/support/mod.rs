@@ -43,6 +43,16 @@ impl Mosquitto {
         broker
     }
 
+    /// A broker that is not running yet (its port chosen): start it with [`restart`].
+    pub fn not_started() -> Mosquitto {
+        Mosquitto {
+            port: free_port(),
+            extra: String::new(),
+            child: None,
+            dir: tempfile::tempdir().expect("temp dir"),
+        }
+    }
+
     /// A loopback TLS listener on its own port that wants a client certificate signed by the
     /// test CA and a user name and password (`gateway` / `s3cret`), beside the plain
     /// anonymous one. Returns the broker, the TLS port and the directory with `ca.crt`,
