@@ -17,7 +17,8 @@
 //!   discovery and statistics.
 //! - [`sim`]: simulated devices built from profiles, for tests, benchmarks and the demo.
 //! - [`app`]: wires the above together for `run` and `demo`; [`shutdown`] and [`health`] are
-//!   the small process-level pieces (signals, watchdog, status file).
+//!   the small process-level pieces (signals, watchdog, status file), [`cli`] the command line
+//!   and [`broker`] the demo's embedded MQTT broker.
 
 pub mod app;
 pub mod bridge;

@@ -250,6 +250,24 @@ fn valve_setpoint_is_two_fc06_integer_then_fraction() {
             },
         ]
     );
+    // The read-back reads only the run the setpoint is in: the device may refuse the merged
+    // configuration block (its gaps are unmapped).
+    assert_eq!(
+        plan.readback(),
+        &[Request::ReadHoldingRegisters {
+            start: 0xB2,
+            quantity: 2
+        }]
+    );
+    let readback = Response::HoldingRegisters(vec![0x0045, 0x0067]);
+    assert_eq!(plan.verify(&[readback]), Verification::Applied);
+    let stale = Response::HoldingRegisters(vec![0x0045, 0x0012]);
+    match plan.verify(&[stale]) {
+        Verification::NotApplied(detail) => {
+            assert_eq!(detail, "setpoint reads 45.12 after writing 45.67")
+        }
+        other => panic!("{other:?}"),
+    }
     let plan = self::plan(&valve(), "high_alarm_ratio_2", "1234.5");
     assert_eq!(
         plan.writes(&[]).unwrap(),
@@ -306,6 +324,20 @@ fn valve_opening_settles_within_a_window() {
         Verification::Applied
     );
     assert!(rejection(&valve(), "opening", "101").contains("0–100"));
+    // Alarm openings: 0–100 %, or 255 to disable the alarm.
+    let disable = self::plan(&valve(), "low_alarm_opening_1", "255");
+    assert_eq!(
+        disable.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0xD2,
+            value: 0xFF
+        }]
+    );
+    assert_eq!(
+        rejection(&valve(), "low_alarm_opening_1", "150"),
+        "low_alarm_opening_1 must be an integer 0–100 or 255, got 150"
+    );
+    assert!(rejection(&valve(), "low_alarm_opening_1", "x").ends_with("or 255, got \"x\""));
 }
 
 #[test]
@@ -734,4 +766,804 @@ fn shower_decodes_every_field() {
             "prefilter_expired=ON"
         ]
     );
+}
+
+// --- the fourth profile, a file only --------------------------------------------------------
+
+fn th_sensor() -> Profile {
+    rtu2mqtt::profile::registry::load_file(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/profiles/generic-th-sensor.toml"
+    )))
+    .unwrap()
+}
+
+#[test]
+fn th_sensor_decodes_floats_in_both_word_orders() {
+    let profile = th_sensor();
+    assert_eq!(
+        profile.read_blocks()[0].request,
+        Request::ReadInputRegisters {
+            start: 0,
+            quantity: 8
+        }
+    );
+    // 23.45 °C = 0x41BB999A (high word first); 56.7 % = 0x4262CCCD (high word first);
+    // dew point -3.5 °C = -35 tenths = 0xFFDD; 1234.5 h = 0x449A5000, low word first.
+    let answer = Response::InputRegisters(vec![
+        0x41BB, 0x999A, 0x4262, 0xCCCD, 0xFFDD, 0x0000, 0x5000, 0x449A,
+    ]);
+    let text: Vec<(String, String)> = profile
+        .decode_block(0, &answer)
+        .into_iter()
+        .map(|r| (r.field, r.value.unwrap().to_text()))
+        .collect();
+    assert_eq!(
+        text,
+        [
+            ("temperature", "23.45"),
+            ("humidity", "56.7"),
+            ("dew_point", "-3.5"),
+            ("operating_hours", "1234.5"),
+        ]
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+    );
+    // A NaN float is an error for that field, not a number.
+    let answer = Response::InputRegisters(vec![0x7FC0, 0, 0x4262, 0xCCCD, 0, 0, 0, 0]);
+    let readings = profile.decode_block(0, &answer);
+    assert!(readings[0].value.is_err());
+    assert!(readings[1].value.is_ok());
+}
+
+#[test]
+fn th_sensor_settings_are_written_without_code() {
+    let profile = th_sensor();
+    let plan = plan(&profile, "temperature_offset", "-1.5");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0100,
+            value: (-15i16) as u16
+        }]
+    );
+    assert!(rejection(&profile, "temperature_offset", "10.5").contains("-10.0–10.0"));
+    assert!(rejection(&profile, "temperature", "20").contains("read-only"));
+    // A scaled word: one raw count is 5 s.
+    let plan = self::plan(&profile, "report_interval", "60");
+    assert_eq!(
+        plan.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0102,
+            value: 12
+        }]
+    );
+    assert!(rejection(&profile, "report_interval", "62").contains("multiple of the step 5"));
+    assert!(rejection(&profile, "report_interval", "0").contains("5–3600"));
+    let settings = Response::HoldingRegisters(vec![0xFFF6, 0x8001, 12]);
+    let texts: Vec<String> = profile
+        .decode_block(1, &settings)
+        .into_iter()
+        .map(|r| r.value.unwrap().to_text())
+        .collect();
+    assert_eq!(texts, ["-1.0", "ON", "60"]);
+    let plan = self::plan(&profile, "alarm_enabled", "ON");
+    assert_eq!(
+        plan.writes(&[Response::HoldingRegisters(vec![0xFFF6, 0x8000, 12])])
+            .unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0x0101,
+            value: 0x8001
+        }]
+    );
+}
+
+// --- the device side, for simulators --------------------------------------------------------
+
+/// Every profile: an image seeded from plausible values decodes to exactly those values, and
+/// each plan's writes applied through the profile's write frames read back as applied.
+#[test]
+fn simulated_images_round_trip_through_every_profile() {
+    for profile in [dust(), valve(), shower(), th_sensor()] {
+        let mut images: Vec<_> = (0..profile.read_blocks().len())
+            .map(|b| profile.initial_image(b).unwrap())
+            .collect();
+        let answer_of = |images: &[rtu2mqtt::profile::BlockImage], b: usize| match (
+            &images[b],
+            &profile.read_blocks()[b].request,
+        ) {
+            (rtu2mqtt::profile::BlockImage::Words(w), Request::ReadInputRegisters { .. }) => {
+                Response::InputRegisters(w.clone())
+            }
+            (rtu2mqtt::profile::BlockImage::Words(w), _) => Response::HoldingRegisters(w.clone()),
+            (rtu2mqtt::profile::BlockImage::Bits(bits), _) => Response::Coils(bits.clone()),
+        };
+        for (b, _) in profile.read_blocks().iter().enumerate() {
+            for r in profile.decode_block(b, &answer_of(&images, b)) {
+                let value = r.value.unwrap_or_else(|e| panic!("{}: {e}", r.field));
+                if let Some(plausible) = profile.plausible_value(&r.field) {
+                    if r.field != "wind" {
+                        assert_eq!(value, plausible, "{} {}", profile.name(), r.field);
+                    }
+                }
+            }
+        }
+        for info in profile.fields().iter().filter(|f| f.writable) {
+            if profile.toggle_fields().contains(&info.name.as_str())
+                || profile.momentary_fields().contains(&info.name.as_str())
+            {
+                continue;
+            }
+            // Booleans go ON and back OFF so that no forbidden combination builds up.
+            let texts: Vec<String> = match &info.kind {
+                rtu2mqtt::profile::FieldKind::Bool => vec!["ON".into(), "OFF".into()],
+                rtu2mqtt::profile::FieldKind::Integer { max, .. } => vec![max.to_string()],
+                rtu2mqtt::profile::FieldKind::Decimal { min, .. } => vec![format!("{}", min + 1.0)],
+                rtu2mqtt::profile::FieldKind::Enum { options } => {
+                    vec![options.last().unwrap().clone(), options[0].clone()]
+                }
+                _ => continue,
+            };
+            for text in texts {
+                let plan = profile
+                    .plan_command(&info.name, &text, &DeviceState::new())
+                    .unwrap();
+                let before: Vec<Response> = plan
+                    .reads_before()
+                    .iter()
+                    .map(|read| profile.answer_read(&images, read).unwrap())
+                    .collect();
+                for write in plan.writes(&before).unwrap() {
+                    assert!(
+                        profile.apply_write(&mut images, &write),
+                        "{} {write:?}",
+                        info.name
+                    );
+                }
+                let readback = profile.answer_read(&images, &plan.readback()[0]).unwrap();
+                assert_eq!(
+                    plan.verify(&[readback]),
+                    Verification::Applied,
+                    "{} {}={text}",
+                    profile.name(),
+                    info.name
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn apply_write_refuses_addresses_outside_the_write_frames() {
+    let profile = dust();
+    let mut images = vec![profile.initial_image(0).unwrap()];
+    assert!(!profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x1001,
+            value: 1
+        }
+    ));
+    assert!(!profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x2000,
+            value: 1
+        }
+    ));
+    assert!(profile.apply_write(
+        &mut images,
+        &Request::WriteSingleRegister {
+            address: 0x1006,
+            value: 42
+        }
+    ));
+    assert_eq!(
+        reading(
+            &profile,
+            0,
+            &Response::HoldingRegisters(match &images[0] {
+                rtu2mqtt::profile::BlockImage::Words(w) => w.clone(),
+                _ => panic!(),
+            }),
+            "pulse_duration"
+        ),
+        Value::Int(42)
+    );
+}
+
+// --- byte for byte, through the RTU codec ---------------------------------------------------
+
+mod bytes {
+    use super::*;
+    use rtu2mqtt::rtu::codec::{decode_answer, encode_request, hex, Answer};
+
+    fn frames(slave: u8, requests: &[Request]) -> Vec<String> {
+        requests
+            .iter()
+            .map(|r| hex(&encode_request(slave, r).unwrap()))
+            .collect()
+    }
+
+    #[test]
+    fn dust_collector_frames() {
+        let profile = dust();
+        assert_eq!(
+            frames(1, &[profile.read_blocks()[0].request.clone()]),
+            ["01 03 10 00 00 06 C1 08"]
+        );
+        let gear = plan(&profile, "gear", "8");
+        assert_eq!(
+            frames(1, &gear.writes(&[]).unwrap()),
+            ["01 06 10 02 00 08 2D 0C"]
+        );
+        // Power on + pulse on, gear 5, PV 2, SV 10 in one FC10, from a device in standby.
+        let group = profile
+            .plan_group(
+                "settings",
+                &[
+                    ("power", "ON"),
+                    ("pulse_cleaning", "ON"),
+                    ("gear", "5"),
+                    ("pulse_interval", "2"),
+                    ("pulse_duration", "10"),
+                ],
+                &DeviceState::new(),
+            )
+            .unwrap();
+        assert_eq!(group.field(), "settings");
+        let standby = Response::HoldingRegisters(vec![0x0000, 3, 0, 0, 0, 21]);
+        assert_eq!(
+            frames(1, &group.writes(&[standby]).unwrap()),
+            ["01 10 10 00 00 04 08 03 00 00 05 00 02 00 0A 25 38"]
+        );
+        let after = Response::HoldingRegisters(vec![0x0300, 5, 2, 10, 1400, 21]);
+        assert_eq!(group.verify(&[after]), Verification::Applied);
+        let ignored = Response::HoldingRegisters(vec![0x0000, 3, 0, 0, 0, 21]);
+        match group.verify(&[ignored]) {
+            Verification::NotApplied(detail) => {
+                assert!(
+                    detail.contains("power reads OFF after writing ON"),
+                    "{detail}"
+                );
+                assert!(detail.contains("gear reads 3 after writing 5"), "{detail}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn dust_group_keeps_unnamed_status_bits_and_refuses_strays() {
+        let profile = dust();
+        let group = profile
+            .plan_group("settings", &[("gear", "4")], &DeviceState::new())
+            .unwrap();
+        let fresh = Response::HoldingRegisters(vec![0x42F1, 3, 7, 9, 0, 21]);
+        assert_eq!(
+            group.writes(&[fresh]).unwrap(),
+            vec![Request::WriteMultipleRegisters {
+                start: 0x1000,
+                values: vec![0x42F1, 4, 7, 9]
+            }]
+        );
+        let refuse = |values: &[(&str, &str)]| {
+            profile
+                .plan_group("settings", values, &DeviceState::new())
+                .unwrap_err()
+                .0
+        };
+        assert!(refuse(&[("fan_speed", "3")]).contains("read-only"));
+        assert!(refuse(&[("gear", "11")]).contains("gear must be an integer 1–10"));
+        assert!(refuse(&[("gear", "4"), ("gear", "5")]).contains("twice"));
+        assert!(refuse(&[]).contains("no values"));
+        assert!(profile
+            .plan_group("nope", &[("gear", "4")], &DeviceState::new())
+            .is_err());
+    }
+
+    #[test]
+    fn air_shower_frames() {
+        let profile = shower();
+        assert_eq!(
+            frames(0x81, &[profile.read_blocks()[0].request.clone()]),
+            ["81 01 00 00 00 16 A2 04"]
+        );
+        // The document's answer example: light on.
+        let request = profile.read_blocks()[0].request.clone();
+        let answer = match decode_answer(
+            0x81,
+            &request,
+            &[0x81, 0x01, 0x03, 0x00, 0x01, 0x00, 0x22, 0x1E],
+        )
+        .unwrap()
+        {
+            Answer::Normal(response) => response,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(reading(&profile, 0, &answer, "light"), Value::Bool(true));
+        assert_eq!(
+            reading(&profile, 0, &answer, "emergency_stop"),
+            Value::Bool(false)
+        );
+
+        // (field, command, coils set on the device before, golden frame)
+        let cases: &[(&str, &str, &[usize], &str)] = &[
+            ("light", "OFF", &[8], "81 0F 00 00 00 0C 02 00 00 84 76"),
+            (
+                "emergency_stop",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 01 00 85 E6",
+            ),
+            (
+                "front_door_lock",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 02 00 85 16",
+            ),
+            (
+                "rear_door_lock",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 04 00 86 B6",
+            ),
+            ("strong_wind", "ON", &[], "81 0F 00 00 00 0C 02 08 00 83 B6"),
+            ("breeze", "ON", &[], "81 0F 00 00 00 0C 02 10 00 89 B6"),
+            (
+                "front_door_open",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 20 00 9D B6",
+            ),
+            (
+                "rear_door_open",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 40 00 B5 B6",
+            ),
+            (
+                "tunnel_extension",
+                "ON",
+                &[],
+                "81 0F 00 00 00 0C 02 80 00 E5 B6",
+            ),
+            ("light", "ON", &[], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+            ("buzzer", "ON", &[], "81 0F 00 00 00 0C 02 00 02 05 B7"),
+            (
+                "voice_start",
+                "PRESS",
+                &[],
+                "81 0F 00 00 00 0C 02 00 04 85 B5",
+            ),
+            (
+                "voice_door",
+                "PRESS",
+                &[],
+                "81 0F 00 00 00 0C 02 00 08 85 B0",
+            ),
+            (
+                "rear_door_lock",
+                "ON",
+                &[1],
+                "81 0F 00 00 00 0C 02 06 00 87 D6",
+            ),
+            (
+                "strong_wind",
+                "ON",
+                &[1, 2],
+                "81 0F 00 00 00 0C 02 0E 00 80 16",
+            ),
+            (
+                "wind",
+                "strong",
+                &[1, 2],
+                "81 0F 00 00 00 0C 02 0E 00 80 16",
+            ),
+            (
+                "light",
+                "ON",
+                &[1, 2, 3],
+                "81 0F 00 00 00 0C 02 0E 01 41 D6",
+            ),
+            // E-stop active + light ON: coil 0 written 0, the e-stop stays active.
+            ("light", "ON", &[0], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+            // Voice coils read back as 1 are written 0.
+            ("light", "ON", &[10, 11], "81 0F 00 00 00 0C 02 00 01 45 B6"),
+        ];
+        for (field, text, before, golden) in cases {
+            let plan = plan(&profile, field, text);
+            let reads = frames(0x81, plan.reads_before());
+            assert_eq!(reads, ["81 01 00 00 00 16 A2 04"], "{field}");
+            let writes = plan.writes(&[coils(before)]).unwrap();
+            assert_eq!(
+                frames(0x81, &writes),
+                [*golden],
+                "{field}={text} from {before:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn valve_setpoint_frames_are_standard_fc06() {
+        let profile = valve();
+        let plan = plan(&profile, "setpoint", "45.67");
+        let written = frames(1, &plan.writes(&[]).unwrap());
+        // Standard single-register layout: address, 06, register, value, CRC (low byte first).
+        assert_eq!(written.len(), 2);
+        assert!(
+            written[0].starts_with("01 06 00 B2 00 45 "),
+            "{}",
+            written[0]
+        );
+        assert!(
+            written[1].starts_with("01 06 00 B3 00 67 "),
+            "{}",
+            written[1]
+        );
+        for frame in &written {
+            let bytes: Vec<u8> = frame
+                .split(' ')
+                .map(|b| u8::from_str_radix(b, 16).unwrap())
+                .collect();
+            let crc = rtu2mqtt::rtu::crc::crc16(&bytes[..6]);
+            assert_eq!(&bytes[6..], &crc.to_le_bytes());
+        }
+    }
+}
+
+/// The fourth profile against the generic simulated device built from it: polls decode the
+/// golden words set in the device, and commands go through plan → writes → read-back.
+#[test]
+fn th_sensor_against_the_generic_simulator() {
+    use rtu2mqtt::sim::generic::GenericDevice;
+    use rtu2mqtt::sim::{Reply, SimDevice};
+    use std::time::Instant;
+
+    let profile = th_sensor();
+    let mut device = GenericDevice::from_profile(&profile, 7);
+    for (address, word) in [
+        (0u16, 0x41BB),
+        (1, 0x999A),
+        (2, 0x4262),
+        (3, 0xCCCD),
+        (4, 0xFFDD),
+        (6, 0x5000),
+        (7, 0x449A),
+    ] {
+        device.set_input_register(address, word);
+    }
+    let mut ask = |request: &Request| match device.handle(request, Instant::now()) {
+        Reply::Normal(response) => response,
+        other => panic!("{request:?}: {other:?}"),
+    };
+    let mut values = std::collections::BTreeMap::new();
+    for (index, block) in profile.read_blocks().iter().enumerate() {
+        let answer = ask(&block.request);
+        for r in profile.decode_block(index, &answer) {
+            values.insert(r.field, r.value.unwrap().to_text());
+        }
+    }
+    assert_eq!(values["temperature"], "23.45");
+    assert_eq!(values["humidity"], "56.7");
+    assert_eq!(values["dew_point"], "-3.5");
+    assert_eq!(values["operating_hours"], "1234.5");
+
+    for (field, text) in [
+        ("temperature_offset", "2.5"),
+        ("alarm_enabled", "ON"),
+        ("report_interval", "300"),
+        ("alarm_enabled", "OFF"),
+    ] {
+        let plan = profile
+            .plan_command(field, text, &DeviceState::new())
+            .unwrap();
+        let before: Vec<Response> = plan.reads_before().iter().map(&mut ask).collect();
+        for write in plan.writes(&before).unwrap() {
+            ask(&write);
+        }
+        let readback: Vec<Response> = plan.readback().iter().map(&mut ask).collect();
+        assert_eq!(
+            plan.verify(&readback),
+            Verification::Applied,
+            "{field}={text}"
+        );
+    }
+}
+
+/// Runs one planned command on a simulated device as the line does, returning the verification
+/// of the read-back.
+fn run_on(
+    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    plan: &CommandPlan,
+) -> Result<Verification, Rejection> {
+    use rtu2mqtt::sim::Reply;
+    use std::time::Instant;
+    let mut ask = |request: &Request| match device.handle(request, Instant::now()) {
+        Reply::Normal(response) => response,
+        other => panic!("{request:?}: {other:?}"),
+    };
+    let before: Vec<Response> = plan.reads_before().iter().map(&mut ask).collect();
+    for write in plan.writes(&before)? {
+        ask(&write);
+    }
+    let readback: Vec<Response> = plan.readback().iter().map(&mut ask).collect();
+    Ok(plan.verify(&readback))
+}
+
+/// The built-in profiles against the seed device simulators: every command the profiles plan
+/// is applied by the simulated device as intended, and no device-protecting rule is broken.
+#[test]
+fn seed_simulators_apply_what_the_profiles_plan() {
+    use rtu2mqtt::sim::{AirShower, DustCollector, SimDevice};
+    let none = DeviceState::new();
+
+    let profile = dust();
+    let mut device = DustCollector::new(1);
+    device.set_internal_bits(0x40F0);
+    // In standby the gear is acknowledged, not applied.
+    let gear = profile.plan_command("gear", "8", &none).unwrap();
+    assert!(matches!(
+        run_on(&mut device, &gear),
+        Ok(Verification::NotApplied(_))
+    ));
+    for (field, text) in [
+        ("power", "ON"),
+        ("gear", "8"),
+        ("pulse_cleaning", "ON"),
+        ("pulse_interval", "12"),
+        ("pulse_duration", "30"),
+        ("pulse_cleaning", "OFF"),
+    ] {
+        let plan = profile.plan_command(field, text, &none).unwrap();
+        assert_eq!(
+            run_on(&mut device, &plan),
+            Ok(Verification::Applied),
+            "{field}={text}"
+        );
+    }
+    assert!(device.power());
+    assert_eq!(device.gear(), 8);
+    assert_eq!(device.status_word() & 0x40F0, 0x40F0, "internal bits kept");
+    assert_eq!(device.violations(), Vec::<String>::new());
+
+    let profile = shower();
+    let mut device = AirShower::new();
+    for (field, text) in [
+        ("light", "ON"),
+        ("emergency_stop", "ON"),
+        ("front_door_lock", "ON"),
+        ("emergency_stop", "ON"),
+        ("wind", "breeze"),
+        ("voice_start", "PRESS"),
+        ("emergency_stop", "OFF"),
+        ("strong_wind", "ON"),
+    ] {
+        let plan = profile.plan_command(field, text, &none).unwrap();
+        let outcome = run_on(&mut device, &plan);
+        if (field, text) == ("strong_wind", "ON") {
+            // Breeze is on: refused on the fresh read, nothing written.
+            assert!(outcome.is_err(), "{outcome:?}");
+        } else {
+            assert_eq!(outcome, Ok(Verification::Applied), "{field}={text}");
+        }
+    }
+    assert!(!device.emergency_stop());
+    assert_eq!(device.voice_presses(), [1, 0]);
+    let coils = device.coils();
+    assert!(coils[8] && coils[1] && coils[4] && !coils[3]);
+    assert_eq!(device.violations(), Vec::<String>::new());
+
+    let profile = valve();
+    let mut device = rtu2mqtt::sim::Valve::new(1);
+    for (field, text) in [
+        ("mode", "manual"),
+        ("setpoint", "45.67"),
+        ("high_alarm_opening_2", "255"),
+        ("regulation_ratio", "1.5"),
+    ] {
+        let plan = profile.plan_command(field, text, &none).unwrap();
+        assert_eq!(
+            run_on(&mut device, &plan),
+            Ok(Verification::Applied),
+            "{field}={text}"
+        );
+    }
+    assert_eq!(device.register(0xB2), Some(0x0045));
+    assert_eq!(device.register(0xB3), Some(0x0067));
+    assert!(!device.mode_auto());
+    // The motor needs time: the immediate read-back is still settling.
+    device.set_opening(10);
+    let opening = profile.plan_command("opening", "80", &none).unwrap();
+    assert_eq!(run_on(&mut device, &opening), Ok(Verification::Settling));
+    assert_eq!(device.target(), 80);
+    assert_eq!(device.violations(), Vec::<String>::new());
+}
+
+// --- bad input never panics ------------------------------------------------------------------
+
+mod robustness {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Parsed once: the cases only exercise decoding and planning.
+    fn profiles() -> &'static [Profile] {
+        static PROFILES: std::sync::OnceLock<Vec<Profile>> = std::sync::OnceLock::new();
+        PROFILES.get_or_init(|| vec![dust(), valve(), shower(), th_sensor()])
+    }
+
+    fn any_answer() -> impl Strategy<Value = Response> {
+        prop_oneof![
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::HoldingRegisters),
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::InputRegisters),
+            proptest::collection::vec(any::<bool>(), 0..40).prop_map(Response::Coils),
+            (any::<u16>(), any::<u16>())
+                .prop_map(|(address, value)| Response::WriteSingleRegister { address, value }),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn decoding_any_answer_never_panics(answer in any_answer(), block in 0usize..6) {
+            for profile in profiles() {
+                let readings = profile.decode_block(block, &answer);
+                if block < profile.read_blocks().len() {
+                    prop_assert_eq!(readings.len(), profile.block_fields(block).len());
+                }
+                for reading in readings {
+                    if let Ok(value) = reading.value {
+                        let _ = value.to_text();
+                        let _ = value.to_json();
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn any_command_text_is_planned_or_refused(text in ".{0,24}", pick in any::<usize>()) {
+            for profile in profiles() {
+                let field = &profile.fields()[pick % profile.fields().len()].name;
+                match profile.plan_command(field, &text, &DeviceState::new()) {
+                    Ok(plan) => prop_assert_eq!(plan.field(), field.as_str()),
+                    Err(Rejection(reason)) => prop_assert!(!reason.is_empty()),
+                }
+            }
+        }
+
+        /// Any value inside a writable number's range goes out and reads back as itself.
+        #[test]
+        fn numbers_in_range_round_trip(pick in any::<usize>(), fraction in 0.0f64..=1.0) {
+            for profile in profiles() {
+                let numbers: Vec<_> = profile
+                    .fields()
+                    .iter()
+                    .filter(|f| f.writable)
+                    .filter(|f| matches!(
+                        f.kind,
+                        rtu2mqtt::profile::FieldKind::Integer { .. }
+                            | rtu2mqtt::profile::FieldKind::Decimal { .. }
+                    ))
+                    .collect();
+                let Some(info) = numbers.get(pick % numbers.len().max(1)) else { continue };
+                let text = match info.kind {
+                    rtu2mqtt::profile::FieldKind::Integer { min, max } => {
+                        (min + ((max - min) as f64 * fraction) as i64).to_string()
+                    }
+                    rtu2mqtt::profile::FieldKind::Decimal { min, max, precision } => {
+                        format!("{:.*}", usize::from(precision), min + (max - min) * fraction)
+                    }
+                    _ => unreachable!(),
+                };
+                let plan = match profile.plan_command(&info.name, &text, &DeviceState::new()) {
+                    Ok(plan) => plan,
+                    // A scaled field refuses values off its step, with a reason.
+                    Err(Rejection(reason)) => {
+                        prop_assert!(reason.contains("multiple of the step"), "{}", reason);
+                        continue;
+                    }
+                };
+                let mut images: Vec<_> = (0..profile.read_blocks().len())
+                    .map(|b| profile.initial_image(b).unwrap())
+                    .collect();
+                let before: Vec<Response> = plan
+                    .reads_before()
+                    .iter()
+                    .map(|read| profile.answer_read(&images, read).unwrap())
+                    .collect();
+                for write in plan.writes(&before).unwrap() {
+                    prop_assert!(profile.apply_write(&mut images, &write));
+                }
+                let readback = profile.answer_read(&images, &plan.readback()[0]).unwrap();
+                prop_assert_eq!(plan.verify(&[readback]), Verification::Applied);
+            }
+        }
+
+        #[test]
+        fn writes_and_verify_take_any_fresh_answer(
+            answer in any_answer(),
+            pick in any::<usize>(),
+        ) {
+            for profile in profiles() {
+                let writable: Vec<_> = profile.fields().iter().filter(|f| f.writable).collect();
+                let Some(info) = writable.get(pick % writable.len().max(1)) else { continue };
+                let text = match &info.kind {
+                    rtu2mqtt::profile::FieldKind::Bool => "ON".to_string(),
+                    rtu2mqtt::profile::FieldKind::Momentary => "PRESS".to_string(),
+                    rtu2mqtt::profile::FieldKind::Integer { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Decimal { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Enum { options } => options[0].clone(),
+                    rtu2mqtt::profile::FieldKind::Text => continue,
+                };
+                let plan = profile
+                    .plan_command(&info.name, &text, &DeviceState::new())
+                    .unwrap();
+                let _ = plan.writes(std::slice::from_ref(&answer));
+                let _ = plan.writes(&[]);
+                let _ = plan.verify(std::slice::from_ref(&answer));
+                let _ = plan.verify(&[]);
+            }
+        }
+    }
+}
+
+#[test]
+fn partial_reads_decode_the_fields_inside_them() {
+    let profile = valve();
+    let text = |request: Request, answer: Response| -> Vec<String> {
+        profile
+            .decode_read(&request, &answer)
+            .into_iter()
+            .map(|r| format!("{}={}", r.field, r.value.unwrap().to_text()))
+            .collect()
+    };
+    // The setpoint's read-back in a command slot.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            Response::HoldingRegisters(vec![0x0045, 0x0067])
+        ),
+        ["setpoint=45.67"]
+    );
+    // A used run of the live block: the measured values only.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xA2,
+                quantity: 4
+            },
+            Response::HoldingRegisters(vec![0x0012, 0x0034, 0x0001, 0x0000])
+        ),
+        ["measured_1=12.34", "measured_2=1.00"]
+    );
+    // Half a BCD pair is not decoded; a read outside every block gives nothing.
+    assert!(text(
+        Request::ReadHoldingRegisters {
+            start: 0xA3,
+            quantity: 2
+        },
+        Response::HoldingRegisters(vec![0x0034, 0x0001])
+    )
+    .is_empty());
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0x50,
+                quantity: 1
+            },
+            &Response::HoldingRegisters(vec![1])
+        )
+        .is_empty());
+    // A short answer gives nothing rather than a panic.
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            &Response::HoldingRegisters(vec![0x0045])
+        )
+        .is_empty());
 }

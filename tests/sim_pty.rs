@@ -10,7 +10,7 @@ use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::rtu::ExceptionCode;
 use rtu2mqtt::sim::{
     air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
-    VirtualLine, WireTiming,
+    VirtualLine,
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_serial::SerialStream;
@@ -240,6 +240,31 @@ async fn emergency_stop_toggles_on_the_wire() {
 }
 
 #[tokio::test]
+async fn noise_before_a_request_spoils_it_like_on_a_wire() {
+    let (line, dust, _) = line_a();
+    let mut port = open(&line.path());
+    // Noise and a valid frame in one burst make one bad frame for a device framing by silence.
+    let burst = [&hex("5A A5")[..], &hex(GEAR_8)[..]].concat();
+    port.write_all(&burst).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(line.journal().writes_to(1), 0);
+    let records = line.journal().requests();
+    assert_eq!(records.len(), 1);
+    assert_eq!(records[0].frame, burst);
+    assert!(!records[0].crc_ok);
+    // Noise that looks like the start of a read: the 8 bytes framed are bad, the rest of the
+    // burst is ignored up to the silence.
+    let burst = [&hex("01 03")[..], &hex(GEAR_8)[..]].concat();
+    port.write_all(&burst).await.unwrap();
+    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_eq!(line.journal().discarded_bytes(), 2);
+    lock(&dust).set_power(true);
+    // After the silence the device listens again.
+    assert_eq!(exchange(&mut port, &hex(GEAR_8), 8).await, hex(GEAR_8));
+    assert_eq!(lock(&dust).gear(), 8);
+}
+
+#[tokio::test]
 async fn wrong_address_gets_no_answer() {
     let (line, _, _) = line_a();
     let mut port = open(&line.path());
@@ -424,6 +449,20 @@ async fn fault_knobs_do_what_they_say() {
     assert!(sent.elapsed() >= delay, "late answer");
     faults.clear();
 
+    let pause = Duration::from_millis(100);
+    faults.update(|f| f.pause_mid_answer = Some(pause));
+    port.write_all(&read).await.unwrap();
+    let mut first = [0u8; 1];
+    tokio::time::timeout(ANSWER_TIMEOUT, port.read_exact(&mut first))
+        .await
+        .unwrap()
+        .unwrap();
+    let first_byte = Instant::now();
+    let rest = read_exactly(&mut port, 16).await;
+    assert!(first_byte.elapsed() >= pause / 2, "gap inside the answer");
+    assert_eq!([&first[..], &rest[..]].concat()[..15], good[..15]);
+    faults.clear();
+
     faults.update(|f| f.idle_garbage_every = Some(Duration::from_millis(20)));
     assert!(!listen(&mut port).await.is_empty(), "idle garbage");
     faults.clear();
@@ -435,9 +474,9 @@ async fn pacing_delays_the_answer_by_its_wire_time() {
     let options = ServeOptions::new(9600, Parity::None).paced(true);
     let line = VirtualLine::spawn(options, vec![shared]).unwrap();
     let mut port = open(&line.path());
-    let timing = WireTiming::new(9600, Parity::None);
+    let timing = options.timing;
     // Request 8 bytes + t3.5 + answer 17 bytes at 9600 8N1: about 29 ms.
-    let minimum = timing.frame_time(8) + timing.t3_5() + timing.frame_time(17);
+    let minimum = timing.frame_time(8) + timing.t3_5 + timing.frame_time(17);
     for _ in 0..3 {
         let sent = Instant::now();
         exchange(&mut port, &hex(READ_ALL), 17).await;
@@ -545,5 +584,328 @@ async fn seed_plant_serves_both_lines() {
     assert_eq!(
         exchange(&mut line_b, &hex("01 03 00 74 00 01 C4 10"), 7).await[3..5],
         [0, 55]
+    );
+}
+
+// The built-in profiles driving the simulated devices through the gateway's master: the
+// simulators were written from DEVICES.md apart from the profiles, so this is where a profile
+// that writes the wrong bits or reads the wrong places shows.
+
+use rtu2mqtt::profile::{DeviceState, Profile, Verification};
+use rtu2mqtt::rtu::master::{Master, MasterOptions};
+use rtu2mqtt::rtu::timing::{CharFormat, LineTiming};
+use rtu2mqtt::rtu::transport::{Port, SerialSettings};
+use rtu2mqtt::rtu::{Request, Response};
+
+const MASTER_TIMEOUT: Duration = Duration::from_millis(800);
+
+fn master_on(line: &VirtualLine, parity: Parity) -> Master {
+    let format = CharFormat {
+        data_bits: 8,
+        parity,
+        stop_bits: 1,
+    };
+    let settings = SerialSettings {
+        path: line.path().to_string_lossy().into_owned(),
+        baud: 9600,
+        format,
+        rs485: None,
+    };
+    let port = Port::open(&settings).unwrap();
+    Master::new(
+        port,
+        LineTiming::new(9600, format),
+        MasterOptions::default(),
+    )
+}
+
+/// Reads a block as the line does: when the device refuses the merged block (exception 02),
+/// the runs its fields use, one by one.
+async fn read_block(
+    master: &mut Master,
+    address: u8,
+    profile: &Profile,
+    request: &Request,
+) -> Response {
+    match master.transact(address, request, MASTER_TIMEOUT).await {
+        Ok(answer) => answer,
+        Err(rtu2mqtt::rtu::master::Error::Exception(ExceptionCode::IllegalDataAddress)) => {
+            let block = profile
+                .read_blocks()
+                .iter()
+                .find(|block| block.request == *request)
+                .unwrap_or_else(|| panic!("{request:?} refused and not a block"));
+            assemble_from_runs(master, address, request, &block.used_runs).await
+        }
+        Err(error) => panic!("{}: {request:?}: {error}", profile.name()),
+    }
+}
+
+/// Reads and decodes every block of the profile; every field must decode.
+async fn poll(master: &mut Master, address: u8, profile: &Profile) -> DeviceState {
+    let mut state = DeviceState::new();
+    for (index, block) in profile.read_blocks().iter().enumerate() {
+        let answer = read_block(master, address, profile, &block.request).await;
+        for reading in profile.decode_block(index, &answer) {
+            let value = reading
+                .value
+                .unwrap_or_else(|e| panic!("{}.{}: {e}", profile.name(), reading.field));
+            state.insert(reading.field, value);
+        }
+    }
+    state
+}
+
+async fn assemble_from_runs(
+    master: &mut Master,
+    address: u8,
+    request: &Request,
+    runs: &[(u16, u16)],
+) -> Response {
+    let Request::ReadHoldingRegisters { start, quantity } = request else {
+        panic!("only register blocks are merged in the seed profiles: {request:?}");
+    };
+    let mut words = vec![0u16; usize::from(*quantity)];
+    for &(offset, length) in runs {
+        let run = Request::ReadHoldingRegisters {
+            start: start + offset,
+            quantity: length,
+        };
+        let answer = master
+            .transact(address, &run, MASTER_TIMEOUT)
+            .await
+            .unwrap();
+        let got = answer.registers().unwrap();
+        words[usize::from(offset)..usize::from(offset + length)].copy_from_slice(got);
+    }
+    Response::HoldingRegisters(words)
+}
+
+/// Runs one command slot as the line does: reads before, writes, read-back, verdict.
+async fn command(
+    master: &mut Master,
+    address: u8,
+    profile: &Profile,
+    field: &str,
+    text: &str,
+) -> (usize, Verification) {
+    let plan = profile
+        .plan_command(field, text, &DeviceState::new())
+        .unwrap_or_else(|r| panic!("{field}={text}: {r}"));
+    let mut before = Vec::new();
+    for read in plan.reads_before() {
+        before.push(read_block(master, address, profile, read).await);
+    }
+    let writes = plan.writes(&before).unwrap();
+    for write in &writes {
+        master
+            .transact(address, write, MASTER_TIMEOUT)
+            .await
+            .unwrap();
+    }
+    let mut back = Vec::new();
+    for read in plan.readback() {
+        back.push(read_block(master, address, profile, read).await);
+    }
+    (writes.len(), plan.verify(&back))
+}
+
+fn built_in(name: &str) -> Profile {
+    rtu2mqtt::profile::registry::built_in(name).unwrap()
+}
+
+#[tokio::test]
+async fn dust_collector_profile_against_the_simulator() {
+    let (line, dust, _) = line_a();
+    let mut master = master_on(&line, Parity::None);
+    let profile = built_in("ruiwan-dust-collector");
+    let state = poll(&mut master, 1, &profile).await;
+    assert_eq!(state["power"].to_text(), "OFF");
+    assert_eq!(state["gear"].to_text(), "3");
+    assert_eq!(state["pulse_interval"].to_text(), "10");
+    assert_eq!(state["pulse_duration"].to_text(), "5");
+
+    // Standby: acknowledged, not applied.
+    let (_, verdict) = command(&mut master, 1, &profile, "gear", "8").await;
+    assert!(
+        matches!(verdict, Verification::NotApplied(_)),
+        "{verdict:?}"
+    );
+    assert_eq!(lock(&dust).gear(), 3);
+
+    assert_eq!(
+        command(&mut master, 1, &profile, "power", "ON").await.1,
+        Verification::Applied
+    );
+    assert_eq!(
+        command(&mut master, 1, &profile, "gear", "8").await.1,
+        Verification::Applied
+    );
+    assert_eq!(
+        command(&mut master, 1, &profile, "pulse_cleaning", "ON")
+            .await
+            .1,
+        Verification::Applied
+    );
+    let dust = lock(&dust);
+    assert!(dust.power() && dust.pulse_cleaning());
+    assert_eq!(dust.gear(), 8);
+    // The status word was written read-modify-write: internal bits untouched.
+    assert_eq!(
+        rtu2mqtt::sim::SimDevice::violations(&*dust),
+        Vec::<String>::new()
+    );
+}
+
+#[tokio::test]
+async fn air_shower_profile_against_the_simulator() {
+    let (line, _, shower) = line_a();
+    let mut master = master_on(&line, Parity::None);
+    let profile = built_in("lixian-air-shower");
+    let state = poll(&mut master, 0x81, &profile).await;
+    assert_eq!(state["front_door_closed"].to_text(), "ON");
+    assert_eq!(state["emergency_stop"].to_text(), "OFF");
+
+    assert_eq!(
+        command(&mut master, 0x81, &profile, "light", "ON").await.1,
+        Verification::Applied
+    );
+    assert_eq!(
+        command(&mut master, 0x81, &profile, "emergency_stop", "ON")
+            .await
+            .1,
+        Verification::Applied
+    );
+    // Asking for the state it is in writes nothing (a write would toggle it off).
+    let (writes, verdict) = command(&mut master, 0x81, &profile, "emergency_stop", "ON").await;
+    assert_eq!((writes, verdict), (0, Verification::Applied));
+    // Other commands while the e-stop is active must not clear it.
+    assert_eq!(
+        command(&mut master, 0x81, &profile, "front_door_lock", "ON")
+            .await
+            .1,
+        Verification::Applied
+    );
+    command(&mut master, 0x81, &profile, "voice_start", "PRESS").await;
+    assert_eq!(
+        command(&mut master, 0x81, &profile, "wind", "strong")
+            .await
+            .1,
+        Verification::Applied
+    );
+    {
+        let shower = lock(&shower);
+        assert_eq!(shower.toggles(), &[true], "exactly one e-stop toggle");
+        assert_eq!(shower.voice_presses(), [1, 0]);
+        let coils = shower.coils();
+        assert!(coils[air_shower::LIGHT] && coils[air_shower::FRONT_DOOR_LOCK]);
+        assert!(coils[air_shower::STRONG_WIND] && !coils[air_shower::BREEZE]);
+    }
+    let state = poll(&mut master, 0x81, &profile).await;
+    assert_eq!(
+        state["front_door_closed"].to_text(),
+        "OFF",
+        "e-stop opens the doors"
+    );
+    assert_eq!(
+        command(&mut master, 0x81, &profile, "emergency_stop", "OFF")
+            .await
+            .1,
+        Verification::Applied
+    );
+    assert_eq!(lock(&shower).toggles(), &[true, false]);
+}
+
+#[tokio::test]
+async fn valve_profile_against_the_simulator() {
+    let (line, valve) = line_b();
+    lock(&valve).set_speed(100.0);
+    let mut master = master_on(&line, Parity::Even);
+    let profile = built_in("wuzhou-valve");
+    // Strict about unmapped registers: the merged blocks fall back to their runs.
+    let state = poll(&mut master, 1, &profile).await;
+    assert_eq!(state["setpoint"].to_text(), "120.00");
+    assert_eq!(state["opening"].to_text(), "30");
+    assert_eq!(state["motor"].to_text(), "stopped");
+    assert_eq!(state["serial_number"].to_text(), "20231122004A5B");
+
+    assert_eq!(
+        command(&mut master, 1, &profile, "setpoint", "12.5")
+            .await
+            .1,
+        Verification::Applied
+    );
+    assert_eq!(lock(&valve).register(valve::REG_SETPOINT), Some(0x0012));
+    assert_eq!(lock(&valve).register(valve::REG_SETPOINT + 1), Some(0x0050));
+
+    let (_, verdict) = command(&mut master, 1, &profile, "opening", "90").await;
+    assert!(
+        matches!(verdict, Verification::Settling | Verification::Applied),
+        "{verdict:?}"
+    );
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while lock(&valve).opening() != 90 {
+        assert!(Instant::now() < deadline, "valve never reached 90 %");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let state = poll(&mut master, 1, &profile).await;
+    assert_eq!(state["opening"].to_text(), "90");
+    assert_eq!(state["motor"].to_text(), "stopped");
+    assert_eq!(state["fully_open"].to_text(), "OFF");
+    assert_eq!(state["fully_closed"].to_text(), "OFF");
+    assert_eq!(
+        command(&mut master, 1, &profile, "mode", "auto").await.1,
+        Verification::Applied
+    );
+    assert!(lock(&valve).mode_auto());
+}
+
+#[tokio::test]
+async fn master_leaves_t3_5_between_frames_on_a_paced_line() {
+    let (_, shared) = share(DustCollector::new(1));
+    let options = ServeOptions::new(9600, Parity::None).paced(true);
+    let line = VirtualLine::spawn(options, vec![shared]).unwrap();
+    let mut master = master_on(&line, Parity::None);
+    let read = Request::ReadHoldingRegisters {
+        start: 0x1000,
+        quantity: 6,
+    };
+    let started = Instant::now();
+    let count = 10;
+    for _ in 0..count {
+        master.transact(1, &read, MASTER_TIMEOUT).await.unwrap();
+    }
+    let elapsed = started.elapsed();
+    let journal = line.journal();
+    assert_eq!(journal.frames(), vec![hex(READ_ALL); count]);
+    let min_silence = journal.min_silence().unwrap();
+    assert!(
+        min_silence >= options.timing.t3_5,
+        "silence {min_silence:?} < t3.5 {:?}",
+        options.timing.t3_5
+    );
+    // Wire minimum per transaction: request, t3.5, answer, t3.5.
+    let wire = options.timing.frame_time(8 + 17) + options.timing.t3_5 * 2;
+    println!(
+        "{count} paced transactions in {elapsed:?}: {:?} each, wire minimum {wire:?}, \
+         smallest silence before a request {min_silence:?}",
+        elapsed / count as u32
+    );
+}
+
+#[tokio::test]
+async fn long_noise_never_stops_the_line() {
+    let (line, _, _) = line_a();
+    let mut port = open(&line.path());
+    // 2 KiB of pseudo-random bytes in one burst (longer than any frame).
+    let noise: Vec<u8> = (0u32..2048)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    port.write_all(&noise).await.unwrap();
+    let _ = listen(&mut port).await;
+    assert!(line.journal().discarded_bytes() > 0);
+    assert_eq!(
+        exchange(&mut port, &hex(READ_ALL), 17).await,
+        hex("01 03 0C 20 40 00 03 00 0A 00 05 00 00 00 18 35 F4")
     );
 }

@@ -67,13 +67,13 @@ pub fn report(path: &Path, config: &Config) -> String {
         );
         let _ = writeln!(
             out,
-            "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>11} {:>7}",
+            "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>7}",
             "device", "profile", "addr", "poll", "blocks f/s", "wire fast", "wire slow", "load"
         );
         for device in &plan.devices {
             let _ = writeln!(
                 out,
-                "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>11} {:>6.1}%",
+                "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>6.1}%",
                 device.name,
                 device.profile,
                 device.address,

@@ -16,6 +16,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::bridge::{prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
+use crate::health;
 use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -45,6 +46,11 @@ pub struct Hooks {
 pub async fn run_gateway(config: Config, shutdown: Shutdown, hooks: Hooks) -> anyhow::Result<()> {
     for warning in &config.warnings {
         tracing::warn!("configuration: {warning}");
+    }
+    if let Some(path) = &config.gateway.frame_log {
+        // The master can record frames (`Master::record_frames_to`), but the lines do not
+        // take a recorder yet: say so rather than pretend.
+        tracing::warn!(path = %path.display(), "gateway.frame_log is not wired to the lines in this build; use RUST_LOG=rtu2mqtt::rtu::master=debug for frames in the log");
     }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
@@ -102,11 +108,36 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
+    let health_settings = config.health.clone();
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
-        let signals = tokio::spawn(stop_on_signals(trigger));
-        let result = run_gateway(config, shutdown, Hooks::default()).await;
+        let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        // READY=1 and the watchdog once the lines and the bridge run; STOPPING=1 on shutdown.
+        let (ready_tx, ready_rx) = oneshot::channel::<Running>();
+        let watchdog_trigger = trigger.clone();
+        let supervision = tokio::spawn(async move {
+            let running = ready_rx.await.ok()?;
+            health::supervise(
+                health_settings,
+                &running.lines,
+                &running.bridge,
+                watchdog_trigger,
+            )
+        });
+        let mut stopping = shutdown.clone();
+        let announce_stop = tokio::spawn(async move {
+            stopping.fired().await;
+            health::notify_stopping();
+        });
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+        };
+        let result = run_gateway(config, shutdown, hooks).await;
+        announce_stop.abort();
         signals.abort();
+        if let Ok(Some(watchdog)) = supervision.await {
+            watchdog.stop();
+        }
         result
     })?;
     tracing::info!("stopped");
@@ -114,7 +145,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
 }
 
 /// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
+pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
     use tokio::signal::unix::{signal, SignalKind};
     let (Ok(mut terminate), Ok(mut interrupt)) = (
         signal(SignalKind::terminate()),

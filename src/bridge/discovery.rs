@@ -1,1 +1,806 @@
-//! Home Assistant device-based discovery (discovery helper).
+//! Home Assistant MQTT device-based discovery (HA 2024.11 and later): the retained config
+//! documents that make the gateway and every configured device appear in Home Assistant by
+//! themselves, their removal, and the reaction to Home Assistant's birth message.
+//!
+//! Everything here is pure: profile and configuration in, `(topic, JSON)` out. The bridge
+//! publishes what these functions return (retained, QoS 1) and owns every MQTT decision.
+//!
+//! One document per device on `homeassistant/device/<client_id>_<device>/config`:
+//! - `dev`: the device registry entry (identifiers, name, manufacturer and model from the
+//!   profile, `via_device` pointing at the gateway's own entry);
+//! - `o`: the origin (`rtu2mqtt`, its version and project URL);
+//! - shared `availability` (gateway status and device availability, `availability_mode: all`)
+//!   and `qos`;
+//! - `cmps`: one component per profile field, keyed by the field name. The component follows
+//!   the field's kind and access (see [`platform_for`]); profile [`HaHints`] override the
+//!   defaults. Command topics appear only on writable fields and are exactly the topics the
+//!   gateway subscribes to, with `retain: false` so Home Assistant never leaves a command
+//!   behind in the broker.
+//!
+//! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
+//! device with a connectivity sensor and line statistics.
+
+use std::collections::HashSet;
+use std::ops::RangeInclusive;
+use std::time::Duration;
+
+use rand::Rng;
+use serde_json::{json, Map, Value as Json};
+
+use crate::config::MqttSettings;
+use crate::profile::{FieldInfo, FieldKind, HaHints, Profile};
+
+/// The default Home Assistant discovery prefix.
+pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
+
+/// Home Assistant announces itself with `online` on this topic (under the discovery prefix).
+pub const HA_STATUS_SUFFIX: &str = "status";
+
+/// The device name reserved for the gateway's own topics and discovery document.
+pub const GATEWAY_DEVICE: &str = "gateway";
+
+/// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
+/// range spreads the load when several gateways restart discovery at once (HA's own advice).
+pub const REANNOUNCE_DELAY: RangeInclusive<Duration> =
+    Duration::from_millis(500)..=Duration::from_millis(5000);
+
+/// Payload of a state, as published by the gateway for booleans.
+const PAYLOAD_ON: &str = "ON";
+const PAYLOAD_OFF: &str = "OFF";
+/// What a button sends; the gateway accepts it for momentary fields.
+const PAYLOAD_PRESS: &str = "PRESS";
+const ONLINE: &str = "online";
+const OFFLINE: &str = "offline";
+
+/// What discovery needs from the configuration: the names topics are built from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DiscoveryContext {
+    /// The MQTT client id, also the gateway's id (`rtu2mqtt-edge1`).
+    pub client_id: String,
+    /// The state topic prefix (`plant`).
+    pub prefix: String,
+    /// Home Assistant's discovery prefix (`homeassistant`).
+    pub discovery_prefix: String,
+}
+
+impl DiscoveryContext {
+    /// A context with the default discovery prefix.
+    pub fn new(client_id: &str, prefix: &str) -> Self {
+        DiscoveryContext {
+            client_id: client_id.to_string(),
+            prefix: prefix.to_string(),
+            discovery_prefix: DEFAULT_DISCOVERY_PREFIX.to_string(),
+        }
+    }
+
+    /// The context of a gateway's MQTT settings (client id, prefix, discovery prefix).
+    pub fn from_settings(settings: &MqttSettings) -> Self {
+        DiscoveryContext {
+            client_id: settings.client_id.clone(),
+            prefix: settings.prefix.clone(),
+            discovery_prefix: settings.discovery_prefix.clone(),
+        }
+    }
+
+    /// The gateway's identifier in Home Assistant's device registry (the `via_device` target).
+    pub fn gateway_id(&self) -> String {
+        self.client_id.clone()
+    }
+
+    /// A configured device's identifier in the device registry: `<client_id>_<device>`.
+    pub fn device_id(&self, device: &str) -> String {
+        format!("{}_{}", self.client_id, device)
+    }
+
+    /// `<client_id>_<device>_<field>`: stable across restarts and renames of nothing but the
+    /// field itself, so Home Assistant keeps the entity's history and customisation.
+    pub fn unique_id(&self, device: &str, field: &str) -> String {
+        format!("{}_{}_{}", self.client_id, device, field)
+    }
+
+    /// `homeassistant/device/<client_id>_<device>/config`.
+    pub fn config_topic(&self, device: &str) -> String {
+        format!(
+            "{}/device/{}/config",
+            self.discovery_prefix,
+            self.device_id(device)
+        )
+    }
+
+    /// `homeassistant/device/<client_id>_gateway/config`.
+    pub fn gateway_config_topic(&self) -> String {
+        self.config_topic(GATEWAY_DEVICE)
+    }
+
+    /// What to subscribe to for finding the configs this gateway published earlier. MQTT
+    /// wildcards take whole levels, so `<client_id>_+` is not a valid filter: subscribe to
+    /// every device config and keep the ones [`is_stale_config`] picks.
+    pub fn config_filter(&self) -> String {
+        format!("{}/device/+/config", self.discovery_prefix)
+    }
+
+    /// `homeassistant/status`: Home Assistant's birth and last-will topic.
+    pub fn ha_status_topic(&self) -> String {
+        format!("{}/{}", self.discovery_prefix, HA_STATUS_SUFFIX)
+    }
+
+    /// `<prefix>/<device>/<field>`.
+    pub fn state_topic(&self, device: &str, field: &str) -> String {
+        format!("{}/{}/{}", self.prefix, device, field)
+    }
+
+    /// `<prefix>/<device>/<field>/set`.
+    pub fn command_topic(&self, device: &str, field: &str) -> String {
+        format!("{}/{}/{}/set", self.prefix, device, field)
+    }
+
+    /// `<prefix>/<device>/availability`.
+    pub fn availability_topic(&self, device: &str) -> String {
+        format!("{}/{}/availability", self.prefix, device)
+    }
+
+    /// `<prefix>/gateway/<client_id>/status` (also the gateway's MQTT will).
+    pub fn gateway_status_topic(&self) -> String {
+        format!(
+            "{}/{}/{}/status",
+            self.prefix, GATEWAY_DEVICE, self.client_id
+        )
+    }
+
+    /// `<prefix>/gateway/<client_id>/stats`: the JSON of [`super::metrics::stats_json`].
+    pub fn gateway_stats_topic(&self) -> String {
+        format!(
+            "{}/{}/{}/stats",
+            self.prefix, GATEWAY_DEVICE, self.client_id
+        )
+    }
+}
+
+/// A Home Assistant MQTT platform a field can be exposed as.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Platform {
+    BinarySensor,
+    Switch,
+    Button,
+    Sensor,
+    Number,
+    Select,
+    Text,
+}
+
+impl Platform {
+    /// The platform's name in a discovery document (`binary_sensor`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Platform::BinarySensor => "binary_sensor",
+            Platform::Switch => "switch",
+            Platform::Button => "button",
+            Platform::Sensor => "sensor",
+            Platform::Number => "number",
+            Platform::Select => "select",
+            Platform::Text => "text",
+        }
+    }
+
+    /// Parses a profile's `component` hint; None for a platform this gateway does not build.
+    pub fn from_name(name: &str) -> Option<Platform> {
+        Some(match name {
+            "binary_sensor" => Platform::BinarySensor,
+            "switch" => Platform::Switch,
+            "button" => Platform::Button,
+            "sensor" => Platform::Sensor,
+            "number" => Platform::Number,
+            "select" => Platform::Select,
+            "text" => Platform::Text,
+            _ => return None,
+        })
+    }
+
+    /// Whether Home Assistant sends commands through this platform.
+    pub fn commands(self) -> bool {
+        matches!(
+            self,
+            Platform::Switch
+                | Platform::Button
+                | Platform::Number
+                | Platform::Select
+                | Platform::Text
+        )
+    }
+
+    /// Whether the platform shows a state.
+    fn has_state(self) -> bool {
+        self != Platform::Button
+    }
+}
+
+/// The default platform of a field from its kind and access.
+fn default_platform(field: &FieldInfo) -> Platform {
+    match (&field.kind, field.writable) {
+        (FieldKind::Bool, false) => Platform::BinarySensor,
+        (FieldKind::Bool, true) => Platform::Switch,
+        (FieldKind::Momentary, true) => Platform::Button,
+        // A button nobody can press is at best a state: show it as one.
+        (FieldKind::Momentary, false) => Platform::BinarySensor,
+        (FieldKind::Integer { .. } | FieldKind::Decimal { .. }, false) => Platform::Sensor,
+        (FieldKind::Integer { .. } | FieldKind::Decimal { .. }, true) => Platform::Number,
+        (FieldKind::Enum { .. }, false) => Platform::Sensor,
+        (FieldKind::Enum { .. }, true) => Platform::Select,
+        (FieldKind::Text, false) => Platform::Sensor,
+        (FieldKind::Text, true) => Platform::Text,
+    }
+}
+
+/// Whether `platform` can show `field` faithfully: a command platform only for a writable
+/// field (the gateway rejects commands on read-only ones), and a platform whose payloads fit
+/// the field's kind.
+fn platform_fits(platform: Platform, field: &FieldInfo) -> bool {
+    if platform.commands() && !field.writable {
+        return false;
+    }
+    let numeric = matches!(
+        field.kind,
+        FieldKind::Integer { .. } | FieldKind::Decimal { .. }
+    );
+    match platform {
+        Platform::BinarySensor | Platform::Switch => {
+            matches!(field.kind, FieldKind::Bool | FieldKind::Momentary)
+        }
+        Platform::Button => matches!(field.kind, FieldKind::Momentary | FieldKind::Bool),
+        Platform::Number => numeric,
+        Platform::Select => matches!(field.kind, FieldKind::Enum { .. }),
+        Platform::Sensor | Platform::Text => true,
+    }
+}
+
+/// The platform a field is exposed as: the profile's `component` hint when it names a platform
+/// that fits the field, otherwise the default for its kind and access (read-only boolean
+/// `binary_sensor`, writable boolean `switch`, momentary `button`, read-only number or
+/// enumeration `sensor`, writable number `number`, writable enumeration `select`, text `sensor`
+/// or `text`).
+pub fn platform_for(field: &FieldInfo) -> Platform {
+    field
+        .ha
+        .component
+        .as_deref()
+        .and_then(Platform::from_name)
+        .filter(|platform| platform_fits(*platform, field))
+        .unwrap_or_else(|| default_platform(field))
+}
+
+/// A display name from a field name: `pulse_interval` → `Pulse interval`.
+pub fn display_name(field: &str) -> String {
+    let spaced = field.replace(['_', '-'], " ");
+    let mut chars = spaced.chars();
+    match chars.next() {
+        Some(first) => first.to_uppercase().chain(chars).collect(),
+        None => String::new(),
+    }
+}
+
+/// Words in a field name that mark it as a diagnostic (identity or health bookkeeping, not
+/// something an operator watches).
+const DIAGNOSTIC_WORDS: &[&str] = &[
+    "version", "serial", "flags", "firmware", "hardware", "station", "address", "baud",
+];
+
+/// Words in a read-only boolean's name that mark it as a problem indicator.
+const PROBLEM_WORDS: &[&str] = &[
+    "alarm", "failed", "failure", "fault", "error", "jammed", "expired", "invalid",
+];
+
+fn name_has_word(name: &str, words: &[&str]) -> bool {
+    name.split(['_', '-']).any(|part| words.contains(&part))
+}
+
+/// Words in a writable number's name that mark it as a setting (configured once, not operated).
+const SETTING_WORDS: &[&str] = &[
+    "alarm",
+    "ratio",
+    "scale",
+    "interval",
+    "duration",
+    "period",
+    "time",
+    "limit",
+    "threshold",
+    "offset",
+    "delay",
+    "calibration",
+];
+
+/// `entity_category` when the profile gives none: identity and health data (versions, serial
+/// number, flag words, address and baud code) is `diagnostic` when read-only and `config` when
+/// writable; writable numbers named like settings (alarm limits, ratios, full scales, intervals,
+/// durations) are `config`. Live values and controls stay primary entities.
+fn default_entity_category(field: &FieldInfo) -> Option<&'static str> {
+    let identity = name_has_word(&field.name, DIAGNOSTIC_WORDS);
+    if identity {
+        return Some(if field.writable {
+            "config"
+        } else {
+            "diagnostic"
+        });
+    }
+    let setting =
+        field.writable && is_numeric(&field.kind) && name_has_word(&field.name, SETTING_WORDS);
+    setting.then_some("config")
+}
+
+/// `device_class` from a unit when the profile gives none. Only classes valid for both
+/// `sensor` and `number` are produced.
+fn device_class_for_unit(unit: &str) -> Option<&'static str> {
+    Some(match unit {
+        "°C" | "°F" | "K" => "temperature",
+        "Pa" | "kPa" | "hPa" | "mbar" | "bar" | "psi" | "mmHg" | "inHg" => "pressure",
+        "s" | "min" | "h" | "d" | "ms" => "duration",
+        "V" | "mV" => "voltage",
+        "A" | "mA" => "current",
+        "W" | "kW" => "power",
+        "Hz" => "frequency",
+        _ => return None,
+    })
+}
+
+fn unit_of(field: &FieldInfo) -> Option<&str> {
+    field.ha.unit.as_deref().or(field.unit.as_deref())
+}
+
+fn is_numeric(kind: &FieldKind) -> bool {
+    matches!(kind, FieldKind::Integer { .. } | FieldKind::Decimal { .. })
+}
+
+/// A JSON number from a profile bound: integral bounds stay integers so Home Assistant shows
+/// `1`, not `1.0`.
+fn json_number(value: f64) -> Json {
+    if value.fract() == 0.0 && value.abs() < 9.0e15 {
+        json!(value as i64)
+    } else {
+        json!(value)
+    }
+}
+
+/// The step of a decimal with `precision` places (`2` → `0.01`).
+fn decimal_step(precision: u8) -> Json {
+    if precision == 0 {
+        return json!(1);
+    }
+    // Parsing the decimal text gives the nearest f64 (0.1, not 0.1000000000000000055…).
+    let text = format!("0.{}1", "0".repeat(usize::from(precision) - 1));
+    text.parse::<f64>().map_or(json!(1), |step| json!(step))
+}
+
+/// One component of a device document (without the shared keys).
+pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Json {
+    let platform = platform_for(field);
+    let hints: &HaHints = &field.ha;
+    let mut config = Map::new();
+    let mut put = |key: &str, value: Json| {
+        config.insert(key.to_string(), value);
+    };
+
+    put("p", json!(platform.as_str()));
+    put("name", json!(display_name(&field.name)));
+    put("unique_id", json!(ctx.unique_id(device, &field.name)));
+    if platform.has_state() {
+        put("state_topic", json!(ctx.state_topic(device, &field.name)));
+    }
+    if platform.commands() {
+        put(
+            "command_topic",
+            json!(ctx.command_topic(device, &field.name)),
+        );
+        // Never leave a command retained in the broker on Home Assistant's behalf.
+        put("retain", json!(false));
+    }
+    if let Some(icon) = &hints.icon {
+        put("icon", json!(icon));
+    }
+
+    let unit = unit_of(field);
+    let enumeration = matches!(field.kind, FieldKind::Enum { .. });
+    match platform {
+        Platform::BinarySensor | Platform::Switch => {
+            put("payload_on", json!(PAYLOAD_ON));
+            put("payload_off", json!(PAYLOAD_OFF));
+        }
+        Platform::Button => {
+            // A boolean shown as a button (by a hint) takes `ON`; `PRESS` is for momentary
+            // fields only.
+            let press = if field.kind == FieldKind::Bool {
+                PAYLOAD_ON
+            } else {
+                PAYLOAD_PRESS
+            };
+            put("payload_press", json!(press));
+        }
+        Platform::Number => {
+            let (min, max, step) = match &field.kind {
+                FieldKind::Integer { min, max } => (json!(min), json!(max), json!(1)),
+                FieldKind::Decimal {
+                    min,
+                    max,
+                    precision,
+                } => (
+                    json_number(*min),
+                    json_number(*max),
+                    decimal_step(*precision),
+                ),
+                // `platform_fits` admits only numeric kinds here.
+                _ => (json!(0), json!(100), json!(1)),
+            };
+            put("min", min);
+            put("max", max);
+            put("step", step);
+            put("mode", json!("box"));
+        }
+        Platform::Select => {
+            if let FieldKind::Enum { options } = &field.kind {
+                put("options", json!(options));
+            }
+        }
+        Platform::Sensor => {
+            if let FieldKind::Enum { options } = &field.kind {
+                put("options", json!(options));
+            }
+            if let FieldKind::Decimal { precision, .. } = field.kind {
+                put("suggested_display_precision", json!(precision));
+            }
+        }
+        Platform::Text => {}
+    }
+
+    // Home Assistant refuses a unit or a state class on an enumeration sensor.
+    if !enumeration {
+        if let Some(unit) = unit {
+            put("unit_of_measurement", json!(unit));
+        }
+    }
+
+    let device_class = match &hints.device_class {
+        Some(class) => Some(class.clone()),
+        None if enumeration && platform == Platform::Sensor => Some("enum".to_string()),
+        None if is_numeric(&field.kind)
+            && matches!(platform, Platform::Sensor | Platform::Number) =>
+        {
+            unit.and_then(device_class_for_unit).map(str::to_string)
+        }
+        None if platform == Platform::BinarySensor && name_has_word(&field.name, PROBLEM_WORDS) => {
+            Some("problem".to_string())
+        }
+        None => None,
+    };
+    if let Some(class) = &device_class {
+        put("device_class", json!(class));
+    }
+
+    if platform == Platform::Sensor && !enumeration {
+        let diagnostic_counter = name_has_word(&field.name, DIAGNOSTIC_WORDS);
+        let state_class = match &hints.state_class {
+            Some(class) => Some(class.as_str()),
+            // A number worth a graph: a live measurement. Flag words and versions are not.
+            None if is_numeric(&field.kind) && !diagnostic_counter => Some("measurement"),
+            None => None,
+        };
+        if let Some(class) = state_class {
+            put("state_class", json!(class));
+        }
+    }
+
+    let category = hints
+        .entity_category
+        .as_deref()
+        .or_else(|| default_entity_category(field))
+        .map(|category| {
+            // Home Assistant refuses `config` on a sensor or binary sensor (only controls can
+            // be configuration): a read-only view of a setting is diagnostic.
+            let read_only = matches!(platform, Platform::Sensor | Platform::BinarySensor);
+            if read_only && category == "config" {
+                "diagnostic"
+            } else {
+                category
+            }
+        });
+    if let Some(category) = category {
+        put("entity_category", json!(category));
+    }
+
+    Json::Object(config)
+}
+
+/// The `o` (origin) block: who published the document.
+pub fn origin() -> Json {
+    json!({
+        "name": "rtu2mqtt",
+        "sw_version": env!("CARGO_PKG_VERSION"),
+        "support_url": env!("CARGO_PKG_REPOSITORY"),
+    })
+}
+
+/// The availability both a device's entities depend on: the gateway is up and the device
+/// answers. `availability_mode: all` makes an entity unavailable when either is `offline`.
+fn device_availability(ctx: &DiscoveryContext, device: &str) -> Json {
+    json!([
+        {
+            "topic": ctx.gateway_status_topic(),
+            "payload_available": ONLINE,
+            "payload_not_available": OFFLINE,
+        },
+        {
+            "topic": ctx.availability_topic(device),
+            "payload_available": ONLINE,
+            "payload_not_available": OFFLINE,
+        },
+    ])
+}
+
+/// The discovery document of one device from its profile's identity and fields. The profile
+/// only supplies data here, so this is what [`device_config`] calls and what tests can feed
+/// with hand-made fields.
+pub fn device_config_from_fields(
+    ctx: &DiscoveryContext,
+    device: &str,
+    manufacturer: &str,
+    model: &str,
+    profile_name: &str,
+    fields: &[FieldInfo],
+) -> (String, Json) {
+    let components: Map<String, Json> = fields
+        .iter()
+        .map(|field| (field.name.clone(), component(ctx, device, field)))
+        .collect();
+    let document = json!({
+        "dev": {
+            "identifiers": [ctx.device_id(device)],
+            "name": device,
+            "manufacturer": manufacturer,
+            "model": model,
+            "model_id": profile_name,
+            "via_device": ctx.gateway_id(),
+        },
+        "o": origin(),
+        "availability": device_availability(ctx, device),
+        "availability_mode": "all",
+        "qos": 1,
+        "cmps": components,
+    });
+    (ctx.config_topic(device), document)
+}
+
+/// The retained discovery document of one configured device: `(topic, payload)`.
+pub fn device_config(ctx: &DiscoveryContext, device: &str, profile: &Profile) -> (String, Json) {
+    device_config_from_fields(
+        ctx,
+        device,
+        profile.manufacturer(),
+        profile.model(),
+        profile.name(),
+        profile.fields(),
+    )
+}
+
+/// Every discovery message of a gateway, ready to publish retained: the gateway's own document
+/// first (so `via_device` resolves), then one per configured device in the order given.
+/// `lines` are the configured line names, `devices` the configured devices with their profiles.
+pub fn all_configs(
+    ctx: &DiscoveryContext,
+    lines: &[String],
+    devices: &[(&str, &Profile)],
+) -> Vec<(String, String)> {
+    let gateway = gateway_config(ctx, lines);
+    let devices = devices
+        .iter()
+        .map(|(device, profile)| device_config(ctx, device, profile));
+    std::iter::once(gateway)
+        .chain(devices)
+        .map(|(topic, document)| (topic, document.to_string()))
+        .collect()
+}
+
+/// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
+/// JSON, name suffix, unit, state class).
+const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
+    ("bus_load_percent", "bus load", Some("%"), "measurement"),
+    ("transactions", "transactions", None, "total_increasing"),
+    ("timeouts", "timeouts", None, "total_increasing"),
+    ("crc_errors", "CRC errors", None, "total_increasing"),
+    ("exceptions", "exceptions", None, "total_increasing"),
+];
+
+/// The Jinja expression of a line's entry in the stats JSON: bracket access by name, since
+/// line names may hold `-`, which a dotted path would read as a minus.
+pub fn line_selector(line: &str) -> String {
+    format!("value_json.lines[{}]", jinja_string(line))
+}
+
+/// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
+/// topic, and from the statistics JSON on `<prefix>/gateway/<client_id>/stats`
+/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
+/// uptime, and per line its bus load and counters. It is what every device's `via_device`
+/// points at.
+pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json) {
+    let status_topic = ctx.gateway_status_topic();
+    let stats_topic = ctx.gateway_stats_topic();
+    let unique = |key: &str| ctx.unique_id(GATEWAY_DEVICE, key);
+    let stats_availability = json!([{
+        "topic": status_topic,
+        "payload_available": ONLINE,
+        "payload_not_available": OFFLINE,
+    }]);
+    let stats_sensor = |key: &str, name: &str, template: String, state_class: &str| {
+        json!({
+            "p": "sensor",
+            "name": name,
+            "unique_id": unique(key),
+            "state_topic": stats_topic,
+            "value_template": template,
+            "state_class": state_class,
+            "availability": stats_availability,
+            "entity_category": "diagnostic",
+        })
+    };
+
+    let mut components = Map::new();
+    // No availability on the status itself: it must show `offline`, not `unavailable`.
+    components.insert(
+        "status".to_string(),
+        json!({
+            "p": "binary_sensor",
+            "name": "Status",
+            "unique_id": unique("status"),
+            "state_topic": status_topic,
+            "payload_on": ONLINE,
+            "payload_off": OFFLINE,
+            "device_class": "connectivity",
+            "entity_category": "diagnostic",
+        }),
+    );
+    components.insert(
+        "devices_online".to_string(),
+        stats_sensor(
+            "devices_online",
+            "Devices online",
+            "{{ value_json.devices_online }}".to_string(),
+            "measurement",
+        ),
+    );
+    components.insert(
+        "waiting_commands".to_string(),
+        stats_sensor(
+            "waiting_commands",
+            "Waiting commands",
+            "{{ value_json.commands.waiting }}".to_string(),
+            "measurement",
+        ),
+    );
+    let mut uptime = stats_sensor(
+        "uptime",
+        "Uptime",
+        "{{ value_json.uptime_seconds }}".to_string(),
+        "measurement",
+    );
+    if let Some(map) = uptime.as_object_mut() {
+        map.insert("unit_of_measurement".to_string(), json!("s"));
+        map.insert("device_class".to_string(), json!("duration"));
+    }
+    components.insert("uptime".to_string(), uptime);
+
+    for line in lines {
+        let line_key = line.replace('-', "_");
+        let selector = line_selector(line);
+        for (key, label, unit, state_class) in LINE_SENSORS {
+            let component_id = format!("{line_key}_{key}");
+            let template = format!("{{{{ {selector}.{key} }}}}");
+            let mut sensor = stats_sensor(
+                &component_id,
+                &format!("{line} {label}"),
+                template,
+                state_class,
+            );
+            if let (Some(unit), Some(map)) = (unit, sensor.as_object_mut()) {
+                map.insert("unit_of_measurement".to_string(), json!(unit));
+            }
+            components.insert(component_id, sensor);
+        }
+    }
+
+    let document = json!({
+        "dev": {
+            "identifiers": [ctx.gateway_id()],
+            "name": ctx.client_id,
+            "manufacturer": "rtu2mqtt",
+            "model": "Modbus RTU to MQTT gateway",
+            "sw_version": env!("CARGO_PKG_VERSION"),
+        },
+        "o": origin(),
+        "qos": 1,
+        "cmps": components,
+    });
+    (ctx.gateway_config_topic(), document)
+}
+
+/// A string literal for a Jinja template: single-quoted, with `\` and `'` escaped.
+fn jinja_string(text: &str) -> String {
+    let escaped = text.replace('\\', "\\\\").replace('\'', "\\'");
+    format!("'{escaped}'")
+}
+
+/// The removal of a device's discovery document: its topic and the empty retained payload
+/// that makes Home Assistant drop the device and the broker forget the document.
+pub fn removal(ctx: &DiscoveryContext, device: &str) -> (String, Vec<u8>) {
+    (ctx.config_topic(device), Vec::new())
+}
+
+/// The device name of a config topic this gateway may have published
+/// (`homeassistant/device/<client_id>_<device>/config` → `<device>`), or None.
+pub fn device_of_config_topic<'t>(ctx: &DiscoveryContext, topic: &'t str) -> Option<&'t str> {
+    let object_id = topic
+        .strip_prefix(&ctx.discovery_prefix)?
+        .strip_prefix("/device/")?
+        .strip_suffix("/config")?;
+    let device = object_id.strip_prefix(&ctx.client_id)?.strip_prefix('_')?;
+    (!device.is_empty() && !device.contains('/')).then_some(device)
+}
+
+/// Whether a retained config seen on [`DiscoveryContext::config_filter`] is one this gateway
+/// published for a device that is no longer configured, and so must be cleared with
+/// [`removal`].
+///
+/// The topic alone is not proof: with client ids `edge` and `edge_b`, `edge_b_valve` matches
+/// both. So the document itself must name this gateway as its `via_device`. Empty payloads
+/// (already removed) and the gateway's own document are never stale.
+pub fn is_stale_config(
+    ctx: &DiscoveryContext,
+    topic: &str,
+    payload: &[u8],
+    configured_devices: &[String],
+) -> bool {
+    let Some(device) = device_of_config_topic(ctx, topic) else {
+        return false;
+    };
+    if device == GATEWAY_DEVICE || configured_devices.iter().any(|name| name == device) {
+        return false;
+    }
+    let Ok(document) = serde_json::from_slice::<Json>(payload) else {
+        return false;
+    };
+    let via = document
+        .get("dev")
+        .or_else(|| document.get("device"))
+        .and_then(|dev| dev.get("via_device").or_else(|| dev.get("via_dev")))
+        .and_then(Json::as_str);
+    via == Some(ctx.gateway_id().as_str())
+}
+
+/// Whether a payload on `homeassistant/status` is Home Assistant's birth message.
+pub fn is_ha_online(payload: &[u8]) -> bool {
+    std::str::from_utf8(payload)
+        .map(|text| text.trim().eq_ignore_ascii_case(ONLINE))
+        .unwrap_or(false)
+}
+
+/// A random delay in [`REANNOUNCE_DELAY`] before re-publishing discovery after Home
+/// Assistant's birth message.
+pub fn reannounce_delay<R: Rng + ?Sized>(rng: &mut R) -> Duration {
+    rng.gen_range(REANNOUNCE_DELAY)
+}
+
+/// `unique_id`s that two configured fields would share (device `a` with field `b_c` and device
+/// `a_b` with field `c` both give `<client_id>_a_b_c`). Empty for a sound configuration; the
+/// configuration check reports any as an error, since Home Assistant would drop one entity.
+pub fn unique_id_collisions(
+    ctx: &DiscoveryContext,
+    devices: &[(&str, &[FieldInfo])],
+) -> Vec<String> {
+    let mut seen = HashSet::new();
+    let mut collisions = Vec::new();
+    for (device, fields) in devices {
+        for field in fields.iter() {
+            let id = ctx.unique_id(device, &field.name);
+            if !seen.insert(id.clone()) && !collisions.contains(&id) {
+                collisions.push(id);
+            }
+        }
+    }
+    collisions
+}

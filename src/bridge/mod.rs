@@ -12,11 +12,12 @@
 
 pub mod commands;
 pub mod discovery;
+pub mod json_view;
+pub mod metrics;
 pub mod mqtt;
 pub mod payload;
 pub mod prometheus;
 pub mod state;
-pub mod stats;
 pub mod topics;
 
 use std::collections::{HashMap, VecDeque};
@@ -27,21 +28,23 @@ use rumqttc::{AsyncClient, Publish, QoS};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use self::commands::{Admission, CommandBook, TrackedCommand};
+use self::discovery::DiscoveryContext;
+use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
 use self::payload::{decode_command, CommandPayload, CommandResult, Outcome, OFFLINE, ONLINE};
 use self::state::{StateCache, StateUpdate};
-use self::stats::BridgeCounters;
 use self::topics::Topics;
 use crate::bus::{Command, CommandOutcome, LineEvent, LineHandle, LineStats};
 use crate::config::{Config, GatewayOptions, MqttSettings};
 use crate::profile::Profile;
 use crate::shutdown::Shutdown;
 
-/// How often waiting commands, expiries and statistics are looked at.
-const TICK: Duration = Duration::from_millis(250);
+/// How often waiting commands, expiries and statistics are looked at; the bridge's heartbeat
+/// is refreshed at least this often.
+pub const TICK: Duration = Duration::from_millis(250);
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
-/// How long shutdown waits for commands on the bus and for the Disconnect to go out.
+/// How long shutdown waits for commands on the bus, and then for the Disconnect to complete.
 const STOP_GRACE: Duration = Duration::from_secs(3);
 
 /// Liveness of the bridge for the watchdog and the status file.
@@ -80,7 +83,15 @@ pub struct Bridge {
     book: CommandBook,
     connected: bool,
     deferred: VecDeque<(String, String, bool)>,
-    counters: BridgeCounters,
+    /// The bridge's counters (uptime and connection filled in when shared).
+    counters: BridgeStats,
+    /// Shared with the metrics endpoint, refreshed every tick.
+    counters_tx: watch::Sender<BridgeStats>,
+    discovery: DiscoveryContext,
+    /// Re-announce discovery at this instant (after Home Assistant's birth message).
+    reannounce_at: Option<Instant>,
+    /// Last JSON view payload per device, to skip unchanged ones.
+    json_views: HashMap<String, Vec<u8>>,
     finished_tx: mpsc::Sender<Finished>,
     finished_rx: mpsc::Receiver<Finished>,
     heartbeat_tx: watch::Sender<Instant>,
@@ -128,7 +139,15 @@ impl Bridge {
             book: CommandBook::new(config.gateway.command_ttl),
             connected: false,
             deferred: VecDeque::new(),
-            counters: BridgeCounters::default(),
+            counters: BridgeStats::default(),
+            counters_tx: watch::channel(BridgeStats::default()).0,
+            discovery: DiscoveryContext {
+                client_id: config.mqtt.client_id.clone(),
+                prefix: config.mqtt.prefix.clone(),
+                discovery_prefix: config.mqtt.discovery_prefix.clone(),
+            },
+            reannounce_at: None,
+            json_views: HashMap::new(),
             finished_tx,
             finished_rx,
             heartbeat_tx,
@@ -169,7 +188,7 @@ impl Bridge {
             LinkEvent::Connected { .. } => self.on_connected(),
             LinkEvent::Disconnected { .. } => {
                 if self.connected {
-                    self.counters.disconnects += 1;
+                    self.counters.mqtt_disconnects += 1;
                 }
                 self.connected = false;
                 self.connected_tx.send_replace(false);
@@ -184,15 +203,21 @@ impl Bridge {
     fn on_connected(&mut self) {
         self.connected = true;
         self.connected_tx.send_replace(true);
-        self.counters.connects += 1;
+        self.counters.mqtt_connects += 1;
         let filter = self.topics.command_filter();
         if let Err(error) = self.client.try_subscribe(&filter, QoS::AtLeastOnce) {
             tracing::error!(%error, topic = %filter, "cannot subscribe");
         }
         if self.settings.discovery {
-            let ha_status = self.ha_status_topic();
-            if let Err(error) = self.client.try_subscribe(&ha_status, QoS::AtLeastOnce) {
-                tracing::error!(%error, topic = %ha_status, "cannot subscribe");
+            // Home Assistant's birth message, and our own earlier configs (to remove those of
+            // devices no longer configured).
+            for filter in [
+                self.discovery.ha_status_topic(),
+                self.discovery.config_filter(),
+            ] {
+                if let Err(error) = self.client.try_subscribe(&filter, QoS::AtLeastOnce) {
+                    tracing::error!(%error, topic = %filter, "cannot subscribe");
+                }
             }
         }
         self.publish(self.topics.gateway_status(), ONLINE.to_string(), true);
@@ -208,6 +233,7 @@ impl Bridge {
         let updates = self.cache.republish_all();
         self.publish_state(updates);
         if self.options.json_view {
+            self.json_views.clear();
             for device in self.cache.devices().to_vec() {
                 self.publish_json_view(&device);
             }
@@ -215,10 +241,6 @@ impl Bridge {
         while let Some((topic, payload, retain)) = self.deferred.pop_front() {
             self.publish(topic, payload, retain);
         }
-    }
-
-    fn ha_status_topic(&self) -> String {
-        format!("{}/status", self.settings.discovery_prefix)
     }
 
     /// Queues a QoS 1 publish when connected; false when it was not sent.
@@ -259,23 +281,46 @@ impl Bridge {
         }
     }
 
+    /// Home Assistant device-based discovery: the gateway's own document, then one per
+    /// configured device.
     fn publish_discovery(&mut self) {
         if !self.settings.discovery {
             return;
         }
-        for (topic, payload) in self.discovery_messages() {
-            self.publish(topic, payload, true);
+        let line_names: Vec<String> = self.lines.iter().map(|line| line.name.clone()).collect();
+        let mut documents = vec![discovery::gateway_config(&self.discovery, &line_names)];
+        for device in self.cache.devices() {
+            if let Some(entry) = self.devices.get(device) {
+                documents.push(discovery::device_config(
+                    &self.discovery,
+                    device,
+                    &entry.profile,
+                ));
+            }
+        }
+        for (topic, document) in documents {
+            self.publish(topic, document.to_string(), true);
         }
     }
 
-    /// Home Assistant device-based discovery configs, one per configured device.
-    fn discovery_messages(&self) -> Vec<(String, String)> {
-        // PENDING: filled from `discovery` once its builder lands.
-        Vec::new()
-    }
-
-    fn publish_json_view(&mut self, _device: &str) {
-        // PENDING: filled from `json_view` once it lands.
+    /// The device's JSON view on `<prefix>/<device>`, when it changed.
+    fn publish_json_view(&mut self, device: &str) {
+        let Some(state) = self.cache.state(device) else {
+            return;
+        };
+        if state.is_empty() {
+            return;
+        }
+        let payload = json_view::json_view_payload(state);
+        if self.json_views.get(device) == Some(&payload) {
+            return;
+        }
+        let topic = json_view::json_view_topic(&self.settings.prefix, device);
+        // Retained JSON is bytes of valid UTF-8 (serde_json output).
+        let text = String::from_utf8_lossy(&payload).into_owned();
+        if self.publish(topic, text, true) {
+            self.json_views.insert(device.to_string(), payload);
+        }
     }
 
     // ----- line events -----
@@ -305,14 +350,31 @@ impl Bridge {
     // ----- commands -----
 
     fn on_message(&mut self, publish: Publish) {
-        if self.settings.discovery && publish.topic == self.ha_status_topic() {
-            if publish.payload.as_ref() == ONLINE.as_bytes() {
-                tracing::info!("Home Assistant is back: discovery and state sent again");
-                self.publish_discovery();
-                let updates = self.cache.republish_all();
-                self.publish_state(updates);
+        if self.settings.discovery {
+            if publish.topic == self.discovery.ha_status_topic() {
+                if discovery::is_ha_online(&publish.payload) {
+                    let delay = discovery::reannounce_delay(&mut rand::thread_rng());
+                    tracing::info!(
+                        ?delay,
+                        "Home Assistant is online: discovery and state follow"
+                    );
+                    self.reannounce_at = Some(Instant::now() + delay);
+                }
+                return;
             }
-            return;
+            if discovery::device_of_config_topic(&self.discovery, &publish.topic).is_some() {
+                let configured = self.cache.devices().to_vec();
+                if discovery::is_stale_config(
+                    &self.discovery,
+                    &publish.topic,
+                    &publish.payload,
+                    &configured,
+                ) {
+                    tracing::info!(topic = %publish.topic, "removing the discovery config of a device no longer configured");
+                    self.publish(publish.topic.clone(), String::new(), true);
+                }
+                return;
+            }
         }
         let Some((device, field)) = self.topics.parse_command(&publish.topic) else {
             tracing::debug!(topic = %publish.topic, "not a command topic");
@@ -524,6 +586,13 @@ impl Bridge {
             self.finish_with(&command.device, &command.field, result);
         }
         self.dispatch_ready();
+        if self.reannounce_at.is_some_and(|at| at <= now) {
+            self.reannounce_at = None;
+            self.publish_discovery();
+            let updates = self.cache.republish_all();
+            self.publish_state(updates);
+        }
+        self.counters_tx.send_replace(self.counters_snapshot());
         if now >= self.next_stats {
             self.next_stats = now + self.options.stats_interval;
             self.publish_stats();
@@ -538,30 +607,35 @@ impl Bridge {
             .collect()
     }
 
-    /// Renders the Prometheus text for the metrics endpoint from live line statistics.
+    /// The counters as shared: uptime and connection state filled in.
+    fn counters_snapshot(&self) -> BridgeStats {
+        BridgeStats {
+            uptime: self.started.elapsed(),
+            mqtt_connected: self.connected,
+            waiting_commands: self.book.waiting_count() as u64,
+            ..self.counters.clone()
+        }
+    }
+
+    /// Renders the Prometheus text for the metrics endpoint from live line statistics and the
+    /// bridge's counters (refreshed every tick).
     pub fn metrics_renderer(&self) -> prometheus::Render {
         let lines: Vec<_> = self
             .lines
             .iter()
             .map(|line| line.stats_rx.clone())
             .collect();
+        let counters = self.counters_tx.subscribe();
         Arc::new(move || {
             let stats: Vec<LineStats> = lines.iter().map(|rx| rx.borrow().clone()).collect();
-            // PENDING: the metrics module's renderer with the bridge's counters.
-            format!("rtu2mqtt_lines {}\n", stats.len())
+            let bridge = counters.borrow().clone();
+            metrics::prometheus_text(&stats, &bridge)
         })
     }
 
     fn publish_stats(&mut self) {
-        let doc = stats::gateway_stats_json(
-            &self.settings.client_id,
-            self.started.elapsed(),
-            self.connected,
-            &self.counters,
-            self.book.waiting_count(),
-            &self.line_stats(),
-        );
-        self.publish(self.topics.gateway_stats(), doc.to_string(), false);
+        let document = metrics::stats_json(&self.line_stats(), &self.counters_snapshot());
+        self.publish(self.topics.gateway_stats(), document.to_string(), false);
     }
 
     // ----- stop -----
@@ -592,7 +666,8 @@ impl Bridge {
             if let Err(error) = self.client.try_disconnect() {
                 tracing::warn!(%error, "cannot queue the MQTT disconnect");
             }
-            let closed = tokio::time::timeout_at(deadline, async {
+            // Its own bound: the event loop waits up to its close grace for the broker.
+            let closed = tokio::time::timeout(STOP_GRACE, async {
                 while let Some(event) = self.link_rx.recv().await {
                     if matches!(event, LinkEvent::Closed) {
                         break;

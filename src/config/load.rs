@@ -9,7 +9,7 @@ use config::{Environment, File, FileFormat};
 use serde_json::Value as Json;
 
 use super::schema::{
-    RawConfig, DEVICE_KEYS, GATEWAY_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS, TOP_KEYS,
+    RawConfig, DEVICE_KEYS, GATEWAY_KEYS, HEALTH_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS, TOP_KEYS,
 };
 use super::{Problem, Problems};
 
@@ -83,6 +83,9 @@ fn unknown_keys(tree: &Json) -> Vec<Problem> {
     }
     if let Some(gateway) = tree.get("gateway") {
         check_table(gateway, "gateway", GATEWAY_KEYS, &mut problems);
+    }
+    if let Some(health) = tree.get("health") {
+        check_table(health, "health", HEALTH_KEYS, &mut problems);
     }
     if let Some(Json::Array(lines)) = tree.get("lines") {
         for (line_index, line) in lines.iter().enumerate() {

@@ -17,12 +17,14 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::bus::LineSpec;
+use crate::health::HealthSettings;
 
 /// A validated gateway configuration.
 #[derive(Debug, Clone)]
 pub struct Config {
     pub mqtt: MqttSettings,
     pub gateway: GatewayOptions,
+    pub health: HealthSettings,
     pub lines: Vec<LineSpec>,
     /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
     pub warnings: Vec<Problem>,

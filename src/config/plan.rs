@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::profile::PollClass;
-use crate::rtu::codec::{encode_request, expected_answer_len};
+use crate::rtu::codec::{expected_answer_len, expected_request_len};
 use crate::rtu::timing::LineTiming;
 
 /// One device's share of its line.
@@ -61,12 +61,8 @@ impl LinePlan {
 }
 
 /// Wire time of one transaction: request, answer and the t3.5 silence after each.
-pub fn transaction_wire_time(
-    timing: &LineTiming,
-    address: u8,
-    request: &crate::rtu::Request,
-) -> Duration {
-    let request_len = encode_request(address, request).len();
+pub fn transaction_wire_time(timing: &LineTiming, request: &crate::rtu::Request) -> Duration {
+    let request_len = expected_request_len(request);
     let answer_len = expected_answer_len(request);
     timing.frame_time(request_len) + timing.frame_time(answer_len) + 2 * timing.t3_5
 }
@@ -86,7 +82,7 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
         bus_load: 0.0,
     };
     for block in device.profile.read_blocks() {
-        let wire = transaction_wire_time(timing, device.address, &block.request);
+        let wire = transaction_wire_time(timing, &block.request);
         match block.class {
             PollClass::Fast => {
                 plan.fast_blocks += 1;

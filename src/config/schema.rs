@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use crate::health::HealthSettings;
 use crate::rtu::timing::Parity;
 
 /// The whole file.
@@ -16,6 +17,9 @@ pub struct RawConfig {
     pub mqtt: RawMqtt,
     #[serde(default)]
     pub gateway: RawGateway,
+    /// Watchdog and status file (see `crate::health`).
+    #[serde(default)]
+    pub health: HealthSettings,
     #[serde(default)]
     pub lines: Vec<RawLine>,
 }
@@ -25,6 +29,7 @@ pub struct RawConfig {
 #[serde(deny_unknown_fields)]
 pub struct RawMqtt {
     /// `mqtt://host:port` or `mqtts://host:port`.
+    #[serde(default = "default_url")]
     pub url: String,
     /// Unique per gateway; also the gateway's id in topics.
     pub client_id: String,
@@ -162,7 +167,8 @@ pub const MQTT_KEYS: &[&str] = &[
     "discovery",
     "discovery_prefix",
 ];
-pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "lines"];
+pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines"];
+pub const HEALTH_KEYS: &[&str] = &["status_file", "interval", "stale_after", "stall_limit"];
 pub const GATEWAY_KEYS: &[&str] = &[
     "command_ttl",
     "json_view",
@@ -190,6 +196,9 @@ pub const LINE_KEYS: &[&str] = &[
 pub const RS485_KEYS: &[&str] = &["rts_on_send", "delay_before_send", "delay_after_send"];
 pub const DEVICE_KEYS: &[&str] = &["name", "profile", "address", "poll_interval"];
 
+fn default_url() -> String {
+    "mqtt://127.0.0.1:1883".to_string()
+}
 fn default_prefix() -> String {
     "plant".to_string()
 }

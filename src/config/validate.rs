@@ -37,12 +37,17 @@ pub fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
     let mut warnings = Vec::new();
     let mqtt = validate_mqtt(&raw.mqtt, base, &mut problems);
     let gateway = validate_gateway(&raw.gateway, &mut problems);
+    validate_health(raw, &mut problems);
     let lines = validate_lines(&raw.lines, base, &mut problems, &mut warnings);
+    if let Some(mqtt) = mqtt.as_ref().filter(|mqtt| mqtt.discovery) {
+        check_unique_ids(mqtt, &lines, &mut problems);
+    }
     if problems.is_empty() {
         if let (Some(mqtt), Some(gateway)) = (mqtt, gateway) {
             return Ok(Config {
                 mqtt,
                 gateway,
+                health: raw.health.clone(),
                 lines,
                 warnings,
             });
@@ -329,6 +334,43 @@ fn read_password_file(path: &Path) -> Result<String, String> {
     Ok(password)
 }
 
+fn validate_health(raw: &RawConfig, problems: &mut Vec<Problem>) {
+    let health = &raw.health;
+    if health.interval < Duration::from_millis(100) {
+        problems.push(Problem::new(
+            "health.interval",
+            "must be at least 100ms".to_string(),
+        ));
+    }
+    if health.stale_after <= health.interval {
+        problems.push(Problem::new(
+            "health.stale_after",
+            "must be longer than health.interval".to_string(),
+        ));
+    }
+}
+
+/// Home Assistant would drop one of two entities sharing a `unique_id`
+/// (device `a` + field `b_c` and device `a_b` + field `c`).
+fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<Problem>) {
+    let context = crate::bridge::discovery::DiscoveryContext {
+        client_id: mqtt.client_id.clone(),
+        prefix: mqtt.prefix.clone(),
+        discovery_prefix: mqtt.discovery_prefix.clone(),
+    };
+    let devices: Vec<(&str, &[crate::profile::FieldInfo])> = lines
+        .iter()
+        .flat_map(|line| line.devices.iter())
+        .map(|device| (device.name.as_str(), device.profile.fields()))
+        .collect();
+    for id in crate::bridge::discovery::unique_id_collisions(&context, &devices) {
+        problems.push(Problem::new(
+            "lines",
+            format!("two fields would share the Home Assistant unique_id {id:?}: rename a device"),
+        ));
+    }
+}
+
 fn validate_gateway(raw: &RawGateway, problems: &mut Vec<Problem>) -> Option<GatewayOptions> {
     let before = problems.len();
     let mut fail = |place: &str, reason: String| {
@@ -385,6 +427,12 @@ fn validate_gateway(raw: &RawGateway, problems: &mut Vec<Problem>) -> Option<Gat
     }
     if problems.len() != before {
         return None;
+    }
+    if raw.allow_raw_writes {
+        tracing::warn!(
+            "gateway.allow_raw_writes: this version has no raw register write topic; only \
+             profile fields can be written"
+        );
     }
     Some(GatewayOptions {
         command_ttl: raw.command_ttl,
@@ -502,6 +550,15 @@ fn validate_lines(
         let mut devices = Vec::new();
         for (device_index, device) in raw.devices.iter().enumerate() {
             let device_place = format!("{place}.devices[{device_index}]");
+            if let Some(first) = addresses.insert(device.address, device_index) {
+                problems.push(Problem::new(
+                    format!("{device_place}.address"),
+                    format!(
+                        "{} is already used on this line by {place}.devices[{first}] ({})",
+                        device.address, raw.devices[first].name
+                    ),
+                ));
+            }
             if let Some(spec) = validate_device(
                 device,
                 &device_place,
@@ -510,15 +567,6 @@ fn validate_lines(
                 &mut device_names,
                 problems,
             ) {
-                if let Some(first) = addresses.insert(device.address, device_index) {
-                    problems.push(Problem::new(
-                        format!("{device_place}.address"),
-                        format!(
-                            "{} is already used on this line by {place}.devices[{first}] ({})",
-                            device.address, raw.devices[first].name
-                        ),
-                    ));
-                }
                 devices.push(spec);
             }
         }
@@ -534,7 +582,7 @@ fn validate_lines(
             let limits = device.profile.limits();
             if limits.default_parity != parity || limits.default_baud != baud {
                 warnings.push(Problem::new(
-                    format!("{place}"),
+                    place.clone(),
                     format!(
                         "device {} ({}) usually runs at {} baud, parity {:?}; the line is set \
                          to {baud} baud, parity {parity:?}",
@@ -709,9 +757,7 @@ fn resolve(base: &Path, path: &Path) -> PathBuf {
 
 /// A built-in profile by name, else a profile file (relative to the config file).
 fn resolve_profile(spec: &str, base: &Path) -> Result<Profile, String> {
-    // PENDING: the registry's loader lands with the profile work.
-    let _ = base;
-    Err(format!("unknown profile {spec:?}"))
+    crate::profile::registry::load(spec, Some(base)).map_err(|error| error.to_string())
 }
 
 #[cfg(test)]

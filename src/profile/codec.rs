@@ -79,8 +79,14 @@ pub enum FieldCodec {
     /// `width` coils from the field's offset (coil i is bit i of the raw value), as an integer
     /// or an enumeration.
     Coils { width: u8, options: Vec<String> },
-    /// A register number, `decimals` implied decimal places (raw 1234, 2 → 12.34).
-    Number { ty: NumberType, decimals: u8 },
+    /// A register number shown with `decimals` places; one raw count is worth `factor` units
+    /// of the last place (`decimals` 2, `factor` 1: raw 1234 → 12.34; `decimals` 1, `factor`
+    /// 5, i.e. scale 0.5: raw 3 → 1.5). Integers all the way, so values stay exact.
+    Number {
+        ty: NumberType,
+        decimals: u8,
+        factor: i64,
+    },
     /// Packed BCD over two registers: integer part, then fraction part.
     Bcd { int_digits: u8, frac_digits: u8 },
     /// The low byte of one register.
@@ -243,7 +249,11 @@ impl FieldCodec {
                 }
             }
             Self::Char => FieldKind::Integer { min: 0, max: 255 },
-            Self::Number { ty, decimals } => {
+            Self::Number {
+                ty,
+                decimals,
+                factor,
+            } => {
                 let (min, max) = match ty {
                     NumberType::U16 => (0, i64::from(u16::MAX)),
                     NumberType::I16 => (i64::from(i16::MIN), i64::from(i16::MAX)),
@@ -257,6 +267,7 @@ impl FieldCodec {
                         }
                     }
                 };
+                let (min, max) = (min * factor, max * factor);
                 if *decimals == 0 {
                     FieldKind::Integer { min, max }
                 } else {
@@ -333,7 +344,11 @@ impl FieldCodec {
                 enum_or_int(raw as u16, options)
             }
             Self::Char => Ok(Value::Int(i64::from(first & 0xFF))),
-            Self::Number { ty, decimals } => {
+            Self::Number {
+                ty,
+                decimals,
+                factor,
+            } => {
                 let raw = match ty {
                     NumberType::U16 => i64::from(first),
                     NumberType::I16 => i64::from(first as i16),
@@ -344,7 +359,7 @@ impl FieldCodec {
                         if !float.is_finite() {
                             return Err(FieldError::Invalid(format!("not a number: {float}")));
                         }
-                        let scaled = (float * pow10(*decimals) as f64).round();
+                        let scaled = (float * *factor as f64).round();
                         if scaled.abs() > 9.0e15 {
                             return Err(FieldError::Invalid(format!("out of range: {float}")));
                         }
@@ -354,11 +369,12 @@ impl FieldCodec {
                         });
                     }
                 };
+                let scaled = raw * factor;
                 Ok(if *decimals == 0 {
-                    Value::Int(raw)
+                    Value::Int(scaled)
                 } else {
                     Value::Decimal {
-                        scaled: raw,
+                        scaled,
                         precision: *decimals,
                     }
                 })
@@ -468,7 +484,27 @@ impl FieldCodec {
                 let raw = fits(number(0)?, 0, 255)?;
                 Ok(vec![word(0, 0xFFFF, raw as u16)])
             }
-            Self::Number { ty, decimals } => {
+            Self::Number {
+                ty,
+                decimals,
+                factor,
+            } => {
+                // The value in raw counts; it must be a whole number of them.
+                let counts = || -> Result<i64, String> {
+                    let scaled = number(*decimals)?;
+                    if scaled % factor != 0 {
+                        return Err(format!(
+                            "{} is not a multiple of the step {}",
+                            value.to_text(),
+                            Value::Decimal {
+                                scaled: *factor,
+                                precision: *decimals
+                            }
+                            .to_text()
+                        ));
+                    }
+                    Ok(scaled / factor)
+                };
                 let split = |raw: u32, order: WordOrder| {
                     let (high, low) = ((raw >> 16) as u16, raw as u16);
                     match order {
@@ -478,26 +514,24 @@ impl FieldCodec {
                 };
                 match ty {
                     NumberType::U16 => {
-                        let raw = fits(number(*decimals)?, 0, i64::from(u16::MAX))?;
+                        let raw = fits(counts()?, 0, i64::from(u16::MAX))?;
                         Ok(vec![word(0, 0xFFFF, raw as u16)])
                     }
                     NumberType::I16 => {
-                        let raw =
-                            fits(number(*decimals)?, i64::from(i16::MIN), i64::from(i16::MAX))?;
+                        let raw = fits(counts()?, i64::from(i16::MIN), i64::from(i16::MAX))?;
                         Ok(vec![word(0, 0xFFFF, raw as i16 as u16)])
                     }
                     NumberType::U32(order) => {
-                        let raw = fits(number(*decimals)?, 0, i64::from(u32::MAX))?;
+                        let raw = fits(counts()?, 0, i64::from(u32::MAX))?;
                         Ok(split(raw as u32, *order))
                     }
                     NumberType::I32(order) => {
-                        let raw =
-                            fits(number(*decimals)?, i64::from(i32::MIN), i64::from(i32::MAX))?;
+                        let raw = fits(counts()?, i64::from(i32::MIN), i64::from(i32::MAX))?;
                         Ok(split(raw as i32 as u32, *order))
                     }
                     NumberType::F32(order) => {
-                        let scaled = number(*decimals)?;
-                        let float = scaled as f64 / pow10(*decimals) as f64;
+                        // A float holds any value: no whole-count rule.
+                        let float = number(*decimals)? as f64 / *factor as f64;
                         Ok(split((float as f32).to_bits(), *order))
                     }
                 }

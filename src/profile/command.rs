@@ -31,14 +31,295 @@ pub enum Verification {
 
 /// One planned command. The line runs: `reads_before()` → `writes(answers)` → the writes →
 /// `readback()` → `verify(answers)`, with no other transaction in between.
+///
+/// A plan carries one field (`plan_command`) or several fields written together in one frame
+/// (`plan_group`, e.g. the dust collector's FC10 power-on with its settings).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CommandPlan {
     profile: Arc<Compiled>,
-    /// Index of the commanded field.
-    field: usize,
-    target: Value,
+    /// The field name, or the write frame's name for a group.
+    label: String,
+    frame: WriteFrame,
+    /// (field index, commanded value), parsed and normalised to each field's kind.
+    targets: Vec<(usize, Value)>,
     reads_before: Vec<Request>,
+    /// Block offset of the first coil or register `reads_before` returns.
+    before_base: u16,
     readback: Vec<Request>,
+    readback_base: u16,
+}
+
+impl CommandPlan {
+    /// A plan for `targets` written through `frame`. The caller has validated that every
+    /// target field lies inside the frame.
+    pub(crate) fn new(
+        profile: Arc<Compiled>,
+        label: String,
+        frame: WriteFrame,
+        targets: Vec<(usize, Value)>,
+    ) -> Self {
+        // A fresh read is needed unless the targets fill the frame completely and nothing
+        // depends on the device's current state (toggles, forbidden combinations).
+        let is_bits = profile.block_kinds[frame.block].is_bits();
+        let mut covered = vec![0u16; usize::from(frame.count)];
+        let mut target_span = (u16::MAX, 0u16);
+        for (field, _) in &targets {
+            let def = &profile.defs[*field];
+            target_span = widen(target_span, def.offset, def.codec.width());
+            for (offset, mask) in def.codec.footprint(def.offset) {
+                if let Some(slot) = offset
+                    .checked_sub(frame.offset)
+                    .and_then(|rel| covered.get_mut(usize::from(rel)))
+                {
+                    *slot |= mask;
+                }
+            }
+        }
+        let full = if is_bits { 1 } else { 0xFFFF };
+        let frame_filled = covered.iter().all(|mask| *mask == full);
+        let mut before_span = (frame.offset, frame.offset + frame.count);
+        let mut depends_on_state = false;
+        for (field, _) in &targets {
+            depends_on_state |= profile.defs[*field].behaviour == Behaviour::Toggle;
+            for rule in &profile.forbidden {
+                if rule
+                    .when
+                    .iter()
+                    .any(|(f, _)| footprints_meet(&profile, *f, *field))
+                {
+                    depends_on_state = true;
+                    for (f, _) in &rule.when {
+                        let def = &profile.defs[*f];
+                        before_span = widen(before_span, def.offset, def.codec.width());
+                    }
+                }
+            }
+        }
+        let (reads_before, before_base) = if frame_filled && !depends_on_state {
+            (Vec::new(), 0)
+        } else {
+            let (request, base) = run_read(&profile, frame.block, before_span);
+            (vec![request], base)
+        };
+        let (readback, readback_base) = run_read(&profile, frame.block, target_span);
+        Self {
+            profile,
+            label,
+            frame,
+            targets,
+            reads_before,
+            before_base,
+            readback: vec![readback],
+            readback_base,
+        }
+    }
+
+    /// The commanded field (for a group: the write frame's name).
+    pub fn field(&self) -> &str {
+        &self.label
+    }
+
+    /// The commanded value of the (first) field, parsed and normalised to its kind.
+    pub fn target(&self) -> &Value {
+        &self.targets[0].1
+    }
+
+    /// Every commanded field with its value.
+    pub fn targets(&self) -> Vec<(&str, &Value)> {
+        self.targets
+            .iter()
+            .map(|(field, value)| (self.profile.infos[*field].name.as_str(), value))
+            .collect()
+    }
+
+    /// Reads to make in the slot before writing (empty when no read-modify-write is needed).
+    pub fn reads_before(&self) -> &[Request] {
+        &self.reads_before
+    }
+
+    fn block_len(&self) -> usize {
+        super::schema::block_quantity(&self.profile.blocks[self.frame.block].request) as usize
+    }
+
+    /// An image of the whole block, all zero.
+    fn empty_image(&self) -> BlockImage {
+        if self.profile.block_kinds[self.frame.block].is_bits() {
+            BlockImage::Bits(vec![false; self.block_len()])
+        } else {
+            BlockImage::Words(vec![0; self.block_len()])
+        }
+    }
+
+    /// The answer to `request` (a part of the block from offset `base`) placed in an image of
+    /// the whole block, zeros elsewhere. None when the answer does not fit the request.
+    fn place(&self, answer: &Response, request: &Request, base: u16) -> Option<BlockImage> {
+        let len = super::schema::block_quantity(request) as usize;
+        let part = image_of(answer, len)?;
+        let mut image = self.empty_image();
+        let base = usize::from(base);
+        match (&mut image, part) {
+            (BlockImage::Words(all), BlockImage::Words(words)) => {
+                all.get_mut(base..base + len)?
+                    .copy_from_slice(words.get(..len)?);
+            }
+            (BlockImage::Bits(all), BlockImage::Bits(bits)) => {
+                all.get_mut(base..base + len)?
+                    .copy_from_slice(bits.get(..len)?);
+            }
+            _ => return None,
+        }
+        Some(image)
+    }
+
+    /// The write requests, computed from the fresh answers to `reads_before()`. Empty when the
+    /// device already is in the commanded state (a toggle field asked for its current state).
+    pub fn writes(&self, before: &[Response]) -> Result<Vec<Request>, Rejection> {
+        let profile = &self.profile;
+        let frame = &self.frame;
+        let name = &self.label;
+        let fresh = if self.reads_before.is_empty() {
+            self.empty_image()
+        } else {
+            before
+                .first()
+                .and_then(|answer| self.place(answer, &self.reads_before[0], self.before_base))
+                .ok_or_else(|| {
+                    Rejection(format!(
+                        "{name}: the read before the write did not return block `{}`",
+                        profile.blocks[frame.block].name
+                    ))
+                })?
+        };
+
+        // Toggles already in the commanded state are left alone (written 0).
+        let mut pressed = Vec::new();
+        let mut intended = fresh.clone();
+        for (field, target) in &self.targets {
+            let def = &profile.defs[*field];
+            let field_name = &profile.infos[*field].name;
+            let encoded = def
+                .codec
+                .encode(def.offset, target)
+                .map_err(|why| Rejection(format!("{field_name}: {why}")))?;
+            match def.behaviour {
+                Behaviour::State => {}
+                Behaviour::Momentary => pressed.push(*field),
+                Behaviour::Toggle => {
+                    let current = def.codec.decode(&fresh, def.offset).map_err(|err| {
+                        Rejection(format!(
+                            "{field_name}: the fresh read is not usable ({err})"
+                        ))
+                    })?;
+                    if current != *target {
+                        pressed.push(*field);
+                    }
+                }
+            }
+            intended.apply(&encoded);
+        }
+        let only_toggles = self
+            .targets
+            .iter()
+            .all(|(field, _)| profile.defs[*field].behaviour == Behaviour::Toggle);
+        if only_toggles && pressed.is_empty() {
+            return Ok(Vec::new());
+        }
+
+        // The state the device would be in: refuse forbidden combinations on the fresh read.
+        for (field, target) in &self.targets {
+            check_forbidden(profile, *field, target, |index| {
+                let other = &profile.defs[index];
+                (other.block == frame.block)
+                    .then(|| other.codec.decode(&intended, other.offset).ok())
+                    .flatten()
+            })?;
+        }
+
+        // What goes on the wire: as read, with buttons and toggles at rest, then the command.
+        let mut image = fresh;
+        for other in &profile.defs {
+            if other.block == frame.block
+                && other.behaviour != Behaviour::State
+                && inside_frame(other.offset, other.codec.width(), frame)
+            {
+                image.apply(&rest_patches(other.codec.footprint(other.offset)));
+            }
+        }
+        for (field, target) in &self.targets {
+            let def = &profile.defs[*field];
+            if def.behaviour == Behaviour::State {
+                // Encoded successfully above.
+                if let Ok(encoded) = def.codec.encode(def.offset, target) {
+                    image.apply(&encoded);
+                }
+            }
+        }
+        for field in pressed {
+            // Writing 1 is the action itself, whatever the bit's sense when read.
+            let def = &profile.defs[field];
+            let press: Vec<RawPatch> = def
+                .codec
+                .footprint(def.offset)
+                .into_iter()
+                .map(|(offset, mask)| RawPatch {
+                    offset,
+                    mask,
+                    bits: mask,
+                })
+                .collect();
+            image.apply(&press);
+        }
+        Ok(frame_requests(frame, &image))
+    }
+
+    /// Reads that verify the command.
+    pub fn readback(&self) -> &[Request] {
+        &self.readback
+    }
+
+    /// Judges the answers to `readback()`.
+    pub fn verify(&self, answers: &[Response]) -> Verification {
+        let profile = &self.profile;
+        let Some(image) = answers
+            .first()
+            .and_then(|answer| self.place(answer, &self.readback[0], self.readback_base))
+        else {
+            return Verification::NotApplied(format!("{}: no usable read-back", self.label));
+        };
+        let mut differences = Vec::new();
+        for (field, target) in &self.targets {
+            let def = &profile.defs[*field];
+            let name = &profile.infos[*field].name;
+            if def.behaviour == Behaviour::Momentary {
+                // A button has no state to show; the acknowledged write is the whole effect.
+                continue;
+            }
+            match def.codec.decode(&image, def.offset) {
+                Ok(value) if value == *target => {}
+                Ok(value) => differences.push(format!(
+                    "{name} reads {} after writing {}",
+                    value.to_text(),
+                    target.to_text()
+                )),
+                Err(err) => differences.push(format!("{name} read-back invalid: {err}")),
+            }
+        }
+        if differences.is_empty() {
+            Verification::Applied
+        } else if self.settle_window().is_some() {
+            Verification::Settling
+        } else {
+            Verification::NotApplied(differences.join("; "))
+        }
+    }
+
+    /// How long a `Settling` read-back may keep being repeated.
+    pub fn settle_window(&self) -> Option<Duration> {
+        self.targets
+            .iter()
+            .filter_map(|(field, _)| self.profile.defs[*field].settle_window)
+            .max()
+    }
 }
 
 /// The image of a block from a read answer, if the answer has the block's shape.
@@ -57,178 +338,44 @@ pub(crate) fn image_of(answer: &Response, expected_len: usize) -> Option<BlockIm
     (len >= expected_len).then_some(image)
 }
 
-impl CommandPlan {
-    pub(crate) fn new(profile: Arc<Compiled>, field: usize, target: Value) -> Self {
-        let def = &profile.defs[field];
-        let block_request = profile.blocks[def.block].request.clone();
-        let needs_fresh_read = match &def.write {
-            Some(frame) => {
-                let field_bits = def.codec.footprint(def.offset);
-                let frame_is_field = field_bits.len() == usize::from(frame.count)
-                    && field_bits.iter().all(|(_, mask)| {
-                        *mask == 0xFFFF || profile.block_kinds[def.block].is_bits()
-                    });
-                !frame_is_field
-                    || def.behaviour == Behaviour::Toggle
-                    || profile.forbidden.iter().any(|rule| {
-                        rule.when
-                            .iter()
-                            .any(|(f, _)| footprints_meet(&profile, *f, field))
-                    })
-            }
-            None => false,
-        };
-        let reads_before = if needs_fresh_read {
-            vec![block_request.clone()]
-        } else {
-            Vec::new()
-        };
-        Self {
-            profile,
-            field,
-            target,
-            reads_before,
-            readback: vec![block_request],
+/// `span` (start, end) widened to cover `width` places from `offset`.
+fn widen(span: (u16, u16), offset: u16, width: u16) -> (u16, u16) {
+    (span.0.min(offset), span.1.max(offset + width))
+}
+
+/// The read that covers `span` of a block using only the block's used runs (the reads the
+/// device is known to accept even when it refuses the merged block), and its block offset.
+fn run_read(profile: &Compiled, block: usize, span: (u16, u16)) -> (Request, u16) {
+    let read = &profile.blocks[block];
+    let (mut start, mut end) = span;
+    for &(run_start, run_len) in &read.used_runs {
+        let run_end = run_start + run_len;
+        if run_start < span.1 && span.0 < run_end {
+            start = start.min(run_start);
+            end = end.max(run_end);
         }
     }
-
-    pub fn field(&self) -> &str {
-        &self.profile.infos[self.field].name
-    }
-
-    /// The commanded value, parsed and normalised to the field's kind.
-    pub fn target(&self) -> &Value {
-        &self.target
-    }
-
-    /// Reads to make in the slot before writing (empty when no read-modify-write is needed).
-    pub fn reads_before(&self) -> &[Request] {
-        &self.reads_before
-    }
-
-    fn block_len(&self) -> usize {
-        let def = &self.profile.defs[self.field];
-        super::schema::block_quantity(&self.profile.blocks[def.block].request) as usize
-    }
-
-    /// The write requests, computed from the fresh answers to `reads_before()`. Empty when the
-    /// device already is in the commanded state (a toggle field asked for its current state).
-    pub fn writes(&self, before: &[Response]) -> Result<Vec<Request>, Rejection> {
-        let profile = &self.profile;
-        let def = &profile.defs[self.field];
-        let name = self.field();
-        let Some(frame) = &def.write else {
-            return Err(Rejection(format!("{name} is read-only")));
-        };
-        let block_len = self.block_len();
-        let fresh = if self.reads_before.is_empty() {
-            if profile.block_kinds[def.block].is_bits() {
-                BlockImage::Bits(vec![false; block_len])
-            } else {
-                BlockImage::Words(vec![0; block_len])
-            }
-        } else {
-            before
-                .first()
-                .and_then(|answer| image_of(answer, block_len))
-                .ok_or_else(|| {
-                    Rejection(format!(
-                        "{name}: the read before the write did not return block `{}`",
-                        profile.blocks[def.block].name
-                    ))
-                })?
-        };
-        let encoded = def
-            .codec
-            .encode(def.offset, &self.target)
-            .map_err(|why| Rejection(format!("{name}: {why}")))?;
-
-        if def.behaviour == Behaviour::Toggle {
-            let current = def.codec.decode(&fresh, def.offset).map_err(|err| {
-                Rejection(format!("{name}: the fresh read is not usable ({err})"))
-            })?;
-            if current == self.target {
-                return Ok(Vec::new());
-            }
-        }
-
-        // The state the device would be in: refuse forbidden combinations on the fresh read.
-        let mut intended = fresh.clone();
-        intended.apply(&encoded);
-        check_forbidden(profile, self.field, &self.target, |index| {
-            let other = &profile.defs[index];
-            (other.block == def.block)
-                .then(|| other.codec.decode(&intended, other.offset).ok())
-                .flatten()
-        })?;
-
-        // What goes on the wire: as read, with buttons and toggles at rest, then the command.
-        let mut image = fresh;
-        for (index, other) in profile.defs.iter().enumerate() {
-            if index == self.field
-                || other.block != def.block
-                || other.behaviour == Behaviour::State
-                || !inside_frame(other.offset, other.codec.width(), frame)
-            {
-                continue;
-            }
-            image.apply(&rest_patches(other.codec.footprint(other.offset)));
-        }
-        match def.behaviour {
-            Behaviour::State => image.apply(&encoded),
-            Behaviour::Toggle | Behaviour::Momentary => {
-                // Writing 1 is the action itself, whatever the bit's sense when read.
-                let pressed: Vec<RawPatch> = def
-                    .codec
-                    .footprint(def.offset)
-                    .into_iter()
-                    .map(|(offset, mask)| RawPatch {
-                        offset,
-                        mask,
-                        bits: mask,
-                    })
-                    .collect();
-                image.apply(&pressed);
-            }
-        }
-        Ok(frame_requests(frame, &image))
-    }
-
-    /// Reads that verify the command.
-    pub fn readback(&self) -> &[Request] {
-        &self.readback
-    }
-
-    /// Judges the answers to `readback()`.
-    pub fn verify(&self, answers: &[Response]) -> Verification {
-        let def = &self.profile.defs[self.field];
-        let name = self.field();
-        if def.behaviour == Behaviour::Momentary {
-            // A button has no state to show; the acknowledged write is the whole effect.
-            return Verification::Applied;
-        }
-        let Some(image) = answers
-            .first()
-            .and_then(|answer| image_of(answer, self.block_len()))
-        else {
-            return Verification::NotApplied(format!("{name}: no usable read-back"));
-        };
-        match def.codec.decode(&image, def.offset) {
-            Ok(value) if value == self.target => Verification::Applied,
-            _ if def.settle_window.is_some() => Verification::Settling,
-            Ok(value) => Verification::NotApplied(format!(
-                "{name} reads {} after writing {}",
-                value.to_text(),
-                self.target.to_text()
-            )),
-            Err(err) => Verification::NotApplied(format!("{name} read-back invalid: {err}")),
-        }
-    }
-
-    /// How long a `Settling` read-back may keep being repeated.
-    pub fn settle_window(&self) -> Option<Duration> {
-        self.profile.defs[self.field].settle_window
-    }
+    let quantity = end.saturating_sub(start);
+    let request = match read.request {
+        Request::ReadCoils { start: first, .. } => Request::ReadCoils {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadDiscreteInputs { start: first, .. } => Request::ReadDiscreteInputs {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadInputRegisters { start: first, .. } => Request::ReadInputRegisters {
+            start: first + start,
+            quantity,
+        },
+        Request::ReadHoldingRegisters { start: first, .. } => Request::ReadHoldingRegisters {
+            start: first + start,
+            quantity,
+        },
+        ref other => other.clone(),
+    };
+    (request, start)
 }
 
 fn inside_frame(offset: u16, width: u16, frame: &WriteFrame) -> bool {

@@ -2,10 +2,12 @@
 //! one of the built-in copies), validated completely at load, and then answers every question
 //! the rest of the gateway has about a device: which blocks to poll, how raw words become field
 //! values, which fields exist and how they are exposed, and how a command on a field becomes the
-//! frames of one bus slot. Everything here is pure: no I/O, no clock, no tokio.
+//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
+//! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 
 pub mod codec;
 pub mod command;
+pub mod raw;
 pub mod registry;
 pub mod schema;
 pub mod value;
@@ -216,6 +218,47 @@ impl Profile {
             .collect()
     }
 
+    /// Decodes the answer to any read inside one block (a whole block, one of its used runs,
+    /// or a command slot's read): the values of the fields that lie entirely inside the read.
+    /// Empty when no block of the profile contains the read.
+    pub fn decode_read(&self, request: &Request, answer: &Response) -> Vec<FieldReading> {
+        let Some((start, quantity)) = raw::read_span(request) else {
+            return Vec::new();
+        };
+        let inner = &self.inner;
+        let Some(block) = inner.blocks.iter().position(|block| {
+            raw::read_span(&block.request).is_some_and(|(first, len)| {
+                std::mem::discriminant(&block.request) == std::mem::discriminant(request)
+                    && start >= first
+                    && u32::from(start) + u32::from(quantity) <= u32::from(first) + u32::from(len)
+            })
+        }) else {
+            return Vec::new();
+        };
+        let Some((first, _)) = raw::read_span(&inner.blocks[block].request) else {
+            return Vec::new();
+        };
+        let base = start - first;
+        let Some(part) = command::image_of(answer, usize::from(quantity)) else {
+            return Vec::new();
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter(|(def, _)| {
+                def.block == block
+                    && def.offset >= base
+                    && u32::from(def.offset) + u32::from(def.codec.width())
+                        <= u32::from(base) + u32::from(quantity)
+            })
+            .map(|(def, info)| FieldReading {
+                field: info.name.clone(),
+                value: def.codec.decode(&part, def.offset - base),
+            })
+            .collect()
+    }
+
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
     /// last known state, and plans the bus slot that carries it out.
     pub fn plan_command(
@@ -224,6 +267,83 @@ impl Profile {
         text: &str,
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
+        let (index, target) = self.parse_target(field, text)?;
+        let Some(frame) = self.inner.defs[index].write.clone() else {
+            return Err(Rejection(format!("{field} is read-only")));
+        };
+        let targets = vec![(index, target)];
+        self.check_known_state(&targets, state)?;
+        Ok(CommandPlan::new(
+            Arc::clone(&self.inner),
+            field.to_string(),
+            frame,
+            targets,
+        ))
+    }
+
+    /// Plans several fields written together through one named `[[write_frames]]` entry in one
+    /// frame (the dust collector's `settings`: power on with gear and timers in one FC10). Bits
+    /// and words of the frame that no value names are written back as freshly read.
+    pub fn plan_group(
+        &self,
+        frame_name: &str,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let inner = &self.inner;
+        let frame = inner
+            .named_frames
+            .iter()
+            .find(|(name, _)| name == frame_name)
+            .map(|(_, frame)| frame.clone())
+            .ok_or_else(|| {
+                Rejection(format!(
+                    "unknown write frame `{frame_name}` for {}",
+                    inner.name
+                ))
+            })?;
+        if values.is_empty() {
+            return Err(Rejection(format!("{frame_name}: no values given")));
+        }
+        let mut targets: Vec<(usize, Value)> = Vec::new();
+        for (field, text) in values {
+            let (index, target) = self.parse_target(field, text)?;
+            let def = &inner.defs[index];
+            let end = u32::from(def.offset) + u32::from(def.codec.width());
+            if def.block != frame.block
+                || def.offset < frame.offset
+                || end > u32::from(frame.offset) + u32::from(frame.count)
+            {
+                return Err(Rejection(format!(
+                    "{field} is not written by frame `{frame_name}`"
+                )));
+            }
+            if targets.iter().any(|(other, _)| *other == index) {
+                return Err(Rejection(format!("{field} is given twice")));
+            }
+            targets.push((index, target));
+        }
+        self.check_known_state(&targets, state)?;
+        Ok(CommandPlan::new(
+            Arc::clone(&self.inner),
+            frame_name.to_string(),
+            frame,
+            targets,
+        ))
+    }
+
+    /// Names of the profile's shared write frames (for group commands).
+    pub fn write_frame_names(&self) -> Vec<&str> {
+        self.inner
+            .named_frames
+            .iter()
+            .map(|(name, _)| name.as_str())
+            .collect()
+    }
+
+    /// The field's index and the command text parsed for it; refuses unknown and read-only
+    /// fields.
+    fn parse_target(&self, field: &str, text: &str) -> Result<(usize, Value), Rejection> {
         let inner = &self.inner;
         let index = inner
             .infos
@@ -234,24 +354,45 @@ impl Profile {
         if !info.writable {
             return Err(Rejection(format!("{field} is read-only")));
         }
-        let target = codec::parse_command(info, text)?;
         let def = &inner.defs[index];
-        let encoded = def
-            .codec
+        let target = match codec::parse_command(info, text) {
+            Ok(value) => value,
+            Err(rejection) if def.also.is_empty() => return Err(rejection),
+            Err(rejection) => match text.trim().parse::<i64>() {
+                Ok(value) if def.also.contains(&value) => Value::Int(value),
+                _ => {
+                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
+                    let or = format!(" or {}, got ", list.join(", "));
+                    return Err(Rejection(rejection.0.replacen(", got ", &or, 1)));
+                }
+            },
+        };
+        // Kinds and ranges are validated against the codec at load, so this only fails on a
+        // profile bug; refuse rather than write something else.
+        def.codec
             .encode(def.offset, &target)
             .map_err(|why| Rejection(format!("{field}: {why}")))?;
+        Ok((index, target))
+    }
 
-        // Judge forbidden combinations on the last known state with the command applied. Fields
-        // not known yet are left to the fresh read in `CommandPlan::writes`.
-        let block_len = schema::block_quantity(&inner.blocks[def.block].request) as usize;
-        let mut image = if inner.block_kinds[def.block].is_bits() {
+    /// Judges forbidden combinations on the last known state with the command applied. Fields
+    /// not known yet are left to the fresh read in `CommandPlan::writes`.
+    fn check_known_state(
+        &self,
+        targets: &[(usize, Value)],
+        state: &DeviceState,
+    ) -> Result<(), Rejection> {
+        let inner = &self.inner;
+        let block = inner.defs[targets[0].0].block;
+        let block_len = schema::block_quantity(&inner.blocks[block].request) as usize;
+        let mut image = if inner.block_kinds[block].is_bits() {
             BlockImage::Bits(vec![false; block_len])
         } else {
             BlockImage::Words(vec![0; block_len])
         };
         let mut known = vec![false; inner.defs.len()];
         for (i, other) in inner.defs.iter().enumerate() {
-            if other.block != def.block || other.overlay {
+            if other.block != block || other.overlay {
                 continue;
             }
             if let Some(patches) = state
@@ -262,20 +403,28 @@ impl Profile {
                 known[i] = true;
             }
         }
-        image.apply(&encoded);
-        let touched = def.codec.footprint(def.offset);
-        command::check_forbidden(inner, index, &target, |i| {
-            let other = &inner.defs[i];
-            let hit = other
-                .codec
-                .footprint(other.offset)
-                .iter()
-                .any(|(o, m)| touched.iter().any(|(to, tm)| o == to && m & tm != 0));
-            (known[i] || hit)
-                .then(|| other.codec.decode(&image, other.offset).ok())
-                .flatten()
-        })?;
-        Ok(CommandPlan::new(Arc::clone(&self.inner), index, target))
+        let mut touched = Vec::new();
+        for (index, target) in targets {
+            let def = &inner.defs[*index];
+            if let Ok(patches) = def.codec.encode(def.offset, target) {
+                image.apply(&patches);
+            }
+            touched.extend(def.codec.footprint(def.offset));
+        }
+        for (index, target) in targets {
+            command::check_forbidden(inner, *index, target, |i| {
+                let other = &inner.defs[i];
+                let hit = other
+                    .codec
+                    .footprint(other.offset)
+                    .iter()
+                    .any(|(o, m)| touched.iter().any(|(to, tm)| o == to && m & tm != 0));
+                (known[i] || hit)
+                    .then(|| other.codec.decode(&image, other.offset).ok())
+                    .flatten()
+            })?;
+        }
+        Ok(())
     }
 
     /// The raw change that puts `value` into a field's place: the block index and the patches

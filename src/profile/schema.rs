@@ -129,6 +129,10 @@ struct BlockSection {
     count: u16,
     #[serde(default = "default_poll")]
     poll: String,
+    /// The block is always read with exactly this request (the vendor's own example), never
+    /// split into the runs its fields use: gaps are readable on this device.
+    #[serde(default)]
+    read_whole: bool,
 }
 
 fn default_poll() -> String {
@@ -161,6 +165,9 @@ struct FieldSection {
     unit: Option<String>,
     /// `[min, max]` for numbers: the allowed command range and the Home Assistant range.
     range: Option<[f64; 2]>,
+    /// Integers accepted besides the range, e.g. `[255]` where 255 means "disabled".
+    #[serde(default)]
+    also: Vec<i64>,
     write: Option<WriteSection>,
     #[serde(default)]
     behaviour: Behaviour,
@@ -248,25 +255,30 @@ enum CodecSection {
     U16 {
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     I16 {
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     U32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     I32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     F32 {
         word_order: WordOrder,
         #[serde(default)]
         decimals: u8,
+        scale: Option<f64>,
     },
     Bcd {
         int_digits: u8,
@@ -327,6 +339,8 @@ pub struct FieldDef {
     pub behaviour: Behaviour,
     pub settle_window: Option<Duration>,
     pub overlay: bool,
+    /// Integers accepted besides the range (the valve's 255 = alarm disabled).
+    pub also: Vec<i64>,
 }
 
 /// A compiled forbidden combination.
@@ -352,6 +366,8 @@ pub struct Compiled {
     pub defs: Vec<FieldDef>,
     pub infos: Vec<FieldInfo>,
     pub forbidden: Vec<Forbidden>,
+    /// The `[[write_frames]]` by name, in file order.
+    pub named_frames: Vec<(String, WriteFrame)>,
 }
 
 /// Collects problems with their places.
@@ -374,7 +390,7 @@ pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
     let file: ProfileFile = toml::from_str(text).map_err(|err| {
         let place = match err.span() {
             Some(span) => {
-                let before = &text[..span.start.min(text.len())];
+                let before = text.get(..span.start).unwrap_or(text);
                 let line = before.matches('\n').count() + 1;
                 let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
                 format!("{source}:{line}:{column}")
@@ -436,6 +452,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
 
     let mut defs = Vec::new();
     let mut infos = Vec::new();
+    let mut places = Vec::new();
     let mut seen = HashMap::new();
     for (i, field) in file.fields.iter().enumerate() {
         let place = format!("fields[{i}] ({})", field.name);
@@ -463,11 +480,10 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         ) {
             defs.push(def);
             infos.push(info);
+            places.push(place);
         }
     }
-    if problems.list.is_empty() {
-        check_overlaps(&file.fields, &defs, &blocks, problems);
-    }
+    check_overlaps(&places, &infos, &defs, &blocks, problems);
 
     let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); blocks.len()];
     for def in &defs {
@@ -476,8 +492,12 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let blocks = blocks
         .into_iter()
         .zip(used)
-        .map(|(mut block, spans)| {
+        .zip(&file.blocks)
+        .map(|((mut block, spans), section)| {
             block.used_runs = merge_runs(spans);
+            if section.read_whole && !block.used_runs.is_empty() {
+                block.used_runs = vec![(0, section.count)];
+            }
             block
         })
         .collect::<Vec<_>>();
@@ -491,6 +511,15 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     }
 
     let forbidden = build_forbidden(&file.forbidden, &infos, &defs, problems);
+    let named_frames = file
+        .write_frames
+        .iter()
+        .filter_map(|section| {
+            frames
+                .get(&section.name)
+                .map(|frame| (section.name.clone(), frame.clone()))
+        })
+        .collect();
 
     Compiled {
         name: file.device.name,
@@ -504,6 +533,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         defs,
         infos,
         forbidden,
+        named_frames,
     }
 }
 
@@ -833,13 +863,42 @@ fn build_codec(
             }
         }
     };
-    let check_decimals = |decimals: u8, problems: &mut Problems<'_>| {
+    // `decimals` places shown; `scale` the value of one raw count (default 10^-decimals).
+    // scale × 10^decimals must be a whole number so values stay exact.
+    let mut number = |ty: NumberType, decimals: u8, scale: Option<f64>| -> Option<FieldCodec> {
         if decimals > 6 {
             problems.add(
                 format!("{place}.codec.decimals"),
                 format!("{decimals} decimals: at most 6"),
             );
+            return None;
         }
+        let factor = match scale {
+            // Integers count the last shown place; a float is the value itself.
+            None if matches!(ty, NumberType::F32(_)) => 10i64.pow(u32::from(decimals)),
+            None => 1,
+            Some(scale) => {
+                let counts = scale * 10f64.powi(i32::from(decimals));
+                if !(counts.is_finite() && (1.0..=1e9).contains(&counts))
+                    || (counts - counts.round()).abs() > 1e-6
+                {
+                    problems.add(
+                        format!("{place}.codec.scale"),
+                        format!(
+                            "scale {scale} is not a positive whole number of the last shown \
+                             place with {decimals} decimals (raise `decimals`)"
+                        ),
+                    );
+                    return None;
+                }
+                counts.round() as i64
+            }
+        };
+        Some(FieldCodec::Number {
+            ty,
+            decimals,
+            factor,
+        })
     };
     Some(match section {
         CodecSection::Bit { bit, invert } => {
@@ -892,50 +951,23 @@ fn build_codec(
                 options: options.clone(),
             }
         }
-        CodecSection::U16 { decimals } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::U16,
-                decimals: *decimals,
-            }
-        }
-        CodecSection::I16 { decimals } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::I16,
-                decimals: *decimals,
-            }
-        }
+        CodecSection::U16 { decimals, scale } => number(NumberType::U16, *decimals, *scale)?,
+        CodecSection::I16 { decimals, scale } => number(NumberType::I16, *decimals, *scale)?,
         CodecSection::U32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::U32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::U32(*word_order), *decimals, *scale)?,
         CodecSection::I32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::I32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::I32(*word_order), *decimals, *scale)?,
         CodecSection::F32 {
             word_order,
             decimals,
-        } => {
-            check_decimals(*decimals, problems);
-            FieldCodec::Number {
-                ty: NumberType::F32(*word_order),
-                decimals: *decimals,
-            }
-        }
+            scale,
+        } => number(NumberType::F32(*word_order), *decimals, *scale)?,
         CodecSection::Bcd {
             int_digits,
             frac_digits,
@@ -1107,6 +1139,21 @@ fn build_field(
     }
 
     let field_kind = field_kind(field, &codec, write.is_some(), place, problems)?;
+    if !field.also.is_empty() {
+        match codec.natural_kind() {
+            FieldKind::Integer { min, max } if matches!(field_kind, FieldKind::Integer { .. }) => {
+                for value in &field.also {
+                    if *value < min || *value > max {
+                        problems.add(
+                            format!("{place}.also"),
+                            format!("{value} is outside the codec's {min}–{max}"),
+                        );
+                    }
+                }
+            }
+            _ => problems.add(format!("{place}.also"), "only integer fields take `also`"),
+        }
+    }
     let def = FieldDef {
         block,
         offset: field.offset,
@@ -1115,6 +1162,7 @@ fn build_field(
         behaviour: field.behaviour,
         settle_window: field.settle_window,
         overlay: field.overlay,
+        also: field.also.clone(),
     };
     let info = FieldInfo {
         name: field.name.clone(),
@@ -1213,7 +1261,8 @@ fn field_kind(
 
 /// Checks that no two fields share a bit, except overlay fields, which are views by design.
 fn check_overlaps(
-    sections: &[FieldSection],
+    places: &[String],
+    infos: &[FieldInfo],
     defs: &[FieldDef],
     blocks: &[ReadBlock],
     problems: &mut Problems<'_>,
@@ -1228,10 +1277,10 @@ fn check_overlaps(
             let slot = owners.entry((def.block, offset)).or_default();
             if let Some(&(_, other)) = slot.iter().find(|(m, _)| m & mask != 0) {
                 problems.add(
-                    format!("fields[{i}] ({})", sections[i].name),
+                    places[i].clone(),
                     format!(
                         "overlaps field `{}` at offset {offset} of block `{}`",
-                        sections[other].name, blocks[def.block].name
+                        infos[other].name, blocks[def.block].name
                     ),
                 );
             } else {
@@ -1254,7 +1303,7 @@ fn check_overlaps(
             });
         if !covered {
             problems.add(
-                format!("fields[{i}] ({}).overlay", sections[i].name),
+                format!("{}.overlay", places[i]),
                 "an overlay field must only cover bits that other fields own",
             );
         }

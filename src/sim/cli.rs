@@ -44,8 +44,18 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
 }
 
 fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
-    let _ = address;
-    bail!("profile `{profile}`: not a seed device, and profile loading is not available yet")
+    let profile = crate::profile::registry::load(profile, None)
+        .with_context(|| format!("loading profile `{profile}`"))?;
+    let address = address
+        .or(profile.default_address())
+        .unwrap_or(*profile.limits().address_range.start());
+    if !profile.limits().address_range.contains(&address) {
+        bail!(
+            "address {address} is outside the profile's range {:?}",
+            profile.limits().address_range
+        );
+    }
+    Ok(share(super::GenericDevice::from_profile(&profile, address)).1)
 }
 
 pub fn simulate(
@@ -90,8 +100,8 @@ pub fn simulate(
                 _ = ticker.tick() => {
                     for record in journal.drain_requests() {
                         tracing::info!(
-                            request = %super::server::hex(&record.frame),
-                            answer = %record.answer.as_deref().map(super::server::hex).unwrap_or_else(|| "-".into()),
+                            request = %crate::rtu::codec::hex(&record.frame),
+                            answer = %record.answer.as_deref().map(crate::rtu::codec::hex).unwrap_or_else(|| "-".into()),
                             crc_ok = record.crc_ok,
                             "frame"
                         );

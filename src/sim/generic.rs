@@ -1,6 +1,8 @@
 //! A generic simulated device built from a profile's read blocks alone: memory for every
-//! coil, discrete input and register the blocks cover, seeded with plausible values (small
-//! numbers whose hex digits are all decimal, so BCD fields decode too), and FC01–06/0F/10 on it.
+//! coil, discrete input and register the blocks cover, seeded with plausible values, and
+//! FC01–06/0F/10 on it. Places no field uses get small numbers whose hex digits are all
+//! decimal; each field then gets a value inside its range (the middle of a number's range,
+//! an enumeration's first word, OFF), put in place by the profile's own encoder.
 //!
 //! Reads outside the memory give exception 02. Writes land anywhere in the coil and holding
 //! register tables (a profile may write at addresses it reads elsewhere, like the dust
@@ -10,7 +12,8 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use super::{Reply, SimDevice};
-use crate::profile::{Profile, ReadBlock};
+use crate::profile::codec::RawPatch;
+use crate::profile::{FieldKind, Profile, ReadBlock};
 use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// The four Modbus tables.
@@ -31,25 +34,53 @@ pub struct GenericDevice {
 }
 
 impl GenericDevice {
-    /// A device at `address` with memory for the profile's read blocks.
+    /// A device at `address` with memory for the profile's read blocks and every field seeded
+    /// with a plausible value.
     pub fn from_profile(profile: &Profile, address: SlaveId) -> Self {
-        Self::from_blocks(profile.read_blocks(), address)
+        let mut device = Self::from_blocks(profile.read_blocks(), address);
+        for field in profile.fields() {
+            let Some(text) = plausible_text(&field.kind) else {
+                continue;
+            };
+            let encoded = profile
+                .parse_value(&field.name, &text)
+                .and_then(|value| profile.encode_value_raw(&field.name, &value));
+            let Ok((block, patches)) = encoded else {
+                continue;
+            };
+            if let Some(read) = profile.read_blocks().get(block) {
+                device.patch(&read.request, &patches);
+            }
+        }
+        device
+    }
+
+    /// Applies a profile's raw patches to the block read by `request`.
+    fn patch(&mut self, request: &Request, patches: &[RawPatch]) {
+        let Some((table, start, _)) = block_place(request) else {
+            return;
+        };
+        for patch in patches {
+            let Some(at) = start.checked_add(patch.offset) else {
+                continue;
+            };
+            let Some(word) = self.memory.get_mut(&(table, at)) else {
+                continue;
+            };
+            *word = match table {
+                Table::Coils | Table::DiscreteInputs if patch.mask & 1 != 0 => patch.bits & 1,
+                Table::Coils | Table::DiscreteInputs => *word,
+                Table::Holding | Table::Input => (*word & !patch.mask) | (patch.bits & patch.mask),
+            };
+        }
     }
 
     /// A device at `address` with memory for `blocks`.
     pub fn from_blocks(blocks: &[ReadBlock], address: SlaveId) -> Self {
         let mut memory = BTreeMap::new();
         for block in blocks {
-            let (table, start, quantity) = match block.request {
-                Request::ReadCoils { start, quantity } => (Table::Coils, start, quantity),
-                Request::ReadDiscreteInputs { start, quantity } => {
-                    (Table::DiscreteInputs, start, quantity)
-                }
-                Request::ReadHoldingRegisters { start, quantity } => {
-                    (Table::Holding, start, quantity)
-                }
-                Request::ReadInputRegisters { start, quantity } => (Table::Input, start, quantity),
-                _ => continue,
+            let Some((table, start, quantity)) = block_place(&block.request) else {
+                continue;
             };
             for offset in 0..quantity {
                 let Some(at) = start.checked_add(offset) else {
@@ -129,6 +160,35 @@ impl GenericDevice {
         }
         self.writes += 1;
         Ok(())
+    }
+}
+
+/// The table, start and quantity a read request covers.
+fn block_place(request: &Request) -> Option<(Table, u16, u16)> {
+    Some(match *request {
+        Request::ReadCoils { start, quantity } => (Table::Coils, start, quantity),
+        Request::ReadDiscreteInputs { start, quantity } => (Table::DiscreteInputs, start, quantity),
+        Request::ReadHoldingRegisters { start, quantity } => (Table::Holding, start, quantity),
+        Request::ReadInputRegisters { start, quantity } => (Table::Input, start, quantity),
+        _ => return None,
+    })
+}
+
+/// A value inside a field's range, as command text; None for buttons and text.
+fn plausible_text(kind: &FieldKind) -> Option<String> {
+    match kind {
+        FieldKind::Bool => Some("OFF".to_string()),
+        FieldKind::Integer { min, max } => Some((min + (max - min) / 2).to_string()),
+        FieldKind::Decimal {
+            min,
+            max,
+            precision,
+        } => {
+            let p = usize::from(*precision);
+            Some(format!("{:.p$}", min + (max - min) / 2.0))
+        }
+        FieldKind::Enum { options } => options.first().cloned(),
+        FieldKind::Momentary | FieldKind::Text => None,
     }
 }
 
@@ -224,6 +284,30 @@ mod tests {
             request,
             class: PollClass::Fast,
             used_runs: vec![],
+        }
+    }
+
+    #[test]
+    fn built_in_profiles_read_back_plausible_values() {
+        for name in crate::profile::registry::built_in_names() {
+            let profile = crate::profile::registry::built_in(name).unwrap();
+            let mut device = GenericDevice::from_profile(&profile, 1);
+            for (index, block) in profile.read_blocks().iter().enumerate() {
+                let Reply::Normal(answer) = device.handle(&block.request, Instant::now()) else {
+                    panic!("{name}: block {} refused", block.name);
+                };
+                for reading in profile.decode_block(index, &answer) {
+                    let field = profile.field(&reading.field).unwrap();
+                    let value = reading
+                        .value
+                        .unwrap_or_else(|e| panic!("{name}.{}: {e}", reading.field));
+                    if let (FieldKind::Integer { min, max }, crate::profile::Value::Int(n)) =
+                        (&field.kind, &value)
+                    {
+                        assert!((min..=max).contains(&n), "{name}.{}: {n}", field.name);
+                    }
+                }
+            }
         }
     }
 

@@ -2,7 +2,7 @@
 //! (with its arrival time and the silence before it), the bytes sent back, writes per device,
 //! and bytes that were not a frame.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -23,9 +23,15 @@ pub struct RequestRecord {
     pub answer: Option<Vec<u8>>,
 }
 
+/// Records kept; older ones are dropped so a long demo or soak run stays in bounded memory
+/// (counters keep counting).
+pub const MAX_RECORDS: usize = 10_000;
+
 #[derive(Debug, Default)]
 struct Inner {
-    requests: Vec<RequestRecord>,
+    requests: VecDeque<RequestRecord>,
+    /// Every frame ever received, including records no longer kept.
+    total_requests: usize,
     writes: BTreeMap<SlaveId, u32>,
     discarded_bytes: usize,
 }
@@ -42,7 +48,12 @@ impl Journal {
     }
 
     pub(crate) fn record(&self, record: RequestRecord) {
-        super::lock(&self.inner).requests.push(record);
+        let mut inner = super::lock(&self.inner);
+        if inner.requests.len() == MAX_RECORDS {
+            inner.requests.pop_front();
+        }
+        inner.requests.push_back(record);
+        inner.total_requests += 1;
     }
 
     pub(crate) fn count_write(&self, address: SlaveId) {
@@ -53,9 +64,9 @@ impl Journal {
         super::lock(&self.inner).discarded_bytes += bytes;
     }
 
-    /// Every frame received so far.
+    /// The frames received so far (the last [`MAX_RECORDS`]).
     pub fn requests(&self) -> Vec<RequestRecord> {
-        super::lock(&self.inner).requests.clone()
+        super::lock(&self.inner).requests.iter().cloned().collect()
     }
 
     /// The frames received so far, bytes only.
@@ -69,11 +80,12 @@ impl Journal {
 
     /// Takes the frames received so far out of the journal (counters stay).
     pub fn drain_requests(&self) -> Vec<RequestRecord> {
-        std::mem::take(&mut super::lock(&self.inner).requests)
+        super::lock(&self.inner).requests.drain(..).collect()
     }
 
+    /// Frames received since the start (or the last [`Journal::clear`]), kept or not.
     pub fn request_count(&self) -> usize {
-        super::lock(&self.inner).requests.len()
+        super::lock(&self.inner).total_requests
     }
 
     /// Write requests (CRC-valid, addressed to the device) the device received.
@@ -114,5 +126,31 @@ impl Journal {
             }
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keeps_the_newest_records_and_counts_all() {
+        let journal = Journal::new();
+        let start = Instant::now();
+        for i in 0..MAX_RECORDS + 5 {
+            journal.record(RequestRecord {
+                frame: (i as u32).to_be_bytes().to_vec(),
+                arrived: start,
+                silence_before: None,
+                crc_ok: true,
+                answer: None,
+            });
+        }
+        assert_eq!(journal.request_count(), MAX_RECORDS + 5);
+        let kept = journal.requests();
+        assert_eq!(kept.len(), MAX_RECORDS);
+        assert_eq!(kept[0].frame, 5u32.to_be_bytes().to_vec());
+        assert_eq!(journal.drain_requests().len(), MAX_RECORDS);
+        assert!(journal.requests().is_empty());
     }
 }

@@ -14,6 +14,23 @@
 //!
 //! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
 //! `simulate`.
+//!
+//! ```no_run
+//! # async fn example() -> std::io::Result<()> {
+//! use rtu2mqtt::rtu::timing::Parity;
+//! use rtu2mqtt::sim::{lock, share, AirShower, DustCollector, Occurrence, ServeOptions, VirtualLine};
+//!
+//! let (dust, dust_shared) = share(DustCollector::new(1));
+//! let (_shower, shower_shared) = share(AirShower::new());
+//! let options = ServeOptions::new(9600, Parity::None).paced(true);
+//! let line = VirtualLine::spawn(options, vec![dust_shared, shower_shared])?;
+//! // The gateway opens `line.path()` (/dev/pts/N) like a real port.
+//! line.faults().update(|f| f.drop = Occurrence::next(2));
+//! lock(&dust).set_power(true);
+//! let seen = line.journal().frames();
+//! # let _ = seen; Ok(())
+//! # }
+//! ```
 
 pub mod air_shower;
 pub mod cli;
@@ -41,7 +58,6 @@ pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;
-pub use wire::WireTiming;
 
 /// What a device does with a request addressed to it.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -146,6 +162,70 @@ pub fn from_bcd(word: u16) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    fn any_request() -> impl Strategy<Value = Request> {
+        let start = prop_oneof![any::<u16>(), 0u16..0x20, 0x70u16..0xF0, 0x0FF0u16..0x1010];
+        prop_oneof![
+            (start.clone(), any::<u16>())
+                .prop_map(|(start, quantity)| Request::ReadCoils { start, quantity }),
+            (start.clone(), any::<u16>())
+                .prop_map(|(start, quantity)| Request::ReadHoldingRegisters { start, quantity }),
+            (start.clone(), any::<u16>())
+                .prop_map(|(start, quantity)| Request::ReadInputRegisters { start, quantity }),
+            (start.clone(), any::<u16>())
+                .prop_map(|(address, value)| Request::WriteSingleRegister { address, value }),
+            (start.clone(), any::<bool>())
+                .prop_map(|(address, value)| Request::WriteSingleCoil { address, value }),
+            (
+                start.clone(),
+                proptest::collection::vec(any::<bool>(), 0..40)
+            )
+                .prop_map(|(start, values)| Request::WriteMultipleCoils { start, values }),
+            (start, proptest::collection::vec(any::<u16>(), 0..10))
+                .prop_map(|(start, values)| Request::WriteMultipleRegisters { start, values }),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn devices_answer_any_request_without_panicking(
+            requests in proptest::collection::vec(any_request(), 1..20),
+            step_ms in 0u64..5000,
+        ) {
+            let mut devices: Vec<Box<dyn SimDevice>> = vec![
+                Box::new(DustCollector::new(1)),
+                Box::new(Valve::new(1)),
+                Box::new(AirShower::new()),
+                Box::new(GenericDevice::from_blocks(
+                    &[crate::profile::ReadBlock {
+                        name: "all".into(),
+                        request: Request::ReadHoldingRegisters { start: 0xFFF0, quantity: 16 },
+                        class: crate::profile::PollClass::Fast,
+                        used_runs: vec![(0, 16)],
+                    }],
+                    1,
+                )),
+            ];
+            let start = Instant::now();
+            for (i, request) in requests.iter().enumerate() {
+                let now = start + std::time::Duration::from_millis(step_ms * i as u64);
+                for device in &mut devices {
+                    let reply = device.handle(request, now);
+                    if let Reply::Normal(Response::HoldingRegisters(words)) = &reply {
+                        prop_assert!(words.len() <= 125);
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn framing_survives_any_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
+            let _ = wire::request_frame_len(&bytes);
+            let _ = wire::decode_request(&bytes);
+            let _ = wire::crc_ok(&bytes);
+        }
+    }
 
     #[test]
     fn bcd_round_trips_and_rejects_bad_nibbles() {

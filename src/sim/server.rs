@@ -14,10 +14,16 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::faults::{random_bytes, FaultHandle};
 use super::journal::{Journal, RequestRecord};
-use super::wire::{self, FrameLen, RequestError, WireTiming};
+use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
+use crate::rtu::clock::sleep_until_precise;
+use crate::rtu::codec::{encode_answer, encode_exception, hex};
 use crate::rtu::frame::Request;
+use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::shutdown::Shutdown;
+
+/// The longest RTU frame (address, PDU of at most 253 bytes, CRC).
+const MAX_FRAME_LEN: usize = 256;
 
 /// How often the idle loop looks at the faults again.
 const FAULT_RECHECK: Duration = Duration::from_millis(50);
@@ -25,16 +31,21 @@ const FAULT_RECHECK: Duration = Duration::from_millis(50);
 /// How a line is served.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ServeOptions {
-    pub timing: WireTiming,
+    pub timing: LineTiming,
     /// Pace answers at the wire's character rate (a pty delivers bytes instantly).
     pub pace: bool,
 }
 
 impl ServeOptions {
-    /// 9600 baud with `parity`, unpaced.
-    pub fn new(baud: u32, parity: crate::rtu::timing::Parity) -> Self {
+    /// `baud` with 8 data bits, `parity` and 1 stop bit, unpaced.
+    pub fn new(baud: u32, parity: Parity) -> Self {
+        let format = CharFormat {
+            data_bits: 8,
+            parity,
+            stop_bits: 1,
+        };
         Self {
-            timing: WireTiming::new(baud, parity),
+            timing: LineTiming::new(baud, format),
             pace: false,
         }
     }
@@ -75,7 +86,7 @@ where
     let mut idle_wake: Option<tokio::time::Instant> = None;
     loop {
         let silence_at = (!server.buffer.is_empty()).then(|| {
-            tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5())
+            tokio::time::Instant::from_std(server.last_byte_at + server.options.timing.t3_5)
         });
         // Faults change at run time: without idle garbage the loop still wakes now and then to
         // notice it being switched on.
@@ -114,28 +125,6 @@ async fn sleep_until_opt(deadline: Option<tokio::time::Instant>) {
     }
 }
 
-/// Sleeps until `deadline` with sub-millisecond precision: the timer wheel's 1 ms ticks for
-/// the bulk, then yielding to the runtime until the instant has passed.
-pub async fn sleep_until_precise(deadline: Instant) {
-    const COARSE_MARGIN: Duration = Duration::from_micros(1500);
-    let now = Instant::now();
-    if deadline > now + COARSE_MARGIN {
-        tokio::time::sleep_until(tokio::time::Instant::from_std(deadline - COARSE_MARGIN)).await;
-    }
-    while Instant::now() < deadline {
-        tokio::task::yield_now().await;
-    }
-}
-
-/// Bytes as spaced hex, for logs.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02X}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
 struct Server<S> {
     stream: S,
     options: ServeOptions,
@@ -155,11 +144,28 @@ struct Server<S> {
 impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     async fn received(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let now = Instant::now();
+        if self.discarding
+            && now.saturating_duration_since(self.last_byte_at) >= self.options.timing.t3_5
+        {
+            // The silence that ended the bad burst came while nothing was pending.
+            self.discarding = false;
+        }
         if self.buffer.is_empty() {
             self.first_byte_at = now;
         }
         self.buffer.extend_from_slice(bytes);
         self.last_byte_at = now;
+        if self.buffer.len() > MAX_FRAME_LEN && !self.discarding {
+            // Longer than any RTU frame: noise. Ignore it up to the next silence.
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
+            self.discarding = true;
+        }
+        if self.discarding {
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
+            return Ok(());
+        }
         // Frames whose length is known are handled as soon as they are complete, as a device
         // would after its t3.5 (the wait is added before the answer).
         while !self.discarding {
@@ -216,19 +222,19 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             answer: None,
         };
         tracing::debug!(frame = %hex(&frame), crc_ok = record.crc_ok, "request");
+        if self.faults.echo() {
+            // The adapter hears whatever goes out, valid or not.
+            self.stream.write_all(&frame).await?;
+            self.stream.flush().await?;
+        }
         if !record.crc_ok {
-            self.discarding = !self.buffer.is_empty();
-            if self.discarding {
-                self.journal.count_discarded(self.buffer.len());
-                self.buffer.clear();
-            }
+            // Like a device framing by silence, ignore the rest of this burst.
+            self.discarding = true;
+            self.journal.count_discarded(self.buffer.len());
+            self.buffer.clear();
             self.idle_since = Some(ended);
             self.journal.record(record);
             return Ok(());
-        }
-        if self.faults.echo() {
-            self.stream.write_all(&frame).await?;
-            self.stream.flush().await?;
         }
         let answer = self.dispatch(&frame);
         let Some((address, mut bytes)) = answer else {
@@ -238,7 +244,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         };
         let faults = self.faults.for_answer(address);
         if let Some(code) = faults.exception {
-            bytes = wire::encode_exception(address, frame[1], code);
+            bytes = encode_exception(address, frame[1], code);
         }
         if let Some(wrong) = faults.wrong_address {
             bytes[0] = wrong;
@@ -262,7 +268,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         }
         let mut out = faults.garbage_before;
         out.extend_from_slice(&bytes);
-        let starts = ended + timing.t3_5() + faults.delay;
+        let starts = ended + timing.t3_5 + faults.delay;
         self.send(&out, starts, faults.pause_mid_answer).await?;
         record.answer = Some(out);
         self.journal.record(record);
@@ -302,11 +308,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             let address = device.address();
             if addressing == Addressing::Answer && answer.is_none() {
                 answer = match reply {
-                    Reply::Normal(response) => {
-                        Some((address, wire::encode_answer(address, &response)))
-                    }
+                    Reply::Normal(response) => Some((address, encode_answer(address, &response))),
                     Reply::Exception(code) => {
-                        Some((address, wire::encode_exception(address, function, code)))
+                        Some((address, encode_exception(address, function, code)))
                     }
                     Reply::Silent => None,
                 };
@@ -339,7 +343,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             if self.options.pace {
                 at += timing.frame_time(part.len());
             }
-            sleep_until_precise(at).await;
+            sleep_until_precise(tokio::time::Instant::from_std(at)).await;
             self.stream.write_all(part).await?;
             self.stream.flush().await?;
         }

@@ -179,11 +179,13 @@ impl Valve {
 
     /// Motor speed in percent per second.
     pub fn set_speed(&mut self, percent_per_second: f64) {
+        self.settle_motion();
         self.speed = percent_per_second.max(0.0);
     }
 
     /// Jammed: the motor does not move and status bit 7 is set.
     pub fn set_jammed(&mut self, jammed: bool) {
+        self.settle_motion();
         self.jammed = jammed;
     }
 
@@ -198,9 +200,46 @@ impl Valve {
         self.drift = drift;
     }
 
-    /// The opening in whole percent, as register 0x74 reads.
+    /// The opening in whole percent, as register 0x74 reads now.
     pub fn opening(&self) -> u16 {
-        self.position.round().clamp(0.0, 100.0) as u16
+        self.opening_at(Instant::now())
+    }
+
+    /// Whole percent, cut toward where the valve comes from: the register shows the commanded
+    /// value only once the motor has got there.
+    fn opening_at(&self, now: Instant) -> u16 {
+        let position = self.position_at(now);
+        let shown = if f64::from(self.target) >= position {
+            (position + 1e-9).floor()
+        } else {
+            (position - 1e-9).ceil()
+        };
+        shown.clamp(0.0, 100.0) as u16
+    }
+
+    /// Commits the motion so far before a change of how the motor moves.
+    fn settle_motion(&mut self) {
+        let now = Instant::now();
+        self.advance(self.last_advance.map_or(now, |last| last.max(now)));
+    }
+
+    /// Where the motor has taken the valve by `now` (the state moves on only when advanced).
+    fn position_at(&self, now: Instant) -> f64 {
+        let Some(last) = self.last_advance else {
+            return self.position;
+        };
+        if self.jammed {
+            return self.position;
+        }
+        let step = self.speed * now.saturating_duration_since(last).as_secs_f64();
+        let target = f64::from(self.target);
+        if (target - self.position).abs() <= step {
+            target
+        } else if target > self.position {
+            self.position + step
+        } else {
+            self.position - step
+        }
     }
 
     /// The commanded opening.
@@ -224,11 +263,15 @@ impl Valve {
         &self.baud_switches
     }
 
-    /// A stored register's raw value (live registers included).
+    /// A register's raw value now (live registers included).
     pub fn register(&self, register: u16) -> Option<u16> {
+        self.register_at(register, Instant::now())
+    }
+
+    fn register_at(&self, register: u16, now: Instant) -> Option<u16> {
         match register {
-            REG_OPENING => Some(self.opening()),
-            REG_STATUS => Some(self.status()),
+            REG_OPENING => Some(self.opening_at(now)),
+            REG_STATUS => Some(self.status_at(now)),
             _ => self.registers.get(&register).copied(),
         }
     }
@@ -243,21 +286,26 @@ impl Valve {
         true
     }
 
-    /// The status register (0x90).
+    /// The status register (0x90) now.
     pub fn status(&self) -> u16 {
+        self.status_at(Instant::now())
+    }
+
+    fn status_at(&self, now: Instant) -> u16 {
+        let position = self.position_at(now);
         let mut status = self.switch_failures;
-        let moving = !self.jammed && (self.position - f64::from(self.target)).abs() > 1e-9;
+        let moving = !self.jammed && (position - f64::from(self.target)).abs() > 1e-9;
         if moving {
-            status |= if f64::from(self.target) > self.position {
+            status |= if f64::from(self.target) > position {
                 MOTOR_OPENING
             } else {
                 MOTOR_CLOSING
             };
         }
-        if self.position < 100.0 - 1e-9 {
+        if position < 100.0 - 1e-9 {
             status |= NOT_FULLY_OPEN;
         }
-        if self.position > 1e-9 {
+        if position > 1e-9 {
             status |= NOT_FULLY_CLOSED;
         }
         if self.direction_close {
@@ -271,24 +319,10 @@ impl Valve {
 
     /// Moves the motor and lets the measured values drift.
     pub fn advance(&mut self, now: Instant) {
-        let elapsed = match self.last_advance {
-            Some(last) => now.saturating_duration_since(last).as_secs_f64(),
-            None => 0.0,
-        };
+        self.position = self.position_at(now);
         self.last_advance = Some(now);
         if self.mode_auto() {
             self.regulate();
-        }
-        if !self.jammed {
-            let target = f64::from(self.target);
-            let step = self.speed * elapsed;
-            if (target - self.position).abs() <= step {
-                self.position = target;
-            } else if target > self.position {
-                self.position += step;
-            } else {
-                self.position -= step;
-            }
         }
         self.update_measurements(now);
     }
@@ -331,7 +365,7 @@ impl Valve {
         }
     }
 
-    fn read(&self, start: u16, quantity: u16) -> Reply {
+    fn read(&self, start: u16, quantity: u16, now: Instant) -> Reply {
         if quantity == 0 || quantity > MAX_READ {
             return Reply::Exception(ExceptionCode::IllegalDataValue);
         }
@@ -340,7 +374,7 @@ impl Valve {
         };
         let mut words = Vec::with_capacity(usize::from(quantity));
         for register in start..=end {
-            match self.register(register) {
+            match self.register_at(register, now) {
                 Some(value) if kind_of(register).is_some() => words.push(value),
                 _ if self.lenient => words.push(0),
                 _ => return Reply::Exception(ExceptionCode::IllegalDataAddress),
@@ -416,7 +450,7 @@ impl SimDevice for Valve {
     fn handle(&mut self, request: &Request, now: Instant) -> Reply {
         self.advance(now);
         match request {
-            Request::ReadHoldingRegisters { start, quantity } => self.read(*start, *quantity),
+            Request::ReadHoldingRegisters { start, quantity } => self.read(*start, *quantity, now),
             Request::WriteSingleRegister { address, value } => self.write(*address, *value),
             _ => Reply::Exception(ExceptionCode::IllegalFunction),
         }

@@ -1,27 +1,19 @@
-//! The simulators' side of the wire: server-side framing (how long is the request that starts
-//! with these bytes, decode it, encode an answer or an exception) and the character timing the
-//! simulated line paces itself with.
+//! How a simulated device frames and decodes what it hears: the length of the request that
+//! starts with some bytes, and its decoding once its CRC is checked. (Answers are encoded with
+//! `crate::rtu::codec`.)
 //!
-//! It is written apart from `crate::rtu::codec` on purpose: the simulated devices are test
-//! equipment for the gateway, so a framing bug in the gateway's codec must show up as a failed
-//! transaction against them, not be mirrored by them.
+//! This is not `crate::rtu::codec::decode_request` on purpose. That one refuses what a master
+//! must never send; a device has to hear it and react as the real ones do: a quantity of 0 or
+//! above the specification's limit is a request the device answers with exception 03, a
+//! function code it does not know is a frame that ends at the next silence and gets exception
+//! 01. Keeping the device side apart also keeps it an independent check on the gateway's codec.
 
-use std::time::Duration;
-
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
-use crate::rtu::timing::{CharFormat, Parity};
-
-const MODBUS_CRC: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_MODBUS);
-
-/// CRC-16/MODBUS of `bytes`; on the wire it goes low byte first.
-pub fn crc16(bytes: &[u8]) -> u16 {
-    MODBUS_CRC.checksum(bytes)
-}
+use crate::rtu::crc::{append_crc, crc16};
+use crate::rtu::frame::{Request, SlaveId};
 
 /// `body` followed by its CRC, low byte first.
 pub fn with_crc(mut body: Vec<u8>) -> Vec<u8> {
-    let crc = crc16(&body);
-    body.extend_from_slice(&crc.to_le_bytes());
+    append_crc(&mut body);
     body
 }
 
@@ -161,115 +153,6 @@ pub fn decode_request(frame: &[u8]) -> Result<(SlaveId, Request), RequestError> 
     Ok((address, request))
 }
 
-fn pack_bits(bits: &[bool]) -> Vec<u8> {
-    let mut bytes = vec![0u8; bits.len().div_ceil(8)];
-    for (i, _) in bits.iter().enumerate().filter(|(_, on)| **on) {
-        bytes[i / 8] |= 1 << (i % 8);
-    }
-    bytes
-}
-
-/// The frame of a normal answer from `address`.
-pub fn encode_answer(address: SlaveId, response: &Response) -> Vec<u8> {
-    let mut body = vec![address];
-    match response {
-        Response::Coils(bits) | Response::DiscreteInputs(bits) => {
-            body.push(if matches!(response, Response::Coils(_)) {
-                0x01
-            } else {
-                0x02
-            });
-            let packed = pack_bits(bits);
-            // Quantities are bounded by the devices (≤ 2000 bits), so the count fits a byte.
-            body.push(packed.len() as u8);
-            body.extend_from_slice(&packed);
-        }
-        Response::HoldingRegisters(words) | Response::InputRegisters(words) => {
-            body.push(if matches!(response, Response::HoldingRegisters(_)) {
-                0x03
-            } else {
-                0x04
-            });
-            body.push((words.len() * 2) as u8);
-            for word in words {
-                body.extend_from_slice(&word.to_be_bytes());
-            }
-        }
-        Response::WriteSingleCoil { address, value } => {
-            body.push(0x05);
-            body.extend_from_slice(&address.to_be_bytes());
-            body.extend_from_slice(&(if *value { 0xFF00u16 } else { 0 }).to_be_bytes());
-        }
-        Response::WriteSingleRegister { address, value } => {
-            body.push(0x06);
-            body.extend_from_slice(&address.to_be_bytes());
-            body.extend_from_slice(&value.to_be_bytes());
-        }
-        Response::WriteMultipleCoils { start, quantity } => {
-            body.push(0x0F);
-            body.extend_from_slice(&start.to_be_bytes());
-            body.extend_from_slice(&quantity.to_be_bytes());
-        }
-        Response::WriteMultipleRegisters { start, quantity } => {
-            body.push(0x10);
-            body.extend_from_slice(&start.to_be_bytes());
-            body.extend_from_slice(&quantity.to_be_bytes());
-        }
-    }
-    with_crc(body)
-}
-
-/// The frame of an exception answer from `address` to `function`.
-pub fn encode_exception(address: SlaveId, function: u8, code: ExceptionCode) -> Vec<u8> {
-    with_crc(vec![address, function | 0x80, code.value()])
-}
-
-/// The timing of the simulated line: the wire time of frames and the t3.5 silence, from the
-/// baud rate and the character format (start bit + data + parity + stop bits).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct WireTiming {
-    pub baud: u32,
-    pub format: CharFormat,
-}
-
-impl WireTiming {
-    pub fn new(baud: u32, parity: Parity) -> Self {
-        Self {
-            baud: baud.max(1),
-            format: CharFormat {
-                data_bits: 8,
-                parity,
-                stop_bits: 1,
-            },
-        }
-    }
-
-    /// Bits per character on the wire.
-    pub fn bits_per_char(&self) -> u32 {
-        let parity = u32::from(self.format.parity != Parity::None);
-        1 + u32::from(self.format.data_bits) + parity + u32::from(self.format.stop_bits)
-    }
-
-    pub fn char_time(&self) -> Duration {
-        Duration::from_nanos(u64::from(self.bits_per_char()) * 1_000_000_000 / u64::from(self.baud))
-    }
-
-    /// Wire time of `bytes` characters sent back to back.
-    pub fn frame_time(&self, bytes: usize) -> Duration {
-        self.char_time() * bytes as u32
-    }
-
-    /// The silence that ends a frame: 3.5 characters, fixed at 1.75 ms above 19200 baud as the
-    /// serial-line specification recommends.
-    pub fn t3_5(&self) -> Duration {
-        if self.baud > 19_200 {
-            Duration::from_micros(1750)
-        } else {
-            self.char_time() * 7 / 2
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -324,48 +207,24 @@ mod tests {
     }
 
     #[test]
-    fn golden_answers_encode() {
+    fn out_of_spec_quantities_still_decode_for_the_device_to_refuse() {
         assert_eq!(
-            encode_answer(
-                0x81,
-                &Response::WriteMultipleCoils {
-                    start: 0,
-                    quantity: 12
-                }
-            ),
-            hex("81 0F 00 00 00 0C 4A 0E")
-        );
-        let mut bits = vec![false; 22];
-        bits[8] = true;
-        assert_eq!(
-            encode_answer(0x81, &Response::Coils(bits)),
-            hex("81 01 03 00 01 00 22 1E")
+            decode_request(&with_crc(vec![1, 0x03, 0x10, 0x00, 0x00, 0x00]))
+                .unwrap()
+                .1,
+            Request::ReadHoldingRegisters {
+                start: 0x1000,
+                quantity: 0
+            }
         );
         assert_eq!(
-            encode_exception(0x81, 0x0F, ExceptionCode::IllegalFunction),
-            hex("81 8F 01 84 18")
-        );
-        assert_eq!(
-            encode_exception(0x81, 0x0F, ExceptionCode::IllegalDataAddress),
-            hex("81 8F 02 C4 19")
-        );
-        assert_eq!(
-            encode_exception(0x81, 0x0F, ExceptionCode::IllegalDataValue),
-            hex("81 8F 03 05 D9")
-        );
-    }
-
-    #[test]
-    fn timing_of_9600_8n1_and_8e1() {
-        let n1 = WireTiming::new(9600, Parity::None);
-        assert_eq!(n1.bits_per_char(), 10);
-        assert_eq!(n1.frame_time(8), Duration::from_nanos(8 * 1_041_666));
-        assert_eq!(n1.t3_5(), Duration::from_nanos(1_041_666 * 7 / 2));
-        let e1 = WireTiming::new(9600, Parity::Even);
-        assert_eq!(e1.bits_per_char(), 11);
-        assert_eq!(
-            WireTiming::new(38_400, Parity::None).t3_5(),
-            Duration::from_micros(1750)
+            decode_request(&with_crc(vec![1, 0x01, 0x00, 0x00, 0x08, 0x00]))
+                .unwrap()
+                .1,
+            Request::ReadCoils {
+                start: 0,
+                quantity: 2048
+            }
         );
     }
 

@@ -1,0 +1,204 @@
+//! The device side of a profile, for simulated devices: block images seeded with plausible
+//! values, and write requests applied to those images through the profile's write frames (so a
+//! simulator honours quirks such as the dust collector's FC06 addresses stepping by 2 while its
+//! read block is consecutive). Pure: the simulator owns the images and the behaviour.
+
+use super::codec::{BlockImage, FieldCodec, NumberType};
+use super::schema::{block_quantity, Behaviour};
+use super::{FieldKind, Profile, Value};
+use crate::rtu::{Request, Response};
+
+impl Profile {
+    /// A plausible value for a field: the middle of a number's range, the first option of an
+    /// enumeration, OFF for booleans, zeros for text. Always encodable by the field's codec.
+    pub fn plausible_value(&self, field: &str) -> Option<Value> {
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)?;
+        let info = &self.inner.infos[index];
+        // Scaled integer words only hold whole multiples of their step.
+        let step = match (&self.inner.defs[index].codec, &info.kind) {
+            (FieldCodec::Number { ty, factor, .. }, _) if !matches!(ty, NumberType::F32(_)) => {
+                *factor
+            }
+            _ => 1,
+        };
+        Some(match &info.kind {
+            FieldKind::Bool | FieldKind::Momentary => Value::Bool(false),
+            FieldKind::Integer { min, max } => {
+                Value::Int(on_step(min + (max - min) / 2, *min, step))
+            }
+            FieldKind::Decimal {
+                min,
+                max,
+                precision,
+            } => {
+                let factor = 10f64.powi(i32::from(*precision));
+                // Keep sensor-like magnitudes for unbounded floats.
+                let (min, max) = (min.max(-1000.0), max.min(1000.0));
+                let (low, middle) = (
+                    (min * factor).round() as i64,
+                    ((min + max) / 2.0 * factor).round() as i64,
+                );
+                Value::Decimal {
+                    scaled: on_step(middle, low, step),
+                    precision: *precision,
+                }
+            }
+            FieldKind::Enum { options } => Value::Enum(options.first()?.clone()),
+            FieldKind::Text => return None,
+        })
+    }
+
+    /// An image of `read_blocks()[block]` with every field at its plausible value (text fields
+    /// and unused places zero). None for an unknown block.
+    pub fn initial_image(&self, block: usize) -> Option<BlockImage> {
+        let read = self.inner.blocks.get(block)?;
+        let len = block_quantity(&read.request) as usize;
+        let mut image = if self.inner.block_kinds[block].is_bits() {
+            BlockImage::Bits(vec![false; len])
+        } else {
+            BlockImage::Words(vec![0; len])
+        };
+        for (def, info) in self.inner.defs.iter().zip(&self.inner.infos) {
+            if def.block != block || def.overlay {
+                continue;
+            }
+            if let Some(patches) = self
+                .plausible_value(&info.name)
+                .and_then(|value| def.codec.encode(def.offset, &value).ok())
+            {
+                image.apply(&patches);
+            }
+        }
+        Some(image)
+    }
+
+    /// Applies a write request to the block images (one per `read_blocks()` entry) as the
+    /// device would store it, through the profile's write frames. Returns false when no write
+    /// frame of the profile covers the request (a real device would answer exception 02).
+    /// Device behaviour beyond storage (toggles, buttons, standby) is the simulator's.
+    pub fn apply_write(&self, images: &mut [BlockImage], request: &Request) -> bool {
+        let (function, address, values): (u8, u16, Vec<u16>) = match request {
+            Request::WriteSingleCoil { address, value } => (5, *address, vec![u16::from(*value)]),
+            Request::WriteSingleRegister { address, value } => (6, *address, vec![*value]),
+            Request::WriteMultipleCoils { start, values } => {
+                (15, *start, values.iter().map(|b| u16::from(*b)).collect())
+            }
+            Request::WriteMultipleRegisters { start, values } => (16, *start, values.clone()),
+            _ => return false,
+        };
+        let frame = self
+            .inner
+            .defs
+            .iter()
+            .filter_map(|d| d.write.as_ref())
+            .find(|frame| {
+                let end = u32::from(frame.address) + u32::from(frame.count);
+                frame.function == function
+                    && address >= frame.address
+                    && u32::from(address) + values.len() as u32 <= end
+            });
+        let Some(frame) = frame else {
+            return false;
+        };
+        let Some(image) = images.get_mut(frame.block) else {
+            return false;
+        };
+        let first = frame.offset + (address - frame.address);
+        for (i, value) in values.iter().enumerate() {
+            let index = usize::from(first) + i;
+            match image {
+                BlockImage::Words(words) => match words.get_mut(index) {
+                    Some(word) => *word = *value,
+                    None => return false,
+                },
+                BlockImage::Bits(bits) => match bits.get_mut(index) {
+                    Some(bit) => *bit = *value != 0,
+                    None => return false,
+                },
+            }
+        }
+        true
+    }
+
+    /// Answers a read request from the block images (one per `read_blocks()` entry) when one
+    /// block of the same kind covers it: the whole block or any part of it. None otherwise (a
+    /// real device would answer exception 02).
+    pub fn answer_read(&self, images: &[BlockImage], request: &Request) -> Option<Response> {
+        let (start, quantity) = read_span(request)?;
+        self.inner
+            .blocks
+            .iter()
+            .zip(images)
+            .find_map(|(block, image)| {
+                let (first, len) = read_span(&block.request)?;
+                if std::mem::discriminant(&block.request) != std::mem::discriminant(request)
+                    || start < first
+                    || u32::from(start) + u32::from(quantity) > u32::from(first) + u32::from(len)
+                {
+                    return None;
+                }
+                let from = usize::from(start - first);
+                let to = from + usize::from(quantity);
+                Some(match (request, image) {
+                    (Request::ReadCoils { .. }, BlockImage::Bits(bits)) => {
+                        Response::Coils(bits.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadDiscreteInputs { .. }, BlockImage::Bits(bits)) => {
+                        Response::DiscreteInputs(bits.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadHoldingRegisters { .. }, BlockImage::Words(words)) => {
+                        Response::HoldingRegisters(words.get(from..to)?.to_vec())
+                    }
+                    (Request::ReadInputRegisters { .. }, BlockImage::Words(words)) => {
+                        Response::InputRegisters(words.get(from..to)?.to_vec())
+                    }
+                    _ => return None,
+                })
+            })
+    }
+
+    /// Names of the toggle fields (write 1 flips the state), for simulators.
+    pub fn toggle_fields(&self) -> Vec<&str> {
+        self.fields_with(Behaviour::Toggle)
+    }
+
+    /// Names of the momentary fields (buttons), for simulators.
+    pub fn momentary_fields(&self) -> Vec<&str> {
+        self.fields_with(Behaviour::Momentary)
+    }
+
+    fn fields_with(&self, behaviour: Behaviour) -> Vec<&str> {
+        self.inner
+            .defs
+            .iter()
+            .zip(&self.inner.infos)
+            .filter(|(def, _)| def.behaviour == behaviour)
+            .map(|(_, info)| info.name.as_str())
+            .collect()
+    }
+}
+
+/// `value` moved down to a multiple of `step`, or up when that falls below `min`.
+fn on_step(value: i64, min: i64, step: i64) -> i64 {
+    let down = value - value.rem_euclid(step);
+    if down < min {
+        down + step
+    } else {
+        down
+    }
+}
+
+/// (start, quantity) of a read request.
+pub(crate) fn read_span(request: &Request) -> Option<(u16, u16)> {
+    match *request {
+        Request::ReadCoils { start, quantity }
+        | Request::ReadDiscreteInputs { start, quantity }
+        | Request::ReadHoldingRegisters { start, quantity }
+        | Request::ReadInputRegisters { start, quantity } => Some((start, quantity)),
+        _ => None,
+    }
+}
