@@ -889,3 +889,41 @@ async fn a_broadcast_command_is_sent_without_waiting_for_an_answer_and_keeps_the
     assert_eq!(running.values_of("every_dust_collector"), 0);
     running.stop().await;
 }
+
+#[tokio::test(flavor = "current_thread")]
+async fn commands_fail_with_the_exception_code_or_after_the_retries() {
+    let (shower, shower_shared) = share(AirShower::new());
+    let line =
+        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![shower_shared]).unwrap();
+    let mut running = start(
+        "line-a",
+        &line,
+        Parity::None,
+        vec![device("air_shower", fast_air_shower(), 0x81, 200)],
+    );
+    assert!(
+        running
+            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 1)
+            .await
+    );
+    line.faults().set(Faults {
+        exception: Occurrence::ALWAYS,
+        exception_code: Some(rtu2mqtt::rtu::ExceptionCode::ServerDeviceFailure),
+        ..Faults::default()
+    });
+    let writes_before = line.journal().writes_to(air_shower::ADDRESS);
+    match running.command("air_shower", "light", "ON").await {
+        CommandOutcome::Failed { detail } => assert!(detail.contains("04"), "{detail}"),
+        other => panic!("expected a failure, got {other:?}"),
+    }
+    line.faults().clear();
+    line.faults().silence(air_shower::ADDRESS, true);
+    match running.command("air_shower", "light", "ON").await {
+        CommandOutcome::Failed { detail } => assert!(detail.contains("no answer"), "{detail}"),
+        other => panic!("expected a failure, got {other:?}"),
+    }
+    // The read-modify-write never got its fresh read: nothing was written.
+    assert_eq!(line.journal().writes_to(air_shower::ADDRESS), writes_before);
+    assert!(!sim::lock(&shower).coils()[air_shower::LIGHT]);
+    running.stop().await;
+}
