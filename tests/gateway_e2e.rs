@@ -862,3 +862,54 @@ async fn http_get(port: u16, path: &str) -> String {
     stream.read_to_string(&mut response).await.unwrap();
     response
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
+    let mut h = Harness::start_with("flood", "", |plant| {
+        sim::lock(&plant.dust_collector).set_power(true);
+    })
+    .await;
+    h.wait_text("plant/dust_collector/power", "ON").await;
+    h.client.settle(Duration::from_millis(500)).await;
+    h.client.forget();
+    h.plant.line_a.journal().clear();
+    const COMMANDS: usize = 200;
+    for index in 0..COMMANDS {
+        // Ends on 7; consecutive commands always differ.
+        let gear = (index + 7) % 10 + 1;
+        h.client
+            .publish(
+                "plant/dust_collector/gear/set",
+                gear.to_string().into_bytes(),
+                false,
+            )
+            .await;
+    }
+    let last = h
+        .client
+        .wait_for("plant/dust_collector/gear/result", ANSWER * 2, |m| {
+            m.json()["value"] == "7" && m.json()["outcome"] != "expired"
+        })
+        .await
+        .json();
+    assert_eq!(outcome(&last), "applied", "{last}");
+    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 7);
+    h.client.settle(Duration::from_secs(1)).await;
+    let results = h.client.on("plant/dust_collector/gear/result");
+    // Every command has exactly one result: run, or superseded while it waited.
+    assert_eq!(results.len() + 1, COMMANDS);
+    assert!(results
+        .iter()
+        .all(|m| ["applied", "expired"].contains(&outcome(&m.json()))));
+    // Newest wins: far fewer writes than commands, and the line kept polling the air shower.
+    let frames = h.frames(&h.plant.line_a);
+    let gear_writes = writes(&frames, DUST).len();
+    assert!(gear_writes < COMMANDS / 2, "{gear_writes} writes");
+    assert!(frames.iter().any(|f| f[0] == SHOWER));
+    assert!(h
+        .client
+        .on("plant/air_shower/availability")
+        .iter()
+        .all(|m| m.text() == "online"));
+    h.stop_gateway().await;
+}
