@@ -31,10 +31,6 @@ pub const EXIT_STUCK: i32 = 70;
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 
-/// Environment variable naming another status file (empty: write none), for running the
-/// daemon by hand where `/run/rtu2mqtt` is not writable.
-pub const STATUS_FILE_ENV: &str = "RTU2MQTT_STATUS_FILE";
-
 /// How often the bridge loop promises to turn (it beats at least every 250 ms).
 const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
 
@@ -85,17 +81,6 @@ impl Default for HealthSettings {
             stale_after: Duration::from_secs(15),
             stall_limit: Duration::from_secs(60),
         }
-    }
-}
-
-impl HealthSettings {
-    /// The defaults, with the status file from [`STATUS_FILE_ENV`] when set.
-    pub fn from_env() -> Self {
-        let mut settings = HealthSettings::default();
-        if let Some(path) = std::env::var_os(STATUS_FILE_ENV) {
-            settings.status_file = (!path.is_empty()).then(|| PathBuf::from(path));
-        }
-        settings
     }
 }
 
@@ -378,8 +363,27 @@ pub fn notify_stopping() {
 
 /// systemd's watchdog period (`WatchdogSec=`), when the service manager asks for pings.
 pub fn systemd_watchdog_period() -> Option<Duration> {
-    let mut usec = 0u64;
-    sd_notify::watchdog_enabled(false, &mut usec).then(|| Duration::from_micros(usec))
+    watchdog_period_from(
+        std::env::var("WATCHDOG_USEC").ok().as_deref(),
+        std::env::var("WATCHDOG_PID").ok().as_deref(),
+        std::process::id(),
+    )
+}
+
+/// `sd_watchdog_enabled(3)`'s rule: `WATCHDOG_USEC` set to a positive number, and
+/// `WATCHDOG_PID` either unset or our pid (the variables may have leaked to a child).
+/// (sd-notify's own `watchdog_enabled` also requires `WATCHDOG_PID`, which systemd sets but a
+/// bare `NOTIFY_SOCKET` harness may not.)
+pub fn watchdog_period_from(
+    usec: Option<&str>,
+    pid: Option<&str>,
+    own_pid: u32,
+) -> Option<Duration> {
+    let usec = usec?.trim().parse::<u64>().ok().filter(|usec| *usec > 0)?;
+    match pid {
+        Some(pid) if pid.trim().parse::<u32>().ok() != Some(own_pid) => None,
+        _ => Some(Duration::from_micros(usec)),
+    }
 }
 
 /// The internal watchdog, before it runs: the loops it watches.
@@ -735,6 +739,27 @@ mod tests {
         assert_eq!(code, ExitCode::SUCCESS);
         let missing = check_status_file(&dir.path().join("nope"), Duration::from_secs(30));
         assert_eq!(missing.unwrap(), ExitCode::FAILURE);
+    }
+
+    #[test]
+    fn watchdog_period_follows_sd_watchdog_enabled() {
+        let period = Some(Duration::from_secs(30));
+        assert_eq!(watchdog_period_from(Some("30000000"), None, 7), period);
+        assert_eq!(watchdog_period_from(Some("30000000"), Some("7"), 7), period);
+        assert_eq!(watchdog_period_from(Some("30000000"), Some("8"), 7), None);
+        assert_eq!(watchdog_period_from(Some("0"), None, 7), None);
+        assert_eq!(watchdog_period_from(Some("soon"), None, 7), None);
+        assert_eq!(watchdog_period_from(None, Some("7"), 7), None);
+    }
+
+    #[test]
+    fn settings_deserialize_with_defaults() {
+        let parsed: HealthSettings = toml::from_str("stall_limit = \"2m\"").unwrap();
+        assert_eq!(parsed.stall_limit, Duration::from_secs(120));
+        assert_eq!(parsed.status_file, Some(PathBuf::from(DEFAULT_STATUS_FILE)));
+        let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
+        assert_eq!(none.status_file, None);
+        assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
     }
 
     #[test]

@@ -101,3 +101,25 @@ fn compose_keeps_least_privilege_and_a_writable_status_directory() {
     assert!(COMPOSE.contains(&tmpfs), "no tmpfs {tmpfs:?}");
     assert!(!COMPOSE.contains("privileged: true"));
 }
+
+#[test]
+fn compose_configuration_is_valid() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docker/rtu2mqtt.toml");
+    let config = match rtu2mqtt::config::load(&path) {
+        Ok(config) => config,
+        Err(problems) => panic!("docker/rtu2mqtt.toml: {problems}"),
+    };
+    assert_eq!(config.mqtt.host, "mosquitto");
+    let ports: Vec<&str> = config
+        .lines
+        .iter()
+        .map(|l| l.serial.path.as_str())
+        .collect();
+    assert_eq!(ports, vec!["/dev/ttyRS485A", "/dev/ttyRS485B"]);
+    for port in ports {
+        assert!(
+            COMPOSE.contains(&format!(":{port}\n")),
+            "{port} not passed in"
+        );
+    }
+}

@@ -54,11 +54,14 @@ fn quick_start_is_two_commands_and_ci_runs_the_second() {
 
 #[test]
 fn configuration_reference_lists_every_key_and_no_other() {
-    use rtu2mqtt::config::schema::{DEVICE_KEYS, GATEWAY_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS};
+    use rtu2mqtt::config::schema::{
+        DEVICE_KEYS, GATEWAY_KEYS, HEALTH_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS,
+    };
     let reference = section(README, "Configuration reference");
     for (table, keys) in [
         ("### `[mqtt]`", MQTT_KEYS),
         ("### `[gateway]`", GATEWAY_KEYS),
+        ("### `[health]`", HEALTH_KEYS),
         ("### `[[lines]]`", LINE_KEYS),
         ("### `[[lines.devices]]`", DEVICE_KEYS),
     ] {
@@ -106,8 +109,8 @@ fn home_assistant_section_is_the_discovery_documentation() {
     let stop = README.find(end).expect("end marker");
     assert!(
         README[start..stop] == *HOME_ASSISTANT,
-        "README.md's Home Assistant section differs from docs/home-assistant.md: copy the file \
-         between the markers again"
+        "README.md's Home Assistant section differs from docs/home-assistant.md: run \
+         .ci/sync-readme"
     );
 }
 
