@@ -522,6 +522,10 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     h.wait_new_text("plant/dust_collector/availability", "offline")
         .await;
     // Bounded: offline_after × (retries + 1) × timeout plus scheduling slack.
+    eprintln!(
+        "figure: silent device reported offline after {:?}",
+        went.elapsed()
+    );
     assert!(
         went.elapsed() < Duration::from_secs(10),
         "{:?}",
@@ -600,6 +604,7 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
     sim::lock(&h.plant.dust_collector).set_power(false);
     tokio::time::sleep(Duration::from_secs(1)).await;
     h.broker.restart();
+    let back = std::time::Instant::now();
 
     // A fresh subscriber on the restarted broker (no persistence) sees the current state.
     let mut fresh = TestClient::connect(h.broker.port, "brokerkill-fresh").await;
@@ -617,6 +622,10 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
     fresh
         .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
         .await;
+    eprintln!(
+        "figure: state and status back {:?} after the broker restart",
+        back.elapsed()
+    );
     // Subscriptions were restored: commands work again.
     fresh
         .publish("plant/dust_collector/power/set", b"ON".to_vec(), false)
@@ -626,6 +635,10 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
         .await
         .json();
     assert_eq!(outcome(&result), "applied", "{result}");
+    eprintln!(
+        "figure: a command applied {:?} after the broker restart",
+        back.elapsed()
+    );
     assert!(sim::lock(&h.plant.dust_collector).power());
     h.stop_gateway().await;
 }
@@ -874,6 +887,7 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
     h.client.forget();
     h.plant.line_a.journal().clear();
     const COMMANDS: usize = 200;
+    let flood_started = std::time::Instant::now();
     for index in 0..COMMANDS {
         // Ends on 7; consecutive commands always differ.
         let gear = (index + 7) % 10 + 1;
@@ -893,6 +907,10 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
         .await
         .json();
     assert_eq!(outcome(&last), "applied", "{last}");
+    eprintln!(
+        "figure: {COMMANDS} commands settled in {:?}",
+        flood_started.elapsed()
+    );
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 7);
     h.client.settle(Duration::from_secs(1)).await;
     let results = h.client.on("plant/dust_collector/gear/result");
