@@ -343,7 +343,10 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
-    let mut h = Harness::start_with("gear8", "", |plant| {
+    let dir = tempfile::tempdir().unwrap();
+    let frame_log = dir.path().join("frames.log");
+    let extra = format!("frame_log = \"{}\"", frame_log.display());
+    let mut h = Harness::start_with("gear8", &extra, |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
@@ -355,6 +358,14 @@ async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
     h.wait_text("plant/dust_collector/gear", "8").await;
     h.stop_gateway().await;
+    // The frame log holds the write with its line, timestamp and direction.
+    let log = std::fs::read_to_string(&frame_log).unwrap();
+    assert!(
+        log.lines()
+            .any(|record| record.starts_with("line-a ") && record.ends_with(" tx 0106100200082D0C")),
+        "{log}"
+    );
+    assert!(log.lines().any(|record| record.starts_with("line-b ")));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

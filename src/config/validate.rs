@@ -615,6 +615,8 @@ fn validate_lines(
             offline_after: raw.offline_after,
             echo: raw.echo,
             broadcast_turnaround: raw.broadcast_turnaround,
+            // Opened by the daemon, not by validation.
+            frame_log: None,
             devices,
         };
         let plan = LinePlan::of(&spec);
