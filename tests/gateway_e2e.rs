@@ -942,3 +942,25 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
         .all(|m| m.text() == "online"));
     h.stop_gateway().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_with_one_client_id_do_not_storm_the_broker() {
+    let broker = Mosquitto::start();
+    let plant_one = SeedPlant::spawn(false).unwrap();
+    let plant_two = SeedPlant::spawn(false).unwrap();
+    let one = Gateway::start(fast(&plant_config(&broker, &plant_one, "twin-gw", ""))).await;
+    let two = Gateway::start(fast(&plant_config(&broker, &plant_two, "twin-gw", ""))).await;
+    let watched = Duration::from_secs(10);
+    tokio::time::sleep(watched).await;
+    let connects = broker
+        .log()
+        .lines()
+        .filter(|line| line.contains("New client connected") && line.contains("as twin-gw"))
+        .count();
+    eprintln!("figure: {connects} connections of two same-id gateways in {watched:?}");
+    // Each takeover kicks the other out: without back-off this is hundreds per second.
+    assert!(connects >= 2, "{connects}");
+    assert!(connects <= 20, "{connects} connections in {watched:?}");
+    one.stop().await;
+    two.stop().await;
+}
