@@ -13,7 +13,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use tokio::sync::{mpsc, oneshot};
 
-use crate::bridge::{prometheus, Bridge, BridgeHealth};
+use crate::bridge::{mqtt, prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
 use crate::health;
@@ -60,6 +60,8 @@ pub async fn run_gateway(
             line.frame_log = Some(log.clone());
         }
     }
+    // Everything that can fail comes before the lines start: TLS files, the metrics port.
+    let mqtt = mqtt::connect(&config.mqtt).context("MQTT client")?;
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
             prometheus::bind(address)
@@ -80,7 +82,7 @@ pub async fn run_gateway(
     }
     drop(events_tx);
 
-    let (bridge, bridge_health) = Bridge::new(&config, handles.clone())?;
+    let (bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
     if let Some(listener) = metrics_listener {
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));

@@ -101,11 +101,15 @@ pub struct Bridge {
 }
 
 impl Bridge {
-    /// Builds the client (nothing is sent before [`Bridge::run`]) for `config`'s devices on
-    /// `lines` (one handle per configured line, in order).
-    pub fn new(config: &Config, lines: Vec<LineHandle>) -> anyhow::Result<(Bridge, BridgeHealth)> {
+    /// The bridge for `config`'s devices on `lines` (one handle per configured line, in
+    /// order), using the client made by [`mqtt::connect`]. Its event loop starts connecting
+    /// at once; what it reports waits for [`Bridge::run`].
+    pub fn new(
+        config: &Config,
+        lines: Vec<LineHandle>,
+        (client, eventloop): (AsyncClient, rumqttc::EventLoop),
+    ) -> (Bridge, BridgeHealth) {
         let topics = Topics::new(&config.mqtt.prefix, &config.mqtt.client_id);
-        let (client, eventloop) = mqtt::connect(&config.mqtt, &topics)?;
         let (link_tx, link_rx) = mpsc::channel(256);
         let event_loop = mqtt::spawn_event_loop(eventloop, link_tx);
         let mut devices = HashMap::new();
@@ -155,13 +159,13 @@ impl Bridge {
             started: now,
             next_stats: now + config.gateway.stats_interval,
         };
-        Ok((
+        (
             bridge,
             BridgeHealth {
                 heartbeat,
                 connected,
             },
-        ))
+        )
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
