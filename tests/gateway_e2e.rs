@@ -243,7 +243,7 @@ fn outcome(result: &serde_json::Value) -> &str {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_field_of_the_seed_devices_is_published_with_its_value() {
-    let mut h = Harness::start_with("fields", "", |plant| {
+    let mut h = Harness::start_with("fields", "json_view = true", |plant| {
         let mut dust = sim::lock(&plant.dust_collector);
         dust.set_power(true);
         drop(dust);
@@ -311,6 +311,18 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     let opening = sim::lock(&h.plant.valve).opening();
     assert_eq!(value("plant/valve/opening"), opening.to_string());
     assert_eq!(value("plant/valve/mode"), "manual");
+    // The JSON view: every value of a device in one retained object, typed.
+    let view = h
+        .client
+        .wait_for("plant/valve", ANSWER, |m| {
+            // Early views hold the blocks read so far; wait for the live block too.
+            m.json()["opening"].is_number() && m.json()["jammed"].is_boolean()
+        })
+        .await;
+    let view = view.json();
+    assert_eq!(view["opening"], u64::from(opening), "{view}");
+    assert_eq!(view["mode"], "manual", "{view}");
+    assert_eq!(view["jammed"], false, "{view}");
     // The gateway itself: its readiness hook shows both lines and a live, connected bridge.
     let running = &h.gateway.as_ref().unwrap().running;
     assert_eq!(running.lines.len(), 2);
