@@ -504,9 +504,14 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
             true,
         )
         .await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
     let mut observer = TestClient::connect(broker.port, "f25-observer").await;
     observer.subscribe("plant/#").await;
+    // The broker holds it before any gateway runs.
+    observer
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.retain && m.text() == "12"
+        })
+        .await;
     observer.forget();
     for round in 0..2 {
         let gateway = Gateway::start(fast(&plant_config(&broker, &plant, "f25-gw", ""))).await;
