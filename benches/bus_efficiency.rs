@@ -138,6 +138,7 @@ async fn measure(
         offline_after: 3,
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
+        frame_log: None,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),
             address: 0x81,

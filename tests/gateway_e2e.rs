@@ -243,7 +243,7 @@ fn outcome(result: &serde_json::Value) -> &str {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_field_of_the_seed_devices_is_published_with_its_value() {
-    let mut h = Harness::start_with("fields", "", |plant| {
+    let mut h = Harness::start_with("fields", "json_view = true", |plant| {
         let mut dust = sim::lock(&plant.dust_collector);
         dust.set_power(true);
         drop(dust);
@@ -311,6 +311,18 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     let opening = sim::lock(&h.plant.valve).opening();
     assert_eq!(value("plant/valve/opening"), opening.to_string());
     assert_eq!(value("plant/valve/mode"), "manual");
+    // The JSON view: every value of a device in one retained object, typed.
+    let view = h
+        .client
+        .wait_for("plant/valve", ANSWER, |m| {
+            // Early views hold the blocks read so far; wait for the live block too.
+            m.json()["opening"].is_number() && m.json()["jammed"].is_boolean()
+        })
+        .await;
+    let view = view.json();
+    assert_eq!(view["opening"], u64::from(opening), "{view}");
+    assert_eq!(view["mode"], "manual", "{view}");
+    assert_eq!(view["jammed"], false, "{view}");
     // The gateway itself: its readiness hook shows both lines and a live, connected bridge.
     let running = &h.gateway.as_ref().unwrap().running;
     assert_eq!(running.lines.len(), 2);
@@ -343,7 +355,10 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
-    let mut h = Harness::start_with("gear8", "", |plant| {
+    let dir = tempfile::tempdir().unwrap();
+    let frame_log = dir.path().join("frames.log");
+    let extra = format!("frame_log = \"{}\"", frame_log.display());
+    let mut h = Harness::start_with("gear8", &extra, |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
@@ -355,6 +370,14 @@ async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
     h.wait_text("plant/dust_collector/gear", "8").await;
     h.stop_gateway().await;
+    // The frame log holds the write with its line, timestamp and direction.
+    let log = std::fs::read_to_string(&frame_log).unwrap();
+    assert!(
+        log.lines()
+            .any(|record| record.starts_with("line-a ") && record.ends_with(" tx 0106100200082D0C")),
+        "{log}"
+    );
+    assert!(log.lines().any(|record| record.starts_with("line-b ")));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -481,9 +504,14 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
             true,
         )
         .await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
     let mut observer = TestClient::connect(broker.port, "f25-observer").await;
     observer.subscribe("plant/#").await;
+    // The broker holds it before any gateway runs.
+    observer
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.retain && m.text() == "12"
+        })
+        .await;
     observer.forget();
     for round in 0..2 {
         let gateway = Gateway::start(fast(&plant_config(&broker, &plant, "f25-gw", ""))).await;
@@ -522,6 +550,10 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     h.wait_new_text("plant/dust_collector/availability", "offline")
         .await;
     // Bounded: offline_after × (retries + 1) × timeout plus scheduling slack.
+    eprintln!(
+        "figure: silent device reported offline after {:?}",
+        went.elapsed()
+    );
     assert!(
         went.elapsed() < Duration::from_secs(10),
         "{:?}",
@@ -600,6 +632,7 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
     sim::lock(&h.plant.dust_collector).set_power(false);
     tokio::time::sleep(Duration::from_secs(1)).await;
     h.broker.restart();
+    let back = std::time::Instant::now();
 
     // A fresh subscriber on the restarted broker (no persistence) sees the current state.
     let mut fresh = TestClient::connect(h.broker.port, "brokerkill-fresh").await;
@@ -617,6 +650,10 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
     fresh
         .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
         .await;
+    eprintln!(
+        "figure: state and status back {:?} after the broker restart",
+        back.elapsed()
+    );
     // Subscriptions were restored: commands work again.
     fresh
         .publish("plant/dust_collector/power/set", b"ON".to_vec(), false)
@@ -626,6 +663,10 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
         .await
         .json();
     assert_eq!(outcome(&result), "applied", "{result}");
+    eprintln!(
+        "figure: a command applied {:?} after the broker restart",
+        back.elapsed()
+    );
     assert!(sim::lock(&h.plant.dust_collector).power());
     h.stop_gateway().await;
 }
@@ -861,4 +902,82 @@ async fn http_get(port: u16, path: &str) -> String {
     let mut response = String::new();
     stream.read_to_string(&mut response).await.unwrap();
     response
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
+    let mut h = Harness::start_with("flood", "", |plant| {
+        sim::lock(&plant.dust_collector).set_power(true);
+    })
+    .await;
+    h.wait_text("plant/dust_collector/power", "ON").await;
+    h.client.settle(Duration::from_millis(500)).await;
+    h.client.forget();
+    h.plant.line_a.journal().clear();
+    const COMMANDS: usize = 200;
+    let flood_started = std::time::Instant::now();
+    for index in 0..COMMANDS {
+        // Ends on 7; consecutive commands always differ.
+        let gear = (index + 7) % 10 + 1;
+        h.client
+            .publish(
+                "plant/dust_collector/gear/set",
+                gear.to_string().into_bytes(),
+                false,
+            )
+            .await;
+    }
+    let last = h
+        .client
+        .wait_for("plant/dust_collector/gear/result", ANSWER * 2, |m| {
+            m.json()["value"] == "7" && m.json()["outcome"] != "expired"
+        })
+        .await
+        .json();
+    assert_eq!(outcome(&last), "applied", "{last}");
+    eprintln!(
+        "figure: {COMMANDS} commands settled in {:?}",
+        flood_started.elapsed()
+    );
+    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 7);
+    h.client.settle(Duration::from_secs(1)).await;
+    let results = h.client.on("plant/dust_collector/gear/result");
+    // Every command has exactly one result: run, or superseded while it waited.
+    assert_eq!(results.len() + 1, COMMANDS);
+    assert!(results
+        .iter()
+        .all(|m| ["applied", "expired"].contains(&outcome(&m.json()))));
+    // Newest wins: far fewer writes than commands, and the line kept polling the air shower.
+    let frames = h.frames(&h.plant.line_a);
+    let gear_writes = writes(&frames, DUST).len();
+    assert!(gear_writes < COMMANDS / 2, "{gear_writes} writes");
+    assert!(frames.iter().any(|f| f[0] == SHOWER));
+    assert!(h
+        .client
+        .on("plant/air_shower/availability")
+        .iter()
+        .all(|m| m.text() == "online"));
+    h.stop_gateway().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_with_one_client_id_do_not_storm_the_broker() {
+    let broker = Mosquitto::start();
+    let plant_one = SeedPlant::spawn(false).unwrap();
+    let plant_two = SeedPlant::spawn(false).unwrap();
+    let one = Gateway::start(fast(&plant_config(&broker, &plant_one, "twin-gw", ""))).await;
+    let two = Gateway::start(fast(&plant_config(&broker, &plant_two, "twin-gw", ""))).await;
+    let watched = Duration::from_secs(10);
+    tokio::time::sleep(watched).await;
+    let connects = broker
+        .log()
+        .lines()
+        .filter(|line| line.contains("New client connected") && line.contains("as twin-gw"))
+        .count();
+    eprintln!("figure: {connects} connections of two same-id gateways in {watched:?}");
+    // Each takeover kicks the other out: without back-off this is hundreds per second.
+    assert!(connects >= 2, "{connects}");
+    assert!(connects <= 20, "{connects} connections in {watched:?}");
+    one.stop().await;
+    two.stop().await;
 }

@@ -13,10 +13,11 @@ use std::time::Duration;
 use anyhow::Context as _;
 use tokio::sync::{mpsc, oneshot};
 
-use crate::bridge::{prometheus, Bridge, BridgeHealth};
+use crate::bridge::{mqtt, prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
 use crate::health;
+use crate::rtu::frame_log::FrameLog;
 use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -43,15 +44,24 @@ pub struct Hooks {
 
 /// Runs the gateway described by `config` until `shutdown` fires: the lines finish their
 /// transaction on the wire, the bridge publishes `offline` and disconnects.
-pub async fn run_gateway(config: Config, shutdown: Shutdown, hooks: Hooks) -> anyhow::Result<()> {
+pub async fn run_gateway(
+    mut config: Config,
+    shutdown: Shutdown,
+    hooks: Hooks,
+) -> anyhow::Result<()> {
     for warning in &config.warnings {
         tracing::warn!("configuration: {warning}");
     }
     if let Some(path) = &config.gateway.frame_log {
-        // The master can record frames (`Master::record_frames_to`), but the lines do not
-        // take a recorder yet: say so rather than pretend.
-        tracing::warn!(path = %path.display(), "gateway.frame_log is not wired to the lines in this build; use RUST_LOG=rtu2mqtt::rtu::master=debug for frames in the log");
+        let log = FrameLog::create(path)
+            .with_context(|| format!("opening the frame log {}", path.display()))?;
+        tracing::info!(path = %path.display(), "recording every frame");
+        for line in &mut config.lines {
+            line.frame_log = Some(log.clone());
+        }
     }
+    // Everything that can fail comes before the lines start: TLS files, the metrics port.
+    let mqtt = mqtt::connect(&config.mqtt).context("MQTT client")?;
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
             prometheus::bind(address)
@@ -72,7 +82,7 @@ pub async fn run_gateway(config: Config, shutdown: Shutdown, hooks: Hooks) -> an
     }
     drop(events_tx);
 
-    let (bridge, bridge_health) = Bridge::new(&config, handles.clone())?;
+    let (bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
     if let Some(listener) = metrics_listener {
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));

@@ -44,7 +44,8 @@ pub struct CommandBook {
     waiting: HashMap<Key, TrackedCommand>,
     on_bus: HashMap<Key, TrackedCommand>,
     last_write: HashMap<Key, Instant>,
-    recent: VecDeque<(Instant, String, u16, Vec<u8>)>,
+    /// (seen at, topic, packet id, payload hash): hashes keep this small whatever the payloads.
+    recent: VecDeque<(Instant, String, u16, u64)>,
 }
 
 impl CommandBook {
@@ -78,15 +79,15 @@ impl CommandBook {
                 break;
             }
         }
+        let hash = payload_hash(payload);
         let seen = self
             .recent
             .iter()
-            .any(|(_, t, id, p)| *id == pkid && t == topic && p.as_slice() == payload);
+            .any(|(_, t, id, h)| *id == pkid && *h == hash && t == topic);
         if dup && seen {
             return true;
         }
-        self.recent
-            .push_back((now, topic.to_string(), pkid, payload.to_vec()));
+        self.recent.push_back((now, topic.to_string(), pkid, hash));
         false
     }
 
@@ -172,12 +173,16 @@ impl CommandBook {
         }
     }
 
-    /// Puts a command that could not be handed to the bus back to waiting (unless a newer one
-    /// arrived meanwhile).
-    pub fn requeue(&mut self, command: TrackedCommand) {
+    /// Puts a command that could not be handed to the bus back to waiting. When a newer one
+    /// arrived meanwhile, that one stays and the returned older one is superseded.
+    pub fn requeue(&mut self, command: TrackedCommand) -> Option<TrackedCommand> {
         let key = (command.device.clone(), command.field.clone());
         self.on_bus.remove(&key);
-        self.waiting.entry(key).or_insert(command);
+        if self.waiting.contains_key(&key) {
+            return Some(command);
+        }
+        self.waiting.insert(key, command);
+        None
     }
 
     /// A newer command for this field is waiting.
@@ -205,6 +210,13 @@ impl CommandBook {
             _ => command.received,
         }
     }
+}
+
+fn payload_hash(payload: &[u8]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    payload.hash(&mut hasher);
+    hasher.finish()
 }
 
 #[cfg(test)]
@@ -262,6 +274,23 @@ mod tests {
         assert!(book.has_waiting("dust", "gear"));
         book.finish("dust", "gear", true, start);
         assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
+    }
+
+    #[test]
+    fn a_requeued_command_yields_to_a_newer_one() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("dust", "gear", "3", None, start);
+        let taken = book.take_ready(start, |_| true).remove(0);
+        book.submit("dust", "gear", "4", None, start);
+        assert_eq!(book.requeue(taken).map(|c| c.text), Some("3".to_string()));
+        assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
+        book.finish("dust", "gear", false, start);
+        // Without a newer one it waits again.
+        book.submit("dust", "gear", "5", None, start);
+        let five = book.take_ready(start, |_| true).remove(0);
+        assert_eq!(book.requeue(five), None);
+        assert_eq!(book.take_ready(start, |_| true)[0].text, "5");
     }
 
     #[test]

@@ -101,11 +101,15 @@ pub struct Bridge {
 }
 
 impl Bridge {
-    /// Builds the client (nothing is sent before [`Bridge::run`]) for `config`'s devices on
-    /// `lines` (one handle per configured line, in order).
-    pub fn new(config: &Config, lines: Vec<LineHandle>) -> anyhow::Result<(Bridge, BridgeHealth)> {
+    /// The bridge for `config`'s devices on `lines` (one handle per configured line, in
+    /// order), using the client made by [`mqtt::connect`]. Its event loop starts connecting
+    /// at once; what it reports waits for [`Bridge::run`].
+    pub fn new(
+        config: &Config,
+        lines: Vec<LineHandle>,
+        (client, eventloop): (AsyncClient, rumqttc::EventLoop),
+    ) -> (Bridge, BridgeHealth) {
         let topics = Topics::new(&config.mqtt.prefix, &config.mqtt.client_id);
-        let (client, eventloop) = mqtt::connect(&config.mqtt, &topics)?;
         let (link_tx, link_rx) = mpsc::channel(256);
         let event_loop = mqtt::spawn_event_loop(eventloop, link_tx);
         let mut devices = HashMap::new();
@@ -155,13 +159,13 @@ impl Bridge {
             started: now,
             next_stats: now + config.gateway.stats_interval,
         };
-        Ok((
+        (
             bridge,
             BridgeHealth {
                 heartbeat,
                 connected,
             },
-        ))
+        )
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
@@ -408,7 +412,7 @@ impl Bridge {
         let text = match decode_command(&publish.payload, self.options.max_payload) {
             CommandPayload::Clear => return,
             CommandPayload::Refused { shown, reason } => {
-                self.reject(&device, &field, &shown, reason);
+                self.reject_incoming(&device, &field, &shown, reason);
                 return;
             }
             CommandPayload::Text(text) => text,
@@ -426,18 +430,18 @@ impl Bridge {
                     .collect::<Vec<_>>()
                     .join(", ")
             );
-            self.reject(&device, &field, &text, reason);
+            self.reject_incoming(&device, &field, &text, reason);
             return;
         };
         if !info.writable {
-            self.reject(&device, &field, &text, format!("{field} is read-only"));
+            self.reject_incoming(&device, &field, &text, format!("{field} is read-only"));
             return;
         }
         let min_write_interval = info.min_write_interval;
         let empty = Default::default();
         let state = self.cache.state(&device).unwrap_or(&empty);
         if let Err(rejection) = entry.profile.plan_command(&field, &text, state) {
-            self.reject(&device, &field, &text, rejection.0);
+            self.reject_incoming(&device, &field, &text, rejection.0);
             return;
         }
         tracing::info!(%device, %field, command = %text, "command received");
@@ -448,29 +452,48 @@ impl Bridge {
             Admission::AlreadyWaiting => {}
             Admission::Queued { superseded } => {
                 if let Some(older) = superseded {
-                    // Its retained message has been replaced by the newer one: no clear.
-                    self.counters.commands_expired += 1;
-                    let result = CommandResult::new(
-                        &older.text,
-                        Outcome::Expired,
-                        "superseded by a newer command",
-                    );
-                    self.publish_or_defer(
-                        self.topics.result(&device, &field),
-                        result.to_json(),
-                        false,
-                    );
+                    self.supersede(older);
                 }
             }
         }
         self.dispatch_ready();
     }
 
+    /// A newer command for the same field replaced `older` before it ran. Its retained
+    /// message has been replaced by the newer one too: no clear.
+    fn supersede(&mut self, older: TrackedCommand) {
+        self.counters.commands_expired += 1;
+        let result = CommandResult::new(
+            &older.text,
+            Outcome::Expired,
+            "superseded by a newer command",
+        );
+        self.publish_or_defer(
+            self.topics.result(&older.device, &older.field),
+            result.to_json(),
+            false,
+        );
+    }
+
+    /// Rejects a command as it arrives. It is the newest message on its topic, so its
+    /// (possibly retained) copy is cleared whatever waits for the field.
+    fn reject_incoming(&mut self, device: &str, field: &str, shown: &str, reason: String) {
+        self.count_rejection(device, field, shown, &reason);
+        let result = CommandResult::new(shown, Outcome::Rejected, reason);
+        self.publish_or_defer(self.topics.result(device, field), result.to_json(), false);
+        self.publish_or_defer(self.topics.set(device, field), String::new(), true);
+    }
+
+    /// Rejects a command that waited (re-planned on fresher state).
     fn reject(&mut self, device: &str, field: &str, shown: &str, reason: String) {
-        tracing::warn!(%device, %field, command = %shown, %reason, "command rejected");
-        self.counters.commands_rejected += 1;
+        self.count_rejection(device, field, shown, &reason);
         let result = CommandResult::new(shown, Outcome::Rejected, reason);
         self.finish_with(device, field, result);
+    }
+
+    fn count_rejection(&mut self, device: &str, field: &str, shown: &str, reason: &str) {
+        tracing::warn!(%device, %field, command = %shown, %reason, "command rejected");
+        self.counters.commands_rejected += 1;
     }
 
     /// Publishes a result, then clears the (possibly retained) command unless a newer one for
@@ -534,7 +557,9 @@ impl Bridge {
             }
             Err(mpsc::error::TrySendError::Full(_)) => {
                 // The line is busy with earlier commands: try again on the next tick.
-                self.book.requeue(command);
+                if let Some(older) = self.book.requeue(command) {
+                    self.supersede(older);
+                }
             }
             Err(mpsc::error::TrySendError::Closed(_)) => {
                 self.book

@@ -89,12 +89,10 @@ pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttO
     Ok(options)
 }
 
-/// The client handle and its event loop.
-pub fn connect(
-    settings: &MqttSettings,
-    topics: &Topics,
-) -> anyhow::Result<(AsyncClient, EventLoop)> {
-    let options = options(settings, topics)?;
+/// The client handle and its event loop (nothing is sent until the loop is polled).
+pub fn connect(settings: &MqttSettings) -> anyhow::Result<(AsyncClient, EventLoop)> {
+    let topics = Topics::new(&settings.prefix, &settings.client_id);
+    let options = options(settings, &topics)?;
     Ok(AsyncClient::new(options, REQUEST_QUEUE))
 }
 

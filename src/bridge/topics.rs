@@ -44,11 +44,6 @@ impl Topics {
         format!("{}/{device}/availability", self.prefix)
     }
 
-    /// `plant/<device>/json`: the optional per-device JSON view.
-    pub fn json_view(&self, device: &str) -> String {
-        format!("{}/{device}/json", self.prefix)
-    }
-
     /// `plant/gateway/<client_id>/status`: birth `online`, Will `offline`.
     pub fn gateway_status(&self) -> String {
         format!("{}/gateway/{}/status", self.prefix, self.client_id)

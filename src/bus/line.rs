@@ -300,7 +300,11 @@ impl Line {
                     broadcast_turnaround: self.spec.broadcast_turnaround,
                     ..MasterOptions::default()
                 };
-                self.master = Some(Master::new(port, self.timing, options));
+                let mut master = Master::new(port, self.timing, options);
+                if let Some(log) = &self.spec.frame_log {
+                    master.record_frames_to(Box::new(log.writer(&self.spec.name)));
+                }
+                self.master = Some(master);
                 if self.stats.port_failures > 0 {
                     tracing::info!(port = %self.spec.serial.path, "port open again");
                 } else {

@@ -47,6 +47,8 @@ pub struct LineSpec {
     pub echo: bool,
     /// Silence after a broadcast write.
     pub broadcast_turnaround: Duration,
+    /// Record every frame of the line here (`gateway.frame_log`).
+    pub frame_log: Option<crate::rtu::frame_log::FrameLog>,
     pub devices: Vec<DeviceSpec>,
 }
 

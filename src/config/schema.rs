@@ -29,7 +29,6 @@ pub struct RawConfig {
 #[serde(deny_unknown_fields)]
 pub struct RawMqtt {
     /// `mqtt://host:port` or `mqtts://host:port`.
-    #[serde(default = "default_url")]
     pub url: String,
     /// Unique per gateway; also the gateway's id in topics.
     pub client_id: String,
@@ -62,7 +61,7 @@ pub struct RawGateway {
     /// How long a command for an offline device waits before it expires.
     #[serde(default = "default_command_ttl", with = "humantime_serde")]
     pub command_ttl: Duration,
-    /// Also publish every device's state as one JSON object on `<prefix>/<device>/json`.
+    /// Also publish every device's state as one JSON object on `<prefix>/<device>`.
     #[serde(default)]
     pub json_view: bool,
     #[serde(default = "default_stats_interval", with = "humantime_serde")]
@@ -196,9 +195,6 @@ pub const LINE_KEYS: &[&str] = &[
 pub const RS485_KEYS: &[&str] = &["rts_on_send", "delay_before_send", "delay_after_send"];
 pub const DEVICE_KEYS: &[&str] = &["name", "profile", "address", "poll_interval"];
 
-fn default_url() -> String {
-    "mqtt://127.0.0.1:1883".to_string()
-}
 fn default_prefix() -> String {
     "plant".to_string()
 }

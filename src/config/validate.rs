@@ -88,14 +88,13 @@ pub fn topic_prefix_problem(prefix: &str) -> Option<String> {
 }
 
 fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Option<MqttSettings> {
-    let mut ok = true;
-    let mut fail = |place: &str, reason: String| {
-        problems.push(Problem::new(format!("mqtt.{place}"), reason));
+    let before = problems.len();
+    let mut fail = |key: &str, reason: String| {
+        problems.push(Problem::new(format!("mqtt.{key}"), reason));
     };
     let endpoint = parse_broker_url(&raw.url);
     if let Err(reason) = &endpoint {
         fail("url", reason.clone());
-        ok = false;
     }
     // The client id is also a topic level (`plant/gateway/<client_id>/status`).
     if raw.client_id.is_empty()
@@ -112,18 +111,15 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
                 raw.client_id
             ),
         );
-        ok = false;
     }
     if let Some(reason) = topic_prefix_problem(&raw.prefix) {
         fail("prefix", format!("{:?} {reason}", raw.prefix));
-        ok = false;
     }
     if let Some(reason) = topic_prefix_problem(&raw.discovery_prefix) {
         fail(
             "discovery_prefix",
             format!("{:?} {reason}", raw.discovery_prefix),
         );
-        ok = false;
     }
     // rumqttc panics on a keep-alive under one second (other than zero, which we refuse too).
     if raw.keep_alive < Duration::from_secs(1) || raw.keep_alive > Duration::from_secs(65535) {
@@ -134,14 +130,12 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
                 humantime::format_duration(raw.keep_alive)
             ),
         );
-        ok = false;
     }
     if raw.inflight == 0 {
         fail(
             "inflight",
             "must be at least 1 (0 would stop every QoS 1 publish)".into(),
         );
-        ok = false;
     }
 
     let password = match (&raw.password, &raw.password_file) {
@@ -150,18 +144,12 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
                 "password_file",
                 "give either password or password_file, not both".into(),
             );
-            ok = false;
             None
         }
         (Some(password), None) => Some(password.clone()),
-        (None, Some(file)) => match read_password_file(&resolve(base, file)) {
-            Ok(password) => Some(password),
-            Err(reason) => {
-                fail("password_file", reason);
-                ok = false;
-                None
-            }
-        },
+        (None, Some(file)) => read_password_file(&resolve(base, file))
+            .map_err(|reason| fail("password_file", reason))
+            .ok(),
         (None, None) => None,
     };
     if password.is_some() && raw.username.is_none() {
@@ -169,70 +157,51 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
             "username",
             "a password is configured but no username".into(),
         );
-        ok = false;
     }
 
-    let is_tls = matches!(&endpoint, Ok(endpoint) if endpoint.tls);
-    let mut file_exists = |key: &str, file: &Option<PathBuf>| -> Option<PathBuf> {
+    // TLS files: each must exist; a client certificate needs its key; mqtts needs a CA.
+    let mut existing_file = |key: &str, file: &Option<PathBuf>| -> Option<PathBuf> {
         let path = resolve(base, file.as_ref()?);
         match std::fs::metadata(&path) {
             Ok(meta) if meta.is_file() => Some(path),
             Ok(_) => {
-                problems.push(Problem::new(
-                    format!("mqtt.{key}"),
-                    format!("{} is not a file", path.display()),
-                ));
+                fail(key, format!("{} is not a file", path.display()));
                 None
             }
             Err(error) => {
-                problems.push(Problem::new(
-                    format!("mqtt.{key}"),
-                    format!("{}: {error}", path.display()),
-                ));
+                fail(key, format!("{}: {error}", path.display()));
                 None
             }
         }
     };
-    let ca = file_exists("ca_file", &raw.ca_file);
-    let cert = file_exists("cert_file", &raw.cert_file);
-    let key = file_exists("key_file", &raw.key_file);
-    let any_tls_file = raw.ca_file.is_some() || raw.cert_file.is_some() || raw.key_file.is_some();
-    let mut tls_fail = |place: &str, reason: &str| {
-        problems.push(Problem::new(format!("mqtt.{place}"), reason.to_string()));
-    };
+    let ca = existing_file("ca_file", &raw.ca_file);
+    let cert = existing_file("cert_file", &raw.cert_file);
+    let key = existing_file("key_file", &raw.key_file);
     if raw.cert_file.is_some() != raw.key_file.is_some() {
-        tls_fail(
+        fail(
             "cert_file",
-            "a client certificate needs both cert_file and key_file",
+            "a client certificate needs both cert_file and key_file".into(),
         );
-        ok = false;
     }
-    if is_tls && raw.ca_file.is_none() {
-        tls_fail(
+    let any_tls_file = raw.ca_file.is_some() || raw.cert_file.is_some() || raw.key_file.is_some();
+    match &endpoint {
+        Ok(endpoint) if endpoint.tls && raw.ca_file.is_none() => fail(
             "ca_file",
             "mqtts:// needs ca_file (the CA that signed the broker's certificate; \
-             /etc/ssl/certs/ca-certificates.crt for a public one)",
-        );
-        ok = false;
-    }
-    if !is_tls && any_tls_file && endpoint.is_ok() {
-        tls_fail(
+             /etc/ssl/certs/ca-certificates.crt for a public one)"
+                .into(),
+        ),
+        Ok(endpoint) if !endpoint.tls && any_tls_file => fail(
             "url",
-            "TLS files are configured but the url is mqtt:// (use mqtts://)",
-        );
-        ok = false;
-    }
-    if (raw.ca_file.is_some() && ca.is_none())
-        || (raw.cert_file.is_some() && cert.is_none())
-        || (raw.key_file.is_some() && key.is_none())
-    {
-        ok = false;
+            "TLS files are configured but the url is mqtt:// (use mqtts://)".into(),
+        ),
+        _ => {}
     }
 
-    let endpoint = endpoint.ok()?;
-    if !ok {
+    if problems.len() != before {
         return None;
     }
+    let endpoint = endpoint.ok()?;
     let tls = if endpoint.tls {
         Some(TlsSettings {
             ca_file: ca?,
@@ -615,6 +584,8 @@ fn validate_lines(
             offline_after: raw.offline_after,
             echo: raw.echo,
             broadcast_turnaround: raw.broadcast_turnaround,
+            // Opened by the daemon, not by validation.
+            frame_log: None,
             devices,
         };
         let plan = LinePlan::of(&spec);
@@ -814,6 +785,57 @@ mod tests {
         for bad in ["", "Dust", "a b", "a/b", "a+", "ä", &"x".repeat(65)] {
             assert!(!is_valid_name(bad), "{bad:?} accepted");
         }
+    }
+
+    fn mqtt_problems(mqtt_table: &str, base: &Path) -> Vec<String> {
+        let text = format!("[mqtt]\nclient_id = \"edge1\"\n{mqtt_table}\n");
+        let raw = crate::config::load::load_str(&text).unwrap();
+        let mut problems = Vec::new();
+        let settings = validate_mqtt(&raw.mqtt, base, &mut problems);
+        assert_eq!(settings.is_none(), !problems.is_empty());
+        problems.iter().map(|p| p.to_string()).collect()
+    }
+
+    #[test]
+    fn tls_settings_are_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("ca.crt"), "x").unwrap();
+        std::fs::write(dir.path().join("client.crt"), "x").unwrap();
+        let base = dir.path();
+        assert_eq!(
+            mqtt_problems("url = \"mqtts://broker:8883\"\nca_file = \"ca.crt\"", base),
+            Vec::<String>::new()
+        );
+        let without_ca = mqtt_problems("url = \"mqtts://broker\"", base);
+        assert!(
+            without_ca[0].starts_with("mqtt.ca_file: mqtts:// needs ca_file"),
+            "{without_ca:?}"
+        );
+        let plain_with_ca = mqtt_problems("url = \"mqtt://broker\"\nca_file = \"ca.crt\"", base);
+        assert!(
+            plain_with_ca[0].starts_with("mqtt.url: TLS files"),
+            "{plain_with_ca:?}"
+        );
+        let half_pair = mqtt_problems(
+            "url = \"mqtts://broker\"\nca_file = \"ca.crt\"\ncert_file = \"client.crt\"",
+            base,
+        );
+        assert!(
+            half_pair[0].starts_with("mqtt.cert_file: a client certificate needs"),
+            "{half_pair:?}"
+        );
+        let missing = mqtt_problems("url = \"mqtts://broker\"\nca_file = \"nowhere.crt\"", base);
+        assert!(missing[0].starts_with("mqtt.ca_file: "), "{missing:?}");
+        let both = mqtt_problems(
+            "url = \"mqtt://broker\"\nusername = \"u\"\npassword = \"p\"\npassword_file = \"pw\"",
+            base,
+        );
+        assert!(
+            both[0].starts_with("mqtt.password_file: give either"),
+            "{both:?}"
+        );
+        let no_user = mqtt_problems("url = \"mqtt://broker\"\npassword = \"p\"", base);
+        assert!(no_user[0].starts_with("mqtt.username:"), "{no_user:?}");
     }
 
     #[test]

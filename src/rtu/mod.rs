@@ -10,6 +10,7 @@ pub mod clock;
 pub mod codec;
 pub mod crc;
 pub mod frame;
+pub mod frame_log;
 pub mod master;
 pub mod timing;
 pub mod transport;
