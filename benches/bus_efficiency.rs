@@ -201,6 +201,25 @@ async fn measure(baud: u32, profile: Arc<Profile>) -> anyhow::Result<Figures> {
         }
     }
     let min_silence = records.iter().filter_map(|r| r.silence_before).min();
+    // Where the time beyond the wire goes: the silence the simulator saw before each request
+    // (the master's t3.5 plus everything the gateway spends between transactions) against the
+    // mandatory t3.5; the rest of the overhead is on the simulator's side of the exchange.
+    let silences: Vec<Duration> = records.iter().filter_map(|r| r.silence_before).collect();
+    if !silences.is_empty() {
+        let mean = silences.iter().sum::<Duration>() / silences.len() as u32;
+        let short = silences.iter().filter(|s| **s < timing.t3_5).count();
+        let overhead = wall.saturating_sub(wire) / records.len().max(1) as u32;
+        println!(
+            "{baud} baud: t3.5 {:.2?}, char {:.2?}; silence before requests mean {:.2?}, min {:.2?}, {short} of {} shorter than t3.5; overhead per transaction {:.2?} (gateway side ≈ {:.2?})",
+            timing.t3_5,
+            timing.char_time,
+            mean,
+            min_silence.unwrap_or_default(),
+            silences.len(),
+            overhead,
+            mean.saturating_sub(timing.t3_5),
+        );
+    }
     latencies.sort_unstable();
     let mean_latency = if latencies.is_empty() {
         Duration::ZERO
@@ -212,6 +231,11 @@ async fn measure(baud: u32, profile: Arc<Profile>) -> anyhow::Result<Figures> {
         .copied()
         .unwrap_or_default();
     let line_wire = stats_after.wire_time.saturating_sub(stats_before.wire_time);
+    println!(
+        "{baud} baud: the line's own turnaround between back-to-back transactions: mean {:.1?}, worst {:.1?}",
+        stats_after.turnaround_mean.unwrap_or_default(),
+        stats_after.turnaround_worst.unwrap_or_default()
+    );
     println!(
         "{baud} baud: {} transactions, wire+silences {:.3?} of {:.3?} wall; the line's own wire-time counter: {:.3?}",
         records.len(),

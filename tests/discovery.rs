@@ -1,5 +1,9 @@
-//! Home Assistant discovery documents, their removal, the gateway's statistics document and the
-//! Prometheus text: pure functions checked on fields shaped like the three seed devices'.
+//! Home Assistant discovery documents, their removal, the gateway's statistics document, the
+//! Prometheus text and the JSON view: pure functions checked on fields shaped like the seed
+//! devices' and on the built-in profiles; then the gateway's discovery end to end on a real
+//! mosquitto with the simulated seed plant.
+
+mod support;
 
 use std::collections::HashSet;
 use std::time::{Duration, Instant};
@@ -8,6 +12,7 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 use serde_json::{json, Value as Json};
 
+use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::bridge::discovery::{
     all_configs, device_config, device_config_from_fields, gateway_config, is_ha_online,
     is_stale_config, platform_for, reannounce_delay, removal, unique_id_collisions,
@@ -17,6 +22,9 @@ use rtu2mqtt::bridge::json_view::{json_view, json_view_payload, json_view_topic}
 use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bus::LineStats;
 use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
+use rtu2mqtt::shutdown;
+use rtu2mqtt::sim::SeedPlant;
+use support::{Mosquitto, TestClient};
 
 fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
     FieldInfo {
@@ -358,6 +366,8 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
     };
     let mut alarm = field("alarm", FieldKind::Bool, false);
     alarm.ha.component = Some("switch".to_string());
+    let mut limit = field("limit", int(0, 9), true);
+    limit.ha.entity_category = Some("config".to_string());
     let mut unknown = field("level", int(0, 9), true);
     unknown.ha.component = Some("light".to_string());
 
@@ -367,16 +377,18 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
 
     let ctx = context();
     let (_, document) =
-        device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[gear, alarm, unknown]);
+        device_config_from_fields(&ctx, "dev1", "m", "n", "p", &[gear, alarm, limit, unknown]);
     let gear = component(&document, "gear");
     assert_eq!(gear["p"], "sensor");
     assert_eq!(gear["device_class"], "power_factor");
     assert_eq!(gear["state_class"], "total");
     assert_eq!(gear["unit_of_measurement"], "steps");
     assert_eq!(gear["icon"], "mdi:fan");
-    assert_eq!(gear["entity_category"], "config");
+    // Home Assistant accepts no `config` sensor: shown as a sensor, a setting is diagnostic.
+    assert_eq!(gear["entity_category"], "diagnostic");
     assert!(component(&document, "alarm").get("command_topic").is_none());
     assert_eq!(component(&document, "level")["p"], "number");
+    assert_eq!(component(&document, "limit")["entity_category"], "config");
 
     // A boolean shown as a button must send what the gateway accepts for a boolean.
     let mut reset = field("reset", FieldKind::Bool, true);
@@ -767,6 +779,9 @@ fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones()
             }
             if let Some(category) = config.get("entity_category") {
                 assert!(category == "config" || category == "diagnostic");
+                if platform == "sensor" || platform == "binary_sensor" {
+                    assert_eq!(category, "diagnostic", "{device}/{}", field.name);
+                }
             }
             // Home Assistant refuses these combinations outright.
             if config["device_class"] == "enum" {
@@ -867,4 +882,203 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
     assert_eq!(stats["commands"]["waiting"], 1);
     let text = stats.to_string();
     assert_eq!(serde_json::from_str::<Json>(&text).unwrap(), stats);
+}
+
+// ----- End to end: the gateway's discovery on a real broker -----
+
+/// Generous bound for a busy 2-core machine: it only fails when something is broken.
+const ANSWER: Duration = Duration::from_secs(20);
+
+fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str) -> String {
+    format!(
+        r#"
+[mqtt]
+url = "{url}"
+client_id = "{client_id}"
+prefix = "plant"
+discovery = true
+
+[gateway]
+json_view = true
+
+[[lines]]
+name = "line-a"
+port = "{line_a}"
+baud = 9600
+parity = "none"
+response_timeout = "150ms"
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "ruiwan-dust-collector"
+address = 1
+
+[[lines.devices]]
+name = "air_shower"
+profile = "lixian-air-shower"
+address = 0x81
+
+[[lines]]
+name = "line-b"
+port = "{line_b}"
+baud = 9600
+parity = "even"
+response_timeout = "150ms"
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+"#,
+        url = broker.url(),
+        line_a = plant.line_a.path().display(),
+        line_b = plant.line_b.path().display(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broker() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let client_id = "disc-e2e-gw";
+    let ctx = DiscoveryContext::new(client_id, "plant");
+
+    // What an earlier run left behind: a device since removed from the configuration, and a
+    // device of another gateway whose client id extends ours.
+    let setup = TestClient::connect(broker.port, "disc-e2e-setup").await;
+    let (_, old_pump) = device_config_from_fields(&ctx, "old_pump", "m", "n", "p", &valve_fields());
+    let old_pump_topic = ctx.config_topic("old_pump");
+    setup
+        .publish(&old_pump_topic, old_pump.to_string(), true)
+        .await;
+    let other = DiscoveryContext::new(&format!("{client_id}_x"), "plant");
+    let (other_topic, other_document) =
+        device_config_from_fields(&other, "pump", "m", "n", "p", &valve_fields());
+    setup
+        .publish(&other_topic, other_document.to_string(), true)
+        .await;
+
+    let mut observer = TestClient::connect(broker.port, "disc-e2e-observer").await;
+    observer.subscribe("homeassistant/#").await;
+    observer.subscribe("plant/#").await;
+    // Both retained leftovers are there before the gateway starts.
+    observer.next_on(&old_pump_topic, ANSWER).await;
+    observer.next_on(&other_topic, ANSWER).await;
+
+    let config = rtu2mqtt::config::from_str(
+        &plant_config(&broker, &plant, client_id),
+        std::path::Path::new("."),
+    )
+    .unwrap();
+    let (trigger, shutdown) = shutdown::channel();
+    let gateway = tokio::spawn(run_gateway(config, shutdown, Hooks::default()));
+
+    // One config per device, equal to what the profile gives, and the gateway's own.
+    let devices = built_in_documents();
+    for (device, profile, _) in &devices {
+        let message = observer
+            .wait_for(&ctx.config_topic(device), ANSWER, |m| !m.payload.is_empty())
+            .await;
+        let (_, expected) = device_config(&ctx, device, profile);
+        assert_eq!(message.json(), expected, "{device}");
+    }
+    let gateway_document = observer
+        .wait_for(&ctx.gateway_config_topic(), ANSWER, |m| {
+            !m.payload.is_empty()
+        })
+        .await
+        .json();
+    assert_eq!(
+        gateway_document,
+        gateway_config(&ctx, &["line-a".to_string(), "line-b".to_string()]).1
+    );
+
+    // The removed device's config is cleared; the other gateway's is left alone.
+    observer
+        .wait_for(&old_pump_topic, ANSWER, |m| m.payload.is_empty())
+        .await;
+
+    // Retained in the broker: a client arriving now gets every document.
+    let mut late = TestClient::connect(broker.port, "disc-e2e-late").await;
+    late.subscribe("homeassistant/device/+/config").await;
+    for (device, ..) in &devices {
+        let message = late.next_on(&ctx.config_topic(device), ANSWER).await;
+        assert!(message.retain, "{device} config not retained");
+    }
+    let kept = late.next_on(&other_topic, ANSWER).await;
+    assert_eq!(kept.json(), other_document);
+    late.settle(Duration::from_millis(500)).await;
+    assert!(
+        late.on(&old_pump_topic).is_empty(),
+        "the removed device's config is still retained"
+    );
+
+    // The JSON view: one retained, typed document per device, keyed by the profile's fields.
+    let view = observer
+        // Blocks arrive one by one: wait for the one holding the status word too.
+        .wait_for("plant/valve", ANSWER, |m| {
+            let view = m.json();
+            view.get("opening").is_some_and(Json::is_number) && view.get("jammed").is_some()
+        })
+        .await
+        .json();
+    assert!(view["mode"].is_string(), "{view}");
+    assert!(view["jammed"].is_boolean(), "{view}");
+    let valve_profile = &devices[1].1;
+    for key in view.as_object().unwrap().keys() {
+        assert!(
+            valve_profile.field(key).is_some(),
+            "{key} is not a valve field"
+        );
+    }
+    // A client arriving now gets the view at once, from the broker.
+    late.subscribe("plant/valve").await;
+    let retained_view = late.next_on("plant/valve", ANSWER).await;
+    assert!(retained_view.retain);
+    assert!(
+        retained_view.json()["opening"].is_number(),
+        "{}",
+        retained_view.text()
+    );
+
+    // Every command topic announced is one the gateway listens to and maps to its field: a
+    // malformed value comes back `rejected` for that field's own reason, before any bus work.
+    for (device, _, document) in &devices {
+        for (field, config) in document["cmps"].as_object().unwrap() {
+            let Some(topic) = config["command_topic"].as_str() else {
+                continue;
+            };
+            observer.publish(topic, "not-a-value%", false).await;
+            let result = observer
+                .next_on(&format!("plant/{device}/{field}/result"), ANSWER)
+                .await
+                .json();
+            let detail = result["detail"].as_str().unwrap_or_default().to_string();
+            assert_eq!(result["outcome"], "rejected", "{device}/{field}: {result}");
+            assert!(
+                !detail.contains("unknown field") && !detail.contains("read-only"),
+                "{device}/{field}: {detail}"
+            );
+        }
+    }
+
+    // Home Assistant's birth message brings every document again.
+    observer.settle(Duration::from_millis(200)).await;
+    observer.forget();
+    observer
+        .publish("homeassistant/status", "online", false)
+        .await;
+    for (device, ..) in &devices {
+        let message = observer
+            .wait_for(&ctx.config_topic(device), ANSWER, |m| !m.payload.is_empty())
+            .await;
+        assert_eq!(message.json()["dev"]["via_device"], client_id);
+    }
+
+    trigger.fire();
+    tokio::time::timeout(ANSWER, gateway)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
 }

@@ -311,7 +311,11 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     let opening = sim::lock(&h.plant.valve).opening();
     assert_eq!(value("plant/valve/opening"), opening.to_string());
     assert_eq!(value("plant/valve/mode"), "manual");
-    // The gateway itself.
+    // The gateway itself: its readiness hook shows both lines and a live, connected bridge.
+    let running = &h.gateway.as_ref().unwrap().running;
+    assert_eq!(running.lines.len(), 2);
+    assert!(*running.bridge.connected.borrow());
+    assert!(running.bridge.heartbeat.borrow().elapsed() < Duration::from_secs(5));
     h.wait_text(&format!("plant/gateway/{}/status", h.client_id), "online")
         .await;
     // Statistics go out every second; a later document counts the polls.
@@ -416,12 +420,13 @@ async fn valve_setpoint_lands_as_packed_bcd() {
     let mut h = Harness::start("valve").await;
     let result = h.command("valve", "setpoint", b"45.67").await;
     assert_eq!(result["outcome"], "applied", "{result}");
-    let valve = sim::lock(&h.plant.valve);
-    assert_eq!(valve.register(0xB2), Some(0x0045));
-    assert_eq!(valve.register(0xB3), Some(0x0067));
-    drop(valve);
+    let (integer, fraction) = {
+        let valve = sim::lock(&h.plant.valve);
+        (valve.register(0xB2), valve.register(0xB3))
+    };
+    assert_eq!(integer, Some(0x0045));
+    assert_eq!(fraction, Some(0x0067));
     h.wait_text("plant/valve/setpoint", "45.67").await;
-    let _ = VALVE;
     h.stop_gateway().await;
 }
 
@@ -659,6 +664,22 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         assert!(!detail.is_empty(), "{result}");
         assert!(detail.contains(reason), "{device}/{field}: {result}");
     }
+    // A retained payload far over the limit (but under the client's packet bound) is
+    // rejected and cleared, so it does not come back after every reconnect.
+    h.client
+        .publish(
+            "plant/dust_collector/pulse_interval/set",
+            vec![b'7'; 300_000],
+            true,
+        )
+        .await;
+    let result = h.result("dust_collector", "pulse_interval").await;
+    assert_eq!(outcome(&result), "rejected", "{result}");
+    h.client
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.payload.is_empty()
+        })
+        .await;
     // A command for a device that is not configured gets nothing back, and nothing happens.
     h.client
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
@@ -694,4 +715,150 @@ async fn a_clean_stop_announces_offline() {
         h.wait_text(&format!("plant/{device}/availability"), "offline")
             .await;
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connects_over_tls_with_a_client_certificate_and_a_password_file() {
+    let (broker, tls_port, certs) = Mosquitto::start_tls();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut observer = TestClient::connect(broker.port, "tls-observer").await;
+    observer.subscribe("plant/#").await;
+    let dir = certs.path().display();
+    let text = plant_config(&broker, &plant, "tls-gw", "").replace(
+        &format!("url = \"{}\"", broker.url()),
+        &format!(
+            "url = \"mqtts://127.0.0.1:{tls_port}\"\nusername = \"gateway\"\n\
+                 password_file = \"{dir}/password\"\nca_file = \"{dir}/ca.crt\"\n\
+                 cert_file = \"{dir}/client.crt\"\nkey_file = \"{dir}/client.key\""
+        ),
+    );
+    let config = fast(&text);
+    assert!(config.mqtt.tls.is_some());
+    assert_eq!(config.mqtt.password.as_deref(), Some("s3cret"));
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/gateway/tls-gw/status", ANSWER, |m| {
+            m.text() == "online"
+        })
+        .await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    gateway.stop().await;
+    // The broker saw the gateway log in with its user name (on the TLS listener: it is the
+    // only one the configuration names).
+    let log = broker.log();
+    assert!(
+        log.lines()
+            .any(|line| line.contains("as tls-gw") && line.contains("u'gateway'")),
+        "no authenticated connection of the gateway in the broker log:\n{log}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn polling_runs_while_the_broker_is_down_at_start_and_state_follows_it() {
+    let mut broker = Mosquitto::not_started();
+    let plant = SeedPlant::spawn(false).unwrap();
+    sim::lock(&plant.dust_collector).set_power(true);
+    let metrics_port = support::free_port();
+    let extra = format!("metrics_listen = \"127.0.0.1:{metrics_port}\"");
+    let gateway = Gateway::start(fast(&plant_config(&broker, &plant, "late-gw", &extra))).await;
+    // No broker: the lines poll all the same.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert!(plant.line_a.journal().request_count() > 3);
+    assert!(plant.line_b.journal().request_count() > 3);
+    assert!(!*gateway.running.bridge.connected.borrow());
+    // Change a value while MQTT is away: the cached latest value is what gets published.
+    sim::lock(&plant.dust_collector).set_power(false);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+
+    // The Prometheus endpoint answers meanwhile.
+    let metrics = http_get(metrics_port, "/metrics").await;
+    assert!(metrics.starts_with("HTTP/1.1 200"), "{metrics}");
+    assert!(metrics.contains("rtu2mqtt_mqtt_connected 0"), "{metrics}");
+    assert!(metrics.contains("line=\"line-a\""), "{metrics}");
+
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "late-observer").await;
+    observer.subscribe("plant/#").await;
+    // Within the back-off schedule (capped at 30 s; a few seconds this early).
+    observer
+        .wait_for("plant/gateway/late-gw/status", ANSWER * 3, |m| {
+            m.text() == "online"
+        })
+        .await;
+    observer
+        .wait_for("plant/dust_collector/power", ANSWER, |m| m.text() == "OFF")
+        .await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    let metrics = http_get(metrics_port, "/metrics").await;
+    assert!(metrics.contains("rtu2mqtt_mqtt_connected 1"), "{metrics}");
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn home_assistant_discovery_is_sent_repeated_and_cleaned_up() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut observer = TestClient::connect(broker.port, "ha-observer").await;
+    observer.subscribe("homeassistant/#").await;
+    // A config this gateway left behind for a device no longer configured.
+    let stale = serde_json::json!({
+        "dev": {"ids": ["ha-gw_old_pump"], "name": "old pump", "via_device": "ha-gw"},
+        "o": {"name": "rtu2mqtt"},
+        "cmps": {}
+    });
+    observer
+        .publish(
+            "homeassistant/device/ha-gw_old_pump/config",
+            stale.to_string(),
+            true,
+        )
+        .await;
+    let text =
+        plant_config(&broker, &plant, "ha-gw", "").replace("discovery = false", "discovery = true");
+    let gateway = Gateway::start(fast(&text)).await;
+    let valve_topic = "homeassistant/device/ha-gw_valve/config";
+    let config = observer.next_on(valve_topic, ANSWER).await;
+    // Retained: a client that comes later (Home Assistant after a restart) gets it too.
+    let mut late = TestClient::connect(broker.port, "ha-late").await;
+    late.subscribe(valve_topic).await;
+    assert!(late.next_on(valve_topic, ANSWER).await.retain);
+    let document = config.json();
+    assert_eq!(document["dev"]["via_device"], "ha-gw", "{document}");
+    assert!(document["cmps"]["opening"].is_object(), "{document}");
+    observer
+        .next_on("homeassistant/device/ha-gw_gateway/config", ANSWER)
+        .await;
+    // The stale one is removed.
+    observer
+        .wait_for("homeassistant/device/ha-gw_old_pump/config", ANSWER, |m| {
+            m.payload.is_empty()
+        })
+        .await;
+    // Home Assistant restarts: discovery follows within its re-announce delay.
+    observer.drain();
+    observer.forget();
+    observer
+        .publish("homeassistant/status", b"online".to_vec(), false)
+        .await;
+    observer.next_on(valve_topic, ANSWER).await;
+    gateway.stop().await;
+}
+
+/// A plain HTTP/1.1 GET on 127.0.0.1, the whole response as text.
+async fn http_get(port: u16, path: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    stream
+        .write_all(format!("GET {path} HTTP/1.1\r\nHost: test\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut response = String::new();
+    stream.read_to_string(&mut response).await.unwrap();
+    response
 }

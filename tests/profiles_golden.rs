@@ -324,6 +324,20 @@ fn valve_opening_settles_within_a_window() {
         Verification::Applied
     );
     assert!(rejection(&valve(), "opening", "101").contains("0–100"));
+    // Alarm openings: 0–100 %, or 255 to disable the alarm.
+    let disable = self::plan(&valve(), "low_alarm_opening_1", "255");
+    assert_eq!(
+        disable.writes(&[]).unwrap(),
+        vec![Request::WriteSingleRegister {
+            address: 0xD2,
+            value: 0xFF
+        }]
+    );
+    assert_eq!(
+        rejection(&valve(), "low_alarm_opening_1", "150"),
+        "low_alarm_opening_1 must be an integer 0–100 or 255, got 150"
+    );
+    assert!(rejection(&valve(), "low_alarm_opening_1", "x").ends_with("or 255, got \"x\""));
 }
 
 #[test]
@@ -1362,4 +1376,194 @@ fn seed_simulators_apply_what_the_profiles_plan() {
     assert_eq!(run_on(&mut device, &opening), Ok(Verification::Settling));
     assert_eq!(device.target(), 80);
     assert_eq!(device.violations(), Vec::<String>::new());
+}
+
+// --- bad input never panics ------------------------------------------------------------------
+
+mod robustness {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Parsed once: the cases only exercise decoding and planning.
+    fn profiles() -> &'static [Profile] {
+        static PROFILES: std::sync::OnceLock<Vec<Profile>> = std::sync::OnceLock::new();
+        PROFILES.get_or_init(|| vec![dust(), valve(), shower(), th_sensor()])
+    }
+
+    fn any_answer() -> impl Strategy<Value = Response> {
+        prop_oneof![
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::HoldingRegisters),
+            proptest::collection::vec(any::<u16>(), 0..64).prop_map(Response::InputRegisters),
+            proptest::collection::vec(any::<bool>(), 0..40).prop_map(Response::Coils),
+            (any::<u16>(), any::<u16>())
+                .prop_map(|(address, value)| Response::WriteSingleRegister { address, value }),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn decoding_any_answer_never_panics(answer in any_answer(), block in 0usize..6) {
+            for profile in profiles() {
+                let readings = profile.decode_block(block, &answer);
+                if block < profile.read_blocks().len() {
+                    prop_assert_eq!(readings.len(), profile.block_fields(block).len());
+                }
+                for reading in readings {
+                    if let Ok(value) = reading.value {
+                        let _ = value.to_text();
+                        let _ = value.to_json();
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn any_command_text_is_planned_or_refused(text in ".{0,24}", pick in any::<usize>()) {
+            for profile in profiles() {
+                let field = &profile.fields()[pick % profile.fields().len()].name;
+                match profile.plan_command(field, &text, &DeviceState::new()) {
+                    Ok(plan) => prop_assert_eq!(plan.field(), field.as_str()),
+                    Err(Rejection(reason)) => prop_assert!(!reason.is_empty()),
+                }
+            }
+        }
+
+        /// Any value inside a writable number's range goes out and reads back as itself.
+        #[test]
+        fn numbers_in_range_round_trip(pick in any::<usize>(), fraction in 0.0f64..=1.0) {
+            for profile in profiles() {
+                let numbers: Vec<_> = profile
+                    .fields()
+                    .iter()
+                    .filter(|f| f.writable)
+                    .filter(|f| matches!(
+                        f.kind,
+                        rtu2mqtt::profile::FieldKind::Integer { .. }
+                            | rtu2mqtt::profile::FieldKind::Decimal { .. }
+                    ))
+                    .collect();
+                let Some(info) = numbers.get(pick % numbers.len().max(1)) else { continue };
+                let text = match info.kind {
+                    rtu2mqtt::profile::FieldKind::Integer { min, max } => {
+                        (min + ((max - min) as f64 * fraction) as i64).to_string()
+                    }
+                    rtu2mqtt::profile::FieldKind::Decimal { min, max, precision } => {
+                        format!("{:.*}", usize::from(precision), min + (max - min) * fraction)
+                    }
+                    _ => unreachable!(),
+                };
+                let plan = match profile.plan_command(&info.name, &text, &DeviceState::new()) {
+                    Ok(plan) => plan,
+                    // A scaled field refuses values off its step, with a reason.
+                    Err(Rejection(reason)) => {
+                        prop_assert!(reason.contains("multiple of the step"), "{}", reason);
+                        continue;
+                    }
+                };
+                let mut images: Vec<_> = (0..profile.read_blocks().len())
+                    .map(|b| profile.initial_image(b).unwrap())
+                    .collect();
+                let before: Vec<Response> = plan
+                    .reads_before()
+                    .iter()
+                    .map(|read| profile.answer_read(&images, read).unwrap())
+                    .collect();
+                for write in plan.writes(&before).unwrap() {
+                    prop_assert!(profile.apply_write(&mut images, &write));
+                }
+                let readback = profile.answer_read(&images, &plan.readback()[0]).unwrap();
+                prop_assert_eq!(plan.verify(&[readback]), Verification::Applied);
+            }
+        }
+
+        #[test]
+        fn writes_and_verify_take_any_fresh_answer(
+            answer in any_answer(),
+            pick in any::<usize>(),
+        ) {
+            for profile in profiles() {
+                let writable: Vec<_> = profile.fields().iter().filter(|f| f.writable).collect();
+                let Some(info) = writable.get(pick % writable.len().max(1)) else { continue };
+                let text = match &info.kind {
+                    rtu2mqtt::profile::FieldKind::Bool => "ON".to_string(),
+                    rtu2mqtt::profile::FieldKind::Momentary => "PRESS".to_string(),
+                    rtu2mqtt::profile::FieldKind::Integer { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Decimal { min, .. } => min.to_string(),
+                    rtu2mqtt::profile::FieldKind::Enum { options } => options[0].clone(),
+                    rtu2mqtt::profile::FieldKind::Text => continue,
+                };
+                let plan = profile
+                    .plan_command(&info.name, &text, &DeviceState::new())
+                    .unwrap();
+                let _ = plan.writes(std::slice::from_ref(&answer));
+                let _ = plan.writes(&[]);
+                let _ = plan.verify(std::slice::from_ref(&answer));
+                let _ = plan.verify(&[]);
+            }
+        }
+    }
+}
+
+#[test]
+fn partial_reads_decode_the_fields_inside_them() {
+    let profile = valve();
+    let text = |request: Request, answer: Response| -> Vec<String> {
+        profile
+            .decode_read(&request, &answer)
+            .into_iter()
+            .map(|r| format!("{}={}", r.field, r.value.unwrap().to_text()))
+            .collect()
+    };
+    // The setpoint's read-back in a command slot.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            Response::HoldingRegisters(vec![0x0045, 0x0067])
+        ),
+        ["setpoint=45.67"]
+    );
+    // A used run of the live block: the measured values only.
+    assert_eq!(
+        text(
+            Request::ReadHoldingRegisters {
+                start: 0xA2,
+                quantity: 4
+            },
+            Response::HoldingRegisters(vec![0x0012, 0x0034, 0x0001, 0x0000])
+        ),
+        ["measured_1=12.34", "measured_2=1.00"]
+    );
+    // Half a BCD pair is not decoded; a read outside every block gives nothing.
+    assert!(text(
+        Request::ReadHoldingRegisters {
+            start: 0xA3,
+            quantity: 2
+        },
+        Response::HoldingRegisters(vec![0x0034, 0x0001])
+    )
+    .is_empty());
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0x50,
+                quantity: 1
+            },
+            &Response::HoldingRegisters(vec![1])
+        )
+        .is_empty());
+    // A short answer gives nothing rather than a panic.
+    assert!(profile
+        .decode_read(
+            &Request::ReadHoldingRegisters {
+                start: 0xB2,
+                quantity: 2
+            },
+            &Response::HoldingRegisters(vec![0x0045])
+        )
+        .is_empty());
 }

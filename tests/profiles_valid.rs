@@ -321,6 +321,16 @@ fn other_mistakes_are_refused_with_their_place() {
             &["line.parity", "mark"],
         ),
         (
+            "range = [0, 100]",
+            "range = [0, 100]\nalso = [70000]",
+            &["fields[1] (level).also", "0–65535"],
+        ),
+        (
+            "bit = 1 }",
+            "bit = 1 }\nalso = [3]",
+            &["fields[0] (status).also", "only integer"],
+        ),
+        (
             "[line]\n",
             "[line]\naddress_range = [10, 5]\n",
             &["line.address_range"],

@@ -75,6 +75,9 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
     }
 }
 
+/// (when, device, values) of one Values event.
+type ValuesSeen = (Instant, String, Vec<(String, Value)>);
+
 /// A running line and everything it reported.
 struct Running {
     handle: LineHandle,
@@ -82,8 +85,8 @@ struct Running {
     trigger: ShutdownTrigger,
     events_rx: mpsc::Receiver<LineEvent>,
     latest: HashMap<String, DeviceState>,
-    /// (when, device, values) of every Values event.
-    values: Vec<(Instant, String, Vec<(String, Value)>)>,
+    /// Every Values event.
+    values: Vec<ValuesSeen>,
     /// (when, device, online) of every Availability event.
     availability: Vec<(Instant, String, bool)>,
 }
@@ -589,6 +592,9 @@ async fn a_command_overtakes_queued_polls() {
     let stats = running.handle.stats_rx.borrow().clone();
     assert_eq!(stats.commands, 1);
     assert!(stats.last_command_latency.is_some());
+    // Polled back to back: the line measured its own time between transactions.
+    assert!(stats.turnaround_mean.is_some());
+    assert!(stats.turnaround_worst >= stats.turnaround_mean);
     running.stop().await;
 }
 
@@ -629,12 +635,13 @@ async fn read_modify_write_keeps_the_dust_collectors_internal_bits() {
         matches!(outcome, CommandOutcome::Applied { .. }),
         "{outcome:?}"
     );
-    let dust = sim::lock(&dust);
-    assert!(dust.power());
-    assert!(dust.pulse_cleaning());
-    assert_eq!(dust.status_word() & !0x0300, internal_and_alarms);
-    assert_eq!(dust.violations(), Vec::<String>::new());
-    drop(dust);
+    {
+        let dust = sim::lock(&dust);
+        assert!(dust.power());
+        assert!(dust.pulse_cleaning());
+        assert_eq!(dust.status_word() & !0x0300, internal_and_alarms);
+        assert_eq!(dust.violations(), Vec::<String>::new());
+    }
     running.stop().await;
 }
 
@@ -823,5 +830,62 @@ async fn statistics_heartbeat_keeps_coming_while_idle() {
     running.run_for(Duration::from_millis(2500)).await;
     let second = running.handle.stats_rx.borrow().heartbeat;
     assert!(second > first, "no heartbeat while the line was idle");
+    running.stop().await;
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn a_broadcast_command_is_sent_without_waiting_for_an_answer_and_keeps_the_turnaround() {
+    let (dust, dust_shared) = share(DustCollector::new(1));
+    sim::lock(&dust).set_power(true);
+    let line =
+        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![dust_shared]).unwrap();
+    let profile = built_in("ruiwan-dust-collector");
+    let mut running = start(
+        "line-a",
+        &line,
+        Parity::None,
+        vec![
+            device("dust_collector", profile.clone(), 1, 1000),
+            device("every_dust_collector", profile, 0, 1000),
+        ],
+    );
+    assert!(
+        running
+            .until(Duration::from_secs(15), |r| r.values_of("dust_collector")
+                >= 1)
+            .await
+    );
+    let before = line.journal().request_count();
+    let wanted = if sim::lock(&dust).gear() == 7 {
+        "8"
+    } else {
+        "7"
+    };
+    let outcome = running
+        .command("every_dust_collector", "gear", wanted)
+        .await;
+    assert!(
+        matches!(outcome, CommandOutcome::Applied { .. }),
+        "{outcome:?}"
+    );
+    assert_eq!(sim::lock(&dust).gear().to_string(), wanted);
+    // The next poll waits out the broadcast's turnaround (100 ms here).
+    assert!(
+        running
+            .until(Duration::from_secs(5), |_| line.journal().request_count()
+                >= before + 2)
+            .await
+    );
+    let records = line.journal().requests();
+    let broadcast = &records[before];
+    assert_eq!(broadcast.frame[0], 0);
+    assert!(broadcast.answer.is_none());
+    let next = &records[before + 1];
+    assert!(next.arrived - broadcast.arrived >= Duration::from_millis(100));
+    // No device named by address 0 is ever polled or reported.
+    assert!(records
+        .iter()
+        .all(|r| r.frame[0] != 0 || r.frame[1] == 0x06));
+    assert_eq!(running.values_of("every_dust_collector"), 0);
     running.stop().await;
 }

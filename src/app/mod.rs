@@ -47,6 +47,11 @@ pub async fn run_gateway(config: Config, shutdown: Shutdown, hooks: Hooks) -> an
     for warning in &config.warnings {
         tracing::warn!("configuration: {warning}");
     }
+    if let Some(path) = &config.gateway.frame_log {
+        // The master can record frames (`Master::record_frames_to`), but the lines do not
+        // take a recorder yet: say so rather than pretend.
+        tracing::warn!(path = %path.display(), "gateway.frame_log is not wired to the lines in this build; use RUST_LOG=rtu2mqtt::rtu::master=debug for frames in the log");
+    }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
             prometheus::bind(address)
@@ -153,7 +158,6 @@ pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
         _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
         _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
     }
-    health::notify_stopping();
     trigger.fire();
     tokio::select! {
         _ = terminate.recv() => {},

@@ -490,7 +490,17 @@ pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Jso
     let category = hints
         .entity_category
         .as_deref()
-        .or_else(|| default_entity_category(field));
+        .or_else(|| default_entity_category(field))
+        .map(|category| {
+            // Home Assistant refuses `config` on a sensor or binary sensor (only controls can
+            // be configuration): a read-only view of a setting is diagnostic.
+            let read_only = matches!(platform, Platform::Sensor | Platform::BinarySensor);
+            if read_only && category == "config" {
+                "diagnostic"
+            } else {
+                category
+            }
+        });
     if let Some(category) = category {
         put("entity_category", json!(category));
     }

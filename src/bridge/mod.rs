@@ -44,7 +44,7 @@ use crate::shutdown::Shutdown;
 pub const TICK: Duration = Duration::from_millis(250);
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
-/// How long shutdown waits for commands on the bus and for the Disconnect to go out.
+/// How long shutdown waits for commands on the bus, and then for the Disconnect to complete.
 const STOP_GRACE: Duration = Duration::from_secs(3);
 
 /// Liveness of the bridge for the watchdog and the status file.
@@ -92,11 +92,6 @@ pub struct Bridge {
     reannounce_at: Option<Instant>,
     /// Last JSON view payload per device, to skip unchanged ones.
     json_views: HashMap<String, Vec<u8>>,
-    /// Counted for logs: QoS 1 redeliveries not run again, commands for unknown devices,
-    /// publishes dropped because the request queue was full.
-    redeliveries_ignored: u64,
-    unknown_device_commands: u64,
-    publish_failures: u64,
     finished_tx: mpsc::Sender<Finished>,
     finished_rx: mpsc::Receiver<Finished>,
     heartbeat_tx: watch::Sender<Instant>,
@@ -153,9 +148,6 @@ impl Bridge {
             },
             reannounce_at: None,
             json_views: HashMap::new(),
-            redeliveries_ignored: 0,
-            unknown_device_commands: 0,
-            publish_failures: 0,
             finished_tx,
             finished_rx,
             heartbeat_tx,
@@ -195,6 +187,9 @@ impl Bridge {
         match event {
             LinkEvent::Connected { .. } => self.on_connected(),
             LinkEvent::Disconnected { .. } => {
+                if self.connected {
+                    self.counters.mqtt_disconnects += 1;
+                }
                 self.connected = false;
                 self.connected_tx.send_replace(false);
             }
@@ -262,7 +257,7 @@ impl Bridge {
                 true
             }
             Err(error) => {
-                self.publish_failures += 1;
+                self.counters.publish_failures += 1;
                 tracing::warn!(%error, %topic, "publish dropped");
                 false
             }
@@ -400,12 +395,12 @@ impl Bridge {
                 now,
             )
         {
-            self.redeliveries_ignored += 1;
+            self.counters.redeliveries_ignored += 1;
             tracing::debug!(%device, %field, "QoS 1 redelivery ignored");
             return;
         }
         let Some(entry) = self.devices.get(&device).cloned() else {
-            self.unknown_device_commands += 1;
+            self.counters.unknown_device_commands += 1;
             tracing::warn!(topic = %publish.topic, "command for a device that is not configured");
             return;
         };
@@ -617,6 +612,7 @@ impl Bridge {
         BridgeStats {
             uptime: self.started.elapsed(),
             mqtt_connected: self.connected,
+            waiting_commands: self.book.waiting_count() as u64,
             ..self.counters.clone()
         }
     }
@@ -639,15 +635,6 @@ impl Bridge {
 
     fn publish_stats(&mut self) {
         let document = metrics::stats_json(&self.line_stats(), &self.counters_snapshot());
-        if self.redeliveries_ignored + self.unknown_device_commands + self.publish_failures > 0 {
-            tracing::debug!(
-                redeliveries_ignored = self.redeliveries_ignored,
-                unknown_device_commands = self.unknown_device_commands,
-                publish_failures = self.publish_failures,
-                waiting_commands = self.book.waiting_count(),
-                "bridge counters"
-            );
-        }
         self.publish(self.topics.gateway_stats(), document.to_string(), false);
     }
 
@@ -679,7 +666,8 @@ impl Bridge {
             if let Err(error) = self.client.try_disconnect() {
                 tracing::warn!(%error, "cannot queue the MQTT disconnect");
             }
-            let closed = tokio::time::timeout_at(deadline, async {
+            // Its own bound: the event loop waits up to its close grace for the broker.
+            let closed = tokio::time::timeout(STOP_GRACE, async {
                 while let Some(event) = self.link_rx.recv().await {
                     if matches!(event, LinkEvent::Closed) {
                         break;

@@ -27,11 +27,15 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
 /// costs a message, never a blocked bridge).
 pub const REQUEST_QUEUE: usize = 4096;
-/// Incoming packets above this end the connection in rumqttc: large enough for any sane
-/// command, small enough to bound memory.
-pub const MAX_INCOMING_PACKET: usize = 256 * 1024;
+/// Incoming packets above this end the connection in rumqttc, and a retained one would do so
+/// again after every reconnect. Far above any sane command, so that an oversized retained
+/// command is received, rejected by the payload limit and cleared instead; still a bound.
+pub const MAX_INCOMING_PACKET: usize = 1024 * 1024;
 /// Discovery configs of big devices are a few KiB.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
+
+/// How long the event loop waits for the broker to close after our Disconnect.
+const CLOSE_GRACE: Duration = Duration::from_secs(2);
 
 /// What the event loop task reports to the bridge.
 #[derive(Debug)]
@@ -143,6 +147,11 @@ pub fn spawn_event_loop(
                 }
                 Ok(Event::Incoming(Packet::Publish(publish))) => LinkEvent::Message(publish),
                 Ok(Event::Outgoing(Outgoing::Disconnect)) => {
+                    // Read until the broker closes: dropping a socket with unread acks in it
+                    // resets the connection, which can lose what was just sent (the offline
+                    // announcements) and makes the broker publish our Will.
+                    let drain = async { while eventloop.poll().await.is_ok() {} };
+                    let _ = tokio::time::timeout(CLOSE_GRACE, drain).await;
                     let _ = events_tx.send(LinkEvent::Closed).await;
                     return;
                 }

@@ -24,7 +24,7 @@ use super::plan::{read_answer_bytes, DevicePlan};
 use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::slot::{self, SeenReads, SlotEnd};
 use super::stats::DeviceStats;
-use super::transaction::{Exchange, Failure};
+use super::transaction::{Exchange, Failure, Turnaround};
 use super::{Command, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats};
 use crate::profile::{CommandPlan, Profile, ReadBlock, Verification};
 use crate::rtu::master::{Master, MasterOptions, WireCounters};
@@ -119,6 +119,7 @@ struct Line {
     /// Counters of the masters of ports closed earlier (a reopened port starts a new master).
     closed_counters: WireCounters,
     load_samples: VecDeque<(Instant, Duration)>,
+    turnaround: Turnaround,
     last_published: Instant,
     shutdown: Shutdown,
 }
@@ -171,6 +172,7 @@ impl Line {
             stats,
             closed_counters: WireCounters::default(),
             load_samples: VecDeque::new(),
+            turnaround: Turnaround::default(),
             last_published: now,
             shutdown,
             spec,
@@ -228,6 +230,7 @@ impl Line {
 
     /// Sleeps until `until` (or the next heartbeat), a command arrives, or shutdown.
     async fn wait(&mut self, until: Option<Instant>) {
+        self.turnaround.idle();
         let heartbeat = self.last_published + HEARTBEAT;
         let wake = until.map_or(heartbeat, |u| u.min(heartbeat));
         let sleep = tokio::time::sleep_until(tokio::time::Instant::from_std(wake));
@@ -276,6 +279,7 @@ impl Line {
     }
 
     async fn open_port(&mut self, now: Instant) {
+        self.turnaround.idle();
         match Port::open(&self.spec.serial) {
             Ok(port) => {
                 let options = MasterOptions {
@@ -382,6 +386,7 @@ impl Line {
             device: &spec.name,
             slave: spec.address,
             timeout: self.timeout,
+            turnaround: &self.turnaround,
         };
         let use_runs = self
             .fallback
@@ -488,6 +493,7 @@ impl Line {
             device: &spec.name,
             slave: spec.address,
             timeout: self.timeout,
+            turnaround: &self.turnaround,
         };
         let span =
             tracing::info_span!("command", device = %spec.name, field = command.plan.field());
@@ -549,6 +555,7 @@ impl Line {
             device: &spec.name,
             slave: spec.address,
             timeout: self.timeout,
+            turnaround: &self.turnaround,
         };
         let mut seen = SeenReads::new();
         let result =
@@ -706,6 +713,10 @@ impl Line {
                 let wire = counters.wire_time.saturating_sub(*wire_then).as_secs_f64();
                 stats.bus_load = (wire / wall).min(1.0);
             }
+        }
+        if let Some((mean, worst)) = self.turnaround.figures() {
+            stats.turnaround_mean = Some(mean);
+            stats.turnaround_worst = Some(worst);
         }
         self.last_published = now;
         self.stats_tx.send_replace(stats.clone());

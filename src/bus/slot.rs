@@ -195,6 +195,7 @@ async fn patiently(
         match exchange.run(master, stats, request, attempts).await {
             Err(Failure::Exception(ExceptionCode::ServerDeviceBusy)) if busy < BUSY_LIMIT => {
                 busy += 1;
+                exchange.turnaround.idle();
                 tokio::time::sleep(BUSY_RETRY_DELAY).await;
             }
             other => return other,

@@ -50,6 +50,10 @@ pub struct LineStats {
     pub bus_load: f64,
     /// Wire time of all frames and mandatory silences since the line started.
     pub wire_time: Duration,
+    /// The line's own time from the end of a transaction to the start of the next one that
+    /// was already due (mean, worst): what the gateway adds between back-to-back frames.
+    pub turnaround_mean: Option<Duration>,
+    pub turnaround_worst: Option<Duration>,
     pub commands: u64,
     /// Time from a command's arrival on the line to its outcome.
     pub last_command_latency: Option<Duration>,
@@ -76,6 +80,8 @@ impl LineStats {
             wrong_address: 0,
             bus_load: 0.0,
             wire_time: Duration::ZERO,
+            turnaround_mean: None,
+            turnaround_worst: None,
             commands: 0,
             last_command_latency: None,
             worst_command_latency: None,

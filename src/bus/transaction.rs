@@ -3,6 +3,7 @@
 //! says what the caller must do (use the answer, handle an exception, give up, or close a port
 //! that is gone). The timing on the wire is the master's; nothing here sleeps.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use tracing::Instrument;
@@ -40,6 +41,75 @@ pub struct Exchange<'a> {
     pub device: &'a str,
     pub slave: SlaveId,
     pub timeout: Duration,
+    pub turnaround: &'a Turnaround,
+}
+
+/// The gateway's own time between the end of one transaction and the start of the next when
+/// that one was already due: what the line adds beyond the wire's mandatory silence (which the
+/// master waits out inside the next transaction, so this time is hidden in it when shorter).
+/// Atomics only so that a line task holding a reference across awaits stays `Send`.
+#[derive(Debug)]
+pub struct Turnaround {
+    epoch: Instant,
+    /// Nanoseconds since `epoch` when the last transaction ended; 0 after a wait.
+    ended: AtomicU64,
+    count: AtomicU64,
+    total_nanos: AtomicU64,
+    worst_nanos: AtomicU64,
+}
+
+impl Default for Turnaround {
+    fn default() -> Self {
+        Turnaround {
+            epoch: Instant::now(),
+            ended: AtomicU64::new(0),
+            count: AtomicU64::new(0),
+            total_nanos: AtomicU64::new(0),
+            worst_nanos: AtomicU64::new(0),
+        }
+    }
+}
+
+impl Turnaround {
+    fn nanos(&self, at: Instant) -> u64 {
+        u64::try_from(at.saturating_duration_since(self.epoch).as_nanos())
+            .unwrap_or(u64::MAX)
+            .max(1)
+    }
+
+    /// A transaction starts now.
+    pub fn starting(&self) {
+        let ended = self.ended.swap(0, Ordering::Relaxed);
+        if ended == 0 {
+            return;
+        }
+        let gap = self.nanos(Instant::now()).saturating_sub(ended);
+        self.count.fetch_add(1, Ordering::Relaxed);
+        self.total_nanos.fetch_add(gap, Ordering::Relaxed);
+        self.worst_nanos.fetch_max(gap, Ordering::Relaxed);
+    }
+
+    /// A transaction ended now.
+    pub fn ended(&self) {
+        self.ended
+            .store(self.nanos(Instant::now()), Ordering::Relaxed);
+    }
+
+    /// The line waits for something to become due: the gap that follows is not overhead.
+    pub fn idle(&self) {
+        self.ended.store(0, Ordering::Relaxed);
+    }
+
+    /// Mean and worst turnaround so far.
+    pub fn figures(&self) -> Option<(Duration, Duration)> {
+        let count = self.count.load(Ordering::Relaxed);
+        if count == 0 {
+            return None;
+        }
+        let mean = self.total_nanos.load(Ordering::Relaxed) / count;
+        let worst = self.worst_nanos.load(Ordering::Relaxed);
+        Some((Duration::from_nanos(mean), Duration::from_nanos(worst)))
+    }
 }
 
 impl Exchange<'_> {
@@ -61,11 +131,13 @@ impl Exchange<'_> {
                 function = request.function().value(),
                 attempt
             );
+            self.turnaround.starting();
             let started = Instant::now();
             let result = master
                 .transact(self.slave, request, self.timeout)
                 .instrument(span)
                 .await;
+            self.turnaround.ended();
             stats.transactions += 1;
             match result {
                 Ok(response) => {

@@ -428,6 +428,12 @@ fn validate_gateway(raw: &RawGateway, problems: &mut Vec<Problem>) -> Option<Gat
     if problems.len() != before {
         return None;
     }
+    if raw.allow_raw_writes {
+        tracing::warn!(
+            "gateway.allow_raw_writes: this version has no raw register write topic; only \
+             profile fields can be written"
+        );
+    }
     Some(GatewayOptions {
         command_ttl: raw.command_ttl,
         json_view: raw.json_view,
@@ -576,7 +582,7 @@ fn validate_lines(
             let limits = device.profile.limits();
             if limits.default_parity != parity || limits.default_baud != baud {
                 warnings.push(Problem::new(
-                    format!("{place}"),
+                    place.clone(),
                     format!(
                         "device {} ({}) usually runs at {} baud, parity {:?}; the line is set \
                          to {baud} baud, parity {parity:?}",

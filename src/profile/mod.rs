@@ -2,7 +2,8 @@
 //! one of the built-in copies), validated completely at load, and then answers every question
 //! the rest of the gateway has about a device: which blocks to poll, how raw words become field
 //! values, which fields exist and how they are exposed, and how a command on a field becomes the
-//! frames of one bus slot. Everything here is pure: no I/O, no clock, no tokio.
+//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
+//! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 
 pub mod codec;
 pub mod command;
@@ -217,6 +218,47 @@ impl Profile {
             .collect()
     }
 
+    /// Decodes the answer to any read inside one block (a whole block, one of its used runs,
+    /// or a command slot's read): the values of the fields that lie entirely inside the read.
+    /// Empty when no block of the profile contains the read.
+    pub fn decode_read(&self, request: &Request, answer: &Response) -> Vec<FieldReading> {
+        let Some((start, quantity)) = raw::read_span(request) else {
+            return Vec::new();
+        };
+        let inner = &self.inner;
+        let Some(block) = inner.blocks.iter().position(|block| {
+            raw::read_span(&block.request).is_some_and(|(first, len)| {
+                std::mem::discriminant(&block.request) == std::mem::discriminant(request)
+                    && start >= first
+                    && u32::from(start) + u32::from(quantity) <= u32::from(first) + u32::from(len)
+            })
+        }) else {
+            return Vec::new();
+        };
+        let Some((first, _)) = raw::read_span(&inner.blocks[block].request) else {
+            return Vec::new();
+        };
+        let base = start - first;
+        let Some(part) = command::image_of(answer, usize::from(quantity)) else {
+            return Vec::new();
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter(|(def, _)| {
+                def.block == block
+                    && def.offset >= base
+                    && u32::from(def.offset) + u32::from(def.codec.width())
+                        <= u32::from(base) + u32::from(quantity)
+            })
+            .map(|(def, info)| FieldReading {
+                field: info.name.clone(),
+                value: def.codec.decode(&part, def.offset - base),
+            })
+            .collect()
+    }
+
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
     /// last known state, and plans the bus slot that carries it out.
     pub fn plan_command(
@@ -312,10 +354,21 @@ impl Profile {
         if !info.writable {
             return Err(Rejection(format!("{field} is read-only")));
         }
-        let target = codec::parse_command(info, text)?;
+        let def = &inner.defs[index];
+        let target = match codec::parse_command(info, text) {
+            Ok(value) => value,
+            Err(rejection) if def.also.is_empty() => return Err(rejection),
+            Err(rejection) => match text.trim().parse::<i64>() {
+                Ok(value) if def.also.contains(&value) => Value::Int(value),
+                _ => {
+                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
+                    let or = format!(" or {}, got ", list.join(", "));
+                    return Err(Rejection(rejection.0.replacen(", got ", &or, 1)));
+                }
+            },
+        };
         // Kinds and ranges are validated against the codec at load, so this only fails on a
         // profile bug; refuse rather than write something else.
-        let def = &inner.defs[index];
         def.codec
             .encode(def.offset, &target)
             .map_err(|why| Rejection(format!("{field}: {why}")))?;

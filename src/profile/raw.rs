@@ -193,7 +193,7 @@ fn on_step(value: i64, min: i64, step: i64) -> i64 {
 }
 
 /// (start, quantity) of a read request.
-fn read_span(request: &Request) -> Option<(u16, u16)> {
+pub(crate) fn read_span(request: &Request) -> Option<(u16, u16)> {
     match *request {
         Request::ReadCoils { start, quantity }
         | Request::ReadDiscreteInputs { start, quantity }

@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use super::{FieldKind, Profile, ProfileErrors};
+use super::schema::Behaviour;
+use super::{FieldKind, PollClass, Profile, ProfileErrors};
+use crate::rtu::timing::Parity;
 
 /// (name, TOML text) of every built-in profile.
 const BUILT_IN: &[(&str, &str)] = &[
@@ -93,21 +95,78 @@ fn describe_kind(kind: &FieldKind) -> String {
             precision,
         } => {
             let p = usize::from(*precision);
-            format!("decimal {min:.p$}–{max:.p$}")
+            if min.abs() > 1e15 || max.abs() > 1e15 {
+                format!("decimal, {p} places")
+            } else {
+                format!("decimal {min:.p$}–{max:.p$}")
+            }
         }
         FieldKind::Enum { options } => options.join(" | "),
         FieldKind::Text => "text".to_string(),
     }
 }
 
-/// A readable listing of one profile: its blocks and its fields with access, kind and unit.
+fn describe_read(request: &crate::rtu::Request) -> String {
+    use crate::rtu::Request;
+    match request {
+        Request::ReadCoils { start, quantity }
+        | Request::ReadDiscreteInputs { start, quantity }
+        | Request::ReadHoldingRegisters { start, quantity }
+        | Request::ReadInputRegisters { start, quantity } => format!(
+            "FC{:02} 0x{start:04X} ×{quantity}",
+            request.function().value()
+        ),
+        other => format!("{other:?}"),
+    }
+}
+
+fn describe_write(profile: &Profile, index: usize) -> String {
+    let inner = &profile.inner;
+    let def = &inner.defs[index];
+    let Some(frame) = &def.write else {
+        return String::new();
+    };
+    let mut text = format!("FC{:02} @0x{:04X}", frame.function, frame.address);
+    if frame.count > 1 && frame.function != 6 {
+        text.push_str(&format!("×{}", frame.count));
+    }
+    let own = def.codec.footprint(def.offset);
+    let whole = if inner.block_kinds[def.block].is_bits() {
+        1
+    } else {
+        0xFFFF
+    };
+    let fills = own.len() == usize::from(frame.count) && own.iter().all(|(_, m)| *m == whole);
+    let mut notes = Vec::new();
+    if !fills {
+        notes.push("read-modify-write".to_string());
+    }
+    match def.behaviour {
+        Behaviour::Toggle => notes.push("toggle".to_string()),
+        Behaviour::Momentary => notes.push("button".to_string()),
+        Behaviour::State => {}
+    }
+    if let Some(window) = def.settle_window {
+        notes.push(format!("settles ≤ {}", humantime::format_duration(window)));
+    }
+    if let Some(interval) = inner.infos[index].min_write_interval {
+        notes.push(format!("≥ {} apart", humantime::format_duration(interval)));
+    }
+    if !notes.is_empty() {
+        text.push_str(&format!(" ({})", notes.join(", ")));
+    }
+    text
+}
+
+/// A readable listing of one profile: line defaults, blocks, and every field with its access,
+/// kind and range, unit, and how it is written.
 pub fn describe(profile: &Profile) -> String {
     use std::fmt::Write as _;
     let mut out = String::new();
     let limits = profile.limits();
     let _ = writeln!(
         out,
-        "{}: {} {}",
+        "{}: {}, {}",
         profile.name(),
         profile.manufacturer(),
         profile.model()
@@ -115,21 +174,44 @@ pub fn describe(profile: &Profile) -> String {
     if !profile.description().is_empty() {
         let _ = writeln!(out, "  {}", profile.description());
     }
+    let parity = match limits.default_parity {
+        Parity::None => "8N1",
+        Parity::Even => "8E1",
+        Parity::Odd => "8O1",
+    };
+    let default_address = profile
+        .default_address()
+        .map(|a| format!(", usually {a}"))
+        .unwrap_or_default();
     let _ = writeln!(
         out,
-        "  line: {} baud, parity {:?}, addresses {}–{}, poll ≥ {}, slow every {}",
+        "  line: {} baud {parity}, addresses {}–{}{default_address}; poll every {} (at least {}), \
+         slow blocks every {}, first transaction {} after start",
         limits.default_baud,
-        limits.default_parity,
         limits.address_range.start(),
         limits.address_range.end(),
+        humantime::format_duration(limits.default_poll_interval),
         humantime::format_duration(limits.min_poll_interval),
         humantime::format_duration(limits.slow_interval),
+        humantime::format_duration(limits.startup_delay),
     );
     for block in profile.read_blocks() {
+        let class = match block.class {
+            PollClass::Fast => "fast",
+            PollClass::Slow => "slow",
+        };
         let _ = writeln!(
             out,
-            "  block {:<14} {:?} ({:?})",
-            block.name, block.request, block.class
+            "  block {:<14} {:<20} {class}",
+            block.name,
+            describe_read(&block.request)
+        );
+    }
+    for (name, frame) in &profile.inner.named_frames {
+        let _ = writeln!(
+            out,
+            "  frame {:<14} FC{:02} @0x{:04X}×{}",
+            name, frame.function, frame.address, frame.count
         );
     }
     let width = profile
@@ -138,49 +220,47 @@ pub fn describe(profile: &Profile) -> String {
         .map(|f| f.name.len())
         .max()
         .unwrap_or(0);
-    for field in profile.fields() {
+    for (index, field) in profile.fields().iter().enumerate() {
         let access = if field.writable { "rw" } else { "ro" };
         let unit = field.unit.as_deref().unwrap_or("");
-        let _ = writeln!(
-            out,
-            "  {:<width$}  {access}  {:<28} {unit:<4} {}",
+        let line = format!(
+            "  {:<width$}  {access}  {:<26} {unit:<4} {}",
             field.name,
             describe_kind(&field.kind),
-            field.description,
+            describe_write(profile, index),
         );
+        let _ = writeln!(out, "{}", line.trim_end());
     }
     out
 }
 
 /// `rtu2mqtt profiles`: prints every built-in profile (and the files given) with its fields.
 pub fn print_profiles(paths: &[PathBuf]) -> anyhow::Result<ExitCode> {
-    let mut failed = false;
+    use std::io::Write as _;
+    let mut listing = String::new();
+    let mut problems = String::new();
     for name in built_in_names() {
         match built_in(name) {
-            Ok(profile) => println!("{}", describe(&profile)),
-            Err(err) => {
-                eprintln!("{err}");
-                failed = true;
-            }
+            Ok(profile) => listing.push_str(&format!("{}\n", describe(&profile))),
+            Err(err) => problems.push_str(&format!("{err}\n")),
         }
     }
     for path in paths {
         match load_file(path) {
-            Ok(profile) => println!(
-                "{} ({})\n{}",
-                profile.name(),
-                path.display(),
-                describe(&profile)
-            ),
-            Err(err) => {
-                eprintln!("{err}");
-                failed = true;
-            }
+            Ok(profile) => listing.push_str(&format!(
+                "{}  file: {}\n\n",
+                describe(&profile),
+                path.display()
+            )),
+            Err(err) => problems.push_str(&format!("{err}\n")),
         }
     }
-    Ok(if failed {
-        ExitCode::FAILURE
-    } else {
+    // A closed pipe (`rtu2mqtt profiles | head`) is not an error worth a panic.
+    let _ = std::io::stdout().lock().write_all(listing.as_bytes());
+    let _ = std::io::stderr().lock().write_all(problems.as_bytes());
+    Ok(if problems.is_empty() {
         ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     })
 }

@@ -165,6 +165,9 @@ struct FieldSection {
     unit: Option<String>,
     /// `[min, max]` for numbers: the allowed command range and the Home Assistant range.
     range: Option<[f64; 2]>,
+    /// Integers accepted besides the range, e.g. `[255]` where 255 means "disabled".
+    #[serde(default)]
+    also: Vec<i64>,
     write: Option<WriteSection>,
     #[serde(default)]
     behaviour: Behaviour,
@@ -336,6 +339,8 @@ pub struct FieldDef {
     pub behaviour: Behaviour,
     pub settle_window: Option<Duration>,
     pub overlay: bool,
+    /// Integers accepted besides the range (the valve's 255 = alarm disabled).
+    pub also: Vec<i64>,
 }
 
 /// A compiled forbidden combination.
@@ -385,7 +390,7 @@ pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
     let file: ProfileFile = toml::from_str(text).map_err(|err| {
         let place = match err.span() {
             Some(span) => {
-                let before = &text[..span.start.min(text.len())];
+                let before = text.get(..span.start).unwrap_or(text);
                 let line = before.matches('\n').count() + 1;
                 let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
                 format!("{source}:{line}:{column}")
@@ -1134,6 +1139,21 @@ fn build_field(
     }
 
     let field_kind = field_kind(field, &codec, write.is_some(), place, problems)?;
+    if !field.also.is_empty() {
+        match codec.natural_kind() {
+            FieldKind::Integer { min, max } if matches!(field_kind, FieldKind::Integer { .. }) => {
+                for value in &field.also {
+                    if *value < min || *value > max {
+                        problems.add(
+                            format!("{place}.also"),
+                            format!("{value} is outside the codec's {min}–{max}"),
+                        );
+                    }
+                }
+            }
+            _ => problems.add(format!("{place}.also"), "only integer fields take `also`"),
+        }
+    }
     let def = FieldDef {
         block,
         offset: field.offset,
@@ -1142,6 +1162,7 @@ fn build_field(
         behaviour: field.behaviour,
         settle_window: field.settle_window,
         overlay: field.overlay,
+        also: field.also.clone(),
     };
     let info = FieldInfo {
         name: field.name.clone(),

@@ -3,11 +3,18 @@
 //! drained), stray bytes are flushed and counted before a request, answers are framed by
 //! expected length with an inter-character gap limit and a response timeout, and an answer
 //! arriving after its timeout is discarded and counted, never taken for the next request's.
+//!
+//! While an answer is awaited: frames from other addresses are read to their end and ignored
+//! (serial-line specification 2.4.1), noise just before the answer is skipped, and an adapter's
+//! echo of the request is stripped (announced with `echo`, or detected and reported once).
+//! After a timeout, the next request to the same address waits out a late-answer guard; the
+//! late answer, whenever it comes, is counted in `late_answers`.
 
 use std::io::Write;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tokio::time::Instant;
+use tracing::Instrument;
 
 use super::clock::{sleep_until_precise, SPIN_WINDOW};
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
@@ -57,9 +64,11 @@ pub struct MasterOptions {
     /// `None`: t1.5 + [`DEFAULT_GAP_ALLOWANCE`].
     pub inter_char_timeout: Option<Duration>,
     /// After a timeout, how long the line is watched for the late answer before the next
-    /// request goes out (counted from the timeout). `None`: the timed-out request's own
-    /// timeout, so answers up to twice the timeout late are caught and never taken for the
-    /// next request's. Only paid when the next request follows at once.
+    /// request to the same address goes out (counted from the timeout). `None`: the timed-out
+    /// request's own timeout, so answers up to twice the timeout late are caught and never
+    /// taken for the next request's. Only paid when the next request to that address follows
+    /// at once (a retry); requests to other addresses go out after t3.5 as usual, and a late
+    /// answer heard during them is ignored as a frame from another address.
     pub late_answer_guard: Option<Duration>,
 }
 
@@ -118,8 +127,12 @@ pub struct Master {
     counters: WireCounters,
     /// Last instant a byte was seen on the line in either direction (drain instant for ours).
     last_activity: Instant,
-    /// After a timeout: the line is watched for the late answer until then.
+    /// After a timeout: the line is watched for the late answer until then before the next
+    /// request to the same address goes out.
     late_guard_until: Option<Instant>,
+    /// The address whose request timed out last, until a request is sent to it again: its late
+    /// answer is told from another device's frame by it.
+    timed_out_slave: Option<SlaveId>,
     /// The previous transaction timed out and no request has been sent since.
     late_window_open: bool,
     /// The late answer of the previous transaction has already been counted.
@@ -161,6 +174,7 @@ impl Master {
             // The line's state before we opened it is unknown: treat it as just used.
             last_activity: Instant::now(),
             late_guard_until: None,
+            timed_out_slave: None,
             late_window_open: false,
             late_answer_counted: false,
             echo_warned: false,
@@ -192,11 +206,15 @@ impl Master {
         request: &Request,
         timeout: Duration,
     ) -> Result<Response, Error> {
-        let frame = codec::encode_request(slave, request)?;
-        self.wait_for_silence(timeout).await?;
-        let drained_at = self.send(&frame).await?;
+        let span = tracing::debug_span!(
+            "transaction",
+            port = %self.port.path(),
+            slave,
+            function = ?request.function()
+        );
         let result = self
-            .receive_answer(slave, request, &frame, drained_at, timeout)
+            .exchange(slave, request, timeout)
+            .instrument(span)
             .await;
         match &result {
             Ok(_) => {}
@@ -204,6 +222,7 @@ impl Master {
                 self.counters.timeouts += 1;
                 let guard = self.options.late_answer_guard.unwrap_or(timeout);
                 self.late_guard_until = Some(Instant::now() + guard);
+                self.timed_out_slave = Some(slave);
                 self.late_window_open = true;
                 self.late_answer_counted = false;
             }
@@ -216,16 +235,41 @@ impl Master {
         result
     }
 
+    /// Silence, request, answer: the transaction without its accounting.
+    async fn exchange(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Response, Error> {
+        let frame = codec::encode_request(slave, request)?;
+        // Only a request to the address that timed out could take its late answer for its own:
+        // the guard applies to it alone; for any other address the late answer is a frame
+        // from another address, ignored (and counted late).
+        let guard = if self.timed_out_slave == Some(slave) {
+            self.late_guard_until.take()
+        } else {
+            None
+        };
+        self.wait_for_silence(guard, timeout).await?;
+        if self.timed_out_slave == Some(slave) {
+            self.timed_out_slave = None;
+        }
+        let drained_at = self.send(&frame).await?;
+        self.receive_answer(slave, request, &frame, drained_at, timeout)
+            .await
+    }
+
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
     /// for the turnaround delay.
     pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
         let frame = codec::encode_request(0, request)?;
-        self.wait_for_silence(
-            self.options
-                .broadcast_turnaround
-                .max(Duration::from_secs(1)),
-        )
-        .await?;
+        // Nothing answers a broadcast, so no late answer can be taken for its: no guard.
+        let patience = self
+            .options
+            .broadcast_turnaround
+            .max(Duration::from_secs(1));
+        self.wait_for_silence(None, patience).await?;
         let drained_at = self.send(&frame).await?;
         sleep_until_precise(drained_at + self.options.broadcast_turnaround).await;
         Ok(())
@@ -244,14 +288,15 @@ impl Master {
         self.port.path()
     }
 
-    /// Waits until the line has been silent for t3.5 (and any late-answer guard has passed),
-    /// taking and counting every byte that arrives meanwhile; each byte restarts the silence.
-    async fn wait_for_silence(&mut self, patience: Duration) -> Result<(), Error> {
-        let give_up = self
-            .late_guard_until
-            .unwrap_or_else(Instant::now)
-            .max(Instant::now())
-            + patience;
+    /// Waits until the line has been silent for t3.5 (and until `guard`, a late-answer guard,
+    /// has passed), taking and counting every byte that arrives meanwhile; each byte restarts
+    /// the silence.
+    async fn wait_for_silence(
+        &mut self,
+        guard: Option<Instant>,
+        patience: Duration,
+    ) -> Result<(), Error> {
+        let give_up = guard.unwrap_or_else(Instant::now).max(Instant::now()) + patience;
         let mut chunk = [0u8; MAX_FRAME_LEN];
         loop {
             let pending = self.port.take_pending()?;
@@ -259,12 +304,11 @@ impl Master {
                 self.absorb_unsolicited(&pending, Instant::now());
             }
             let mut quiet_at = self.last_activity + self.timing.t3_5;
-            if let Some(guard) = self.late_guard_until {
+            if let Some(guard) = guard {
                 quiet_at = quiet_at.max(guard);
             }
             let now = Instant::now();
             if now >= quiet_at {
-                self.late_guard_until = None;
                 return Ok(());
             }
             if now >= give_up {
@@ -368,7 +412,7 @@ impl Master {
                 // No frame is longer: a line that babbles without a gap is dropped in pieces,
                 // and the response timeout still ends the wait.
                 if received.len() >= MAX_FRAME_LEN {
-                    self.ignore_foreign_frame(&received);
+                    self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
                         return Err(Error::Timeout(timeout));
@@ -401,7 +445,7 @@ impl Master {
             }
             match framing {
                 Framing::Foreign => {
-                    self.ignore_foreign_frame(&received);
+                    self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
                         return Err(Error::Timeout(timeout));
@@ -528,9 +572,30 @@ impl Master {
     /// A frame for another address: counted and dropped; listening goes on (serial-line
     /// specification 2.4.1).
     fn ignore_foreign_frame(&mut self, frame: &[u8]) {
-        self.counters.wrong_address += 1;
+        let from_timed_out_slave = frame
+            .first()
+            .is_some_and(|&address| Some(address) == self.timed_out_slave);
+        if from_timed_out_slave && !self.late_answer_counted {
+            self.counters.late_answers += 1;
+            self.late_answer_counted = true;
+        } else {
+            self.counters.wrong_address += 1;
+        }
         self.took_frame(frame);
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "frame for another address ignored");
+    }
+
+    /// Bytes for another address that never made a whole frame: a frame for another device
+    /// when they start like one (a known function code), noise otherwise.
+    fn drop_unframed(&mut self, bytes: &[u8], seen: Instant) {
+        let starts_like_a_frame = bytes
+            .get(1)
+            .is_some_and(|&code| FunctionCode::from_u8(code & 0x7F).is_some());
+        if starts_like_a_frame {
+            self.ignore_foreign_frame(bytes);
+        } else {
+            self.absorb_noise(bytes, seen);
+        }
     }
 
     /// Accounts for a received frame (log, recorder, wire time).

@@ -113,6 +113,9 @@ impl Port {
             path,
             pseudo_terminal,
         };
+        if !pseudo_terminal {
+            port.request_low_latency();
+        }
         port.apply_format(settings.baud, settings.format)?;
         if let Some(rs485) = &settings.rs485 {
             port.enable_rs485(rs485)?;
@@ -238,6 +241,40 @@ impl Port {
         }
     }
 
+    /// Asks the driver to hand received bytes over at once (ASYNC_LOW_LATENCY: FTDI adapters
+    /// then use a 1 ms latency timer instead of 16 ms, so answers arrive without a batching
+    /// delay). Best effort: many drivers do not support it, and the line works without it.
+    fn request_low_latency(&mut self) {
+        let fd = self.stream.as_raw_fd();
+        let mut serial = std::mem::MaybeUninit::<SerialStruct>::zeroed();
+        // SAFETY: TIOCGSERIAL fills a `struct serial_struct`, which `SerialStruct` lays out
+        // exactly (repr(C)); TIOCSSERIAL writes the same structure back with one flag changed,
+        // as setserial does. The fd is open for the lifetime of `self.stream`.
+        let result = unsafe {
+            if libc::ioctl(fd, libc::TIOCGSERIAL, serial.as_mut_ptr()) != 0 {
+                Err(io::Error::last_os_error())
+            } else {
+                let mut serial = serial.assume_init();
+                if serial.flags & ASYNC_LOW_LATENCY != 0 {
+                    Ok(())
+                } else {
+                    serial.flags |= ASYNC_LOW_LATENCY;
+                    if libc::ioctl(fd, libc::TIOCSSERIAL, &serial) != 0 {
+                        Err(io::Error::last_os_error())
+                    } else {
+                        Ok(())
+                    }
+                }
+            }
+        };
+        match result {
+            Ok(()) => tracing::debug!(path = %self.path, "low-latency receive mode on"),
+            Err(error) => {
+                tracing::debug!(path = %self.path, %error, "low-latency receive mode not available")
+            }
+        }
+    }
+
     /// Writes `frame` and waits until the transmit buffer has drained (tcdrain), returning the
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
     /// On a pseudo-terminal the instant the write returned.
@@ -314,6 +351,32 @@ struct SerialRs485 {
     padding: [u32; 5],
 }
 
+/// `ASYNC_LOW_LATENCY` in `serial_struct.flags` (include/uapi/linux/tty_flags.h).
+const ASYNC_LOW_LATENCY: libc::c_int = 1 << 13;
+
+/// Linux `struct serial_struct` (include/uapi/linux/serial.h), for TIOCGSERIAL/TIOCSSERIAL.
+#[repr(C)]
+struct SerialStruct {
+    kind: libc::c_int,
+    line: libc::c_int,
+    port: libc::c_uint,
+    irq: libc::c_int,
+    flags: libc::c_int,
+    xmit_fifo_size: libc::c_int,
+    custom_divisor: libc::c_int,
+    baud_base: libc::c_int,
+    close_delay: libc::c_ushort,
+    io_type: libc::c_char,
+    reserved_char: [libc::c_char; 1],
+    hub6: libc::c_int,
+    closing_wait: libc::c_ushort,
+    closing_wait2: libc::c_ushort,
+    iomem_base: *mut libc::c_uchar,
+    iomem_reg_shift: libc::c_ushort,
+    port_high: libc::c_uint,
+    iomap_base: libc::c_ulong,
+}
+
 /// Whether `stream` is a pseudo-terminal: the device number of a Unix98 pty slave (majors
 /// 136–143), a BSD-style pty (majors 2 and 3), the pty multiplexer (5, 2), or a path that
 /// resolves under /dev/pts (socat links).
@@ -352,6 +415,14 @@ mod tests {
     #[test]
     fn rs485_struct_has_the_kernel_size() {
         assert_eq!(std::mem::size_of::<SerialRs485>(), 32);
+    }
+
+    #[cfg(target_pointer_width = "64")]
+    #[test]
+    fn serial_struct_has_the_kernel_layout() {
+        assert_eq!(std::mem::size_of::<SerialStruct>(), 72);
+        assert_eq!(std::mem::offset_of!(SerialStruct, flags), 16);
+        assert_eq!(std::mem::offset_of!(SerialStruct, iomem_base), 48);
     }
 
     #[tokio::test(flavor = "current_thread")]
@@ -409,6 +480,17 @@ mod tests {
             .read_until(&mut buf, Instant::now() + Duration::from_secs(5))
             .await;
         assert!(result.is_err(), "{result:?}");
+    }
+
+    #[test]
+    fn not_a_tty_is_an_open_error() {
+        let mut not_a_tty = settings(Parity::None);
+        not_a_tty.path = "/dev/null".into();
+        not_a_tty.rs485 = None;
+        assert!(matches!(
+            Port::open(&not_a_tty),
+            Err(TransportError::Open { .. })
+        ));
     }
 
     #[test]

@@ -16,6 +16,8 @@ pub const MOSQUITTO: &str = "/usr/sbin/mosquitto";
 /// A mosquitto broker owned by a test.
 pub struct Mosquitto {
     pub port: u16,
+    /// More listeners and settings (after the anonymous loopback listener on `port`).
+    extra: String,
     child: Option<Child>,
     dir: tempfile::TempDir,
 }
@@ -23,15 +25,133 @@ pub struct Mosquitto {
 impl Mosquitto {
     /// Starts a broker on a free 127.0.0.1 port and waits until it accepts connections.
     pub fn start() -> Mosquitto {
+        Mosquitto::start_with(String::new())
+    }
+
+    /// Like [`start`] with more configuration; listeners it adds must use
+    /// `per_listener_settings`-style settings of their own.
+    pub fn start_with(extra: String) -> Mosquitto {
         let port = free_port();
         let dir = tempfile::tempdir().expect("temp dir");
         let mut broker = Mosquitto {
             port,
+            extra,
             child: None,
             dir,
         };
         broker.launch();
         broker
+    }
+
+    /// A broker that is not running yet (its port chosen): start it with [`restart`].
+    pub fn not_started() -> Mosquitto {
+        Mosquitto {
+            port: free_port(),
+            extra: String::new(),
+            child: None,
+            dir: tempfile::tempdir().expect("temp dir"),
+        }
+    }
+
+    /// A loopback TLS listener on its own port that wants a client certificate signed by the
+    /// test CA and a user name and password (`gateway` / `s3cret`), beside the plain
+    /// anonymous one. Returns the broker, the TLS port and the directory with `ca.crt`,
+    /// `client.crt`, `client.key` and `password` (mode 0600).
+    pub fn start_tls() -> (Mosquitto, u16, tempfile::TempDir) {
+        let certs = tempfile::tempdir().expect("temp dir");
+        let dir = certs.path();
+        std::fs::write(
+            dir.join("server.ext"),
+            "subjectAltName=DNS:localhost,IP:127.0.0.1\n",
+        )
+        .unwrap();
+        std::fs::write(dir.join("client.ext"), "extendedKeyUsage=clientAuth\n").unwrap();
+        let openssl = |args: &[&str]| {
+            let status = Command::new("openssl")
+                .args(args)
+                .current_dir(dir)
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .expect("run openssl");
+            assert!(status.success(), "openssl {args:?} failed");
+        };
+        openssl(&[
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-keyout",
+            "ca.key",
+            "-out",
+            "ca.crt",
+            "-days",
+            "2",
+            "-subj",
+            "/CN=rtu2mqtt-test-ca",
+        ]);
+        for (name, ext) in [("server", "server.ext"), ("client", "client.ext")] {
+            openssl(&[
+                "req",
+                "-newkey",
+                "rsa:2048",
+                "-nodes",
+                "-keyout",
+                &format!("{name}.key"),
+                "-out",
+                &format!("{name}.csr"),
+                "-subj",
+                &format!("/CN={name}"),
+            ]);
+            openssl(&[
+                "x509",
+                "-req",
+                "-in",
+                &format!("{name}.csr"),
+                "-CA",
+                "ca.crt",
+                "-CAkey",
+                "ca.key",
+                "-CAcreateserial",
+                "-out",
+                &format!("{name}.crt"),
+                "-days",
+                "2",
+                "-extfile",
+                ext,
+            ]);
+        }
+        let passwd = dir.join("mosquitto.passwd");
+        let status = Command::new("mosquitto_passwd")
+            .args(["-c", "-b"])
+            .arg(&passwd)
+            .args(["gateway", "s3cret"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .expect("run mosquitto_passwd");
+        assert!(status.success());
+        std::fs::write(dir.join("password"), "s3cret\n").unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(dir.join("password"), std::fs::Permissions::from_mode(0o600))
+            .unwrap();
+        // mosquitto drops root privileges: let it read the broker's files.
+        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+        for file in ["ca.crt", "server.crt", "server.key", "mosquitto.passwd"] {
+            std::fs::set_permissions(dir.join(file), std::fs::Permissions::from_mode(0o644))
+                .unwrap();
+        }
+        let tls_port = free_port();
+        let extra = format!(
+            "listener {tls_port} 127.0.0.1\nallow_anonymous false\npassword_file {passwd}\n\
+             cafile {ca}\ncertfile {cert}\nkeyfile {key}\nrequire_certificate true\n",
+            passwd = passwd.display(),
+            ca = dir.join("ca.crt").display(),
+            cert = dir.join("server.crt").display(),
+            key = dir.join("server.key").display(),
+        );
+        (Mosquitto::start_with(extra), tls_port, certs)
     }
 
     pub fn url(&self) -> String {
@@ -44,12 +164,25 @@ impl Mosquitto {
 
     fn launch(&mut self) {
         let config = format!(
-            "listener {} 127.0.0.1\nallow_anonymous true\npersistence false\n\
-             log_dest file {}\nlog_type all\n",
+            "per_listener_settings true\npersistence false\n\
+             log_dest file {}\nlog_type all\nlistener {} 127.0.0.1\nallow_anonymous true\n{}",
+            self.dir.path().join("mosquitto.log").display(),
             self.port,
-            self.dir.path().join("mosquitto.log").display()
+            self.extra
         );
         std::fs::write(self.config_path(), config).expect("write mosquitto.conf");
+        // mosquitto drops root privileges before it opens its log: let it write there.
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let log = self.dir.path().join("mosquitto.log");
+            let _ = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&log);
+            let _ = std::fs::set_permissions(&log, std::fs::Permissions::from_mode(0o666));
+            let _ =
+                std::fs::set_permissions(self.dir.path(), std::fs::Permissions::from_mode(0o755));
+        }
         let child = Command::new(MOSQUITTO)
             .arg("-c")
             .arg(self.config_path())
