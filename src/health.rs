@@ -386,6 +386,12 @@ pub fn watchdog_period_from(
     }
 }
 
+/// The watchdog's last step when a loop is stuck (the process's exit, in production).
+pub type ExitFn = Box<dyn FnOnce(i32) + Send>;
+
+/// How long a stuck process gets for a clean stop before the watchdog ends it.
+pub const STUCK_GRACE: Duration = Duration::from_secs(5);
+
 /// The internal watchdog, before it runs: the loops it watches.
 pub struct Watchdog {
     settings: HealthSettings,
@@ -424,16 +430,27 @@ impl Watchdog {
     }
 
     /// Starts the watchdog thread. When a loop is stuck past the stall limit it fires
-    /// `shutdown`, gives the tasks a few seconds, then exits the process with [`EXIT_STUCK`].
+    /// `shutdown`, gives the tasks [`STUCK_GRACE`] to stop, then exits the process with
+    /// [`EXIT_STUCK`].
     pub fn spawn(self, shutdown: ShutdownTrigger) -> std::io::Result<WatchdogHandle> {
+        self.spawn_with_exit(shutdown, Box::new(|code| std::process::exit(code)))
+    }
+
+    /// [`Watchdog::spawn`] with the final step given: `exit` receives [`EXIT_STUCK`] (tests
+    /// observe it instead of ending the test process).
+    pub fn spawn_with_exit(
+        self,
+        shutdown: ShutdownTrigger,
+        exit: ExitFn,
+    ) -> std::io::Result<WatchdogHandle> {
         let (stop_tx, stop_rx) = mpsc::channel();
         let thread = std::thread::Builder::new()
             .name("watchdog".to_string())
-            .spawn(move || self.run(stop_rx, shutdown))?;
+            .spawn(move || self.run(stop_rx, shutdown, exit))?;
         Ok(WatchdogHandle { stop_tx, thread })
     }
 
-    fn run(self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger) {
+    fn run(self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger, exit: ExitFn) {
         let systemd_period = systemd_watchdog_period();
         let interval = match systemd_period {
             Some(period) => self.settings.interval.min(period / 3),
@@ -500,8 +517,9 @@ impl Watchdog {
                 shutdown.fire();
                 // The runtime may be the thing that is stuck: give a clean stop a moment, then
                 // end regardless so that a supervisor restarts us.
-                let _ = stop_rx.recv_timeout(Duration::from_secs(5));
-                std::process::exit(EXIT_STUCK);
+                let _ = stop_rx.recv_timeout(STUCK_GRACE);
+                exit(EXIT_STUCK);
+                return;
             }
 
             match stop_rx.recv_timeout(interval) {
@@ -760,6 +778,58 @@ mod tests {
         let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
         assert_eq!(none.status_file, None);
         assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
+    }
+
+    #[test]
+    fn a_stuck_line_fires_the_shutdown_then_ends_the_process() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("health");
+        let settings = HealthSettings {
+            status_file: Some(path.clone()),
+            interval: Duration::from_millis(100),
+            stale_after: Duration::from_millis(200),
+            stall_limit: Duration::from_millis(300),
+        };
+        // The MQTT loop promises an hour of quiet, so only the line can be stuck.
+        let (_heartbeat_tx, heartbeat) = watch::channel(Instant::now());
+        let (_connected_tx, connected) = watch::channel(true);
+        let probe = MqttProbe {
+            heartbeat,
+            connected,
+            max_quiet: Duration::from_secs(3600),
+        };
+        let (_stats_tx, stats_rx) = watch::channel(line("a", Instant::now()));
+        let mut watchdog = Watchdog::new(settings, probe);
+        watchdog.watch_line(stats_rx);
+        let (trigger, token) = crate::shutdown::channel();
+        let (exit_tx, exit_rx) = mpsc::channel();
+        let handle = watchdog
+            .spawn_with_exit(
+                trigger,
+                Box::new(move |code| {
+                    let _ = exit_tx.send(code);
+                }),
+            )
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while !token.is_fired() {
+            assert!(Instant::now() < deadline, "the shutdown was never fired");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        // A clean stop within the grace period: the process still ends, with EXIT_STUCK.
+        handle.stop();
+        assert_eq!(
+            exit_rx.recv_timeout(Duration::from_secs(10)),
+            Ok(EXIT_STUCK)
+        );
+        let report: StatusReport =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        assert!(!report.healthy, "the last status tells why");
+        assert!(
+            report.problems[0].contains("line a"),
+            "{:?}",
+            report.problems
+        );
     }
 
     #[test]

@@ -109,6 +109,9 @@ fn choose_broker(broker: Option<String>, port: u16) -> anyhow::Result<BrokerEndp
             origin: "--broker",
         });
     }
+    if port == 0 {
+        bail!("--port 0: give the embedded broker a port (1883 by default)");
+    }
     match broker::start(port) {
         Ok(embedded) => Ok(BrokerEndpoint {
             host: embedded.addr().ip().to_string(),
