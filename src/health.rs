@@ -2,11 +2,12 @@
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
 //! What enters: each line's [`LineStats`] (its `heartbeat` is refreshed on every turn of the
-//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels). What leaves: `READY=1` / `WATCHDOG=1` /
-//! `STATUS=` to systemd, a JSON [`StatusReport`] written atomically every few seconds, and,
-//! when a loop has been stuck longer than [`HealthSettings::stall_limit`], a shutdown followed
-//! by a non-zero exit ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so
-//! the process must end itself for `restart: unless-stopped` to act.
+//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels).
+//! What leaves: `READY=1` / `WATCHDOG=1` / `STOPPING=1` / `STATUS=` to systemd, a JSON
+//! [`StatusReport`] written atomically every few seconds, and, when a loop has been stuck
+//! longer than [`HealthSettings::stall_limit`], a shutdown followed by a non-zero exit
+//! ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so the process must
+//! end itself for `restart: unless-stopped` to act.
 //!
 //! The [`Watchdog`] runs on its own OS thread, not on the tokio runtime, so that it still
 //! judges (and still stops pinging systemd) when the runtime itself is blocked. The judgement
@@ -31,8 +32,9 @@ pub const EXIT_STUCK: i32 = 70;
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 
-/// How often the bridge loop promises to turn (it beats at least every 250 ms).
-const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
+/// How often the bridge loop promises to turn: it beats every tick; four ticks leave room for
+/// a busy machine.
+const BRIDGE_MAX_QUIET: Duration = crate::bridge::TICK.saturating_mul(4);
 
 /// How the health machinery behaves. Deserializable so that the configuration can carry it as
 /// a `[health]` table; every key has a default.
