@@ -86,6 +86,21 @@ impl Default for HealthSettings {
     }
 }
 
+/// How long readiness waits for the first broker connection: an unreachable broker must not
+/// hold up the start (the daemon polls and reconnects without it).
+pub const FIRST_CONNECT_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits until the bridge is connected or `limit` has passed: the first connect attempt, after
+/// which the service counts as started. True when connected.
+pub async fn first_connect_attempt(bridge: &BridgeHealth, limit: Duration) -> bool {
+    let mut connected = bridge.connected.clone();
+    let reached = matches!(
+        tokio::time::timeout(limit, connected.wait_for(|connected| *connected)).await,
+        Ok(Ok(_))
+    );
+    reached
+}
+
 /// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
 /// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
 pub fn supervise(
@@ -109,8 +124,13 @@ pub fn supervise(
         .iter()
         .map(|l| l.stats_rx.borrow().devices.len())
         .sum();
+    let mqtt = if *bridge.connected.borrow() {
+        "MQTT connected"
+    } else {
+        "MQTT connecting"
+    };
     notify_ready(&format!(
-        "{devices} devices on {} line(s); connecting to MQTT",
+        "{devices} devices on {} line(s); {mqtt}",
         lines.len()
     ));
     match watchdog.spawn(shutdown) {
@@ -770,6 +790,24 @@ mod tests {
         assert_eq!(watchdog_period_from(Some("0"), None, 7), None);
         assert_eq!(watchdog_period_from(Some("soon"), None, 7), None);
         assert_eq!(watchdog_period_from(None, Some("7"), 7), None);
+    }
+
+    #[tokio::test]
+    async fn readiness_waits_for_the_first_connection_but_not_forever() {
+        let (_heartbeat_tx, heartbeat) = watch::channel(Instant::now());
+        let (connected_tx, connected) = watch::channel(false);
+        let bridge = BridgeHealth {
+            heartbeat,
+            connected,
+        };
+        assert!(!first_connect_attempt(&bridge, Duration::from_millis(50)).await);
+        let waiting = tokio::spawn({
+            let bridge = bridge.clone();
+            async move { first_connect_attempt(&bridge, Duration::from_secs(600)).await }
+        });
+        tokio::task::yield_now().await;
+        connected_tx.send_replace(true);
+        assert!(waiting.await.unwrap());
     }
 
     #[test]
