@@ -1,5 +1,6 @@
-# rtu2mqtt container image: a static-enough Rust binary on debian:bookworm-slim, run as an
-# unprivileged user in group dialout (gid 20), configured from /etc/rtu2mqtt.
+# rtu2mqtt container image: the Rust binary (built against bookworm's glibc) on
+# debian:bookworm-slim, run as an unprivileged user in group dialout (gid 20), configured from
+# /etc/rtu2mqtt.
 #
 #   docker build -t rtu2mqtt .
 #   docker run -d --name rtu2mqtt --read-only --cap-drop ALL --security-opt no-new-privileges \

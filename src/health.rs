@@ -2,11 +2,12 @@
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
 //! What enters: each line's [`LineStats`] (its `heartbeat` is refreshed on every turn of the
-//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels). What leaves: `READY=1` / `WATCHDOG=1` /
-//! `STATUS=` to systemd, a JSON [`StatusReport`] written atomically every few seconds, and,
-//! when a loop has been stuck longer than [`HealthSettings::stall_limit`], a shutdown followed
-//! by a non-zero exit ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so
-//! the process must end itself for `restart: unless-stopped` to act.
+//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels).
+//! What leaves: `READY=1` / `WATCHDOG=1` / `STOPPING=1` / `STATUS=` to systemd, a JSON
+//! [`StatusReport`] written atomically every few seconds, and, when a loop has been stuck
+//! longer than [`HealthSettings::stall_limit`], a shutdown followed by a non-zero exit
+//! ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so the process must
+//! end itself for `restart: unless-stopped` to act.
 //!
 //! The [`Watchdog`] runs on its own OS thread, not on the tokio runtime, so that it still
 //! judges (and still stops pinging systemd) when the runtime itself is blocked. The judgement
@@ -31,8 +32,9 @@ pub const EXIT_STUCK: i32 = 70;
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 
-/// How often the bridge loop promises to turn (it beats at least every 250 ms).
-const BRIDGE_MAX_QUIET: Duration = Duration::from_secs(1);
+/// How often the bridge loop promises to turn: it beats every tick; four ticks leave room for
+/// a busy machine.
+const BRIDGE_MAX_QUIET: Duration = crate::bridge::TICK.saturating_mul(4);
 
 /// How the health machinery behaves. Deserializable so that the configuration can carry it as
 /// a `[health]` table; every key has a default.
@@ -84,6 +86,21 @@ impl Default for HealthSettings {
     }
 }
 
+/// How long readiness waits for the first broker connection: an unreachable broker must not
+/// hold up the start (the daemon polls and reconnects without it).
+pub const FIRST_CONNECT_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits until the bridge is connected or `limit` has passed: the first connect attempt, after
+/// which the service counts as started. True when connected.
+pub async fn first_connect_attempt(bridge: &BridgeHealth, limit: Duration) -> bool {
+    let mut connected = bridge.connected.clone();
+    let reached = matches!(
+        tokio::time::timeout(limit, connected.wait_for(|connected| *connected)).await,
+        Ok(Ok(_))
+    );
+    reached
+}
+
 /// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
 /// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
 pub fn supervise(
@@ -107,8 +124,13 @@ pub fn supervise(
         .iter()
         .map(|l| l.stats_rx.borrow().devices.len())
         .sum();
+    let mqtt = if *bridge.connected.borrow() {
+        "MQTT connected"
+    } else {
+        "MQTT connecting"
+    };
     notify_ready(&format!(
-        "{devices} devices on {} line(s); connecting to MQTT",
+        "{devices} devices on {} line(s); {mqtt}",
         lines.len()
     ));
     match watchdog.spawn(shutdown) {
@@ -386,6 +408,12 @@ pub fn watchdog_period_from(
     }
 }
 
+/// The watchdog's last step when a loop is stuck (the process's exit, in production).
+pub type ExitFn = Box<dyn FnOnce(i32) + Send>;
+
+/// How long a stuck process gets for a clean stop before the watchdog ends it.
+pub const STUCK_GRACE: Duration = Duration::from_secs(5);
+
 /// The internal watchdog, before it runs: the loops it watches.
 pub struct Watchdog {
     settings: HealthSettings,
@@ -424,16 +452,27 @@ impl Watchdog {
     }
 
     /// Starts the watchdog thread. When a loop is stuck past the stall limit it fires
-    /// `shutdown`, gives the tasks a few seconds, then exits the process with [`EXIT_STUCK`].
+    /// `shutdown`, gives the tasks [`STUCK_GRACE`] to stop, then exits the process with
+    /// [`EXIT_STUCK`].
     pub fn spawn(self, shutdown: ShutdownTrigger) -> std::io::Result<WatchdogHandle> {
+        self.spawn_with_exit(shutdown, Box::new(|code| std::process::exit(code)))
+    }
+
+    /// [`Watchdog::spawn`] with the final step given: `exit` receives [`EXIT_STUCK`] (tests
+    /// observe it instead of ending the test process).
+    pub fn spawn_with_exit(
+        self,
+        shutdown: ShutdownTrigger,
+        exit: ExitFn,
+    ) -> std::io::Result<WatchdogHandle> {
         let (stop_tx, stop_rx) = mpsc::channel();
         let thread = std::thread::Builder::new()
             .name("watchdog".to_string())
-            .spawn(move || self.run(stop_rx, shutdown))?;
+            .spawn(move || self.run(stop_rx, shutdown, exit))?;
         Ok(WatchdogHandle { stop_tx, thread })
     }
 
-    fn run(self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger) {
+    fn run(self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger, exit: ExitFn) {
         let systemd_period = systemd_watchdog_period();
         let interval = match systemd_period {
             Some(period) => self.settings.interval.min(period / 3),
@@ -500,8 +539,9 @@ impl Watchdog {
                 shutdown.fire();
                 // The runtime may be the thing that is stuck: give a clean stop a moment, then
                 // end regardless so that a supervisor restarts us.
-                let _ = stop_rx.recv_timeout(Duration::from_secs(5));
-                std::process::exit(EXIT_STUCK);
+                let _ = stop_rx.recv_timeout(STUCK_GRACE);
+                exit(EXIT_STUCK);
+                return;
             }
 
             match stop_rx.recv_timeout(interval) {
@@ -752,6 +792,24 @@ mod tests {
         assert_eq!(watchdog_period_from(None, Some("7"), 7), None);
     }
 
+    #[tokio::test]
+    async fn readiness_waits_for_the_first_connection_but_not_forever() {
+        let (_heartbeat_tx, heartbeat) = watch::channel(Instant::now());
+        let (connected_tx, connected) = watch::channel(false);
+        let bridge = BridgeHealth {
+            heartbeat,
+            connected,
+        };
+        assert!(!first_connect_attempt(&bridge, Duration::from_millis(50)).await);
+        let waiting = tokio::spawn({
+            let bridge = bridge.clone();
+            async move { first_connect_attempt(&bridge, Duration::from_secs(600)).await }
+        });
+        tokio::task::yield_now().await;
+        connected_tx.send_replace(true);
+        assert!(waiting.await.unwrap());
+    }
+
     #[test]
     fn settings_deserialize_with_defaults() {
         let parsed: HealthSettings = toml::from_str("stall_limit = \"2m\"").unwrap();
@@ -760,6 +818,58 @@ mod tests {
         let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
         assert_eq!(none.status_file, None);
         assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
+    }
+
+    #[test]
+    fn a_stuck_line_fires_the_shutdown_then_ends_the_process() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("health");
+        let settings = HealthSettings {
+            status_file: Some(path.clone()),
+            interval: Duration::from_millis(100),
+            stale_after: Duration::from_millis(200),
+            stall_limit: Duration::from_millis(300),
+        };
+        // The MQTT loop promises an hour of quiet, so only the line can be stuck.
+        let (_heartbeat_tx, heartbeat) = watch::channel(Instant::now());
+        let (_connected_tx, connected) = watch::channel(true);
+        let probe = MqttProbe {
+            heartbeat,
+            connected,
+            max_quiet: Duration::from_secs(3600),
+        };
+        let (_stats_tx, stats_rx) = watch::channel(line("a", Instant::now()));
+        let mut watchdog = Watchdog::new(settings, probe);
+        watchdog.watch_line(stats_rx);
+        let (trigger, token) = crate::shutdown::channel();
+        let (exit_tx, exit_rx) = mpsc::channel();
+        let handle = watchdog
+            .spawn_with_exit(
+                trigger,
+                Box::new(move |code| {
+                    let _ = exit_tx.send(code);
+                }),
+            )
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while !token.is_fired() {
+            assert!(Instant::now() < deadline, "the shutdown was never fired");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        // A clean stop within the grace period: the process still ends, with EXIT_STUCK.
+        handle.stop();
+        assert_eq!(
+            exit_rx.recv_timeout(Duration::from_secs(10)),
+            Ok(EXIT_STUCK)
+        );
+        let report: StatusReport =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        assert!(!report.healthy, "the last status tells why");
+        assert!(
+            report.problems[0].contains("line a"),
+            "{:?}",
+            report.problems
+        );
     }
 
     #[test]

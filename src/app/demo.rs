@@ -109,6 +109,9 @@ fn choose_broker(broker: Option<String>, port: u16) -> anyhow::Result<BrokerEndp
             origin: "--broker",
         });
     }
+    if port == 0 {
+        bail!("--port 0: give the embedded broker a port (1883 by default)");
+    }
     match broker::start(port) {
         Ok(embedded) => Ok(BrokerEndpoint {
             host: embedded.addr().ip().to_string(),
@@ -230,14 +233,16 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
         drop(log_tx);
         None
     };
-    if !table {
-        println!("{intro}");
+    let mut stdout = std::io::stdout();
+    // A closed stdout (`rtu2mqtt demo --log | head`) ends the demo cleanly instead of a panic
+    // in println!.
+    if !table && writeln!(stdout, "{intro}").is_err() {
+        trigger.fire();
     }
 
     let mut gateway = tokio::spawn(run_gateway(config, shutdown.clone(), Hooks::default()));
     let started = Instant::now();
     let mut recent_log: VecDeque<String> = VecDeque::new();
-    let mut stdout = std::io::stdout();
     let mut dirty = true;
     let mut redraw = tokio::time::interval(REDRAW);
     redraw.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -253,8 +258,8 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
                 if let Some(change) = view.apply(&topic, &payload) {
                     if table {
                         dirty = true;
-                    } else {
-                        println!("{}", log_line(started.elapsed(), &change));
+                    } else if writeln!(stdout, "{}", log_line(started.elapsed(), &change)).is_err() {
+                        trigger.fire();
                     }
                 }
             }
@@ -302,7 +307,8 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     signals.abort();
     drop(plant);
     outcome?;
-    println!(
+    let _ = writeln!(
+        stdout,
         "rtu2mqtt demo stopped after {}s ({} fields published).",
         started.elapsed().as_secs(),
         view.published_fields()

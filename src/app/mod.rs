@@ -127,6 +127,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         let watchdog_trigger = trigger.clone();
         let supervision = tokio::spawn(async move {
             let running = ready_rx.await.ok()?;
+            health::first_connect_attempt(&running.bridge, health::FIRST_CONNECT_WAIT).await;
             health::supervise(
                 health_settings,
                 &running.lines,

@@ -1,14 +1,29 @@
 //! Log capture for the demo's live table: while the table owns the terminal, whatever the
 //! process writes to stderr (the gateway's log, the broker's) is diverted into a pipe and
 //! handed over line by line, so the table can show the latest lines under itself instead of
-//! being scribbled over. Dropping the capture puts stderr back.
+//! being scribbled over. Dropping the capture puts stderr back; so does a panic, before its
+//! message is printed.
 
 use std::io::{BufRead, BufReader};
 use std::os::fd::{AsRawFd, OwnedFd, RawFd};
+use std::sync::atomic::{AtomicI32, Ordering};
+use std::sync::Once;
 
 use tokio::sync::mpsc;
 
 const STDERR: RawFd = 2;
+
+/// The real stderr while a capture runs (-1 otherwise), for the panic hook: a panic message
+/// must reach the terminal, not a pipe whose reader may never run again.
+static SAVED_STDERR: AtomicI32 = AtomicI32::new(-1);
+static PANIC_HOOK: Once = Once::new();
+
+fn restore_stderr() {
+    let saved = SAVED_STDERR.swap(-1, Ordering::SeqCst);
+    if saved >= 0 {
+        let _ = nix::unistd::dup2(saved, STDERR);
+    }
+}
 
 /// stderr diverted into a pipe; restored on drop.
 pub struct StderrCapture {
@@ -20,6 +35,14 @@ impl StderrCapture {
     pub fn start(lines_tx: mpsc::UnboundedSender<String>) -> std::io::Result<Self> {
         let saved = duplicate(STDERR)?;
         let (read_end, write_end) = nix::unistd::pipe().map_err(std::io::Error::from)?;
+        PANIC_HOOK.call_once(|| {
+            let previous = std::panic::take_hook();
+            std::panic::set_hook(Box::new(move |info| {
+                restore_stderr();
+                previous(info);
+            }));
+        });
+        SAVED_STDERR.store(saved.as_raw_fd(), Ordering::SeqCst);
         nix::unistd::dup2(write_end.as_raw_fd(), STDERR).map_err(std::io::Error::from)?;
         // fd 2 is now the pipe's only write end: once stderr is restored, the reader sees EOF.
         drop(write_end);
@@ -41,6 +64,7 @@ impl StderrCapture {
 
 impl Drop for StderrCapture {
     fn drop(&mut self) {
+        SAVED_STDERR.store(-1, Ordering::SeqCst);
         let _ = nix::unistd::dup2(self.saved.as_raw_fd(), STDERR);
     }
 }
