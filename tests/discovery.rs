@@ -213,6 +213,31 @@ fn components_carry_the_keys_of_their_platform() {
 }
 
 #[test]
+fn door_contacts_that_are_on_when_closed_carry_no_door_class() {
+    // Home Assistant shows a `door` binary sensor ON as "Open"; these contacts are ON when the
+    // door is closed, so a door class would show every state the wrong way round.
+    let profile = registry::built_in("lixian-air-shower").unwrap();
+    let (_, shower) = device_config(&context(), "air_shower", &profile);
+    for name in ["front_door_closed", "rear_door_closed"] {
+        let contact = component(&shower, name);
+        assert_eq!(contact["p"], "binary_sensor", "{name}");
+        assert_eq!(contact["payload_on"], "ON", "{name}");
+        assert!(
+            contact.get("device_class").is_none(),
+            "{name} has device_class {}",
+            contact["device_class"]
+        );
+        assert_eq!(contact["icon"], "mdi:door-closed", "{name}");
+        assert_eq!(contact["state_topic"], format!("plant/air_shower/{name}"));
+    }
+    // Contacts whose ON does mean what their class says keep the class.
+    assert_eq!(
+        component(&shower, "photo_sensor_1")["device_class"],
+        "occupancy"
+    );
+}
+
+#[test]
 fn command_topics_are_the_set_topics_of_writable_fields_only_and_never_retained() {
     let ctx = context();
     for (device, fields, _, document) in seed_documents() {
