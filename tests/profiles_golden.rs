@@ -838,6 +838,23 @@ fn th_sensor_settings_are_written_without_code() {
         }]
     );
     assert!(rejection(&profile, "report_interval", "62").contains("multiple of the step 5"));
+    // The step the command checks is the step the field declares (Home Assistant's `step`).
+    let step_of = |name: &str| {
+        profile
+            .fields()
+            .iter()
+            .find(|info| info.name == name)
+            .and_then(|info| info.step.clone())
+    };
+    assert_eq!(step_of("report_interval"), Some(Value::Int(5)));
+    assert_eq!(
+        step_of("temperature_offset"),
+        Some(Value::Decimal {
+            scaled: 1,
+            precision: 1
+        })
+    );
+    assert_eq!(step_of("alarm_enabled"), None);
     assert!(rejection(&profile, "report_interval", "0").contains("5–3600"));
     let settings = Response::HoldingRegisters(vec![0xFFF6, 0x8001, 12]);
     let texts: Vec<String> = profile

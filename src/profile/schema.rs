@@ -1170,6 +1170,7 @@ fn build_field(
         kind: field_kind,
         writable: def.write.is_some(),
         unit: field.unit.clone(),
+        step: def.codec.step(),
         ha: HaHints {
             component: field.ha.component.clone(),
             device_class: field.ha.device_class.clone(),
