@@ -325,6 +325,15 @@ fn valve_opening_settles_within_a_window() {
     );
     let status = |motor: u16| Response::HoldingRegisters(vec![motor << 2 | 0x30, 0, 0, 0]);
     let (stopped, opening, closing) = (0, 1, 2);
+    // The read-back right after the write may come before the motor starts: a stopped motor
+    // there proves nothing, and the value keeps settling. From the next read-back on it counts.
+    let fresh = self::plan(&valve(), "opening", "60");
+    let stopped_short = [status(stopped), Response::HoldingRegisters(vec![35])];
+    assert_eq!(fresh.verify(&stopped_short), Verification::Settling);
+    assert!(matches!(
+        fresh.verify(&stopped_short),
+        Verification::NotApplied(_)
+    ));
     assert_eq!(
         plan.verify(&[status(opening), Response::HoldingRegisters(vec![35])]),
         Verification::Settling

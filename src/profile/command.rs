@@ -6,7 +6,7 @@
 //! state and 0 otherwise; momentary fields are written 1 only when pressed; a forbidden
 //! combination is refused again on the fresh read, not only on the last known state.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use super::codec::{BlockImage, RawPatch};
@@ -50,6 +50,10 @@ pub struct CommandPlan {
     readback: Vec<Request>,
     /// Parallel to `readback`: (block, block offset of the first coil or register returned).
     readback_places: Vec<(usize, u16)>,
+    /// Set by the first `verify`. That read-back follows the write at once and may predate
+    /// the device's reaction to it (a motor not started yet reads "stopped"), so `settle_until`
+    /// conditions count from the second read-back on.
+    first_readback_judged: OnceLock<()>,
 }
 
 impl CommandPlan {
@@ -141,6 +145,7 @@ impl CommandPlan {
             before_base,
             readback,
             readback_places,
+            first_readback_judged: OnceLock::new(),
         }
     }
 
@@ -325,8 +330,10 @@ impl CommandPlan {
             .collect()
     }
 
-    /// Judges the answers to `readback()`.
+    /// Judges the answers to `readback()`. The first call judges the read-back right after the
+    /// write; later calls the repeated read-backs of a settling command.
     pub fn verify(&self, answers: &[Response]) -> Verification {
+        let repeated = self.first_readback_judged.set(()).is_err();
         let profile = &self.profile;
         let images = self.readback_images(answers);
         let Some(image) = images
@@ -358,7 +365,7 @@ impl CommandPlan {
             Verification::Applied
         } else if self.settle_window().is_none() {
             Verification::NotApplied(differences.join("; "))
-        } else if let Some(stopped) = self.settled_short(&images) {
+        } else if let Some(stopped) = repeated.then(|| self.settled_short(&images)).flatten() {
             Verification::NotApplied(format!(
                 "{} and {stopped}: it stopped short of the commanded value",
                 differences.join("; ")
@@ -368,8 +375,8 @@ impl CommandPlan {
         }
     }
 
-    /// When the targets' `settle_until` conditions all hold on the read-back (the motor has
-    /// stopped), the conditions as text (`motor reads stopped`); None while any does not hold
+    /// When the targets' `settle_until` conditions all hold on a repeated read-back (the motor
+    /// has stopped), the conditions as text (`motor reads stopped`); None while any does not hold
     /// or cannot be read, and when there are none (then only the settle window ends it).
     fn settled_short(&self, images: &[(usize, BlockImage)]) -> Option<String> {
         let profile = &self.profile;
