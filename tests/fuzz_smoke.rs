@@ -75,7 +75,15 @@ fn any_answer() -> impl Strategy<Value = Response> {
 /// repeated, the text cut short. Most results are still TOML, so the validation runs.
 #[derive(Debug, Clone)]
 enum Mutation {
-    ReplaceValue { line: usize, with: String },
+    ReplaceValue {
+        line: usize,
+        with: String,
+    },
+    /// One of the numbers of the profile (an offset, count, address, digit count …) changed.
+    ReplaceNumber {
+        pick: usize,
+        with: i64,
+    },
     DropLine(usize),
     RepeatLine(usize),
     Truncate(usize),
@@ -83,22 +91,28 @@ enum Mutation {
 
 fn any_mutation() -> impl Strategy<Value = Mutation> {
     let value = prop_oneof![
-        any::<i64>().prop_map(|n| n.to_string()),
-        any::<f64>().prop_map(|f| format!("{f:?}")),
-        "\"[a-z_]{0,12}\"",
-        Just("[]".to_string()),
-        Just("{}".to_string()),
-        Just("[0, 65535]".to_string()),
-        Just("{ type = \"bcd\", int_digits = 200, frac_digits = 200 }".to_string()),
-        Just("{ type = \"bits\", bit = 15, width = 16 }".to_string()),
-        Just("{ type = \"u16\", decimals = 30, scale = 0.0000001 }".to_string()),
-        ".{0,16}",
+        1 => any::<i64>().prop_map(|n| n.to_string()),
+        // Values that fit the keys' types, so validation rather than parsing decides.
+        4 => any::<u16>().prop_map(|n| n.to_string()),
+        4 => (0u16..300).prop_map(|n| n.to_string()),
+        4 => (0u8..20).prop_map(|n| n.to_string()),
+        1 => any::<f64>().prop_map(|f| format!("{f:?}")),
+        1 => "\"[a-z_]{0,12}\"",
+        1 => Just("[]".to_string()),
+        1 => Just("{}".to_string()),
+        1 => Just("[0, 65535]".to_string()),
+        1 => Just("{ type = \"bcd\", int_digits = 200, frac_digits = 200 }".to_string()),
+        1 => Just("{ type = \"bits\", bit = 15, width = 16 }".to_string()),
+        1 => Just("{ type = \"u16\", decimals = 30, scale = 0.0000001 }".to_string()),
+        1 => ".{0,16}",
     ];
     prop_oneof![
-        (any::<usize>(), value).prop_map(|(line, with)| Mutation::ReplaceValue { line, with }),
-        any::<usize>().prop_map(Mutation::DropLine),
-        any::<usize>().prop_map(Mutation::RepeatLine),
-        any::<usize>().prop_map(Mutation::Truncate),
+        1 => (any::<usize>(), value).prop_map(|(line, with)| Mutation::ReplaceValue { line, with }),
+        3 => (any::<usize>(), prop_oneof![-2i64..40, 0i64..70000])
+            .prop_map(|(pick, with)| Mutation::ReplaceNumber { pick, with }),
+        1 => any::<usize>().prop_map(Mutation::DropLine),
+        1 => any::<usize>().prop_map(Mutation::RepeatLine),
+        1 => any::<usize>().prop_map(Mutation::Truncate),
     ]
 }
 
@@ -115,6 +129,25 @@ fn mutate(text: &str, mutations: &[Mutation]) -> String {
                 if let Some(at) = line.find(" = ") {
                     line.truncate(at + 3);
                     line.push_str(with);
+                }
+            }
+            Mutation::ReplaceNumber { pick, with } => {
+                let numbered: Vec<usize> = lines
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, line)| {
+                        line.split(" = ")
+                            .nth(1)
+                            .is_some_and(|value| value.starts_with(|c: char| c.is_ascii_digit()))
+                    })
+                    .map(|(i, _)| i)
+                    .collect();
+                if let Some(&index) = numbered.get(pick % numbered.len().max(1)) {
+                    let line = &mut lines[index];
+                    if let Some(at) = line.find(" = ") {
+                        line.truncate(at + 3);
+                        line.push_str(&with.to_string());
+                    }
                 }
             }
             Mutation::DropLine(line) => {
