@@ -33,6 +33,7 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         kind,
         writable,
         unit: None,
+        step: None,
         ha: HaHints::default(),
         min_write_interval: None,
     }
@@ -210,6 +211,72 @@ fn components_carry_the_keys_of_their_platform() {
     assert!(motor.get("state_class").is_none());
     assert!(motor.get("unit_of_measurement").is_none());
     assert_eq!(component(&valve, "jammed")["device_class"], "problem");
+}
+
+#[test]
+fn number_steps_follow_the_raw_count_of_scaled_fields() {
+    let document = |name: &str| {
+        let profile = registry::built_in(name).unwrap();
+        device_config(&context(), "device", &profile).1
+    };
+    let sensor_profile = registry::load_file(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/profiles/generic-th-sensor.toml"
+    )))
+    .unwrap();
+    let sensor = device_config(&context(), "device", &sensor_profile).1;
+    // One raw count of `report_interval` is 5 s: Home Assistant must offer 5, 10, 15 …
+    let interval = component(&sensor, "report_interval");
+    assert_eq!(interval["p"], "number");
+    assert_eq!(interval["step"], 5);
+    assert_eq!(interval["min"], 5);
+    // An i16 with one decimal steps by 0.1, the nearest f64 of it exactly.
+    assert_eq!(component(&sensor, "temperature_offset")["step"], json!(0.1));
+
+    let valve = document("wuzhou-valve");
+    assert_eq!(component(&valve, "setpoint")["step"], json!(0.01));
+    assert_eq!(component(&valve, "opening")["step"], 1);
+    let dust = document("ruiwan-dust-collector");
+    assert_eq!(component(&dust, "gear")["step"], 1);
+
+    // A hand-made scaled decimal: one raw count is 0.5 units.
+    let mut half = field("half_steps", decimal(0.0, 50.0, 1), true);
+    half.step = Some(Value::Decimal {
+        scaled: 5,
+        precision: 1,
+    });
+    let (_, doc) =
+        device_config_from_fields(&context(), "device", "m", "x", "profile", &[half.clone()]);
+    assert_eq!(component(&doc, "half_steps")["step"], json!(0.5));
+    // Without a step from the profile the last shown place decides.
+    half.step = None;
+    let (_, doc) = device_config_from_fields(&context(), "device", "m", "x", "profile", &[half]);
+    assert_eq!(component(&doc, "half_steps")["step"], json!(0.1));
+}
+
+#[test]
+fn door_contacts_that_are_on_when_closed_carry_no_door_class() {
+    // Home Assistant shows a `door` binary sensor ON as "Open"; these contacts are ON when the
+    // door is closed, so a door class would show every state the wrong way round.
+    let profile = registry::built_in("lixian-air-shower").unwrap();
+    let (_, shower) = device_config(&context(), "air_shower", &profile);
+    for name in ["front_door_closed", "rear_door_closed"] {
+        let contact = component(&shower, name);
+        assert_eq!(contact["p"], "binary_sensor", "{name}");
+        assert_eq!(contact["payload_on"], "ON", "{name}");
+        assert!(
+            contact.get("device_class").is_none(),
+            "{name} has device_class {}",
+            contact["device_class"]
+        );
+        assert_eq!(contact["icon"], "mdi:door-closed", "{name}");
+        assert_eq!(contact["state_topic"], format!("plant/air_shower/{name}"));
+    }
+    // Contacts whose ON does mean what their class says keep the class.
+    assert_eq!(
+        component(&shower, "photo_sensor_1")["device_class"],
+        "occupancy"
+    );
 }
 
 #[test]

@@ -308,21 +308,77 @@ fn valve_opening_settles_within_a_window() {
         }]
     );
     assert_eq!(plan.settle_window().map(|d| d.as_secs()), Some(60));
+    // The status run (motor bits 2–3) first, then the opening: a motor seen stopped is never
+    // older than the opening judged.
     assert_eq!(
         plan.readback(),
-        &[Request::ReadHoldingRegisters {
-            start: 0x74,
-            quantity: 1
-        }]
+        &[
+            Request::ReadHoldingRegisters {
+                start: 0x90,
+                quantity: 4
+            },
+            Request::ReadHoldingRegisters {
+                start: 0x74,
+                quantity: 1
+            }
+        ]
     );
+    let status = |motor: u16| Response::HoldingRegisters(vec![motor << 2 | 0x30, 0, 0, 0]);
+    let (stopped, opening, closing) = (0, 1, 2);
+    // The read-back right after the write may come before the motor starts: a stopped motor
+    // there proves nothing, and the value keeps settling. From the next read-back on it counts.
+    let fresh = self::plan(&valve(), "opening", "60");
+    let stopped_short = [status(stopped), Response::HoldingRegisters(vec![35])];
+    assert_eq!(fresh.verify(&stopped_short), Verification::Settling);
+    assert!(matches!(
+        fresh.verify(&stopped_short),
+        Verification::NotApplied(_)
+    ));
     assert_eq!(
-        plan.verify(&[Response::HoldingRegisters(vec![35])]),
+        plan.verify(&[status(opening), Response::HoldingRegisters(vec![35])]),
         Verification::Settling
     );
     assert_eq!(
-        plan.verify(&[Response::HoldingRegisters(vec![60])]),
+        plan.verify(&[status(stopped), Response::HoldingRegisters(vec![60])]),
         Verification::Applied
     );
+    assert_eq!(
+        plan.verify(&[status(opening), Response::HoldingRegisters(vec![60])]),
+        Verification::Applied
+    );
+    // Stopped short: final at once, naming the opening reached.
+    match plan.verify(&[status(stopped), Response::HoldingRegisters(vec![35])]) {
+        Verification::NotApplied(detail) => {
+            assert!(
+                detail.contains("opening reads 35 after writing 60"),
+                "{detail}"
+            );
+            assert!(detail.contains("motor reads stopped"), "{detail}");
+        }
+        other => panic!("a stopped motor short of the target gave {other:?}"),
+    }
+    // Moving the other way still counts as moving.
+    assert_eq!(
+        plan.verify(&[status(closing), Response::HoldingRegisters(vec![70])]),
+        Verification::Settling
+    );
+    // An unreadable motor state (raw 3) or a missing status answer never ends it early.
+    assert_eq!(
+        plan.verify(&[status(3), Response::HoldingRegisters(vec![35])]),
+        Verification::Settling
+    );
+    assert_eq!(
+        plan.verify(&[
+            Response::HoldingRegisters(vec![]),
+            Response::HoldingRegisters(vec![35])
+        ]),
+        Verification::Settling
+    );
+    // Without an opening in the answer the read-back is not usable, whatever the motor says.
+    assert!(matches!(
+        plan.verify(&[status(stopped)]),
+        Verification::NotApplied(_)
+    ));
     assert!(rejection(&valve(), "opening", "101").contains("0–100"));
     // Alarm openings: 0–100 %, or 255 to disable the alarm.
     let disable = self::plan(&valve(), "low_alarm_opening_1", "255");
@@ -838,6 +894,23 @@ fn th_sensor_settings_are_written_without_code() {
         }]
     );
     assert!(rejection(&profile, "report_interval", "62").contains("multiple of the step 5"));
+    // The step the command checks is the step the field declares (Home Assistant's `step`).
+    let step_of = |name: &str| {
+        profile
+            .fields()
+            .iter()
+            .find(|info| info.name == name)
+            .and_then(|info| info.step.clone())
+    };
+    assert_eq!(step_of("report_interval"), Some(Value::Int(5)));
+    assert_eq!(
+        step_of("temperature_offset"),
+        Some(Value::Decimal {
+            scaled: 1,
+            precision: 1
+        })
+    );
+    assert_eq!(step_of("alarm_enabled"), None);
     assert!(rejection(&profile, "report_interval", "0").contains("5–3600"));
     let settings = Response::HoldingRegisters(vec![0xFFF6, 0x8001, 12]);
     let texts: Vec<String> = profile
@@ -919,9 +992,13 @@ fn simulated_images_round_trip_through_every_profile() {
                         info.name
                     );
                 }
-                let readback = profile.answer_read(&images, &plan.readback()[0]).unwrap();
+                let readback: Vec<Response> = plan
+                    .readback()
+                    .iter()
+                    .map(|read| profile.answer_read(&images, read).unwrap())
+                    .collect();
                 assert_eq!(
-                    plan.verify(&[readback]),
+                    plan.verify(&readback),
                     Verification::Applied,
                     "{} {}={text}",
                     profile.name(),
@@ -1473,8 +1550,12 @@ mod robustness {
                 for write in plan.writes(&before).unwrap() {
                     prop_assert!(profile.apply_write(&mut images, &write));
                 }
-                let readback = profile.answer_read(&images, &plan.readback()[0]).unwrap();
-                prop_assert_eq!(plan.verify(&[readback]), Verification::Applied);
+                let readback: Vec<Response> = plan
+                    .readback()
+                    .iter()
+                    .map(|read| profile.answer_read(&images, read).unwrap())
+                    .collect();
+                prop_assert_eq!(plan.verify(&readback), Verification::Applied);
             }
         }
 

@@ -394,6 +394,34 @@ fn forbidden_combinations_are_checked() {
 }
 
 #[test]
+fn settle_conditions_are_checked() {
+    let with_level = |extra: &str| {
+        BASE.replace(
+            "write = { function = 6, address = 1 }\n",
+            &format!("write = {{ function = 6, address = 1 }}\n{extra}\n"),
+        )
+    };
+    let good = with_level("settle_window = \"30s\"\nsettle_until = { status = \"OFF\" }");
+    assert!(Profile::from_toml(&good, "test.toml").is_ok());
+    refused(
+        &with_level("settle_until = { status = \"OFF\" }"),
+        &["fields[1] (level).settle_until", "needs a settle_window"],
+    );
+    refused(
+        &with_level("settle_window = \"30s\"\nsettle_until = { ghost = \"OFF\" }"),
+        &["settle_until.ghost", "no field named `ghost`"],
+    );
+    refused(
+        &with_level("settle_window = \"30s\"\nsettle_until = { status = \"stopped\" }"),
+        &["settle_until.status", "ON or OFF"],
+    );
+    refused(
+        &with_level("settle_window = \"30s\"\nsettle_until = { level = \"3\" }"),
+        &["settle_until.level", "its own value"],
+    );
+}
+
+#[test]
 fn several_problems_are_all_listed() {
     let text = BASE
         .replace("count = 4", "count = 11")

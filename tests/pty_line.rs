@@ -732,6 +732,44 @@ async fn a_valve_opening_command_settles_before_it_is_applied() {
 }
 
 #[tokio::test(flavor = "current_thread")]
+async fn a_jammed_valve_is_not_applied_as_soon_as_its_motor_reports_stopped() {
+    let (valve, valve_shared) = share(Valve::new(1));
+    sim::lock(&valve).set_jammed(true);
+    let line =
+        VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared]).unwrap();
+    let mut running = start(
+        "line-jam",
+        &line,
+        Parity::Even,
+        vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
+    );
+    assert!(
+        running
+            .until(Duration::from_secs(15), |r| r.values_of("valve") >= 1)
+            .await
+    );
+    let reached = sim::lock(&valve).opening();
+    let started = Instant::now();
+    let outcome = running.command("valve", "opening", "90").await;
+    let CommandOutcome::NotApplied { detail } = &outcome else {
+        panic!("a jammed valve gave {outcome:?}");
+    };
+    assert!(
+        detail.contains(&format!("opening reads {reached} after writing 90")),
+        "{detail}"
+    );
+    assert!(detail.contains("motor reads stopped"), "{detail}");
+    // Judged on the stopped motor, not by waiting out the 60 s settle window.
+    assert!(
+        started.elapsed() < Duration::from_secs(30),
+        "took {:?}",
+        started.elapsed()
+    );
+    assert_eq!(sim::lock(&valve).opening(), reached);
+    running.stop().await;
+}
+
+#[tokio::test(flavor = "current_thread")]
 async fn the_port_disappearing_and_coming_back_is_reopened() {
     let directory = tempfile::tempdir().unwrap();
     let link = directory.path().join("ttyRS485");

@@ -28,7 +28,7 @@ use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
 use crate::config::MqttSettings;
-use crate::profile::{FieldInfo, FieldKind, HaHints, Profile};
+use crate::profile::{FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// The default Home Assistant discovery prefix.
 pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
@@ -360,14 +360,22 @@ fn json_number(value: f64) -> Json {
     }
 }
 
-/// The step of a decimal with `precision` places (`2` → `0.01`).
-fn decimal_step(precision: u8) -> Json {
-    if precision == 0 {
-        return json!(1);
+/// The step of a number field: the profile's step (one raw count), else one unit of the last
+/// shown place (`2` decimals → `0.01`).
+fn number_step(field: &FieldInfo) -> Json {
+    let step = match (&field.step, &field.kind) {
+        (Some(step), _) => step.clone(),
+        (None, FieldKind::Decimal { precision, .. }) if *precision > 0 => Value::Decimal {
+            scaled: 1,
+            precision: *precision,
+        },
+        (None, _) => Value::Int(1),
+    };
+    match step {
+        Value::Int(counts) => json!(counts),
+        // Through the decimal text: the nearest f64 (0.1, not 0.1000000000000000055…).
+        other => other.to_text().parse::<f64>().map_or(json!(1), json_number),
     }
-    // Parsing the decimal text gives the nearest f64 (0.1, not 0.1000000000000000055…).
-    let text = format!("0.{}1", "0".repeat(usize::from(precision) - 1));
-    text.parse::<f64>().map_or(json!(1), |step| json!(step))
 }
 
 /// One component of a device document (without the shared keys).
@@ -415,23 +423,15 @@ pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Jso
             put("payload_press", json!(press));
         }
         Platform::Number => {
-            let (min, max, step) = match &field.kind {
-                FieldKind::Integer { min, max } => (json!(min), json!(max), json!(1)),
-                FieldKind::Decimal {
-                    min,
-                    max,
-                    precision,
-                } => (
-                    json_number(*min),
-                    json_number(*max),
-                    decimal_step(*precision),
-                ),
+            let (min, max) = match &field.kind {
+                FieldKind::Integer { min, max } => (json!(min), json!(max)),
+                FieldKind::Decimal { min, max, .. } => (json_number(*min), json_number(*max)),
                 // `platform_fits` admits only numeric kinds here.
-                _ => (json!(0), json!(100), json!(1)),
+                _ => (json!(0), json!(100)),
             };
             put("min", min);
             put("max", max);
-            put("step", step);
+            put("step", number_step(field));
             put("mode", json!("box"));
         }
         Platform::Select => {

@@ -232,6 +232,39 @@ impl FieldCodec {
         }
     }
 
+    /// The smallest change a number of this codec can make: one raw count (`scale = 5` → 5,
+    /// `decimals = 1, scale = 0.5` → 0.5, BCD with two fraction digits → 0.01). None for
+    /// fields that are not numbers (booleans, enumerations, text).
+    pub fn step(&self) -> Option<Value> {
+        let last_place = |decimals: u8, counts: i64| {
+            if decimals == 0 {
+                Value::Int(counts)
+            } else {
+                Value::Decimal {
+                    scaled: counts,
+                    precision: decimals,
+                }
+            }
+        };
+        match self {
+            Self::Bit { .. } | Self::Coil { .. } | Self::Bytes { .. } => None,
+            Self::Bits { options, .. } | Self::Coils { options, .. } => {
+                options.is_empty().then_some(Value::Int(1))
+            }
+            Self::Char => Some(Value::Int(1)),
+            // A float holds any value; commands keep to the shown places.
+            Self::Number {
+                ty: NumberType::F32(_),
+                decimals,
+                ..
+            } => Some(last_place(*decimals, 1)),
+            Self::Number {
+                decimals, factor, ..
+            } => Some(last_place(*decimals, *factor)),
+            Self::Bcd { frac_digits, .. } => Some(last_place(*frac_digits, 1)),
+        }
+    }
+
     /// The kind and widest range the codec can represent.
     pub fn natural_kind(&self) -> FieldKind {
         match self {

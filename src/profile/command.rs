@@ -6,7 +6,7 @@
 //! state and 0 otherwise; momentary fields are written 1 only when pressed; a forbidden
 //! combination is refused again on the fresh read, not only on the last known state.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use super::codec::{BlockImage, RawPatch};
@@ -45,8 +45,15 @@ pub struct CommandPlan {
     reads_before: Vec<Request>,
     /// Block offset of the first coil or register `reads_before` returns.
     before_base: u16,
+    /// The reads of the settle conditions' blocks (other than the frame's), then the read of
+    /// the targets last: a condition seen to hold is then never older than the value judged.
     readback: Vec<Request>,
-    readback_base: u16,
+    /// Parallel to `readback`: (block, block offset of the first coil or register returned).
+    readback_places: Vec<(usize, u16)>,
+    /// Set by the first `verify`. That read-back follows the write at once and may predate
+    /// the device's reaction to it (a motor not started yet reads "stopped"), so `settle_until`
+    /// conditions count from the second read-back on.
+    first_readback_judged: OnceLock<()>,
 }
 
 impl CommandPlan {
@@ -101,7 +108,34 @@ impl CommandPlan {
             let (request, base) = run_read(&profile, frame.block, before_span);
             (vec![request], base)
         };
-        let (readback, readback_base) = run_read(&profile, frame.block, target_span);
+        // Settle conditions in the frame's block widen the targets' read (one answer holds
+        // both); those elsewhere get a read of their own, made before the targets' read.
+        let mut condition_spans: Vec<(usize, (u16, u16))> = Vec::new();
+        for (field, _) in &targets {
+            for (condition, _) in &profile.defs[*field].settle_until {
+                let def = &profile.defs[*condition];
+                let width = def.codec.width();
+                if def.block == frame.block {
+                    target_span = widen(target_span, def.offset, width);
+                } else if let Some((_, span)) =
+                    condition_spans.iter_mut().find(|(b, _)| *b == def.block)
+                {
+                    *span = widen(*span, def.offset, width);
+                } else {
+                    condition_spans.push((def.block, (def.offset, def.offset + width)));
+                }
+            }
+        }
+        let mut readback = Vec::new();
+        let mut readback_places = Vec::new();
+        for (block, span) in condition_spans {
+            let (request, base) = run_read(&profile, block, span);
+            readback.push(request);
+            readback_places.push((block, base));
+        }
+        let (request, base) = run_read(&profile, frame.block, target_span);
+        readback.push(request);
+        readback_places.push((frame.block, base));
         Self {
             profile,
             label,
@@ -109,8 +143,9 @@ impl CommandPlan {
             targets,
             reads_before,
             before_base,
-            readback: vec![readback],
-            readback_base,
+            readback,
+            readback_places,
+            first_readback_judged: OnceLock::new(),
         }
     }
 
@@ -137,25 +172,28 @@ impl CommandPlan {
         &self.reads_before
     }
 
-    fn block_len(&self) -> usize {
-        super::schema::block_quantity(&self.profile.blocks[self.frame.block].request) as usize
-    }
-
-    /// An image of the whole block, all zero.
-    fn empty_image(&self) -> BlockImage {
-        if self.profile.block_kinds[self.frame.block].is_bits() {
-            BlockImage::Bits(vec![false; self.block_len()])
+    /// An image of the whole of `block`, all zero.
+    fn empty_image(&self, block: usize) -> BlockImage {
+        let len = super::schema::block_quantity(&self.profile.blocks[block].request) as usize;
+        if self.profile.block_kinds[block].is_bits() {
+            BlockImage::Bits(vec![false; len])
         } else {
-            BlockImage::Words(vec![0; self.block_len()])
+            BlockImage::Words(vec![0; len])
         }
     }
 
-    /// The answer to `request` (a part of the block from offset `base`) placed in an image of
+    /// The answer to `request` (a part of `block` from offset `base`) placed in an image of
     /// the whole block, zeros elsewhere. None when the answer does not fit the request.
-    fn place(&self, answer: &Response, request: &Request, base: u16) -> Option<BlockImage> {
+    fn place(
+        &self,
+        block: usize,
+        answer: &Response,
+        request: &Request,
+        base: u16,
+    ) -> Option<BlockImage> {
         let len = super::schema::block_quantity(request) as usize;
         let part = image_of(answer, len)?;
-        let mut image = self.empty_image();
+        let mut image = self.empty_image(block);
         let base = usize::from(base);
         match (&mut image, part) {
             (BlockImage::Words(all), BlockImage::Words(words)) => {
@@ -178,11 +216,13 @@ impl CommandPlan {
         let frame = &self.frame;
         let name = &self.label;
         let fresh = if self.reads_before.is_empty() {
-            self.empty_image()
+            self.empty_image(frame.block)
         } else {
             before
                 .first()
-                .and_then(|answer| self.place(answer, &self.reads_before[0], self.before_base))
+                .and_then(|answer| {
+                    self.place(frame.block, answer, &self.reads_before[0], self.before_base)
+                })
                 .ok_or_else(|| {
                     Rejection(format!(
                         "{name}: the read before the write did not return block `{}`",
@@ -277,12 +317,29 @@ impl CommandPlan {
         &self.readback
     }
 
-    /// Judges the answers to `readback()`.
+    /// The answers to `readback()` placed in images of their blocks, by block.
+    fn readback_images(&self, answers: &[Response]) -> Vec<(usize, BlockImage)> {
+        answers
+            .iter()
+            .zip(&self.readback)
+            .zip(&self.readback_places)
+            .filter_map(|((answer, request), &(block, base))| {
+                self.place(block, answer, request, base)
+                    .map(|image| (block, image))
+            })
+            .collect()
+    }
+
+    /// Judges the answers to `readback()`. The first call judges the read-back right after the
+    /// write; later calls the repeated read-backs of a settling command.
     pub fn verify(&self, answers: &[Response]) -> Verification {
+        let repeated = self.first_readback_judged.set(()).is_err();
         let profile = &self.profile;
-        let Some(image) = answers
-            .first()
-            .and_then(|answer| self.place(answer, &self.readback[0], self.readback_base))
+        let images = self.readback_images(answers);
+        let Some(image) = images
+            .iter()
+            .find(|(block, _)| *block == self.frame.block)
+            .map(|(_, image)| image)
         else {
             return Verification::NotApplied(format!("{}: no usable read-back", self.label));
         };
@@ -294,7 +351,7 @@ impl CommandPlan {
                 // A button has no state to show; the acknowledged write is the whole effect.
                 continue;
             }
-            match def.codec.decode(&image, def.offset) {
+            match def.codec.decode(image, def.offset) {
                 Ok(value) if value == *target => {}
                 Ok(value) => differences.push(format!(
                     "{name} reads {} after writing {}",
@@ -306,11 +363,40 @@ impl CommandPlan {
         }
         if differences.is_empty() {
             Verification::Applied
-        } else if self.settle_window().is_some() {
-            Verification::Settling
-        } else {
+        } else if self.settle_window().is_none() {
             Verification::NotApplied(differences.join("; "))
+        } else if let Some(stopped) = repeated.then(|| self.settled_short(&images)).flatten() {
+            Verification::NotApplied(format!(
+                "{} and {stopped}: it stopped short of the commanded value",
+                differences.join("; ")
+            ))
+        } else {
+            Verification::Settling
         }
+    }
+
+    /// When the targets' `settle_until` conditions all hold on a repeated read-back (the motor
+    /// has stopped), the conditions as text (`motor reads stopped`); None while any does not hold
+    /// or cannot be read, and when there are none (then only the settle window ends it).
+    fn settled_short(&self, images: &[(usize, BlockImage)]) -> Option<String> {
+        let profile = &self.profile;
+        let mut conditions = Vec::new();
+        for (field, _) in &self.targets {
+            for (condition, expected) in &profile.defs[*field].settle_until {
+                let def = &profile.defs[*condition];
+                let (_, image) = images.iter().find(|(block, _)| *block == def.block)?;
+                let value = def.codec.decode(image, def.offset).ok()?;
+                if value != *expected {
+                    return None;
+                }
+                conditions.push(format!(
+                    "{} reads {}",
+                    profile.infos[*condition].name,
+                    value.to_text()
+                ));
+            }
+        }
+        (!conditions.is_empty()).then(|| conditions.join(" and "))
     }
 
     /// How long a `Settling` read-back may keep being repeated.

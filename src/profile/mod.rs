@@ -116,6 +116,9 @@ pub struct FieldInfo {
     pub kind: FieldKind,
     pub writable: bool,
     pub unit: Option<String>,
+    /// For numbers, the smallest change the device can hold (one raw count: `0.01` for two
+    /// decimals, `5` for `scale = 5`); commands off this step are refused. None otherwise.
+    pub step: Option<Value>,
     pub ha: HaHints,
     /// Minimum time between two writes of this field (protects device EEPROM).
     pub min_write_interval: Option<Duration>,

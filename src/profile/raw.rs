@@ -3,7 +3,7 @@
 //! simulator honours quirks such as the dust collector's FC06 addresses stepping by 2 while its
 //! read block is consecutive). Pure: the simulator owns the images and the behaviour.
 
-use super::codec::{BlockImage, FieldCodec, NumberType};
+use super::codec::BlockImage;
 use super::schema::{block_quantity, Behaviour};
 use super::{FieldKind, Profile, Value};
 use crate::rtu::{Request, Response};
@@ -18,13 +18,13 @@ impl Profile {
             .iter()
             .position(|info| info.name == field)?;
         let info = &self.inner.infos[index];
-        // Scaled integer words only hold whole multiples of their step.
-        let step = match (&self.inner.defs[index].codec, &info.kind) {
-            (FieldCodec::Number { ty, factor, .. }, _) if !matches!(ty, NumberType::F32(_)) => {
-                *factor
-            }
+        // Scaled integer words only hold whole multiples of their step (in last-place units).
+        let step = match &info.step {
+            Some(Value::Int(counts)) => *counts,
+            Some(Value::Decimal { scaled, .. }) => *scaled,
             _ => 1,
-        };
+        }
+        .max(1);
         Some(match &info.kind {
             FieldKind::Bool | FieldKind::Momentary => Value::Bool(false),
             FieldKind::Integer { min, max } => {

@@ -147,7 +147,16 @@ fn describe_write(profile: &Profile, index: usize) -> String {
         Behaviour::State => {}
     }
     if let Some(window) = def.settle_window {
-        notes.push(format!("settles ≤ {}", humantime::format_duration(window)));
+        let until: Vec<String> = def
+            .settle_until
+            .iter()
+            .map(|(field, value)| format!(" or {} {}", inner.infos[*field].name, value.to_text()))
+            .collect();
+        notes.push(format!(
+            "settles ≤ {}{}",
+            humantime::format_duration(window),
+            until.concat()
+        ));
     }
     if let Some(interval) = inner.infos[index].min_write_interval {
         notes.push(format!("≥ {} apart", humantime::format_duration(interval)));

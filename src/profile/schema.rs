@@ -175,6 +175,10 @@ struct FieldSection {
     min_write_interval: Option<Duration>,
     #[serde(default, with = "humantime_serde")]
     settle_window: Option<Duration>,
+    /// Field name → value text: the read-back stops settling when every one of them holds
+    /// (the valve's `motor = "stopped"`) and judges the value as it is then.
+    #[serde(default)]
+    settle_until: BTreeMap<String, String>,
     /// A convenience view over bits that other fields own (the air shower's `wind`).
     #[serde(default)]
     overlay: bool,
@@ -338,6 +342,9 @@ pub struct FieldDef {
     pub write: Option<WriteFrame>,
     pub behaviour: Behaviour,
     pub settle_window: Option<Duration>,
+    /// (field index, value): when all hold on a read-back, the device has stopped moving and a
+    /// value that still differs is final (not applied) before the settle window ends.
+    pub settle_until: Vec<(usize, super::Value)>,
     pub overlay: bool,
     /// Integers accepted besides the range (the valve's 255 = alarm disabled).
     pub also: Vec<i64>,
@@ -453,6 +460,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let mut defs = Vec::new();
     let mut infos = Vec::new();
     let mut places = Vec::new();
+    let mut built_sections = Vec::new();
     let mut seen = HashMap::new();
     for (i, field) in file.fields.iter().enumerate() {
         let place = format!("fields[{i}] ({})", field.name);
@@ -481,9 +489,14 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
             defs.push(def);
             infos.push(info);
             places.push(place);
+            built_sections.push(field);
         }
     }
     check_overlaps(&places, &infos, &defs, &blocks, problems);
+    for (index, (section, place)) in built_sections.iter().zip(&places).enumerate() {
+        let until = resolve_settle_until(section, place, &infos, &defs, problems);
+        defs[index].settle_until = until;
+    }
 
     let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); blocks.len()];
     for def in &defs {
@@ -1161,6 +1174,8 @@ fn build_field(
         write,
         behaviour: field.behaviour,
         settle_window: field.settle_window,
+        // Field names resolve once every field is built (`resolve_settle_until`).
+        settle_until: Vec::new(),
         overlay: field.overlay,
         also: field.also.clone(),
     };
@@ -1170,6 +1185,7 @@ fn build_field(
         kind: field_kind,
         writable: def.write.is_some(),
         unit: field.unit.clone(),
+        step: def.codec.step(),
         ha: HaHints {
             component: field.ha.component.clone(),
             device_class: field.ha.device_class.clone(),
@@ -1326,6 +1342,43 @@ fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
         }
     }
     runs
+}
+
+/// The `settle_until` conditions of a field as (field index, value).
+fn resolve_settle_until(
+    section: &FieldSection,
+    place: &str,
+    infos: &[FieldInfo],
+    defs: &[FieldDef],
+    problems: &mut Problems<'_>,
+) -> Vec<(usize, super::Value)> {
+    if !section.settle_until.is_empty() && section.settle_window.is_none() {
+        problems.add(
+            format!("{place}.settle_until"),
+            "settle_until needs a settle_window",
+        );
+    }
+    let mut until = Vec::new();
+    for (name, text) in &section.settle_until {
+        let at = format!("{place}.settle_until.{name}");
+        let Some(index) = infos.iter().position(|info| &info.name == name) else {
+            problems.add(at, format!("no field named `{name}`"));
+            continue;
+        };
+        if name == &section.name {
+            problems.add(at, "a field cannot settle until its own value");
+            continue;
+        }
+        if defs[index].behaviour == Behaviour::Momentary {
+            problems.add(at, "a button has no state to wait for");
+            continue;
+        }
+        match super::codec::parse_command(&infos[index], text) {
+            Ok(value) => until.push((index, value)),
+            Err(rejection) => problems.add(at, rejection.0),
+        }
+    }
+    until
 }
 
 fn build_forbidden(

@@ -39,13 +39,14 @@ impl GenericDevice {
     pub fn from_profile(profile: &Profile, address: SlaveId) -> Self {
         let mut device = Self::from_blocks(profile.read_blocks(), address);
         for field in profile.fields() {
-            let Some(text) = plausible_text(&field.kind) else {
+            // A button has no state to seed.
+            if field.kind == FieldKind::Momentary {
+                continue;
+            }
+            let Some(value) = profile.plausible_value(&field.name) else {
                 continue;
             };
-            let encoded = profile
-                .parse_value(&field.name, &text)
-                .and_then(|value| profile.encode_value_raw(&field.name, &value));
-            let Ok((block, patches)) = encoded else {
+            let Ok((block, patches)) = profile.encode_value_raw(&field.name, &value) else {
                 continue;
             };
             if let Some(read) = profile.read_blocks().get(block) {
@@ -172,24 +173,6 @@ fn block_place(request: &Request) -> Option<(Table, u16, u16)> {
         Request::ReadInputRegisters { start, quantity } => (Table::Input, start, quantity),
         _ => return None,
     })
-}
-
-/// A value inside a field's range, as command text; None for buttons and text.
-fn plausible_text(kind: &FieldKind) -> Option<String> {
-    match kind {
-        FieldKind::Bool => Some("OFF".to_string()),
-        FieldKind::Integer { min, max } => Some((min + (max - min) / 2).to_string()),
-        FieldKind::Decimal {
-            min,
-            max,
-            precision,
-        } => {
-            let p = usize::from(*precision);
-            Some(format!("{:.p$}", min + (max - min) / 2.0))
-        }
-        FieldKind::Enum { options } => options.first().cloned(),
-        FieldKind::Momentary | FieldKind::Text => None,
-    }
 }
 
 /// A plausible starting value: small, with decimal hex digits, different per address.

@@ -8,7 +8,7 @@
 //! function code it does not know is a frame that ends at the next silence and gets exception
 //! 01. Keeping the device side apart also keeps it an independent check on the gateway's codec.
 
-use crate::rtu::crc::{append_crc, crc16};
+use crate::rtu::crc::{append_crc, carried_and_computed};
 use crate::rtu::frame::{Request, SlaveId};
 
 /// `body` followed by its CRC, low byte first.
@@ -17,13 +17,11 @@ pub fn with_crc(mut body: Vec<u8>) -> Vec<u8> {
     body
 }
 
-/// True when the last two bytes of `frame` are the CRC of the rest.
+/// True when the last two bytes of `frame` are the CRC of the rest and there is at least an
+/// address and a function code before them.
 pub fn crc_ok(frame: &[u8]) -> bool {
-    if frame.len() < 4 {
-        return false;
-    }
-    let (body, tail) = frame.split_at(frame.len() - 2);
-    crc16(body).to_le_bytes() == [tail[0], tail[1]]
+    frame.len() >= 4
+        && carried_and_computed(frame).is_some_and(|(carried, computed)| carried == computed)
 }
 
 /// How a request frame's length is known from its first bytes.
