@@ -290,3 +290,37 @@ fn every_broken_configuration_is_an_error_naming_its_place() {
         assert!(!output.contains("panicked"), "{to}: {output}");
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: `demo` on an existing broker publishes under the same `plant/` topics as a real gateway there and leaves its devices `offline` when it stops"]
+async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
+    use nix::sys::signal::{kill, Signal};
+    use nix::unistd::Pid;
+
+    let (broker, _plant, _observer, gateway) = plant_with_gateway("demo-shared").await;
+    let mut demo = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        .args(["demo", "--log", "--broker", &broker.url()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Long enough for the demo's devices to come online and publish their state.
+    tokio::time::sleep(Duration::from_secs(6)).await;
+    kill(Pid::from_raw(demo.id() as i32), Signal::SIGINT).unwrap();
+    let deadline = std::time::Instant::now() + ANSWER;
+    while demo.try_wait().unwrap().is_none() {
+        assert!(std::time::Instant::now() < deadline, "demo did not stop");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+
+    // What a client connecting now is told about the real gateway's devices.
+    let mut fresh = TestClient::connect(broker.port, "demo-shared-fresh").await;
+    fresh.subscribe("plant/+/availability").await;
+    fresh.settle(Duration::from_secs(2)).await;
+    for device in ["dust_collector", "air_shower", "valve"] {
+        let topic = format!("plant/{device}/availability");
+        let last = fresh.on(&topic).last().map(|m| m.text());
+        assert_eq!(last.as_deref(), Some("online"), "{topic}");
+    }
+    gateway.stop().await;
+}
