@@ -366,3 +366,35 @@ async fn home_assistant_numbers_can_hold_the_values_the_gateway_publishes() {
     assert!(checked > 10, "only {checked} number states seen");
     gateway.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: a command for a field whose previous command is still settling waits in the offline queue and ends `expired` (\"stayed offline\") although the device is online"]
+async fn a_new_valve_target_during_a_settling_move_is_not_reported_as_offline() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut config = plant_config(&broker, &plant, "settle-gw");
+    config.gateway.command_ttl = Duration::from_secs(3);
+    let mut observer = TestClient::connect(broker.port, "settle-observer").await;
+    observer.subscribe("plant/valve/opening/result").await;
+    observer.subscribe("plant/valve/availability").await;
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    // The simulated motor needs several seconds from 30 % to 100 %.
+    observer
+        .publish("plant/valve/opening/set", b"100".to_vec(), false)
+        .await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    observer
+        .publish("plant/valve/opening/set", b"50".to_vec(), false)
+        .await;
+    let result = observer
+        .wait_for("plant/valve/opening/result", Duration::from_secs(90), |m| {
+            m.json()["value"] == "50"
+        })
+        .await
+        .json();
+    assert_eq!(result["outcome"], "applied", "{result}");
+    gateway.stop().await;
+}
