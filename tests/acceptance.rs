@@ -1,0 +1,426 @@
+//! Acceptance checks found by driving the gateway as a user would: the seed plant on pty lines,
+//! a real mosquitto, commands published by an MQTT client or `mosquitto_pub`, configurations
+//! checked with the `rtu2mqtt check` binary. Each `#[ignore = "bug: …"]` test fails on the
+//! current code for the reason it names and passes once that is fixed.
+
+mod support;
+
+use std::io::Write;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use rtu2mqtt::app::{run_gateway, Hooks};
+use rtu2mqtt::config::{self, Config};
+use rtu2mqtt::shutdown::{self, ShutdownTrigger};
+use rtu2mqtt::sim::{self, SeedPlant};
+use support::{Mosquitto, TestClient};
+
+/// Generous bound for a busy 2-core machine: it only runs out when something is broken.
+const ANSWER: Duration = Duration::from_secs(15);
+
+/// Over the gateway's 1 MiB incoming packet limit, far under mosquitto's own limit.
+const OVERSIZED: usize = 2 * 1024 * 1024;
+
+fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str) -> Config {
+    let text = format!(
+        r#"
+[mqtt]
+url = "{url}"
+client_id = "{client_id}"
+prefix = "plant"
+discovery = false
+
+[[lines]]
+name = "line-a"
+port = "{line_a}"
+response_timeout = "150ms"
+offline_after = 2
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "ruiwan-dust-collector"
+address = 1
+
+[[lines.devices]]
+name = "air_shower"
+profile = "lixian-air-shower"
+address = 0x81
+
+[[lines]]
+name = "line-b"
+port = "{line_b}"
+parity = "even"
+response_timeout = "150ms"
+offline_after = 2
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+"#,
+        url = broker.url(),
+        line_a = plant.line_a.path().display(),
+        line_b = plant.line_b.path().display(),
+    );
+    config::from_str(&text, Path::new(".")).unwrap()
+}
+
+struct Gateway {
+    trigger: ShutdownTrigger,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+}
+
+impl Gateway {
+    async fn start(config: Config) -> Gateway {
+        let (trigger, shutdown) = shutdown::channel();
+        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+        };
+        let task = tokio::spawn(run_gateway(config, shutdown, hooks));
+        tokio::time::timeout(ANSWER, ready_rx)
+            .await
+            .unwrap()
+            .unwrap();
+        Gateway { trigger, task }
+    }
+
+    async fn stop(self) {
+        self.trigger.fire();
+        tokio::time::timeout(ANSWER, self.task)
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+    }
+}
+
+/// Publishes `payload` with `mosquitto_pub` (QoS 1), as a user or a misbehaving client would.
+fn mosquitto_pub(port: u16, topic: &str, payload: &[u8], retain: bool) {
+    let mut args = vec![
+        "-p".to_string(),
+        port.to_string(),
+        "-q".to_string(),
+        "1".to_string(),
+        "-t".to_string(),
+        topic.to_string(),
+        "-s".to_string(),
+    ];
+    if retain {
+        args.push("-r".to_string());
+    }
+    let mut child = Command::new("mosquitto_pub")
+        .args(&args)
+        .stdin(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(payload).unwrap();
+    assert!(child.wait().unwrap().success());
+}
+
+/// The seed plant with the dust collector powered on, a broker, the gateway, and an observer
+/// subscribed to results and availability only (not to `…/set`, so that an oversized command
+/// cannot disturb the observer itself).
+async fn plant_with_gateway(name: &str) -> (Mosquitto, SeedPlant, TestClient, Gateway) {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    sim::lock(&plant.dust_collector).set_power(true);
+    let mut observer = TestClient::connect(broker.port, &format!("{name}-observer")).await;
+    observer.subscribe("plant/+/+/result").await;
+    observer.subscribe("plant/+/availability").await;
+    let gateway = Gateway::start(plant_config(&broker, &plant, &format!("{name}-gw"))).await;
+    observer
+        .wait_for("plant/dust_collector/availability", ANSWER, |m| {
+            m.text() == "online"
+        })
+        .await;
+    (broker, plant, observer, gateway)
+}
+
+/// A command after the oversized one is still executed: the link to the broker works.
+async fn gear_command_is_applied(observer: &mut TestClient, gear: &str) {
+    observer
+        .publish(
+            "plant/dust_collector/gear/set",
+            gear.as_bytes().to_vec(),
+            false,
+        )
+        .await;
+    let result = observer
+        .next_on("plant/dust_collector/gear/result", ANSWER)
+        .await
+        .json();
+    assert_eq!(result["outcome"], "applied", "{result}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: a retained …/set message over 1 MiB makes the MQTT link reconnect forever; no command gets through"]
+async fn an_oversized_retained_command_does_not_cut_the_gateway_off() {
+    let (broker, _plant, mut observer, gateway) = plant_with_gateway("oversized-retained").await;
+    mosquitto_pub(
+        broker.port,
+        "plant/dust_collector/pulse_duration/set",
+        &vec![b'5'; OVERSIZED],
+        true,
+    );
+    // FAULTS B5/B7: refused with a reason, not a disconnect.
+    let result = observer
+        .next_on("plant/dust_collector/pulse_duration/result", ANSWER)
+        .await
+        .json();
+    assert_eq!(result["outcome"], "rejected", "{result}");
+    gear_command_is_applied(&mut observer, "8").await;
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: a QoS 1 …/set message over 1 MiB is redelivered on every reconnect of the persistent session; the link never recovers, not even after a restart"]
+async fn an_oversized_qos1_command_does_not_cut_the_gateway_off() {
+    let (broker, _plant, mut observer, gateway) = plant_with_gateway("oversized-qos1").await;
+    mosquitto_pub(
+        broker.port,
+        "plant/dust_collector/pulse_duration/set",
+        &vec![b'5'; OVERSIZED],
+        false,
+    );
+    // Give the broker time to offer it (and the gateway time to fall over if it does).
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    gear_command_is_applied(&mut observer, "7").await;
+    gateway.stop().await;
+}
+
+fn check(config_text: &str) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("config.toml");
+    std::fs::write(&path, config_text).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        .arg("check")
+        .arg("--config")
+        .arg(&path)
+        .env_remove("RTU2MQTT_CONFIG")
+        .output()
+        .unwrap();
+    let mut text = String::from_utf8_lossy(&output.stdout).into_owned();
+    text.push_str(&String::from_utf8_lossy(&output.stderr));
+    (output.status.success(), text)
+}
+
+const SEED_CONFIG: &str = include_str!("../config/rtu2mqtt.toml");
+
+#[test]
+#[ignore = "bug: with an unknown key present, check stops there and hides a wrong-typed value elsewhere"]
+fn check_lists_an_unknown_key_and_a_wrong_type_together() {
+    let text = SEED_CONFIG
+        .replacen("prefix = \"plant\"", "prefix = \"plant\"\ncolour = 1", 1)
+        .replacen("baud = 9600", "baud = \"fast\"", 1);
+    let (ok, output) = check(&text);
+    assert!(!ok, "{output}");
+    assert!(output.contains("mqtt.colour"), "{output}");
+    assert!(output.contains("lines[0].baud"), "{output}");
+}
+
+#[test]
+#[ignore = "bug: a wrong value type is reported with serde wording and a malformed place (`lines[0]baud`)"]
+fn a_wrong_typed_value_names_its_place_like_every_other_error() {
+    let text = SEED_CONFIG.replacen("baud = 9600", "baud = \"fast\"", 1);
+    let (ok, output) = check(&text);
+    assert!(!ok, "{output}");
+    assert!(output.contains("lines[0].baud"), "{output}");
+    let text = SEED_CONFIG.replacen("parity = \"even\"", "parity = \"mark\"", 1);
+    let (ok, output) = check(&text);
+    assert!(!ok, "{output}");
+    assert!(output.contains("lines[1].parity"), "{output}");
+    assert!(!output.contains("variant constructor"), "{output}");
+}
+
+#[test]
+fn every_broken_configuration_is_an_error_naming_its_place() {
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "prefix = \"plant\"",
+            "prefix = \"plant\"\ncolour = \"red\"",
+            "mqtt.colour",
+        ),
+        (
+            "name = \"air_shower\"",
+            "name = \"dust_collector\"",
+            "lines[0].devices[1].name",
+        ),
+        ("address = 1", "address = 0", "lines[0].devices[0].address"),
+        (
+            "address = 1",
+            "address = 248",
+            "lines[0].devices[0].address",
+        ),
+        (
+            "address = 0x81",
+            "address = 1",
+            "lines[0].devices[1].address",
+        ),
+        (
+            "poll_interval = \"1s\"",
+            "poll_interval = \"500ms\"",
+            "lines[0].devices[0].poll_interval",
+        ),
+        ("baud = 9600", "baud = 12345", "lines[0].baud"),
+        ("prefix = \"plant\"", "prefix = \"pl#ant\"", "mqtt.prefix"),
+        (
+            "prefix = \"plant\"",
+            "prefix = \"plant\"\nkeep_alive = \"0.5s\"",
+            "mqtt.keep_alive",
+        ),
+        (
+            "prefix = \"plant\"",
+            "prefix = \"plant\"\ninflight = 0",
+            "mqtt.inflight",
+        ),
+        (
+            "profile = \"wuzhou-valve\"",
+            "profile = \"profiles/missing.toml\"",
+            "lines[1].devices[0].profile",
+        ),
+        ("prefix = \"plant\"", "prefix = \"plant", "line 8"),
+    ];
+    for (from, to, place) in cases {
+        assert!(SEED_CONFIG.contains(from), "{from}");
+        let (ok, output) = check(&SEED_CONFIG.replacen(from, to, 1));
+        assert!(!ok, "{to}: accepted\n{output}");
+        assert!(output.contains(place), "{to}: {place} not named\n{output}");
+        assert!(!output.contains("panicked"), "{to}: {output}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: `demo` on an existing broker publishes under the same `plant/` topics as a real gateway there and leaves its devices `offline` when it stops"]
+async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
+    use nix::sys::signal::{kill, Signal};
+    use nix::unistd::Pid;
+
+    let (broker, _plant, _observer, gateway) = plant_with_gateway("demo-shared").await;
+    let mut demo = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        .args(["demo", "--log", "--broker", &broker.url()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Long enough for the demo's devices to come online and publish their state.
+    tokio::time::sleep(Duration::from_secs(6)).await;
+    kill(Pid::from_raw(demo.id() as i32), Signal::SIGINT).unwrap();
+    let deadline = std::time::Instant::now() + ANSWER;
+    while demo.try_wait().unwrap().is_none() {
+        assert!(std::time::Instant::now() < deadline, "demo did not stop");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+
+    // What a client connecting now is told about the real gateway's devices.
+    let mut fresh = TestClient::connect(broker.port, "demo-shared-fresh").await;
+    fresh.subscribe("plant/+/availability").await;
+    fresh.settle(Duration::from_secs(2)).await;
+    for device in ["dust_collector", "air_shower", "valve"] {
+        let topic = format!("plant/{device}/availability");
+        let last = fresh.on(&topic).last().map(|m| m.text());
+        assert_eq!(last.as_deref(), Some("online"), "{topic}");
+    }
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: the valve's alarm openings publish 255 (alarm disabled) while their Home Assistant number says max 100, so HA refuses the state and 255 cannot be set from HA"]
+async fn home_assistant_numbers_can_hold_the_values_the_gateway_publishes() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut config = plant_config(&broker, &plant, "ha-range-gw");
+    config.mqtt.discovery = true;
+    let mut observer = TestClient::connect(broker.port, "ha-range-observer").await;
+    observer.subscribe("homeassistant/device/+/config").await;
+    observer.subscribe("plant/valve/+").await;
+    let gateway = Gateway::start(config).await;
+    let document = observer
+        .next_on("homeassistant/device/ha-range-gw_valve/config", ANSWER)
+        .await
+        .json();
+    // The slow configuration block holds the alarm openings.
+    observer
+        .wait_for("plant/valve/low_alarm_opening_2", ANSWER, |_| true)
+        .await;
+    let components = document["cmps"].as_object().unwrap();
+    let mut checked = 0;
+    for (field, component) in components {
+        if component["p"] != "number" {
+            continue;
+        }
+        let topic = format!("plant/valve/{field}");
+        let Some(state) = observer.on(&topic).last().map(|m| m.text()) else {
+            continue;
+        };
+        let value: f64 = state.parse().unwrap();
+        let min = component["min"].as_f64().unwrap();
+        let max = component["max"].as_f64().unwrap();
+        assert!(
+            (min..=max).contains(&value),
+            "{topic} = {value}, outside the entity's {min}–{max}"
+        );
+        checked += 1;
+    }
+    assert!(checked > 10, "only {checked} number states seen");
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: a command for a field whose previous command is still settling waits in the offline queue and ends `expired` (\"stayed offline\") although the device is online"]
+async fn a_new_valve_target_during_a_settling_move_is_not_reported_as_offline() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut config = plant_config(&broker, &plant, "settle-gw");
+    config.gateway.command_ttl = Duration::from_secs(3);
+    let mut observer = TestClient::connect(broker.port, "settle-observer").await;
+    observer.subscribe("plant/valve/opening/result").await;
+    observer.subscribe("plant/valve/availability").await;
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/valve/availability", ANSWER, |m| m.text() == "online")
+        .await;
+    // The simulated motor needs several seconds from 30 % to 100 %.
+    observer
+        .publish("plant/valve/opening/set", b"100".to_vec(), false)
+        .await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    observer
+        .publish("plant/valve/opening/set", b"50".to_vec(), false)
+        .await;
+    let result = observer
+        .wait_for("plant/valve/opening/result", Duration::from_secs(90), |m| {
+            m.json()["value"] == "50"
+        })
+        .await
+        .json();
+    assert_eq!(result["outcome"], "applied", "{result}");
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "bug: the statistics document is published without retain, while the README (Home Assistant section) says it is retained"]
+async fn the_statistics_document_is_retained() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).unwrap();
+    let mut config = plant_config(&broker, &plant, "stats-gw");
+    config.gateway.stats_interval = Duration::from_secs(1);
+    let mut observer = TestClient::connect(broker.port, "stats-observer").await;
+    observer.subscribe("plant/gateway/stats-gw/stats").await;
+    let gateway = Gateway::start(config).await;
+    observer
+        .wait_for("plant/gateway/stats-gw/stats", ANSWER, |_| true)
+        .await;
+    // A client arriving later gets the last document at once, as a retained message.
+    let mut late = TestClient::connect(broker.port, "stats-late").await;
+    late.subscribe("plant/gateway/stats-gw/stats").await;
+    let first = late
+        .wait_for("plant/gateway/stats-gw/stats", ANSWER, |_| true)
+        .await;
+    assert!(
+        first.retain,
+        "the first statistics document came live, not retained"
+    );
+    gateway.stop().await;
+}
