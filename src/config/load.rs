@@ -1,6 +1,8 @@
 //! Reading the configuration: the TOML file, then `RTU2MQTT__SECTION__KEY` environment
-//! overrides (the `config` crate), into [`RawConfig`]. Every unknown key is reported with its
-//! place before serde gets to stop at the first one. No validation beyond types here.
+//! overrides (the `config` crate), into [`RawConfig`]. Every unknown key, missing required key
+//! and wrongly typed value is reported with its place, in our words, before serde gets to stop
+//! at the first one; a problem in a value from the environment names its variable. No
+//! validation beyond types here.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -8,9 +10,7 @@ use std::path::Path;
 use config::{Environment, File, FileFormat};
 use serde_json::Value as Json;
 
-use super::schema::{
-    RawConfig, DEVICE_KEYS, GATEWAY_KEYS, HEALTH_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS, TOP_KEYS,
-};
+use super::schema::{Key, Kind, RawConfig, TOP_SHAPE};
 use super::{Problem, Problems};
 
 /// Environment variables that override file keys start with this (`RTU2MQTT__MQTT__PASSWORD`).
@@ -18,111 +18,280 @@ pub const ENV_PREFIX: &str = "RTU2MQTT";
 /// Separates the prefix and the key levels in an environment variable name.
 pub const ENV_SEPARATOR: &str = "__";
 
+/// One environment variable that sets a configuration key.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EnvOverride {
+    /// As written in the environment (`RTU2MQTT__MQTT__KEEP_ALIVE`).
+    pub variable: String,
+    /// The key it sets (`mqtt.keep_alive`).
+    pub place: String,
+}
+
 /// Reads `path`, then applies the process environment's overrides.
 pub fn load_file(path: &Path) -> Result<RawConfig, Problems> {
     load_file_with_env(path, None)
 }
 
 /// Like [`load_file`] with an explicit environment (tests); `None` reads the process's.
+/// A problem in a value set from the environment names its variable.
 pub fn load_file_with_env(
     path: &Path,
     env: Option<HashMap<String, String>>,
 ) -> Result<RawConfig, Problems> {
-    // `config` would report a missing file as a key lookup failure; say what it is.
-    if let Err(error) = std::fs::metadata(path) {
-        return Err(Problems::one(
-            path.display().to_string(),
-            format!("cannot read the configuration file: {error}"),
-        ));
-    }
-    let file = File::from(path).format(FileFormat::Toml).required(true);
-    build(config::Config::builder().add_source(file), env)
+    let vars = env.map_or_else(process_environment, Ok)?;
+    let overrides = env_overrides(&vars);
+    let text = read_file(path)?;
+    let file = File::from_str(&text, FileFormat::Toml);
+    build(config::Config::builder().add_source(file), vars)
+        .map_err(|problems| blame_overrides(problems, &overrides, true))
 }
 
 /// Parses configuration text (no environment overrides): for tests and `check` of snippets.
 pub fn load_str(text: &str) -> Result<RawConfig, Problems> {
     let file = File::from_str(text, FileFormat::Toml);
-    build(
-        config::Config::builder().add_source(file),
-        Some(HashMap::new()),
-    )
+    build(config::Config::builder().add_source(file), HashMap::new())
 }
 
-fn build(
-    builder: config::ConfigBuilder<config::builder::DefaultState>,
-    env: Option<HashMap<String, String>>,
-) -> Result<RawConfig, Problems> {
-    // No `try_parsing`: a password such as `1e5` must stay text; typed fields parse strings.
-    let environment = Environment::with_prefix(ENV_PREFIX)
-        .separator(ENV_SEPARATOR)
-        .source(env.map(|vars| vars.into_iter().collect()));
-    let merged = builder
-        .add_source(environment)
-        .build()
-        .map_err(|error| Problems::one("", error.to_string()))?;
-
-    let tree: Json = merged
-        .clone()
-        .try_deserialize()
-        .map_err(|error| Problems::one("", error.to_string()))?;
-    let unknown = unknown_keys(&tree);
-    if !unknown.is_empty() {
-        return Err(Problems(unknown));
-    }
-    merged
-        .try_deserialize::<RawConfig>()
-        .map_err(|error| Problems::one("", error.to_string()))
-}
-
-/// Every key the schema does not know, with its place (`lines[0].devices[1].adress`).
-fn unknown_keys(tree: &Json) -> Vec<Problem> {
+/// The process's environment variables. A variable of ours whose name or value is not text is a
+/// problem of its own; other variables are none of our business.
+pub fn process_environment() -> Result<HashMap<String, String>, Problems> {
+    let ours = format!("{ENV_PREFIX}{ENV_SEPARATOR}").to_lowercase();
+    let mut vars = HashMap::new();
     let mut problems = Vec::new();
-    check_table(tree, "", TOP_KEYS, &mut problems);
-    if let Some(mqtt) = tree.get("mqtt") {
-        check_table(mqtt, "mqtt", MQTT_KEYS, &mut problems);
-    }
-    if let Some(gateway) = tree.get("gateway") {
-        check_table(gateway, "gateway", GATEWAY_KEYS, &mut problems);
-    }
-    if let Some(health) = tree.get("health") {
-        check_table(health, "health", HEALTH_KEYS, &mut problems);
-    }
-    if let Some(Json::Array(lines)) = tree.get("lines") {
-        for (line_index, line) in lines.iter().enumerate() {
-            let place = format!("lines[{line_index}]");
-            check_table(line, &place, LINE_KEYS, &mut problems);
-            if let Some(rs485) = line.get("rs485") {
-                check_table(rs485, &format!("{place}.rs485"), RS485_KEYS, &mut problems);
+    for (name, value) in std::env::vars_os() {
+        match (name.into_string(), value.into_string()) {
+            (Ok(name), Ok(value)) => {
+                vars.insert(name, value);
             }
-            if let Some(Json::Array(devices)) = line.get("devices") {
-                for (device_index, device) in devices.iter().enumerate() {
-                    let place = format!("{place}.devices[{device_index}]");
-                    check_table(device, &place, DEVICE_KEYS, &mut problems);
-                }
+            (Ok(name), Err(_)) if name.to_lowercase().starts_with(&ours) => {
+                problems.push(Problem::new(name, "the value is not valid UTF-8 text"));
+            }
+            _ => {}
+        }
+    }
+    if problems.is_empty() {
+        Ok(vars)
+    } else {
+        Err(Problems(problems))
+    }
+}
+
+/// The configuration keys `vars` set, named the way the `config` crate's [`Environment`] reads
+/// them: prefix and separator case-insensitive, key levels lower-cased.
+pub fn env_overrides(vars: &HashMap<String, String>) -> Vec<EnvOverride> {
+    let ours = format!("{ENV_PREFIX}{ENV_SEPARATOR}").to_lowercase();
+    let mut overrides: Vec<EnvOverride> = vars
+        .keys()
+        .filter_map(|variable| {
+            let lower = variable.to_lowercase();
+            let key = lower.strip_prefix(&ours)?;
+            Some(EnvOverride {
+                variable: variable.clone(),
+                place: key.replace(ENV_SEPARATOR, "."),
+            })
+        })
+        .collect();
+    overrides.sort_by(|a, b| a.variable.cmp(&b.variable));
+    overrides
+}
+
+/// Names the environment variable behind each problem whose value it set. With `structure`,
+/// also a problem with a table or list that a variable reached into (`lines` made a table by
+/// `RTU2MQTT__LINES__0__PORT`): only the reading stage has such problems.
+pub fn blame_overrides(
+    mut problems: Problems,
+    overrides: &[EnvOverride],
+    structure: bool,
+) -> Problems {
+    for problem in &mut problems.0 {
+        if problem.variable.is_some() || problem.place.is_empty() {
+            continue;
+        }
+        if let Some(culprit) = overrides
+            .iter()
+            .find(|o| is_within(&problem.place, &o.place))
+        {
+            problem.variable = Some(culprit.variable.clone());
+        } else if let Some(culprit) = overrides
+            .iter()
+            .find(|o| structure && is_within(&o.place, &problem.place))
+        {
+            problem.variable = Some(culprit.variable.clone());
+            if problem.place.starts_with("lines") {
+                problem
+                    .reason
+                    .push_str("; the environment cannot set a key of one line or device");
             }
         }
     }
     problems
 }
 
-fn check_table(table: &Json, place: &str, known: &[&str], problems: &mut Vec<Problem>) {
+/// `place` is `ancestor` or lies inside it (`lines[0].baud` inside `lines`).
+fn is_within(place: &str, ancestor: &str) -> bool {
+    place
+        .strip_prefix(ancestor)
+        .is_some_and(|rest| rest.is_empty() || rest.starts_with('.') || rest.starts_with('['))
+}
+
+fn read_file(path: &Path) -> Result<String, Problems> {
+    let problem = |reason: String| Problems::one(path.display().to_string(), reason);
+    match std::fs::metadata(path) {
+        Ok(metadata) if metadata.is_dir() => {
+            return Err(problem(
+                "is a directory; --config takes the configuration file itself \
+                 (such as /etc/rtu2mqtt/config.toml)"
+                    .to_string(),
+            ))
+        }
+        Ok(_) => {}
+        Err(error) => {
+            return Err(problem(format!(
+                "cannot read the configuration file: {error}"
+            )))
+        }
+    }
+    std::fs::read_to_string(path)
+        .map_err(|error| problem(format!("cannot read the configuration file: {error}")))
+}
+
+fn build(
+    builder: config::ConfigBuilder<config::builder::DefaultState>,
+    vars: HashMap<String, String>,
+) -> Result<RawConfig, Problems> {
+    // No `try_parsing`: a password such as `1e5` must stay text; typed fields parse strings.
+    let environment = Environment::with_prefix(ENV_PREFIX)
+        .separator(ENV_SEPARATOR)
+        .source(Some(vars.into_iter().collect()));
+    let merged = builder
+        .add_source(environment)
+        .build()
+        .map_err(|error| Problems::one("", error.to_string().trim_end()))?;
+
+    let tree: Json = merged
+        .clone()
+        .try_deserialize()
+        .map_err(|error| Problems::one("", error.to_string()))?;
+    let mut problems = Vec::new();
+    check_table(&tree, "", TOP_SHAPE, &mut problems);
+    if !problems.is_empty() {
+        return Err(Problems(problems));
+    }
+    // The walk above accepts only what the serde structs take, so this is a last resort.
+    merged
+        .try_deserialize::<RawConfig>()
+        .map_err(|error| Problems::one("", error.to_string()))
+}
+
+/// Every key `table` has that `keys` do not know, every required key it lacks and every value
+/// of the wrong type, each with its place (`lines[0].devices[1].adress`).
+fn check_table(table: &Json, place: &str, keys: &[Key], problems: &mut Vec<Problem>) {
     let Json::Object(map) = table else {
+        problems.push(Problem::new(
+            place,
+            format!("{} is not a table", shown(table)),
+        ));
         return;
     };
-    let mut keys: Vec<&String> = map.keys().collect();
-    keys.sort();
-    for key in keys {
-        if !known.contains(&key.as_str()) {
-            let at = if place.is_empty() {
-                key.clone()
-            } else {
-                format!("{place}.{key}")
-            };
+    let mut names: Vec<&String> = map.keys().collect();
+    names.sort();
+    for name in names {
+        if !keys.iter().any(|key| key.name == name) {
+            let known: Vec<&str> = keys.iter().map(|key| key.name).collect();
             problems.push(Problem::new(
-                at,
+                place_of(place, name),
                 format!("unknown key (known here: {})", known.join(", ")),
             ));
         }
+    }
+    for key in keys {
+        let at = place_of(place, key.name);
+        match map.get(key.name) {
+            Some(value) => check_value(value, &at, key.kind, problems),
+            None if key.required => problems.push(Problem::new(at, "required, but not set")),
+            None => {}
+        }
+    }
+}
+
+fn check_value(value: &Json, place: &str, kind: Kind, problems: &mut Vec<Problem>) {
+    let reason = match kind {
+        Kind::Table(keys) => return check_table(value, place, keys, problems),
+        Kind::Tables(keys) => {
+            let Json::Array(tables) = value else {
+                problems.push(Problem::new(
+                    place,
+                    format!("{} is not a list of tables", shown(value)),
+                ));
+                return;
+            };
+            for (index, table) in tables.iter().enumerate() {
+                check_table(table, &format!("{place}[{index}]"), keys, problems);
+            }
+            return;
+        }
+        Kind::Text => (!value.is_string()).then(|| "is not text (write it in quotes)".to_string()),
+        Kind::Bool => (!is_bool(value)).then(|| "is not true or false".to_string()),
+        Kind::Integer { min, max } => integer_problem(value, min, max),
+        Kind::Duration => match value {
+            Json::String(text) if humantime::parse_duration(text).is_ok() => None,
+            _ => Some("is not a duration (such as \"300ms\", \"2s\" or \"5m\")".to_string()),
+        },
+        Kind::OneOf(words) => match value {
+            Json::String(text) if words.contains(&text.as_str()) => None,
+            _ => Some(format!("is not one of {}", words.join(", "))),
+        },
+    };
+    if let Some(reason) = reason {
+        problems.push(Problem::new(place, format!("{} {reason}", shown(value))));
+    }
+}
+
+/// True for a TOML boolean, or the words the `config` crate takes for one (environment values
+/// are text).
+fn is_bool(value: &Json) -> bool {
+    match value {
+        Json::Bool(_) => true,
+        Json::String(text) => matches!(
+            text.to_lowercase().as_str(),
+            "1" | "true" | "on" | "yes" | "0" | "false" | "off" | "no"
+        ),
+        _ => false,
+    }
+}
+
+fn integer_problem(value: &Json, min: i64, max: i64) -> Option<String> {
+    let number = match value {
+        Json::Number(number) => match (number.as_i64(), number.as_u64()) {
+            (Some(number), _) => number,
+            (None, Some(_)) => return Some(format!("is out of range ({min} to {max})")),
+            (None, None) => return Some("is not an integer".to_string()),
+        },
+        // Environment values are text; the `config` crate parses them.
+        Json::String(text) => match text.parse::<i64>() {
+            Ok(number) => number,
+            Err(_) => return Some("is not an integer".to_string()),
+        },
+        _ => return Some("is not an integer".to_string()),
+    };
+    (number < min || number > max).then(|| format!("is out of range ({min} to {max})"))
+}
+
+/// A value as the user wrote it: text in quotes, numbers as they are.
+fn shown(value: &Json) -> String {
+    match value {
+        Json::Object(_) => "a table".to_string(),
+        Json::Array(_) => "a list".to_string(),
+        Json::Null => "nothing".to_string(),
+        other => other.to_string(),
+    }
+}
+
+fn place_of(table: &str, key: &str) -> String {
+    if table.is_empty() {
+        key.to_string()
+    } else {
+        format!("{table}.{key}")
     }
 }
 
@@ -206,5 +375,188 @@ poll_interval = "300ms"
         assert!(load_str("[mqtt\nurl=").is_err());
         let wrong_type = load_str(&MINIMAL.replace("address = 0x81", "address = \"one\""));
         assert!(wrong_type.unwrap_err().to_string().contains("address"));
+    }
+
+    fn reasons(problems: &Problems) -> Vec<String> {
+        problems.0.iter().map(ToString::to_string).collect()
+    }
+
+    #[test]
+    fn lists_unknown_keys_missing_keys_and_wrong_types_together_in_one_wording() {
+        let text = MINIMAL
+            .replace("client_id = \"edge1\"", "colour = 1\ninflight = 70000")
+            .replace(
+                "port = \"/dev/ttyUSB0\"",
+                "port = \"/dev/ttyUSB0\"\nbaud = \"fast\"\nparity = \"mark\"\necho = 2",
+            )
+            .replace("address = 0x81", "address = 1.5")
+            .replace("\"300ms\"", "\"soon\"");
+        let problems = load_str(&text).unwrap_err();
+        assert_eq!(
+            reasons(&problems)
+                .iter()
+                .map(|line| line.split(" (known here").next().unwrap())
+                .collect::<Vec<_>>(),
+            [
+                "mqtt.colour: unknown key",
+                "mqtt.client_id: required, but not set",
+                "mqtt.inflight: 70000 is out of range (0 to 65535)",
+                "lines[0].baud: \"fast\" is not an integer",
+                "lines[0].parity: \"mark\" is not one of none, even, odd",
+                "lines[0].echo: 2 is not true or false",
+                "lines[0].devices[0].address: 1.5 is not an integer",
+                "lines[0].devices[0].poll_interval: \"soon\" is not a duration (such as \"300ms\", \"2s\" or \"5m\")",
+            ],
+            "{problems}"
+        );
+    }
+
+    #[test]
+    fn a_table_or_list_of_the_wrong_shape_is_named() {
+        let problems = load_str("mqtt = 5\nlines = \"a\"").unwrap_err();
+        assert_eq!(
+            reasons(&problems),
+            [
+                "mqtt: 5 is not a table",
+                "lines: \"a\" is not a list of tables"
+            ]
+        );
+    }
+
+    fn write_minimal() -> (tempfile::TempDir, std::path::PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.toml");
+        std::fs::write(&path, MINIMAL).unwrap();
+        (dir, path)
+    }
+
+    #[test]
+    fn a_problem_in_an_environment_value_names_the_variable() {
+        let (_dir, path) = write_minimal();
+        let env = HashMap::from([
+            ("RTU2MQTT__MQTT__COLOUR".to_string(), "x".to_string()),
+            ("RTU2MQTT__MQTT__INFLIGHT".to_string(), "lots".to_string()),
+            ("RTU2MQTT__MQTT__PREFIX".to_string(), "site".to_string()),
+        ]);
+        let problems = load_file_with_env(&path, Some(env)).unwrap_err();
+        let lines = reasons(&problems);
+        assert_eq!(lines.len(), 2, "{problems}");
+        assert!(
+            lines[0].starts_with("RTU2MQTT__MQTT__COLOUR (environment, mqtt.colour): unknown key"),
+            "{problems}"
+        );
+        assert_eq!(
+            lines[1],
+            "RTU2MQTT__MQTT__INFLIGHT (environment, mqtt.inflight): \"lots\" is not an integer"
+        );
+    }
+
+    #[test]
+    fn a_validation_problem_in_an_environment_value_names_the_variable() {
+        let (_dir, path) = write_minimal();
+        let env = HashMap::from([(
+            "RTU2MQTT__MQTT__KEEP_ALIVE".to_string(),
+            "500ms".to_string(),
+        )]);
+        let problems = crate::config::load_with_env(&path, env).unwrap_err();
+        let keep_alive = problems
+            .0
+            .iter()
+            .find(|problem| problem.place == "mqtt.keep_alive")
+            .unwrap();
+        assert_eq!(
+            keep_alive.variable.as_deref(),
+            Some("RTU2MQTT__MQTT__KEEP_ALIVE"),
+            "{problems}"
+        );
+        // A problem the file alone causes stays the file's.
+        let problems = crate::config::load_with_env(&path, HashMap::new()).unwrap_err();
+        assert!(
+            problems.0.iter().all(|p| p.variable.is_none()),
+            "{problems}"
+        );
+    }
+
+    #[test]
+    fn an_override_reaching_into_the_lines_is_blamed_for_breaking_them() {
+        let (_dir, path) = write_minimal();
+        let env = HashMap::from([("RTU2MQTT__LINES__0__BAUD".to_string(), "4800".to_string())]);
+        let problems = load_file_with_env(&path, Some(env)).unwrap_err();
+        assert_eq!(problems.0.len(), 1, "{problems}");
+        assert_eq!(problems.0[0].place, "lines");
+        assert_eq!(
+            problems.0[0].variable.as_deref(),
+            Some("RTU2MQTT__LINES__0__BAUD")
+        );
+    }
+
+    #[test]
+    fn a_directory_given_as_the_file_is_called_a_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        let problems = load_file_with_env(dir.path(), Some(HashMap::new())).unwrap_err();
+        assert!(
+            problems.to_string().contains("is a directory"),
+            "{problems}"
+        );
+        assert!(!problems.to_string().contains("not found"), "{problems}");
+    }
+
+    #[test]
+    fn the_type_walk_accepts_every_key_the_structs_take() {
+        let text = r#"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+prefix = "site"
+username = "gw"
+password = "secret"
+password_file = "/run/secrets/mqtt"
+ca_file = "ca.pem"
+cert_file = "cert.pem"
+key_file = "key.pem"
+keep_alive = "45s"
+clean_session = true
+inflight = 10
+discovery = false
+discovery_prefix = "ha"
+
+[gateway]
+command_ttl = "1m"
+json_view = true
+stats_interval = "30s"
+metrics_listen = "127.0.0.1:9184"
+frame_log = "frames.log"
+allow_raw_writes = true
+max_payload = 2048
+
+[health]
+status_file = ""
+interval = "5s"
+stale_after = "30s"
+stall_limit = "2m"
+
+[[lines]]
+name = "line-a"
+port = "/dev/ttyUSB0"
+baud = 19200
+parity = "odd"
+data_bits = 8
+stop_bits = 2
+response_timeout = "300ms"
+retries = 2
+offline_after = 4
+echo = true
+broadcast_turnaround = "250ms"
+rs485 = { rts_on_send = false, delay_before_send = "1ms", delay_after_send = "2ms" }
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 3
+poll_interval = "2s"
+"#;
+        let raw = load_str(text).unwrap();
+        assert_eq!(raw.lines[0].stop_bits, 2);
+        assert_eq!(raw.gateway.max_payload, 2048);
     }
 }

@@ -76,6 +76,8 @@ pub struct Problem {
     /// Empty when the problem is about the whole file.
     pub place: String,
     pub reason: String,
+    /// The environment variable that set the value, when the problem lies in an override.
+    pub variable: Option<String>,
 }
 
 impl Problem {
@@ -83,13 +85,24 @@ impl Problem {
         Problem {
             place: place.into(),
             reason: reason.into(),
+            variable: None,
         }
     }
 }
 
 impl fmt::Display for Problem {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.place.is_empty() {
+        if let Some(variable) = &self.variable {
+            if self.place.is_empty() || self.place == *variable {
+                write!(f, "{variable} (environment): {}", self.reason)
+            } else {
+                write!(
+                    f,
+                    "{variable} (environment, {}): {}",
+                    self.place, self.reason
+                )
+            }
+        } else if self.place.is_empty() {
             write!(f, "{}", self.reason)
         } else {
             write!(f, "{}: {}", self.place, self.reason)
@@ -125,10 +138,21 @@ impl fmt::Display for Problems {
 impl std::error::Error for Problems {}
 
 /// Reads, overrides from the environment and validates the configuration at `path`.
+/// A problem in a value set from the environment names its variable, not the file.
 pub fn load(path: &Path) -> Result<Config, Problems> {
-    let raw = load::load_file(path)?;
+    load_with_env(path, load::process_environment()?)
+}
+
+/// Like [`load`] with an explicit environment (tests).
+pub fn load_with_env(
+    path: &Path,
+    env: std::collections::HashMap<String, String>,
+) -> Result<Config, Problems> {
+    let overrides = load::env_overrides(&env);
+    let raw = load::load_file_with_env(path, Some(env))?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
     validate::validate(&raw, base)
+        .map_err(|problems| load::blame_overrides(problems, &overrides, false))
 }
 
 /// Parses and validates configuration text (profile paths relative to `base`).

@@ -149,7 +149,142 @@ pub struct RawDevice {
     pub poll_interval: Option<Duration>,
 }
 
-/// Known keys of every table, for listing all unknown keys at once (serde stops at the first).
+/// What a key's value must be, for reporting every unknown key and wrongly typed value at once
+/// with its place (serde stops at the first problem and words it in its own terms).
+#[derive(Debug, Clone, Copy)]
+pub enum Kind {
+    Text,
+    Bool,
+    /// An integer in `min..=max` (the range of the field's Rust type).
+    Integer {
+        min: i64,
+        max: i64,
+    },
+    /// A humantime duration (`"300ms"`).
+    Duration,
+    /// One of these words.
+    OneOf(&'static [&'static str]),
+    /// A table with these keys.
+    Table(&'static [Key]),
+    /// A list of tables with these keys (`[[lines]]`).
+    Tables(&'static [Key]),
+}
+
+/// One key a table knows.
+#[derive(Debug, Clone, Copy)]
+pub struct Key {
+    pub name: &'static str,
+    pub kind: Kind,
+    pub required: bool,
+}
+
+const fn required(name: &'static str, kind: Kind) -> Key {
+    Key {
+        name,
+        kind,
+        required: true,
+    }
+}
+
+const fn optional(name: &'static str, kind: Kind) -> Key {
+    Key {
+        name,
+        kind,
+        required: false,
+    }
+}
+
+const fn integer_up_to(max: u64) -> Kind {
+    // Every bound used here fits an i64.
+    Kind::Integer {
+        min: 0,
+        max: if max > i64::MAX as u64 {
+            i64::MAX
+        } else {
+            max as i64
+        },
+    }
+}
+
+const U8: Kind = integer_up_to(u8::MAX as u64);
+const U16: Kind = integer_up_to(u16::MAX as u64);
+const U32: Kind = integer_up_to(u32::MAX as u64);
+const USIZE: Kind = integer_up_to(usize::MAX as u64);
+const I64: Kind = Kind::Integer {
+    min: i64::MIN,
+    max: i64::MAX,
+};
+
+/// The parity words ([`Parity`] in lower case).
+pub const PARITY_WORDS: &[&str] = &["none", "even", "odd"];
+
+/// The whole file, key by key (must agree with the serde structs above and the `*_KEYS`).
+pub const TOP_SHAPE: &[Key] = &[
+    required("mqtt", Kind::Table(MQTT_SHAPE)),
+    optional("gateway", Kind::Table(GATEWAY_SHAPE)),
+    optional("health", Kind::Table(HEALTH_SHAPE)),
+    optional("lines", Kind::Tables(LINE_SHAPE)),
+];
+pub const MQTT_SHAPE: &[Key] = &[
+    required("url", Kind::Text),
+    required("client_id", Kind::Text),
+    optional("prefix", Kind::Text),
+    optional("username", Kind::Text),
+    optional("password", Kind::Text),
+    optional("password_file", Kind::Text),
+    optional("ca_file", Kind::Text),
+    optional("cert_file", Kind::Text),
+    optional("key_file", Kind::Text),
+    optional("keep_alive", Kind::Duration),
+    optional("clean_session", Kind::Bool),
+    optional("inflight", U16),
+    optional("discovery", Kind::Bool),
+    optional("discovery_prefix", Kind::Text),
+];
+pub const HEALTH_SHAPE: &[Key] = &[
+    optional("status_file", Kind::Text),
+    optional("interval", Kind::Duration),
+    optional("stale_after", Kind::Duration),
+    optional("stall_limit", Kind::Duration),
+];
+pub const GATEWAY_SHAPE: &[Key] = &[
+    optional("command_ttl", Kind::Duration),
+    optional("json_view", Kind::Bool),
+    optional("stats_interval", Kind::Duration),
+    optional("metrics_listen", Kind::Text),
+    optional("frame_log", Kind::Text),
+    optional("allow_raw_writes", Kind::Bool),
+    optional("max_payload", USIZE),
+];
+pub const LINE_SHAPE: &[Key] = &[
+    required("name", Kind::Text),
+    required("port", Kind::Text),
+    optional("baud", U32),
+    optional("parity", Kind::OneOf(PARITY_WORDS)),
+    optional("data_bits", U8),
+    optional("stop_bits", U8),
+    optional("response_timeout", Kind::Duration),
+    optional("retries", U32),
+    optional("offline_after", U32),
+    optional("echo", Kind::Bool),
+    optional("broadcast_turnaround", Kind::Duration),
+    optional("rs485", Kind::Table(RS485_SHAPE)),
+    optional("devices", Kind::Tables(DEVICE_SHAPE)),
+];
+pub const RS485_SHAPE: &[Key] = &[
+    optional("rts_on_send", Kind::Bool),
+    optional("delay_before_send", Kind::Duration),
+    optional("delay_after_send", Kind::Duration),
+];
+pub const DEVICE_SHAPE: &[Key] = &[
+    required("name", Kind::Text),
+    required("profile", Kind::Text),
+    required("address", I64),
+    optional("poll_interval", Kind::Duration),
+];
+
+/// The key names of each table (the README documents each of them).
+pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines"];
 pub const MQTT_KEYS: &[&str] = &[
     "url",
     "client_id",
@@ -166,7 +301,6 @@ pub const MQTT_KEYS: &[&str] = &[
     "discovery",
     "discovery_prefix",
 ];
-pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines"];
 pub const HEALTH_KEYS: &[&str] = &["status_file", "interval", "stale_after", "stall_limit"];
 pub const GATEWAY_KEYS: &[&str] = &[
     "command_ttl",
@@ -233,4 +367,26 @@ fn default_offline_after() -> u32 {
 }
 fn default_broadcast_turnaround() -> Duration {
     Duration::from_millis(200)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_key_lists_name_the_shapes_keys() {
+        let pairs: [(&[&str], &[Key]); 7] = [
+            (TOP_KEYS, TOP_SHAPE),
+            (MQTT_KEYS, MQTT_SHAPE),
+            (HEALTH_KEYS, HEALTH_SHAPE),
+            (GATEWAY_KEYS, GATEWAY_SHAPE),
+            (LINE_KEYS, LINE_SHAPE),
+            (RS485_KEYS, RS485_SHAPE),
+            (DEVICE_KEYS, DEVICE_SHAPE),
+        ];
+        for (names, shape) in pairs {
+            let shape_names: Vec<&str> = shape.iter().map(|key| key.name).collect();
+            assert_eq!(names, shape_names.as_slice());
+        }
+    }
 }
