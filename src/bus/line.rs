@@ -5,6 +5,12 @@
 //! remembering that per device), decodes them with the profile and reports [`LineEvent`]s. It
 //! publishes [`LineStats`] after every transaction and at least once a second.
 //!
+//! A port path that exists but is no serial port (a regular file, `/dev/null`: FAULTS B11) is a
+//! configuration mistake that waiting does not fix. The line is then failed: its devices are
+//! offline, every attempt logs an ERROR naming the path, and it looks again only after 5 s
+//! doubling to 60 s (the path may be a link that gets pointed at the adapter). It does not end
+//! the daemon: the gateway's other lines keep serving their devices.
+//!
 //! A transaction is never cancelled half-way: shutdown, commands and timers are only looked at
 //! between transactions, so the line is always left with a complete frame exchange on it.
 //!
@@ -29,7 +35,7 @@ use super::{Command, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats}
 use crate::profile::{CommandPlan, Profile, ReadBlock, Verification};
 use crate::rtu::master::{Master, MasterOptions, WireCounters};
 use crate::rtu::timing::LineTiming;
-use crate::rtu::transport::Port;
+use crate::rtu::transport::{Port, TransportError};
 use crate::rtu::{ExceptionCode, Request, Response};
 use crate::shutdown::Shutdown;
 
@@ -41,6 +47,10 @@ pub const DEVICE_MARGIN: Duration = Duration::from_millis(100);
 pub const REOPEN_INITIAL: Duration = Duration::from_millis(100);
 /// Longest wait between two attempts to open a port.
 pub const REOPEN_MAX: Duration = Duration::from_secs(3);
+/// First wait before looking again at a port path that is no serial port.
+pub const NOT_A_PORT_RETRY_INITIAL: Duration = Duration::from_secs(5);
+/// Longest wait between two looks at a port path that is no serial port.
+pub const NOT_A_PORT_RETRY_MAX: Duration = Duration::from_secs(60);
 /// Statistics are published at least this often (the watchdog's heartbeat).
 pub const HEARTBEAT: Duration = Duration::from_secs(1);
 /// Bus load is measured over this sliding window.
@@ -314,15 +324,30 @@ impl Line {
                 self.reopen_delay = REOPEN_INITIAL;
                 self.scheduler.port_restored(now);
             }
+            Err(error @ TransportError::NotATerminal { .. }) => {
+                self.stats.port_failures += 1;
+                let delay = self.reopen_delay.max(NOT_A_PORT_RETRY_INITIAL);
+                tracing::error!(
+                    port = %self.spec.serial.path,
+                    retry_in = ?delay,
+                    "line failed, its devices stay offline: {error}; set `port` to the \
+                     adapter's device (such as /dev/serial/by-id/…)"
+                );
+                self.reopen_at = now + delay;
+                self.reopen_delay = (delay * 2).min(NOT_A_PORT_RETRY_MAX);
+                self.lose_devices(now).await;
+            }
             Err(error) => {
                 self.stats.port_failures += 1;
+                // After a spell as no serial port the path may simply be missing: wait as usual.
+                let delay = self.reopen_delay.min(REOPEN_MAX);
                 tracing::warn!(
                     port = %self.spec.serial.path,
-                    retry_in = ?self.reopen_delay,
+                    retry_in = ?delay,
                     "cannot open the port: {error}"
                 );
-                self.reopen_at = now + self.reopen_delay;
-                self.reopen_delay = (self.reopen_delay * 2).min(REOPEN_MAX);
+                self.reopen_at = now + delay;
+                self.reopen_delay = (delay * 2).min(REOPEN_MAX);
                 self.lose_devices(now).await;
             }
         }
@@ -888,5 +913,104 @@ mod tests {
         let mut bits = empty_answer(&coils);
         place(&mut bits, 2, &Response::Coils(vec![true, true]));
         assert_eq!(bits, Response::Coils(vec![false, false, true, true]));
+    }
+
+    /// Collects what the test's tracing subscriber writes.
+    #[derive(Clone, Default)]
+    struct CapturedLog(Arc<std::sync::Mutex<Vec<u8>>>);
+
+    impl std::io::Write for CapturedLog {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl<'a> tracing_subscriber::fmt::MakeWriter<'a> for CapturedLog {
+        type Writer = CapturedLog;
+        fn make_writer(&'a self) -> Self::Writer {
+            self.clone()
+        }
+    }
+
+    // Current-thread runtime: the line task runs on this thread, under the test's subscriber.
+    #[tokio::test]
+    async fn a_port_path_that_is_no_serial_port_fails_the_line_with_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("passwd");
+        std::fs::write(&path, "root:x:0:0::/root:/bin/sh\n").unwrap();
+        let log = CapturedLog::default();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(log.clone())
+            .with_ansi(false)
+            .with_max_level(tracing::Level::INFO)
+            .finish();
+        let _default = tracing::subscriber::set_default(subscriber);
+        let profile = crate::profile::registry::built_in("wuzhou-valve").unwrap();
+        let spec = LineSpec {
+            name: "line-x".into(),
+            serial: crate::rtu::transport::SerialSettings {
+                path: path.display().to_string(),
+                baud: 9600,
+                format: crate::rtu::timing::CharFormat {
+                    data_bits: 8,
+                    parity: crate::rtu::timing::Parity::Even,
+                    stop_bits: 1,
+                },
+                rs485: None,
+            },
+            response_timeout: None,
+            retries: 1,
+            offline_after: 2,
+            echo: false,
+            broadcast_turnaround: Duration::from_millis(200),
+            frame_log: None,
+            devices: vec![super::super::DeviceSpec {
+                name: "valve".into(),
+                address: 1,
+                profile: Arc::new(profile),
+                poll_interval: Duration::from_secs(1),
+            }],
+        };
+        let (events_tx, mut events_rx) = mpsc::channel(16);
+        let (trigger, shutdown) = crate::shutdown::channel();
+        let (handle, task) = spawn_line(spec, events_tx, shutdown);
+
+        let event = tokio::time::timeout(Duration::from_secs(15), events_rx.recv())
+            .await
+            .unwrap();
+        assert_eq!(
+            event,
+            Some(LineEvent::Availability {
+                device: "valve".into(),
+                online: false
+            })
+        );
+        let mut stats = handle.stats_rx.clone();
+        // `matches!` drops the watch's read guard at once: the line publishes stats meanwhile.
+        let failed = matches!(
+            tokio::time::timeout(
+                Duration::from_secs(15),
+                stats.wait_for(|stats| stats.port_failures >= 1 && !stats.port_open),
+            )
+            .await,
+            Ok(Ok(_))
+        );
+        assert!(failed);
+        trigger.fire();
+        task.await.unwrap();
+
+        let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+        let failure = text
+            .lines()
+            .find(|line| line.contains("is not a serial port"))
+            .unwrap_or_else(|| panic!("no line failure logged:\n{text}"));
+        assert!(failure.contains("ERROR"), "{failure}");
+        assert!(failure.contains(&path.display().to_string()), "{failure}");
+        assert!(failure.contains("retry_in=5s"), "{failure}");
+        assert!(!text.contains("cannot open the port"), "{text}");
     }
 }

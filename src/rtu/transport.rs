@@ -38,6 +38,13 @@ pub enum TransportError {
         path: String,
         source: std::io::Error,
     },
+    /// The path exists but is no serial port (a regular file, a directory, `/dev/null`): no
+    /// amount of waiting fixes that, unlike a missing path or a port that is busy.
+    #[error("{path} is not a serial port (not a terminal device): {source}")]
+    NotATerminal {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: {setting} refused by the port: {source}")]
     SettingRefused {
         path: String,
@@ -77,6 +84,28 @@ fn io_error(error: tokio_serial::Error) -> io::Error {
     io::Error::from(error)
 }
 
+/// Whether `path`, which could not be opened as a serial port, exists and is something else.
+/// tokio-serial's error has lost the errno (ENOTTY), so the path is looked at again. A missing
+/// path, or one that cannot be opened at all (busy, permissions not yet set by udev), is not
+/// known to be a non-terminal: it is worth waiting for.
+fn is_not_a_terminal(path: &str) -> bool {
+    use std::io::IsTerminal;
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+
+    let Ok(metadata) = std::fs::metadata(path) else {
+        return false;
+    };
+    if !metadata.file_type().is_char_device() {
+        return true;
+    }
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+        .open(path)
+        .is_ok_and(|device| !device.is_terminal())
+}
+
 impl Port {
     /// Opens the port with `settings`: exclusive access (TIOCEXCL), baud, character format and
     /// the optional kernel RS485 mode.
@@ -89,9 +118,14 @@ impl Port {
             .stop_bits(StopBits::One)
             .flow_control(tokio_serial::FlowControl::None)
             .open_native_async()
-            .map_err(|source| TransportError::Open {
-                path: settings.path.clone(),
-                source: io_error(source),
+            .map_err(|source| {
+                let path = settings.path.clone();
+                let source = io_error(source);
+                if is_not_a_terminal(&path) {
+                    TransportError::NotATerminal { path, source }
+                } else {
+                    TransportError::Open { path, source }
+                }
             })?;
         Port::from_stream(stream, settings)
     }
@@ -412,6 +446,53 @@ mod tests {
         }
     }
 
+    fn settings_at(path: &std::path::Path) -> SerialSettings {
+        SerialSettings {
+            path: path.display().to_string(),
+            rs485: None,
+            ..settings(Parity::None)
+        }
+    }
+
+    #[tokio::test]
+    async fn a_regular_file_is_not_a_terminal() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("passwd");
+        std::fs::write(&path, "root:x:0:0::/root:/bin/sh\n").unwrap();
+        let error = Port::open(&settings_at(&path)).unwrap_err();
+        assert!(
+            matches!(error, TransportError::NotATerminal { .. }),
+            "{error:?}"
+        );
+        assert!(
+            error.to_string().contains("is not a serial port"),
+            "{error}"
+        );
+        // Nothing was written to it.
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "root:x:0:0::/root:/bin/sh\n"
+        );
+    }
+
+    #[tokio::test]
+    async fn a_directory_is_not_a_terminal() {
+        let dir = tempfile::tempdir().unwrap();
+        let error = Port::open(&settings_at(dir.path())).unwrap_err();
+        assert!(
+            matches!(error, TransportError::NotATerminal { .. }),
+            "{error:?}"
+        );
+    }
+
+    #[tokio::test]
+    async fn a_pty_is_a_terminal() {
+        let (_ours, theirs) = SerialStream::pair().unwrap();
+        let path = theirs.name().unwrap();
+        drop(theirs);
+        assert!(!is_not_a_terminal(&path));
+    }
+
     #[test]
     fn rs485_struct_has_the_kernel_size() {
         assert_eq!(std::mem::size_of::<SerialRs485>(), 32);
@@ -483,13 +564,13 @@ mod tests {
     }
 
     #[test]
-    fn not_a_tty_is_an_open_error() {
+    fn a_character_device_that_is_no_tty_is_not_a_terminal() {
         let mut not_a_tty = settings(Parity::None);
         not_a_tty.path = "/dev/null".into();
         not_a_tty.rs485 = None;
         assert!(matches!(
             Port::open(&not_a_tty),
-            Err(TransportError::Open { .. })
+            Err(TransportError::NotATerminal { .. })
         ));
     }
 
