@@ -16,7 +16,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::clock::{sleep_until_precise, SPIN_WINDOW};
+use super::clock::sleep_until_precise;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
 use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
@@ -314,20 +314,17 @@ impl Master {
             if now >= give_up {
                 return Err(Error::LineBusy(patience));
             }
-            // Listen with the coarse timer until shortly before the silence is complete, then
-            // finish precisely; bytes in the last stretch are caught by the next take_pending.
-            let coarse_until = quiet_at
-                .checked_sub(SPIN_WINDOW)
-                .unwrap_or(now)
-                .min(give_up);
-            if coarse_until > now {
-                if let Some((count, seen)) = self.port.read_until(&mut chunk, coarse_until).await? {
-                    let bytes = chunk[..count].to_vec();
-                    self.absorb_unsolicited(&bytes, seen);
-                    continue;
-                }
+            // Listen all through the silence; the precise timer (a timerfd, not the
+            // millisecond tokio timer) ends the wait as soon as the silence is complete.
+            let heard = tokio::select! {
+                biased;
+                read = self.port.read_until(&mut chunk, give_up) => read?,
+                () = sleep_until_precise(quiet_at.min(give_up)) => None,
+            };
+            if let Some((count, seen)) = heard {
+                let bytes = chunk[..count].to_vec();
+                self.absorb_unsolicited(&bytes, seen);
             }
-            sleep_until_precise(quiet_at).await;
         }
     }
 
