@@ -217,23 +217,68 @@ async fn measure(
         }
     }
     let min_silence = records.iter().filter_map(|r| r.silence_before).min();
-    // Where the time beyond the wire goes: the silence the simulator saw before each request
-    // (the master's t3.5 plus everything the gateway spends between transactions) against the
-    // mandatory t3.5; the rest of the overhead is on the simulator's side of the exchange.
+    // Where the time beyond the wire goes, per transaction, from the simulator's instants
+    // (every transaction's cycle is: request arrives, the simulator's answer is due, it is
+    // handed to the pty, the next request arrives):
+    //  - simulator, framing: due − (arrival + request wire time + t3.5 + answer wire time)
+    //  - simulator, pacing: handed to the pty − due
+    //  - gateway and both wake-ups: silence before the next request (from the hand-over) − t3.5
+    //    (the master's read wake-up, its wait's overshoot, its write, the simulator's read
+    //    wake-up).
     let silences: Vec<Duration> = records.iter().filter_map(|r| r.silence_before).collect();
-    if !silences.is_empty() {
-        let mean = silences.iter().sum::<Duration>() / silences.len() as u32;
+    let answered: Vec<_> = records
+        .iter()
+        .filter_map(|r| Some((r, r.answer.as_ref()?, r.answer_timing?)))
+        .collect();
+    if !silences.is_empty() && !answered.is_empty() {
+        let mean =
+            |values: &[Duration]| values.iter().sum::<Duration>() / values.len().max(1) as u32;
+        let silence_mean = mean(&silences);
         let short = silences.iter().filter(|s| **s < timing.t3_5).count();
+        let framing: Vec<Duration> = answered
+            .iter()
+            .map(|(r, answer, t)| {
+                t.due.saturating_duration_since(
+                    r.arrived
+                        + timing.frame_time(r.frame.len())
+                        + timing.t3_5
+                        + timing.frame_time(answer.len()),
+                )
+            })
+            .collect();
+        let pacing: Vec<Duration> = answered
+            .iter()
+            .map(|(_, _, t)| t.handed_over.saturating_duration_since(t.due))
+            .collect();
+        let write_call: Vec<Duration> = answered
+            .iter()
+            .map(|(_, _, t)| t.write_returned.saturating_duration_since(t.handed_over))
+            .collect();
+        // The silence as the simulator used to measure it, from when its write returned.
+        let short_from_write_return = records
+            .windows(2)
+            .filter(|pair| {
+                pair[0].answer_timing.is_some_and(|t| {
+                    pair[1].arrived.saturating_duration_since(t.write_returned) < timing.t3_5
+                })
+            })
+            .count();
         let overhead = wall.saturating_sub(wire) / records.len().max(1) as u32;
         println!(
-            "{baud} baud: t3.5 {:.2?}, char {:.2?}; silence before requests mean {:.2?}, min {:.2?}, {short} of {} shorter than t3.5; overhead per transaction {:.2?} (gateway side ≈ {:.2?})",
+            "{baud} baud: t3.5 {:.2?}, char {:.2?}; silence before requests mean {:.2?}, min {:.2?}, {short} of {} shorter than t3.5 ({short_from_write_return} measured from the return of the simulator's write)",
             timing.t3_5,
             timing.char_time,
-            mean,
+            silence_mean,
             min_silence.unwrap_or_default(),
             silences.len(),
+        );
+        println!(
+            "{baud} baud: overhead per transaction {:.1?} = gateway and wake-ups {:.1?} + simulator framing {:.1?} + simulator pacing {:.1?} (its write call, not counted: {:.1?})",
             overhead,
-            mean.saturating_sub(timing.t3_5),
+            silence_mean.saturating_sub(timing.t3_5),
+            mean(&framing),
+            mean(&pacing),
+            mean(&write_call),
         );
     }
     latencies.sort_unstable();
