@@ -7,9 +7,11 @@
 //!
 //! measured from the simulator's journal (what really arrived on its end of the pty and what it
 //! sent back, paced at the character rate). Also printed: reads/s, command latency (mean, p99),
-//! the line's own bus-load figure, process RSS and CPU time.
+//! the line's own bus-load figure, process RSS and CPU time, and where the time beyond the wire
+//! goes per transaction: the simulator's pacing, the gateway with both pty wake-ups, and (from
+//! a separate pass with the master's frame recorder on) the master's own share of it.
 //!
-//! Run: `cargo bench --bench bus_efficiency` (about 25 s).
+//! Run: `cargo bench --bench bus_efficiency` (about 35 s).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -18,6 +20,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
 use rtu2mqtt::profile::{DeviceState, Profile};
+use rtu2mqtt::rtu::frame_log::FrameLog;
 use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt::rtu::transport::SerialSettings;
 use rtu2mqtt::shutdown;
@@ -58,7 +61,7 @@ fn main() -> anyhow::Result<()> {
     let profile = Arc::new(fast_air_shower()?);
     let mut all = Vec::new();
     for baud in [9600, 38400] {
-        all.push(runtime.block_on(measure(baud, profile.clone(), simulator.handle()))?);
+        all.push(runtime.block_on(measure(baud, profile.clone(), simulator.handle(), None))?);
     }
     println!();
     println!(
@@ -92,6 +95,18 @@ fn main() -> anyhow::Result<()> {
     }
     println!("process RSS: {} kB", rss_kb().unwrap_or(0));
     println!("(efficiency target ≥ 0.95; cpu% is the whole process, simulator included)");
+    // A separate pass with the master's frame recorder on (it costs a file write per frame,
+    // so the figures above are taken without it): the master's own share of the overhead.
+    println!();
+    println!("38400 baud again, with the master's frame recorder on (not in the table):");
+    let recording = tempfile::NamedTempFile::new()?;
+    runtime.block_on(measure(
+        38400,
+        profile.clone(),
+        simulator.handle(),
+        Some(recording.path()),
+    ))?;
+    print_master_share(recording.path(), LineTiming::new(38400, EIGHT_N_ONE))?;
     Ok(())
 }
 
@@ -106,16 +121,60 @@ fn fast_air_shower() -> anyhow::Result<Profile> {
         .map_err(|e| anyhow::anyhow!("profile: {e:?}"))
 }
 
+const EIGHT_N_ONE: CharFormat = CharFormat {
+    data_bits: 8,
+    parity: Parity::None,
+    stop_bits: 1,
+};
+
+/// From the frame recording: the time from the master seeing an answer (its `rx` record) to
+/// its next request (the `tx` record, written just before the write), less t3.5: the master's
+/// wait overshoot and the line task's own turn-around. The rest of the "gateway and wake-ups"
+/// figure is the two pty read wake-ups (the master's for the answer, the simulator's for the
+/// request) and the master's write call.
+fn print_master_share(recording: &std::path::Path, timing: LineTiming) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(recording)?;
+    let mut previous_rx: Option<f64> = None;
+    let mut beyond = Vec::new();
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let (Some(at), Some(direction)) = (fields.get(1), fields.get(2)) else {
+            continue;
+        };
+        let Ok(at) = at.parse::<f64>() else {
+            continue;
+        };
+        match *direction {
+            "rx" => previous_rx = Some(at),
+            "tx" => {
+                if let Some(rx) = previous_rx.take() {
+                    beyond.push((at - rx) * 1e6 - timing.t3_5.as_secs_f64() * 1e6);
+                }
+            }
+            _ => {}
+        }
+    }
+    if beyond.is_empty() {
+        return Ok(());
+    }
+    beyond.sort_by(f64::total_cmp);
+    let mean = beyond.iter().sum::<f64>() / beyond.len() as f64;
+    println!(
+        "38400 baud, frame recorder on: answer seen → next request, beyond t3.5: mean {mean:.1}µs, median {:.1}µs, p99 {:.1}µs over {} transactions (µs timestamps; the master's own share of the gateway figure)",
+        beyond[beyond.len() / 2],
+        beyond[(beyond.len() * 99).div_ceil(100).saturating_sub(1)],
+        beyond.len()
+    );
+    Ok(())
+}
+
 async fn measure(
     baud: u32,
     profile: Arc<Profile>,
     simulator: &tokio::runtime::Handle,
+    frame_log: Option<&std::path::Path>,
 ) -> anyhow::Result<Figures> {
-    let format = CharFormat {
-        data_bits: 8,
-        parity: Parity::None,
-        stop_bits: 1,
-    };
+    let format = EIGHT_N_ONE;
     let timing = LineTiming::new(baud, format);
     let (_shower, shared) = share(AirShower::new());
     let line = {
@@ -138,7 +197,7 @@ async fn measure(
         offline_after: 3,
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
-        frame_log: None,
+        frame_log: frame_log.map(FrameLog::create).transpose()?,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),
             address: 0x81,
