@@ -24,7 +24,7 @@ use self::capture::StderrCapture;
 use self::view::{log_line, PlantView};
 use super::{run_gateway, Hooks};
 use crate::broker::{self, BrokerError};
-use crate::config::{self, Config};
+use crate::config::{self, validate, Config};
 use crate::rtu::timing::{CharFormat, Parity};
 use crate::shutdown::{self, Shutdown};
 use crate::sim::{lock, SeedPlant};
@@ -51,7 +51,11 @@ pub struct BrokerEndpoint {
 
 impl BrokerEndpoint {
     pub fn url(&self) -> String {
-        format!("mqtt://{}:{}", self.host, self.port)
+        if self.host.contains(':') {
+            format!("mqtt://[{}]:{}", self.host, self.port)
+        } else {
+            format!("mqtt://{}:{}", self.host, self.port)
+        }
     }
 
     /// `mosquitto_pub`/`mosquitto_sub` options reaching it (none for the default 127.0.0.1:1883
@@ -70,32 +74,19 @@ impl BrokerEndpoint {
     }
 }
 
-/// `mqtt://host[:port]` (or `tcp://`, or a bare `host[:port]`) as host and port.
+/// `mqtt://host[:port]` (or a bare `host[:port]`) as host and port, read as the configuration's
+/// `mqtt.url` is; the demo talks plain MQTT only.
 pub fn parse_broker_url(url: &str) -> anyhow::Result<(String, u16)> {
-    let rest = if let Some(rest) = url
-        .strip_prefix("mqtt://")
-        .or_else(|| url.strip_prefix("tcp://"))
-    {
-        rest
-    } else if url.contains("://") {
-        bail!("`{url}`: the demo talks plain MQTT only (mqtt://host:port)");
+    let url = if url.contains("://") {
+        url.to_string()
     } else {
-        url
+        format!("mqtt://{url}")
     };
-    let rest = rest.trim_end_matches('/');
-    let (host, port) = match rest.rsplit_once(':') {
-        Some((host, port)) => {
-            let port = port
-                .parse::<u16>()
-                .with_context(|| format!("`{url}`: `{port}` is not a port"))?;
-            (host, port)
-        }
-        None => (rest, 1883),
-    };
-    if host.is_empty() || host.contains('/') || host.contains('@') {
-        bail!("`{url}` is not mqtt://host:port");
+    let endpoint = validate::parse_broker_url(&url).map_err(|problem| anyhow::anyhow!(problem))?;
+    if endpoint.tls {
+        bail!("`{url}`: the demo talks plain MQTT only (mqtt://host:port)");
     }
-    Ok((host.to_string(), port))
+    Ok((endpoint.host, endpoint.port))
 }
 
 /// The given broker, the embedded one on `port`, or (when `port` is taken by something that
@@ -550,6 +541,11 @@ mod tests {
         assert!(parse_broker_url("mqtt://host:99999").is_err());
         assert!(parse_broker_url("mqtt://user@host").is_err());
         assert!(parse_broker_url("mqtt://").is_err());
+        assert!(parse_broker_url("mqtt://host:0").is_err());
+        assert_eq!(
+            parse_broker_url("mqtt://[::1]:1884").unwrap(),
+            ("::1".to_string(), 1884)
+        );
     }
 
     #[test]
