@@ -292,7 +292,6 @@ fn every_broken_configuration_is_an_error_naming_its_place() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "bug: `demo` on an existing broker publishes under the same `plant/` topics as a real gateway there and leaves its devices `offline` when it stops"]
 async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
     use nix::sys::signal::{kill, Signal};
     use nix::unistd::Pid;
