@@ -325,7 +325,6 @@ async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "bug: the valve's alarm openings publish 255 (alarm disabled) while their Home Assistant number says max 100, so HA refuses the state and 255 cannot be set from HA"]
 async fn home_assistant_numbers_can_hold_the_values_the_gateway_publishes() {
     let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).unwrap();
