@@ -384,22 +384,20 @@ mod tests {
     fn read_limits_give_exceptions() {
         let mut dust = DustCollector::new(1);
         let now = Instant::now();
-        assert_eq!(
-            read(&mut dust, BASE, 7, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            read(&mut dust, BASE, 0, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            read(&mut dust, 0x1004, 3, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            read(&mut dust, 0x0FFF, 1, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
+        // (start, quantity, exception)
+        let refused = [
+            (BASE, 7, ExceptionCode::IllegalDataValue),
+            (BASE, 0, ExceptionCode::IllegalDataValue),
+            (0x1004, 3, ExceptionCode::IllegalDataAddress),
+            (0x0FFF, 1, ExceptionCode::IllegalDataAddress),
+        ];
+        for (start, quantity, code) in refused {
+            assert_eq!(
+                read(&mut dust, start, quantity, now),
+                Reply::Exception(code),
+                "read of {quantity} from {start:#06X}"
+            );
+        }
         assert_eq!(
             dust.handle(
                 &Request::ReadCoils {
@@ -469,18 +467,19 @@ mod tests {
         let mut dust = DustCollector::new(1);
         dust.set_power(true);
         let now = Instant::now();
-        assert_eq!(
-            write(&mut dust, 0x1002, 11, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            write(&mut dust, 0x1001, 1, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            write(&mut dust, 0x1008, 1, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
+        // (address, value, exception)
+        let refused = [
+            (0x1002, 11, ExceptionCode::IllegalDataValue),
+            (0x1001, 1, ExceptionCode::IllegalDataAddress),
+            (0x1008, 1, ExceptionCode::IllegalDataAddress),
+        ];
+        for (address, value, code) in refused {
+            assert_eq!(
+                write(&mut dust, address, value, now),
+                Reply::Exception(code),
+                "write of {value} to {address:#06X}"
+            );
+        }
         let values = vec![0x2240, 4, 100];
         assert_eq!(
             write_registers(&mut dust, values, now),
