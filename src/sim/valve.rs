@@ -616,26 +616,21 @@ mod tests {
     fn write_rules() {
         let mut valve = Valve::new(1);
         let now = Instant::now();
-        assert_eq!(
-            write(&mut valve, REG_OPENING, 101, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            write(&mut valve, 0x08, 1, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            write(&mut valve, 0x50, 1, now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            write(&mut valve, REG_SETPOINT, 0x00A0, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            write(&mut valve, REG_SETPOINT + 1, 0x0100, now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
+        // (register, value, exception)
+        let refused = [
+            (REG_OPENING, 101, ExceptionCode::IllegalDataValue),
+            (0x08, 1, ExceptionCode::IllegalDataAddress),
+            (0x50, 1, ExceptionCode::IllegalDataAddress),
+            (REG_SETPOINT, 0x00A0, ExceptionCode::IllegalDataValue),
+            (REG_SETPOINT + 1, 0x0100, ExceptionCode::IllegalDataValue),
+        ];
+        for (address, value, code) in refused {
+            assert_eq!(
+                write(&mut valve, address, value, now),
+                Reply::Exception(code),
+                "write of {value:#06X} to register {address:#04X}"
+            );
+        }
         assert!(matches!(
             write(&mut valve, REG_SETPOINT, 0x0150, now),
             Reply::Normal(_)
