@@ -27,10 +27,16 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
 /// costs a message, never a blocked bridge).
 pub const REQUEST_QUEUE: usize = 4096;
-/// Incoming packets above this end the connection in rumqttc, and a retained one would do so
-/// again after every reconnect. Far above any sane command, so that an oversized retained
-/// command is received, rejected by the payload limit and cleared instead; still a bound.
-pub const MAX_INCOMING_PACKET: usize = 1024 * 1024;
+/// Incoming packets above this end the connection in rumqttc (it reads a packet's length and
+/// gives up before reading its body), and the connection is lost *before* the message is
+/// acknowledged: a retained one comes back with every re-subscription and a QoS 1 one with
+/// every resumed persistent session, so any finite limit below the broker's lets one oversized
+/// `…/set` message cut the gateway off for good. The limit is therefore the largest packet MQTT
+/// can express (remaining length 268 435 455): every message the broker accepts is received,
+/// acknowledged, refused by the bridge's own `max_payload` and (when retained) cleared. The
+/// memory bound is the broker's maximum message size (mosquitto `message_size_limit` /
+/// `max_packet_size`), which deployments can lower; the bridge drops the payload at once.
+pub const MAX_INCOMING_PACKET: usize = 268_435_455;
 /// Discovery configs of big devices are a few KiB.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
 
