@@ -366,7 +366,6 @@ async fn home_assistant_numbers_can_hold_the_values_the_gateway_publishes() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "bug: a command for a field whose previous command is still settling waits in the offline queue and ends `expired` (\"stayed offline\") although the device is online"]
 async fn a_new_valve_target_during_a_settling_move_is_not_reported_as_offline() {
     let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).unwrap();

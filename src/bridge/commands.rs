@@ -1,7 +1,9 @@
 //! The command book: which commands wait and which are on the bus. Newest per field wins (an
 //! older waiting command is superseded), a command waits while its device is offline, while a
 //! command for the same field is still on the bus, or while the field's minimum write interval
-//! runs; it expires after its time to live. QoS 1 redeliveries (DUP) are recognised so a write
+//! runs. Only waiting for an offline device is bounded by the time to live: a command waiting
+//! behind one on the bus (a valve still settling) or behind the write interval waits for a
+//! device that answers, and runs when its turn comes. QoS 1 redeliveries (DUP) are recognised so a write
 //! never runs twice because of one. Pure: the clock is passed in.
 
 use std::collections::{HashMap, VecDeque};
@@ -21,7 +23,9 @@ pub struct TrackedCommand {
     /// The command text as received (trimmed).
     pub text: String,
     pub received: Instant,
-    pub expires: Instant,
+    /// When the command expires if its device stays offline until then; `None` while the
+    /// device is online (the clock starts again when it is next seen offline).
+    pub offline_deadline: Option<Instant>,
     /// The field's minimum time between two writes.
     pub min_write_interval: Option<Duration>,
 }
@@ -110,7 +114,7 @@ impl CommandBook {
             field: field.to_string(),
             text: text.to_string(),
             received: now,
-            expires: now + self.ttl,
+            offline_deadline: Some(now + self.ttl),
             min_write_interval,
         };
         self.next_id += 1;
@@ -147,14 +151,26 @@ impl CommandBook {
         taken
     }
 
-    /// Waiting commands whose time to live has passed, removed.
-    pub fn take_expired(&mut self, now: Instant) -> Vec<TrackedCommand> {
-        let expired: Vec<Key> = self
-            .waiting
-            .iter()
-            .filter(|(_, command)| command.expires <= now)
-            .map(|(key, _)| key.clone())
-            .collect();
+    /// Waiting commands whose device has stayed offline for their whole time to live, removed.
+    /// A command of an online device never expires here: it waits for a command on the bus or
+    /// for the write interval, both of which end.
+    pub fn take_expired(
+        &mut self,
+        now: Instant,
+        is_online: impl Fn(&str) -> bool,
+    ) -> Vec<TrackedCommand> {
+        let ttl = self.ttl;
+        let mut expired: Vec<Key> = Vec::new();
+        for (key, command) in self.waiting.iter_mut() {
+            if is_online(&key.0) {
+                command.offline_deadline = None;
+                continue;
+            }
+            let deadline = *command.offline_deadline.get_or_insert(now + ttl);
+            if deadline <= now {
+                expired.push(key.clone());
+            }
+        }
         let mut taken: Vec<TrackedCommand> = expired
             .into_iter()
             .filter_map(|key| self.waiting.remove(&key))
@@ -299,11 +315,43 @@ mod tests {
         let mut book = CommandBook::new(TTL);
         book.submit("dust", "gear", "3", None, start);
         assert!(book
-            .take_expired(start + TTL - Duration::from_secs(1))
+            .take_expired(start + TTL - Duration::from_secs(1), |_| false)
             .is_empty());
-        let expired = book.take_expired(start + TTL);
+        let expired = book.take_expired(start + TTL, |_| false);
         assert_eq!(expired.len(), 1);
         assert!(book.take_ready(start + TTL, |_| true).is_empty());
+    }
+
+    #[test]
+    fn waiting_behind_a_command_on_the_bus_never_expires() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("valve", "opening", "100", None, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.submit("valve", "opening", "50", None, start);
+        // The first one settles for longer than the time to live; the device answers.
+        let much_later = start + TTL * 3;
+        assert!(book.take_expired(much_later, |_| true).is_empty());
+        book.finish("valve", "opening", true, much_later);
+        assert_eq!(book.take_ready(much_later, |_| true)[0].text, "50");
+    }
+
+    #[test]
+    fn the_time_to_live_counts_from_when_the_device_is_seen_offline() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("valve", "opening", "100", None, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.submit("valve", "opening", "50", None, start);
+        let offline_at = start + TTL * 2;
+        assert!(book.take_expired(start + TTL, |_| true).is_empty());
+        assert!(book.take_expired(offline_at, |_| false).is_empty());
+        assert!(book
+            .take_expired(offline_at + TTL - Duration::from_secs(1), |_| false)
+            .is_empty());
+        let expired = book.take_expired(offline_at + TTL, |_| false);
+        assert_eq!(expired.len(), 1);
+        assert_eq!(expired[0].text, "50");
     }
 
     #[test]

@@ -599,7 +599,11 @@ impl Bridge {
 
     fn on_tick(&mut self) {
         let now = Instant::now();
-        for command in self.book.take_expired(now) {
+        let cache = &self.cache;
+        let expired = self
+            .book
+            .take_expired(now, |device| cache.is_online(device));
+        for command in expired {
             self.counters.commands_expired += 1;
             let detail = format!(
                 "device {} stayed offline for {} (the command's time to live)",
