@@ -397,7 +397,6 @@ async fn a_new_valve_target_during_a_settling_move_is_not_reported_as_offline() 
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "bug: the statistics document is published without retain, while the README (Home Assistant section) says it is retained"]
 async fn the_statistics_document_is_retained() {
     let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).unwrap();

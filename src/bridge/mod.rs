@@ -662,9 +662,11 @@ impl Bridge {
         })
     }
 
+    /// Retained: the gateway's Home Assistant sensors (and any client arriving later) read the
+    /// last document at once instead of waiting up to a statistics interval.
     fn publish_stats(&mut self) {
         let document = metrics::stats_json(&self.line_stats(), &self.counters_snapshot());
-        self.publish(self.topics.gateway_stats(), document.to_string(), false);
+        self.publish(self.topics.gateway_stats(), document.to_string(), true);
     }
 
     // ----- stop -----
