@@ -462,11 +462,13 @@ impl Bridge {
     /// A newer command for the same field replaced `older` before it ran. Its retained
     /// message has been replaced by the newer one too: no clear.
     fn supersede(&mut self, older: TrackedCommand) {
-        self.counters.commands_expired += 1;
+        self.counters.commands_superseded += 1;
+        tracing::info!(device = %older.device, field = %older.field, command = %older.text,
+            "command superseded by a newer one");
         let result = CommandResult::new(
             &older.text,
-            Outcome::Expired,
-            "superseded by a newer command",
+            Outcome::Superseded,
+            "superseded by a newer command for the same field before it was sent",
         );
         self.publish_or_defer(
             self.topics.result(&older.device, &older.field),
@@ -587,6 +589,7 @@ impl Bridge {
             Outcome::Rejected => self.counters.commands_rejected += 1,
             Outcome::Failed => self.counters.commands_failed += 1,
             Outcome::Expired => self.counters.commands_expired += 1,
+            Outcome::Superseded => self.counters.commands_superseded += 1,
         }
         tracing::info!(device = %command.device, field = %command.field, command = %command.text,
             outcome = word.word(), %detail, "command finished");

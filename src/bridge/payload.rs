@@ -22,9 +22,10 @@ pub enum Outcome {
     Rejected,
     /// An exception answer, or no answer after the retries.
     Failed,
-    /// The device stayed offline past the command's time to live, or a newer command replaced
-    /// this one before it ran.
+    /// The device stayed offline past the command's time to live.
     Expired,
+    /// A newer command for the same field replaced this one before it reached the bus.
+    Superseded,
 }
 
 impl Outcome {
@@ -35,6 +36,7 @@ impl Outcome {
             Outcome::Rejected => "rejected",
             Outcome::Failed => "failed",
             Outcome::Expired => "expired",
+            Outcome::Superseded => "superseded",
         }
     }
 }
@@ -148,6 +150,7 @@ mod tests {
             Outcome::Rejected,
             Outcome::Failed,
             Outcome::Expired,
+            Outcome::Superseded,
         ] {
             assert_eq!(
                 serde_json::to_value(outcome).unwrap(),
