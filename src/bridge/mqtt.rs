@@ -139,11 +139,14 @@ pub fn spawn_event_loop(
         let mut backoff = Backoff::default();
         let mut connected_since: Option<Instant> = None;
         let mut reported_down = false;
+        // Failed attempts since the link went down, for the log.
+        let mut failed_attempts: u32 = 0;
         loop {
             let event = match eventloop.poll().await {
                 Ok(Event::Incoming(Packet::ConnAck(connack))) => {
                     connected_since = Some(Instant::now());
                     reported_down = false;
+                    failed_attempts = 0;
                     tracing::info!(session_present = connack.session_present, "MQTT connected");
                     LinkEvent::Connected {
                         session_present: connack.session_present,
@@ -167,7 +170,8 @@ pub fn spawn_event_loop(
                         }
                     }
                     let wait = backoff.next_wait();
-                    log_connection_error(&error, wait, reported_down);
+                    log_connection_error(&error, wait, failed_attempts);
+                    failed_attempts = failed_attempts.saturating_add(1);
                     if !reported_down {
                         reported_down = true;
                         let down = LinkEvent::Disconnected {
@@ -191,13 +195,15 @@ pub fn spawn_event_loop(
     })
 }
 
-/// One line per attempt: a warning when the link goes down, then quieter while it stays down.
-fn log_connection_error(error: &ConnectionError, wait: Duration, already_down: bool) {
+/// One line per back-off step, with the wait before the next attempt: the link going down
+/// (or the first attempt failing), then every failed reconnect attempt. The back-off caps the
+/// rate at one line per [`BACKOFF_MAX`].
+fn log_connection_error(error: &ConnectionError, wait: Duration, failed_attempts: u32) {
     let wait = humantime::format_duration(Duration::from_millis(wait.as_millis() as u64));
-    if already_down {
-        tracing::debug!(%error, retry_in = %wait, "MQTT still unreachable");
-    } else {
+    if failed_attempts == 0 {
         tracing::warn!(%error, retry_in = %wait, "MQTT connection lost");
+    } else {
+        tracing::warn!(%error, attempt = failed_attempts, retry_in = %wait, "MQTT reconnect failed");
     }
 }
 
