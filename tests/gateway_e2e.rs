@@ -705,6 +705,10 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         assert!(!detail.is_empty(), "{result}");
         assert!(detail.contains(reason), "{device}/{field}: {result}");
     }
+    // `value` is the payload exactly as sent, untrimmed, control characters included.
+    let result = h.command("dust_collector", "gear", b" banana\r\n").await;
+    assert_eq!(outcome(&result), "rejected", "{result}");
+    assert_eq!(result["value"], " banana\r\n", "{result}");
     // A retained payload far over the limit (but under the client's packet bound) is
     // rejected and cleared, so it does not come back after every reconnect.
     h.client
