@@ -7,9 +7,11 @@
 //!
 //! measured from the simulator's journal (what really arrived on its end of the pty and what it
 //! sent back, paced at the character rate). Also printed: reads/s, command latency (mean, p99),
-//! the line's own bus-load figure, process RSS and CPU time.
+//! the line's own bus-load figure, process RSS and CPU time, and where the time beyond the wire
+//! goes per transaction: the simulator's pacing, the gateway with both pty wake-ups, and (from
+//! a separate pass with the master's frame recorder on) the master's own share of it.
 //!
-//! Run: `cargo bench --bench bus_efficiency` (about 25 s).
+//! Run: `cargo bench --bench bus_efficiency` (about 35 s).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -18,6 +20,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
 use rtu2mqtt::profile::{DeviceState, Profile};
+use rtu2mqtt::rtu::frame_log::FrameLog;
 use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt::rtu::transport::SerialSettings;
 use rtu2mqtt::shutdown;
@@ -58,7 +61,7 @@ fn main() -> anyhow::Result<()> {
     let profile = Arc::new(fast_air_shower()?);
     let mut all = Vec::new();
     for baud in [9600, 38400] {
-        all.push(runtime.block_on(measure(baud, profile.clone(), simulator.handle()))?);
+        all.push(runtime.block_on(measure(baud, profile.clone(), simulator.handle(), None))?);
     }
     println!();
     println!(
@@ -92,6 +95,18 @@ fn main() -> anyhow::Result<()> {
     }
     println!("process RSS: {} kB", rss_kb().unwrap_or(0));
     println!("(efficiency target ≥ 0.95; cpu% is the whole process, simulator included)");
+    // A separate pass with the master's frame recorder on (it costs a file write per frame,
+    // so the figures above are taken without it): the master's own share of the overhead.
+    println!();
+    println!("38400 baud again, with the master's frame recorder on (not in the table):");
+    let recording = tempfile::NamedTempFile::new()?;
+    runtime.block_on(measure(
+        38400,
+        profile.clone(),
+        simulator.handle(),
+        Some(recording.path()),
+    ))?;
+    print_master_share(recording.path(), LineTiming::new(38400, EIGHT_N_ONE))?;
     Ok(())
 }
 
@@ -106,16 +121,60 @@ fn fast_air_shower() -> anyhow::Result<Profile> {
         .map_err(|e| anyhow::anyhow!("profile: {e:?}"))
 }
 
+const EIGHT_N_ONE: CharFormat = CharFormat {
+    data_bits: 8,
+    parity: Parity::None,
+    stop_bits: 1,
+};
+
+/// From the frame recording: the time from the master seeing an answer (its `rx` record) to
+/// its next request (the `tx` record, written just before the write), less t3.5: the master's
+/// wait overshoot and the line task's own turn-around. The rest of the "gateway and wake-ups"
+/// figure is the two pty read wake-ups (the master's for the answer, the simulator's for the
+/// request) and the master's write call.
+fn print_master_share(recording: &std::path::Path, timing: LineTiming) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(recording)?;
+    let mut previous_rx: Option<f64> = None;
+    let mut beyond = Vec::new();
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let (Some(at), Some(direction)) = (fields.get(1), fields.get(2)) else {
+            continue;
+        };
+        let Ok(at) = at.parse::<f64>() else {
+            continue;
+        };
+        match *direction {
+            "rx" => previous_rx = Some(at),
+            "tx" => {
+                if let Some(rx) = previous_rx.take() {
+                    beyond.push((at - rx) * 1e6 - timing.t3_5.as_secs_f64() * 1e6);
+                }
+            }
+            _ => {}
+        }
+    }
+    if beyond.is_empty() {
+        return Ok(());
+    }
+    beyond.sort_by(f64::total_cmp);
+    let mean = beyond.iter().sum::<f64>() / beyond.len() as f64;
+    println!(
+        "38400 baud, frame recorder on: answer seen → next request, beyond t3.5: mean {mean:.1}µs, median {:.1}µs, p99 {:.1}µs over {} transactions (µs timestamps; the master's own share of the gateway figure)",
+        beyond[beyond.len() / 2],
+        beyond[(beyond.len() * 99).div_ceil(100).saturating_sub(1)],
+        beyond.len()
+    );
+    Ok(())
+}
+
 async fn measure(
     baud: u32,
     profile: Arc<Profile>,
     simulator: &tokio::runtime::Handle,
+    frame_log: Option<&std::path::Path>,
 ) -> anyhow::Result<Figures> {
-    let format = CharFormat {
-        data_bits: 8,
-        parity: Parity::None,
-        stop_bits: 1,
-    };
+    let format = EIGHT_N_ONE;
     let timing = LineTiming::new(baud, format);
     let (_shower, shared) = share(AirShower::new());
     let line = {
@@ -138,7 +197,7 @@ async fn measure(
         offline_after: 3,
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
-        frame_log: None,
+        frame_log: frame_log.map(FrameLog::create).transpose()?,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),
             address: 0x81,
@@ -217,23 +276,68 @@ async fn measure(
         }
     }
     let min_silence = records.iter().filter_map(|r| r.silence_before).min();
-    // Where the time beyond the wire goes: the silence the simulator saw before each request
-    // (the master's t3.5 plus everything the gateway spends between transactions) against the
-    // mandatory t3.5; the rest of the overhead is on the simulator's side of the exchange.
+    // Where the time beyond the wire goes, per transaction, from the simulator's instants
+    // (every transaction's cycle is: request arrives, the simulator's answer is due, it is
+    // handed to the pty, the next request arrives):
+    //  - simulator, framing: due − (arrival + request wire time + t3.5 + answer wire time)
+    //  - simulator, pacing: handed to the pty − due
+    //  - gateway and both wake-ups: silence before the next request (from the hand-over) − t3.5
+    //    (the master's read wake-up, its wait's overshoot, its write, the simulator's read
+    //    wake-up).
     let silences: Vec<Duration> = records.iter().filter_map(|r| r.silence_before).collect();
-    if !silences.is_empty() {
-        let mean = silences.iter().sum::<Duration>() / silences.len() as u32;
+    let answered: Vec<_> = records
+        .iter()
+        .filter_map(|r| Some((r, r.answer.as_ref()?, r.answer_timing?)))
+        .collect();
+    if !silences.is_empty() && !answered.is_empty() {
+        let mean =
+            |values: &[Duration]| values.iter().sum::<Duration>() / values.len().max(1) as u32;
+        let silence_mean = mean(&silences);
         let short = silences.iter().filter(|s| **s < timing.t3_5).count();
+        let framing: Vec<Duration> = answered
+            .iter()
+            .map(|(r, answer, t)| {
+                t.due.saturating_duration_since(
+                    r.arrived
+                        + timing.frame_time(r.frame.len())
+                        + timing.t3_5
+                        + timing.frame_time(answer.len()),
+                )
+            })
+            .collect();
+        let pacing: Vec<Duration> = answered
+            .iter()
+            .map(|(_, _, t)| t.handed_over.saturating_duration_since(t.due))
+            .collect();
+        let write_call: Vec<Duration> = answered
+            .iter()
+            .map(|(_, _, t)| t.write_returned.saturating_duration_since(t.handed_over))
+            .collect();
+        // The silence as the simulator used to measure it, from when its write returned.
+        let short_from_write_return = records
+            .windows(2)
+            .filter(|pair| {
+                pair[0].answer_timing.is_some_and(|t| {
+                    pair[1].arrived.saturating_duration_since(t.write_returned) < timing.t3_5
+                })
+            })
+            .count();
         let overhead = wall.saturating_sub(wire) / records.len().max(1) as u32;
         println!(
-            "{baud} baud: t3.5 {:.2?}, char {:.2?}; silence before requests mean {:.2?}, min {:.2?}, {short} of {} shorter than t3.5; overhead per transaction {:.2?} (gateway side ≈ {:.2?})",
+            "{baud} baud: t3.5 {:.2?}, char {:.2?}; silence before requests mean {:.2?}, min {:.2?}, {short} of {} shorter than t3.5 ({short_from_write_return} measured from the return of the simulator's write)",
             timing.t3_5,
             timing.char_time,
-            mean,
+            silence_mean,
             min_silence.unwrap_or_default(),
             silences.len(),
+        );
+        println!(
+            "{baud} baud: overhead per transaction {:.1?} = gateway and wake-ups {:.1?} + simulator framing {:.1?} + simulator pacing {:.1?} (its write call, not counted: {:.1?})",
             overhead,
-            mean.saturating_sub(timing.t3_5),
+            silence_mean.saturating_sub(timing.t3_5),
+            mean(&framing),
+            mean(&pacing),
+            mean(&write_call),
         );
     }
     latencies.sort_unstable();

@@ -34,6 +34,7 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         writable,
         unit: None,
         step: None,
+        also: Vec::new(),
         ha: HaHints::default(),
         min_write_interval: None,
     }
@@ -236,6 +237,16 @@ fn number_steps_follow_the_raw_count_of_scaled_fields() {
     let valve = document("wuzhou-valve");
     assert_eq!(component(&valve, "setpoint")["step"], json!(0.01));
     assert_eq!(component(&valve, "opening")["step"], 1);
+    // 255 (alarm disabled) is published and accepted besides 0–100: the entity must hold it.
+    for field in [
+        "high_alarm_opening_1",
+        "high_alarm_opening_2",
+        "low_alarm_opening_1",
+        "low_alarm_opening_2",
+    ] {
+        let alarm = component(&valve, field);
+        assert_eq!((&alarm["min"], &alarm["max"]), (&json!(0), &json!(255)));
+    }
     let dust = document("ruiwan-dust-collector");
     assert_eq!(component(&dust, "gear")["step"], 1);
 

@@ -575,7 +575,7 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     // The older one is superseded while waiting.
     let first = h.result("dust_collector", "gear").await;
     assert_eq!(first["value"], "4");
-    assert_eq!(outcome(&first), "expired", "{first}");
+    assert_eq!(outcome(&first), "superseded", "{first}");
     assert!(first["detail"]
         .as_str()
         .unwrap_or("")
@@ -705,6 +705,10 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         assert!(!detail.is_empty(), "{result}");
         assert!(detail.contains(reason), "{device}/{field}: {result}");
     }
+    // `value` is the payload exactly as sent, untrimmed, control characters included.
+    let result = h.command("dust_collector", "gear", b" banana\r\n").await;
+    assert_eq!(outcome(&result), "rejected", "{result}");
+    assert_eq!(result["value"], " banana\r\n", "{result}");
     // A retained payload far over the limit (but under the client's packet bound) is
     // rejected and cleared, so it does not come back after every reconnect.
     h.client
@@ -930,7 +934,7 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
     let last = h
         .client
         .wait_for("plant/dust_collector/gear/result", ANSWER * 2, |m| {
-            m.json()["value"] == "7" && m.json()["outcome"] != "expired"
+            m.json()["value"] == "7" && m.json()["outcome"] != "superseded"
         })
         .await
         .json();
@@ -946,7 +950,7 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
     assert_eq!(results.len() + 1, COMMANDS);
     assert!(results
         .iter()
-        .all(|m| ["applied", "expired"].contains(&outcome(&m.json()))));
+        .all(|m| ["applied", "superseded"].contains(&outcome(&m.json()))));
     // Newest wins: far fewer writes than commands, and the line kept polling the air shower.
     let frames = h.frames(&h.plant.line_a);
     let gear_writes = writes(&frames, DUST).len();

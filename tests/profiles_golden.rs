@@ -5,7 +5,7 @@
 
 use rtu2mqtt::profile::registry::built_in;
 use rtu2mqtt::profile::{
-    CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
+    BlockImage, CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
 };
 use rtu2mqtt::rtu::{Request, Response};
 
@@ -67,6 +67,25 @@ fn reading(profile: &Profile, block: usize, answer: &Response, field: &str) -> V
         .unwrap_or_else(|| panic!("no field {field} in block {block}"))
         .value
         .unwrap_or_else(|e| panic!("{field}: {e}"))
+}
+
+/// Every read block's image, seeded from the profile's plausible values.
+fn seeded_images(profile: &Profile) -> Vec<BlockImage> {
+    (0..profile.read_blocks().len())
+        .map(|b| profile.initial_image(b).unwrap())
+        .collect()
+}
+
+/// The answers the profile's device side gives to `reads` from `images`.
+fn answers_from_images(
+    profile: &Profile,
+    images: &[BlockImage],
+    reads: &[Request],
+) -> Vec<Response> {
+    reads
+        .iter()
+        .map(|read| profile.answer_read(images, read).unwrap())
+        .collect()
 }
 
 // --- dust collector -----------------------------------------------------------------------
@@ -937,9 +956,7 @@ fn th_sensor_settings_are_written_without_code() {
 #[test]
 fn simulated_images_round_trip_through_every_profile() {
     for profile in [dust(), valve(), shower(), th_sensor()] {
-        let mut images: Vec<_> = (0..profile.read_blocks().len())
-            .map(|b| profile.initial_image(b).unwrap())
-            .collect();
+        let mut images = seeded_images(&profile);
         let answer_of = |images: &[rtu2mqtt::profile::BlockImage], b: usize| match (
             &images[b],
             &profile.read_blocks()[b].request,
@@ -980,11 +997,7 @@ fn simulated_images_round_trip_through_every_profile() {
                 let plan = profile
                     .plan_command(&info.name, &text, &DeviceState::new())
                     .unwrap();
-                let before: Vec<Response> = plan
-                    .reads_before()
-                    .iter()
-                    .map(|read| profile.answer_read(&images, read).unwrap())
-                    .collect();
+                let before = answers_from_images(&profile, &images, plan.reads_before());
                 for write in plan.writes(&before).unwrap() {
                     assert!(
                         profile.apply_write(&mut images, &write),
@@ -992,11 +1005,7 @@ fn simulated_images_round_trip_through_every_profile() {
                         info.name
                     );
                 }
-                let readback: Vec<Response> = plan
-                    .readback()
-                    .iter()
-                    .map(|read| profile.answer_read(&images, read).unwrap())
-                    .collect();
+                let readback = answers_from_images(&profile, &images, plan.readback());
                 assert_eq!(
                     plan.verify(&readback),
                     Verification::Applied,
@@ -1292,8 +1301,6 @@ mod bytes {
 #[test]
 fn th_sensor_against_the_generic_simulator() {
     use rtu2mqtt::sim::generic::GenericDevice;
-    use rtu2mqtt::sim::{Reply, SimDevice};
-    use std::time::Instant;
 
     let profile = th_sensor();
     let mut device = GenericDevice::from_profile(&profile, 7);
@@ -1308,13 +1315,9 @@ fn th_sensor_against_the_generic_simulator() {
     ] {
         device.set_input_register(address, word);
     }
-    let mut ask = |request: &Request| match device.handle(request, Instant::now()) {
-        Reply::Normal(response) => response,
-        other => panic!("{request:?}: {other:?}"),
-    };
     let mut values = std::collections::BTreeMap::new();
     for (index, block) in profile.read_blocks().iter().enumerate() {
-        let answer = ask(&block.request);
+        let answer = ask(&mut device, &block.request);
         for r in profile.decode_block(index, &answer) {
             values.insert(r.field, r.value.unwrap().to_text());
         }
@@ -1324,25 +1327,24 @@ fn th_sensor_against_the_generic_simulator() {
     assert_eq!(values["dew_point"], "-3.5");
     assert_eq!(values["operating_hours"], "1234.5");
 
-    for (field, text) in [
-        ("temperature_offset", "2.5"),
-        ("alarm_enabled", "ON"),
-        ("report_interval", "300"),
-        ("alarm_enabled", "OFF"),
-    ] {
-        let plan = profile
-            .plan_command(field, text, &DeviceState::new())
-            .unwrap();
-        let before: Vec<Response> = plan.reads_before().iter().map(&mut ask).collect();
-        for write in plan.writes(&before).unwrap() {
-            ask(&write);
-        }
-        let readback: Vec<Response> = plan.readback().iter().map(&mut ask).collect();
-        assert_eq!(
-            plan.verify(&readback),
-            Verification::Applied,
-            "{field}={text}"
-        );
+    assert_all_applied(
+        &mut device,
+        &profile,
+        &[
+            ("temperature_offset", "2.5"),
+            ("alarm_enabled", "ON"),
+            ("report_interval", "300"),
+            ("alarm_enabled", "OFF"),
+        ],
+    );
+}
+
+/// The device's normal answer to `request`.
+fn ask(device: &mut dyn rtu2mqtt::sim::SimDevice, request: &Request) -> Response {
+    use rtu2mqtt::sim::Reply;
+    match device.handle(request, std::time::Instant::now()) {
+        Reply::Normal(response) => response,
+        other => panic!("{request:?}: {other:?}"),
     }
 }
 
@@ -1352,18 +1354,35 @@ fn run_on(
     device: &mut dyn rtu2mqtt::sim::SimDevice,
     plan: &CommandPlan,
 ) -> Result<Verification, Rejection> {
-    use rtu2mqtt::sim::Reply;
-    use std::time::Instant;
-    let mut ask = |request: &Request| match device.handle(request, Instant::now()) {
-        Reply::Normal(response) => response,
-        other => panic!("{request:?}: {other:?}"),
-    };
-    let before: Vec<Response> = plan.reads_before().iter().map(&mut ask).collect();
+    let before: Vec<Response> = plan
+        .reads_before()
+        .iter()
+        .map(|read| ask(device, read))
+        .collect();
     for write in plan.writes(&before)? {
-        ask(&write);
+        ask(device, &write);
     }
-    let readback: Vec<Response> = plan.readback().iter().map(&mut ask).collect();
+    let readback: Vec<Response> = plan
+        .readback()
+        .iter()
+        .map(|read| ask(device, read))
+        .collect();
     Ok(plan.verify(&readback))
+}
+
+/// Each (field, text) in turn, planned on no known state, is applied by the device.
+fn assert_all_applied(
+    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    profile: &Profile,
+    commands: &[(&str, &str)],
+) {
+    for &(field, text) in commands {
+        assert_eq!(
+            run_on(device, &plan(profile, field, text)),
+            Ok(Verification::Applied),
+            "{field}={text}"
+        );
+    }
 }
 
 /// The built-in profiles against the seed device simulators: every command the profiles plan
@@ -1382,21 +1401,18 @@ fn seed_simulators_apply_what_the_profiles_plan() {
         run_on(&mut device, &gear),
         Ok(Verification::NotApplied(_))
     ));
-    for (field, text) in [
-        ("power", "ON"),
-        ("gear", "8"),
-        ("pulse_cleaning", "ON"),
-        ("pulse_interval", "12"),
-        ("pulse_duration", "30"),
-        ("pulse_cleaning", "OFF"),
-    ] {
-        let plan = profile.plan_command(field, text, &none).unwrap();
-        assert_eq!(
-            run_on(&mut device, &plan),
-            Ok(Verification::Applied),
-            "{field}={text}"
-        );
-    }
+    assert_all_applied(
+        &mut device,
+        &profile,
+        &[
+            ("power", "ON"),
+            ("gear", "8"),
+            ("pulse_cleaning", "ON"),
+            ("pulse_interval", "12"),
+            ("pulse_duration", "30"),
+            ("pulse_cleaning", "OFF"),
+        ],
+    );
     assert!(device.power());
     assert_eq!(device.gear(), 8);
     assert_eq!(device.status_word() & 0x40F0, 0x40F0, "internal bits kept");
@@ -1431,19 +1447,16 @@ fn seed_simulators_apply_what_the_profiles_plan() {
 
     let profile = valve();
     let mut device = rtu2mqtt::sim::Valve::new(1);
-    for (field, text) in [
-        ("mode", "manual"),
-        ("setpoint", "45.67"),
-        ("high_alarm_opening_2", "255"),
-        ("regulation_ratio", "1.5"),
-    ] {
-        let plan = profile.plan_command(field, text, &none).unwrap();
-        assert_eq!(
-            run_on(&mut device, &plan),
-            Ok(Verification::Applied),
-            "{field}={text}"
-        );
-    }
+    assert_all_applied(
+        &mut device,
+        &profile,
+        &[
+            ("mode", "manual"),
+            ("setpoint", "45.67"),
+            ("high_alarm_opening_2", "255"),
+            ("regulation_ratio", "1.5"),
+        ],
+    );
     assert_eq!(device.register(0xB2), Some(0x0045));
     assert_eq!(device.register(0xB3), Some(0x0067));
     assert!(!device.mode_auto());
@@ -1539,22 +1552,12 @@ mod robustness {
                         continue;
                     }
                 };
-                let mut images: Vec<_> = (0..profile.read_blocks().len())
-                    .map(|b| profile.initial_image(b).unwrap())
-                    .collect();
-                let before: Vec<Response> = plan
-                    .reads_before()
-                    .iter()
-                    .map(|read| profile.answer_read(&images, read).unwrap())
-                    .collect();
+                let mut images = seeded_images(profile);
+                let before = answers_from_images(profile, &images, plan.reads_before());
                 for write in plan.writes(&before).unwrap() {
                     prop_assert!(profile.apply_write(&mut images, &write));
                 }
-                let readback: Vec<Response> = plan
-                    .readback()
-                    .iter()
-                    .map(|read| profile.answer_read(&images, read).unwrap())
-                    .collect();
+                let readback = answers_from_images(profile, &images, plan.readback());
                 prop_assert_eq!(plan.verify(&readback), Verification::Applied);
             }
         }

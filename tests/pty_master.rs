@@ -21,26 +21,26 @@ const DEVICE: u8 = 0x11;
 /// Generous for a busy 2-core machine; the late answer comes at 1.3 × this.
 const TIMEOUT: Duration = Duration::from_millis(300);
 
+const BAUD: u32 = 9600;
+
+/// 8N1, on both ends of the pair.
+fn char_format() -> CharFormat {
+    CharFormat {
+        data_bits: 8,
+        parity: Parity::None,
+        stop_bits: 1,
+    }
+}
+
 fn timing() -> LineTiming {
-    LineTiming::new(
-        9600,
-        CharFormat {
-            data_bits: 8,
-            parity: Parity::None,
-            stop_bits: 1,
-        },
-    )
+    LineTiming::new(BAUD, char_format())
 }
 
 fn settings(label: &str) -> SerialSettings {
     SerialSettings {
         path: label.into(),
-        baud: 9600,
-        format: CharFormat {
-            data_bits: 8,
-            parity: Parity::None,
-            stop_bits: 1,
-        },
+        baud: BAUD,
+        format: char_format(),
         rs485: None,
     }
 }
@@ -248,6 +248,22 @@ fn read_two() -> Request {
     }
 }
 
+/// The master's transaction of `read_two()` with the device, within `TIMEOUT`.
+async fn read_from_device(master: &mut Master) -> Result<Response, Error> {
+    master.transact(DEVICE, &read_two(), TIMEOUT).await
+}
+
+/// `read_two()` gets the scripted device's normal answer to its `sequence`-th request (1-based):
+/// both registers hold that number.
+async fn assert_answered(master: &mut Master, sequence: u16) {
+    let response = read_from_device(master).await.unwrap();
+    assert_eq!(
+        response,
+        Response::HoldingRegisters(vec![sequence; 2]),
+        "answer to request {sequence}"
+    )
+}
+
 /// Every request the device saw came after at least t3.5 of silence since its last transmission.
 fn assert_silences(seen: &[Seen]) {
     let t3_5 = timing().t3_5;
@@ -264,8 +280,7 @@ fn assert_silences(seen: &[Seen]) {
 #[tokio::test(flavor = "current_thread")]
 async fn normal_answer() {
     let (mut master, device) = connect(vec![Act::Answer], MasterOptions::default());
-    let response = master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
-    assert_eq!(response, Response::HoldingRegisters(vec![1, 1]));
+    assert_answered(&mut master, 1).await;
     let seen = seen_by(device).await;
     assert_eq!(
         seen[0].frame,
@@ -292,7 +307,7 @@ async fn exception_answer() {
         ],
         MasterOptions::default(),
     );
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(
         matches!(
             result,
@@ -300,10 +315,7 @@ async fn exception_answer() {
         ),
         "{result:?}"
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().exceptions, 1);
     assert_silences(&seen_by(device).await);
 }
@@ -312,13 +324,10 @@ async fn exception_answer() {
 async fn timeout_then_recovery() {
     let (mut master, device) = connect(vec![Act::Silent, Act::Answer], MasterOptions::default());
     let started = Instant::now();
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
     assert!(started.elapsed() >= TIMEOUT);
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!((counters.timeouts, counters.late_answers), (1, 0));
     assert_silences(&seen_by(device).await);
@@ -329,12 +338,11 @@ async fn late_answer_is_counted_and_never_taken_for_the_next() {
     let late = TIMEOUT.mul_f64(1.3);
     let (mut master, device) =
         connect(vec![Act::Late(late), Act::Answer], MasterOptions::default());
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
     // Asked again at once: the same request, so only the sequence number in the registers
     // tells the late answer (1) from this request's own (2).
-    let response = master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
-    assert_eq!(response, Response::HoldingRegisters(vec![2, 2]));
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!(
         (
@@ -354,7 +362,7 @@ async fn late_answer_heard_while_talking_to_another_address() {
     let late = TIMEOUT.mul_f64(1.3);
     let (mut master, device) =
         connect(vec![Act::Late(late), Act::Answer], MasterOptions::default());
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
     let response = master
         .transact(DEVICE + 1, &read_two(), TIMEOUT)
@@ -377,12 +385,9 @@ async fn late_answer_heard_while_talking_to_another_address() {
 #[tokio::test(flavor = "current_thread")]
 async fn bad_crc() {
     let (mut master, device) = connect(vec![Act::BadCrc, Act::Answer], MasterOptions::default());
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(matches!(result, Err(Error::Crc)), "{result:?}");
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().crc_errors, 1);
     assert_silences(&seen_by(device).await);
 }
@@ -393,15 +398,12 @@ async fn truncated_answer() {
         vec![Act::Truncated(5), Act::Answer],
         MasterOptions::default(),
     );
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(
         matches!(result, Err(Error::Truncated { needed: 9, got: 5 })),
         "{result:?}"
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().truncated, 1);
     assert_silences(&seen_by(device).await);
 }
@@ -416,15 +418,9 @@ async fn garbage_before_a_request_is_flushed_and_counted() {
         ],
         MasterOptions::default(),
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
+    assert_answered(&mut master, 1).await;
     tokio::time::sleep(Duration::from_millis(100)).await;
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!((counters.stray_bytes, counters.late_answers), (3, 0));
     assert_silences(&seen_by(device).await);
@@ -441,11 +437,8 @@ async fn garbage_during_the_silence_restarts_it() {
         ],
         MasterOptions::default(),
     );
-    master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    read_from_device(&mut master).await.unwrap();
+    assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().stray_bytes, 1);
     assert_silences(&seen_by(device).await);
 }
@@ -456,14 +449,8 @@ async fn answer_from_another_address_is_ignored() {
         vec![Act::WrongAddressFirst(0x22), Act::Answer],
         MasterOptions::default(),
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 1).await;
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!((counters.wrong_address, counters.unexpected), (1, 0));
     assert_silences(&seen_by(device).await);
@@ -480,14 +467,8 @@ async fn noise_just_before_the_answer_is_skipped() {
         ],
         MasterOptions::default(),
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 1).await;
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!(
         (
@@ -512,7 +493,7 @@ async fn answer_with_another_function_is_unexpected() {
         vec![Act::Raw(other_function), Act::Answer],
         MasterOptions::default(),
     );
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(
         matches!(
             result,
@@ -523,10 +504,7 @@ async fn answer_with_another_function_is_unexpected() {
         ),
         "{result:?}"
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().unexpected, 1);
     assert_silences(&seen_by(device).await);
 }
@@ -537,12 +515,9 @@ async fn babbling_line_ends_in_timeout_then_recovers() {
         vec![Act::Babble(TIMEOUT * 2), Act::Answer],
         MasterOptions::default(),
     );
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(matches!(result, Err(Error::Timeout(_))), "{result:?}");
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert!(master.counters().stray_bytes >= 256);
     assert_silences(&seen_by(device).await);
 }
@@ -556,15 +531,12 @@ async fn gap_inside_an_answer_follows_the_inter_character_limit() {
         Act::Answer,
     ];
     let (mut master, device) = connect(script, MasterOptions::default());
-    let result = master.transact(DEVICE, &read_two(), TIMEOUT).await;
+    let result = read_from_device(&mut master).await;
     assert!(
         matches!(result, Err(Error::Truncated { needed: 9, got: 4 })),
         "{result:?}"
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     assert_eq!(
         (master.counters().truncated, master.counters().stray_bytes),
         (1, 5)
@@ -582,10 +554,7 @@ async fn gap_inside_an_answer_follows_the_inter_character_limit() {
         vec![Act::PauseMidAnswer(4, Duration::from_millis(50))],
         lenient,
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
+    assert_answered(&mut master, 1).await;
     assert_silences(&seen_by(device).await);
 }
 
@@ -600,10 +569,7 @@ async fn echo_is_stripped_when_configured() {
         values: vec![true, false, true],
     };
     let (mut master, device) = connect(vec![Act::EchoThenAnswer, Act::EchoThenAnswer], options);
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
+    assert_answered(&mut master, 1).await;
     assert_eq!(
         master.transact(DEVICE, &write, TIMEOUT).await.unwrap(),
         Response::WriteMultipleCoils {
@@ -620,14 +586,8 @@ async fn unannounced_echo_is_detected_and_stripped() {
         vec![Act::EchoThenAnswer, Act::Answer],
         MasterOptions::default(),
     );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![1, 1])
-    );
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 1).await;
+    assert_answered(&mut master, 2).await;
     let counters = master.counters();
     assert_eq!((counters.unexpected, counters.stray_bytes), (0, 0));
     assert_silences(&seen_by(device).await);
@@ -639,8 +599,7 @@ async fn silence_of_t3_5_before_every_request_in_a_burst() {
     let (mut master, device) = connect(script, MasterOptions::default());
     let started = Instant::now();
     for sequence in 1..=12u16 {
-        let response = master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
-        assert_eq!(response, Response::HoldingRegisters(vec![sequence; 2]));
+        assert_answered(&mut master, sequence).await;
     }
     let elapsed = started.elapsed();
     let seen = seen_by(device).await;
@@ -676,10 +635,7 @@ async fn broadcast_keeps_the_line_silent_for_the_turnaround() {
     let sent = Instant::now();
     master.broadcast(&write).await.unwrap();
     assert!(sent.elapsed() >= turnaround);
-    assert_eq!(
-        master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap(),
-        Response::HoldingRegisters(vec![2, 2])
-    );
+    assert_answered(&mut master, 2).await;
     let seen = seen_by(device).await;
     assert_eq!(seen[0].frame, codec::encode_request(0, &write).unwrap());
     // The device notes the broadcast when it reads it, which a loaded host can delay well
@@ -706,7 +662,7 @@ async fn out_of_spec_request_is_refused_before_the_wire() {
     ));
     assert_eq!(master.counters().requests, 0);
     // The device sees only the valid request that follows.
-    master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
+    read_from_device(&mut master).await.unwrap();
     assert_eq!(
         seen_by(device).await[0].frame,
         codec::encode_request(DEVICE, &read_two()).unwrap()
@@ -732,7 +688,7 @@ async fn frame_recorder_writes_one_line_per_frame() {
     let (mut master, device) = connect(vec![Act::Answer], MasterOptions::default());
     let recording = SharedBuffer::default();
     master.record_frames_to(Box::new(recording.clone()));
-    master.transact(DEVICE, &read_two(), TIMEOUT).await.unwrap();
+    read_from_device(&mut master).await.unwrap();
     seen_by(device).await;
     let text = String::from_utf8(recording.0.lock().unwrap().clone()).unwrap();
     let lines: Vec<Vec<&str>> = text.lines().map(|line| line.split(' ').collect()).collect();
@@ -765,8 +721,7 @@ proptest::proptest! {
             let short = Duration::from_millis(60);
             let (mut master, device) = connect(vec![Act::Raw(answer), Act::Answer], MasterOptions::default());
             let _ = master.transact(DEVICE, &read_two(), short).await;
-            let next = master.transact(DEVICE, &read_two(), TIMEOUT).await;
-            assert_eq!(next.unwrap(), Response::HoldingRegisters(vec![2, 2]));
+            assert_answered(&mut master, 2).await;
             assert_silences(&seen_by(device).await);
         });
     }

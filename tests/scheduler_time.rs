@@ -27,6 +27,20 @@ fn plan(blocks: Vec<BlockPlan>, interval_ms: u64, startup_ms: u64) -> DevicePlan
     }
 }
 
+/// A device with one fast block of `answer_bytes`, the common case below.
+fn fast_device(answer_bytes: usize, interval_ms: u64, startup_ms: u64) -> DevicePlan {
+    plan(
+        vec![block(PollClass::Fast, answer_bytes)],
+        interval_ms,
+        startup_ms,
+    )
+}
+
+/// The scheduler of one line whose commands are numbers, started at `start`.
+fn new_scheduler(devices: Vec<DevicePlan>, policy: HealthPolicy, start: Instant) -> Scheduler<u32> {
+    Scheduler::new(devices, policy, start)
+}
+
 fn policy() -> HealthPolicy {
     HealthPolicy::with_offline_after(3)
 }
@@ -42,26 +56,22 @@ fn simulate(
     let mut now = start;
     let mut log = Vec::new();
     while now < end {
-        match scheduler.next_due(now) {
-            Due::Poll { device, block } => {
-                log.push((now - start, device, block, false));
-                let (cost, outcome) = run(device, false);
-                now += cost;
-                scheduler.record_poll(device, block, outcome, now);
-            }
-            Due::Probe { device, block } => {
-                log.push((now - start, device, block, true));
-                let (cost, outcome) = run(device, true);
-                now += cost;
-                scheduler.record_poll(device, block, outcome, now);
-            }
+        // A probe is a poll of a device held offline: both take the line the same way.
+        let (device, block, probe) = match scheduler.next_due(now) {
+            Due::Poll { device, block } => (device, block, false),
+            Due::Probe { device, block } => (device, block, true),
             Due::Wait(until) => {
                 assert!(until > now, "Wait must point into the future");
                 now = until;
+                continue;
             }
             Due::Command { .. } => panic!("no commands queued"),
             Due::Idle => break,
-        }
+        };
+        log.push((now - start, device, block, probe));
+        let (cost, outcome) = run(device, probe);
+        now += cost;
+        scheduler.record_poll(device, block, outcome, now);
     }
     log
 }
@@ -69,11 +79,7 @@ fn simulate(
 #[test]
 fn nothing_before_the_startup_delay() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![plan(vec![block(PollClass::Fast, 17)], 1000, 3000)],
-        policy(),
-        start,
-    );
+    let mut scheduler = new_scheduler(vec![fast_device(17, 1000, 3000)], policy(), start);
     assert_eq!(scheduler.next_due(start), Due::Wait(start + 3000 * MS));
     assert_eq!(
         scheduler.next_due(start + 2999 * MS),
@@ -91,11 +97,8 @@ fn nothing_before_the_startup_delay() {
 #[test]
 fn commands_wait_for_the_startup_delay_of_their_device_only() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![
-            plan(vec![block(PollClass::Fast, 17)], 1000, 3000),
-            plan(vec![block(PollClass::Fast, 8)], 1000, 0),
-        ],
+    let mut scheduler = new_scheduler(
+        vec![fast_device(17, 1000, 3000), fast_device(8, 1000, 0)],
         policy(),
         start,
     );
@@ -133,11 +136,8 @@ fn commands_wait_for_the_startup_delay_of_their_device_only() {
 #[test]
 fn commands_run_before_due_polls() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![
-            plan(vec![block(PollClass::Fast, 17)], 0, 0),
-            plan(vec![block(PollClass::Fast, 8)], 0, 0),
-        ],
+    let mut scheduler = new_scheduler(
+        vec![fast_device(17, 0, 0), fast_device(8, 0, 0)],
         policy(),
         start,
     );
@@ -165,11 +165,7 @@ fn commands_run_before_due_polls() {
 #[test]
 fn intervals_do_not_drift_and_do_not_burst_after_falling_behind() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![plan(vec![block(PollClass::Fast, 17)], 1000, 0)],
-        policy(),
-        start,
-    );
+    let mut scheduler = new_scheduler(vec![fast_device(17, 1000, 0)], policy(), start);
     assert!(matches!(scheduler.next_due(start), Due::Poll { .. }));
     // The poll took 30 ms: the next one is still due 1000 ms after the first was due.
     scheduler.record_poll(0, 0, PollOutcome::Answered, start + 30 * MS);
@@ -191,7 +187,7 @@ fn intervals_do_not_drift_and_do_not_burst_after_falling_behind() {
 #[test]
 fn slow_blocks_run_at_start_then_on_their_own_interval() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
+    let mut scheduler = new_scheduler(
         vec![plan(
             vec![block(PollClass::Fast, 9), block(PollClass::Slow, 30)],
             1000,
@@ -217,15 +213,15 @@ fn slow_blocks_run_at_start_then_on_their_own_interval() {
 #[test]
 fn back_to_back_polling_is_round_robin() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
+    let mut scheduler = new_scheduler(
         vec![
             plan(
                 vec![block(PollClass::Fast, 8), block(PollClass::Fast, 9)],
                 0,
                 0,
             ),
-            plan(vec![block(PollClass::Fast, 17)], 0, 0),
-            plan(vec![block(PollClass::Fast, 8)], 0, 0),
+            fast_device(17, 0, 0),
+            fast_device(8, 0, 0),
         ],
         policy(),
         start,
@@ -247,9 +243,9 @@ fn back_to_back_polling_is_round_robin() {
 #[test]
 fn a_dead_device_goes_offline_and_costs_only_bounded_probes() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
+    let mut scheduler = new_scheduler(
         vec![
-            plan(vec![block(PollClass::Fast, 17)], 0, 0),
+            fast_device(17, 0, 0),
             plan(
                 vec![block(PollClass::Fast, 8), block(PollClass::Fast, 6)],
                 0,
@@ -286,7 +282,7 @@ fn a_dead_device_goes_offline_and_costs_only_bounded_probes() {
 #[test]
 fn an_offline_device_comes_back_on_the_first_answered_probe_and_rereads_everything() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
+    let mut scheduler = new_scheduler(
         vec![plan(
             vec![block(PollClass::Fast, 17), block(PollClass::Slow, 8)],
             1000,
@@ -335,11 +331,8 @@ fn an_offline_device_comes_back_on_the_first_answered_probe_and_rereads_everythi
 #[test]
 fn busy_answers_are_retried_soon_without_counting_as_failures() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![
-            plan(vec![block(PollClass::Fast, 17)], 1000, 0),
-            plan(vec![block(PollClass::Fast, 8)], 1000, 0),
-        ],
+    let mut scheduler = new_scheduler(
+        vec![fast_device(17, 1000, 0), fast_device(8, 1000, 0)],
         HealthPolicy::with_offline_after(1),
         start,
     );
@@ -371,11 +364,8 @@ fn busy_answers_are_retried_soon_without_counting_as_failures() {
 #[test]
 fn losing_the_port_takes_every_device_offline_and_restoring_probes_at_once() {
     let start = Instant::now();
-    let mut scheduler: Scheduler<u32> = Scheduler::new(
-        vec![
-            plan(vec![block(PollClass::Fast, 17)], 1000, 0),
-            plan(vec![block(PollClass::Fast, 8)], 1000, 0),
-        ],
+    let mut scheduler = new_scheduler(
+        vec![fast_device(17, 1000, 0), fast_device(8, 1000, 0)],
         policy(),
         start,
     );

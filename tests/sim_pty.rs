@@ -60,6 +60,16 @@ async fn listen(port: &mut SerialStream) -> Vec<u8> {
     got
 }
 
+/// Sends `request` and hears nothing within the quiet window.
+async fn assert_unanswered(port: &mut SerialStream, request: &[u8]) {
+    port.write_all(request).await.unwrap();
+    assert_eq!(
+        listen(port).await,
+        Vec::<u8>::new(),
+        "answer to {request:02X?}"
+    );
+}
+
 fn line_a() -> (
     VirtualLine,
     std::sync::Arc<std::sync::Mutex<DustCollector>>,
@@ -200,10 +210,7 @@ async fn air_shower_exceptions_and_silence() {
         hex("81 83 01 81 18")
     );
     // Bad CRC: no answer, and the line still works afterwards.
-    port.write_all(&hex("81 0F 00 00 00 0C 02 00 01 45 B7"))
-        .await
-        .unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &hex("81 0F 00 00 00 0C 02 00 01 45 B7")).await;
     assert!(!lock(&shower).coils()[air_shower::LIGHT]);
     assert_eq!(
         exchange(&mut port, &hex("81 01 00 00 00 18 23 C0"), 8).await[..3],
@@ -245,8 +252,7 @@ async fn noise_before_a_request_spoils_it_like_on_a_wire() {
     let mut port = open(&line.path());
     // Noise and a valid frame in one burst make one bad frame for a device framing by silence.
     let burst = [&hex("5A A5")[..], &hex(GEAR_8)[..]].concat();
-    port.write_all(&burst).await.unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &burst).await;
     assert_eq!(line.journal().writes_to(1), 0);
     let records = line.journal().requests();
     assert_eq!(records.len(), 1);
@@ -255,8 +261,7 @@ async fn noise_before_a_request_spoils_it_like_on_a_wire() {
     // Noise that looks like the start of a read: the 8 bytes framed are bad, the rest of the
     // burst is ignored up to the silence.
     let burst = [&hex("01 03")[..], &hex(GEAR_8)[..]].concat();
-    port.write_all(&burst).await.unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &burst).await;
     assert_eq!(line.journal().discarded_bytes(), 2);
     lock(&dust).set_power(true);
     // After the silence the device listens again.
@@ -269,14 +274,8 @@ async fn wrong_address_gets_no_answer() {
     let (line, _, _) = line_a();
     let mut port = open(&line.path());
     // Address 2 and address 9 are nobody on line A.
-    port.write_all(&hex("02 03 10 00 00 06 C1 3B"))
-        .await
-        .unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
-    port.write_all(&hex("09 06 10 02 00 08 2C 44"))
-        .await
-        .unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &hex("02 03 10 00 00 06 C1 3B")).await;
+    assert_unanswered(&mut port, &hex("09 06 10 02 00 08 2C 44")).await;
     assert_eq!(line.journal().request_count(), 2);
 }
 
@@ -324,16 +323,10 @@ async fn valve_silent_broadcast_and_baud_write() {
     let (line, valve) = line_b();
     let mut port = open(&line.path());
     // 0xFF: acted on, not answered.
-    port.write_all(&hex("FF 06 00 74 00 50 DC 32"))
-        .await
-        .unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &hex("FF 06 00 74 00 50 DC 32")).await;
     assert_eq!(lock(&valve).target(), 80);
     // A baud write is not answered either.
-    port.write_all(&hex("01 06 00 0A 00 07 E8 0A"))
-        .await
-        .unwrap();
-    assert_eq!(listen(&mut port).await, Vec::<u8>::new());
+    assert_unanswered(&mut port, &hex("01 06 00 0A 00 07 E8 0A")).await;
     assert_eq!(lock(&valve).baud_switches(), &[7]);
     assert_eq!(line.journal().writes_to(1), 2);
 }
@@ -681,6 +674,18 @@ async fn assemble_from_runs(
     Response::HoldingRegisters(words)
 }
 
+/// The command's read-back shows it applied.
+async fn assert_applied(
+    master: &mut Master,
+    address: u8,
+    profile: &Profile,
+    field: &str,
+    text: &str,
+) {
+    let (_, verdict) = command(master, address, profile, field, text).await;
+    assert_eq!(verdict, Verification::Applied, "{field}={text}");
+}
+
 /// Runs one command slot as the line does: reads before, writes, read-back, verdict.
 async fn command(
     master: &mut Master,
@@ -733,20 +738,9 @@ async fn dust_collector_profile_against_the_simulator() {
     );
     assert_eq!(lock(&dust).gear(), 3);
 
-    assert_eq!(
-        command(&mut master, 1, &profile, "power", "ON").await.1,
-        Verification::Applied
-    );
-    assert_eq!(
-        command(&mut master, 1, &profile, "gear", "8").await.1,
-        Verification::Applied
-    );
-    assert_eq!(
-        command(&mut master, 1, &profile, "pulse_cleaning", "ON")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 1, &profile, "power", "ON").await;
+    assert_applied(&mut master, 1, &profile, "gear", "8").await;
+    assert_applied(&mut master, 1, &profile, "pulse_cleaning", "ON").await;
     let dust = lock(&dust);
     assert!(dust.power() && dust.pulse_cleaning());
     assert_eq!(dust.gear(), 8);
@@ -766,33 +760,15 @@ async fn air_shower_profile_against_the_simulator() {
     assert_eq!(state["front_door_closed"].to_text(), "ON");
     assert_eq!(state["emergency_stop"].to_text(), "OFF");
 
-    assert_eq!(
-        command(&mut master, 0x81, &profile, "light", "ON").await.1,
-        Verification::Applied
-    );
-    assert_eq!(
-        command(&mut master, 0x81, &profile, "emergency_stop", "ON")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 0x81, &profile, "light", "ON").await;
+    assert_applied(&mut master, 0x81, &profile, "emergency_stop", "ON").await;
     // Asking for the state it is in writes nothing (a write would toggle it off).
     let (writes, verdict) = command(&mut master, 0x81, &profile, "emergency_stop", "ON").await;
     assert_eq!((writes, verdict), (0, Verification::Applied));
     // Other commands while the e-stop is active must not clear it.
-    assert_eq!(
-        command(&mut master, 0x81, &profile, "front_door_lock", "ON")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 0x81, &profile, "front_door_lock", "ON").await;
     command(&mut master, 0x81, &profile, "voice_start", "PRESS").await;
-    assert_eq!(
-        command(&mut master, 0x81, &profile, "wind", "strong")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 0x81, &profile, "wind", "strong").await;
     {
         let shower = lock(&shower);
         assert_eq!(shower.toggles(), &[true], "exactly one e-stop toggle");
@@ -807,12 +783,7 @@ async fn air_shower_profile_against_the_simulator() {
         "OFF",
         "e-stop opens the doors"
     );
-    assert_eq!(
-        command(&mut master, 0x81, &profile, "emergency_stop", "OFF")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 0x81, &profile, "emergency_stop", "OFF").await;
     assert_eq!(lock(&shower).toggles(), &[true, false]);
 }
 
@@ -829,12 +800,7 @@ async fn valve_profile_against_the_simulator() {
     assert_eq!(state["motor"].to_text(), "stopped");
     assert_eq!(state["serial_number"].to_text(), "20231122004A5B");
 
-    assert_eq!(
-        command(&mut master, 1, &profile, "setpoint", "12.5")
-            .await
-            .1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 1, &profile, "setpoint", "12.5").await;
     assert_eq!(lock(&valve).register(valve::REG_SETPOINT), Some(0x0012));
     assert_eq!(lock(&valve).register(valve::REG_SETPOINT + 1), Some(0x0050));
 
@@ -853,10 +819,7 @@ async fn valve_profile_against_the_simulator() {
     assert_eq!(state["motor"].to_text(), "stopped");
     assert_eq!(state["fully_open"].to_text(), "OFF");
     assert_eq!(state["fully_closed"].to_text(), "OFF");
-    assert_eq!(
-        command(&mut master, 1, &profile, "mode", "auto").await.1,
-        Verification::Applied
-    );
+    assert_applied(&mut master, 1, &profile, "mode", "auto").await;
     assert!(lock(&valve).mode_auto());
 }
 

@@ -24,7 +24,7 @@ use self::capture::StderrCapture;
 use self::view::{log_line, PlantView};
 use super::{run_gateway, Hooks};
 use crate::broker::{self, BrokerError};
-use crate::config::{self, Config};
+use crate::config::{self, validate, Config};
 use crate::rtu::timing::{CharFormat, Parity};
 use crate::shutdown::{self, Shutdown};
 use crate::sim::{lock, SeedPlant};
@@ -33,12 +33,28 @@ use crate::sim::{lock, SeedPlant};
 const EXAMPLE_CONFIG: &str = include_str!("../../config/rtu2mqtt.toml");
 /// The demo gateway's MQTT client id (and gateway id in topics).
 pub const DEMO_CLIENT_ID: &str = "rtu2mqtt-demo";
+/// The prefix the demo falls back to on a broker where a gateway already serves the example's.
+pub const SHARED_BROKER_PREFIX: &str = "demo";
+/// How long the look for running gateways waits for the broker's answer.
+const PROBE_CONNECT: Duration = Duration::from_secs(5);
+/// After the subscription is acknowledged, how long retained statuses may keep arriving.
+const PROBE_SETTLE: Duration = Duration::from_millis(500);
 /// How long the gateway gets to stop (finish its transaction, publish offline).
 const STOP_GRACE: Duration = Duration::from_secs(10);
 /// The table is redrawn at most this often.
 const REDRAW: Duration = Duration::from_millis(200);
 /// Log lines kept under the table.
 const LOG_LINES_SHOWN: usize = 6;
+
+/// [`BrokerEndpoint::origin`] of the broker the demo started itself: nobody else is on it.
+const EMBEDDED_ORIGIN: &str = "embedded broker";
+
+/// The example configuration's MQTT prefix.
+fn example_prefix() -> anyhow::Result<String> {
+    config::from_str(EXAMPLE_CONFIG, Path::new("."))
+        .map(|config| config.mqtt.prefix)
+        .map_err(|problems| anyhow::anyhow!("the example configuration: {problems}"))
+}
 
 /// Where the demo's MQTT traffic goes.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -51,7 +67,11 @@ pub struct BrokerEndpoint {
 
 impl BrokerEndpoint {
     pub fn url(&self) -> String {
-        format!("mqtt://{}:{}", self.host, self.port)
+        if self.host.contains(':') {
+            format!("mqtt://[{}]:{}", self.host, self.port)
+        } else {
+            format!("mqtt://{}:{}", self.host, self.port)
+        }
     }
 
     /// `mosquitto_pub`/`mosquitto_sub` options reaching it (none for the default 127.0.0.1:1883
@@ -70,32 +90,19 @@ impl BrokerEndpoint {
     }
 }
 
-/// `mqtt://host[:port]` (or `tcp://`, or a bare `host[:port]`) as host and port.
+/// `mqtt://host[:port]` (or a bare `host[:port]`) as host and port, read as the configuration's
+/// `mqtt.url` is; the demo talks plain MQTT only.
 pub fn parse_broker_url(url: &str) -> anyhow::Result<(String, u16)> {
-    let rest = if let Some(rest) = url
-        .strip_prefix("mqtt://")
-        .or_else(|| url.strip_prefix("tcp://"))
-    {
-        rest
-    } else if url.contains("://") {
-        bail!("`{url}`: the demo talks plain MQTT only (mqtt://host:port)");
+    let url = if url.contains("://") {
+        url.to_string()
     } else {
-        url
+        format!("mqtt://{url}")
     };
-    let rest = rest.trim_end_matches('/');
-    let (host, port) = match rest.rsplit_once(':') {
-        Some((host, port)) => {
-            let port = port
-                .parse::<u16>()
-                .with_context(|| format!("`{url}`: `{port}` is not a port"))?;
-            (host, port)
-        }
-        None => (rest, 1883),
-    };
-    if host.is_empty() || host.contains('/') || host.contains('@') {
-        bail!("`{url}` is not mqtt://host:port");
+    let endpoint = validate::parse_broker_url(&url).map_err(|problem| anyhow::anyhow!(problem))?;
+    if endpoint.tls {
+        bail!("`{url}`: the demo talks plain MQTT only (mqtt://host:port)");
     }
-    Ok((host.to_string(), port))
+    Ok((endpoint.host, endpoint.port))
 }
 
 /// The given broker, the embedded one on `port`, or (when `port` is taken by something that
@@ -116,7 +123,7 @@ fn choose_broker(broker: Option<String>, port: u16) -> anyhow::Result<BrokerEndp
         Ok(embedded) => Ok(BrokerEndpoint {
             host: embedded.addr().ip().to_string(),
             port: embedded.addr().port(),
-            origin: "embedded broker",
+            origin: EMBEDDED_ORIGIN,
         }),
         Err(error @ BrokerError::PortInUse { .. }) => {
             let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
@@ -138,10 +145,117 @@ fn choose_broker(broker: Option<String>, port: u16) -> anyhow::Result<BrokerEndp
     }
 }
 
+/// Where on the broker the demo publishes: the example's prefix, or another one when a gateway
+/// already serves the example's prefix there.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Placement {
+    pub prefix: Option<String>,
+    /// Said loudly in the introduction and under the table when the prefix had to change.
+    pub notice: Option<String>,
+}
+
+/// Gateway ids whose retained `<prefix>/gateway/<id>/status` is `online` on `endpoint`.
+pub async fn gateways_online(
+    endpoint: &BrokerEndpoint,
+    prefix: &str,
+) -> anyhow::Result<Vec<String>> {
+    let client_id = format!("rtu2mqtt-demo-probe-{}", std::process::id());
+    let mut options = MqttOptions::new(client_id, endpoint.host.clone(), endpoint.port);
+    options.set_keep_alive(Duration::from_secs(30));
+    options.set_clean_session(true);
+    let (client, mut event_loop) = AsyncClient::new(options, 16);
+    let filter = format!("{prefix}/gateway/+/status");
+    let mut online = Vec::new();
+    let mut settled_at: Option<tokio::time::Instant> = None;
+    let connect_deadline = tokio::time::Instant::now() + PROBE_CONNECT;
+    loop {
+        let deadline = settled_at.unwrap_or(connect_deadline);
+        let event = match tokio::time::timeout_at(deadline, event_loop.poll()).await {
+            Ok(event) => event,
+            Err(_) if settled_at.is_some() => break,
+            Err(_) => bail!(
+                "{}: no answer from the broker within {PROBE_CONNECT:?}",
+                endpoint.url()
+            ),
+        };
+        match event.with_context(|| format!("cannot reach the broker at {}", endpoint.url()))? {
+            Event::Incoming(Packet::ConnAck(_)) => {
+                client
+                    .subscribe(filter.clone(), QoS::AtMostOnce)
+                    .await
+                    .context("asking the broker for gateway statuses")?;
+            }
+            Event::Incoming(Packet::SubAck(_)) => {
+                settled_at = Some(tokio::time::Instant::now() + PROBE_SETTLE);
+            }
+            Event::Incoming(Packet::Publish(publish)) => {
+                let id = publish
+                    .topic
+                    .strip_prefix(&format!("{prefix}/gateway/"))
+                    .and_then(|rest| rest.strip_suffix("/status"));
+                if let Some(id) = id {
+                    if publish.retain && publish.payload.as_ref() == b"online" {
+                        online.push(id.to_string());
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    let _ = client.try_disconnect();
+    online.sort();
+    online.dedup();
+    Ok(online)
+}
+
+/// The example's prefix unless a gateway is online under it on this broker (a real one, or
+/// another demo): then [`SHARED_BROKER_PREFIX`], so that the demo neither answers that gateway's
+/// commands nor leaves its devices `offline` when it stops. Refuses when both are taken.
+async fn choose_placement(
+    endpoint: &BrokerEndpoint,
+    example_prefix: &str,
+) -> anyhow::Result<Placement> {
+    if endpoint.origin == EMBEDDED_ORIGIN {
+        return Ok(Placement {
+            prefix: None,
+            notice: None,
+        });
+    }
+    let taken = gateways_online(endpoint, example_prefix).await?;
+    if taken.is_empty() {
+        return Ok(Placement {
+            prefix: None,
+            notice: None,
+        });
+    }
+    let also_taken = gateways_online(endpoint, SHARED_BROKER_PREFIX).await?;
+    if !also_taken.is_empty() {
+        bail!(
+            "{}: gateways are online under both `{example_prefix}/` ({}) and \
+             `{SHARED_BROKER_PREFIX}/` ({}); the demo would take over their topics. Run it on \
+             its embedded broker (without --broker, --port N if 1883 is taken)",
+            endpoint.url(),
+            taken.join(", "),
+            also_taken.join(", ")
+        );
+    }
+    let notice = format!(
+        "NOTE: gateway {} is online under {example_prefix}/ on this broker: the demo uses \
+         {SHARED_BROKER_PREFIX}/ instead (no Home Assistant discovery)",
+        taken.join(", ")
+    );
+    tracing::warn!("{notice}");
+    Ok(Placement {
+        prefix: Some(SHARED_BROKER_PREFIX.to_string()),
+        notice: Some(notice),
+    })
+}
+
 /// The example configuration on the simulated lines, talking to `endpoint` as
-/// [`DEMO_CLIENT_ID`].
+/// [`DEMO_CLIENT_ID`], under the placement's prefix (without discovery when it moved).
 pub fn demo_config(
     endpoint: &BrokerEndpoint,
+    placement: &Placement,
     line_a: &Path,
     line_b: &Path,
 ) -> anyhow::Result<Config> {
@@ -166,6 +280,12 @@ pub fn demo_config(
     config.mqtt.username = None;
     config.mqtt.password = None;
     config.mqtt.client_id = DEMO_CLIENT_ID.to_string();
+    if let Some(prefix) = &placement.prefix {
+        // The demo's devices must not appear in a Home Assistant that watches this broker for
+        // the real plant.
+        config.mqtt.prefix = prefix.clone();
+        config.mqtt.discovery = false;
+    }
     // The pty is not a /dev/ttyUSB path any more: drop the advice about the example's paths.
     config
         .warnings
@@ -184,11 +304,17 @@ pub fn demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Result<Exit
 
 async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Result<ExitCode> {
     let endpoint = choose_broker(broker, port)?;
+    let placement = choose_placement(&endpoint, &example_prefix()?).await?;
     let plant = SeedPlant::spawn(true).context("serving the simulated devices on ptys")?;
     // A running plant: the dust collector is switched on, so its settings can be changed
     // (in standby it acknowledges writes and ignores them, as the real one does).
     lock(&plant.dust_collector).set_power(true);
-    let config = demo_config(&endpoint, &plant.line_a.path(), &plant.line_b.path())?;
+    let config = demo_config(
+        &endpoint,
+        &placement,
+        &plant.line_a.path(),
+        &plant.line_b.path(),
+    )?;
 
     let table = !log && std::io::stdout().is_terminal();
     let mut view = PlantView::new(
@@ -207,8 +333,12 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
             })
             .collect::<Vec<_>>(),
     );
-    let intro = introduction(&endpoint, &config);
-    let hints = table_hints(&endpoint, &config);
+    let mut intro = introduction(&endpoint, &config);
+    let mut hints = table_hints(&endpoint, &config);
+    if let Some(notice) = &placement.notice {
+        intro = format!("{notice}\n{intro}");
+        hints = format!("{notice}\n{hints}");
+    }
 
     let (trigger, shutdown) = shutdown::channel();
     let signals = tokio::spawn(super::stop_on_signals(trigger.clone()));
@@ -550,6 +680,11 @@ mod tests {
         assert!(parse_broker_url("mqtt://host:99999").is_err());
         assert!(parse_broker_url("mqtt://user@host").is_err());
         assert!(parse_broker_url("mqtt://").is_err());
+        assert!(parse_broker_url("mqtt://host:0").is_err());
+        assert_eq!(
+            parse_broker_url("mqtt://[::1]:1884").unwrap(),
+            ("::1".to_string(), 1884)
+        );
     }
 
     #[test]
@@ -559,8 +694,13 @@ mod tests {
             port: 18830,
             origin: "test",
         };
+        let placement = Placement {
+            prefix: None,
+            notice: None,
+        };
         let config = demo_config(
             &endpoint,
+            &placement,
             Path::new("/dev/pts/98"),
             Path::new("/dev/pts/99"),
         )
@@ -576,6 +716,34 @@ mod tests {
             hints.contains("air_shower at address 129 (0x81)"),
             "{hints}"
         );
+    }
+
+    #[test]
+    fn a_moved_demo_publishes_under_its_own_prefix_without_discovery() {
+        let endpoint = BrokerEndpoint {
+            host: "127.0.0.1".to_string(),
+            port: 1883,
+            origin: "--broker",
+        };
+        let placement = Placement {
+            prefix: Some(SHARED_BROKER_PREFIX.to_string()),
+            notice: Some("moved".to_string()),
+        };
+        let config = demo_config(
+            &endpoint,
+            &placement,
+            Path::new("/dev/pts/98"),
+            Path::new("/dev/pts/99"),
+        )
+        .unwrap();
+        assert_eq!(config.mqtt.prefix, "demo");
+        assert!(!config.mqtt.discovery);
+        let hints = introduction(&endpoint, &config);
+        assert!(
+            hints.contains("mosquitto_pub -t demo/dust_collector/gear/set -m 8"),
+            "{hints}"
+        );
+        assert!(!hints.contains("plant/"), "{hints}");
     }
 
     #[test]

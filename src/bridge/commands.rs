@@ -1,7 +1,9 @@
 //! The command book: which commands wait and which are on the bus. Newest per field wins (an
 //! older waiting command is superseded), a command waits while its device is offline, while a
 //! command for the same field is still on the bus, or while the field's minimum write interval
-//! runs; it expires after its time to live. QoS 1 redeliveries (DUP) are recognised so a write
+//! runs. Only waiting for an offline device is bounded by the time to live: a command waiting
+//! behind one on the bus (a valve still settling) or behind the write interval waits for a
+//! device that answers, and runs when its turn comes. QoS 1 redeliveries (DUP) are recognised so a write
 //! never runs twice because of one. Pure: the clock is passed in.
 
 use std::collections::{HashMap, VecDeque};
@@ -18,10 +20,14 @@ pub struct TrackedCommand {
     pub id: u64,
     pub device: String,
     pub field: String,
-    /// The command text as received (trimmed).
+    /// The command text the profile plans from (trimmed).
     pub text: String,
+    /// The payload as sent, echoed in `value` on `…/result` ([`super::payload::echo`]).
+    pub value: String,
     pub received: Instant,
-    pub expires: Instant,
+    /// When the command expires if its device stays offline until then; `None` while the
+    /// device is online (the clock starts again when it is next seen offline).
+    pub offline_deadline: Option<Instant>,
     /// The field's minimum time between two writes.
     pub min_write_interval: Option<Duration>,
 }
@@ -31,7 +37,8 @@ pub struct TrackedCommand {
 pub enum Admission {
     /// Waiting; `superseded` is the older command of the same field it replaced.
     Queued { superseded: Option<TrackedCommand> },
-    /// Same text as the command already waiting for this field: nothing new to do.
+    /// The same payload as the command already waiting for this field (a retained command
+    /// received again): nothing new to do.
     AlreadyWaiting,
 }
 
@@ -91,17 +98,19 @@ impl CommandBook {
         false
     }
 
-    /// Queues a validated command. An older waiting command for the same field is superseded.
+    /// Queues a validated command (`text` as planned, `value` as sent). An older waiting
+    /// command for the same field is superseded.
     pub fn submit(
         &mut self,
         device: &str,
         field: &str,
         text: &str,
+        value: &str,
         min_write_interval: Option<Duration>,
         now: Instant,
     ) -> Admission {
         let key = (device.to_string(), field.to_string());
-        if self.waiting.get(&key).is_some_and(|w| w.text == text) {
+        if self.waiting.get(&key).is_some_and(|w| w.value == value) {
             return Admission::AlreadyWaiting;
         }
         let command = TrackedCommand {
@@ -109,8 +118,9 @@ impl CommandBook {
             device: device.to_string(),
             field: field.to_string(),
             text: text.to_string(),
+            value: value.to_string(),
             received: now,
-            expires: now + self.ttl,
+            offline_deadline: Some(now + self.ttl),
             min_write_interval,
         };
         self.next_id += 1;
@@ -147,14 +157,26 @@ impl CommandBook {
         taken
     }
 
-    /// Waiting commands whose time to live has passed, removed.
-    pub fn take_expired(&mut self, now: Instant) -> Vec<TrackedCommand> {
-        let expired: Vec<Key> = self
-            .waiting
-            .iter()
-            .filter(|(_, command)| command.expires <= now)
-            .map(|(key, _)| key.clone())
-            .collect();
+    /// Waiting commands whose device has stayed offline for their whole time to live, removed.
+    /// A command of an online device never expires here: it waits for a command on the bus or
+    /// for the write interval, both of which end.
+    pub fn take_expired(
+        &mut self,
+        now: Instant,
+        is_online: impl Fn(&str) -> bool,
+    ) -> Vec<TrackedCommand> {
+        let ttl = self.ttl;
+        let mut expired: Vec<Key> = Vec::new();
+        for (key, command) in self.waiting.iter_mut() {
+            if is_online(&key.0) {
+                command.offline_deadline = None;
+                continue;
+            }
+            let deadline = *command.offline_deadline.get_or_insert(now + ttl);
+            if deadline <= now {
+                expired.push(key.clone());
+            }
+        }
         let mut taken: Vec<TrackedCommand> = expired
             .into_iter()
             .filter_map(|key| self.waiting.remove(&key))
@@ -230,7 +252,7 @@ mod tests {
         let start = Instant::now();
         let mut book = CommandBook::new(TTL);
         assert!(matches!(
-            book.submit("dust", "gear", "8", None, start),
+            book.submit("dust", "gear", "8", "8", None, start),
             Admission::Queued { superseded: None }
         ));
         assert!(book.take_ready(start, |_| false).is_empty());
@@ -244,32 +266,49 @@ mod tests {
     fn newest_per_field_wins() {
         let start = Instant::now();
         let mut book = CommandBook::new(TTL);
-        book.submit("dust", "gear", "3", None, start);
+        book.submit("dust", "gear", "3", "3", None, start);
         let Admission::Queued {
             superseded: Some(older),
-        } = book.submit("dust", "gear", "8", None, start)
+        } = book.submit("dust", "gear", "8", "8", None, start)
         else {
             panic!("not superseded")
         };
         assert_eq!(older.text, "3");
         assert_eq!(
-            book.submit("dust", "gear", "8", None, start),
+            book.submit("dust", "gear", "8", "8", None, start),
             Admission::AlreadyWaiting
         );
         // Another field is independent.
-        book.submit("dust", "power", "ON", None, start);
+        book.submit("dust", "power", "ON", "ON", None, start);
         let ready = book.take_ready(start, |_| true);
         let texts: Vec<&str> = ready.iter().map(|c| c.text.as_str()).collect();
         assert_eq!(texts, ["8", "ON"]);
     }
 
     #[test]
+    fn the_same_text_sent_differently_is_a_new_command() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("dust", "gear", "8", "8", None, start);
+        let Admission::Queued {
+            superseded: Some(older),
+        } = book.submit("dust", "gear", "8", " 8\n", None, start)
+        else {
+            panic!("not superseded")
+        };
+        assert_eq!(older.value, "8");
+        let ready = book.take_ready(start, |_| true);
+        assert_eq!(ready[0].value, " 8\n");
+        assert_eq!(ready[0].text, "8");
+    }
+
+    #[test]
     fn one_command_per_field_on_the_bus() {
         let start = Instant::now();
         let mut book = CommandBook::new(TTL);
-        book.submit("dust", "gear", "3", None, start);
+        book.submit("dust", "gear", "3", "3", None, start);
         assert_eq!(book.take_ready(start, |_| true).len(), 1);
-        book.submit("dust", "gear", "4", None, start);
+        book.submit("dust", "gear", "4", "4", None, start);
         assert!(book.take_ready(start, |_| true).is_empty());
         assert!(book.has_waiting("dust", "gear"));
         book.finish("dust", "gear", true, start);
@@ -280,14 +319,14 @@ mod tests {
     fn a_requeued_command_yields_to_a_newer_one() {
         let start = Instant::now();
         let mut book = CommandBook::new(TTL);
-        book.submit("dust", "gear", "3", None, start);
+        book.submit("dust", "gear", "3", "3", None, start);
         let taken = book.take_ready(start, |_| true).remove(0);
-        book.submit("dust", "gear", "4", None, start);
+        book.submit("dust", "gear", "4", "4", None, start);
         assert_eq!(book.requeue(taken).map(|c| c.text), Some("3".to_string()));
         assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
         book.finish("dust", "gear", false, start);
         // Without a newer one it waits again.
-        book.submit("dust", "gear", "5", None, start);
+        book.submit("dust", "gear", "5", "5", None, start);
         let five = book.take_ready(start, |_| true).remove(0);
         assert_eq!(book.requeue(five), None);
         assert_eq!(book.take_ready(start, |_| true)[0].text, "5");
@@ -297,13 +336,45 @@ mod tests {
     fn expires_after_its_time_to_live() {
         let start = Instant::now();
         let mut book = CommandBook::new(TTL);
-        book.submit("dust", "gear", "3", None, start);
+        book.submit("dust", "gear", "3", "3", None, start);
         assert!(book
-            .take_expired(start + TTL - Duration::from_secs(1))
+            .take_expired(start + TTL - Duration::from_secs(1), |_| false)
             .is_empty());
-        let expired = book.take_expired(start + TTL);
+        let expired = book.take_expired(start + TTL, |_| false);
         assert_eq!(expired.len(), 1);
         assert!(book.take_ready(start + TTL, |_| true).is_empty());
+    }
+
+    #[test]
+    fn waiting_behind_a_command_on_the_bus_never_expires() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("valve", "opening", "100", "100", None, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.submit("valve", "opening", "50", "50", None, start);
+        // The first one settles for longer than the time to live; the device answers.
+        let much_later = start + TTL * 3;
+        assert!(book.take_expired(much_later, |_| true).is_empty());
+        book.finish("valve", "opening", true, much_later);
+        assert_eq!(book.take_ready(much_later, |_| true)[0].text, "50");
+    }
+
+    #[test]
+    fn the_time_to_live_counts_from_when_the_device_is_seen_offline() {
+        let start = Instant::now();
+        let mut book = CommandBook::new(TTL);
+        book.submit("valve", "opening", "100", "100", None, start);
+        assert_eq!(book.take_ready(start, |_| true).len(), 1);
+        book.submit("valve", "opening", "50", "50", None, start);
+        let offline_at = start + TTL * 2;
+        assert!(book.take_expired(start + TTL, |_| true).is_empty());
+        assert!(book.take_expired(offline_at, |_| false).is_empty());
+        assert!(book
+            .take_expired(offline_at + TTL - Duration::from_secs(1), |_| false)
+            .is_empty());
+        let expired = book.take_expired(offline_at + TTL, |_| false);
+        assert_eq!(expired.len(), 1);
+        assert_eq!(expired[0].text, "50");
     }
 
     #[test]
@@ -311,10 +382,10 @@ mod tests {
         let start = Instant::now();
         let interval = Some(Duration::from_secs(10));
         let mut book = CommandBook::new(TTL);
-        book.submit("valve", "setpoint", "1", interval, start);
+        book.submit("valve", "setpoint", "1", "1", interval, start);
         assert_eq!(book.take_ready(start, |_| true).len(), 1);
         book.finish("valve", "setpoint", true, start);
-        book.submit("valve", "setpoint", "2", interval, start);
+        book.submit("valve", "setpoint", "2", "2", interval, start);
         assert!(book
             .take_ready(start + Duration::from_secs(9), |_| true)
             .is_empty());

@@ -424,7 +424,15 @@ pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Jso
         }
         Platform::Number => {
             let (min, max) = match &field.kind {
-                FieldKind::Integer { min, max } => (json!(min), json!(max)),
+                // The entity must hold every value the gateway publishes and accepts, the
+                // profile's `also` included (the valve's 255 = alarm disabled): Home Assistant
+                // refuses a state outside min–max. Values between the range and `also` are
+                // refused by the gateway, with a `…/result` saying which are valid.
+                FieldKind::Integer { min, max } => {
+                    let low = field.also.iter().copied().fold(*min, i64::min);
+                    let high = field.also.iter().copied().fold(*max, i64::max);
+                    (json!(low), json!(high))
+                }
                 FieldKind::Decimal { min, max, .. } => (json_number(*min), json_number(*max)),
                 // `platform_fits` admits only numeric kinds here.
                 _ => (json!(0), json!(100)),

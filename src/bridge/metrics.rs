@@ -43,6 +43,7 @@ pub struct BridgeStats {
     pub commands_rejected: u64,
     pub commands_failed: u64,
     pub commands_expired: u64,
+    pub commands_superseded: u64,
     /// Fields whose raw data was invalid (bad BCD): not published, counted here.
     pub invalid_values: u64,
 }
@@ -307,6 +308,7 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
         ("rejected", bridge.commands_rejected),
         ("failed", bridge.commands_failed),
         ("expired", bridge.commands_expired),
+        ("superseded", bridge.commands_superseded),
     ] {
         family.sample(&[("outcome", outcome)], value as f64);
     }
@@ -510,6 +512,7 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
             "rejected": bridge.commands_rejected,
             "failed": bridge.commands_failed,
             "expired": bridge.commands_expired,
+            "superseded": bridge.commands_superseded,
         },
         "invalid_values": bridge.invalid_values,
         "lines": line_documents,

@@ -409,6 +409,9 @@ impl Bridge {
             return;
         };
         self.counters.commands_received += 1;
+        // Echoed in `value` exactly as sent (bounded); logged with `?` so control characters
+        // and escapes cannot forge log lines.
+        let value = payload::echo(&publish.payload);
         let text = match decode_command(&publish.payload, self.options.max_payload) {
             CommandPayload::Clear => return,
             CommandPayload::Refused { shown, reason } => {
@@ -430,24 +433,24 @@ impl Bridge {
                     .collect::<Vec<_>>()
                     .join(", ")
             );
-            self.reject_incoming(&device, &field, &text, reason);
+            self.reject_incoming(&device, &field, &value, reason);
             return;
         };
         if !info.writable {
-            self.reject_incoming(&device, &field, &text, format!("{field} is read-only"));
+            self.reject_incoming(&device, &field, &value, format!("{field} is read-only"));
             return;
         }
         let min_write_interval = info.min_write_interval;
         let empty = Default::default();
         let state = self.cache.state(&device).unwrap_or(&empty);
         if let Err(rejection) = entry.profile.plan_command(&field, &text, state) {
-            self.reject_incoming(&device, &field, &text, rejection.0);
+            self.reject_incoming(&device, &field, &value, rejection.0);
             return;
         }
-        tracing::info!(%device, %field, command = %text, "command received");
+        tracing::info!(%device, %field, command = ?value, "command received");
         match self
             .book
-            .submit(&device, &field, &text, min_write_interval, now)
+            .submit(&device, &field, &text, &value, min_write_interval, now)
         {
             Admission::AlreadyWaiting => {}
             Admission::Queued { superseded } => {
@@ -462,11 +465,13 @@ impl Bridge {
     /// A newer command for the same field replaced `older` before it ran. Its retained
     /// message has been replaced by the newer one too: no clear.
     fn supersede(&mut self, older: TrackedCommand) {
-        self.counters.commands_expired += 1;
+        self.counters.commands_superseded += 1;
+        tracing::info!(device = %older.device, field = %older.field, command = ?older.value,
+            "command superseded by a newer one");
         let result = CommandResult::new(
-            &older.text,
-            Outcome::Expired,
-            "superseded by a newer command",
+            &older.value,
+            Outcome::Superseded,
+            "superseded by a newer command for the same field before it was sent",
         );
         self.publish_or_defer(
             self.topics.result(&older.device, &older.field),
@@ -492,7 +497,7 @@ impl Bridge {
     }
 
     fn count_rejection(&mut self, device: &str, field: &str, shown: &str, reason: &str) {
-        tracing::warn!(%device, %field, command = %shown, %reason, "command rejected");
+        tracing::warn!(%device, %field, command = ?shown, %reason, "command rejected");
         self.counters.commands_rejected += 1;
     }
 
@@ -531,7 +536,7 @@ impl Bridge {
             Err(rejection) => {
                 self.book
                     .finish(&command.device, &command.field, false, Instant::now());
-                self.reject(&command.device, &command.field, &command.text, rejection.0);
+                self.reject(&command.device, &command.field, &command.value, rejection.0);
                 return;
             }
         };
@@ -566,7 +571,7 @@ impl Bridge {
                     .finish(&command.device, &command.field, false, Instant::now());
                 self.counters.commands_failed += 1;
                 let result =
-                    CommandResult::new(&command.text, Outcome::Failed, "the line has stopped");
+                    CommandResult::new(&command.value, Outcome::Failed, "the line has stopped");
                 self.finish_with(&command.device, &command.field, result);
             }
         }
@@ -587,27 +592,32 @@ impl Bridge {
             Outcome::Rejected => self.counters.commands_rejected += 1,
             Outcome::Failed => self.counters.commands_failed += 1,
             Outcome::Expired => self.counters.commands_expired += 1,
+            Outcome::Superseded => self.counters.commands_superseded += 1,
         }
-        tracing::info!(device = %command.device, field = %command.field, command = %command.text,
+        tracing::info!(device = %command.device, field = %command.field, command = ?command.value,
             outcome = word.word(), %detail, "command finished");
         self.book
             .finish(&command.device, &command.field, wrote, Instant::now());
-        let result = CommandResult::new(&command.text, word, detail);
+        let result = CommandResult::new(&command.value, word, detail);
         self.finish_with(&command.device, &command.field, result);
         self.dispatch_ready();
     }
 
     fn on_tick(&mut self) {
         let now = Instant::now();
-        for command in self.book.take_expired(now) {
+        let cache = &self.cache;
+        let expired = self
+            .book
+            .take_expired(now, |device| cache.is_online(device));
+        for command in expired {
             self.counters.commands_expired += 1;
             let detail = format!(
                 "device {} stayed offline for {} (the command's time to live)",
                 command.device,
                 humantime::format_duration(self.options.command_ttl)
             );
-            tracing::warn!(device = %command.device, field = %command.field, command = %command.text, "command expired");
-            let result = CommandResult::new(&command.text, Outcome::Expired, detail);
+            tracing::warn!(device = %command.device, field = %command.field, command = ?command.value, "command expired");
+            let result = CommandResult::new(&command.value, Outcome::Expired, detail);
             self.finish_with(&command.device, &command.field, result);
         }
         self.dispatch_ready();
@@ -658,9 +668,11 @@ impl Bridge {
         })
     }
 
+    /// Retained: the gateway's Home Assistant sensors (and any client arriving later) read the
+    /// last document at once instead of waiting up to a statistics interval.
     fn publish_stats(&mut self) {
         let document = metrics::stats_json(&self.line_stats(), &self.counters_snapshot());
-        self.publish(self.topics.gateway_stats(), document.to_string(), false);
+        self.publish(self.topics.gateway_stats(), document.to_string(), true);
     }
 
     // ----- stop -----

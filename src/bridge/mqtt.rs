@@ -27,10 +27,16 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
 /// costs a message, never a blocked bridge).
 pub const REQUEST_QUEUE: usize = 4096;
-/// Incoming packets above this end the connection in rumqttc, and a retained one would do so
-/// again after every reconnect. Far above any sane command, so that an oversized retained
-/// command is received, rejected by the payload limit and cleared instead; still a bound.
-pub const MAX_INCOMING_PACKET: usize = 1024 * 1024;
+/// Incoming packets above this end the connection in rumqttc (it reads a packet's length and
+/// gives up before reading its body), and the connection is lost *before* the message is
+/// acknowledged: a retained one comes back with every re-subscription and a QoS 1 one with
+/// every resumed persistent session, so any finite limit below the broker's lets one oversized
+/// `…/set` message cut the gateway off for good. The limit is therefore the largest packet MQTT
+/// can express (remaining length 268 435 455): every message the broker accepts is received,
+/// acknowledged, refused by the bridge's own `max_payload` and (when retained) cleared. The
+/// memory bound is the broker's maximum message size (mosquitto `message_size_limit` /
+/// `max_packet_size`), which deployments can lower; the bridge drops the payload at once.
+pub const MAX_INCOMING_PACKET: usize = 268_435_455;
 /// Discovery configs of big devices are a few KiB.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
 
@@ -133,11 +139,14 @@ pub fn spawn_event_loop(
         let mut backoff = Backoff::default();
         let mut connected_since: Option<Instant> = None;
         let mut reported_down = false;
+        // Failed attempts since the link went down, for the log.
+        let mut failed_attempts: u32 = 0;
         loop {
             let event = match eventloop.poll().await {
                 Ok(Event::Incoming(Packet::ConnAck(connack))) => {
                     connected_since = Some(Instant::now());
                     reported_down = false;
+                    failed_attempts = 0;
                     tracing::info!(session_present = connack.session_present, "MQTT connected");
                     LinkEvent::Connected {
                         session_present: connack.session_present,
@@ -161,7 +170,8 @@ pub fn spawn_event_loop(
                         }
                     }
                     let wait = backoff.next_wait();
-                    log_connection_error(&error, wait, reported_down);
+                    log_connection_error(&error, wait, failed_attempts);
+                    failed_attempts = failed_attempts.saturating_add(1);
                     if !reported_down {
                         reported_down = true;
                         let down = LinkEvent::Disconnected {
@@ -185,13 +195,15 @@ pub fn spawn_event_loop(
     })
 }
 
-/// One line per attempt: a warning when the link goes down, then quieter while it stays down.
-fn log_connection_error(error: &ConnectionError, wait: Duration, already_down: bool) {
+/// One line per back-off step, with the wait before the next attempt: the link going down
+/// (or the first attempt failing), then every failed reconnect attempt. The back-off caps the
+/// rate at one line per [`BACKOFF_MAX`].
+fn log_connection_error(error: &ConnectionError, wait: Duration, failed_attempts: u32) {
     let wait = humantime::format_duration(Duration::from_millis(wait.as_millis() as u64));
-    if already_down {
-        tracing::debug!(%error, retry_in = %wait, "MQTT still unreachable");
-    } else {
+    if failed_attempts == 0 {
         tracing::warn!(%error, retry_in = %wait, "MQTT connection lost");
+    } else {
+        tracing::warn!(%error, attempt = failed_attempts, retry_in = %wait, "MQTT reconnect failed");
     }
 }
 

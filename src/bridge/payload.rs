@@ -7,8 +7,11 @@ use serde::Serialize;
 pub const ONLINE: &str = "online";
 pub const OFFLINE: &str = "offline";
 
-/// How much of a refused payload is echoed back in `value`.
+/// How much of a payload is echoed back in `value` and shown in logs.
 const MAX_ECHO_CHARS: usize = 64;
+/// Bytes enough for [`MAX_ECHO_CHARS`] characters and one more (UTF-8 needs at most 4 each), so
+/// a huge payload is never converted whole.
+const MAX_ECHO_BYTES: usize = (MAX_ECHO_CHARS + 1) * 4;
 
 /// The outcome word of one command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -22,9 +25,10 @@ pub enum Outcome {
     Rejected,
     /// An exception answer, or no answer after the retries.
     Failed,
-    /// The device stayed offline past the command's time to live, or a newer command replaced
-    /// this one before it ran.
+    /// The device stayed offline past the command's time to live.
     Expired,
+    /// A newer command for the same field replaced this one before it reached the bus.
+    Superseded,
 }
 
 impl Outcome {
@@ -35,6 +39,7 @@ impl Outcome {
             Outcome::Rejected => "rejected",
             Outcome::Failed => "failed",
             Outcome::Expired => "expired",
+            Outcome::Superseded => "superseded",
         }
     }
 }
@@ -42,7 +47,7 @@ impl Outcome {
 /// The JSON on `…/result`.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct CommandResult {
-    /// The command as sent (shortened when it was huge or not text).
+    /// The command exactly as sent (lossy UTF-8, shortened when it was long): see [`echo`].
     pub value: String,
     pub outcome: Outcome,
     pub detail: String,
@@ -86,7 +91,7 @@ pub fn decode_command(payload: &[u8], max_len: usize) -> CommandPayload {
     }
     if payload.len() > max_len {
         return CommandPayload::Refused {
-            shown: shortened(&String::from_utf8_lossy(&payload[..payload.len().min(256)])),
+            shown: echo(payload),
             reason: format!(
                 "payload of {} bytes is over the limit of {max_len}",
                 payload.len()
@@ -95,24 +100,33 @@ pub fn decode_command(payload: &[u8], max_len: usize) -> CommandPayload {
     }
     let Ok(text) = std::str::from_utf8(payload) else {
         return CommandPayload::Refused {
-            shown: shortened(&String::from_utf8_lossy(payload)),
+            shown: echo(payload),
             reason: "payload is not UTF-8 text".to_string(),
         };
     };
     let text = text.trim_start_matches('\u{feff}').trim();
     if text.is_empty() {
         return CommandPayload::Refused {
-            shown: String::new(),
+            shown: echo(payload),
             reason: "payload is only whitespace".to_string(),
         };
     }
     if let Some(control) = text.chars().find(|c| c.is_control()) {
         return CommandPayload::Refused {
-            shown: shortened(text),
+            shown: echo(payload),
             reason: format!("payload contains the control character {control:?}"),
         };
     }
     CommandPayload::Text(text.to_string())
+}
+
+/// The payload as the client sent it, for `value` in `…/result`: untrimmed, invalid UTF-8
+/// replaced, at most [`MAX_ECHO_CHARS`] characters (marked with `…` when cut). Control
+/// characters stay: JSON escapes them. For logs, format it with `{:?}`.
+pub fn echo(payload: &[u8]) -> String {
+    shortened(&String::from_utf8_lossy(
+        &payload[..payload.len().min(MAX_ECHO_BYTES)],
+    ))
 }
 
 /// At most [`MAX_ECHO_CHARS`] characters, marked when cut.
@@ -148,6 +162,7 @@ mod tests {
             Outcome::Rejected,
             Outcome::Failed,
             Outcome::Expired,
+            Outcome::Superseded,
         ] {
             assert_eq!(
                 serde_json::to_value(outcome).unwrap(),
@@ -183,6 +198,25 @@ mod tests {
             decode_command(b"O\x00N", 16),
             CommandPayload::Refused { .. }
         ));
+    }
+
+    #[test]
+    fn the_echo_is_the_payload_as_sent() {
+        assert_eq!(echo(b" ON\n"), " ON\n");
+        assert_eq!(echo("\u{feff}45.67".as_bytes()), "\u{feff}45.67");
+        assert_eq!(echo(&[b'O', 0xff, b'N']), "O\u{fffd}N");
+        let CommandPayload::Refused { shown, .. } = decode_command(b"O\x00N\r", 16) else {
+            panic!("accepted")
+        };
+        assert_eq!(shown, "O\x00N\r");
+        // Long multi-byte text is cut on a character, and marked.
+        let long = "é".repeat(MAX_ECHO_CHARS + 10);
+        let shown = echo(long.as_bytes());
+        assert_eq!(shown.chars().count(), MAX_ECHO_CHARS + 1);
+        assert!(shown.starts_with(&"é".repeat(MAX_ECHO_CHARS)));
+        assert!(shown.ends_with('…'));
+        let exact = "é".repeat(MAX_ECHO_CHARS);
+        assert_eq!(echo(exact.as_bytes()), exact);
     }
 
     #[test]

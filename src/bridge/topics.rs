@@ -101,6 +101,28 @@ mod tests {
         assert_eq!(topics.command_filter(), "plant/+/+/set");
     }
 
+    /// Discovery documents name the same topics the bridge publishes on (built separately in
+    /// `discovery.rs` for now): they must agree, or Home Assistant listens in the wrong place.
+    #[test]
+    fn discovery_names_the_topics_the_bridge_uses() {
+        let topics = Topics::new("site/plant", "edge1");
+        let discovery = crate::bridge::discovery::DiscoveryContext::new("edge1", "site/plant");
+        assert_eq!(
+            discovery.state_topic("valve", "opening"),
+            topics.state("valve", "opening")
+        );
+        assert_eq!(
+            discovery.command_topic("valve", "opening"),
+            topics.set("valve", "opening")
+        );
+        assert_eq!(
+            discovery.availability_topic("valve"),
+            topics.availability("valve")
+        );
+        assert_eq!(discovery.gateway_status_topic(), topics.gateway_status());
+        assert_eq!(discovery.gateway_stats_topic(), topics.gateway_stats());
+    }
+
     #[test]
     fn command_topics_are_parsed_strictly() {
         let topics = Topics::new("site/plant", "gw");

@@ -119,6 +119,9 @@ pub struct FieldInfo {
     /// For numbers, the smallest change the device can hold (one raw count: `0.01` for two
     /// decimals, `5` for `scale = 5`); commands off this step are refused. None otherwise.
     pub step: Option<Value>,
+    /// Integers a command may carry and the device may report besides the range (the valve's
+    /// `255` = alarm disabled); empty for most fields.
+    pub also: Vec<i64>,
     pub ha: HaHints,
     /// Minimum time between two writes of this field (protects device EEPROM).
     pub min_write_interval: Option<Duration>,

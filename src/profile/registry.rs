@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use super::schema::Behaviour;
-use super::{FieldKind, PollClass, Profile, ProfileErrors};
+use super::{FieldInfo, FieldKind, PollClass, Profile, ProfileErrors};
 use crate::rtu::timing::Parity;
 
 /// (name, TOML text) of every built-in profile.
@@ -82,6 +82,17 @@ pub fn load(reference: &str, base: Option<&Path>) -> Result<Profile, LoadError> 
     } else {
         built_in(reference)
     }
+}
+
+/// The field's values as `rtu2mqtt profiles` lists them, with the extra integers its `also`
+/// admits (`integer 0–100 or 255`).
+fn describe_values(field: &FieldInfo) -> String {
+    let kind = describe_kind(&field.kind);
+    if field.also.is_empty() {
+        return kind;
+    }
+    let also: Vec<String> = field.also.iter().map(ToString::to_string).collect();
+    format!("{kind} or {}", also.join(", "))
 }
 
 fn describe_kind(kind: &FieldKind) -> String {
@@ -235,7 +246,7 @@ pub fn describe(profile: &Profile) -> String {
         let line = format!(
             "  {:<width$}  {access}  {:<26} {unit:<4} {}",
             field.name,
-            describe_kind(&field.kind),
+            describe_values(field),
             describe_write(profile, index),
         );
         let _ = writeln!(out, "{}", line.trim_end());

@@ -1186,6 +1186,7 @@ fn build_field(
         writable: def.write.is_some(),
         unit: field.unit.clone(),
         step: def.codec.step(),
+        also: field.also.clone(),
         ha: HaHints {
             component: field.ha.component.clone(),
             device_class: field.ha.device_class.clone(),

@@ -16,7 +16,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::clock::{sleep_until_precise, SPIN_WINDOW};
+use super::clock::sleep_until_precise;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
 use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
@@ -314,20 +314,17 @@ impl Master {
             if now >= give_up {
                 return Err(Error::LineBusy(patience));
             }
-            // Listen with the coarse timer until shortly before the silence is complete, then
-            // finish precisely; bytes in the last stretch are caught by the next take_pending.
-            let coarse_until = quiet_at
-                .checked_sub(SPIN_WINDOW)
-                .unwrap_or(now)
-                .min(give_up);
-            if coarse_until > now {
-                if let Some((count, seen)) = self.port.read_until(&mut chunk, coarse_until).await? {
-                    let bytes = chunk[..count].to_vec();
-                    self.absorb_unsolicited(&bytes, seen);
-                    continue;
-                }
+            // Listen all through the silence; the precise timer (a timerfd, not the
+            // millisecond tokio timer) ends the wait as soon as the silence is complete.
+            let heard = tokio::select! {
+                biased;
+                read = self.port.read_until(&mut chunk, give_up) => read?,
+                () = sleep_until_precise(quiet_at.min(give_up)) => None,
+            };
+            if let Some((count, seen)) = heard {
+                let bytes = chunk[..count].to_vec();
+                self.absorb_unsolicited(&bytes, seen);
             }
-            sleep_until_precise(quiet_at).await;
         }
     }
 
@@ -715,5 +712,91 @@ mod tests {
         assert_eq!(complete_foreign_frame(&corrupted), None);
         let exception = codec::encode_exception(0x22, 0x03, ExceptionCode::IllegalDataAddress);
         assert_eq!(complete_foreign_frame(&exception), Some(5));
+    }
+    /// Instants at which the master wrote each `tx` line of its frame recording.
+    #[derive(Clone, Default)]
+    struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
+
+    impl Write for TxInstants {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            let line = String::from_utf8_lossy(bytes);
+            if line.split_whitespace().nth(1) == Some("tx") {
+                self.0.lock().unwrap().push(Instant::now());
+            }
+            Ok(bytes.len())
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// The master never drives the line sooner than t3.5 after the answer's last byte, checked
+    /// in the direction that holds on any load: the simulator's hand-over of its answer is the
+    /// earliest the master can have seen it, and the master records a request before writing
+    /// it, so `recorded tx − hand-over` is at most the true silence. Likewise the simulator's
+    /// silence before each request runs from that hand-over to when it read the request,
+    /// which can only be later than the master's write.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
+        use crate::rtu::timing::{CharFormat, Parity};
+        use crate::rtu::transport::SerialSettings;
+        use crate::sim::{share, AirShower, ServeOptions, VirtualLine};
+
+        const TRANSACTIONS: usize = 40;
+        let baud = 38_400;
+        let format = CharFormat {
+            data_bits: 8,
+            parity: Parity::None,
+            stop_bits: 1,
+        };
+        let timing = LineTiming::new(baud, format);
+        let (_shower, device) = share(AirShower::new());
+        let line = VirtualLine::spawn(
+            ServeOptions::new(baud, Parity::None).paced(true),
+            vec![device],
+        )
+        .unwrap();
+        let port = Port::open(&SerialSettings {
+            path: line.path().to_string_lossy().into_owned(),
+            baud,
+            format,
+            rs485: None,
+        })
+        .unwrap();
+        let mut master = Master::new(port, timing, MasterOptions::default());
+        let tx_instants = TxInstants::default();
+        master.record_frames_to(Box::new(tx_instants.clone()));
+        let read = Request::ReadCoils {
+            start: 0,
+            quantity: 22,
+        };
+        for _ in 0..TRANSACTIONS {
+            master
+                .transact(0x81, &read, Duration::from_secs(1))
+                .await
+                .unwrap();
+        }
+        let records = line.journal().requests();
+        let sent = tx_instants.0.lock().unwrap().clone();
+        assert_eq!(records.len(), TRANSACTIONS);
+        assert_eq!(sent.len(), TRANSACTIONS);
+        for (i, pair) in records.windows(2).enumerate() {
+            let handed_over = pair[0].answer_timing.unwrap().handed_over;
+            let next_tx = sent[i + 1];
+            assert!(
+                next_tx.into_std() >= handed_over + timing.t3_5,
+                "request {} recorded {:?} after the answer's hand-over, t3.5 is {:?}",
+                i + 1,
+                next_tx.into_std().saturating_duration_since(handed_over),
+                timing.t3_5
+            );
+            let silence = pair[1].silence_before.unwrap();
+            assert!(
+                silence >= timing.t3_5,
+                "request {} after {silence:?} of silence",
+                i + 1
+            );
+        }
     }
 }

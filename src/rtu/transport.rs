@@ -313,8 +313,10 @@ impl Port {
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
     /// On a pseudo-terminal the instant the write returned.
     pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
+        // No `flush()`: tokio-serial's flush is a blocking tcdrain on the async worker thread
+        // (mio-serial), which would stall the runtime for the frame's whole wire time. The
+        // drain is awaited below on the blocking pool instead.
         self.stream.write_all(frame).await?;
-        self.stream.flush().await?;
         if self.pseudo_terminal {
             // A pty has no transmitter: the bytes are readable on the other side as soon as
             // the write returns, and tcdrain there would only add the blocking pool's latency.

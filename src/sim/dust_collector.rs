@@ -337,14 +337,27 @@ impl SimDevice for DustCollector {
 mod tests {
     use super::*;
 
-    fn read_all(dust: &mut DustCollector, now: Instant) -> Vec<u16> {
-        match dust.handle(
-            &Request::ReadHoldingRegisters {
+    fn read(dust: &mut DustCollector, start: u16, quantity: u16, now: Instant) -> Reply {
+        dust.handle(&Request::ReadHoldingRegisters { start, quantity }, now)
+    }
+
+    fn write(dust: &mut DustCollector, address: u16, value: u16, now: Instant) -> Reply {
+        dust.handle(&Request::WriteSingleRegister { address, value }, now)
+    }
+
+    /// An FC10 write of `values` from the table's first register.
+    fn write_registers(dust: &mut DustCollector, values: Vec<u16>, now: Instant) -> Reply {
+        dust.handle(
+            &Request::WriteMultipleRegisters {
                 start: BASE,
-                quantity: 6,
+                values,
             },
             now,
-        ) {
+        )
+    }
+
+    fn read_all(dust: &mut DustCollector, now: Instant) -> Vec<u16> {
+        match read(dust, BASE, 6, now) {
             Reply::Normal(Response::HoldingRegisters(words)) => words,
             other => panic!("unexpected {other:?}"),
         }
@@ -363,13 +376,7 @@ mod tests {
     #[test]
     fn read_at_0x1002_returns_pv_not_gear() {
         let mut dust = DustCollector::new(1);
-        let reply = dust.handle(
-            &Request::ReadHoldingRegisters {
-                start: 0x1002,
-                quantity: 1,
-            },
-            Instant::now(),
-        );
+        let reply = read(&mut dust, 0x1002, 1, Instant::now());
         assert_eq!(reply, Reply::Normal(Response::HoldingRegisters(vec![10])));
     }
 
@@ -377,23 +384,20 @@ mod tests {
     fn read_limits_give_exceptions() {
         let mut dust = DustCollector::new(1);
         let now = Instant::now();
-        let read = |start, quantity| Request::ReadHoldingRegisters { start, quantity };
-        assert_eq!(
-            dust.handle(&read(BASE, 7), now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            dust.handle(&read(BASE, 0), now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            dust.handle(&read(0x1004, 3), now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            dust.handle(&read(0x0FFF, 1), now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
+        // (start, quantity, exception)
+        let refused = [
+            (BASE, 7, ExceptionCode::IllegalDataValue),
+            (BASE, 0, ExceptionCode::IllegalDataValue),
+            (0x1004, 3, ExceptionCode::IllegalDataAddress),
+            (0x0FFF, 1, ExceptionCode::IllegalDataAddress),
+        ];
+        for (start, quantity, code) in refused {
+            assert_eq!(
+                read(&mut dust, start, quantity, now),
+                Reply::Exception(code),
+                "read of {quantity} from {start:#06X}"
+            );
+        }
         assert_eq!(
             dust.handle(
                 &Request::ReadCoils {
@@ -410,13 +414,7 @@ mod tests {
     fn standby_acknowledges_but_ignores_gear_write() {
         let mut dust = DustCollector::new(1);
         let now = Instant::now();
-        let reply = dust.handle(
-            &Request::WriteSingleRegister {
-                address: 0x1002,
-                value: 8,
-            },
-            now,
-        );
+        let reply = write(&mut dust, 0x1002, 8, now);
         assert_eq!(
             reply,
             Reply::Normal(Response::WriteSingleRegister {
@@ -427,13 +425,7 @@ mod tests {
         assert_eq!(dust.gear(), 3);
         assert_eq!(dust.ignored_in_standby(), 1);
         dust.set_power(true);
-        dust.handle(
-            &Request::WriteSingleRegister {
-                address: 0x1002,
-                value: 8,
-            },
-            now,
-        );
+        write(&mut dust, 0x1002, 8, now);
         assert_eq!(dust.gear(), 8);
     }
 
@@ -442,13 +434,7 @@ mod tests {
         let mut dust = DustCollector::new(1);
         let now = Instant::now();
         let values = vec![0x2340, 5, 2, 10];
-        let reply = dust.handle(
-            &Request::WriteMultipleRegisters {
-                start: BASE,
-                values,
-            },
-            now,
-        );
+        let reply = write_registers(&mut dust, values, now);
         assert_eq!(
             reply,
             Reply::Normal(Response::WriteMultipleRegisters {
@@ -470,13 +456,7 @@ mod tests {
         let now = Instant::now();
         // The golden FC10 frame's status word 0x0300 clears 0x2040: kept, but recorded.
         let values = vec![0x0300, 5, 2, 10];
-        dust.handle(
-            &Request::WriteMultipleRegisters {
-                start: BASE,
-                values,
-            },
-            now,
-        );
+        write_registers(&mut dust, values, now);
         assert!(dust.power());
         assert_eq!(dust.status_word(), 0x2340);
         assert_eq!(dust.violations().len(), 1);
@@ -487,57 +467,28 @@ mod tests {
         let mut dust = DustCollector::new(1);
         dust.set_power(true);
         let now = Instant::now();
-        assert_eq!(
-            dust.handle(
-                &Request::WriteSingleRegister {
-                    address: 0x1002,
-                    value: 11
-                },
-                now
-            ),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            dust.handle(
-                &Request::WriteSingleRegister {
-                    address: 0x1001,
-                    value: 1
-                },
-                now
-            ),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            dust.handle(
-                &Request::WriteSingleRegister {
-                    address: 0x1008,
-                    value: 1
-                },
-                now
-            ),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
+        // (address, value, exception)
+        let refused = [
+            (0x1002, 11, ExceptionCode::IllegalDataValue),
+            (0x1001, 1, ExceptionCode::IllegalDataAddress),
+            (0x1008, 1, ExceptionCode::IllegalDataAddress),
+        ];
+        for (address, value, code) in refused {
+            assert_eq!(
+                write(&mut dust, address, value, now),
+                Reply::Exception(code),
+                "write of {value} to {address:#06X}"
+            );
+        }
         let values = vec![0x2240, 4, 100];
         assert_eq!(
-            dust.handle(
-                &Request::WriteMultipleRegisters {
-                    start: BASE,
-                    values
-                },
-                now
-            ),
+            write_registers(&mut dust, values, now),
             Reply::Exception(ExceptionCode::IllegalDataValue)
         );
         assert_eq!(dust.gear(), 3);
         let values = vec![1, 2, 3, 4, 5];
         assert_eq!(
-            dust.handle(
-                &Request::WriteMultipleRegisters {
-                    start: BASE,
-                    values
-                },
-                now
-            ),
+            write_registers(&mut dust, values, now),
             Reply::Exception(ExceptionCode::IllegalDataValue)
         );
     }

@@ -21,6 +21,21 @@ pub struct RequestRecord {
     pub crc_ok: bool,
     /// The bytes sent back for it (after faults), None when nothing was sent.
     pub answer: Option<Vec<u8>>,
+    /// When the answer's last byte was due and went out, None when nothing was sent.
+    pub answer_timing: Option<AnswerTiming>,
+}
+
+/// When an answer's last byte went out, from the simulator's side of the pty.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AnswerTiming {
+    /// When its last byte was due on the wire (paced: start plus the answer's wire time).
+    pub due: Instant,
+    /// Just before the write that handed the last byte to the pty: the master cannot have seen
+    /// it sooner, and sees it as soon as the write is done. The line's silence runs from here.
+    pub handed_over: Instant,
+    /// When that write returned (later than `handed_over` by the system call and any
+    /// preemption of the simulator's thread in between).
+    pub write_returned: Instant,
 }
 
 /// Records kept; older ones are dropped so a long demo or soak run stays in bounded memory
@@ -144,6 +159,7 @@ mod tests {
                 silence_before: None,
                 crc_ok: true,
                 answer: None,
+                answer_timing: None,
             });
         }
         assert_eq!(journal.request_count(), MAX_RECORDS + 5);

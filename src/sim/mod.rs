@@ -53,7 +53,7 @@ pub use air_shower::AirShower;
 pub use dust_collector::DustCollector;
 pub use faults::{FaultHandle, Faults, Occurrence};
 pub use generic::GenericDevice;
-pub use journal::{Journal, RequestRecord};
+pub use journal::{AnswerTiming, Journal, RequestRecord};
 pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
 pub use valve::Valve;

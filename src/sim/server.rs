@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::faults::{random_bytes, FaultHandle};
-use super::journal::{Journal, RequestRecord};
+use super::journal::{AnswerTiming, Journal, RequestRecord};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
 use crate::rtu::clock::sleep_until_precise;
@@ -220,12 +220,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             silence_before,
             crc_ok: wire::crc_ok(&frame),
             answer: None,
+            answer_timing: None,
         };
         tracing::debug!(frame = %hex(&frame), crc_ok = record.crc_ok, "request");
         if self.faults.echo() {
             // The adapter hears whatever goes out, valid or not.
             self.stream.write_all(&frame).await?;
-            self.stream.flush().await?;
         }
         if !record.crc_ok {
             // Like a device framing by silence, ignore the rest of this burst.
@@ -269,8 +269,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         let mut out = faults.garbage_before;
         out.extend_from_slice(&bytes);
         let starts = ended + timing.t3_5 + faults.delay;
-        self.send(&out, starts, faults.pause_mid_answer).await?;
+        let timing = self.send(&out, starts, faults.pause_mid_answer).await?;
         record.answer = Some(out);
+        record.answer_timing = Some(timing);
         self.journal.record(record);
         Ok(())
     }
@@ -320,19 +321,22 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     }
 
     /// Sends `bytes` so that they start at `starts` (and, paced, are complete one wire time
-    /// later), with an optional gap in the middle.
+    /// later), with an optional gap in the middle. No flush follows the writes: on a pty it is
+    /// a tcdrain system call with nothing to drain, and the bytes are readable on the other end
+    /// as soon as the write returns.
     async fn send(
         &mut self,
         bytes: &[u8],
         starts: Instant,
         pause: Option<Duration>,
-    ) -> std::io::Result<()> {
+    ) -> std::io::Result<AnswerTiming> {
         let timing = self.options.timing;
         let (head, tail) = match pause {
             Some(_) => bytes.split_at(bytes.len() / 2),
             None => (bytes, &[][..]),
         };
         let mut at = starts;
+        let mut handed_over = Instant::now();
         for (i, part) in [head, tail].into_iter().enumerate() {
             if part.is_empty() {
                 continue;
@@ -344,12 +348,19 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
                 at += timing.frame_time(part.len());
             }
             sleep_until_precise(tokio::time::Instant::from_std(at)).await;
+            handed_over = Instant::now();
             self.stream.write_all(part).await?;
-            self.stream.flush().await?;
         }
+        let write_returned = Instant::now();
         tracing::debug!(answer = %hex(bytes), "answer");
-        self.idle_since = Some(Instant::now().max(at));
-        Ok(())
+        // The silence starts when the last byte is on the wire and the master can have it:
+        // from the write on, not from when this thread got to run again after it.
+        self.idle_since = Some(handed_over.max(at));
+        Ok(AnswerTiming {
+            due: at,
+            handed_over: handed_over.max(at),
+            write_returned,
+        })
     }
 }
 

@@ -474,6 +474,10 @@ mod tests {
         valve.handle(&Request::ReadHoldingRegisters { start, quantity }, now)
     }
 
+    fn write(valve: &mut Valve, address: u16, value: u16, now: Instant) -> Reply {
+        valve.handle(&Request::WriteSingleRegister { address, value }, now)
+    }
+
     fn words(reply: Reply) -> Vec<u16> {
         match reply {
             Reply::Normal(Response::HoldingRegisters(words)) => words,
@@ -536,13 +540,7 @@ mod tests {
         let start = Instant::now();
         let mut valve = Valve::new(1);
         valve.advance(start);
-        let reply = valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_OPENING,
-                value: 80,
-            },
-            start,
-        );
+        let reply = write(&mut valve, REG_OPENING, 80, start);
         assert_eq!(
             reply,
             Reply::Normal(Response::WriteSingleRegister {
@@ -562,22 +560,15 @@ mod tests {
         valve.advance(start + Duration::from_secs(20));
         assert_eq!(valve.opening(), 80);
         assert_eq!(valve.status() & 0x0C, 0, "motor stopped");
-        valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_OPENING,
-                value: 100,
-            },
+        write(
+            &mut valve,
+            REG_OPENING,
+            100,
             start + Duration::from_secs(20),
         );
         valve.advance(start + Duration::from_secs(40));
         assert_eq!(valve.status() & NOT_FULLY_OPEN, 0, "fully open reads 0");
-        valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_OPENING,
-                value: 0,
-            },
-            start + Duration::from_secs(40),
-        );
+        write(&mut valve, REG_OPENING, 0, start + Duration::from_secs(40));
         valve.advance(start + Duration::from_secs(41));
         assert_eq!(valve.status() & 0x0C, MOTOR_CLOSING);
         assert_ne!(valve.status() & DIRECTION_CLOSE, 0);
@@ -591,13 +582,7 @@ mod tests {
         let mut valve = Valve::new(1);
         valve.set_speed(20.0);
         valve.advance(start);
-        valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_MODE,
-                value: 1,
-            },
-            start,
-        );
+        write(&mut valve, REG_MODE, 1, start);
         for second in 1..=120 {
             valve.advance(start + Duration::from_secs(second));
         }
@@ -621,13 +606,7 @@ mod tests {
         let mut valve = Valve::new(1);
         valve.advance(start);
         valve.set_jammed(true);
-        valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_OPENING,
-                value: 90,
-            },
-            start,
-        );
+        write(&mut valve, REG_OPENING, 90, start);
         valve.advance(start + Duration::from_secs(30));
         assert_eq!(valve.opening(), 30);
         assert_ne!(valve.status() & JAMMED, 0);
@@ -637,38 +616,32 @@ mod tests {
     fn write_rules() {
         let mut valve = Valve::new(1);
         let now = Instant::now();
-        let write = |address, value| Request::WriteSingleRegister { address, value };
-        assert_eq!(
-            valve.handle(&write(REG_OPENING, 101), now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            valve.handle(&write(0x08, 1), now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            valve.handle(&write(0x50, 1), now),
-            Reply::Exception(ExceptionCode::IllegalDataAddress)
-        );
-        assert_eq!(
-            valve.handle(&write(REG_SETPOINT, 0x00A0), now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
-        assert_eq!(
-            valve.handle(&write(REG_SETPOINT + 1, 0x0100), now),
-            Reply::Exception(ExceptionCode::IllegalDataValue)
-        );
+        // (register, value, exception)
+        let refused = [
+            (REG_OPENING, 101, ExceptionCode::IllegalDataValue),
+            (0x08, 1, ExceptionCode::IllegalDataAddress),
+            (0x50, 1, ExceptionCode::IllegalDataAddress),
+            (REG_SETPOINT, 0x00A0, ExceptionCode::IllegalDataValue),
+            (REG_SETPOINT + 1, 0x0100, ExceptionCode::IllegalDataValue),
+        ];
+        for (address, value, code) in refused {
+            assert_eq!(
+                write(&mut valve, address, value, now),
+                Reply::Exception(code),
+                "write of {value:#06X} to register {address:#04X}"
+            );
+        }
         assert!(matches!(
-            valve.handle(&write(REG_SETPOINT, 0x0150), now),
+            write(&mut valve, REG_SETPOINT, 0x0150, now),
             Reply::Normal(_)
         ));
         assert_eq!(valve.register(REG_SETPOINT), Some(0x0150));
         assert!(matches!(
-            valve.handle(&write(REG_MODE, 1), now),
+            write(&mut valve, REG_MODE, 1, now),
             Reply::Normal(_)
         ));
         assert!(valve.mode_auto());
-        assert_eq!(valve.handle(&write(REG_BAUD, 7), now), Reply::Silent);
+        assert_eq!(write(&mut valve, REG_BAUD, 7, now), Reply::Silent);
         assert_eq!(valve.baud_switches(), &[7]);
         assert_eq!(
             valve.handle(
@@ -688,13 +661,7 @@ mod tests {
         assert_eq!(valve.addressing(0x00), Addressing::Answer);
         assert_eq!(valve.addressing(0xFF), Addressing::ActSilently);
         assert_eq!(valve.addressing(0x02), Addressing::NotMine);
-        valve.handle(
-            &Request::WriteSingleRegister {
-                address: REG_ADDRESS,
-                value: 7,
-            },
-            Instant::now(),
-        );
+        write(&mut valve, REG_ADDRESS, 7, Instant::now());
         assert_eq!(valve.address(), 7);
         assert_eq!(valve.addressing(0x07), Addressing::Answer);
         assert_eq!(valve.addressing(0x01), Addressing::NotMine);
