@@ -1,7 +1,7 @@
 //! Acceptance checks found by driving the gateway as a user would: the seed plant on pty lines,
 //! a real mosquitto, commands published by an MQTT client or `mosquitto_pub`, configurations
-//! checked with the `rtu2mqtt check` binary. Each `#[ignore = "bug: …"]` test fails on the
-//! current code for the reason it names and passes once that is fixed.
+//! checked with the `rtu2mqtt check` binary. Each test was written failing, against a bug seen
+//! that way, and stays as its regression test.
 
 mod support;
 
