@@ -15,7 +15,8 @@
 //!   place of every problem before anything is opened.
 //! - [`bridge`]: the only MQTT user. State, commands, outcomes, availability, Home Assistant
 //!   discovery and statistics.
-//! - [`sim`]: simulated devices built from profiles, for tests, benchmarks and the demo.
+//! - [`sim`]: simulated devices (the three seed devices written from their documents, and a
+//!   generic one built from any profile), for tests, benchmarks and the demo.
 //! - [`app`]: wires the above together for `run` and `demo`; [`shutdown`] and [`health`] are
 //!   the small process-level pieces (signals, watchdog, status file), [`cli`] the command line
 //!   and [`broker`] the demo's embedded MQTT broker.
