@@ -10,11 +10,9 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::config::{self, Config};
-use rtu2mqtt::shutdown::{self, ShutdownTrigger};
 use rtu2mqtt::sim::{self, SeedPlant};
-use support::{Mosquitto, TestClient};
+use support::{Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -23,77 +21,12 @@ const ANSWER: Duration = Duration::from_secs(15);
 const OVERSIZED: usize = 2 * 1024 * 1024;
 
 fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str) -> Config {
-    let text = format!(
-        r#"
-[mqtt]
-url = "{url}"
-client_id = "{client_id}"
-prefix = "plant"
-discovery = false
-
-[[lines]]
-name = "line-a"
-port = "{line_a}"
-response_timeout = "150ms"
-offline_after = 2
-
-[[lines.devices]]
-name = "dust_collector"
-profile = "ruiwan-dust-collector"
-address = 1
-
-[[lines.devices]]
-name = "air_shower"
-profile = "lixian-air-shower"
-address = 0x81
-
-[[lines]]
-name = "line-b"
-port = "{line_b}"
-parity = "even"
-response_timeout = "150ms"
-offline_after = 2
-
-[[lines.devices]]
-name = "valve"
-profile = "wuzhou-valve"
-address = 1
-"#,
-        url = broker.url(),
-        line_a = plant.line_a.path().display(),
-        line_b = plant.line_b.path().display(),
-    );
+    let text = PlantConfig {
+        line_keys: "offline_after = 2",
+        ..PlantConfig::default()
+    }
+    .text(broker, plant, client_id);
     config::from_str(&text, Path::new(".")).unwrap()
-}
-
-struct Gateway {
-    trigger: ShutdownTrigger,
-    task: tokio::task::JoinHandle<anyhow::Result<()>>,
-}
-
-impl Gateway {
-    async fn start(config: Config) -> Gateway {
-        let (trigger, shutdown) = shutdown::channel();
-        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
-        let hooks = Hooks {
-            ready_tx: Some(ready_tx),
-        };
-        let task = tokio::spawn(run_gateway(config, shutdown, hooks));
-        tokio::time::timeout(ANSWER, ready_rx)
-            .await
-            .unwrap()
-            .unwrap();
-        Gateway { trigger, task }
-    }
-
-    async fn stop(self) {
-        self.trigger.fire();
-        tokio::time::timeout(ANSWER, self.task)
-            .await
-            .unwrap()
-            .unwrap()
-            .unwrap();
-    }
 }
 
 /// Publishes `payload` with `mosquitto_pub` (QoS 1), as a user or a misbehaving client would.

@@ -24,7 +24,7 @@ use rtu2mqtt::bus::LineStats;
 use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 use rtu2mqtt::shutdown;
 use rtu2mqtt::sim::SeedPlant;
-use support::{Mosquitto, TestClient};
+use support::{Mosquitto, PlantConfig, TestClient};
 
 fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
     FieldInfo {
@@ -968,50 +968,13 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
 const ANSWER: Duration = Duration::from_secs(20);
 
 fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str) -> String {
-    format!(
-        r#"
-[mqtt]
-url = "{url}"
-client_id = "{client_id}"
-prefix = "plant"
-discovery = true
-
-[gateway]
-json_view = true
-
-[[lines]]
-name = "line-a"
-port = "{line_a}"
-baud = 9600
-parity = "none"
-response_timeout = "150ms"
-
-[[lines.devices]]
-name = "dust_collector"
-profile = "ruiwan-dust-collector"
-address = 1
-
-[[lines.devices]]
-name = "air_shower"
-profile = "lixian-air-shower"
-address = 0x81
-
-[[lines]]
-name = "line-b"
-port = "{line_b}"
-baud = 9600
-parity = "even"
-response_timeout = "150ms"
-
-[[lines.devices]]
-name = "valve"
-profile = "wuzhou-valve"
-address = 1
-"#,
-        url = broker.url(),
-        line_a = plant.line_a.path().display(),
-        line_b = plant.line_b.path().display(),
-    )
+    PlantConfig {
+        discovery: true,
+        gateway: "json_view = true",
+        explicit_serial: true,
+        ..PlantConfig::default()
+    }
+    .text(broker, plant, client_id)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -6,11 +6,9 @@ mod support;
 
 use std::time::Duration;
 
-use rtu2mqtt::app::{run_gateway, Hooks, Running};
 use rtu2mqtt::config::{self, Config};
-use rtu2mqtt::shutdown::{self, ShutdownTrigger};
 use rtu2mqtt::sim::{self, SeedPlant};
-use support::{Message, Mosquitto, TestClient};
+use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -23,56 +21,14 @@ const COIL_EMERGENCY_STOP: usize = 0;
 const COIL_BREEZE: usize = 4;
 
 fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, extra: &str) -> String {
-    format!(
-        r#"
-[mqtt]
-url = "{url}"
-client_id = "{client_id}"
-prefix = "plant"
-discovery = false
-
-[gateway]
-stats_interval = "1s"
-{extra}
-
-[[lines]]
-name = "line-a"
-port = "{line_a}"
-baud = 9600
-parity = "none"
-response_timeout = "150ms"
-retries = 1
-offline_after = 2
-
-[[lines.devices]]
-name = "dust_collector"
-profile = "ruiwan-dust-collector"
-address = 1
-poll_interval = "1s"
-
-[[lines.devices]]
-name = "air_shower"
-profile = "lixian-air-shower"
-address = 0x81
-
-[[lines]]
-name = "line-b"
-port = "{line_b}"
-baud = 9600
-parity = "even"
-response_timeout = "150ms"
-retries = 1
-offline_after = 2
-
-[[lines.devices]]
-name = "valve"
-profile = "wuzhou-valve"
-address = 1
-"#,
-        url = broker.url(),
-        line_a = plant.line_a.path().display(),
-        line_b = plant.line_b.path().display(),
-    )
+    PlantConfig {
+        gateway: &format!("stats_interval = \"1s\"\n{extra}"),
+        explicit_serial: true,
+        line_keys: "retries = 1\noffline_after = 2",
+        dust_collector_keys: "poll_interval = \"1s\"",
+        ..PlantConfig::default()
+    }
+    .text(broker, plant, client_id)
 }
 
 /// Validated as a user's file would be, then polled faster than the profiles' minimums so the
@@ -85,41 +41,6 @@ fn fast(text: &str) -> Config {
         }
     }
     config
-}
-
-struct Gateway {
-    trigger: ShutdownTrigger,
-    task: tokio::task::JoinHandle<anyhow::Result<()>>,
-    running: Running,
-}
-
-impl Gateway {
-    async fn start(config: Config) -> Gateway {
-        let (trigger, shutdown) = shutdown::channel();
-        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
-        let hooks = Hooks {
-            ready_tx: Some(ready_tx),
-        };
-        let task = tokio::spawn(run_gateway(config, shutdown, hooks));
-        let running = tokio::time::timeout(ANSWER, ready_rx)
-            .await
-            .expect("gateway not ready in time")
-            .expect("gateway ended before it was ready");
-        Gateway {
-            trigger,
-            task,
-            running,
-        }
-    }
-
-    async fn stop(self) {
-        self.trigger.fire();
-        tokio::time::timeout(ANSWER, self.task)
-            .await
-            .expect("gateway did not stop in time")
-            .expect("gateway task panicked")
-            .expect("gateway failed");
-    }
 }
 
 /// The plant, a broker, the gateway and a client subscribed to everything under `plant/`.

@@ -16,13 +16,13 @@ use tokio::sync::{mpsc, oneshot};
 use rtu2mqtt::bus::{
     spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec,
 };
-use rtu2mqtt::profile::{registry, DeviceState, Profile, Value};
+use rtu2mqtt::profile::{registry, CommandPlan, DeviceState, Profile, Value};
 use rtu2mqtt::rtu::timing::{CharFormat, Parity};
 use rtu2mqtt::rtu::transport::SerialSettings;
 use rtu2mqtt::shutdown::{self, ShutdownTrigger};
 use rtu2mqtt::sim::{
-    self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions, SimDevice,
-    Valve, VirtualLine,
+    self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
+    SharedDevice, SimDevice, Valve, VirtualLine,
 };
 
 const AIR_SHOWER_TOML: &str = include_str!("../config/profiles/lixian-air-shower.toml");
@@ -167,6 +167,11 @@ impl Running {
             .profile_of(device)
             .plan_command(field, text, &profile_state)
             .unwrap();
+        self.send(device, plan).await
+    }
+
+    /// Hands `plan` to the line as a command for `device` and waits for its outcome.
+    async fn send(&mut self, device: &str, plan: CommandPlan) -> CommandOutcome {
         let (reply_tx, reply_rx) = oneshot::channel();
         self.handle
             .command_tx
@@ -178,6 +183,15 @@ impl Running {
             .await
             .unwrap();
         self.wait_reply(reply_rx).await
+    }
+
+    /// Records events until `device` has published values once; fails the test when that
+    /// takes longer than `timeout`.
+    async fn wait_for_values(&mut self, device: &str, timeout: Duration) {
+        assert!(
+            self.until(timeout, |r| r.values_of(device) >= 1).await,
+            "no values from {device} in {timeout:?}"
+        );
     }
 
     async fn wait_reply(
@@ -226,6 +240,18 @@ fn remember_profiles(devices: &[DeviceSpec]) {
 fn start(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<DeviceSpec>) -> Running {
     remember_profiles(&devices);
     Running::start(line_spec(name, line, parity, devices))
+}
+
+/// A virtual line at 9600 baud serving `simulated`, and the line task polling `devices` on it.
+fn start_on_new_line(
+    name: &str,
+    parity: Parity,
+    simulated: Vec<SharedDevice>,
+    devices: Vec<DeviceSpec>,
+) -> (VirtualLine, Running) {
+    let line = VirtualLine::spawn(ServeOptions::new(9600, parity), simulated).unwrap();
+    let running = start(name, &line, parity, devices);
+    (line, running)
 }
 
 fn has_all_fields(running: &Running, device: &str, profile: &Profile) -> bool {
@@ -466,15 +492,10 @@ async fn busy_answers_are_retried_and_never_take_the_device_offline() {
 async fn a_silent_device_times_out_goes_offline_and_comes_back_without_starving_the_other() {
     let (_dust, dust_shared) = share(DustCollector::new(1));
     let (_shower, shower_shared) = share(AirShower::new());
-    let line = VirtualLine::spawn(
-        ServeOptions::new(9600, Parity::None),
-        vec![dust_shared, shower_shared],
-    )
-    .unwrap();
-    let mut running = start(
+    let (line, mut running) = start_on_new_line(
         "line-a",
-        &line,
         Parity::None,
+        vec![dust_shared, shower_shared],
         vec![
             device("dust_collector", built_in("ruiwan-dust-collector"), 1, 1000),
             device("air_shower", built_in("lixian-air-shower"), 0x81, 500),
@@ -560,19 +581,8 @@ async fn a_command_overtakes_queued_polls() {
     let state = running.latest.get("air_shower").cloned().unwrap();
     let plan = profile.plan_command("light", "ON", &state).unwrap();
     let reads_before = plan.reads_before().len();
-    let (reply_tx, reply_rx) = oneshot::channel();
     let sent_after = line.journal().request_count();
-    running
-        .handle
-        .command_tx
-        .send(Command {
-            device: "air_shower".into(),
-            plan,
-            reply_tx,
-        })
-        .await
-        .unwrap();
-    let outcome = running.wait_reply(reply_rx).await;
+    let outcome = running.send("air_shower", plan).await;
     assert!(
         matches!(outcome, CommandOutcome::Applied { .. }),
         "{outcome:?}"
@@ -605,12 +615,10 @@ async fn read_modify_write_keeps_the_dust_collectors_internal_bits() {
     sim::lock(&dust).set_internal_bits(0x2040);
     sim::lock(&dust).set_alarms(0x0002);
     let internal_and_alarms = sim::lock(&dust).status_word() & !0x0300;
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![dust_shared]).unwrap();
-    let mut running = start(
+    let (_line, mut running) = start_on_new_line(
         "line-a",
-        &line,
         Parity::None,
+        vec![dust_shared],
         vec![device(
             "dust_collector",
             built_in("ruiwan-dust-collector"),
@@ -618,12 +626,9 @@ async fn read_modify_write_keeps_the_dust_collectors_internal_bits() {
             1000,
         )],
     );
-    assert!(
-        running
-            .until(Duration::from_secs(15), |r| r.values_of("dust_collector")
-                >= 1)
-            .await
-    );
+    running
+        .wait_for_values("dust_collector", Duration::from_secs(15))
+        .await;
     let outcome = running.command("dust_collector", "power", "ON").await;
     assert!(
         matches!(outcome, CommandOutcome::Applied { .. }),
@@ -650,13 +655,11 @@ async fn read_modify_write_keeps_the_dust_collectors_internal_bits() {
 async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() {
     let (valve, valve_shared) = share(Valve::new(1));
     sim::lock(&valve).set_drift(false);
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared]).unwrap();
     let profile = built_in("wuzhou-valve");
-    let mut running = start(
+    let (line, mut running) = start_on_new_line(
         "line-b",
-        &line,
         Parity::Even,
+        vec![valve_shared],
         vec![device("valve", profile.clone(), 1, 500)],
     );
     assert!(
@@ -706,19 +709,15 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
 async fn a_valve_opening_command_settles_before_it_is_applied() {
     let (valve, valve_shared) = share(Valve::new(1));
     sim::lock(&valve).set_speed(20.0);
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared]).unwrap();
-    let mut running = start(
+    let (_line, mut running) = start_on_new_line(
         "line-b",
-        &line,
         Parity::Even,
+        vec![valve_shared],
         vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
     );
-    assert!(
-        running
-            .until(Duration::from_secs(15), |r| r.values_of("valve") >= 1)
-            .await
-    );
+    running
+        .wait_for_values("valve", Duration::from_secs(15))
+        .await;
     let started = Instant::now();
     let outcome = running.command("valve", "opening", "60").await;
     assert!(
@@ -735,19 +734,15 @@ async fn a_valve_opening_command_settles_before_it_is_applied() {
 async fn a_jammed_valve_is_not_applied_as_soon_as_its_motor_reports_stopped() {
     let (valve, valve_shared) = share(Valve::new(1));
     sim::lock(&valve).set_jammed(true);
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared]).unwrap();
-    let mut running = start(
+    let (_line, mut running) = start_on_new_line(
         "line-jam",
-        &line,
         Parity::Even,
+        vec![valve_shared],
         vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
     );
-    assert!(
-        running
-            .until(Duration::from_secs(15), |r| r.values_of("valve") >= 1)
-            .await
-    );
+    running
+        .wait_for_values("valve", Duration::from_secs(15))
+        .await;
     let reached = sim::lock(&valve).opening();
     let started = Instant::now();
     let outcome = running.command("valve", "opening", "90").await;
@@ -811,18 +806,7 @@ async fn the_port_disappearing_and_coming_back_is_reopened() {
     let plan = fast_air_shower()
         .plan_command("light", "ON", &state)
         .unwrap();
-    let (reply_tx, reply_rx) = oneshot::channel();
-    running
-        .handle
-        .command_tx
-        .send(Command {
-            device: "air_shower".into(),
-            plan,
-            reply_tx,
-        })
-        .await
-        .unwrap();
-    let outcome = running.wait_reply(reply_rx).await;
+    let outcome = running.send("air_shower", plan).await;
     assert!(
         matches!(outcome, CommandOutcome::Failed { .. }),
         "{outcome:?}"
@@ -851,12 +835,10 @@ async fn the_port_disappearing_and_coming_back_is_reopened() {
 #[tokio::test(flavor = "current_thread")]
 async fn statistics_heartbeat_keeps_coming_while_idle() {
     let (_shower, shower_shared) = share(AirShower::new());
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![shower_shared]).unwrap();
-    let mut running = start(
+    let (_line, mut running) = start_on_new_line(
         "idle",
-        &line,
         Parity::None,
+        vec![shower_shared],
         vec![device(
             "air_shower",
             built_in("lixian-air-shower"),
@@ -876,24 +858,19 @@ async fn statistics_heartbeat_keeps_coming_while_idle() {
 async fn a_broadcast_command_is_sent_without_waiting_for_an_answer_and_keeps_the_turnaround() {
     let (dust, dust_shared) = share(DustCollector::new(1));
     sim::lock(&dust).set_power(true);
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![dust_shared]).unwrap();
     let profile = built_in("ruiwan-dust-collector");
-    let mut running = start(
+    let (line, mut running) = start_on_new_line(
         "line-a",
-        &line,
         Parity::None,
+        vec![dust_shared],
         vec![
             device("dust_collector", profile.clone(), 1, 1000),
             device("every_dust_collector", profile, 0, 1000),
         ],
     );
-    assert!(
-        running
-            .until(Duration::from_secs(15), |r| r.values_of("dust_collector")
-                >= 1)
-            .await
-    );
+    running
+        .wait_for_values("dust_collector", Duration::from_secs(15))
+        .await;
     let before = line.journal().request_count();
     let wanted = if sim::lock(&dust).gear() == 7 {
         "8"
@@ -932,19 +909,15 @@ async fn a_broadcast_command_is_sent_without_waiting_for_an_answer_and_keeps_the
 #[tokio::test(flavor = "current_thread")]
 async fn commands_fail_with_the_exception_code_or_after_the_retries() {
     let (shower, shower_shared) = share(AirShower::new());
-    let line =
-        VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![shower_shared]).unwrap();
-    let mut running = start(
+    let (line, mut running) = start_on_new_line(
         "line-a",
-        &line,
         Parity::None,
+        vec![shower_shared],
         vec![device("air_shower", fast_air_shower(), 0x81, 200)],
     );
-    assert!(
-        running
-            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 1)
-            .await
-    );
+    running
+        .wait_for_values("air_shower", Duration::from_secs(10))
+        .await;
     line.faults().set(Faults {
         exception: Occurrence::ALWAYS,
         exception_code: Some(rtu2mqtt::rtu::ExceptionCode::ServerDeviceFailure),

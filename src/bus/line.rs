@@ -31,7 +31,7 @@ use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::slot::{self, SeenReads, SlotEnd};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure, Turnaround};
-use super::{Command, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats};
+use super::{Command, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec, LineStats};
 use crate::profile::{CommandPlan, Profile, ReadBlock, Verification};
 use crate::rtu::master::{Master, MasterOptions, WireCounters};
 use crate::rtu::timing::LineTiming;
@@ -423,13 +423,7 @@ impl Line {
         else {
             return;
         };
-        let exchange = Exchange {
-            line: &self.spec.name,
-            device: &spec.name,
-            slave: spec.address,
-            timeout: self.timeout,
-            turnaround: &self.turnaround,
-        };
+        let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
         let use_runs = self
             .fallback
             .get(device)
@@ -530,13 +524,7 @@ impl Line {
             self.reply(command.reply_tx, arrived, CommandOutcome::Failed { detail });
             return;
         };
-        let exchange = Exchange {
-            line: &self.spec.name,
-            device: &spec.name,
-            slave: spec.address,
-            timeout: self.timeout,
-            turnaround: &self.turnaround,
-        };
+        let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
         let span =
             tracing::info_span!("command", device = %spec.name, field = command.plan.field());
         let mut seen = SeenReads::new();
@@ -592,13 +580,7 @@ impl Line {
             );
             return;
         };
-        let exchange = Exchange {
-            line: &self.spec.name,
-            device: &spec.name,
-            slave: spec.address,
-            timeout: self.timeout,
-            turnaround: &self.turnaround,
-        };
+        let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
         let mut seen = SeenReads::new();
         let result =
             slot::reread(&exchange, master, stats, &settle.plan, attempts, &mut seen).await;
@@ -777,6 +759,24 @@ impl Line {
         }
         self.publish_stats();
         tracing::info!("line stopped");
+    }
+}
+
+/// What one exchange with `device` on the line named `line` needs. A free function over the
+/// line's fields rather than a method, so that the master and the device's counters can be
+/// borrowed mutably beside it.
+fn device_exchange<'a>(
+    line: &'a str,
+    device: &'a DeviceSpec,
+    timeout: Duration,
+    turnaround: &'a Turnaround,
+) -> Exchange<'a> {
+    Exchange {
+        line,
+        device: &device.name,
+        slave: device.address,
+        timeout,
+        turnaround,
     }
 }
 

@@ -806,36 +806,40 @@ mod tests {
             mqtt_problems("url = \"mqtts://broker:8883\"\nca_file = \"ca.crt\"", base),
             Vec::<String>::new()
         );
-        let without_ca = mqtt_problems("url = \"mqtts://broker\"", base);
-        assert!(
-            without_ca[0].starts_with("mqtt.ca_file: mqtts:// needs ca_file"),
-            "{without_ca:?}"
-        );
-        let plain_with_ca = mqtt_problems("url = \"mqtt://broker\"\nca_file = \"ca.crt\"", base);
-        assert!(
-            plain_with_ca[0].starts_with("mqtt.url: TLS files"),
-            "{plain_with_ca:?}"
-        );
-        let half_pair = mqtt_problems(
-            "url = \"mqtts://broker\"\nca_file = \"ca.crt\"\ncert_file = \"client.crt\"",
-            base,
-        );
-        assert!(
-            half_pair[0].starts_with("mqtt.cert_file: a client certificate needs"),
-            "{half_pair:?}"
-        );
-        let missing = mqtt_problems("url = \"mqtts://broker\"\nca_file = \"nowhere.crt\"", base);
-        assert!(missing[0].starts_with("mqtt.ca_file: "), "{missing:?}");
-        let both = mqtt_problems(
-            "url = \"mqtt://broker\"\nusername = \"u\"\npassword = \"p\"\npassword_file = \"pw\"",
-            base,
-        );
-        assert!(
-            both[0].starts_with("mqtt.password_file: give either"),
-            "{both:?}"
-        );
-        let no_user = mqtt_problems("url = \"mqtt://broker\"\npassword = \"p\"", base);
-        assert!(no_user[0].starts_with("mqtt.username:"), "{no_user:?}");
+        // Each broken setting, and how its first problem begins.
+        let broken = [
+            (
+                "url = \"mqtts://broker\"",
+                "mqtt.ca_file: mqtts:// needs ca_file",
+            ),
+            (
+                "url = \"mqtt://broker\"\nca_file = \"ca.crt\"",
+                "mqtt.url: TLS files",
+            ),
+            (
+                "url = \"mqtts://broker\"\nca_file = \"ca.crt\"\ncert_file = \"client.crt\"",
+                "mqtt.cert_file: a client certificate needs",
+            ),
+            (
+                "url = \"mqtts://broker\"\nca_file = \"nowhere.crt\"",
+                "mqtt.ca_file: ",
+            ),
+            (
+                "url = \"mqtt://broker\"\nusername = \"u\"\npassword = \"p\"\npassword_file = \"pw\"",
+                "mqtt.password_file: give either",
+            ),
+            (
+                "url = \"mqtt://broker\"\npassword = \"p\"",
+                "mqtt.username:",
+            ),
+        ];
+        for (keys, first_problem) in broken {
+            let problems = mqtt_problems(keys, base);
+            assert!(
+                problems[0].starts_with(first_problem),
+                "{keys}: {problems:?}"
+            );
+        }
     }
 
     #[test]
