@@ -65,6 +65,14 @@ pub fn is_valid_name(name: &str) -> bool {
             .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-')
 }
 
+/// The problem of a line or device `name` at `place` that [`is_valid_name`] refuses.
+fn invalid_name(place: &str, name: &str) -> Problem {
+    Problem::new(
+        format!("{place}.name"),
+        format!("{name:?} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN})"),
+    )
+}
+
 /// Why `prefix` cannot be a topic prefix, if it cannot.
 pub fn topic_prefix_problem(prefix: &str) -> Option<String> {
     if prefix.is_empty() {
@@ -436,13 +444,7 @@ fn validate_lines(
         let place = format!("lines[{index}]");
         let before = problems.len();
         if !is_valid_name(&raw.name) {
-            problems.push(Problem::new(
-                format!("{place}.name"),
-                format!(
-                    "{:?} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN})",
-                    raw.name
-                ),
-            ));
+            problems.push(invalid_name(&place, &raw.name));
         } else if let Some(first) = line_names.insert(&raw.name, index) {
             problems.push(Problem::new(
                 format!("{place}.name"),
@@ -614,13 +616,7 @@ fn validate_device(
 ) -> Option<DeviceSpec> {
     let before = problems.len();
     if !is_valid_name(&raw.name) {
-        problems.push(Problem::new(
-            format!("{place}.name"),
-            format!(
-                "{:?} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN})",
-                raw.name
-            ),
-        ));
+        problems.push(invalid_name(place, &raw.name));
     } else if raw.name == RESERVED_DEVICE_NAME {
         problems.push(Problem::new(
             format!("{place}.name"),
