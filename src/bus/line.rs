@@ -26,7 +26,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tracing::Instrument;
 
 use super::health::{HealthChange, HealthPolicy};
-use super::plan::{read_answer_bytes, DevicePlan};
+use super::plan::DevicePlan;
 use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::slot::{self, SeenReads, SlotEnd};
 use super::stats::DeviceStats;
@@ -36,13 +36,14 @@ use crate::profile::{CommandPlan, Profile, ReadBlock, Verification};
 use crate::rtu::master::{Master, MasterOptions, WireCounters};
 use crate::rtu::timing::LineTiming;
 use crate::rtu::transport::{Port, TransportError};
-use crate::rtu::{ExceptionCode, Request, Response};
+use crate::rtu::{ExceptionCode, Response};
 use crate::shutdown::Shutdown;
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub const COMMAND_QUEUE: usize = 64;
-/// Time a device takes to start answering on top of the answer's own wire time.
-pub const DEVICE_MARGIN: Duration = Duration::from_millis(100);
+/// Time a device takes to start answering on top of the answer's own wire time; with the
+/// timing's host allowance the default timeout leaves 100 ms beyond the wire.
+pub const DEVICE_MARGIN: Duration = Duration::from_millis(80);
 /// First wait before reopening a port that is missing or failed.
 pub const REOPEN_INITIAL: Duration = Duration::from_millis(100);
 /// Longest wait between two attempts to open a port.
@@ -85,11 +86,12 @@ pub fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duratio
     let longest = spec
         .devices
         .iter()
-        .flat_map(|device| device.profile.read_blocks().iter().map(read_answer_bytes))
+        .flat_map(|device| device.profile.read_blocks().iter())
+        .map(|block| block.request.answer_len())
         .max()
         .unwrap_or(8)
         .max(8);
-    timing.frame_time(longest) + timing.t3_5 + DEVICE_MARGIN
+    timing.default_response_timeout(longest, DEVICE_MARGIN)
 }
 
 /// A command waiting for its slot.
@@ -358,7 +360,7 @@ impl Line {
     async fn port_failed(&mut self, error: std::io::Error) {
         let now = Instant::now();
         if let Some(master) = self.master.take() {
-            self.closed_counters = add_counters(self.closed_counters, master.counters());
+            self.closed_counters += master.counters();
         }
         self.stats.port_open = false;
         self.stats.port_failures += 1;
@@ -708,21 +710,12 @@ impl Line {
     fn publish_stats(&mut self) {
         let now = Instant::now();
         let counters = match &self.master {
-            Some(master) => add_counters(self.closed_counters, master.counters()),
+            Some(master) => self.closed_counters + master.counters(),
             None => self.closed_counters,
         };
         let stats = &mut self.stats;
         stats.heartbeat = now;
-        stats.transactions = counters.requests;
-        stats.timeouts = counters.timeouts;
-        stats.crc_errors = counters.crc_errors;
-        stats.truncated = counters.truncated;
-        stats.unexpected_answers = counters.unexpected;
-        stats.exceptions = counters.exceptions;
-        stats.late_answers = counters.late_answers;
-        stats.stray_bytes = counters.stray_bytes;
-        stats.wrong_address = counters.wrong_address;
-        stats.wire_time = counters.wire_time;
+        stats.record_wire(&counters);
         self.load_samples.push_back((now, counters.wire_time));
         while self
             .load_samples
@@ -789,131 +782,23 @@ async fn read_runs(
     block: &ReadBlock,
     attempts: u32,
 ) -> Result<Response, Failure> {
-    let mut answer = empty_answer(&block.request);
+    let mut answer = block
+        .request
+        .empty_answer()
+        .unwrap_or(Response::HoldingRegisters(Vec::new()));
     for &(offset, length) in &block.used_runs {
-        let Some(request) = run_request(&block.request, offset, length) else {
+        let Some(request) = block.request.sub_read(offset, length) else {
             continue;
         };
         let part = exchange.run(master, stats, &request, attempts).await?;
-        place(&mut answer, offset, &part);
+        answer.place(offset, &part);
     }
     Ok(answer)
-}
-
-/// The read request for `length` items at `offset` inside `block`.
-pub fn run_request(block: &Request, offset: u16, length: u16) -> Option<Request> {
-    let at = |start: u16| start.checked_add(offset);
-    Some(match block {
-        Request::ReadCoils { start, .. } => Request::ReadCoils {
-            start: at(*start)?,
-            quantity: length,
-        },
-        Request::ReadDiscreteInputs { start, .. } => Request::ReadDiscreteInputs {
-            start: at(*start)?,
-            quantity: length,
-        },
-        Request::ReadHoldingRegisters { start, .. } => Request::ReadHoldingRegisters {
-            start: at(*start)?,
-            quantity: length,
-        },
-        Request::ReadInputRegisters { start, .. } => Request::ReadInputRegisters {
-            start: at(*start)?,
-            quantity: length,
-        },
-        _ => return None,
-    })
-}
-
-/// An all-zero answer of the shape `block` would get.
-pub fn empty_answer(block: &Request) -> Response {
-    match block {
-        Request::ReadCoils { quantity, .. } => Response::Coils(vec![false; usize::from(*quantity)]),
-        Request::ReadDiscreteInputs { quantity, .. } => {
-            Response::DiscreteInputs(vec![false; usize::from(*quantity)])
-        }
-        Request::ReadInputRegisters { quantity, .. } => {
-            Response::InputRegisters(vec![0; usize::from(*quantity)])
-        }
-        Request::ReadHoldingRegisters { quantity, .. } => {
-            Response::HoldingRegisters(vec![0; usize::from(*quantity)])
-        }
-        _ => Response::HoldingRegisters(Vec::new()),
-    }
-}
-
-/// Copies a run's answer into the block answer at `offset` (ignoring anything out of range).
-pub fn place(answer: &mut Response, offset: u16, part: &Response) {
-    let offset = usize::from(offset);
-    match answer {
-        Response::Coils(bits) | Response::DiscreteInputs(bits) => {
-            if let Some(part) = part.bits() {
-                for (slot, bit) in bits.iter_mut().skip(offset).zip(part) {
-                    *slot = *bit;
-                }
-            }
-        }
-        Response::HoldingRegisters(words) | Response::InputRegisters(words) => {
-            if let Some(part) = part.registers() {
-                for (slot, word) in words.iter_mut().skip(offset).zip(part) {
-                    *slot = *word;
-                }
-            }
-        }
-        _ => {}
-    }
-}
-
-fn add_counters(a: WireCounters, b: WireCounters) -> WireCounters {
-    WireCounters {
-        requests: a.requests + b.requests,
-        timeouts: a.timeouts + b.timeouts,
-        crc_errors: a.crc_errors + b.crc_errors,
-        truncated: a.truncated + b.truncated,
-        unexpected: a.unexpected + b.unexpected,
-        exceptions: a.exceptions + b.exceptions,
-        late_answers: a.late_answers + b.late_answers,
-        stray_bytes: a.stray_bytes + b.stray_bytes,
-        wrong_address: a.wrong_address + b.wrong_address,
-        wire_time: a.wire_time + b.wire_time,
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn runs_are_assembled_with_zeros_in_unread_places() {
-        let block = Request::ReadHoldingRegisters {
-            start: 0x70,
-            quantity: 8,
-        };
-        let mut answer = empty_answer(&block);
-        assert_eq!(
-            run_request(&block, 4, 2),
-            Some(Request::ReadHoldingRegisters {
-                start: 0x74,
-                quantity: 2
-            })
-        );
-        place(
-            &mut answer,
-            4,
-            &Response::HoldingRegisters(vec![0x64, 0x12]),
-        );
-        place(&mut answer, 7, &Response::HoldingRegisters(vec![9, 9, 9]));
-        assert_eq!(
-            answer,
-            Response::HoldingRegisters(vec![0, 0, 0, 0, 0x64, 0x12, 0, 9])
-        );
-        let coils = Request::ReadCoils {
-            start: 0,
-            quantity: 4,
-        };
-        let mut bits = empty_answer(&coils);
-        place(&mut bits, 2, &Response::Coils(vec![true, true]));
-        assert_eq!(bits, Response::Coils(vec![false, false, true, true]));
-    }
 
     /// Collects what the test's tracing subscriber writes.
     #[derive(Clone, Default)]

@@ -3,6 +3,8 @@
 
 use std::time::{Duration, Instant};
 
+use crate::rtu::master::WireCounters;
+
 /// Counters and latencies of one device.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DeviceStats {
@@ -104,5 +106,20 @@ impl LineStats {
                 })
                 .collect(),
         }
+    }
+
+    /// Takes the line's wire counters (the sum over every master the line has had). The
+    /// snapshot keeps them as flat fields: that is the shape the metrics and status file show.
+    pub fn record_wire(&mut self, counters: &WireCounters) {
+        self.transactions = counters.requests;
+        self.timeouts = counters.timeouts;
+        self.crc_errors = counters.crc_errors;
+        self.truncated = counters.truncated;
+        self.unexpected_answers = counters.unexpected;
+        self.exceptions = counters.exceptions;
+        self.late_answers = counters.late_answers;
+        self.stray_bytes = counters.stray_bytes;
+        self.wrong_address = counters.wrong_address;
+        self.wire_time = counters.wire_time;
     }
 }

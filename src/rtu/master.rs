@@ -105,6 +105,43 @@ pub struct WireCounters {
     pub wire_time: Duration,
 }
 
+impl std::ops::AddAssign for WireCounters {
+    /// Adds another master's counters: a line sums the masters of every port it opened.
+    fn add_assign(&mut self, other: WireCounters) {
+        let WireCounters {
+            requests,
+            timeouts,
+            crc_errors,
+            truncated,
+            unexpected,
+            exceptions,
+            late_answers,
+            stray_bytes,
+            wrong_address,
+            wire_time,
+        } = other;
+        self.requests += requests;
+        self.timeouts += timeouts;
+        self.crc_errors += crc_errors;
+        self.truncated += truncated;
+        self.unexpected += unexpected;
+        self.exceptions += exceptions;
+        self.late_answers += late_answers;
+        self.stray_bytes += stray_bytes;
+        self.wrong_address += wrong_address;
+        self.wire_time += wire_time;
+    }
+}
+
+impl std::ops::Add for WireCounters {
+    type Output = WireCounters;
+
+    fn add(mut self, other: WireCounters) -> WireCounters {
+        self += other;
+        self
+    }
+}
+
 /// How far the bytes received so far go towards an answer.
 enum Framing {
     /// Not enough bytes to tell; wait for more (or give up at the gap limit).
@@ -517,7 +554,7 @@ impl Master {
             return match received.first() {
                 Some(&address) if address != slave => Framing::Foreign,
                 _ => Framing::NeedMore {
-                    needed: codec::expected_answer_len(request),
+                    needed: request.answer_len(),
                 },
             };
         };
@@ -545,12 +582,12 @@ impl Master {
                     Some(&count) => 5 + usize::from(count),
                     None => {
                         return Framing::NeedMore {
-                            needed: codec::expected_answer_len(request),
+                            needed: request.answer_len(),
                         }
                     }
                 }
             } else {
-                codec::expected_answer_len(request)
+                request.answer_len()
             }
         } else {
             return if received.len() >= MAX_FRAME_LEN {
@@ -678,6 +715,39 @@ mod tests {
 
     fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
         codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
+    }
+
+    #[test]
+    fn counters_add_field_by_field() {
+        let one = WireCounters {
+            requests: 3,
+            timeouts: 1,
+            crc_errors: 2,
+            truncated: 1,
+            unexpected: 4,
+            exceptions: 1,
+            late_answers: 2,
+            stray_bytes: 7,
+            wrong_address: 1,
+            wire_time: Duration::from_millis(5),
+        };
+        let sum = one + one;
+        assert_eq!(
+            sum,
+            WireCounters {
+                requests: 6,
+                timeouts: 2,
+                crc_errors: 4,
+                truncated: 2,
+                unexpected: 8,
+                exceptions: 2,
+                late_answers: 4,
+                stray_bytes: 14,
+                wrong_address: 2,
+                wire_time: Duration::from_millis(10),
+            }
+        );
+        assert_eq!(WireCounters::default() + one, one);
     }
 
     #[test]
