@@ -34,7 +34,7 @@ use self::mqtt::LinkEvent;
 use self::payload::{decode_command, CommandPayload, CommandResult, Outcome, OFFLINE, ONLINE};
 use self::state::{StateCache, StateUpdate};
 use self::topics::Topics;
-use crate::bus::{Command, CommandOutcome, LineEvent, LineHandle, LineStats};
+use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineStats};
 use crate::config::{Config, GatewayOptions, MqttSettings};
 use crate::profile::Profile;
 use crate::shutdown::Shutdown;
@@ -555,7 +555,7 @@ impl Bridge {
                 let finished_tx = self.finished_tx.clone();
                 tokio::spawn(async move {
                     let outcome = reply_rx.await.unwrap_or_else(|_| CommandOutcome::Failed {
-                        detail: "the line stopped before the command ran".to_string(),
+                        cause: CommandFailure::LineStopped,
                     });
                     let _ = finished_tx.send(Finished { command, outcome }).await;
                 });
@@ -584,7 +584,7 @@ impl Bridge {
             CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail, true),
             CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail, false),
             // A failed write may have reached the device: count it for the write interval.
-            CommandOutcome::Failed { detail } => (Outcome::Failed, detail, true),
+            CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string(), true),
         };
         match word {
             Outcome::Applied => self.counters.commands_applied += 1,

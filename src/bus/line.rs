@@ -28,12 +28,14 @@ use tracing::Instrument;
 use super::health::{HealthChange, HealthPolicy};
 use super::plan::DevicePlan;
 use super::scheduler::{Due, PollOutcome, Scheduler};
-use super::slot::{self, SeenReads, SlotEnd};
+use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure, Turnaround};
-use super::{Command, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec, LineStats};
+use super::{
+    Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec, LineStats,
+};
 use crate::profile::{CommandPlan, Profile, ReadBlock, Verification};
-use crate::rtu::master::{Master, MasterOptions, WireCounters};
+use crate::rtu::master::{Master, MasterOptions, PortFault, Reply, WireCounters};
 use crate::rtu::timing::LineTiming;
 use crate::rtu::transport::{Port, TransportError};
 use crate::rtu::{ExceptionCode, Response};
@@ -203,7 +205,7 @@ impl Line {
                 if now >= self.reopen_at {
                     self.open_port(now).await;
                 } else {
-                    self.fail_queued("the port is not open (reopening)");
+                    self.fail_queued(&CommandFailure::PortReopening);
                     self.wait(Some(self.reopen_at)).await;
                 }
                 continue;
@@ -293,8 +295,11 @@ impl Line {
                 },
             ),
             None => {
-                let detail = format!("no device {:?} on line {}", command.device, self.spec.name);
-                let _ = command.reply_tx.send(CommandOutcome::Failed { detail });
+                let cause = CommandFailure::UnknownDevice {
+                    device: command.device.clone(),
+                    line: self.spec.name.clone(),
+                };
+                let _ = command.reply_tx.send(CommandOutcome::Failed { cause });
             }
         }
     }
@@ -357,7 +362,7 @@ impl Line {
     }
 
     /// The port failed under a transaction: close it, take the devices offline, reopen later.
-    async fn port_failed(&mut self, error: std::io::Error) {
+    async fn port_failed(&mut self, error: PortFault) {
         let now = Instant::now();
         if let Some(master) = self.master.take() {
             self.closed_counters += master.counters();
@@ -377,7 +382,7 @@ impl Line {
                 settle.reply_tx,
                 settle.arrived,
                 CommandOutcome::Failed {
-                    detail: format!("the port failed before the read-back settled: {error}"),
+                    cause: CommandFailure::PortFailedWhileSettling(error.clone()),
                 },
             );
         }
@@ -438,7 +443,7 @@ impl Line {
             exchange.run(master, stats, &read.request, attempts).await
         };
         if !use_runs && read.used_runs.len() > 1 {
-            if let Err(Failure::Exception(ExceptionCode::IllegalDataAddress)) = result {
+            if let Ok(Err(ExceptionCode::IllegalDataAddress)) = result {
                 tracing::info!(
                     device = %spec.name,
                     block = %read.name,
@@ -453,7 +458,7 @@ impl Line {
 
         let mut values = Vec::new();
         let outcome = match result {
-            Ok(response) => {
+            Ok(Ok(response)) => {
                 for reading in profile.decode_block(block, &response) {
                     match reading.value {
                         Ok(value) => values.push((reading.field, value)),
@@ -469,15 +474,15 @@ impl Line {
                 }
                 PollOutcome::Answered
             }
-            Err(Failure::Exception(ExceptionCode::ServerDeviceBusy)) => PollOutcome::Busy,
-            Err(Failure::Exception(
+            Ok(Err(ExceptionCode::ServerDeviceBusy)) => PollOutcome::Busy,
+            Ok(Err(
                 code @ (ExceptionCode::ServerDeviceFailure
                 | ExceptionCode::GatewayTargetFailedToRespond),
             )) => {
                 tracing::warn!(device = %spec.name, block = %read.name, "poll failed: {code}");
                 PollOutcome::Failed
             }
-            Err(Failure::Exception(code)) => {
+            Ok(Err(code)) => {
                 // The device is there and refuses this read: a profile problem, not an outage.
                 tracing::warn!(device = %spec.name, block = %read.name, "poll refused: {code}");
                 PollOutcome::Answered
@@ -522,8 +527,8 @@ impl Line {
             self.master.as_mut(),
             self.stats.devices.get_mut(device),
         ) else {
-            let detail = "the port is not open".to_string();
-            self.reply(command.reply_tx, arrived, CommandOutcome::Failed { detail });
+            let cause = CommandFailure::PortNotOpen;
+            self.reply(command.reply_tx, arrived, CommandOutcome::Failed { cause });
             return;
         };
         let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
@@ -560,8 +565,8 @@ impl Line {
                 self.publish_reads(device, seen, now).await;
             }
             SlotEnd::PortGone(error) => {
-                let detail = format!("the port failed: {error}");
-                self.reply(command.reply_tx, arrived, CommandOutcome::Failed { detail });
+                let cause = CommandFailure::PortFailed(error.clone());
+                self.reply(command.reply_tx, arrived, CommandOutcome::Failed { cause });
                 self.port_failed(error).await;
             }
         }
@@ -574,11 +579,11 @@ impl Line {
             self.master.as_mut(),
             self.stats.devices.get_mut(settle.device),
         ) else {
-            let detail = "the port is not open".to_string();
+            let cause = CommandFailure::PortNotOpen;
             self.reply(
                 settle.reply_tx,
                 settle.arrived,
-                CommandOutcome::Failed { detail },
+                CommandOutcome::Failed { cause },
             );
             return;
         };
@@ -600,21 +605,18 @@ impl Line {
             Ok(Verification::Settling) => CommandOutcome::NotApplied {
                 detail: "the device was still moving when the settle window ended".into(),
             },
-            Err(Failure::PortGone(error)) => {
-                let detail = format!("the port failed: {error}");
+            Err(Stop::Failed(Failure::PortGone(error))) => {
+                let cause = CommandFailure::PortFailed(error.clone());
                 self.reply(
                     settle.reply_tx,
                     settle.arrived,
-                    CommandOutcome::Failed { detail },
+                    CommandOutcome::Failed { cause },
                 );
                 self.port_failed(error).await;
                 return;
             }
-            Err(failure) => match slot::failed(failure) {
-                SlotEnd::Done(outcome) => outcome,
-                _ => CommandOutcome::Failed {
-                    detail: "read-back failed".into(),
-                },
+            Err(stop) => CommandOutcome::Failed {
+                cause: stop.cause(),
             },
         };
         let device = settle.device;
@@ -693,16 +695,15 @@ impl Line {
         let _ = reply_tx.send(outcome);
     }
 
-    fn fail_queued(&mut self, why: &str) {
+    fn fail_queued(&mut self, why: &CommandFailure) {
         if self.scheduler.queued_commands() == 0 {
             return;
         }
         for (_, pending) in self.scheduler.drain_commands() {
-            let detail = why.to_string();
             self.reply(
                 pending.command.reply_tx,
                 pending.arrived,
-                CommandOutcome::Failed { detail },
+                CommandOutcome::Failed { cause: why.clone() },
             );
         }
     }
@@ -741,7 +742,7 @@ impl Line {
 
     /// Shutdown: answer every command still waiting, publish the last statistics.
     fn finish(&mut self) {
-        self.fail_queued("the gateway is shutting down");
+        self.fail_queued(&CommandFailure::ShuttingDown);
         for settle in std::mem::take(&mut self.settling) {
             let detail = "the gateway shut down before the read-back settled".to_string();
             self.reply(
@@ -781,7 +782,7 @@ async fn read_runs(
     stats: &mut DeviceStats,
     block: &ReadBlock,
     attempts: u32,
-) -> Result<Response, Failure> {
+) -> Result<Reply, Failure> {
     let mut answer = block
         .request
         .empty_answer()
@@ -790,10 +791,12 @@ async fn read_runs(
         let Some(request) = block.request.sub_read(offset, length) else {
             continue;
         };
-        let part = exchange.run(master, stats, &request, attempts).await?;
-        answer.place(offset, &part);
+        match exchange.run(master, stats, &request, attempts).await? {
+            Ok(part) => answer.place(offset, &part),
+            Err(code) => return Ok(Err(code)),
+        }
     }
-    Ok(answer)
+    Ok(Ok(answer))
 }
 
 #[cfg(test)]

@@ -6,6 +6,7 @@
 
 pub mod health;
 pub mod line;
+pub mod outcome;
 pub mod plan;
 pub mod scheduler;
 pub mod slot;
@@ -21,6 +22,7 @@ use crate::profile::{CommandPlan, Profile, Value};
 use crate::rtu::transport::SerialSettings;
 use crate::rtu::SlaveId;
 
+pub use outcome::CommandFailure;
 pub use stats::LineStats;
 
 /// One configured device on a line.
@@ -76,7 +78,7 @@ pub enum CommandOutcome {
     /// Refused by the profile's rules on the fresh state: nothing written.
     Rejected { detail: String },
     /// An exception answer, no answer after the retries, or the port is gone.
-    Failed { detail: String },
+    Failed { cause: CommandFailure },
 }
 
 /// A command for the line's queue.
