@@ -554,7 +554,7 @@ impl Bridge {
                 tracing::debug!(device = %command.device, field = %command.field, "command queued on the line");
                 let finished_tx = self.finished_tx.clone();
                 tokio::spawn(async move {
-                    let outcome = reply_rx.await.unwrap_or_else(|_| CommandOutcome::Failed {
+                    let outcome = reply_rx.await.unwrap_or(CommandOutcome::Failed {
                         cause: CommandFailure::LineStopped,
                     });
                     let _ = finished_tx.send(Finished { command, outcome }).await;
