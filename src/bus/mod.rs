@@ -4,10 +4,14 @@
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
 //! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll.
 
+mod commands;
+pub mod device;
 pub mod health;
 pub mod line;
 pub mod outcome;
 pub mod plan;
+pub mod poll;
+pub mod port;
 pub mod scheduler;
 pub mod slot;
 pub mod stats;

@@ -12,6 +12,7 @@ use crate::rtu::master::{Error as MasterError, Master, PortFault, Reply};
 use crate::rtu::{Request, SlaveId};
 
 use super::stats::DeviceStats;
+use super::DeviceSpec;
 
 /// Why an exchange gave no answer from the device. A device's exception answer is not a
 /// failure: it comes back as the `Err` of a [`Reply`].
@@ -110,7 +111,23 @@ impl Turnaround {
     }
 }
 
-impl Exchange<'_> {
+impl<'a> Exchange<'a> {
+    /// The exchanges with the configured `device` on the line named `line`.
+    pub fn for_device(
+        line: &'a str,
+        device: &'a DeviceSpec,
+        timeout: Duration,
+        turnaround: &'a Turnaround,
+    ) -> Self {
+        Exchange {
+            line,
+            device: &device.name,
+            slave: device.address,
+            timeout,
+            turnaround,
+        }
+    }
+
     /// Sends `request` up to `attempts` times (at least once) until the device answers,
     /// normally or with an exception (not retried: it is the device's word).
     pub async fn run(
