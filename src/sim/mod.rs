@@ -40,6 +40,7 @@ pub mod generic;
 pub mod journal;
 pub mod plant;
 pub mod server;
+pub mod tcp;
 pub mod valve;
 pub mod virtual_line;
 pub mod wire;
@@ -56,6 +57,7 @@ pub use generic::GenericDevice;
 pub use journal::{AnswerTiming, Journal, RequestRecord};
 pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
+pub use tcp::{Protocol, TcpFaultHandle, TcpFaults, TcpSimulator};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;
 
