@@ -26,10 +26,7 @@ const EXCEPTION_02_FRAME: [u8; 5] = [0x01, 0x83, 0x02, 0xC0, 0xF1];
 
 /// Line A of the seed plant (dust collector at 1, air shower at 0x81) on a TCP port.
 async fn line_a(protocol: Protocol) -> TcpSimulator {
-    let devices = vec![
-        share(DustCollector::new(1)).1,
-        share(AirShower::new()).1,
-    ];
+    let devices = vec![share(DustCollector::new(1)).1, share(AirShower::new()).1];
     TcpSimulator::bind(
         "127.0.0.1:0",
         protocol,
@@ -103,7 +100,10 @@ async fn modbus_tcp_frames_byte_for_byte() {
         0x01, // unit id = RTU address
         0x03, 0x10, 0x00, 0x00, 0x06,
     ];
-    assert_eq!(mbap::encode_request(0x1234, 1, &READ_DUST).unwrap(), request);
+    assert_eq!(
+        mbap::encode_request(0x1234, 1, &READ_DUST).unwrap(),
+        request
+    );
     stream.write_all(&request).await.unwrap();
     let (answer, _) = read_bytes(&mut stream, 7 + 2 + 12, Duration::from_secs(2)).await;
     assert_eq!(
@@ -116,7 +116,9 @@ async fn modbus_tcp_frames_byte_for_byte() {
     let rtu_answer = journal[0].answer.clone().unwrap();
     assert_eq!(&answer[7..], &rtu_answer[1..rtu_answer.len() - 2]);
 
-    let below_table = [0x00, 0x02, 0x00, 0x00, 0x00, 0x06, 0x01, 0x03, 0x0F, 0xFF, 0x00, 0x01];
+    let below_table = [
+        0x00, 0x02, 0x00, 0x00, 0x00, 0x06, 0x01, 0x03, 0x0F, 0xFF, 0x00, 0x01,
+    ];
     stream.write_all(&below_table).await.unwrap();
     let (exception, _) = read_bytes(&mut stream, 9, Duration::from_secs(2)).await;
     assert_eq!(
@@ -248,7 +250,10 @@ async fn pymodbus_client_reads_the_seed_devices() {
     )
     .await
     .unwrap();
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/modbus_tcp_client.py");
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/modbus_tcp_client.py"
+    );
     let port = sim.local_addr().port().to_string();
     let output = tokio::process::Command::new("python3")
         .args([script, "127.0.0.1", &port])
@@ -271,7 +276,10 @@ async fn pymodbus_client_reads_the_seed_devices() {
         let expected = match decode_answer(slave, &request, &answer).unwrap() {
             Answer::Normal(Response::HoldingRegisters(words)) => format!("{words:?}"),
             Answer::Normal(Response::Coils(bits)) => {
-                format!("{:?}", bits.iter().map(|b| u8::from(*b)).collect::<Vec<_>>())
+                format!(
+                    "{:?}",
+                    bits.iter().map(|b| u8::from(*b)).collect::<Vec<_>>()
+                )
             }
             other => panic!("unexpected {other:?}"),
         };
@@ -279,5 +287,7 @@ async fn pymodbus_client_reads_the_seed_devices() {
         assert_eq!(line, format!("{prefix}{expected}"));
     }
     assert_eq!(requests.len(), 4);
-    assert!(requests.iter().all(|r| r.frame[1] == 0x03 || r.frame[1] == 0x01));
+    assert!(requests
+        .iter()
+        .all(|r| r.frame[1] == 0x03 || r.frame[1] == 0x01));
 }

@@ -39,6 +39,7 @@ pub mod faults;
 pub mod generic;
 pub mod journal;
 pub mod plant;
+pub mod pty_settings;
 pub mod server;
 pub mod tcp;
 pub mod valve;
