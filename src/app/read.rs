@@ -112,7 +112,6 @@ pub fn open_port(path: &Path, baud: u32, parity: Parity) -> anyhow::Result<Port>
 /// EBUSY, whichever way the serial library reports it.
 fn is_busy(error: &std::io::Error) -> bool {
     error.raw_os_error() == Some(libc::EBUSY)
-        || error.kind() == std::io::ErrorKind::ResourceBusy
         || error.to_string().to_ascii_lowercase().contains("busy")
 }
 
