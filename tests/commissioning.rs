@@ -208,9 +208,13 @@ async fn read_decodes_the_valve_identity_block_every_way() {
         format!("{:e}", f32::from_bits(low_first)),
     );
     assert!(text.contains(&pair), "missing `{pair}` in\n{text}");
-    // The serial number's characters in the block text.
+    // The block as characters, both byte orders (non-printable bytes as dots).
     assert!(
-        text.contains("text (high byte first) \". .#.\\x11.\"") || text.contains("J.["),
+        text.contains("text (high byte first) \"... .#.......J.[......\""),
+        "{text}"
+    );
+    assert!(
+        text.contains("text (low byte first)  \".. .#.......J.[.......\""),
         "{text}"
     );
     assert_only_reads(&valve).await;

@@ -291,3 +291,47 @@ async fn pymodbus_client_reads_the_seed_devices() {
         .iter()
         .all(|r| r.frame[1] == 0x03 || r.frame[1] == 0x01));
 }
+
+/// `rtu2mqtt simulate --seed-line a --listen modbus-tcp://…` serves the line to a client.
+#[tokio::test]
+async fn simulate_command_listens_on_tcp() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let url = format!("modbus-tcp://127.0.0.1:{port}");
+    let mut simulator = tokio::process::Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        .args(["simulate", "--seed-line", "a", "--listen", &url])
+        .env("RUST_LOG", "error")
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    let mut stream = None;
+    for _ in 0..50 {
+        if let Ok(connected) = TcpStream::connect(("127.0.0.1", port)).await {
+            stream = Some(connected);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut stream = stream.expect("the simulator listens");
+    // The air shower's coil read, as the device documentation prints it, over Modbus TCP.
+    let coils = Request::ReadCoils {
+        start: 0,
+        quantity: 22,
+    };
+    let request = mbap::encode_request(5, 0x81, &coils).unwrap();
+    assert_eq!(
+        request,
+        [0, 5, 0, 0, 0, 6, 0x81, 0x01, 0x00, 0x00, 0x00, 0x16]
+    );
+    stream.write_all(&request).await.unwrap();
+    let (answer, _) = read_bytes(&mut stream, 7 + 2 + 3, Duration::from_secs(3)).await;
+    assert_eq!(&answer[..9], &[0, 5, 0, 0, 0, 6, 0x81, 0x01, 3]);
+    assert!(matches!(
+        mbap::decode_answer(5, 0x81, &coils, &answer).unwrap(),
+        mbap::Matched::Current(Answer::Normal(Response::Coils(bits))) if bits.len() == 22
+    ));
+    simulator.kill().await.unwrap();
+}

@@ -9,7 +9,13 @@
 //! unsupported function with exception 01, and trying three functions at every silent address
 //! would triple a scan of 247 addresses. An answer with a bad CRC or the wrong shape is noted
 //! as "garbled" (something is there at another setting, or the line is noisy), never as a
-//! device.
+//! device. Most answers heard at the wrong baud rate no longer start with the probed address
+//! and are ignored like another device's frame, so they end as timeouts.
+//!
+//! On a pseudo-terminal the kernel does not enforce the baud rate; the simulators can compare
+//! the rate the master set on the pty with their own and garble their answers
+//! ([`crate::sim::ServeOptions::enforce_baud`]). Parity is not observable on a Linux pty, so a
+//! scan over ptys finds a device at every parity tried.
 //!
 //! Progress goes to stderr; Ctrl-C stops the scan and prints the table found so far.
 
