@@ -182,18 +182,20 @@ mod tests {
         Answer::Normal(Response::HoldingRegisters(words))
     }
 
+    /// The dust collector's answer, found after `skipped` bytes of garbage.
+    fn dust_found(skipped: usize) -> Framed {
+        Framed::Answer {
+            answer: normal(dust_words()),
+            frame: dust_answer(),
+            skipped,
+        }
+    }
+
     #[test]
     fn whole_answer_in_one_segment() {
         let mut buffer = dust_answer();
         let mut framer = AnswerFramer::new(1, &READ_DUST);
-        assert_eq!(
-            framer.poll(&mut buffer),
-            Framed::Answer {
-                answer: normal(dust_words()),
-                frame: dust_answer(),
-                skipped: 0
-            }
-        );
+        assert_eq!(framer.poll(&mut buffer), dust_found(0));
         assert!(buffer.is_empty());
     }
 
@@ -265,14 +267,7 @@ mod tests {
         let mut buffer = garbage.to_vec();
         buffer.extend_from_slice(&dust_answer());
         let mut framer = AnswerFramer::new(1, &READ_DUST);
-        assert_eq!(
-            framer.poll(&mut buffer),
-            Framed::Answer {
-                answer: normal(dust_words()),
-                frame: dust_answer(),
-                skipped: garbage.len()
-            }
-        );
+        assert_eq!(framer.poll(&mut buffer), dust_found(garbage.len()));
     }
 
     #[test]
