@@ -297,7 +297,7 @@ mod tests {
         assert!(text.contains("0xfffe    65534      -2"), "{text}");
         // f32 high word first: 0x41480000 = 12.5
         assert!(
-            text.contains("1095237632  1095237632            12.5"),
+            text.contains("1095237632   1095237632            12.5"),
             "{text}"
         );
         // BCD

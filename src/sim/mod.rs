@@ -11,6 +11,8 @@
 //!   [`Faults`] of the moment and writing everything into the [`Journal`].
 //! - [`VirtualLine`]: a pty pair served in the background, whose slave path the gateway opens
 //!   like a real port; [`SeedPlant`] puts the three seed devices on two of them.
+//! - [`TcpSimulator`]: the same devices behind a TCP port, as a serial device server (raw RTU
+//!   frames) or a Modbus TCP gateway, with network faults of its own ([`TcpFaults`]).
 //!
 //! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
 //! `simulate`.
