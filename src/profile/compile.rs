@@ -840,6 +840,7 @@ fn build_field(
         settle_until: Vec::new(),
         overlay: field.overlay,
         also: field.also.clone(),
+        example: field.example.clone(),
     };
     let info = FieldInfo {
         name: field.name.clone(),
@@ -859,6 +860,16 @@ fn build_field(
         },
         min_write_interval: field.min_write_interval,
     };
+    if let Some(example) = &field.example {
+        if !info.writable {
+            problems.add(
+                format!("{place}.example"),
+                "only a writable field has an example command",
+            );
+        } else if let Err(rejection) = super::codec::parse_command(&info, example) {
+            problems.add(format!("{place}.example"), rejection.0);
+        }
+    }
     Some((def, info))
 }
 

@@ -154,6 +154,9 @@ pub(super) struct FieldSection {
     /// A convenience view over bits that other fields own (the air shower's `wind`).
     #[serde(default)]
     pub(super) overlay: bool,
+    /// A command value that shows what the field does (`gear = 8`), offered as an example by the
+    /// demo; it must be a valid command for the field.
+    pub(super) example: Option<String>,
     #[serde(default)]
     pub(super) ha: HaSection,
 }

@@ -371,6 +371,29 @@ impl Profile {
             .map_err(|why| Rejection(format!("{field}: {why}")))
     }
 
+    /// Example commands as (field, value text): the ones the profile declares (`example = …` on
+    /// a field), or else one made up for its first writable field that holds a state, so that
+    /// every writable profile can show how it is commanded.
+    pub fn example_commands(&self) -> Vec<(&str, String)> {
+        let inner = &self.inner;
+        let declared: Vec<(&str, String)> = inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| Some((info.name.as_str(), def.example.clone()?)))
+            .collect();
+        if !declared.is_empty() {
+            return declared;
+        }
+        inner
+            .infos
+            .iter()
+            .filter(|info| info.writable)
+            .find_map(|info| Some((info.name.as_str(), made_up_example(&info.kind)?)))
+            .into_iter()
+            .collect()
+    }
+
     /// Parses text into a value of the field's kind, with the same rules as commands, whether
     /// or not the field is writable.
     pub fn parse_value(&self, field: &str, text: &str) -> Result<Value, Rejection> {
@@ -378,5 +401,21 @@ impl Profile {
             .field(field)
             .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
         codec::parse_command(info, text)
+    }
+}
+
+/// A valid command value for a field of this kind: a state to switch on, the top of a range, the
+/// last option (the first is usually the resting state: `off`, `manual`). None for buttons and
+/// text.
+fn made_up_example(kind: &FieldKind) -> Option<String> {
+    match kind {
+        FieldKind::Bool => Some("ON".to_string()),
+        FieldKind::Integer { max, .. } => Some(max.to_string()),
+        FieldKind::Decimal { max, precision, .. } => Some(format!(
+            "{max:.precision$}",
+            precision = usize::from(*precision)
+        )),
+        FieldKind::Enum { options } => options.last().cloned(),
+        FieldKind::Momentary | FieldKind::Text => None,
     }
 }

@@ -109,6 +109,8 @@ pub struct FieldDef {
     pub overlay: bool,
     /// Integers accepted besides the range (the valve's 255 = alarm disabled).
     pub also: Vec<i64>,
+    /// The profile's example command value for this field, checked at load.
+    pub example: Option<String>,
 }
 
 /// A compiled forbidden combination.
