@@ -10,14 +10,16 @@
 use std::collections::HashMap;
 
 use super::codec::{FieldCodec, NumberType};
+use super::field::{FieldInfo, FieldKind, HaHints};
 use super::format::{
     BlockSection, CodecSection, FieldSection, ForbiddenSection, LineSection, ProfileFile,
     WriteFrameSection, WriteSection,
 };
 use super::model::{
-    block_quantity, Behaviour, BlockKind, Compiled, FieldDef, Forbidden, WriteFrame,
+    block_quantity, Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass,
+    ReadBlock, WriteFrame,
 };
-use super::{FieldInfo, FieldKind, HaHints, Limits, PollClass, ReadBlock, Value};
+use super::value::Value;
 use crate::rtu::timing::Parity;
 use crate::rtu::Request;
 

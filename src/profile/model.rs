@@ -1,6 +1,8 @@
-//! The compiled, validated form of a profile: blocks, fields with their codecs and write frames,
-//! forbidden combinations. Built only by [`super::compile`]; read by decoding and command planning,
-//! which can therefore trust it without re-checking.
+//! The compiled, validated form of a profile: line limits, read blocks, fields with their codecs
+//! and write frames, forbidden combinations. Built only by [`super::compile`]; read by decoding
+//! and command planning, which can therefore trust it without re-checking. The parts the rest of
+//! the crate sees ([`ReadBlock`], [`PollClass`], [`Limits`]) are re-exported by the profile
+//! module.
 
 use std::ops::RangeInclusive;
 use std::time::Duration;
@@ -9,7 +11,7 @@ use serde::Deserialize;
 
 use super::codec::FieldCodec;
 use super::field::FieldInfo;
-use super::Value;
+use super::value::Value;
 use crate::rtu::timing::Parity;
 use crate::rtu::Request;
 

@@ -125,6 +125,12 @@ mod tests {
     use crate::app::demo::endpoint::{Placement, SHARED_BROKER_PREFIX};
     use crate::app::demo::plant::{demo_config, DEMO_CLIENT_ID};
 
+    /// The demo's configuration with the simulated lines at two made-up pty paths.
+    fn seed_config(endpoint: &BrokerEndpoint, placement: Placement) -> Config {
+        let (line_a, line_b) = (Path::new("/dev/pts/98"), Path::new("/dev/pts/99"));
+        demo_config(endpoint, &placement, line_a, line_b).unwrap()
+    }
+
     #[test]
     fn the_example_configuration_is_the_seed_plant() {
         let endpoint = BrokerEndpoint {
@@ -132,17 +138,13 @@ mod tests {
             port: 18830,
             origin: "test",
         };
-        let placement = Placement {
-            prefix: None,
-            notice: None,
-        };
-        let config = demo_config(
+        let config = seed_config(
             &endpoint,
-            &placement,
-            Path::new("/dev/pts/98"),
-            Path::new("/dev/pts/99"),
-        )
-        .unwrap();
+            Placement {
+                prefix: None,
+                notice: None,
+            },
+        );
         assert_eq!(config.lines[0].serial.path, "/dev/pts/98");
         assert_eq!(config.lines[1].serial.path, "/dev/pts/99");
         assert_eq!(config.mqtt.port, 18830);
@@ -171,17 +173,13 @@ mod tests {
             port: 1883,
             origin: "--broker",
         };
-        let placement = Placement {
-            prefix: Some(SHARED_BROKER_PREFIX.to_string()),
-            notice: Some("moved".to_string()),
-        };
-        let config = demo_config(
+        let config = seed_config(
             &endpoint,
-            &placement,
-            Path::new("/dev/pts/98"),
-            Path::new("/dev/pts/99"),
-        )
-        .unwrap();
+            Placement {
+                prefix: Some(SHARED_BROKER_PREFIX.to_string()),
+                notice: Some("moved".to_string()),
+            },
+        );
         assert_eq!(config.mqtt.prefix, "demo");
         assert!(!config.mqtt.discovery);
         let hints = introduction(&endpoint, &config);

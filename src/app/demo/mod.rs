@@ -4,12 +4,12 @@
 //! MQTT broker listens on 127.0.0.1 (unless `--broker` names one), and the very gateway of
 //! `rtu2mqtt run` drives them with the example configuration. The demo then watches the broker
 //! like any user would and shows what the gateway publishes: a table redrawn in place on a
-//! terminal ([`view`]), or one log line per change with `--log` or when stdout is not a
+//! terminal (`view`), or one log line per change with `--log` or when stdout is not a
 //! terminal. Ctrl-C (or SIGTERM) stops everything cleanly with exit status 0.
 //!
-//! Parts: [`endpoint`] (which broker and prefix), [`plant`] (the configuration), [`watch`] (the
-//! subscription), [`view`] (messages to per-device state), [`hints`] (the words and example
-//! commands), [`screen`] and [`terminal`] (the live table), [`capture`] (the log under it); this
+//! Parts: `endpoint` (which broker and prefix), `plant` (the configuration), `watch` (the
+//! subscription), `view` (messages to per-device state), `hints` (the words and example
+//! commands), `screen` and `terminal` (the live table), `capture` (the log under it); this
 //! file runs them together.
 
 mod capture;
