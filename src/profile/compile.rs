@@ -93,6 +93,18 @@ fn valid_name(name: &str) -> bool {
             .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-')
 }
 
+/// What write frames and fields are compiled against: the device's limits, its read blocks (by
+/// index and by name) and the shared write frames.
+struct Layout<'f> {
+    limits: Limits,
+    blocks: Vec<ReadBlock>,
+    /// Parallel to `blocks`.
+    kinds: Vec<BlockKind>,
+    block_index: HashMap<&'f str, usize>,
+    /// The `[[write_frames]]` by name; empty while they are being built.
+    frames: HashMap<String, WriteFrame>,
+}
+
 fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let limits = build_limits(&file.line, problems);
     if !valid_name(&file.device.name) {
@@ -433,18 +445,6 @@ fn check_write_function(
             format!("write function {function} does not fit the block (use {allowed})"),
         );
     }
-}
-
-/// What write frames and fields are compiled against: the device's limits, its read blocks (by
-/// index and by name) and the shared write frames.
-struct Layout<'f> {
-    limits: Limits,
-    blocks: Vec<ReadBlock>,
-    /// Parallel to `blocks`.
-    kinds: Vec<BlockKind>,
-    block_index: HashMap<&'f str, usize>,
-    /// The `[[write_frames]]` by name; empty while they are being built.
-    frames: HashMap<String, WriteFrame>,
 }
 
 fn build_write_frames(
