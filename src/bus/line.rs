@@ -5,7 +5,7 @@
 //! remembering that per device), decodes them with the profile and reports [`LineEvent`]s. It
 //! publishes [`LineStats`] after every transaction and at least once a second.
 //!
-//! A port path that exists but is no serial port (a regular file, `/dev/null`: FAULTS B11) is a
+//! A path that exists but is no serial port (a file, `/dev/null`: docs/reliability.md B11) is a
 //! configuration mistake that waiting does not fix. The line is then failed: its devices are
 //! offline, every attempt logs an ERROR naming the path, and it looks again only after 5 s
 //! doubling to 60 s (the path may be a link that gets pointed at the adapter). It does not end

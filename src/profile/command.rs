@@ -10,14 +10,10 @@ use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use super::codec::{BlockImage, RawPatch};
-use super::schema::{Behaviour, Compiled, WriteFrame};
+use super::model::{Behaviour, Compiled, WriteFrame};
+use super::rejection::Rejection;
 use super::Value;
 use crate::rtu::{Request, Response};
-
-/// Why a command is refused: nothing is written.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{0}")]
-pub struct Rejection(pub String);
 
 /// What a read-back says about a command.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -174,7 +170,7 @@ impl CommandPlan {
 
     /// An image of the whole of `block`, all zero.
     fn empty_image(&self, block: usize) -> BlockImage {
-        let len = super::schema::block_quantity(&self.profile.blocks[block].request) as usize;
+        let len = super::model::block_quantity(&self.profile.blocks[block].request) as usize;
         if self.profile.block_kinds[block].is_bits() {
             BlockImage::Bits(vec![false; len])
         } else {
@@ -191,7 +187,7 @@ impl CommandPlan {
         request: &Request,
         base: u16,
     ) -> Option<BlockImage> {
-        let len = super::schema::block_quantity(request) as usize;
+        let len = super::model::block_quantity(request) as usize;
         let part = image_of(answer, len)?;
         let mut image = self.empty_image(block);
         let base = usize::from(base);

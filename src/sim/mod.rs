@@ -3,7 +3,7 @@
 //!
 //! - [`SimDevice`]: one simulated device as a pure request → [`Reply`] function with a clock
 //!   passed in. The seed devices ([`DustCollector`], [`Valve`], [`AirShower`]) are written by
-//!   hand from `DEVICES.md` with their quirks, not derived from our profiles, so a profile bug is
+//!   hand from docs/devices.md with their quirks, not derived from our profiles: a profile bug is
 //!   caught by them rather than copied into them; [`GenericDevice`] is built from a profile's
 //!   read blocks for every other profile.
 //! - [`server::serve`]: frames requests on a byte stream, hands them to the addressed device,
