@@ -1,8 +1,8 @@
-//! The command line (clap): `run | check | demo | simulate | profiles | health`.
+//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`.
 
 use std::path::PathBuf;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -50,26 +50,14 @@ pub enum Command {
         #[arg(long)]
         log: bool,
     },
-    /// One simulated device on a serial port (a pty, or a real adapter for bench tests).
-    Simulate {
-        /// Built-in profile name or profile file path.
-        #[arg(long)]
-        profile: String,
-        /// Serial port path.
-        #[arg(long)]
-        port: PathBuf,
-        /// Device address (default: the profile's usual address).
-        #[arg(long, value_parser = parse_address)]
-        address: Option<u8>,
-        #[arg(long, default_value_t = 9600)]
-        baud: u32,
-        /// none | even | odd
-        #[arg(long, default_value = "none")]
-        parity: String,
-        /// Pace answers at the wire's character rate.
-        #[arg(long)]
-        pace: bool,
-    },
+    /// One simulated device (or a seed plant line) on a serial port, or behind a TCP port as a
+    /// serial device server (tcp://) or a Modbus TCP gateway (modbus-tcp://).
+    Simulate(SimulateArgs),
+    /// Probe a serial port for devices: each baud rate, parity and address with a harmless read
+    /// (never a write). Prints a table of what answered where.
+    Scan(ScanArgs),
+    /// One raw read, shown as hex and decoded every way a profile could (never a write).
+    Read(ReadArgs),
     /// List the built-in profiles (and profile files given) with their fields.
     Profiles {
         /// Extra profile files to list.
@@ -92,4 +80,95 @@ pub fn parse_address(text: &str) -> Result<u8, String> {
         None => text.parse::<u8>(),
     };
     parsed.map_err(|_| format!("`{text}` is not an address 0–255 (decimal or 0x hex)"))
+}
+
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    /// Built-in profile name or profile file path.
+    #[arg(
+        long,
+        required_unless_present = "seed_line",
+        conflicts_with = "seed_line"
+    )]
+    pub profile: Option<String>,
+    /// A whole line of the seed plant instead of one device: `a` (dust collector at 1, air
+    /// shower at 0x81) or `b` (valve at 1).
+    #[arg(long)]
+    pub seed_line: Option<String>,
+    /// Serial port path.
+    #[arg(long, required_unless_present = "listen", conflicts_with = "listen")]
+    pub port: Option<PathBuf>,
+    /// Serve on TCP instead: tcp://HOST:PORT (raw RTU frames) or modbus-tcp://HOST:PORT.
+    #[arg(long)]
+    pub listen: Option<String>,
+    /// Device address (default: the profile's usual address).
+    #[arg(long, value_parser = parse_address)]
+    pub address: Option<u8>,
+    #[arg(long, default_value_t = 9600)]
+    pub baud: u32,
+    /// none | even | odd
+    #[arg(long, default_value = "none")]
+    pub parity: String,
+    /// Pace answers at the wire's character rate.
+    #[arg(long)]
+    pub pace: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ScanArgs {
+    /// Serial port path (a running gateway's port is refused).
+    #[arg(long)]
+    pub port: PathBuf,
+    /// Baud rates to try, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "9600,19200,4800,38400,2400,57600,115200"
+    )]
+    pub baud: Vec<u32>,
+    /// Parities to try, comma-separated (none, even, odd).
+    #[arg(long, value_delimiter = ',', default_value = "none,even")]
+    pub parity: Vec<String>,
+    /// Addresses to probe: `1-247`, `1,2,0x81` or a mix.
+    #[arg(long, default_value = "1-247")]
+    pub addresses: String,
+    /// Response timeout per probe.
+    #[arg(long, default_value = "100ms", value_parser = humantime::parse_duration)]
+    pub timeout: std::time::Duration,
+    /// Read this profile's blocks at every address found and show the decoded fields.
+    #[arg(long)]
+    pub profile: Option<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct ReadArgs {
+    /// Serial port path (a running gateway's port is refused).
+    #[arg(long)]
+    pub port: PathBuf,
+    #[arg(long, value_parser = parse_address)]
+    pub address: u8,
+    /// 1 (coils), 2 (discrete inputs), 3 (holding registers) or 4 (input registers).
+    #[arg(long, default_value_t = 3)]
+    pub function: u8,
+    /// First register or bit: decimal or 0x hex.
+    #[arg(long, value_parser = parse_u16)]
+    pub start: u16,
+    #[arg(long, default_value_t = 1)]
+    pub count: u16,
+    #[arg(long, default_value_t = 9600)]
+    pub baud: u32,
+    /// none | even | odd
+    #[arg(long, default_value = "none")]
+    pub parity: String,
+    #[arg(long, default_value = "500ms", value_parser = humantime::parse_duration)]
+    pub timeout: std::time::Duration,
+}
+
+/// Accepts `4096` or `0x1000`.
+pub fn parse_u16(text: &str) -> Result<u16, String> {
+    let parsed = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u16::from_str_radix(hex, 16),
+        None => text.parse::<u16>(),
+    };
+    parsed.map_err(|_| format!("`{text}` is not a number 0–65535 (decimal or 0x hex)"))
 }

@@ -96,7 +96,7 @@ async fn an_oversized_retained_command_does_not_cut_the_gateway_off() {
         &vec![b'5'; OVERSIZED],
         true,
     );
-    // FAULTS B5/B7: refused with a reason, not a disconnect.
+    // docs/reliability.md B5/B7: refused with a reason, not a disconnect.
     let result = observer
         .next_on("plant/dust_collector/pulse_duration/result", ANSWER)
         .await

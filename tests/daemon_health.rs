@@ -1,8 +1,8 @@
 //! `rtu2mqtt run` under a (simulated) service manager: it notifies `READY=1`, pings the
 //! watchdog and keeps the status file fresh while its loops turn, goes silent and stale when the
-//! process is frozen (`kill -STOP`, FAULTS.md F26), recovers, and on SIGTERM says `STOPPING=1`,
-//! removes the status file and exits 0. The seed plant is simulated on ptys; the broker is a
-//! real mosquitto; the service manager is a Unix datagram socket in `NOTIFY_SOCKET`.
+//! process is frozen (`kill -STOP`, docs/reliability.md F26), recovers, and on SIGTERM says
+//! `STOPPING=1`, removes the status file and exits 0. The seed plant is simulated on ptys; the
+//! broker is a real mosquitto; the service manager is a Unix datagram socket in `NOTIFY_SOCKET`.
 
 mod support;
 

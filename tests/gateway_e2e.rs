@@ -16,7 +16,7 @@ const DUST: u8 = 1;
 const SHOWER: u8 = 0x81;
 const VALVE: u8 = 1;
 
-/// Air shower coils (DEVICES.md §3).
+/// Air shower coils (docs/devices.md §3).
 const COIL_EMERGENCY_STOP: usize = 0;
 const COIL_BREEZE: usize = 4;
 

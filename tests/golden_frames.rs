@@ -1,4 +1,4 @@
-//! Every frame printed in DEVICES.md, byte for byte, in both directions: the master encodes the
+//! Every frame printed in docs/devices.md, byte for byte, both ways: the master encodes the
 //! request and decodes the answer; the server side (simulators) decodes the request and encodes
 //! the answer.
 

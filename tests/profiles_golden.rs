@@ -1,4 +1,4 @@
-//! Golden encode/decode tests of the built-in profiles against `/work/shared/DEVICES.md`:
+//! Golden encode/decode tests of the built-in profiles against `docs/devices.md`:
 //! commands become exactly the documented requests (and bytes), raw answers become exactly the
 //! documented values, and the device-protecting rules hold (read-modify-write, toggle,
 //! momentary, forbidden combinations, refusals with reasons).
@@ -648,7 +648,7 @@ fn shower_read_is_the_documented_22_coils() {
     );
 }
 
-/// Every single-coil golden frame of DEVICES.md, from an all-clear device.
+/// Every single-coil golden frame of docs/devices.md §3, from an all-clear device.
 #[test]
 fn shower_every_documented_single_write() {
     let profile = shower();

@@ -394,6 +394,45 @@ fn forbidden_combinations_are_checked() {
 }
 
 #[test]
+fn example_commands_are_checked_and_offered() {
+    let with_level = |extra: &str| {
+        BASE.replace(
+            "write = { function = 6, address = 1 }\n",
+            &format!("write = {{ function = 6, address = 1 }}\n{extra}\n"),
+        )
+    };
+    // Without a declared example, the first writable field offers the top of its range.
+    let plain = Profile::from_toml(BASE, "test.toml").unwrap();
+    assert_eq!(plain.example_commands(), [("level", "100".to_string())]);
+    let declared = Profile::from_toml(&with_level("example = \"42\""), "test.toml").unwrap();
+    assert_eq!(declared.example_commands(), [("level", "42".to_string())]);
+    refused(
+        &with_level("example = \"101\""),
+        &["fields[1] (level).example", "101"],
+    );
+    refused(
+        &BASE.replace(
+            "codec = { type = \"bit\", bit = 1 }\n",
+            "codec = { type = \"bit\", bit = 1 }\nexample = \"ON\"\n",
+        ),
+        &["fields[0] (status).example", "only a writable field"],
+    );
+    // The seed devices show the commands the demo suggests.
+    for (name, expected) in [
+        ("ruiwan-dust-collector", ("gear", "8")),
+        ("wuzhou-valve", ("opening", "40")),
+        ("lixian-air-shower", ("emergency_stop", "ON")),
+    ] {
+        let profile = built_in(name).unwrap();
+        assert_eq!(
+            profile.example_commands(),
+            [(expected.0, expected.1.to_string())],
+            "{name}"
+        );
+    }
+}
+
+#[test]
 fn settle_conditions_are_checked() {
     let with_level = |extra: &str| {
         BASE.replace(

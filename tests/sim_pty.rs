@@ -1,5 +1,5 @@
 //! The simulated devices over real pseudo-terminals, driven with raw frames: every golden
-//! frame of DEVICES.md gets the device's documented answer, the devices' quirks hold on the
+//! frame of docs/devices.md gets the device's documented answer, the devices' quirks hold on the
 //! wire, and every fault knob does what it says. Expected answers were computed independently
 //! of the crate (CRC-16/MODBUS by hand), so a CRC bug in the simulator shows here.
 
@@ -581,7 +581,7 @@ async fn seed_plant_serves_both_lines() {
 }
 
 // The built-in profiles driving the simulated devices through the gateway's master: the
-// simulators were written from DEVICES.md apart from the profiles, so this is where a profile
+// simulators were written from docs/devices.md apart from the profiles, so this is where a profile
 // that writes the wrong bits or reads the wrong places shows.
 
 use rtu2mqtt::profile::{DeviceState, Profile, Verification};

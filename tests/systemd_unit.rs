@@ -1,4 +1,4 @@
-//! `systemd/rtu2mqtt.service` keeps its promises: the settings the README and FAULTS.md's
+//! `systemd/rtu2mqtt.service` keeps its promises: the settings the README and docs/reliability.md's
 //! security checklist rely on are present, the paths agree with the code's defaults, and, where
 //! `systemd-analyze` is installed, the unit verifies cleanly and scores 2.0 or lower.
 

@@ -5,6 +5,8 @@
 pub mod check;
 pub mod demo;
 pub mod logging;
+pub mod read;
+pub mod scan;
 
 use std::path::Path;
 use std::process::ExitCode;

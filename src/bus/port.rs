@@ -5,8 +5,9 @@
 //!
 //! A missing or failed port (adapter unplugged, EOF, EIO) is tried again quickly: 100 ms
 //! doubling to 3 s. A path that exists but is no serial port (a regular file, `/dev/null`) is a
-//! configuration mistake that waiting does not fix: it is looked at again only after 5 s
-//! doubling to 60 s (the path may be a link that gets pointed at the adapter).
+//! configuration mistake that waiting does not fix (docs/reliability.md B11): it is looked at
+//! again only after 5 s doubling to 60 s (the path may be a link that gets pointed at the
+//! adapter).
 
 use std::time::{Duration, Instant};
 

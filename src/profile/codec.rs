@@ -8,8 +8,9 @@
 
 use serde::Deserialize;
 
-use super::command::Rejection;
-use super::{FieldInfo, FieldKind, Value};
+use super::field::{FieldInfo, FieldKind};
+use super::rejection::Rejection;
+use super::Value;
 
 /// Why a field has no value in a block answer.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -10,14 +10,10 @@ use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use super::codec::{BlockImage, RawPatch};
-use super::schema::{Behaviour, Compiled, WriteFrame};
+use super::model::{Behaviour, Compiled, WriteFrame};
+use super::rejection::Rejection;
 use super::Value;
 use crate::rtu::{Request, Response};
-
-/// Why a command is refused: nothing is written.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{0}")]
-pub struct Rejection(pub String);
 
 /// What a read-back says about a command.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -4,25 +4,34 @@
 //! values, which fields exist and how they are exposed, and how a command on a field becomes the
 //! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
 //! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
+//!
+//! Inside, a module only uses those before it in this order: [`value`], [`rejection`],
+//! [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
+//! [`raw`] (planning and patching on the model); this file's [`Profile`] is what the rest of the
+//! crate sees.
 
 pub mod codec;
 pub mod command;
+pub mod compile;
+pub mod field;
+pub mod format;
+pub mod model;
 pub mod raw;
 pub mod registry;
-pub mod schema;
+pub mod rejection;
 pub mod value;
 
 use std::collections::HashMap;
-use std::ops::RangeInclusive;
 use std::sync::Arc;
-use std::time::Duration;
 
-use crate::rtu::timing::Parity;
 use crate::rtu::{Request, Response};
 
 pub use codec::{BlockImage, FieldError, RawPatch};
-pub use command::{CommandPlan, Rejection, Verification};
-pub use schema::{ProfileError, ProfileErrors};
+pub use command::{CommandPlan, Verification};
+pub use compile::{ProfileError, ProfileErrors};
+pub use field::{FieldInfo, FieldKind, HaHints};
+pub use model::{Limits, PollClass, ReadBlock};
+pub use rejection::Rejection;
 pub use value::Value;
 
 /// Last known decoded values of one device, by field name.
@@ -32,99 +41,7 @@ pub type DeviceState = HashMap<String, Value>;
 #[derive(Debug, Clone)]
 pub struct Profile {
     // Shared with the command plans made from it.
-    pub(crate) inner: Arc<schema::Compiled>,
-}
-
-/// How often a block is read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum PollClass {
-    /// Every poll cycle (the device's poll interval).
-    Fast,
-    /// Every [`Limits::slow_interval`].
-    Slow,
-}
-
-/// One read request the device is polled with.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ReadBlock {
-    pub name: String,
-    /// A read request (FC 01–04).
-    pub request: Request,
-    pub class: PollClass,
-    /// The (offset, length) runs of the block that fields use, in coils or registers. When the
-    /// device refuses the merged block (exception 02), the line reads these runs one by one and
-    /// assembles a block answer with zeros in the unused places.
-    pub used_runs: Vec<(u16, u16)>,
-}
-
-/// Line defaults and device limits from the profile.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Limits {
-    pub address_range: RangeInclusive<u8>,
-    pub min_poll_interval: Duration,
-    pub default_poll_interval: Duration,
-    pub slow_interval: Duration,
-    /// Quiet time after power-up (gateway start) before the first transaction.
-    pub startup_delay: Duration,
-    pub default_baud: u32,
-    pub default_parity: Parity,
-    pub max_read_registers: u16,
-    pub max_write_registers: u16,
-    pub max_read_bits: u16,
-    pub max_write_bits: u16,
-}
-
-/// What a field is, for payloads, commands and Home Assistant.
-#[derive(Debug, Clone, PartialEq)]
-pub enum FieldKind {
-    Bool,
-    /// A button: written once when pressed, never a state to hold.
-    Momentary,
-    Integer {
-        min: i64,
-        max: i64,
-    },
-    /// A fixed-point number with `precision` decimals.
-    Decimal {
-        min: f64,
-        max: f64,
-        precision: u8,
-    },
-    Enum {
-        options: Vec<String>,
-    },
-    Text,
-}
-
-/// Home Assistant hints, all optional.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct HaHints {
-    pub component: Option<String>,
-    pub device_class: Option<String>,
-    pub state_class: Option<String>,
-    pub unit: Option<String>,
-    pub icon: Option<String>,
-    /// `config` or `diagnostic`.
-    pub entity_category: Option<String>,
-}
-
-/// A field as the outside world sees it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FieldInfo {
-    pub name: String,
-    pub description: String,
-    pub kind: FieldKind,
-    pub writable: bool,
-    pub unit: Option<String>,
-    /// For numbers, the smallest change the device can hold (one raw count: `0.01` for two
-    /// decimals, `5` for `scale = 5`); commands off this step are refused. None otherwise.
-    pub step: Option<Value>,
-    /// Integers a command may carry and the device may report besides the range (the valve's
-    /// `255` = alarm disabled); empty for most fields.
-    pub also: Vec<i64>,
-    pub ha: HaHints,
-    /// Minimum time between two writes of this field (protects device EEPROM).
-    pub min_write_interval: Option<Duration>,
+    pub(crate) inner: Arc<model::Compiled>,
 }
 
 /// One field's value from a block, or why it has none.
@@ -138,7 +55,7 @@ impl Profile {
     /// Parses and validates a profile from TOML text; `source` (a path or `built-in NAME`)
     /// prefixes the place of every problem.
     pub fn from_toml(text: &str, source: &str) -> Result<Self, ProfileErrors> {
-        schema::compile(text, source).map(|compiled| Self {
+        compile::compile(text, source).map(|compiled| Self {
             inner: Arc::new(compiled),
         })
     }
@@ -199,7 +116,7 @@ impl Profile {
         let Some(read) = self.inner.blocks.get(block) else {
             return Vec::new();
         };
-        let expected = schema::block_quantity(&read.request) as usize;
+        let expected = model::block_quantity(&read.request) as usize;
         let image = command::image_of(answer, expected).filter(|image| {
             matches!(
                 (image, self.inner.block_kinds[block].is_bits()),
@@ -444,6 +361,29 @@ impl Profile {
             .map_err(|why| Rejection(format!("{field}: {why}")))
     }
 
+    /// Example commands as (field, value text): the ones the profile declares (`example = …` on
+    /// a field), or else one made up for its first writable field that holds a state, so that
+    /// every writable profile can show how it is commanded.
+    pub fn example_commands(&self) -> Vec<(&str, String)> {
+        let inner = &self.inner;
+        let declared: Vec<(&str, String)> = inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| Some((info.name.as_str(), def.example.clone()?)))
+            .collect();
+        if !declared.is_empty() {
+            return declared;
+        }
+        inner
+            .infos
+            .iter()
+            .filter(|info| info.writable)
+            .find_map(|info| Some((info.name.as_str(), made_up_example(&info.kind)?)))
+            .into_iter()
+            .collect()
+    }
+
     /// Parses text into a value of the field's kind, with the same rules as commands, whether
     /// or not the field is writable.
     pub fn parse_value(&self, field: &str, text: &str) -> Result<Value, Rejection> {
@@ -451,5 +391,21 @@ impl Profile {
             .field(field)
             .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
         codec::parse_command(info, text)
+    }
+}
+
+/// A valid command value for a field of this kind: a state to switch on, the top of a range, the
+/// last option (the first is usually the resting state: `off`, `manual`). None for buttons and
+/// text.
+fn made_up_example(kind: &FieldKind) -> Option<String> {
+    match kind {
+        FieldKind::Bool => Some("ON".to_string()),
+        FieldKind::Integer { max, .. } => Some(max.to_string()),
+        FieldKind::Decimal { max, precision, .. } => Some(format!(
+            "{max:.precision$}",
+            precision = usize::from(*precision)
+        )),
+        FieldKind::Enum { options } => options.last().cloned(),
+        FieldKind::Momentary | FieldKind::Text => None,
     }
 }

@@ -4,7 +4,7 @@
 //! read block is consecutive). Pure: the simulator owns the images and the behaviour.
 
 use super::codec::BlockImage;
-use super::schema::Behaviour;
+use super::model::Behaviour;
 use super::{FieldKind, Profile, Value};
 use crate::rtu::{Request, Response};
 

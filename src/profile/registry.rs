@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use super::schema::Behaviour;
+use super::model::Behaviour;
 use super::{FieldInfo, FieldKind, PollClass, Profile, ProfileErrors};
 use crate::rtu::timing::Parity;
 

@@ -12,6 +12,8 @@ pub mod crc;
 pub mod frame;
 pub mod frame_log;
 pub mod master;
+pub mod mbap;
+pub mod stream_framing;
 pub mod timing;
 pub mod transport;
 

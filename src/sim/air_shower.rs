@@ -1,4 +1,4 @@
-//! The simulated Lixian multi-mode air shower, written from `DEVICES.md` §3.
+//! The simulated Lixian multi-mode air shower, written from `docs/devices.md` §3.
 //!
 //! Kept on purpose: the fixed address 0x81 and silence to every other address (broadcast
 //! included) and to bad CRCs; coils 0–23 readable with FC01; FC0F writing coils 0–15 of which

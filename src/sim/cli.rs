@@ -1,14 +1,18 @@
-//! `rtu2mqtt simulate`: one simulated device on a serial port (a socat pty or a real adapter
-//! for bench tests). The three seed devices by their profile names; any other profile (built-in
+//! `rtu2mqtt simulate`: one simulated device or a seed plant line on a serial port (a socat pty
+//! or a real adapter for bench tests) or behind a TCP port (`--listen tcp://…` or
+//! `modbus-tcp://…`). The three seed devices by their profile names; any other profile (built-in
 //! name or file) as a generic device built from its read blocks. Logs every request; Ctrl-C
 //! stops.
 
+use std::future::Future;
 use std::path::Path;
+use std::pin::Pin;
 use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 
 use super::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
+use crate::cli::SimulateArgs;
 use crate::rtu::timing::Parity;
 use crate::sim::faults::FaultHandle;
 
@@ -58,39 +62,73 @@ fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDe
     Ok(share(super::GenericDevice::from_profile(&profile, address)).1)
 }
 
-pub fn simulate(
-    profile: &str,
-    port: &Path,
-    address: Option<u8>,
-    baud: u32,
-    parity: &str,
-    pace: bool,
-) -> anyhow::Result<ExitCode> {
-    let parity = parse_parity(parity)?;
-    let device = device_for_profile(profile, address)?;
+/// The devices `simulate` serves: one profile's device, or a seed plant line.
+fn devices_for(args: &SimulateArgs) -> anyhow::Result<Vec<SharedDevice>> {
+    match (&args.seed_line, &args.profile) {
+        (Some(line), _) => match line.to_ascii_lowercase().as_str() {
+            "a" => Ok(vec![
+                share(DustCollector::new(1)).1,
+                share(AirShower::new()).1,
+            ]),
+            "b" => Ok(vec![share(Valve::new(1)).1]),
+            other => bail!("seed line `{other}`: expected a or b"),
+        },
+        (None, Some(profile)) => Ok(vec![device_for_profile(profile, args.address)?]),
+        (None, None) => bail!("give --profile or --seed-line"),
+    }
+}
+
+pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
+    let parity = parse_parity(&args.parity)?;
+    let devices = devices_for(args)?;
+    let options = ServeOptions::new(args.baud, parity).paced(args.pace);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .context("starting the runtime")?;
     runtime.block_on(async move {
-        let stream = open_port(port, baud, parity)?;
-        let (kind, device_address) = {
-            let device = super::lock(&device);
-            (device.kind(), device.address())
-        };
-        tracing::info!(
-            port = %port.display(), baud, ?parity, pace, kind, address = device_address,
-            "simulating"
-        );
         let (trigger, shutdown) = crate::shutdown::channel();
+        let (journal, served): (Journal, Pin<Box<dyn Future<Output = anyhow::Result<()>>>>) =
+            match (&args.listen, &args.port) {
+                (Some(url), _) => {
+                    let Some((protocol, address)) = super::tcp::Protocol::parse_url(url) else {
+                        bail!("--listen `{url}`: expected tcp://HOST:PORT or modbus-tcp://HOST:PORT");
+                    };
+                    let mut simulator =
+                        super::TcpSimulator::bind(address, protocol, options, devices)
+                            .await
+                            .with_context(|| format!("listening on {url}"))?;
+                    tracing::info!(url = %simulator.url(), baud = args.baud, ?parity, "simulating");
+                    let journal = simulator.journal().clone();
+                    let stopper = simulator.stopper();
+                    let mut shutdown = shutdown;
+                    let served = async move {
+                        tokio::select! {
+                            _ = simulator.wait() => {}
+                            _ = shutdown.fired() => stopper.fire(),
+                        }
+                        Ok(())
+                    };
+                    (journal, Box::pin(served))
+                }
+                (None, Some(port)) => {
+                    let stream = open_port(port, args.baud, parity)?;
+                    tracing::info!(
+                        port = %port.display(), baud = args.baud, ?parity, pace = args.pace,
+                        "simulating"
+                    );
+                    let journal = Journal::new();
+                    let served = super::serve(stream, options, devices, FaultHandle::default(), journal.clone(), shutdown);
+                    let label = port.display().to_string();
+                    (journal, Box::pin(async move { served.await.with_context(|| format!("serving {label}")) }))
+                }
+                (None, None) => bail!("give --port or --listen"),
+            };
         tokio::spawn(async move {
             if tokio::signal::ctrl_c().await.is_ok() {
                 trigger.fire();
             }
         });
-        let journal = Journal::new();
-        let options = ServeOptions::new(baud, parity).paced(pace);
-        let served = super::serve(stream, options, vec![device], FaultHandle::default(), journal.clone(), shutdown);
         tokio::pin!(served);
         // Log each request as it comes, while serving.
         let mut ticker = tokio::time::interval(std::time::Duration::from_millis(100));
@@ -109,7 +147,7 @@ pub fn simulate(
                 }
             }
         };
-        result.with_context(|| format!("serving {}", port.display()))?;
+        result?;
         tracing::info!("simulator stopped");
         Ok(ExitCode::SUCCESS)
     })

@@ -1,4 +1,4 @@
-//! The simulated Ruiwan dust collector (protocol V1.3), written from `DEVICES.md` §1.
+//! The simulated Ruiwan dust collector (protocol V1.3), written from `docs/devices.md` §1.
 //!
 //! Quirks kept on purpose:
 //! - reads: FC03 from 0x1000, word i = table row i, at most 6 words (an FC03 at 0x1002 returns

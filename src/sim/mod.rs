@@ -3,7 +3,7 @@
 //!
 //! - [`SimDevice`]: one simulated device as a pure request → [`Reply`] function with a clock
 //!   passed in. The seed devices ([`DustCollector`], [`Valve`], [`AirShower`]) are written by
-//!   hand from `DEVICES.md` with their quirks, not derived from our profiles, so a profile bug is
+//!   hand from docs/devices.md with their quirks, not derived from our profiles: a profile bug is
 //!   caught by them rather than copied into them; [`GenericDevice`] is built from a profile's
 //!   read blocks for every other profile.
 //! - [`server::serve`]: frames requests on a byte stream, hands them to the addressed device,
@@ -11,6 +11,8 @@
 //!   [`Faults`] of the moment and writing everything into the [`Journal`].
 //! - [`VirtualLine`]: a pty pair served in the background, whose slave path the gateway opens
 //!   like a real port; [`SeedPlant`] puts the three seed devices on two of them.
+//! - [`TcpSimulator`]: the same devices behind a TCP port, as a serial device server (raw RTU
+//!   frames) or a Modbus TCP gateway, with network faults of its own ([`TcpFaults`]).
 //!
 //! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
 //! `simulate`.
@@ -39,7 +41,9 @@ pub mod faults;
 pub mod generic;
 pub mod journal;
 pub mod plant;
+pub mod pty_settings;
 pub mod server;
+pub mod tcp;
 pub mod valve;
 pub mod virtual_line;
 pub mod wire;
@@ -56,6 +60,7 @@ pub use generic::GenericDevice;
 pub use journal::{AnswerTiming, Journal, RequestRecord};
 pub use plant::SeedPlant;
 pub use server::{serve, ServeOptions};
+pub use tcp::{Protocol, TcpFaultHandle, TcpFaults, TcpSimulator};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;
 

@@ -1,4 +1,4 @@
-//! The seed plant on virtual lines, as `DEVICES.md` lays it out: line A (9600 8N1) with the
+//! The seed plant on virtual lines, as `docs/devices.md` lays it out: line A (9600 8N1) with the
 //! dust collector at 1 and the air shower at 0x81, line B (9600 8E1) with the valve at 1. For
 //! the demo, the end-to-end tests and the benchmark.
 

@@ -34,6 +34,12 @@ pub struct ServeOptions {
     pub timing: LineTiming,
     /// Pace answers at the wire's character rate (a pty delivers bytes instantly).
     pub pace: bool,
+    /// Garble the answers while the pty's baud rate, as the master set it, differs from the
+    /// line's: what a device hears at the wrong baud rate. Only a [`super::VirtualLine`] can
+    /// look at its pty's settings; elsewhere this does nothing.
+    pub enforce_baud: bool,
+    /// The pty end whose settings are looked at (set by the virtual line when `enforce_baud`).
+    pub(crate) settings_fd: Option<std::os::fd::RawFd>,
 }
 
 impl ServeOptions {
@@ -47,11 +53,19 @@ impl ServeOptions {
         Self {
             timing: LineTiming::new(baud, format),
             pace: false,
+            enforce_baud: false,
+            settings_fd: None,
         }
     }
 
     pub fn paced(mut self, pace: bool) -> Self {
         self.pace = pace;
+        self
+    }
+
+    /// See [`ServeOptions::enforce_baud`].
+    pub fn enforcing_baud(mut self, enforce: bool) -> Self {
+        self.enforce_baud = enforce;
         self
     }
 }
@@ -250,6 +264,14 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             bytes[0] = wrong;
             bytes.truncate(bytes.len() - 2);
             bytes = wire::with_crc(bytes);
+        }
+        if let Some(peer) = super::pty_settings::baud_mismatch(&self.options) {
+            tracing::debug!(
+                peer,
+                own = timing.baud,
+                "answer garbled: the master's baud rate differs"
+            );
+            super::pty_settings::garble(&mut bytes);
         }
         if faults.corrupt_crc {
             if let Some(last) = bytes.last_mut() {

@@ -1,4 +1,4 @@
-//! The simulated Wuzhou valve controller with PID, written from `DEVICES.md` §2 and the
+//! The simulated Wuzhou valve controller with PID, written from `docs/devices.md` §2 and the
 //! vendor's register table.
 //!
 //! Kept on purpose: addresses 1–253 with broadcast 0x00 answered and 0xFF acted on silently;

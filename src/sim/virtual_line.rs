@@ -72,9 +72,14 @@ impl VirtualLine {
             .map(PathBuf::from)
             .ok_or_else(|| std::io::Error::other("pty slave without a path"))?;
         let (stop, token) = shutdown::channel();
+        let mut options = self.options;
+        if options.enforce_baud {
+            // The master end lives as long as the serving task that owns it.
+            options.settings_fd = Some(std::os::fd::AsRawFd::as_raw_fd(&master));
+        }
         let task = tokio::spawn(serve(
             master,
-            self.options,
+            options,
             self.devices.clone(),
             self.faults.clone(),
             self.journal.clone(),

@@ -1,4 +1,5 @@
-//! The profile file format (serde) and its compilation into a validated [`Compiled`] profile.
+//! The compiler from the file format ([`super::format`]) to the validated model
+//! ([`super::model`]).
 //!
 //! Everything a profile file can get wrong is caught here, at load, with the file and the key:
 //! unknown keys and codecs (serde), duplicate names, blocks over the device's read limits, fields
@@ -6,13 +7,19 @@
 //! the device's write limits, bad ranges and enumerations. What leaves this module is known to be
 //! consistent, so decoding and command planning never have to re-check the profile.
 
-use std::collections::{BTreeMap, HashMap};
-use std::time::Duration;
+use std::collections::HashMap;
 
-use serde::Deserialize;
-
-use super::codec::{ByteFormat, ByteSource, FieldCodec, NumberType, WordOrder};
-use super::{FieldInfo, FieldKind, HaHints, Limits, PollClass, ReadBlock};
+use super::codec::{FieldCodec, NumberType};
+use super::field::{FieldInfo, FieldKind, HaHints};
+use super::format::{
+    BlockSection, CodecSection, FieldSection, ForbiddenSection, LineSection, ProfileFile,
+    WriteFrameSection, WriteSection,
+};
+use super::model::{
+    block_quantity, Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass,
+    ReadBlock, WriteFrame,
+};
+use super::value::Value;
 use crate::rtu::timing::Parity;
 use crate::rtu::Request;
 
@@ -33,348 +40,6 @@ impl std::fmt::Display for ProfileErrors {
         let lines: Vec<String> = self.0.iter().map(ToString::to_string).collect();
         f.write_str(&lines.join("\n"))
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-// The file format, as written by users.
-// ---------------------------------------------------------------------------------------------
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ProfileFile {
-    device: DeviceSection,
-    line: LineSection,
-    #[serde(default)]
-    blocks: Vec<BlockSection>,
-    #[serde(default)]
-    write_frames: Vec<WriteFrameSection>,
-    #[serde(default)]
-    fields: Vec<FieldSection>,
-    #[serde(default)]
-    forbidden: Vec<ForbiddenSection>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct DeviceSection {
-    name: String,
-    manufacturer: String,
-    model: String,
-    #[serde(default)]
-    description: String,
-}
-
-fn default_baud() -> u32 {
-    9600
-}
-fn default_parity() -> String {
-    "none".into()
-}
-fn default_address_range() -> [u8; 2] {
-    [1, 247]
-}
-fn default_min_poll() -> Duration {
-    Duration::from_millis(100)
-}
-fn default_slow() -> Duration {
-    Duration::from_secs(60)
-}
-fn default_max_registers() -> u16 {
-    125
-}
-fn default_max_write_registers() -> u16 {
-    123
-}
-fn default_max_bits() -> u16 {
-    2000
-}
-fn default_max_write_bits() -> u16 {
-    1968
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct LineSection {
-    #[serde(default = "default_baud")]
-    baud: u32,
-    #[serde(default = "default_parity")]
-    parity: String,
-    #[serde(default = "default_address_range")]
-    address_range: [u8; 2],
-    default_address: Option<u8>,
-    #[serde(default = "default_min_poll", with = "humantime_serde")]
-    min_poll_interval: Duration,
-    #[serde(default, with = "humantime_serde")]
-    poll_interval: Option<Duration>,
-    #[serde(default = "default_slow", with = "humantime_serde")]
-    slow_interval: Duration,
-    #[serde(default, with = "humantime_serde")]
-    startup_delay: Option<Duration>,
-    #[serde(default = "default_max_registers")]
-    max_read_registers: u16,
-    #[serde(default = "default_max_write_registers")]
-    max_write_registers: u16,
-    #[serde(default = "default_max_bits")]
-    max_read_bits: u16,
-    #[serde(default = "default_max_write_bits")]
-    max_write_bits: u16,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BlockSection {
-    name: String,
-    function: u8,
-    start: u16,
-    count: u16,
-    #[serde(default = "default_poll")]
-    poll: String,
-    /// The block is always read with exactly this request (the vendor's own example), never
-    /// split into the runs its fields use: gaps are readable on this device.
-    #[serde(default)]
-    read_whole: bool,
-}
-
-fn default_poll() -> String {
-    "fast".into()
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct WriteFrameSection {
-    name: String,
-    function: u8,
-    /// Device address of the first coil or register written.
-    address: u16,
-    /// The block whose fresh read supplies the bits the command does not change.
-    block: String,
-    /// Block offset of the first coil or register written.
-    offset: u16,
-    count: u16,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FieldSection {
-    name: String,
-    block: String,
-    offset: u16,
-    codec: CodecSection,
-    #[serde(default)]
-    description: String,
-    unit: Option<String>,
-    /// `[min, max]` for numbers: the allowed command range and the Home Assistant range.
-    range: Option<[f64; 2]>,
-    /// Integers accepted besides the range, e.g. `[255]` where 255 means "disabled".
-    #[serde(default)]
-    also: Vec<i64>,
-    write: Option<WriteSection>,
-    #[serde(default)]
-    behaviour: Behaviour,
-    #[serde(default, with = "humantime_serde")]
-    min_write_interval: Option<Duration>,
-    #[serde(default, with = "humantime_serde")]
-    settle_window: Option<Duration>,
-    /// Field name → value text: the read-back stops settling when every one of them holds
-    /// (the valve's `motor = "stopped"`) and judges the value as it is then.
-    #[serde(default)]
-    settle_until: BTreeMap<String, String>,
-    /// A convenience view over bits that other fields own (the air shower's `wind`).
-    #[serde(default)]
-    overlay: bool,
-    #[serde(default)]
-    ha: HaSection,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum WriteSection {
-    /// The name of a shared `[[write_frames]]` entry.
-    Frame(String),
-    /// A frame of the field's own registers or coils.
-    Own(OwnWrite),
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct OwnWrite {
-    function: u8,
-    address: u16,
-}
-
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct HaSection {
-    component: Option<String>,
-    device_class: Option<String>,
-    state_class: Option<String>,
-    icon: Option<String>,
-    entity_category: Option<String>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ForbiddenSection {
-    /// Field name → value text; the combination is refused when every one of them holds.
-    when: BTreeMap<String, String>,
-    reason: String,
-}
-
-/// How a written field behaves on the device.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Behaviour {
-    /// A state: written as commanded, written back as read when another field of its frame is.
-    #[default]
-    State,
-    /// Writing 1 flips the state; written 1 only to change it, 0 otherwise.
-    Toggle,
-    /// A button: written 1 once when pressed, 0 otherwise.
-    Momentary,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-enum CodecSection {
-    Bit {
-        bit: u8,
-        #[serde(default)]
-        invert: bool,
-    },
-    Bits {
-        bit: u8,
-        width: u8,
-        #[serde(default)]
-        options: Vec<String>,
-    },
-    Coil {
-        #[serde(default)]
-        invert: bool,
-    },
-    Coils {
-        width: u8,
-        #[serde(default)]
-        options: Vec<String>,
-    },
-    U16 {
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    I16 {
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    U32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    I32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    F32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    Bcd {
-        int_digits: u8,
-        frac_digits: u8,
-    },
-    Char,
-    Bytes {
-        registers: u16,
-        #[serde(default)]
-        format: ByteFormat,
-        #[serde(default)]
-        separator: String,
-        #[serde(default)]
-        bytes: ByteSource,
-    },
-}
-
-// ---------------------------------------------------------------------------------------------
-// The compiled form.
-// ---------------------------------------------------------------------------------------------
-
-/// What a block holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BlockKind {
-    Coils,
-    DiscreteInputs,
-    HoldingRegisters,
-    InputRegisters,
-}
-
-impl BlockKind {
-    pub fn is_bits(self) -> bool {
-        matches!(self, Self::Coils | Self::DiscreteInputs)
-    }
-
-    pub fn is_writable(self) -> bool {
-        matches!(self, Self::Coils | Self::HoldingRegisters)
-    }
-}
-
-/// One write frame: the device addresses written and the block offsets they mirror.
-#[derive(Debug, Clone, PartialEq)]
-pub struct WriteFrame {
-    pub function: u8,
-    pub address: u16,
-    pub block: usize,
-    pub offset: u16,
-    pub count: u16,
-}
-
-/// A compiled field.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FieldDef {
-    pub block: usize,
-    pub offset: u16,
-    pub codec: FieldCodec,
-    pub write: Option<WriteFrame>,
-    pub behaviour: Behaviour,
-    pub settle_window: Option<Duration>,
-    /// (field index, value): when all hold on a read-back, the device has stopped moving and a
-    /// value that still differs is final (not applied) before the settle window ends.
-    pub settle_until: Vec<(usize, super::Value)>,
-    pub overlay: bool,
-    /// Integers accepted besides the range (the valve's 255 = alarm disabled).
-    pub also: Vec<i64>,
-}
-
-/// A compiled forbidden combination.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Forbidden {
-    /// (field index, value that must hold).
-    pub when: Vec<(usize, super::Value)>,
-    pub reason: String,
-}
-
-/// The compiled, validated form of a profile.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Compiled {
-    pub name: String,
-    pub manufacturer: String,
-    pub model: String,
-    pub description: String,
-    pub default_address: Option<u8>,
-    pub limits: Limits,
-    pub blocks: Vec<ReadBlock>,
-    pub block_kinds: Vec<BlockKind>,
-    /// Parallel to `infos`.
-    pub defs: Vec<FieldDef>,
-    pub infos: Vec<FieldInfo>,
-    pub forbidden: Vec<Forbidden>,
-    /// The `[[write_frames]]` by name, in file order.
-    pub named_frames: Vec<(String, WriteFrame)>,
 }
 
 /// Collects problems with their places.
@@ -428,6 +93,18 @@ fn valid_name(name: &str) -> bool {
             .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-')
 }
 
+/// What write frames and fields are compiled against: the device's limits, its read blocks (by
+/// index and by name) and the shared write frames.
+struct Layout<'f> {
+    limits: Limits,
+    blocks: Vec<ReadBlock>,
+    /// Parallel to `blocks`.
+    kinds: Vec<BlockKind>,
+    block_index: HashMap<&'f str, usize>,
+    /// The `[[write_frames]]` by name; empty while they are being built.
+    frames: HashMap<String, WriteFrame>,
+}
+
 fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let limits = build_limits(&file.line, problems);
     if !valid_name(&file.device.name) {
@@ -440,22 +117,21 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         );
     }
 
-    let (blocks, block_kinds) = build_blocks(&file.blocks, &limits, problems);
-    let block_index: HashMap<&str, usize> = file
+    let (blocks, kinds) = build_blocks(&file.blocks, &limits, problems);
+    let block_index = file
         .blocks
         .iter()
         .enumerate()
         .map(|(i, b)| (b.name.as_str(), i))
         .collect();
-
-    let frames = build_write_frames(
-        &file.write_frames,
-        &block_index,
-        &blocks,
-        &block_kinds,
-        &limits,
-        problems,
-    );
+    let mut layout = Layout {
+        limits,
+        blocks,
+        kinds,
+        block_index,
+        frames: HashMap::new(),
+    };
+    layout.frames = build_write_frames(&file.write_frames, &layout, problems);
 
     let mut defs = Vec::new();
     let mut infos = Vec::new();
@@ -476,33 +152,25 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
                 format!("duplicate field name `{}`", field.name),
             );
         }
-        if let Some((def, info)) = build_field(
-            field,
-            &place,
-            &block_index,
-            &blocks,
-            &block_kinds,
-            &frames,
-            &limits,
-            problems,
-        ) {
+        if let Some((def, info)) = build_field(field, &place, &layout, problems) {
             defs.push(def);
             infos.push(info);
             places.push(place);
             built_sections.push(field);
         }
     }
-    check_overlaps(&places, &infos, &defs, &blocks, problems);
+    check_overlaps(&places, &infos, &defs, &layout.blocks, problems);
     for (index, (section, place)) in built_sections.iter().zip(&places).enumerate() {
         let until = resolve_settle_until(section, place, &infos, &defs, problems);
         defs[index].settle_until = until;
     }
 
-    let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); blocks.len()];
+    let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); layout.blocks.len()];
     for def in &defs {
         used[def.block].push((def.offset, def.codec.width()));
     }
-    let blocks = blocks
+    let blocks = layout
+        .blocks
         .into_iter()
         .zip(used)
         .zip(&file.blocks)
@@ -528,7 +196,8 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         .write_frames
         .iter()
         .filter_map(|section| {
-            frames
+            layout
+                .frames
                 .get(&section.name)
                 .map(|frame| (section.name.clone(), frame.clone()))
         })
@@ -540,9 +209,9 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         model: file.device.model,
         description: file.device.description,
         default_address: file.line.default_address,
-        limits,
+        limits: layout.limits,
         blocks,
-        block_kinds,
+        block_kinds: layout.kinds,
         defs,
         infos,
         forbidden,
@@ -780,12 +449,16 @@ fn check_write_function(
 
 fn build_write_frames(
     sections: &[WriteFrameSection],
-    block_index: &HashMap<&str, usize>,
-    blocks: &[ReadBlock],
-    kinds: &[BlockKind],
-    limits: &Limits,
+    layout: &Layout<'_>,
     problems: &mut Problems<'_>,
 ) -> HashMap<String, WriteFrame> {
+    let Layout {
+        limits,
+        blocks,
+        kinds,
+        block_index,
+        ..
+    } = layout;
     let mut frames = HashMap::new();
     for (i, section) in sections.iter().enumerate() {
         let place = format!("write_frames[{i}] ({})", section.name);
@@ -831,17 +504,6 @@ fn build_write_frames(
         }
     }
     frames
-}
-
-/// Number of coils or registers a read request covers.
-pub fn block_quantity(request: &Request) -> u32 {
-    match request {
-        Request::ReadCoils { quantity, .. }
-        | Request::ReadDiscreteInputs { quantity, .. }
-        | Request::ReadHoldingRegisters { quantity, .. }
-        | Request::ReadInputRegisters { quantity, .. } => u32::from(*quantity),
-        _ => 0,
-    }
 }
 
 fn build_codec(
@@ -1021,17 +683,19 @@ fn build_codec(
     })
 }
 
-#[allow(clippy::too_many_arguments)]
 fn build_field(
     field: &FieldSection,
     place: &str,
-    block_index: &HashMap<&str, usize>,
-    blocks: &[ReadBlock],
-    kinds: &[BlockKind],
-    frames: &HashMap<String, WriteFrame>,
-    limits: &Limits,
+    layout: &Layout<'_>,
     problems: &mut Problems<'_>,
 ) -> Option<(FieldDef, FieldInfo)> {
+    let Layout {
+        limits,
+        blocks,
+        kinds,
+        block_index,
+        frames,
+    } = layout;
     let Some(&block) = block_index.get(field.block.as_str()) else {
         problems.add(
             format!("{place}.block"),
@@ -1178,6 +842,7 @@ fn build_field(
         settle_until: Vec::new(),
         overlay: field.overlay,
         also: field.also.clone(),
+        example: field.example.clone(),
     };
     let info = FieldInfo {
         name: field.name.clone(),
@@ -1197,6 +862,16 @@ fn build_field(
         },
         min_write_interval: field.min_write_interval,
     };
+    if let Some(example) = &field.example {
+        if !info.writable {
+            problems.add(
+                format!("{place}.example"),
+                "only a writable field has an example command",
+            );
+        } else if let Err(rejection) = super::codec::parse_command(&info, example) {
+            problems.add(format!("{place}.example"), rejection.0);
+        }
+    }
     Some((def, info))
 }
 
@@ -1352,7 +1027,7 @@ fn resolve_settle_until(
     infos: &[FieldInfo],
     defs: &[FieldDef],
     problems: &mut Problems<'_>,
-) -> Vec<(usize, super::Value)> {
+) -> Vec<(usize, Value)> {
     if !section.settle_until.is_empty() && section.settle_window.is_none() {
         problems.add(
             format!("{place}.settle_until"),

@@ -1,0 +1,315 @@
+//! `rtu2mqtt read`: one raw read on a serial port, shown as hex and decoded every way a profile
+//! could (u16, i16, u32/i32/f32 in both word orders, packed BCD, characters, bits), to help
+//! write a profile. Also the port opening both commissioning commands share: it refuses a
+//! port another rtu2mqtt process holds (a running gateway) and names the holder.
+//!
+//! Read functions only: this module never builds a write request.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context as _};
+
+use crate::cli::ReadArgs;
+use crate::rtu::codec::{encode_answer, encode_request, hex};
+use crate::rtu::master::{Master, MasterOptions};
+use crate::rtu::timing::{CharFormat, LineTiming, Parity};
+use crate::rtu::transport::{Port, SerialSettings, TransportError};
+use crate::rtu::{Request, Response, SlaveId};
+use crate::sim::cli::parse_parity;
+
+/// The read request for `function` 1–4 (anything else is refused: this tool never writes).
+pub fn read_request(function: u8, start: u16, count: u16) -> anyhow::Result<Request> {
+    Ok(match function {
+        1 => Request::ReadCoils {
+            start,
+            quantity: count,
+        },
+        2 => Request::ReadDiscreteInputs {
+            start,
+            quantity: count,
+        },
+        3 => Request::ReadHoldingRegisters {
+            start,
+            quantity: count,
+        },
+        4 => Request::ReadInputRegisters {
+            start,
+            quantity: count,
+        },
+        other => bail!("function {other}: only the read functions 1, 2, 3 and 4 are allowed"),
+    })
+}
+
+/// A gateway (or another rtu2mqtt command on this very port) holding `path` open, as
+/// `pid N (command line)`. Exclusive access (TIOCEXCL) does not stop root, so the holder is
+/// looked for in /proc as well: an rtu2mqtt process with the port open that is a gateway
+/// (`run`, `demo`) or names the port on its command line. (Other rtu2mqtt processes may hold it
+/// only by inheritance.)
+fn rtu2mqtt_holder(path: &Path) -> Option<String> {
+    let target = std::fs::canonicalize(path).ok()?;
+    let own = std::process::id().to_string();
+    for entry in std::fs::read_dir("/proc").ok()?.flatten() {
+        let pid = entry.file_name().to_string_lossy().into_owned();
+        if pid == own || !pid.bytes().all(|b| b.is_ascii_digit()) {
+            continue;
+        }
+        let comm = std::fs::read_to_string(entry.path().join("comm")).unwrap_or_default();
+        if comm.trim() != "rtu2mqtt" {
+            continue;
+        }
+        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
+        let args: Vec<String> = cmdline
+            .split(|&b| b == 0)
+            .map(|arg| String::from_utf8_lossy(arg).into_owned())
+            .collect();
+        let concerned = args.iter().skip(1).any(|arg| {
+            arg == "run"
+                || arg == "demo"
+                || std::fs::canonicalize(arg).is_ok_and(|named| named == target)
+        });
+        if !concerned {
+            continue;
+        }
+        let Ok(fds) = std::fs::read_dir(entry.path().join("fd")) else {
+            continue;
+        };
+        if fds
+            .flatten()
+            .any(|fd| std::fs::read_link(fd.path()).is_ok_and(|link| link == target))
+        {
+            return Some(format!("pid {pid} ({})", args.join(" ").trim()));
+        }
+    }
+    None
+}
+
+/// Opens `path` for commissioning, refusing a port a running gateway holds.
+pub fn open_port(path: &Path, baud: u32, parity: Parity) -> anyhow::Result<Port> {
+    if let Some(holder) = rtu2mqtt_holder(path) {
+        bail!(
+            "{} is in use by rtu2mqtt {holder}; stop the gateway first (systemctl stop rtu2mqtt)",
+            path.display()
+        );
+    }
+    let settings = SerialSettings {
+        path: path.to_string_lossy().into_owned(),
+        baud,
+        format: char_format(parity),
+        rs485: None,
+    };
+    match Port::open(&settings) {
+        Ok(port) => Ok(port),
+        Err(TransportError::Open { path, source }) if is_busy(&source) => bail!(
+            "{path} is busy: another program holds it with exclusive access (a running rtu2mqtt \
+             gateway, ModemManager or a terminal program); stop it first"
+        ),
+        Err(error) => Err(error).context("opening the port"),
+    }
+}
+
+/// EBUSY, whichever way the serial library reports it.
+fn is_busy(error: &std::io::Error) -> bool {
+    error.raw_os_error() == Some(libc::EBUSY)
+        || error.to_string().to_ascii_lowercase().contains("busy")
+}
+
+pub fn char_format(parity: Parity) -> CharFormat {
+    CharFormat {
+        data_bits: 8,
+        parity,
+        stop_bits: 1,
+    }
+}
+
+/// A master on `port` at `baud`/`parity` with default options.
+pub fn master_on(port: Port, baud: u32, parity: Parity) -> Master {
+    Master::new(
+        port,
+        LineTiming::new(baud, char_format(parity)),
+        MasterOptions::default(),
+    )
+}
+
+pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
+    let parity = parse_parity(&args.parity)?;
+    let request = read_request(args.function, args.start, args.count)?;
+    let frame = encode_request(args.address, &request).context("the read cannot be sent")?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the runtime")?;
+    let result = runtime.block_on(async {
+        // The serial stream registers with the runtime's reactor: opened inside it.
+        let port = open_port(&args.port, args.baud, parity)?;
+        let mut master = master_on(port, args.baud, parity);
+        anyhow::Ok(master.transact(args.address, &request, args.timeout).await)
+    })?;
+    println!("request  {}", hex(&frame));
+    match result {
+        Ok(Ok(response)) => {
+            print!("{}", render(args.address, &request, &response));
+            Ok(ExitCode::SUCCESS)
+        }
+        Ok(Err(code)) => {
+            println!("answer   device answered {code}");
+            Ok(ExitCode::from(2))
+        }
+        Err(error) => bail!("no valid answer: {error}"),
+    }
+}
+
+/// The answer as hex, then every decoding a profile could use.
+pub fn render(slave: SlaveId, request: &Request, response: &Response) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "answer   {}", hex(&encode_answer(slave, response)));
+    let start = request.read_span().map_or(0, |(start, _)| start);
+    if let Some(words) = response.registers() {
+        out.push_str(&render_registers(start, words));
+    } else if let Some(bits) = response.bits() {
+        out.push_str(&render_bits(start, bits));
+    }
+    out
+}
+
+/// One line per register, then one per register pair, then the block as characters.
+pub fn render_registers(start: u16, words: &[u16]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "\nregister     hex      u16     i16  bits                 bcd  chars"
+    );
+    for (i, &word) in words.iter().enumerate() {
+        let bcd = crate::sim::from_bcd(word).map_or_else(|| "-".to_string(), |v| v.to_string());
+        let _ = writeln!(
+            out,
+            "{:#06x}    {word:#06x}  {word:>7}  {:>6}  {:04b} {:04b} {:04b} {:04b}  {bcd:>4}  \"{}\"",
+            start.wrapping_add(i as u16),
+            word as i16,
+            word >> 12,
+            (word >> 8) & 0xF,
+            (word >> 4) & 0xF,
+            word & 0xF,
+            printable(&word.to_be_bytes()),
+        );
+    }
+    if words.len() >= 2 {
+        let _ = writeln!(
+            out,
+            "\npair      u32 (high word first)  i32             f32  | u32 (low word first)  i32             f32"
+        );
+        for (i, pair) in words.windows(2).enumerate() {
+            let high_first = (u32::from(pair[0]) << 16) | u32::from(pair[1]);
+            let low_first = (u32::from(pair[1]) << 16) | u32::from(pair[0]);
+            let _ = writeln!(
+                out,
+                "{:#06x}    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
+                start.wrapping_add(i as u16),
+                high_first as i32,
+                float(high_first),
+                low_first as i32,
+                float(low_first),
+            );
+        }
+    }
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_be_bytes()).collect();
+    let swapped: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let _ = writeln!(out, "\ntext (high byte first) \"{}\"", printable(&bytes));
+    let _ = writeln!(out, "text (low byte first)  \"{}\"", printable(&swapped));
+    out
+}
+
+/// The bits in groups of eight, first bit first, with their addresses.
+pub fn render_bits(start: u16, bits: &[bool]) -> String {
+    let mut out = String::from("\nbit       values (first bit first)\n");
+    for (i, group) in bits.chunks(8).enumerate() {
+        let text: String = group.iter().map(|&on| if on { '1' } else { '0' }).collect();
+        let _ = writeln!(out, "{:#06x}    {text}", start.wrapping_add(8 * i as u16));
+    }
+    let on: Vec<String> = bits
+        .iter()
+        .enumerate()
+        .filter(|(_, on)| **on)
+        .map(|(i, _)| format!("{:#06x}", start.wrapping_add(i as u16)))
+        .collect();
+    let _ = writeln!(
+        out,
+        "on: {}",
+        if on.is_empty() {
+            "none".into()
+        } else {
+            on.join(" ")
+        }
+    );
+    out
+}
+
+/// An f32 from its bits: plain for ordinary magnitudes, with an exponent for tiny or huge
+/// ones (register pairs that are no float show up as such), non-finite values by name.
+fn float(bits: u32) -> String {
+    let value = f32::from_bits(bits);
+    let magnitude = value.abs();
+    if !value.is_finite() {
+        format!("{value:?}")
+    } else if magnitude != 0.0 && !(1e-4..1e9).contains(&magnitude) {
+        format!("{value:e}")
+    } else {
+        format!("{value}")
+    }
+}
+
+/// Printable ASCII as itself, anything else as `.`.
+fn printable(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|&b| {
+            if (0x20..0x7F).contains(&b) && b != b'"' {
+                b as char
+            } else {
+                '.'
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_are_refused() {
+        assert!(read_request(6, 0, 1).is_err());
+        assert!(read_request(16, 0, 1).is_err());
+        assert!(read_request(3, 0x1000, 6).is_ok());
+    }
+
+    #[test]
+    fn registers_decoded_every_way() {
+        let text = render_registers(0x1000, &[0x4148, 0x0000, 0x1234, 0xFFFE]);
+        // u16 and i16
+        assert!(text.contains("0xfffe    65534      -2"), "{text}");
+        // f32 high word first: 0x41480000 = 12.5
+        assert!(
+            text.contains("1095237632   1095237632            12.5"),
+            "{text}"
+        );
+        // BCD
+        assert!(text.contains(" 1234  \".4\""), "{text}");
+        assert!(
+            text.contains("text (high byte first) \"AH...4..\""),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn bits_listed() {
+        let text = render_bits(
+            0,
+            &[true, false, false, true, false, false, false, false, true],
+        );
+        assert!(text.contains("0x0000    10010000"));
+        assert!(text.contains("0x0008    1"));
+        assert!(text.contains("on: 0x0000 0x0003 0x0008"));
+    }
+}

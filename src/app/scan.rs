@@ -1,0 +1,313 @@
+//! `rtu2mqtt scan`: which device answers at which address, baud rate and parity on a serial
+//! port. Read-only: every probe is a read of one register or bit at 0.
+//!
+//! The probe is FC03 (one holding register at 0). Any valid answer means a device is there,
+//! including an exception: a device that does not have register 0 answers 02, one without
+//! FC03 answers 01. Only where the first probe was refused with an exception are FC04 and FC01
+//! tried too (the device is known to be there, so two more probes cost little and show which
+//! reads it serves). A timeout is not probed further: a conforming device answers an
+//! unsupported function with exception 01, and trying three functions at every silent address
+//! would triple a scan of 247 addresses. An answer with a bad CRC or the wrong shape is noted
+//! as "garbled" (something is there at another setting, or the line is noisy), never as a
+//! device. Most answers heard at the wrong baud rate no longer start with the probed address
+//! and are ignored like another device's frame, so they end as timeouts.
+//!
+//! On a pseudo-terminal the kernel does not enforce the baud rate; the simulators can compare
+//! the rate the master set on the pty with their own and garble their answers
+//! ([`crate::sim::ServeOptions::enforce_baud`]). Parity is not observable on a Linux pty, so a
+//! scan over ptys finds a device at every parity tried.
+//!
+//! Progress goes to stderr; Ctrl-C stops the scan and prints the table found so far.
+
+use std::fmt::Write as _;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{bail, Context as _};
+
+use super::read::{master_on, open_port, read_request};
+use crate::cli::ScanArgs;
+use crate::rtu::master::{self, Master};
+use crate::rtu::timing::Parity;
+use crate::rtu::{Request, SlaveId};
+use crate::sim::cli::parse_parity;
+
+/// What one address answered at one serial setting.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Found {
+    pub address: SlaveId,
+    pub baud: u32,
+    pub parity: Parity,
+    /// One entry per read function probed: `FC03 ok`, `FC03 exception 02 (…)`, ….
+    pub answers: Vec<String>,
+}
+
+/// Parses `1-247`, `1,2,0x81` or a mix of both.
+pub fn parse_addresses(text: &str) -> anyhow::Result<Vec<SlaveId>> {
+    let mut addresses = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (first, last) = match part.split_once('-') {
+            Some((first, last)) => (parse_one(first)?, parse_one(last)?),
+            None => (parse_one(part)?, parse_one(part)?),
+        };
+        if first == 0 || first > last {
+            bail!("address range `{part}`: expected FIRST-LAST within 1–255");
+        }
+        addresses.extend(first..=last);
+    }
+    if addresses.is_empty() {
+        bail!("no address to scan in `{text}`");
+    }
+    addresses.dedup();
+    Ok(addresses)
+}
+
+fn parse_one(text: &str) -> anyhow::Result<SlaveId> {
+    crate::cli::parse_address(text.trim()).map_err(anyhow::Error::msg)
+}
+
+fn format_name(parity: Parity) -> &'static str {
+    match parity {
+        Parity::None => "8N1",
+        Parity::Even => "8E1",
+        Parity::Odd => "8O1",
+    }
+}
+
+/// How a probe went.
+enum Probe {
+    Answered(String),
+    Garbled(String),
+    Silent,
+}
+
+async fn probe(
+    master: &mut Master,
+    address: SlaveId,
+    request: &Request,
+    timeout: Duration,
+) -> anyhow::Result<Probe> {
+    let function = request.function().value();
+    Ok(match master.transact(address, request, timeout).await {
+        Ok(Ok(_)) => Probe::Answered(format!("FC{function:02} ok")),
+        Ok(Err(code)) => Probe::Answered(format!("FC{function:02} {code}")),
+        Err(master::Error::Timeout(_)) => Probe::Silent,
+        Err(master::Error::PortGone(fault)) => return Err(fault).context("serial port"),
+        Err(other) => Probe::Garbled(other.to_string()),
+    })
+}
+
+/// Probes `address` on `master`: FC03, and FC04/FC01 when FC03 was refused.
+async fn probe_address(
+    master: &mut Master,
+    address: SlaveId,
+    timeout: Duration,
+) -> anyhow::Result<(Vec<String>, Option<String>)> {
+    let first = read_request(3, 0, 1)?;
+    match probe(master, address, &first, timeout).await? {
+        Probe::Silent => Ok((Vec::new(), None)),
+        Probe::Garbled(why) => Ok((Vec::new(), Some(why))),
+        Probe::Answered(answer) => {
+            let refused = !answer.ends_with(" ok");
+            let mut answers = vec![answer];
+            if refused {
+                for function in [4, 1] {
+                    if let Probe::Answered(more) =
+                        probe(master, address, &read_request(function, 0, 1)?, timeout).await?
+                    {
+                        answers.push(more);
+                    }
+                }
+            }
+            Ok((answers, None))
+        }
+    }
+}
+
+pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
+    let addresses = parse_addresses(&args.addresses)?;
+    let parities = args
+        .parity
+        .iter()
+        .map(|p| parse_parity(p))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    if args.baud.is_empty() || parities.is_empty() {
+        bail!("nothing to scan: give at least one baud rate and one parity");
+    }
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the runtime")?;
+    let (found, garbled, interrupted) = runtime.block_on(async {
+        let mut found = Vec::new();
+        let mut garbled = Vec::new();
+        let ctrl_c = tokio::signal::ctrl_c();
+        tokio::pin!(ctrl_c);
+        let work = run_scan(args, &addresses, &parities, &mut found, &mut garbled);
+        tokio::select! {
+            result = work => result.map(|()| false),
+            _ = &mut ctrl_c => Ok(true),
+        }
+        .map(|interrupted| (found, garbled, interrupted))
+    })?;
+    if interrupted {
+        eprintln!("\nscan interrupted: partial results");
+    }
+    print!("{}", table(&found));
+    if !garbled.is_empty() {
+        println!("\ngarbled answers (something is there at another setting, or noise):");
+        for line in &garbled {
+            println!("  {line}");
+        }
+    }
+    if let Some(profile) = &args.profile {
+        if !interrupted {
+            runtime.block_on(show_profile(args, profile, &found))?;
+        }
+    }
+    Ok(if found.is_empty() {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+async fn run_scan(
+    args: &ScanArgs,
+    addresses: &[SlaveId],
+    parities: &[Parity],
+    found: &mut Vec<Found>,
+    garbled: &mut Vec<String>,
+) -> anyhow::Result<()> {
+    let settings = args.baud.len() * parities.len();
+    let mut setting_index = 0;
+    for &baud in &args.baud {
+        for &parity in parities {
+            setting_index += 1;
+            let port = open_port(&args.port, baud, parity)?;
+            let mut master = master_on(port, baud, parity);
+            for (i, &address) in addresses.iter().enumerate() {
+                eprint!(
+                    "\rscanning {baud} {} ({setting_index}/{settings}): address {address} ({}/{}), {} found   ",
+                    format_name(parity),
+                    i + 1,
+                    addresses.len(),
+                    found.len()
+                );
+                let (answers, garble) = probe_address(&mut master, address, args.timeout).await?;
+                if let Some(why) = garble {
+                    garbled.push(format!(
+                        "address {address} ({address:#04x}) at {baud} {}: {why}",
+                        format_name(parity)
+                    ));
+                }
+                if !answers.is_empty() {
+                    found.push(Found {
+                        address,
+                        baud,
+                        parity,
+                        answers,
+                    });
+                }
+            }
+        }
+    }
+    eprintln!();
+    Ok(())
+}
+
+/// The table of what answered where.
+pub fn table(found: &[Found]) -> String {
+    let mut out = String::new();
+    if found.is_empty() {
+        out.push_str("no device answered\n");
+        return out;
+    }
+    out.push_str("address       baud  format  answers\n");
+    for device in found {
+        let _ = writeln!(
+            out,
+            "{:>3} ({:#04x})  {:>6}  {}     {}",
+            device.address,
+            device.address,
+            device.baud,
+            format_name(device.parity),
+            device.answers.join("; ")
+        );
+    }
+    out
+}
+
+/// Reads `profile`'s blocks at each address found (at the setting it was found at) and prints
+/// the decoded fields.
+async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::Result<()> {
+    let profile = crate::profile::registry::load(name, None)
+        .with_context(|| format!("loading profile `{name}`"))?;
+    for device in found {
+        println!(
+            "\n{} at address {} ({} {}):",
+            profile.name(),
+            device.address,
+            device.baud,
+            format_name(device.parity)
+        );
+        let port = open_port(&args.port, device.baud, device.parity)?;
+        let mut master = master_on(port, device.baud, device.parity);
+        for (index, block) in profile.read_blocks().iter().enumerate() {
+            if !block.request.is_read() {
+                continue;
+            }
+            match master
+                .transact(
+                    device.address,
+                    &block.request,
+                    args.timeout.max(Duration::from_millis(200)),
+                )
+                .await
+            {
+                Ok(Ok(response)) => {
+                    for reading in profile.decode_block(index, &response) {
+                        let value = match &reading.value {
+                            Ok(value) => value.to_text(),
+                            Err(error) => format!("({error})"),
+                        };
+                        println!("  {:<28} {value}", reading.field);
+                    }
+                }
+                Ok(Err(code)) => println!("  block `{}`: device answered {code}", block.name),
+                Err(error) => println!("  block `{}`: {error}", block.name),
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_parse() {
+        assert_eq!(parse_addresses("1-3").unwrap(), vec![1, 2, 3]);
+        assert_eq!(parse_addresses("1,2,0x81").unwrap(), vec![1, 2, 0x81]);
+        assert_eq!(parse_addresses("5, 1-2").unwrap(), vec![5, 1, 2]);
+        assert!(parse_addresses("0-3").is_err());
+        assert!(parse_addresses("3-1").is_err());
+        assert!(parse_addresses("x").is_err());
+        assert!(parse_addresses("").is_err());
+    }
+
+    #[test]
+    fn table_lists_each_find() {
+        let text = table(&[Found {
+            address: 0x81,
+            baud: 19200,
+            parity: Parity::None,
+            answers: vec!["FC01 ok".into()],
+        }]);
+        assert!(
+            text.contains("129 (0x81)   19200  8N1     FC01 ok"),
+            "{text}"
+        );
+    }
+}

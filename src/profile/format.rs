@@ -1,0 +1,263 @@
+//! The profile file as users write it: the serde types of the TOML format, with their defaults.
+//!
+//! Only the shape of the file lives here (unknown keys are refused by serde); what the values mean
+//! and whether they fit together is decided by [`super::compile`].
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::codec::{ByteFormat, ByteSource, WordOrder};
+use super::model::Behaviour;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ProfileFile {
+    pub(super) device: DeviceSection,
+    pub(super) line: LineSection,
+    #[serde(default)]
+    pub(super) blocks: Vec<BlockSection>,
+    #[serde(default)]
+    pub(super) write_frames: Vec<WriteFrameSection>,
+    #[serde(default)]
+    pub(super) fields: Vec<FieldSection>,
+    #[serde(default)]
+    pub(super) forbidden: Vec<ForbiddenSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct DeviceSection {
+    pub(super) name: String,
+    pub(super) manufacturer: String,
+    pub(super) model: String,
+    #[serde(default)]
+    pub(super) description: String,
+}
+
+pub(super) fn default_baud() -> u32 {
+    9600
+}
+pub(super) fn default_parity() -> String {
+    "none".into()
+}
+pub(super) fn default_address_range() -> [u8; 2] {
+    [1, 247]
+}
+pub(super) fn default_min_poll() -> Duration {
+    Duration::from_millis(100)
+}
+pub(super) fn default_slow() -> Duration {
+    Duration::from_secs(60)
+}
+pub(super) fn default_max_registers() -> u16 {
+    125
+}
+pub(super) fn default_max_write_registers() -> u16 {
+    123
+}
+pub(super) fn default_max_bits() -> u16 {
+    2000
+}
+pub(super) fn default_max_write_bits() -> u16 {
+    1968
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct LineSection {
+    #[serde(default = "default_baud")]
+    pub(super) baud: u32,
+    #[serde(default = "default_parity")]
+    pub(super) parity: String,
+    #[serde(default = "default_address_range")]
+    pub(super) address_range: [u8; 2],
+    pub(super) default_address: Option<u8>,
+    #[serde(default = "default_min_poll", with = "humantime_serde")]
+    pub(super) min_poll_interval: Duration,
+    #[serde(default, with = "humantime_serde")]
+    pub(super) poll_interval: Option<Duration>,
+    #[serde(default = "default_slow", with = "humantime_serde")]
+    pub(super) slow_interval: Duration,
+    #[serde(default, with = "humantime_serde")]
+    pub(super) startup_delay: Option<Duration>,
+    #[serde(default = "default_max_registers")]
+    pub(super) max_read_registers: u16,
+    #[serde(default = "default_max_write_registers")]
+    pub(super) max_write_registers: u16,
+    #[serde(default = "default_max_bits")]
+    pub(super) max_read_bits: u16,
+    #[serde(default = "default_max_write_bits")]
+    pub(super) max_write_bits: u16,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct BlockSection {
+    pub(super) name: String,
+    pub(super) function: u8,
+    pub(super) start: u16,
+    pub(super) count: u16,
+    #[serde(default = "default_poll")]
+    pub(super) poll: String,
+    /// The block is always read with exactly this request (the vendor's own example), never
+    /// split into the runs its fields use: gaps are readable on this device.
+    #[serde(default)]
+    pub(super) read_whole: bool,
+}
+
+pub(super) fn default_poll() -> String {
+    "fast".into()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct WriteFrameSection {
+    pub(super) name: String,
+    pub(super) function: u8,
+    /// Device address of the first coil or register written.
+    pub(super) address: u16,
+    /// The block whose fresh read supplies the bits the command does not change.
+    pub(super) block: String,
+    /// Block offset of the first coil or register written.
+    pub(super) offset: u16,
+    pub(super) count: u16,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct FieldSection {
+    pub(super) name: String,
+    pub(super) block: String,
+    pub(super) offset: u16,
+    pub(super) codec: CodecSection,
+    #[serde(default)]
+    pub(super) description: String,
+    pub(super) unit: Option<String>,
+    /// `[min, max]` for numbers: the allowed command range and the Home Assistant range.
+    pub(super) range: Option<[f64; 2]>,
+    /// Integers accepted besides the range, e.g. `[255]` where 255 means "disabled".
+    #[serde(default)]
+    pub(super) also: Vec<i64>,
+    pub(super) write: Option<WriteSection>,
+    #[serde(default)]
+    pub(super) behaviour: Behaviour,
+    #[serde(default, with = "humantime_serde")]
+    pub(super) min_write_interval: Option<Duration>,
+    #[serde(default, with = "humantime_serde")]
+    pub(super) settle_window: Option<Duration>,
+    /// Field name → value text: the read-back stops settling when every one of them holds
+    /// (the valve's `motor = "stopped"`) and judges the value as it is then.
+    #[serde(default)]
+    pub(super) settle_until: BTreeMap<String, String>,
+    /// A convenience view over bits that other fields own (the air shower's `wind`).
+    #[serde(default)]
+    pub(super) overlay: bool,
+    /// A command value that shows what the field does (`gear = 8`), offered as an example by the
+    /// demo; it must be a valid command for the field.
+    pub(super) example: Option<String>,
+    #[serde(default)]
+    pub(super) ha: HaSection,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum WriteSection {
+    /// The name of a shared `[[write_frames]]` entry.
+    Frame(String),
+    /// A frame of the field's own registers or coils.
+    Own(OwnWrite),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct OwnWrite {
+    pub(super) function: u8,
+    pub(super) address: u16,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct HaSection {
+    pub(super) component: Option<String>,
+    pub(super) device_class: Option<String>,
+    pub(super) state_class: Option<String>,
+    pub(super) icon: Option<String>,
+    pub(super) entity_category: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ForbiddenSection {
+    /// Field name → value text; the combination is refused when every one of them holds.
+    pub(super) when: BTreeMap<String, String>,
+    pub(super) reason: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub(super) enum CodecSection {
+    Bit {
+        bit: u8,
+        #[serde(default)]
+        invert: bool,
+    },
+    Bits {
+        bit: u8,
+        width: u8,
+        #[serde(default)]
+        options: Vec<String>,
+    },
+    Coil {
+        #[serde(default)]
+        invert: bool,
+    },
+    Coils {
+        width: u8,
+        #[serde(default)]
+        options: Vec<String>,
+    },
+    U16 {
+        #[serde(default)]
+        decimals: u8,
+        scale: Option<f64>,
+    },
+    I16 {
+        #[serde(default)]
+        decimals: u8,
+        scale: Option<f64>,
+    },
+    U32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+        scale: Option<f64>,
+    },
+    I32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+        scale: Option<f64>,
+    },
+    F32 {
+        word_order: WordOrder,
+        #[serde(default)]
+        decimals: u8,
+        scale: Option<f64>,
+    },
+    Bcd {
+        int_digits: u8,
+        frac_digits: u8,
+    },
+    Char,
+    Bytes {
+        registers: u16,
+        #[serde(default)]
+        format: ByteFormat,
+        #[serde(default)]
+        separator: String,
+        #[serde(default)]
+        bytes: ByteSource,
+    },
+}
