@@ -10,6 +10,8 @@ use std::sync::Arc;
 use super::payload::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
 use crate::profile::{FieldInfo, FieldKind, Profile, Value};
 
+/// Range bounds this large come from the number format (float registers), not the device.
+const NO_RANGE: f64 = 1e15;
 /// Largest scaled magnitude a Float holds to the last digit (2^24).
 const FLOAT_EXACT: f64 = 16_777_216.0;
 
@@ -216,7 +218,11 @@ fn properties_for(info: &FieldInfo) -> PropertySet {
         FieldKind::Decimal { min, max, .. } => (Some(*min), Some(*max)),
         _ => (None, None),
     };
-    if let (Some(low), Some(high)) = (low, high) {
+    // Float registers span the whole float range: no device range worth showing.
+    let range = low
+        .zip(high)
+        .filter(|(low, high)| low.abs() < NO_RANGE && high.abs() < NO_RANGE);
+    if let Some((low, high)) = range {
         push("engLow", DataType::Double, PropertyScalar::Double(low));
         push("engHigh", DataType::Double, PropertyScalar::Double(high));
     }
