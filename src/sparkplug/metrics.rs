@@ -79,6 +79,15 @@ impl DeviceMetrics {
         self.defs.iter().find(|def| def.alias == alias)
     }
 
+    /// The metric a host's metric names: by name, or by alias when the name is absent.
+    pub fn named_by(&self, metric: &Metric) -> Option<&MetricDef> {
+        match (&metric.name, metric.alias) {
+            (Some(name), _) => self.by_name(name),
+            (None, Some(alias)) => self.by_alias(alias),
+            (None, None) => None,
+        }
+    }
+
     /// The DBIRTH form: name, alias, datatype, properties and the value (null when unknown).
     pub fn birth_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
         Metric {
@@ -93,16 +102,11 @@ impl DeviceMetrics {
         value_metric(def, value, timestamp)
     }
 
-    /// The metric a DCMD names (by name, or by alias when the name is absent) and the command
+    /// The metric a DCMD names ([`Self::named_by`]) and the command
     /// text its value stands for. Unknown metrics, read-only fields, a datatype other than the
     /// birth's and values of the wrong kind are refused.
     pub fn command_text(&self, metric: &Metric) -> Result<(&MetricDef, String), Refusal> {
-        let def = match (&metric.name, metric.alias) {
-            (Some(name), _) => self.by_name(name),
-            (None, Some(alias)) => self.by_alias(alias),
-            (None, None) => None,
-        }
-        .ok_or_else(|| {
+        let def = self.named_by(metric).ok_or_else(|| {
             Refusal(format!(
                 "{}: unknown metric {}",
                 self.device,
@@ -398,5 +402,51 @@ mod tests {
             Some(MetricValue::Double(12.34))
         );
         assert_eq!(metric_value(DataType::Boolean, &value), None);
+    }
+
+    /// A value of the field's kind near the top of its range.
+    fn sample(info: &FieldInfo) -> Value {
+        match &info.kind {
+            FieldKind::Bool | FieldKind::Momentary => Value::Bool(true),
+            FieldKind::Integer { max, .. } => Value::Int(*max),
+            FieldKind::Decimal { max, precision, .. } => Value::Decimal {
+                scaled: (max.min(9999.99) * 10f64.powi(i32::from(*precision))).round() as i64,
+                precision: *precision,
+            },
+            FieldKind::Enum { options } => Value::Enum(options.last().cloned().unwrap_or_default()),
+            FieldKind::Text => Value::Text("0A".into()),
+        }
+    }
+
+    #[test]
+    fn every_writable_field_round_trips_through_a_command_metric() {
+        for name in crate::profile::registry::built_in_names() {
+            let profile = match crate::profile::registry::built_in(name) {
+                Ok(profile) => Arc::new(profile),
+                Err(error) => panic!("{error}"),
+            };
+            let metrics = DeviceMetrics::new("d", Arc::clone(&profile), 1000);
+            for info in profile.fields().iter().filter(|info| info.writable) {
+                let Some(def) = metrics.by_name(&info.name) else {
+                    panic!("{name}.{} has no metric", info.name);
+                };
+                let value = sample(info);
+                let metric = Metric {
+                    alias: Some(def.alias),
+                    value: metric_value(def.datatype, &value),
+                    ..Default::default()
+                };
+                let text = match metrics.command_text(&metric) {
+                    Ok((_, text)) => text,
+                    Err(refusal) => panic!("{name}.{}: {refusal}", info.name),
+                };
+                assert_eq!(
+                    profile.parse_value(&info.name, &text),
+                    Ok(value),
+                    "{name}.{} as {text}",
+                    info.name
+                );
+            }
+        }
     }
 }

@@ -101,7 +101,10 @@ pub fn shared_broker(plain: &MqttSettings) -> MqttSettings {
 
 fn check_id(place: &str, id: &str, problems: &mut Vec<Problem>) {
     if id.is_empty() {
-        problems.push(Problem::new(place, "must not be empty"));
+        problems.push(Problem::new(
+            place,
+            "is required (a non-empty Sparkplug id)",
+        ));
     } else if let Some(bad) = id.chars().find(|c| matches!(c, '+' | '#' | '/')) {
         problems.push(Problem::new(
             place,
@@ -334,7 +337,7 @@ mod tests {
         assert_eq!(
             shown,
             [
-                "sparkplug.group_id: must not be empty",
+                "sparkplug.group_id: is required (a non-empty Sparkplug id)",
                 "sparkplug.edge_node_id: `a/b` contains `/`; Sparkplug ids must not contain +, # or /",
                 "sparkplug.primary_host_id: `h+` contains `+`; Sparkplug ids must not contain +, # or /",
             ]

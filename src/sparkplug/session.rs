@@ -10,7 +10,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use super::metrics::{DeviceMetrics, MetricDef, Refusal};
+use super::metrics::{DeviceMetrics, Refusal};
 use super::payload::{DataType, Metric, MetricValue, Payload};
 use crate::bus::LineEvent;
 use crate::profile::{Profile, Value};
@@ -407,7 +407,7 @@ impl Session {
                     text,
                 })),
                 Err(Refusal(reason)) => {
-                    let known = known_metric(&self.devices[index].metrics, metric);
+                    let known = self.devices[index].metrics.named_by(metric);
                     if let Some(def) = known {
                         republish.push(def.name.clone());
                     }
@@ -604,15 +604,6 @@ fn alias_base(index: usize, devices: &[(String, Arc<Profile>)]) -> u64 {
         stride *= 10;
     }
     (index as u64 + 1) * stride
-}
-
-/// The device metric a command names, if it names one.
-fn known_metric<'a>(metrics: &'a DeviceMetrics, metric: &Metric) -> Option<&'a MetricDef> {
-    match (&metric.name, metric.alias) {
-        (Some(name), _) => metrics.by_name(name),
-        (None, Some(alias)) => metrics.by_alias(alias),
-        (None, None) => None,
-    }
 }
 
 /// `{"online": true, "timestamp": 1668114759262}` (Sparkplug 3.0 STATE payload).
