@@ -131,6 +131,7 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
             primary_host_id: None,
             devices: plant.clone(),
             version: "0.1.0".into(),
+            node_metrics: Vec::new(),
         },
         7,
     );

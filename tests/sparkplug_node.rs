@@ -1,5 +1,5 @@
 //! The Sparkplug edge node driver on a real mosquitto: births after the primary host's STATE,
-//! DDATA for a change, a DCMD handed to the command path and a failed one re-published, NCMD
+//! DDATA for a change, NDATA for a gateway figure, a DCMD handed to the command path and a failed one re-published, NCMD
 //! rebirth, the NDEATH Will (matching the NBIRTH's bdSeq) when the node dies, and the node's
 //! own NDEATH at an orderly shutdown.
 
@@ -14,7 +14,7 @@ use rtu2mqtt::profile::{registry, Value};
 use rtu2mqtt::shutdown;
 use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
-    run, CommandReport, NodeLinks, Session, SessionSettings, SparkplugCommand,
+    run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
 };
 use support::{Message, Mosquitto, TestClient};
 use tokio::sync::{broadcast, mpsc};
@@ -24,6 +24,8 @@ const NBIRTH: &str = "spBv1.0/plant/NBIRTH/gw1";
 const NDEATH: &str = "spBv1.0/plant/NDEATH/gw1";
 const DBIRTH: &str = "spBv1.0/plant/DBIRTH/gw1/dust";
 const DDATA: &str = "spBv1.0/plant/DDATA/gw1/dust";
+const NDATA: &str = "spBv1.0/plant/NDATA/gw1";
+const BUS_LOAD: &str = "Lines/line-a/Bus Load";
 
 fn settings(port: u16) -> MqttSettings {
     MqttSettings {
@@ -51,6 +53,10 @@ fn session(primary_host_id: Option<&str>) -> Session {
             primary_host_id: primary_host_id.map(str::to_string),
             devices: vec![("dust".into(), Arc::new(dust))],
             version: "test".into(),
+            node_metrics: vec![NodeMetricSpec {
+                name: BUS_LOAD.into(),
+                datatype: DataType::Float,
+            }],
         },
         0,
     )
@@ -97,6 +103,7 @@ struct Node {
     events: broadcast::Sender<LineEvent>,
     commands: mpsc::Receiver<SparkplugCommand>,
     reports: mpsc::Sender<CommandReport>,
+    node_values: mpsc::Sender<Vec<(String, MetricValue)>>,
     trigger: shutdown::ShutdownTrigger,
     task: tokio::task::JoinHandle<()>,
 }
@@ -105,11 +112,13 @@ fn start(session: Session, port: u16) -> Node {
     let (events, line_events) = broadcast::channel(64);
     let (commands_tx, commands) = mpsc::channel(16);
     let (reports, reports_rx) = mpsc::channel(16);
+    let (node_values, node_values_rx) = mpsc::channel(16);
     let (trigger, shutdown) = shutdown::channel();
     let links = NodeLinks {
         line_events,
         commands: commands_tx,
         reports: reports_rx,
+        node_values: node_values_rx,
         shutdown,
     };
     let task = tokio::spawn(run(session, settings(port), links));
@@ -117,6 +126,7 @@ fn start(session: Session, port: u16) -> Node {
         events,
         commands,
         reports,
+        node_values,
         trigger,
         task,
     }
@@ -154,6 +164,21 @@ async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
     assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(5)));
     let after_birth = ddata.seq.unwrap_or(0);
     assert!(after_birth >= 2, "seq {after_birth} after the births");
+
+    // A gateway figure arrives as NDATA.
+    let _ = node
+        .node_values
+        .send(vec![(BUS_LOAD.to_string(), MetricValue::Float(0.5))])
+        .await;
+    let ndata = host
+        .wait_for(NDATA, WAIT, |m| {
+            decode(m)
+                .metrics
+                .iter()
+                .any(|metric| metric.value == Some(MetricValue::Float(0.5)))
+        })
+        .await;
+    assert!(decode(&ndata).seq > Some(after_birth));
 
     // A DCMD on the gear reaches the command path; one on a read-only field does not.
     host.publish(

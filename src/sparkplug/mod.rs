@@ -22,7 +22,7 @@ use crate::bus::LineEvent;
 use crate::config::{MqttSettings, Problem};
 use crate::shutdown::Shutdown;
 
-pub use session::{Action, Session, SessionSettings, SparkplugCommand};
+pub use session::{Action, NodeMetricSpec, Session, SessionSettings, SparkplugCommand};
 
 /// Appended to the plain connection's client id when the node shares its broker: two
 /// connections with one client id would take each other over.
@@ -137,6 +137,8 @@ pub struct NodeLinks {
     pub line_events: broadcast::Receiver<LineEvent>,
     pub commands: mpsc::Sender<SparkplugCommand>,
     pub reports: mpsc::Receiver<CommandReport>,
+    /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
+    pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
     pub shutdown: Shutdown,
 }
 
@@ -215,6 +217,10 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 },
                 Some(report) = links.reports.recv(), if !closing => {
                     let actions = session.on_command_outcome(now_millis(), &report.device, &report.field, report.applied);
+                    closing |= carry_out(&client, &links.commands, actions).await;
+                }
+                Some(values) = links.node_values.recv(), if !closing => {
+                    let actions = session.on_node_values(now_millis(), &values);
                     closing |= carry_out(&client, &links.commands, actions).await;
                 }
                 () = links.shutdown.fired(), if !closing => {

@@ -85,6 +85,8 @@ pub struct SessionSettings {
     pub devices: Vec<(String, Arc<Profile>)>,
     /// The gateway's software version, shown as a node property.
     pub version: String,
+    /// Gateway figures published as node metrics besides the built-in ones.
+    pub node_metrics: Vec<NodeMetricSpec>,
 }
 
 /// One device's place in the session.
@@ -118,14 +120,47 @@ pub struct Session {
     host_online: bool,
     /// Timestamp of the newest STATE message taken into account.
     host_state_timestamp: Option<u64>,
-    /// Node metric values as last published.
-    devices_online_published: u64,
+    /// The node's own metrics besides bdSeq, in NBIRTH order.
+    node_metrics: Vec<NodeMetric>,
+}
+
+/// A gateway figure published as a node metric (line statistics, bus load). Declared when the
+/// session is made, so it is part of every NBIRTH; its values arrive through
+/// [`Session::on_node_values`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeMetricSpec {
+    pub name: String,
+    pub datatype: DataType,
+}
+
+/// A node metric with its current and last published value.
+#[derive(Debug, Clone)]
+struct NodeMetric {
+    name: String,
+    alias: u64,
+    datatype: DataType,
+    value: Option<MetricValue>,
+    published: Option<MetricValue>,
+}
+
+impl NodeMetric {
+    /// Alias, datatype and value (or the null flag); births add the name.
+    fn data_form(&self, now: u64) -> Metric {
+        Metric {
+            alias: Some(self.alias),
+            timestamp: Some(now),
+            datatype: Some(self.datatype.number()),
+            is_null: self.value.is_none().then_some(true),
+            value: self.value.clone(),
+            ..Default::default()
+        }
+    }
 }
 
 impl Session {
     /// A session whose first connection uses `bd_seq`.
     pub fn new(settings: SessionSettings, bd_seq: u8) -> Self {
-        let devices = settings
+        let devices: Vec<DeviceSession> = settings
             .devices
             .iter()
             .enumerate()
@@ -142,6 +177,36 @@ impl Session {
             })
             .collect();
         let host_online = settings.primary_host_id.is_none();
+        let fixed = [
+            (REBIRTH, DataType::Boolean, MetricValue::Boolean(false)),
+            (DEVICES, DataType::UInt32, count_value(devices.len() as u64)),
+            (DEVICES_ONLINE, DataType::UInt32, count_value(0)),
+            (
+                VERSION,
+                DataType::String,
+                MetricValue::String(settings.version.clone()),
+            ),
+        ];
+        let mut node_metrics: Vec<NodeMetric> = fixed
+            .into_iter()
+            .zip(1u64..)
+            .map(|((name, datatype, value), alias)| NodeMetric {
+                name: name.to_string(),
+                alias,
+                datatype,
+                value: Some(value),
+                published: None,
+            })
+            .collect();
+        node_metrics.extend(settings.node_metrics.iter().zip(FIRST_GATEWAY_ALIAS..).map(
+            |(spec, alias)| NodeMetric {
+                name: spec.name.clone(),
+                alias,
+                datatype: spec.datatype,
+                value: None,
+                published: None,
+            },
+        ));
         Session {
             settings,
             devices,
@@ -152,7 +217,7 @@ impl Session {
             node_born: false,
             host_online,
             host_state_timestamp: None,
-            devices_online_published: 0,
+            node_metrics,
         }
     }
 
@@ -321,6 +386,18 @@ impl Session {
         self.ddata(now, index, &[field.to_string()])
     }
 
+    /// New values of declared gateway figures ([`SessionSettings::node_metrics`]); NDATA with
+    /// those that changed. Undeclared names are ignored (a new metric needs a new NBIRTH).
+    pub fn on_node_values(&mut self, now: u64, values: &[(String, MetricValue)]) -> Vec<Action> {
+        for (name, value) in values {
+            let fixed = [REBIRTH, DEVICES, DEVICES_ONLINE, VERSION];
+            if !fixed.contains(&name.as_str()) {
+                self.set_node_value(name, value.clone());
+            }
+        }
+        self.node_data(now)
+    }
+
     // ---- host STATE and commands ----
 
     fn on_host_state(&mut self, now: u64, payload: &[u8]) -> Vec<Action> {
@@ -430,49 +507,21 @@ impl Session {
         for device in &mut self.devices {
             device.born = false;
         }
-        let online = self.devices_online();
-        self.devices_online_published = online;
-        let node_metric = |name: &str, alias: u64, datatype: DataType, value: MetricValue| Metric {
-            name: Some(name.to_string()),
-            alias: Some(alias),
+        self.set_node_value(DEVICES_ONLINE, count_value(self.devices_online()));
+        let mut metrics = vec![Metric {
+            name: Some(BD_SEQ.to_string()),
             timestamp: Some(now),
-            datatype: Some(datatype.number()),
-            value: Some(value),
+            datatype: Some(DataType::UInt64.number()),
+            value: Some(MetricValue::Long(u64::from(self.bd_seq))),
             ..Default::default()
-        };
-        let metrics = vec![
-            Metric {
-                name: Some(BD_SEQ.to_string()),
-                timestamp: Some(now),
-                datatype: Some(DataType::UInt64.number()),
-                value: Some(MetricValue::Long(u64::from(self.bd_seq))),
-                ..Default::default()
-            },
-            node_metric(
-                REBIRTH,
-                REBIRTH_ALIAS,
-                DataType::Boolean,
-                MetricValue::Boolean(false),
-            ),
-            node_metric(
-                DEVICES,
-                DEVICES_ALIAS,
-                DataType::UInt32,
-                MetricValue::Int(u32::try_from(self.devices.len()).unwrap_or(u32::MAX)),
-            ),
-            node_metric(
-                DEVICES_ONLINE,
-                DEVICES_ONLINE_ALIAS,
-                DataType::UInt32,
-                MetricValue::Int(u32::try_from(online).unwrap_or(u32::MAX)),
-            ),
-            node_metric(
-                VERSION,
-                VERSION_ALIAS,
-                DataType::String,
-                MetricValue::String(self.settings.version.clone()),
-            ),
-        ];
+        }];
+        for metric in &mut self.node_metrics {
+            metric.published.clone_from(&metric.value);
+            metrics.push(Metric {
+                name: Some(metric.name.clone()),
+                ..metric.data_form(now)
+            });
+        }
         let payload = self.sequenced(now, metrics);
         let mut actions = vec![self.publish(self.node_topic("NBIRTH"), payload)];
         for index in 0..self.devices.len() {
@@ -522,22 +571,30 @@ impl Session {
         vec![self.publish(topic, payload)]
     }
 
-    /// NDATA when the count of online devices changed since it was last published.
+    /// NDATA with the node metrics that changed since they were last published.
     fn node_data(&mut self, now: u64) -> Vec<Action> {
-        let online = self.devices_online();
-        if !self.node_born || online == self.devices_online_published {
+        self.set_node_value(DEVICES_ONLINE, count_value(self.devices_online()));
+        if !self.node_born {
             return Vec::new();
         }
-        self.devices_online_published = online;
-        let metric = Metric {
-            alias: Some(DEVICES_ONLINE_ALIAS),
-            timestamp: Some(now),
-            datatype: Some(DataType::UInt32.number()),
-            value: Some(MetricValue::Int(u32::try_from(online).unwrap_or(u32::MAX))),
-            ..Default::default()
-        };
-        let payload = self.sequenced(now, vec![metric]);
+        let mut metrics = Vec::new();
+        for metric in &mut self.node_metrics {
+            if metric.value != metric.published {
+                metric.published.clone_from(&metric.value);
+                metrics.push(metric.data_form(now));
+            }
+        }
+        if metrics.is_empty() {
+            return Vec::new();
+        }
+        let payload = self.sequenced(now, metrics);
         vec![self.publish(self.node_topic("NDATA"), payload)]
+    }
+
+    fn set_node_value(&mut self, name: &str, value: MetricValue) {
+        if let Some(metric) = self.node_metrics.iter_mut().find(|m| m.name == name) {
+            metric.value = Some(value);
+        }
     }
 
     fn ndeath_payload(&self, now: u64) -> Vec<u8> {
@@ -586,10 +643,15 @@ impl Session {
     }
 }
 
+/// The alias of `Node Control/Rebirth` (the first node metric).
 const REBIRTH_ALIAS: u64 = 1;
-const DEVICES_ALIAS: u64 = 2;
-const DEVICES_ONLINE_ALIAS: u64 = 3;
-const VERSION_ALIAS: u64 = 4;
+/// Declared gateway figures follow the fixed node metrics from here.
+const FIRST_GATEWAY_ALIAS: u64 = 16;
+
+/// A count as a UInt32 metric value (saturating).
+fn count_value(count: u64) -> MetricValue {
+    MetricValue::Int(u32::try_from(count).unwrap_or(u32::MAX))
+}
 
 /// The first alias of the device at `index`: a multiple of [`ALIAS_STRIDE`] (of a larger power
 /// of ten when a profile has that many fields), so aliases never collide across the node.
@@ -638,6 +700,10 @@ mod tests {
                 ("valve".into(), profile("wuzhou-valve")),
             ],
             version: "1.2.3".into(),
+            node_metrics: vec![NodeMetricSpec {
+                name: "Lines/line-a/Bus Load".into(),
+                datatype: DataType::Float,
+            }],
         }
     }
 
@@ -792,12 +858,7 @@ mod tests {
     #[test]
     fn aliases_are_unique_across_the_node() {
         let session = connected();
-        let mut aliases: Vec<u64> = vec![
-            REBIRTH_ALIAS,
-            DEVICES_ALIAS,
-            DEVICES_ONLINE_ALIAS,
-            VERSION_ALIAS,
-        ];
+        let mut aliases: Vec<u64> = session.node_metrics.iter().map(|m| m.alias).collect();
         for device in &session.devices {
             aliases.extend(device.metrics.defs().iter().map(|def| def.alias));
         }
@@ -1079,5 +1140,35 @@ mod tests {
         );
         assert!(session.on_line_event(T, &offline).len() == 2);
         assert!(session.on_line_event(T, &offline).is_empty(), "dead once");
+    }
+
+    #[test]
+    fn gateway_figures_are_born_null_and_sent_when_they_change() {
+        let mut session = Session::new(settings(None), 0);
+        session.prepare_connect(T);
+        let births = published(&session.on_connected(T));
+        let load = metric(&births[0].1, "Lines/line-a/Bus Load");
+        assert_eq!(load.datatype, Some(DataType::Float.number()));
+        assert_eq!((load.is_null, &load.value), (Some(true), &None));
+        assert_eq!(load.alias, Some(FIRST_GATEWAY_ALIAS));
+        let values = [(
+            "Lines/line-a/Bus Load".to_string(),
+            MetricValue::Float(0.25),
+        )];
+        let actions = session.on_node_values(T, &values);
+        let messages = published(&actions);
+        assert_eq!(topics(&actions), ["spBv1.0/plant/NDATA/gw1"]);
+        assert_eq!(messages[0].1.metrics.len(), 1);
+        assert_eq!(messages[0].1.metrics[0].alias, Some(FIRST_GATEWAY_ALIAS));
+        assert_eq!(
+            messages[0].1.metrics[0].value,
+            Some(MetricValue::Float(0.25))
+        );
+        assert!(session.on_node_values(T, &values).is_empty(), "unchanged");
+        let undeclared = [
+            ("Lines/line-z/Bus Load".to_string(), MetricValue::Float(1.0)),
+            (DEVICES.to_string(), MetricValue::Int(99)),
+        ];
+        assert!(session.on_node_values(T, &undeclared).is_empty());
     }
 }
