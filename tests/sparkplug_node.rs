@@ -269,3 +269,48 @@ async fn an_orderly_shutdown_publishes_the_ndeath_itself() {
         "the node did not end: {ended:?}"
     );
 }
+
+/// The NBIRTH of the node's current connection, asking for a rebirth until one arrives (the
+/// observer may have subscribed after the node's own births).
+async fn current_nbirth(host: &mut TestClient) -> Payload {
+    for _ in 0..10 {
+        let rebirth = command(
+            "Node Control/Rebirth",
+            DataType::Boolean,
+            MetricValue::Boolean(true),
+        );
+        host.publish("spBv1.0/plant/NCMD/gw1", rebirth, false).await;
+        if let Some(message) = host
+            .try_wait_for(NBIRTH, Duration::from_secs(1), |_| true)
+            .await
+        {
+            return decode(&message);
+        }
+    }
+    panic!("no NBIRTH from the node");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_connection_gets_the_next_bd_seq_and_its_will_carries_it() {
+    let mut broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "observer").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start(session(None), broker.port);
+    let first = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(value_of(&first, "bdSeq"), Some(MetricValue::Long(0)));
+
+    broker.kill();
+    broker.restart();
+    let mut host = TestClient::connect(broker.port, "observer-2").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let second = current_nbirth(&mut host).await;
+    let Some(MetricValue::Long(bd_seq)) = value_of(&second, "bdSeq") else {
+        panic!("no bdSeq in {second:?}");
+    };
+    assert!(bd_seq >= 1, "bdSeq {bd_seq} after a reconnect");
+    assert_eq!(second.seq, Some(0));
+
+    node.task.abort();
+    let death = decode(&host.next_on(NDEATH, WAIT).await);
+    assert_eq!(value_of(&death, "bdSeq"), Some(MetricValue::Long(bd_seq)));
+}

@@ -30,6 +30,8 @@ pub const CLIENT_ID_SUFFIX: &str = "-sparkplug";
 
 /// How long the connection may take to flush the NDEATH and close at shutdown.
 const CLOSE_GRACE: Duration = Duration::from_secs(2);
+/// A connection that lived this long resets the reconnect back-off.
+const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 
 /// The `[sparkplug]` section as written.
 #[derive(Debug, Clone, Default, PartialEq, Deserialize)]
@@ -167,6 +169,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
             ));
         let (client, mut eventloop) = AsyncClient::new(mqtt_options, REQUEST_QUEUE);
         let mut closing = false;
+        let mut connected_since = None;
         // Set when the node ends for good; bounds the wait for the Disconnect to go out.
         let mut stop_by: Option<tokio::time::Instant> = None;
         loop {
@@ -180,7 +183,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 () = stop_wait => break,
                 polled = eventloop.poll() => match polled {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                        backoff.reset();
+                        connected_since = Some(tokio::time::Instant::now());
                         tracing::info!(bd_seq = session.bd_seq(), "Sparkplug edge node connected");
                         let actions = session.on_connected(now_millis());
                         closing |= carry_out(&client, &links.commands, actions).await;
@@ -196,6 +199,11 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     }
                     Ok(_) => {}
                     Err(error) => {
+                        // A connection that dies young (a client-id takeover, an auth refusal)
+                        // keeps the back-off growing.
+                        if connected_since.is_some_and(|since| since.elapsed() >= STABLE_CONNECTION) {
+                            backoff.reset();
+                        }
                         tracing::warn!(%error, "Sparkplug connection lost");
                         session.on_disconnected();
                         break;
@@ -233,7 +241,8 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
         if stop_by.is_some() {
             return;
         }
-        // Keep the session's view of the devices current while waiting to reconnect.
+        // Keep the session's view of devices and figures current while waiting to reconnect
+        // (nothing is published before the next births).
         let wait = tokio::time::sleep(backoff.next_wait());
         tokio::pin!(wait);
         loop {
@@ -244,6 +253,12 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     Err(broadcast::error::RecvError::Lagged(_)) => {}
                     Err(broadcast::error::RecvError::Closed) => return,
                 },
+                Some(values) = links.node_values.recv() => {
+                    session.on_node_values(now_millis(), &values);
+                }
+                // Outcomes of commands from before the connection was lost: the births
+                // carry the true values.
+                Some(_) = links.reports.recv() => {}
                 () = links.shutdown.fired() => return,
             }
         }
