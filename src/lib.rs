@@ -32,3 +32,4 @@ pub mod profile;
 pub mod rtu;
 pub mod shutdown;
 pub mod sim;
+pub mod sparkplug;
