@@ -27,6 +27,7 @@ pub mod broker;
 pub mod bus;
 pub mod cli;
 pub mod config;
+pub mod contract;
 pub mod health;
 pub mod profile;
 pub mod rtu;

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use crate::health::HealthSettings;
+use super::health::HealthSettings;
 use crate::rtu::timing::Parity;
 
 /// The whole file.
