@@ -25,7 +25,8 @@ pub struct HealthSettings {
     /// the systemd watchdog is no longer pinged.
     #[serde(with = "humantime_serde")]
     pub stale_after: Duration,
-    /// A loop stuck this long ends the process with `crate::health::EXIT_STUCK`. Zero disables the exit.
+    /// A loop stuck this long ends the process with `crate::health::EXIT_STUCK`. Zero disables
+    /// the exit.
     #[serde(with = "humantime_serde")]
     pub stall_limit: Duration,
 }
