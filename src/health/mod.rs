@@ -11,9 +11,9 @@
 //!
 //! The [`Watchdog`] runs on its own OS thread, not on the tokio runtime, so that it still
 //! judges (and still stops pinging systemd) when the runtime itself is blocked. The judgement
-//! is the pure [`assess`]; the file check of `rtu2mqtt health` is the pure [`judge_status`].
+//! is the pure [`assess()`]; the file check of `rtu2mqtt health` is the pure [`judge_status`].
 //!
-//! One concern per file: [`assess`] (the pure judgement), [`status_file`] (the file and
+//! One concern per file: [`mod@assess`] (the pure judgement), [`status_file`] (the file and
 //! `rtu2mqtt health`), [`systemd`] (readiness and watchdog notifications) and [`watchdog`]
 //! (the thread). The settings are the configuration's ([`crate::config::HealthSettings`]);
 //! the MQTT loop is seen only through the [`MqttProbe`] the application hands over.
