@@ -1,8 +1,9 @@
 //! Process health: systemd readiness and watchdog pings, the status file behind
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
-//! What enters: each line's [`LineStats`] (its `heartbeat` is refreshed on every turn of the
-//! line task) and the MQTT bridge loop's heartbeat and connection state (watch channels).
+//! What enters: each line's [`LineStats`](crate::bus::LineStats) (its `heartbeat` is refreshed
+//! on every turn of the line task) and the MQTT loop's heartbeat and connection state (watch
+//! channels, handed over as an [`MqttProbe`]).
 //! What leaves: `READY=1` / `WATCHDOG=1` / `STOPPING=1` / `STATUS=` to systemd, a JSON
 //! [`StatusReport`] written atomically every few seconds, and, when a loop has been stuck
 //! longer than [`HealthSettings::stall_limit`], a shutdown followed by a non-zero exit
