@@ -7,8 +7,19 @@ use std::path::{Path, PathBuf};
 
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
-    "shutdown", "rtu", "profile", "bus", "sim", "contract", "config", "health", "bridge", "broker",
-    "cli", "app",
+    "shutdown",
+    "rtu",
+    "profile",
+    "bus",
+    "sim",
+    "contract",
+    "config",
+    "health",
+    "bridge",
+    "sparkplug",
+    "broker",
+    "cli",
+    "app",
 ];
 
 fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
