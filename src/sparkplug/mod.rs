@@ -17,7 +17,7 @@ use serde::Deserialize;
 use tokio::sync::{broadcast, mpsc};
 
 use crate::bridge::mqtt::{options, Backoff, REQUEST_QUEUE};
-use crate::bridge::topics::Topics;
+
 use crate::bus::LineEvent;
 use crate::config::{MqttSettings, Problem};
 use crate::shutdown::Shutdown;
@@ -148,7 +148,7 @@ pub struct NodeLinks {
 /// lets the session answer every event, reconnects with the plain connection's back-off, and
 /// at shutdown publishes the NDEATH itself before disconnecting.
 pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks) {
-    let topics = Topics::new(&mqtt.prefix, &mqtt.client_id);
+    let topics = mqtt.topics();
     let mut backoff = Backoff::default();
     loop {
         let will = session.prepare_connect(now_millis());
