@@ -7,6 +7,7 @@ pub mod demo;
 pub mod logging;
 pub mod read;
 pub mod scan;
+pub mod simulate;
 
 use std::path::Path;
 use std::process::ExitCode;
