@@ -2,11 +2,12 @@
 //! scheduler gives it its turn, re-reading a device that is still settling (outside the slot:
 //! the writes are done by then, so nothing can interleave with them any more, and a 60 s settle
 //! window must not take the line from the other devices), publishing what the slot read, and
-//! the replies with their latency figures. The frames of a slot are [`super::slot`]'s.
+//! each command's end as a `LineEvent::CommandFinished` after those values, with its latency.
+//! The frames of a slot are [`super::slot`]'s.
 
 use std::time::{Duration, Instant};
 
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::mpsc;
 use tracing::Instrument;
 
 use super::device::{DeviceRuntime, Values};
@@ -14,7 +15,7 @@ use super::line::Line;
 use super::scheduler::PollOutcome;
 use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::transaction::{Exchange, Failure};
-use super::{Command, CommandFailure, CommandOutcome};
+use super::{Command, CommandFailure, CommandOutcome, LineEvent};
 use crate::profile::{CommandPlan, Verification};
 use crate::rtu::master::PortFault;
 
@@ -32,24 +33,24 @@ pub(super) struct Pending {
 pub(super) struct Settle {
     device: usize,
     plan: CommandPlan,
-    reply_tx: oneshot::Sender<CommandOutcome>,
+    id: u64,
     arrived: Instant,
     deadline: Instant,
     pub(super) next_read: Instant,
 }
 
 impl Line {
-    pub(super) fn accept_commands(&mut self, now: Instant) {
+    pub(super) async fn accept_commands(&mut self, now: Instant) {
         while self.commands_open {
             match self.command_rx.try_recv() {
-                Ok(command) => self.accept(command, now),
+                Ok(command) => self.accept(command, now).await,
                 Err(mpsc::error::TryRecvError::Empty) => break,
                 Err(mpsc::error::TryRecvError::Disconnected) => self.commands_open = false,
             }
         }
     }
 
-    pub(super) fn accept(&mut self, command: Command, now: Instant) {
+    pub(super) async fn accept(&mut self, command: Command, now: Instant) {
         match self.device_index(&command.device) {
             Some(device) => self.scheduler.push_command(
                 device,
@@ -63,7 +64,13 @@ impl Line {
                     device: command.device.clone(),
                     line: self.spec.name.clone(),
                 };
-                let _ = command.reply_tx.send(CommandOutcome::Failed { cause });
+                let (id, device) = (command.id, command.device);
+                self.emit(LineEvent::CommandFinished {
+                    id,
+                    device,
+                    outcome: CommandOutcome::Failed { cause },
+                })
+                .await;
             }
         }
     }
@@ -78,8 +85,10 @@ impl Line {
         let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
             (self.devices.get_mut(device), self.master.as_mut())
         else {
-            let cause = CommandFailure::PortNotOpen;
-            self.reply(command.reply_tx, arrived, CommandOutcome::Failed { cause });
+            let outcome = CommandOutcome::Failed {
+                cause: CommandFailure::PortNotOpen,
+            };
+            self.reply(device, command.id, arrived, outcome).await;
             return;
         };
         let exchange = Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround);
@@ -97,17 +106,17 @@ impl Line {
                     CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. }
                 );
                 tracing::info!(device = %spec.name, field = command.plan.field(), ?outcome, "command done");
-                self.reply(command.reply_tx, arrived, outcome);
                 if answered {
                     self.contact(device, now).await;
                 }
                 self.publish_reads(device, seen, now).await;
+                self.reply(device, command.id, arrived, outcome).await;
             }
             SlotEnd::Settling { deadline } => {
                 self.settling.push(Settle {
                     device,
                     plan: command.plan,
-                    reply_tx: command.reply_tx,
+                    id: command.id,
                     arrived,
                     deadline,
                     next_read: now + SETTLE_REREAD,
@@ -116,8 +125,10 @@ impl Line {
                 self.publish_reads(device, seen, now).await;
             }
             SlotEnd::PortGone(error) => {
-                let cause = CommandFailure::PortFailed(error.clone());
-                self.reply(command.reply_tx, arrived, CommandOutcome::Failed { cause });
+                let outcome = CommandOutcome::Failed {
+                    cause: CommandFailure::PortFailed(error.clone()),
+                };
+                self.reply(device, command.id, arrived, outcome).await;
                 self.port_failed(error).await;
             }
         }
@@ -128,12 +139,11 @@ impl Line {
         let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
             (self.devices.get_mut(settle.device), self.master.as_mut())
         else {
-            let cause = CommandFailure::PortNotOpen;
-            self.reply(
-                settle.reply_tx,
-                settle.arrived,
-                CommandOutcome::Failed { cause },
-            );
+            let outcome = CommandOutcome::Failed {
+                cause: CommandFailure::PortNotOpen,
+            };
+            self.reply(settle.device, settle.id, settle.arrived, outcome)
+                .await;
             return;
         };
         let exchange = Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround);
@@ -155,12 +165,11 @@ impl Line {
                 detail: "the device was still moving when the settle window ended".into(),
             },
             Err(Stop::Failed(Failure::PortGone(error))) => {
-                let cause = CommandFailure::PortFailed(error.clone());
-                self.reply(
-                    settle.reply_tx,
-                    settle.arrived,
-                    CommandOutcome::Failed { cause },
-                );
+                let outcome = CommandOutcome::Failed {
+                    cause: CommandFailure::PortFailed(error.clone()),
+                };
+                self.reply(settle.device, settle.id, settle.arrived, outcome)
+                    .await;
                 self.port_failed(error).await;
                 return;
             }
@@ -169,8 +178,8 @@ impl Line {
             },
         };
         let device = settle.device;
-        self.reply(settle.reply_tx, settle.arrived, outcome);
         self.publish_reads(device, seen, now).await;
+        self.reply(device, settle.id, settle.arrived, outcome).await;
     }
 
     /// The device answered a command: it is there.
@@ -209,12 +218,9 @@ impl Line {
         self.emit_values(device, values).await;
     }
 
-    fn reply(
-        &mut self,
-        reply_tx: oneshot::Sender<CommandOutcome>,
-        arrived: Instant,
-        outcome: CommandOutcome,
-    ) {
+    /// Counts a command's end and reports it on the events channel (after any `Values` of
+    /// its slot, so that a command's state is out before its result).
+    async fn reply(&mut self, device: usize, id: u64, arrived: Instant, outcome: CommandOutcome) {
         let latency = arrived.elapsed();
         self.stats.commands += 1;
         self.stats.last_command_latency = Some(latency);
@@ -223,45 +229,48 @@ impl Line {
                 .worst_command_latency
                 .map_or(latency, |w| w.max(latency)),
         );
-        // The asker may have given up waiting; the outcome is logged either way.
-        let _ = reply_tx.send(outcome);
+        let device = self
+            .devices
+            .get(device)
+            .map(|runtime| runtime.spec.name.clone())
+            .unwrap_or_default();
+        self.emit(LineEvent::CommandFinished {
+            id,
+            device,
+            outcome,
+        })
+        .await;
     }
 
-    pub(super) fn fail_queued(&mut self, why: &CommandFailure) {
+    pub(super) async fn fail_queued(&mut self, why: &CommandFailure) {
         if self.scheduler.queued_commands() == 0 {
             return;
         }
-        for (_, pending) in self.scheduler.drain_commands() {
-            self.reply(
-                pending.command.reply_tx,
-                pending.arrived,
-                CommandOutcome::Failed { cause: why.clone() },
-            );
+        for (device, pending) in self.scheduler.drain_commands() {
+            let outcome = CommandOutcome::Failed { cause: why.clone() };
+            self.reply(device, pending.command.id, pending.arrived, outcome)
+                .await;
         }
     }
 
     /// The port failed: every command waiting for its device to settle has failed.
-    pub(super) fn fail_settling(&mut self, error: &PortFault) {
+    pub(super) async fn fail_settling(&mut self, error: &PortFault) {
         for settle in std::mem::take(&mut self.settling) {
-            self.reply(
-                settle.reply_tx,
-                settle.arrived,
-                CommandOutcome::Failed {
-                    cause: CommandFailure::PortFailedWhileSettling(error.clone()),
-                },
-            );
+            let outcome = CommandOutcome::Failed {
+                cause: CommandFailure::PortFailedWhileSettling(error.clone()),
+            };
+            self.reply(settle.device, settle.id, settle.arrived, outcome)
+                .await;
         }
     }
 
     /// Shutdown: commands waiting for their device to settle end without a verdict.
-    pub(super) fn abandon_settling(&mut self) {
+    pub(super) async fn abandon_settling(&mut self) {
         for settle in std::mem::take(&mut self.settling) {
             let detail = "the gateway shut down before the read-back settled".to_string();
-            self.reply(
-                settle.reply_tx,
-                settle.arrived,
-                CommandOutcome::NotApplied { detail },
-            );
+            let outcome = CommandOutcome::NotApplied { detail };
+            self.reply(settle.device, settle.id, settle.arrived, outcome)
+                .await;
         }
     }
 }

@@ -163,12 +163,12 @@ impl Line {
     async fn run(mut self) {
         while !self.shutdown.is_fired() {
             let now = Instant::now();
-            self.accept_commands(now);
+            self.accept_commands(now).await;
             if self.master.is_none() {
                 if now >= self.reopen.at() {
                     self.open_port(now).await;
                 } else {
-                    self.fail_queued(&CommandFailure::PortReopening);
+                    self.fail_queued(&CommandFailure::PortReopening).await;
                     self.wait(Some(self.reopen.at())).await;
                 }
                 continue;
@@ -202,7 +202,7 @@ impl Line {
                 Due::Idle => self.wait(next_settle).await,
             }
         }
-        self.finish();
+        self.finish().await;
     }
 
     /// Sleeps until `until` (or the next heartbeat), a command arrives, or shutdown.
@@ -215,7 +215,7 @@ impl Line {
         tokio::select! {
             () = sleep => {}
             command = self.command_rx.recv(), if commands_open => match command {
-                Some(command) => self.accept(command, Instant::now()),
+                Some(command) => self.accept(command, Instant::now()).await,
                 None => self.commands_open = false,
             },
             () = self.shutdown.fired() => {}
@@ -307,7 +307,7 @@ impl Line {
             retry_in = ?delay,
             "port failed, closing it: {error}"
         );
-        self.fail_settling(&error);
+        self.fail_settling(&error).await;
         self.lose_devices(now).await;
         self.publish_stats();
     }
@@ -408,9 +408,9 @@ impl Line {
     }
 
     /// Shutdown: answer every command still waiting, publish the last statistics.
-    fn finish(&mut self) {
-        self.fail_queued(&CommandFailure::ShuttingDown);
-        self.abandon_settling();
+    async fn finish(&mut self) {
+        self.fail_queued(&CommandFailure::ShuttingDown).await;
+        self.abandon_settling().await;
         self.publish_stats();
         tracing::info!("line stopped");
     }
