@@ -28,8 +28,6 @@ pub enum CommandFailure {
     PortReopening,
     /// The gateway stopped before the command's turn came.
     ShuttingDown,
-    /// The line's task ended before it ran the command.
-    LineStopped,
     /// The command names a device the line does not have.
     UnknownDevice { device: String, line: String },
 }
@@ -57,7 +55,6 @@ impl std::fmt::Display for CommandFailure {
             Self::PortNotOpen => f.write_str("the port is not open"),
             Self::PortReopening => f.write_str("the port is not open (reopening)"),
             Self::ShuttingDown => f.write_str("the gateway is shutting down"),
-            Self::LineStopped => f.write_str("the line stopped before the command ran"),
             Self::UnknownDevice { device, line } => {
                 write!(f, "no device {device:?} on line {line}")
             }
