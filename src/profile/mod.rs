@@ -116,7 +116,10 @@ impl Profile {
         let Some(read) = self.inner.blocks.get(block) else {
             return Vec::new();
         };
-        let expected = model::block_quantity(&read.request) as usize;
+        let expected = read
+            .request
+            .read_span()
+            .map_or(0, |(_, quantity)| usize::from(quantity));
         let image = command::image_of(answer, expected).filter(|image| {
             matches!(
                 (image, self.inner.block_kinds[block].is_bits()),
