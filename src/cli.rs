@@ -58,9 +58,10 @@ pub enum Command {
     Scan(ScanArgs),
     /// One raw read, shown as hex and decoded every way a profile could (never a write).
     Read(ReadArgs),
-    /// List the built-in profiles (and profile files given) with their fields.
+    /// List profiles with their fields: every built-in one, or only those named.
     Profiles {
-        /// Extra profile files to list.
+        /// Built-in profile names and/or profile file paths (none: every built-in profile).
+        #[arg(value_name = "NAME|FILE")]
         paths: Vec<PathBuf>,
     },
     /// Exit 0 when the daemon's status file is fresh (Docker HEALTHCHECK).
