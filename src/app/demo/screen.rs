@@ -26,29 +26,7 @@ pub(super) fn compose_screen(
     (width, height): (usize, usize),
     now: Duration,
 ) -> String {
-    let mut rows = screen_rows(view, header, hints, log, (width, height), now);
-    // The footer keeps the last row, however short the table is.
-    rows.resize(height.saturating_sub(1).max(rows.len()), String::new());
-    let mut frame = String::from("\x1b[H");
-    for row in &rows {
-        frame.push_str(row);
-        frame.push_str("\x1b[K\r\n");
-    }
-    frame.push_str(FOOTER);
-    // No newline after the last row: it would scroll the screen by one.
-    frame.push_str("\x1b[K\x1b[J");
-    frame
-}
-
-/// The rows above the footer, at most `height - 1`, none wider than `width`.
-fn screen_rows(
-    view: &PlantView,
-    header: &str,
-    hints: &str,
-    log: &VecDeque<String>,
-    (width, height): (usize, usize),
-    now: Duration,
-) -> Vec<String> {
+    // At most `height - 1` rows above the footer, none wider than `width`.
     let room = height.saturating_sub(1);
     let hint_rows: Vec<String> = hints
         .lines()
@@ -74,7 +52,17 @@ fn screen_rows(
         rows.push("log:".to_string());
         rows.extend(log_rows.drain(log_rows.len() - shown..));
     }
-    rows
+    // The footer keeps the last row, however short the table is.
+    rows.resize(room.max(rows.len()), String::new());
+    let mut frame = String::from("\x1b[H");
+    for row in &rows {
+        frame.push_str(row);
+        frame.push_str("\x1b[K\r\n");
+    }
+    frame.push_str(FOOTER);
+    // No newline after the last row: it would scroll the screen by one.
+    frame.push_str("\x1b[K\x1b[J");
+    frame
 }
 
 /// The rows the table takes when nothing is left out.
