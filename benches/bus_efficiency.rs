@@ -16,7 +16,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
 use rtu2mqtt::profile::{DeviceState, Profile};
@@ -234,17 +234,27 @@ async fn measure(
         let plan = profile
             .plan_command("light", text, &state)
             .map_err(|e| anyhow::anyhow!("command: {e}"))?;
-        let (reply_tx, reply_rx) = oneshot::channel();
         let sent = Instant::now();
+        let id = latencies.len() as u64;
         handle
             .command_tx
             .send(Command {
+                id,
                 device: "air_shower".into(),
                 plan,
-                reply_tx,
             })
             .await?;
-        let outcome = reply_rx.await?;
+        // The outcome comes on the events channel, after the values of the command's reads.
+        let outcome = loop {
+            match events_rx.recv().await {
+                Some(LineEvent::CommandFinished {
+                    id: done, outcome, ..
+                }) if done == id => break outcome,
+                Some(LineEvent::Values { values, .. }) => state.extend(values),
+                Some(_) => {}
+                None => anyhow::bail!("the line stopped"),
+            }
+        };
         latencies.push(sent.elapsed());
         if !matches!(outcome, CommandOutcome::Applied { .. }) {
             eprintln!("command outcome: {outcome:?}");

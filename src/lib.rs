@@ -11,10 +11,12 @@
 //! - [`bus`]: one task per serial line. It owns the port, decides what is due (pure scheduler
 //!   with the clock passed in), runs polls and command slots, tracks device health and line
 //!   statistics, and reports [`bus::LineEvent`]s.
+//! - [`contract`]: the MQTT contract (topic names, Home Assistant ids, payload words, reserved
+//!   names), pure strings shared by the configuration check, discovery and the bridge.
 //! - [`config`]: the gateway configuration (file + environment), validated completely with the
 //!   place of every problem before anything is opened.
 //! - [`bridge`]: the only MQTT user. State, commands, outcomes, availability, Home Assistant
-//!   discovery and statistics.
+//!   discovery and statistics, decided by an I/O-free core and carried out by a thin driver.
 //! - [`sim`]: simulated devices (the three seed devices written from their documents, and a
 //!   generic one built from any profile), for tests, benchmarks and the demo.
 //! - [`app`]: wires the above together for `run` and `demo`; [`shutdown`] and [`health`] are
@@ -27,8 +29,10 @@ pub mod broker;
 pub mod bus;
 pub mod cli;
 pub mod config;
+pub mod contract;
 pub mod health;
 pub mod profile;
 pub mod rtu;
 pub mod shutdown;
 pub mod sim;
+pub mod sparkplug;

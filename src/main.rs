@@ -13,7 +13,7 @@ fn main() -> ExitCode {
         Command::Run { config } => rtu2mqtt::app::run(&config),
         Command::Check { config } => rtu2mqtt::app::check::check(&config),
         Command::Demo { broker, port, log } => rtu2mqtt::app::demo::demo(broker, port, log),
-        Command::Simulate(args) => rtu2mqtt::sim::cli::simulate(&args),
+        Command::Simulate(args) => rtu2mqtt::app::simulate::simulate(&args),
         Command::Scan(args) => rtu2mqtt::app::scan::scan(&args),
         Command::Read(args) => rtu2mqtt::app::read::read(&args),
         Command::Profiles { paths } => rtu2mqtt::profile::registry::print_profiles(&paths),

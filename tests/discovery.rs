@@ -14,13 +14,13 @@ use serde_json::{json, Value as Json};
 
 use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::bridge::discovery::{
-    all_configs, device_config, device_config_from_fields, gateway_config, is_ha_online,
-    is_stale_config, platform_for, reannounce_delay, removal, unique_id_collisions,
-    DiscoveryContext, Platform, REANNOUNCE_DELAY,
+    all_configs, device_config, device_config_from_fields, gateway_config, is_stale_config,
+    platform_for, reannounce_delay, removal, unique_id_collisions, Platform, REANNOUNCE_DELAY,
 };
-use rtu2mqtt::bridge::json_view::{json_view, json_view_payload, json_view_topic};
+use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
 use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bus::LineStats;
+use rtu2mqtt::contract::{is_ha_online, json_view_topic, Topics};
 use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 use rtu2mqtt::shutdown;
 use rtu2mqtt::sim::SeedPlant;
@@ -104,8 +104,8 @@ fn air_shower_fields() -> Vec<FieldInfo> {
     ]
 }
 
-fn context() -> DiscoveryContext {
-    DiscoveryContext::new("rtu2mqtt-edge1", "plant")
+fn context() -> Topics {
+    Topics::new("rtu2mqtt-edge1", "plant")
 }
 
 /// The three seed devices' documents: (device, fields, topic, document).
@@ -598,7 +598,7 @@ fn only_configs_this_gateway_published_for_removed_devices_are_stale() {
         &configured
     ));
     // Another gateway whose client id extends ours: same topic shape, not our document.
-    let other = DiscoveryContext::new("rtu2mqtt-edge1_b", "plant");
+    let other = Topics::new("rtu2mqtt-edge1_b", "plant");
     let theirs = device_config_from_fields(&other, "pump", "m", "n", "p", &valve_fields())
         .1
         .to_string();
@@ -982,7 +982,7 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
     let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).unwrap();
     let client_id = "disc-e2e-gw";
-    let ctx = DiscoveryContext::new(client_id, "plant");
+    let ctx = Topics::new(client_id, "plant");
 
     // What an earlier run left behind: a device since removed from the configuration, and a
     // device of another gateway whose client id extends ours.
@@ -992,7 +992,7 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
     setup
         .publish(&old_pump_topic, old_pump.to_string(), true)
         .await;
-    let other = DiscoveryContext::new(&format!("{client_id}_x"), "plant");
+    let other = Topics::new(&format!("{client_id}_x"), "plant");
     let (other_topic, other_document) =
         device_config_from_fields(&other, "pump", "m", "n", "p", &valve_fields());
     setup

@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{
     spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec,
@@ -90,6 +90,9 @@ struct Running {
     values: Vec<ValuesSeen>,
     /// (when, device, online) of every Availability event.
     availability: Vec<(Instant, String, bool)>,
+    /// Outcomes of finished commands by id, until taken by `wait_reply`.
+    finished: HashMap<u64, CommandOutcome>,
+    next_id: u64,
 }
 
 impl Running {
@@ -105,6 +108,8 @@ impl Running {
             latest: HashMap::new(),
             values: Vec::new(),
             availability: Vec::new(),
+            finished: HashMap::new(),
+            next_id: 0,
         }
     }
 
@@ -120,6 +125,9 @@ impl Running {
             }
             LineEvent::Availability { device, online } => {
                 self.availability.push((now, device, online))
+            }
+            LineEvent::CommandFinished { id, outcome, .. } => {
+                self.finished.insert(id, outcome);
             }
         }
     }
@@ -172,17 +180,18 @@ impl Running {
 
     /// Hands `plan` to the line as a command for `device` and waits for its outcome.
     async fn send(&mut self, device: &str, plan: CommandPlan) -> CommandOutcome {
-        let (reply_tx, reply_rx) = oneshot::channel();
+        self.next_id += 1;
+        let id = self.next_id;
         self.handle
             .command_tx
             .send(Command {
+                id,
                 device: device.into(),
                 plan,
-                reply_tx,
             })
             .await
             .unwrap();
-        self.wait_reply(reply_rx).await
+        self.wait_reply(id).await
     }
 
     /// Records events until `device` has published values once; fails the test when that
@@ -194,14 +203,14 @@ impl Running {
         );
     }
 
-    async fn wait_reply(
-        &mut self,
-        mut reply_rx: oneshot::Receiver<CommandOutcome>,
-    ) -> CommandOutcome {
+    /// Records events until the line reports the end of command `id`.
+    async fn wait_reply(&mut self, id: u64) -> CommandOutcome {
         let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
         loop {
+            if let Some(outcome) = self.finished.remove(&id) {
+                return outcome;
+            }
             tokio::select! {
-                outcome = &mut reply_rx => return outcome.unwrap(),
                 event = self.events_rx.recv() => match event {
                     Some(event) => self.record(event),
                     None => panic!("line ended"),

@@ -7,6 +7,7 @@ pub mod demo;
 pub mod logging;
 pub mod read;
 pub mod scan;
+pub mod simulate;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -15,7 +16,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use tokio::sync::{mpsc, oneshot};
 
-use crate::bridge::{mqtt, prometheus, Bridge, BridgeHealth};
+use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
 use crate::bus::{spawn_line, LineHandle};
 use crate::config::{self, Config};
 use crate::health;
@@ -24,6 +25,9 @@ use crate::shutdown::{self, Shutdown};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
 const LINE_EVENTS: usize = 1024;
+/// How often the bridge loop promises to turn: it beats every tick; four ticks leave room for
+/// a busy machine.
+const BRIDGE_MAX_QUIET: Duration = bridge::TICK.saturating_mul(4);
 /// How long the lines get to finish their transaction after the bridge has stopped.
 const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 
@@ -129,13 +133,14 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         let watchdog_trigger = trigger.clone();
         let supervision = tokio::spawn(async move {
             let running = ready_rx.await.ok()?;
-            health::first_connect_attempt(&running.bridge, health::FIRST_CONNECT_WAIT).await;
-            health::supervise(
-                health_settings,
-                &running.lines,
-                &running.bridge,
-                watchdog_trigger,
-            )
+            let bridge = &running.bridge;
+            health::first_connect_attempt(&bridge.connected, health::FIRST_CONNECT_WAIT).await;
+            let probe = health::MqttProbe {
+                heartbeat: bridge.heartbeat.clone(),
+                connected: bridge.connected.clone(),
+                max_quiet: BRIDGE_MAX_QUIET,
+            };
+            health::supervise(health_settings, &running.lines, probe, watchdog_trigger)
         });
         let mut stopping = shutdown.clone();
         let announce_stop = tokio::spawn(async move {

@@ -11,13 +11,13 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context as _};
 
+use crate::app::simulate::parse_parity;
 use crate::cli::ReadArgs;
 use crate::rtu::codec::{encode_answer, encode_request, hex};
 use crate::rtu::master::{self, Master, MasterOptions};
 use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::rtu::transport::{Port, SerialSettings, TransportError};
 use crate::rtu::{Request, Response, SlaveId};
-use crate::sim::cli::parse_parity;
 
 /// The read request for `function` 1–4 (anything else is refused: this tool never writes).
 pub fn read_request(function: u8, start: u16, count: u16) -> anyhow::Result<Request> {

@@ -26,11 +26,11 @@ use std::time::Duration;
 use anyhow::{bail, Context as _};
 
 use super::read::{master_on, open_port, read_request};
+use crate::app::simulate::parse_parity;
 use crate::cli::ScanArgs;
 use crate::rtu::master::{self, Master};
 use crate::rtu::timing::Parity;
 use crate::rtu::{Request, SlaveId};
-use crate::sim::cli::parse_parity;
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]

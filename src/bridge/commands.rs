@@ -207,6 +207,13 @@ impl CommandBook {
         None
     }
 
+    /// The id of the command waiting for this field.
+    pub fn waiting_id(&self, device: &str, field: &str) -> Option<u64> {
+        self.waiting
+            .get(&(device.to_string(), field.to_string()))
+            .map(|command| command.id)
+    }
+
     /// A newer command for this field is waiting.
     pub fn has_waiting(&self, device: &str, field: &str) -> bool {
         self.waiting

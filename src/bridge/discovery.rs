@@ -20,24 +20,14 @@
 //! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
 //! device with a connectivity sensor and line statistics.
 
-use std::collections::HashSet;
 use std::ops::RangeInclusive;
 use std::time::Duration;
 
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
-use crate::config::MqttSettings;
+use crate::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
 use crate::profile::{FieldInfo, FieldKind, HaHints, Profile, Value};
-
-/// The default Home Assistant discovery prefix.
-pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
-
-/// Home Assistant announces itself with `online` on this topic (under the discovery prefix).
-pub const HA_STATUS_SUFFIX: &str = "status";
-
-/// The device name reserved for the gateway's own topics and discovery document.
-pub const GATEWAY_DEVICE: &str = "gateway";
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
 /// range spreads the load when several gateways restart discovery at once (HA's own advice).
@@ -49,113 +39,6 @@ const PAYLOAD_ON: &str = "ON";
 const PAYLOAD_OFF: &str = "OFF";
 /// What a button sends; the gateway accepts it for momentary fields.
 const PAYLOAD_PRESS: &str = "PRESS";
-const ONLINE: &str = "online";
-const OFFLINE: &str = "offline";
-
-/// What discovery needs from the configuration: the names topics are built from.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct DiscoveryContext {
-    /// The MQTT client id, also the gateway's id (`rtu2mqtt-edge1`).
-    pub client_id: String,
-    /// The state topic prefix (`plant`).
-    pub prefix: String,
-    /// Home Assistant's discovery prefix (`homeassistant`).
-    pub discovery_prefix: String,
-}
-
-impl DiscoveryContext {
-    /// A context with the default discovery prefix.
-    pub fn new(client_id: &str, prefix: &str) -> Self {
-        DiscoveryContext {
-            client_id: client_id.to_string(),
-            prefix: prefix.to_string(),
-            discovery_prefix: DEFAULT_DISCOVERY_PREFIX.to_string(),
-        }
-    }
-
-    /// The context of a gateway's MQTT settings (client id, prefix, discovery prefix).
-    pub fn from_settings(settings: &MqttSettings) -> Self {
-        DiscoveryContext {
-            client_id: settings.client_id.clone(),
-            prefix: settings.prefix.clone(),
-            discovery_prefix: settings.discovery_prefix.clone(),
-        }
-    }
-
-    /// The gateway's identifier in Home Assistant's device registry (the `via_device` target).
-    pub fn gateway_id(&self) -> String {
-        self.client_id.clone()
-    }
-
-    /// A configured device's identifier in the device registry: `<client_id>_<device>`.
-    pub fn device_id(&self, device: &str) -> String {
-        format!("{}_{}", self.client_id, device)
-    }
-
-    /// `<client_id>_<device>_<field>`: stable across restarts and renames of nothing but the
-    /// field itself, so Home Assistant keeps the entity's history and customisation.
-    pub fn unique_id(&self, device: &str, field: &str) -> String {
-        format!("{}_{}_{}", self.client_id, device, field)
-    }
-
-    /// `homeassistant/device/<client_id>_<device>/config`.
-    pub fn config_topic(&self, device: &str) -> String {
-        format!(
-            "{}/device/{}/config",
-            self.discovery_prefix,
-            self.device_id(device)
-        )
-    }
-
-    /// `homeassistant/device/<client_id>_gateway/config`.
-    pub fn gateway_config_topic(&self) -> String {
-        self.config_topic(GATEWAY_DEVICE)
-    }
-
-    /// What to subscribe to for finding the configs this gateway published earlier. MQTT
-    /// wildcards take whole levels, so `<client_id>_+` is not a valid filter: subscribe to
-    /// every device config and keep the ones [`is_stale_config`] picks.
-    pub fn config_filter(&self) -> String {
-        format!("{}/device/+/config", self.discovery_prefix)
-    }
-
-    /// `homeassistant/status`: Home Assistant's birth and last-will topic.
-    pub fn ha_status_topic(&self) -> String {
-        format!("{}/{}", self.discovery_prefix, HA_STATUS_SUFFIX)
-    }
-
-    /// `<prefix>/<device>/<field>`.
-    pub fn state_topic(&self, device: &str, field: &str) -> String {
-        format!("{}/{}/{}", self.prefix, device, field)
-    }
-
-    /// `<prefix>/<device>/<field>/set`.
-    pub fn command_topic(&self, device: &str, field: &str) -> String {
-        format!("{}/{}/{}/set", self.prefix, device, field)
-    }
-
-    /// `<prefix>/<device>/availability`.
-    pub fn availability_topic(&self, device: &str) -> String {
-        format!("{}/{}/availability", self.prefix, device)
-    }
-
-    /// `<prefix>/gateway/<client_id>/status` (also the gateway's MQTT will).
-    pub fn gateway_status_topic(&self) -> String {
-        format!(
-            "{}/{}/{}/status",
-            self.prefix, GATEWAY_DEVICE, self.client_id
-        )
-    }
-
-    /// `<prefix>/gateway/<client_id>/stats`: the JSON of [`super::metrics::stats_json`].
-    pub fn gateway_stats_topic(&self) -> String {
-        format!(
-            "{}/{}/{}/stats",
-            self.prefix, GATEWAY_DEVICE, self.client_id
-        )
-    }
-}
-
 /// A Home Assistant MQTT platform a field can be exposed as.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Platform {
@@ -379,7 +262,7 @@ fn number_step(field: &FieldInfo) -> Json {
 }
 
 /// One component of a device document (without the shared keys).
-pub fn component(ctx: &DiscoveryContext, device: &str, field: &FieldInfo) -> Json {
+pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     let platform = platform_for(field);
     let hints: &HaHints = &field.ha;
     let mut config = Map::new();
@@ -527,7 +410,7 @@ pub fn origin() -> Json {
 
 /// The availability both a device's entities depend on: the gateway is up and the device
 /// answers. `availability_mode: all` makes an entity unavailable when either is `offline`.
-fn device_availability(ctx: &DiscoveryContext, device: &str) -> Json {
+fn device_availability(ctx: &Topics, device: &str) -> Json {
     json!([
         {
             "topic": ctx.gateway_status_topic(),
@@ -546,7 +429,7 @@ fn device_availability(ctx: &DiscoveryContext, device: &str) -> Json {
 /// only supplies data here, so this is what [`device_config`] calls and what tests can feed
 /// with hand-made fields.
 pub fn device_config_from_fields(
-    ctx: &DiscoveryContext,
+    ctx: &Topics,
     device: &str,
     manufacturer: &str,
     model: &str,
@@ -576,7 +459,7 @@ pub fn device_config_from_fields(
 }
 
 /// The retained discovery document of one configured device: `(topic, payload)`.
-pub fn device_config(ctx: &DiscoveryContext, device: &str, profile: &Profile) -> (String, Json) {
+pub fn device_config(ctx: &Topics, device: &str, profile: &Profile) -> (String, Json) {
     device_config_from_fields(
         ctx,
         device,
@@ -591,7 +474,7 @@ pub fn device_config(ctx: &DiscoveryContext, device: &str, profile: &Profile) ->
 /// first (so `via_device` resolves), then one per configured device in the order given.
 /// `lines` are the configured line names, `devices` the configured devices with their profiles.
 pub fn all_configs(
-    ctx: &DiscoveryContext,
+    ctx: &Topics,
     lines: &[String],
     devices: &[(&str, &Profile)],
 ) -> Vec<(String, String)> {
@@ -626,7 +509,7 @@ pub fn line_selector(line: &str) -> String {
 /// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
 /// uptime, and per line its bus load and counters. It is what every device's `via_device`
 /// points at.
-pub fn gateway_config(ctx: &DiscoveryContext, lines: &[String]) -> (String, Json) {
+pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
     let status_topic = ctx.gateway_status_topic();
     let stats_topic = ctx.gateway_stats_topic();
     let unique = |key: &str| ctx.unique_id(GATEWAY_DEVICE, key);
@@ -735,22 +618,11 @@ fn jinja_string(text: &str) -> String {
 
 /// The removal of a device's discovery document: its topic and the empty retained payload
 /// that makes Home Assistant drop the device and the broker forget the document.
-pub fn removal(ctx: &DiscoveryContext, device: &str) -> (String, Vec<u8>) {
+pub fn removal(ctx: &Topics, device: &str) -> (String, Vec<u8>) {
     (ctx.config_topic(device), Vec::new())
 }
 
-/// The device name of a config topic this gateway may have published
-/// (`homeassistant/device/<client_id>_<device>/config` → `<device>`), or None.
-pub fn device_of_config_topic<'t>(ctx: &DiscoveryContext, topic: &'t str) -> Option<&'t str> {
-    let object_id = topic
-        .strip_prefix(&ctx.discovery_prefix)?
-        .strip_prefix("/device/")?
-        .strip_suffix("/config")?;
-    let device = object_id.strip_prefix(&ctx.client_id)?.strip_prefix('_')?;
-    (!device.is_empty() && !device.contains('/')).then_some(device)
-}
-
-/// Whether a retained config seen on [`DiscoveryContext::config_filter`] is one this gateway
+/// Whether a retained config seen on [`Topics::config_filter`] is one this gateway
 /// published for a device that is no longer configured, and so must be cleared with
 /// [`removal`].
 ///
@@ -758,12 +630,12 @@ pub fn device_of_config_topic<'t>(ctx: &DiscoveryContext, topic: &'t str) -> Opt
 /// both. So the document itself must name this gateway as its `via_device`. Empty payloads
 /// (already removed) and the gateway's own document are never stale.
 pub fn is_stale_config(
-    ctx: &DiscoveryContext,
+    ctx: &Topics,
     topic: &str,
     payload: &[u8],
     configured_devices: &[String],
 ) -> bool {
-    let Some(device) = device_of_config_topic(ctx, topic) else {
+    let Some(device) = ctx.device_of_config_topic(topic) else {
         return false;
     };
     if device == GATEWAY_DEVICE || configured_devices.iter().any(|name| name == device) {
@@ -780,13 +652,6 @@ pub fn is_stale_config(
     via == Some(ctx.gateway_id().as_str())
 }
 
-/// Whether a payload on `homeassistant/status` is Home Assistant's birth message.
-pub fn is_ha_online(payload: &[u8]) -> bool {
-    std::str::from_utf8(payload)
-        .map(|text| text.trim().eq_ignore_ascii_case(ONLINE))
-        .unwrap_or(false)
-}
-
 /// A random delay in [`REANNOUNCE_DELAY`] before re-publishing discovery after Home
 /// Assistant's birth message.
 pub fn reannounce_delay<R: Rng + ?Sized>(rng: &mut R) -> Duration {
@@ -796,19 +661,10 @@ pub fn reannounce_delay<R: Rng + ?Sized>(rng: &mut R) -> Duration {
 /// `unique_id`s that two configured fields would share (device `a` with field `b_c` and device
 /// `a_b` with field `c` both give `<client_id>_a_b_c`). Empty for a sound configuration; the
 /// configuration check reports any as an error, since Home Assistant would drop one entity.
-pub fn unique_id_collisions(
-    ctx: &DiscoveryContext,
-    devices: &[(&str, &[FieldInfo])],
-) -> Vec<String> {
-    let mut seen = HashSet::new();
-    let mut collisions = Vec::new();
-    for (device, fields) in devices {
-        for field in fields.iter() {
-            let id = ctx.unique_id(device, &field.name);
-            if !seen.insert(id.clone()) && !collisions.contains(&id) {
-                collisions.push(id);
-            }
-        }
-    }
-    collisions
+pub fn unique_id_collisions(ctx: &Topics, devices: &[(&str, &[FieldInfo])]) -> Vec<String> {
+    ctx.unique_id_collisions(devices.iter().flat_map(|(device, fields)| {
+        fields
+            .iter()
+            .map(move |field| (*device, field.name.as_str()))
+    }))
 }

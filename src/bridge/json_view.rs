@@ -10,11 +10,6 @@ use serde_json::{Map, Value as Json};
 
 use crate::profile::{DeviceState, Value};
 
-/// `<prefix>/<device>`: the topic of a device's JSON view.
-pub fn json_view_topic(prefix: &str, device: &str) -> String {
-    format!("{prefix}/{device}")
-}
-
 /// The JSON view of `(field, value)` pairs: an object keyed by field name in ascending order.
 /// A field given twice keeps its last value (the newest reading).
 pub fn json_view_from_pairs<'v, I>(values: I) -> Json

@@ -14,9 +14,8 @@ use rumqttc::{
 };
 use tokio::sync::mpsc;
 
-use super::payload::OFFLINE;
-use super::topics::Topics;
 use crate::config::MqttSettings;
+use crate::contract::{Topics, OFFLINE};
 
 /// First wait after a connection error.
 pub const BACKOFF_INITIAL: Duration = Duration::from_millis(250);
@@ -66,7 +65,7 @@ pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttO
         .set_max_packet_size(MAX_INCOMING_PACKET, MAX_OUTGOING_PACKET)
         .set_request_channel_capacity(REQUEST_QUEUE)
         .set_last_will(LastWill::new(
-            topics.gateway_status(),
+            topics.gateway_status_topic(),
             OFFLINE,
             QoS::AtLeastOnce,
             true,
@@ -97,7 +96,7 @@ pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttO
 
 /// The client handle and its event loop (nothing is sent until the loop is polled).
 pub fn connect(settings: &MqttSettings) -> anyhow::Result<(AsyncClient, EventLoop)> {
-    let topics = Topics::new(&settings.prefix, &settings.client_id);
+    let topics = settings.topics();
     let options = options(settings, &topics)?;
     Ok(AsyncClient::new(options, REQUEST_QUEUE))
 }

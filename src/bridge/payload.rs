@@ -1,11 +1,8 @@
-//! Payloads of the contract: availability words, the command payload as received on `…/set`
+//! Payloads of the contract: the command payload as received on `…/set`
 //! (bounded, UTF-8, trimmed; empty is the clearing of a retained command) and the outcome JSON
 //! on `…/result`. Pure.
 
 use serde::Serialize;
-
-pub const ONLINE: &str = "online";
-pub const OFFLINE: &str = "offline";
 
 /// How much of a payload is echoed back in `value` and shown in logs.
 const MAX_ECHO_CHARS: usize = 64;

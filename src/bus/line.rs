@@ -22,7 +22,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{mpsc, watch};
 use tracing::Instrument;
 
 use super::health::{HealthChange, HealthPolicy};
@@ -103,7 +103,7 @@ struct Pending {
 struct Settle {
     device: usize,
     plan: CommandPlan,
-    reply_tx: oneshot::Sender<CommandOutcome>,
+    id: u64,
     arrived: Instant,
     deadline: Instant,
     next_read: Instant,
@@ -196,12 +196,12 @@ impl Line {
     async fn run(mut self) {
         while !self.shutdown.is_fired() {
             let now = Instant::now();
-            self.accept_commands(now);
+            self.accept_commands(now).await;
             if self.master.is_none() {
                 if now >= self.reopen_at {
                     self.open_port(now).await;
                 } else {
-                    self.fail_queued("the port is not open (reopening)");
+                    self.fail_queued("the port is not open (reopening)").await;
                     self.wait(Some(self.reopen_at)).await;
                 }
                 continue;
@@ -235,7 +235,7 @@ impl Line {
                 Due::Idle => self.wait(next_settle).await,
             }
         }
-        self.finish();
+        self.finish().await;
     }
 
     /// Sleeps until `until` (or the next heartbeat), a command arrives, or shutdown.
@@ -248,7 +248,7 @@ impl Line {
         tokio::select! {
             () = sleep => {}
             command = self.command_rx.recv(), if commands_open => match command {
-                Some(command) => self.accept(command, Instant::now()),
+                Some(command) => self.accept(command, Instant::now()).await,
                 None => self.commands_open = false,
             },
             () = self.shutdown.fired() => {}
@@ -271,17 +271,17 @@ impl Line {
         }
     }
 
-    fn accept_commands(&mut self, now: Instant) {
+    async fn accept_commands(&mut self, now: Instant) {
         while self.commands_open {
             match self.command_rx.try_recv() {
-                Ok(command) => self.accept(command, now),
+                Ok(command) => self.accept(command, now).await,
                 Err(mpsc::error::TryRecvError::Empty) => break,
                 Err(mpsc::error::TryRecvError::Disconnected) => self.commands_open = false,
             }
         }
     }
 
-    fn accept(&mut self, command: Command, now: Instant) {
+    async fn accept(&mut self, command: Command, now: Instant) {
         match self.device_index(&command.device) {
             Some(device) => self.scheduler.push_command(
                 device,
@@ -292,7 +292,13 @@ impl Line {
             ),
             None => {
                 let detail = format!("no device {:?} on line {}", command.device, self.spec.name);
-                let _ = command.reply_tx.send(CommandOutcome::Failed { detail });
+                let (id, device) = (command.id, command.device);
+                self.emit(LineEvent::CommandFinished {
+                    id,
+                    device,
+                    outcome: CommandOutcome::Failed { detail },
+                })
+                .await;
             }
         }
     }
@@ -372,12 +378,14 @@ impl Line {
         self.reopen_delay = (self.reopen_delay * 2).min(REOPEN_MAX);
         for settle in std::mem::take(&mut self.settling) {
             self.reply(
-                settle.reply_tx,
+                settle.device,
+                settle.id,
                 settle.arrived,
                 CommandOutcome::Failed {
                     detail: format!("the port failed before the read-back settled: {error}"),
                 },
-            );
+            )
+            .await;
         }
         self.lose_devices(now).await;
         self.publish_stats();
@@ -521,7 +529,8 @@ impl Line {
             self.stats.devices.get_mut(device),
         ) else {
             let detail = "the port is not open".to_string();
-            self.reply(command.reply_tx, arrived, CommandOutcome::Failed { detail });
+            let outcome = CommandOutcome::Failed { detail };
+            self.reply(device, command.id, arrived, outcome).await;
             return;
         };
         let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
@@ -539,17 +548,17 @@ impl Line {
                     CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. }
                 );
                 tracing::info!(device = %spec.name, field = command.plan.field(), ?outcome, "command done");
-                self.reply(command.reply_tx, arrived, outcome);
                 if answered {
                     self.contact(device, now).await;
                 }
                 self.publish_reads(device, seen, now).await;
+                self.reply(device, command.id, arrived, outcome).await;
             }
             SlotEnd::Settling { deadline } => {
                 self.settling.push(Settle {
                     device,
                     plan: command.plan,
-                    reply_tx: command.reply_tx,
+                    id: command.id,
                     arrived,
                     deadline,
                     next_read: now + SETTLE_REREAD,
@@ -559,7 +568,8 @@ impl Line {
             }
             SlotEnd::PortGone(error) => {
                 let detail = format!("the port failed: {error}");
-                self.reply(command.reply_tx, arrived, CommandOutcome::Failed { detail });
+                let outcome = CommandOutcome::Failed { detail };
+                self.reply(device, command.id, arrived, outcome).await;
                 self.port_failed(error).await;
             }
         }
@@ -573,11 +583,9 @@ impl Line {
             self.stats.devices.get_mut(settle.device),
         ) else {
             let detail = "the port is not open".to_string();
-            self.reply(
-                settle.reply_tx,
-                settle.arrived,
-                CommandOutcome::Failed { detail },
-            );
+            let outcome = CommandOutcome::Failed { detail };
+            self.reply(settle.device, settle.id, settle.arrived, outcome)
+                .await;
             return;
         };
         let exchange = device_exchange(&self.spec.name, spec, self.timeout, &self.turnaround);
@@ -600,11 +608,9 @@ impl Line {
             },
             Err(Failure::PortGone(error)) => {
                 let detail = format!("the port failed: {error}");
-                self.reply(
-                    settle.reply_tx,
-                    settle.arrived,
-                    CommandOutcome::Failed { detail },
-                );
+                let outcome = CommandOutcome::Failed { detail };
+                self.reply(settle.device, settle.id, settle.arrived, outcome)
+                    .await;
                 self.port_failed(error).await;
                 return;
             }
@@ -616,8 +622,8 @@ impl Line {
             },
         };
         let device = settle.device;
-        self.reply(settle.reply_tx, settle.arrived, outcome);
         self.publish_reads(device, seen, now).await;
+        self.reply(device, settle.id, settle.arrived, outcome).await;
     }
 
     /// The device answered a command: it is there.
@@ -673,12 +679,9 @@ impl Line {
         }
     }
 
-    fn reply(
-        &mut self,
-        reply_tx: oneshot::Sender<CommandOutcome>,
-        arrived: Instant,
-        outcome: CommandOutcome,
-    ) {
+    /// Counts a command's end and reports it on the events channel (after any `Values` of
+    /// its slot, so that a command's state is out before its result).
+    async fn reply(&mut self, device: usize, id: u64, arrived: Instant, outcome: CommandOutcome) {
         let latency = arrived.elapsed();
         self.stats.commands += 1;
         self.stats.last_command_latency = Some(latency);
@@ -687,21 +690,30 @@ impl Line {
                 .worst_command_latency
                 .map_or(latency, |w| w.max(latency)),
         );
-        // The asker may have given up waiting; the outcome is logged either way.
-        let _ = reply_tx.send(outcome);
+        let device = self
+            .spec
+            .devices
+            .get(device)
+            .map(|spec| spec.name.clone())
+            .unwrap_or_default();
+        self.emit(LineEvent::CommandFinished {
+            id,
+            device,
+            outcome,
+        })
+        .await;
     }
 
-    fn fail_queued(&mut self, why: &str) {
+    async fn fail_queued(&mut self, why: &str) {
         if self.scheduler.queued_commands() == 0 {
             return;
         }
-        for (_, pending) in self.scheduler.drain_commands() {
-            let detail = why.to_string();
-            self.reply(
-                pending.command.reply_tx,
-                pending.arrived,
-                CommandOutcome::Failed { detail },
-            );
+        for (device, pending) in self.scheduler.drain_commands() {
+            let outcome = CommandOutcome::Failed {
+                detail: why.to_string(),
+            };
+            self.reply(device, pending.command.id, pending.arrived, outcome)
+                .await;
         }
     }
 
@@ -747,15 +759,13 @@ impl Line {
     }
 
     /// Shutdown: answer every command still waiting, publish the last statistics.
-    fn finish(&mut self) {
-        self.fail_queued("the gateway is shutting down");
+    async fn finish(&mut self) {
+        self.fail_queued("the gateway is shutting down").await;
         for settle in std::mem::take(&mut self.settling) {
             let detail = "the gateway shut down before the read-back settled".to_string();
-            self.reply(
-                settle.reply_tx,
-                settle.arrived,
-                CommandOutcome::NotApplied { detail },
-            );
+            let outcome = CommandOutcome::NotApplied { detail };
+            self.reply(settle.device, settle.id, settle.arrived, outcome)
+                .await;
         }
         self.publish_stats();
         tracing::info!("line stopped");

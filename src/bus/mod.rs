@@ -15,7 +15,7 @@ pub mod transaction;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{mpsc, watch};
 
 use crate::profile::{CommandPlan, Profile, Value};
 use crate::rtu::transport::SerialSettings;
@@ -64,6 +64,14 @@ pub enum LineEvent {
         device: String,
         online: bool,
     },
+    /// A command's end, sent after the `Values` of the reads its slot made (so its state is
+    /// out before its result).
+    CommandFinished {
+        /// The [`Command::id`] it answers.
+        id: u64,
+        device: String,
+        outcome: CommandOutcome,
+    },
 }
 
 /// How a command ended on the bus.
@@ -79,12 +87,14 @@ pub enum CommandOutcome {
     Failed { detail: String },
 }
 
-/// A command for the line's queue.
+/// A command for the line's queue. Its end comes back as [`LineEvent::CommandFinished`] with
+/// the same `id`, on the line's events channel.
 #[derive(Debug)]
 pub struct Command {
+    /// Chosen by the sender; the line only echoes it.
+    pub id: u64,
     pub device: String,
     pub plan: CommandPlan,
-    pub reply_tx: oneshot::Sender<CommandOutcome>,
 }
 
 /// The bridge's handle on a running line.

@@ -6,6 +6,7 @@
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
+pub mod health;
 pub mod load;
 pub mod plan;
 pub mod schema;
@@ -17,7 +18,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::bus::LineSpec;
-use crate::health::HealthSettings;
+use crate::contract::Topics;
+
+pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
 
 /// A validated gateway configuration.
 #[derive(Debug, Clone)]
@@ -48,6 +51,13 @@ pub struct MqttSettings {
     pub inflight: u16,
     pub discovery: bool,
     pub discovery_prefix: String,
+}
+
+impl MqttSettings {
+    /// The topics and Home Assistant names of this gateway.
+    pub fn topics(&self) -> Topics {
+        Topics::new(&self.client_id, &self.prefix).with_discovery_prefix(&self.discovery_prefix)
+    }
 }
 
 /// TLS files (checked to exist; read when connecting).

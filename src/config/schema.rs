@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use crate::health::HealthSettings;
+use super::health::HealthSettings;
 use crate::rtu::timing::Parity;
 
 /// The whole file.
@@ -342,7 +342,7 @@ fn default_true() -> bool {
     true
 }
 fn default_discovery_prefix() -> String {
-    "homeassistant".to_string()
+    crate::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)

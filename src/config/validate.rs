@@ -12,6 +12,7 @@ use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
 use crate::bus::{DeviceSpec, LineSpec};
+use crate::contract::GATEWAY_DEVICE;
 use crate::profile::Profile;
 use crate::rtu::timing::CharFormat;
 use crate::rtu::transport::{Rs485Settings, SerialSettings};
@@ -28,8 +29,6 @@ const MAX_NAME_LEN: usize = 64;
 const MAX_PREFIX_LEN: usize = 128;
 /// Largest accepted command payload limit (a command is a word or a number).
 const MAX_PAYLOAD_LIMIT: usize = 64 * 1024;
-/// The name reserved for the gateway's own topics (`plant/gateway/<client_id>/status`).
-pub const RESERVED_DEVICE_NAME: &str = "gateway";
 
 /// Validates `raw`; profile paths are relative to `base`.
 pub fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
@@ -330,17 +329,14 @@ fn validate_health(raw: &RawConfig, problems: &mut Vec<Problem>) {
 /// Home Assistant would drop one of two entities sharing a `unique_id`
 /// (device `a` + field `b_c` and device `a_b` + field `c`).
 fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<Problem>) {
-    let context = crate::bridge::discovery::DiscoveryContext {
-        client_id: mqtt.client_id.clone(),
-        prefix: mqtt.prefix.clone(),
-        discovery_prefix: mqtt.discovery_prefix.clone(),
-    };
-    let devices: Vec<(&str, &[crate::profile::FieldInfo])> = lines
+    let fields = lines
         .iter()
         .flat_map(|line| line.devices.iter())
-        .map(|device| (device.name.as_str(), device.profile.fields()))
-        .collect();
-    for id in crate::bridge::discovery::unique_id_collisions(&context, &devices) {
+        .flat_map(|device| {
+            (device.profile.fields().iter())
+                .map(|field| (device.name.as_str(), field.name.as_str()))
+        });
+    for id in mqtt.topics().unique_id_collisions(fields) {
         problems.push(Problem::new(
             "lines",
             format!("two fields would share the Home Assistant unique_id {id:?}: rename a device"),
@@ -617,10 +613,10 @@ fn validate_device(
     let before = problems.len();
     if !is_valid_name(&raw.name) {
         problems.push(invalid_name(place, &raw.name));
-    } else if raw.name == RESERVED_DEVICE_NAME {
+    } else if raw.name == GATEWAY_DEVICE {
         problems.push(Problem::new(
             format!("{place}.name"),
-            format!("{RESERVED_DEVICE_NAME:?} is reserved for the gateway's own topics"),
+            format!("{GATEWAY_DEVICE:?} is reserved for the gateway's own topics"),
         ));
     } else {
         if let Some(first) = names.get(&raw.name) {

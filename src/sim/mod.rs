@@ -35,7 +35,6 @@
 //! ```
 
 pub mod air_shower;
-pub mod cli;
 pub mod dust_collector;
 pub mod faults;
 pub mod generic;

@@ -11,10 +11,10 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 
-use super::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
 use crate::cli::SimulateArgs;
 use crate::rtu::timing::Parity;
 use crate::sim::faults::FaultHandle;
+use crate::sim::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
 
 /// Parses `none | even | odd`.
 pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
@@ -38,7 +38,7 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
             share(Valve::new(address)).1
         }
         "lixian-air-shower" => {
-            if address.is_some_and(|a| a != super::air_shower::ADDRESS) {
+            if address.is_some_and(|a| a != crate::sim::air_shower::ADDRESS) {
                 bail!("the air shower's address is fixed at 0x81");
             }
             share(AirShower::new()).1
@@ -59,7 +59,7 @@ fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDe
             profile.limits().address_range
         );
     }
-    Ok(share(super::GenericDevice::from_profile(&profile, address)).1)
+    Ok(share(crate::sim::GenericDevice::from_profile(&profile, address)).1)
 }
 
 /// The devices `simulate` serves: one profile's device, or a seed plant line.
@@ -91,11 +91,11 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
         let (journal, served): (Journal, Pin<Box<dyn Future<Output = anyhow::Result<()>>>>) =
             match (&args.listen, &args.port) {
                 (Some(url), _) => {
-                    let Some((protocol, address)) = super::tcp::Protocol::parse_url(url) else {
+                    let Some((protocol, address)) = crate::sim::tcp::Protocol::parse_url(url) else {
                         bail!("--listen `{url}`: expected tcp://HOST:PORT or modbus-tcp://HOST:PORT");
                     };
                     let mut simulator =
-                        super::TcpSimulator::bind(address, protocol, options, devices)
+                        crate::sim::TcpSimulator::bind(address, protocol, options, devices)
                             .await
                             .with_context(|| format!("listening on {url}"))?;
                     tracing::info!(url = %simulator.url(), baud = args.baud, ?parity, "simulating");
@@ -118,7 +118,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                         "simulating"
                     );
                     let journal = Journal::new();
-                    let served = super::serve(stream, options, devices, FaultHandle::default(), journal.clone(), shutdown);
+                    let served = crate::sim::serve(stream, options, devices, FaultHandle::default(), journal.clone(), shutdown);
                     let label = port.display().to_string();
                     (journal, Box::pin(async move { served.await.with_context(|| format!("serving {label}")) }))
                 }

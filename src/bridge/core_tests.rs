@@ -1,0 +1,508 @@
+//! The contract's rules on the bridge core alone: no broker, no line, the clock passed in.
+
+use std::time::Duration;
+
+use serde_json::Value as Json;
+
+use super::*;
+use crate::profile::registry;
+
+const TTL: Duration = Duration::from_secs(60);
+/// Longer than any re-announcement delay after Home Assistant's birth message.
+const LATER: Duration = Duration::from_secs(6);
+
+fn options() -> GatewayOptions {
+    GatewayOptions {
+        command_ttl: TTL,
+        json_view: false,
+        stats_interval: Duration::from_secs(3600),
+        metrics_listen: None,
+        frame_log: None,
+        allow_raw_writes: false,
+        max_payload: 256,
+    }
+}
+
+fn core(now: Instant) -> Core {
+    let profile = Arc::new(registry::built_in("wuzhou-valve").unwrap());
+    Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: true,
+            options: options(),
+            line_names: vec!["a".to_string()],
+            devices: vec![BridgeDevice {
+                name: "valve".to_string(),
+                profile,
+                line: 0,
+            }],
+        },
+        now,
+    )
+}
+
+/// A connected core whose valve is online.
+fn online_core(now: Instant) -> Core {
+    let mut core = core(now);
+    core.on_connected();
+    core.on_line_event(availability(true), now);
+    core
+}
+
+fn availability(online: bool) -> LineEvent {
+    LineEvent::Availability {
+        device: "valve".to_string(),
+        online,
+    }
+}
+
+fn message<'m>(topic: &'m str, payload: &'m [u8], pkid: u16, dup: bool) -> Incoming<'m> {
+    Incoming {
+        topic,
+        payload,
+        qos: QoS::AtLeastOnce,
+        pkid,
+        dup,
+    }
+}
+
+fn command(core: &mut Core, field: &str, payload: &str, pkid: u16, now: Instant) -> Vec<Action> {
+    let topic = format!("plant/valve/{field}/set");
+    core.on_message(message(&topic, payload.as_bytes(), pkid, false), now)
+}
+
+fn publishes(actions: &[Action]) -> Vec<(String, String, bool)> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Publish(p) => Some((p.topic.clone(), p.payload.clone(), p.retain)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The ids of the commands handed to line 0.
+fn sent(actions: &[Action]) -> Vec<u64> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Send { line: 0, command } => Some(command.id),
+            _ => None,
+        })
+        .collect()
+}
+
+fn take_sent(actions: Vec<Action>) -> Vec<Command> {
+    actions
+        .into_iter()
+        .filter_map(|action| match action {
+            Action::Send { command, .. } => Some(command),
+            _ => None,
+        })
+        .collect()
+}
+
+/// `(value, outcome, detail)` of every result published.
+fn results(actions: &[Action]) -> Vec<(String, String, String)> {
+    publishes(actions)
+        .into_iter()
+        .filter(|(topic, ..)| topic.ends_with("/result"))
+        .map(|(_, payload, _)| {
+            let json: Json = serde_json::from_str(&payload).unwrap();
+            let text = |key: &str| json[key].as_str().unwrap_or_default().to_string();
+            (text("value"), text("outcome"), text("detail"))
+        })
+        .collect()
+}
+
+fn clears(actions: &[Action], field: &str) -> usize {
+    let set = format!("plant/valve/{field}/set");
+    publishes(actions)
+        .iter()
+        .filter(|(topic, payload, retain)| *topic == set && payload.is_empty() && *retain)
+        .count()
+}
+
+fn finished(id: u64, outcome: CommandOutcome) -> LineEvent {
+    LineEvent::CommandFinished {
+        id,
+        device: "valve".to_string(),
+        outcome,
+    }
+}
+
+#[test]
+fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
+    let cases = [
+        (
+            CommandOutcome::Applied {
+                detail: "ok".into(),
+            },
+            "applied",
+        ),
+        (
+            CommandOutcome::NotApplied {
+                detail: "reads 40".into(),
+            },
+            "not_applied",
+        ),
+        (
+            CommandOutcome::Rejected {
+                detail: "forbidden".into(),
+            },
+            "rejected",
+        ),
+        (
+            CommandOutcome::Failed {
+                detail: "no answer".into(),
+            },
+            "failed",
+        ),
+    ];
+    for (outcome, word) in cases {
+        let now = Instant::now();
+        let mut core = online_core(now);
+        let ids = sent(&command(&mut core, "opening", "50", 1, now));
+        assert_eq!(ids.len(), 1, "{word}");
+        assert_eq!(core.commands_on_bus(), 1);
+        let detail = match &outcome {
+            CommandOutcome::Applied { detail }
+            | CommandOutcome::NotApplied { detail }
+            | CommandOutcome::Rejected { detail }
+            | CommandOutcome::Failed { detail } => detail.clone(),
+        };
+        let actions = core.on_line_event(finished(ids[0], outcome), now);
+        assert_eq!(
+            results(&actions),
+            vec![("50".to_string(), word.to_string(), detail)]
+        );
+        let topics: Vec<String> = publishes(&actions).into_iter().map(|p| p.0).collect();
+        assert_eq!(
+            topics,
+            vec!["plant/valve/opening/result", "plant/valve/opening/set"],
+            "result first, then the clear"
+        );
+        assert_eq!(clears(&actions, "opening"), 1);
+        assert_eq!(core.commands_on_bus(), 0);
+    }
+}
+
+#[test]
+fn the_profile_rejects_unknown_and_read_only_fields_once_with_a_clear() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    for (field, reason) in [
+        ("no_such_field", "unknown field"),
+        ("serial_number", "read-only"),
+        ("opening", ""),
+    ] {
+        let payload = if field == "opening" { "banana" } else { "1" };
+        let actions = command(&mut core, field, payload, 1, now);
+        assert!(sent(&actions).is_empty(), "{field}");
+        let results = results(&actions);
+        assert_eq!(results.len(), 1, "{field}");
+        assert_eq!(results[0].1, "rejected");
+        assert!(results[0].2.contains(reason), "{field}: {:?}", results[0]);
+        assert_eq!(clears(&actions, field), 1, "{field}");
+    }
+    assert_eq!(core.counters(now).commands_rejected, 3);
+}
+
+#[test]
+fn a_command_waits_while_its_device_is_offline_then_runs() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    let actions = command(&mut core, "opening", "50", 1, now);
+    assert!(sent(&actions).is_empty() && results(&actions).is_empty());
+    assert_eq!(core.counters(now).waiting_commands, 1);
+    assert!(sent(&core.on_tick(now + Duration::from_secs(1), Vec::new)).is_empty());
+    let actions = core.on_line_event(availability(true), now + Duration::from_secs(2));
+    assert_eq!(
+        sent(&actions).len(),
+        1,
+        "the device came back: the command goes out"
+    );
+    assert_eq!(core.counters(now).waiting_commands, 0);
+}
+
+#[test]
+fn a_command_expires_when_its_device_stays_offline_past_its_time_to_live() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    command(&mut core, "opening", "50", 1, now);
+    let before = core.on_tick(now + TTL - Duration::from_secs(1), Vec::new);
+    assert!(results(&before).is_empty());
+    let actions = core.on_tick(now + TTL, Vec::new);
+    let results = results(&actions);
+    assert_eq!(results.len(), 1);
+    assert_eq!(results[0].1, "expired");
+    assert!(results[0].2.contains("stayed offline"), "{:?}", results[0]);
+    assert_eq!(clears(&actions, "opening"), 1);
+    // Back online later: nothing left to send.
+    let later = core.on_line_event(availability(true), now + TTL + LATER);
+    assert!(sent(&later).is_empty());
+}
+
+#[test]
+fn a_newer_command_supersedes_a_waiting_one_without_clearing_it() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    command(&mut core, "opening", "20", 1, now);
+    let actions = command(&mut core, "opening", "30", 2, now);
+    assert_eq!(
+        results(&actions),
+        vec![(
+            "20".to_string(),
+            "superseded".to_string(),
+            "superseded by a newer command for the same field before it was sent".to_string()
+        )]
+    );
+    assert_eq!(
+        clears(&actions, "opening"),
+        0,
+        "the newer command is retained"
+    );
+    let actions = core.on_line_event(availability(true), now);
+    let commands = take_sent(actions);
+    assert_eq!(commands.len(), 1, "only the newest runs");
+    assert_eq!(commands[0].device, "valve");
+    assert_eq!(commands[0].plan.field(), "opening");
+}
+
+#[test]
+fn a_qos1_redelivery_is_ignored_but_a_new_message_is_not() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let topic = "plant/valve/opening/set";
+    let first = core.on_message(message(topic, b"50", 7, false), now);
+    assert_eq!(sent(&first).len(), 1);
+    let again = core.on_message(message(topic, b"50", 7, true), now);
+    assert!(again.is_empty(), "a DUP of a message seen is not run again");
+    assert_eq!(core.counters(now).redeliveries_ignored, 1);
+    assert_eq!(core.counters(now).commands_received, 1);
+    // Not a DUP: a new command (it waits for the one on the bus).
+    let new = core.on_message(message(topic, b"50", 7, false), now);
+    assert!(sent(&new).is_empty());
+    assert_eq!(core.counters(now).commands_received, 2);
+    assert_eq!(core.counters(now).waiting_commands, 1);
+}
+
+#[test]
+fn connecting_subscribes_announces_and_sends_discovery() {
+    let now = Instant::now();
+    let mut core = core(now);
+    let actions = core.on_connected();
+    let filters: Vec<&str> = actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Subscribe { filter, .. } => Some(filter.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        filters,
+        vec![
+            "plant/+/+/set",
+            "homeassistant/status",
+            "homeassistant/device/+/config"
+        ]
+    );
+    let published = publishes(&actions);
+    let topics: Vec<&str> = published.iter().map(|p| p.0.as_str()).collect();
+    assert_eq!(
+        topics,
+        vec![
+            "plant/gateway/edge1/status",
+            "homeassistant/device/edge1_gateway/config",
+            "homeassistant/device/edge1_valve/config",
+            "plant/valve/availability",
+        ]
+    );
+    assert!(published.iter().all(|p| p.2), "all retained");
+    assert_eq!(published[0].1, "online");
+    assert_eq!(published[3].1, "offline", "the valve has not answered yet");
+}
+
+#[test]
+fn discovery_documents_name_the_topics_the_core_uses() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let actions = core.on_connected();
+    let (_, document, _) = publishes(&actions)
+        .into_iter()
+        .find(|p| p.0 == "homeassistant/device/edge1_valve/config")
+        .unwrap();
+    let document: Json = serde_json::from_str(&document).unwrap();
+    let opening = &document["cmps"]["opening"];
+    let topics = core.topics().clone();
+    assert_eq!(
+        opening["state_topic"],
+        topics.state_topic("valve", "opening")
+    );
+    assert_eq!(
+        opening["command_topic"],
+        topics.command_topic("valve", "opening")
+    );
+    let availability: Vec<&str> = document["availability"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["topic"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        availability,
+        vec![
+            topics.gateway_status_topic(),
+            topics.availability_topic("valve")
+        ]
+    );
+    // A command on the discovered topic is parsed by the core as that field's.
+    let actions = command(&mut core, "opening", "50", 1, now);
+    assert_eq!(sent(&actions).len(), 1);
+}
+
+#[test]
+fn home_assistant_online_brings_discovery_and_state_again() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let values = LineEvent::Values {
+        device: "valve".to_string(),
+        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+    };
+    core.on_line_event(values, now);
+    let quiet = core.on_tick(now + LATER, Vec::new);
+    assert!(publishes(&quiet).is_empty());
+    let birth = core.on_message(message("homeassistant/status", b"online", 1, false), now);
+    assert!(birth.is_empty(), "not at once: after a random delay");
+    let actions = core.on_tick(now + LATER, Vec::new);
+    let topics: Vec<String> = publishes(&actions).into_iter().map(|p| p.0).collect();
+    assert!(topics.contains(&"homeassistant/device/edge1_valve/config".to_string()));
+    assert!(
+        topics.contains(&"plant/valve/opening".to_string()),
+        "{topics:?}"
+    );
+    let offline = core.on_message(message("homeassistant/status", b"offline", 2, false), now);
+    assert!(offline.is_empty());
+    assert!(publishes(&core.on_tick(now + LATER * 2, Vec::new)).is_empty());
+}
+
+#[test]
+fn a_stale_discovery_document_of_this_gateway_is_removed() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let ours = br#"{"dev":{"identifiers":["edge1_pump"],"via_device":"edge1"}}"#;
+    let theirs = br#"{"dev":{"identifiers":["edge1_pump"],"via_device":"other"}}"#;
+    let topic = "homeassistant/device/edge1_pump/config";
+    let actions = core.on_message(message(topic, ours, 1, false), now);
+    assert_eq!(
+        publishes(&actions),
+        vec![(topic.to_string(), String::new(), true)]
+    );
+    assert!(core
+        .on_message(message(topic, theirs, 2, false), now)
+        .is_empty());
+    let configured = "homeassistant/device/edge1_valve/config";
+    let valve = br#"{"dev":{"via_device":"edge1"}}"#;
+    assert!(core
+        .on_message(message(configured, valve, 3, false), now)
+        .is_empty());
+}
+
+#[test]
+fn results_wait_for_the_next_connection_while_mqtt_is_down() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let id = sent(&command(&mut core, "opening", "50", 1, now))[0];
+    core.on_disconnected();
+    let applied = CommandOutcome::Applied {
+        detail: "ok".into(),
+    };
+    let actions = core.on_line_event(finished(id, applied), now);
+    assert!(publishes(&actions).is_empty(), "nothing to send it on");
+    let actions = core.on_connected();
+    assert_eq!(results(&actions)[0].1, "applied");
+    assert_eq!(clears(&actions, "opening"), 1);
+    // A result the client could not queue is kept too.
+    let id = sent(&command(&mut core, "opening", "60", 2, now + LATER))[0];
+    let failed = CommandOutcome::Failed { detail: "x".into() };
+    for action in core.on_line_event(finished(id, failed), now + LATER) {
+        if let Action::Publish(publish) = action {
+            core.on_published(publish, false);
+        }
+    }
+    core.on_disconnected();
+    let actions = core.on_connected();
+    assert_eq!(results(&actions)[0].1, "failed");
+    assert_eq!(core.counters(now).publish_failures, 2);
+}
+
+#[test]
+fn a_full_line_queue_retries_and_a_stopped_line_fails_the_command() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let command_sent = take_sent(command(&mut core, "opening", "50", 1, now));
+    let retry = core.on_send_failed(command_sent.into_iter().next().unwrap(), true, now);
+    assert!(retry.is_empty());
+    let again = take_sent(core.on_tick(now, Vec::new));
+    assert_eq!(again.len(), 1, "tried again on the next tick");
+    let actions = core.on_send_failed(again.into_iter().next().unwrap(), false, now);
+    let results = results(&actions);
+    assert_eq!(results[0].1, "failed");
+    assert_eq!(results[0].2, "the line has stopped");
+    assert_eq!(core.commands_on_bus(), 0);
+}
+
+#[test]
+fn state_of_a_slot_is_published_before_its_result() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let id = sent(&command(&mut core, "opening", "50", 1, now))[0];
+    let mut actions = core.on_line_event(
+        LineEvent::Values {
+            device: "valve".to_string(),
+            values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
+        },
+        now,
+    );
+    let applied = CommandOutcome::Applied {
+        detail: "ok".into(),
+    };
+    actions.extend(core.on_line_event(finished(id, applied), now));
+    let topics: Vec<String> = publishes(&actions).into_iter().map(|p| p.0).collect();
+    assert_eq!(
+        topics,
+        vec![
+            "plant/valve/opening",
+            "plant/valve/opening/result",
+            "plant/valve/opening/set"
+        ]
+    );
+}
+
+#[test]
+fn stopping_announces_offline_and_leaves_waiting_commands_retained() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    command(&mut core, "opening", "50", 1, now);
+    let actions = core.on_stop();
+    assert_eq!(
+        publishes(&actions),
+        vec![
+            (
+                "plant/valve/availability".to_string(),
+                "offline".to_string(),
+                true
+            ),
+            (
+                "plant/gateway/edge1/status".to_string(),
+                "offline".to_string(),
+                true
+            ),
+        ]
+    );
+    assert_eq!(core.counters(now).waiting_commands, 0);
+}

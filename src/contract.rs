@@ -1,0 +1,302 @@
+//! The MQTT contract in one place: every topic name the gateway publishes or subscribes to
+//! (state, `…/set`, `…/result`, availability, the gateway's status and statistics, the JSON
+//! view, Home Assistant discovery), the strict parse of an incoming command topic, Home
+//! Assistant identifiers, the payload words `online`/`offline`, and the names reserved for the
+//! gateway itself.
+//!
+//! Pure string work with no dependency on the rest of the crate: configuration validation,
+//! discovery and the bridge all build their names here, so they cannot drift apart.
+
+use std::collections::HashSet;
+
+/// Availability and status payload of something that is there.
+pub const ONLINE: &str = "online";
+/// Availability and status payload of something that is gone (also the gateway's Will).
+pub const OFFLINE: &str = "offline";
+
+/// The device name reserved for the gateway's own topics (`<prefix>/gateway/<client_id>/…`)
+/// and its own discovery document.
+pub const GATEWAY_DEVICE: &str = "gateway";
+
+/// The default Home Assistant discovery prefix.
+pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
+
+/// Home Assistant announces itself with `online` on this topic (under the discovery prefix).
+pub const HA_STATUS_SUFFIX: &str = "status";
+
+/// Longest command topic looked at; anything longer is dropped unparsed.
+pub const MAX_TOPIC_LEN: usize = 512;
+
+/// `<prefix>/<device>`: the topic of a device's JSON view.
+pub fn json_view_topic(prefix: &str, device: &str) -> String {
+    format!("{prefix}/{device}")
+}
+
+/// Whether a payload on Home Assistant's status topic is its birth message.
+pub fn is_ha_online(payload: &[u8]) -> bool {
+    std::str::from_utf8(payload)
+        .map(|text| text.trim().eq_ignore_ascii_case(ONLINE))
+        .unwrap_or(false)
+}
+
+/// The availability word of `online`.
+pub fn availability_word(online: bool) -> &'static str {
+    if online {
+        ONLINE
+    } else {
+        OFFLINE
+    }
+}
+
+/// Builds and parses every topic and identifier of one gateway.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Topics {
+    /// The MQTT client id, also the gateway's id (`rtu2mqtt-edge1`).
+    pub client_id: String,
+    /// The state topic prefix (`plant`).
+    pub prefix: String,
+    /// Home Assistant's discovery prefix (`homeassistant`).
+    pub discovery_prefix: String,
+}
+
+impl Topics {
+    /// The topics of gateway `client_id` under `prefix`, with the default discovery prefix.
+    pub fn new(client_id: &str, prefix: &str) -> Self {
+        Topics {
+            client_id: client_id.to_string(),
+            prefix: prefix.to_string(),
+            discovery_prefix: DEFAULT_DISCOVERY_PREFIX.to_string(),
+        }
+    }
+
+    /// The same topics with another Home Assistant discovery prefix.
+    pub fn with_discovery_prefix(mut self, discovery_prefix: &str) -> Self {
+        self.discovery_prefix = discovery_prefix.to_string();
+        self
+    }
+
+    // ----- the gateway's own topics -----
+
+    /// `<prefix>/<device>/<field>`: the retained state.
+    pub fn state_topic(&self, device: &str, field: &str) -> String {
+        format!("{}/{device}/{field}", self.prefix)
+    }
+
+    /// `<prefix>/<device>/<field>/set`: where commands arrive.
+    pub fn command_topic(&self, device: &str, field: &str) -> String {
+        format!("{}/{device}/{field}/set", self.prefix)
+    }
+
+    /// `<prefix>/<device>/<field>/result`: the outcome of each command.
+    pub fn result_topic(&self, device: &str, field: &str) -> String {
+        format!("{}/{device}/{field}/result", self.prefix)
+    }
+
+    /// `<prefix>/<device>/availability`.
+    pub fn availability_topic(&self, device: &str) -> String {
+        format!("{}/{device}/availability", self.prefix)
+    }
+
+    /// `<prefix>/<device>`: the device's JSON view.
+    pub fn json_view_topic(&self, device: &str) -> String {
+        json_view_topic(&self.prefix, device)
+    }
+
+    /// `<prefix>/gateway/<client_id>/status`: birth `online`, Will `offline`.
+    pub fn gateway_status_topic(&self) -> String {
+        format!("{}/{GATEWAY_DEVICE}/{}/status", self.prefix, self.client_id)
+    }
+
+    /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics document.
+    pub fn gateway_stats_topic(&self) -> String {
+        format!("{}/{GATEWAY_DEVICE}/{}/stats", self.prefix, self.client_id)
+    }
+
+    /// The subscription that carries every command: `<prefix>/+/+/set`.
+    pub fn command_filter(&self) -> String {
+        format!("{}/+/+/set", self.prefix)
+    }
+
+    /// `(device, field)` of a command topic, or None when the topic is not exactly
+    /// `<prefix>/<device>/<field>/set` with non-empty levels (or is too long to look at).
+    pub fn parse_command<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
+        if topic.len() > MAX_TOPIC_LEN {
+            return None;
+        }
+        let rest = topic
+            .strip_prefix(self.prefix.as_str())?
+            .strip_prefix('/')?;
+        let mut levels = rest.splitn(4, '/');
+        let device = levels.next()?;
+        let field = levels.next()?;
+        let set = levels.next()?;
+        if levels.next().is_some() || set != "set" || device.is_empty() || field.is_empty() {
+            return None;
+        }
+        Some((device, field))
+    }
+
+    // ----- Home Assistant -----
+
+    /// The gateway's identifier in Home Assistant's device registry (the `via_device` target).
+    pub fn gateway_id(&self) -> String {
+        self.client_id.clone()
+    }
+
+    /// A configured device's identifier in the device registry: `<client_id>_<device>`.
+    pub fn device_id(&self, device: &str) -> String {
+        format!("{}_{}", self.client_id, device)
+    }
+
+    /// `<client_id>_<device>_<field>`: stable across restarts and renames of nothing but the
+    /// field itself, so Home Assistant keeps the entity's history and customisation.
+    pub fn unique_id(&self, device: &str, field: &str) -> String {
+        format!("{}_{}_{}", self.client_id, device, field)
+    }
+
+    /// `unique_id`s that two `(device, field)` pairs would share (device `a` with field `b_c`
+    /// and device `a_b` with field `c` both give `<client_id>_a_b_c`), each named once.
+    pub fn unique_id_collisions<'n>(
+        &self,
+        fields: impl IntoIterator<Item = (&'n str, &'n str)>,
+    ) -> Vec<String> {
+        let mut seen = HashSet::new();
+        let mut collisions = Vec::new();
+        for (device, field) in fields {
+            let id = self.unique_id(device, field);
+            if !seen.insert(id.clone()) && !collisions.contains(&id) {
+                collisions.push(id);
+            }
+        }
+        collisions
+    }
+
+    /// `homeassistant/device/<client_id>_<device>/config`.
+    pub fn config_topic(&self, device: &str) -> String {
+        format!(
+            "{}/device/{}/config",
+            self.discovery_prefix,
+            self.device_id(device)
+        )
+    }
+
+    /// `homeassistant/device/<client_id>_gateway/config`.
+    pub fn gateway_config_topic(&self) -> String {
+        self.config_topic(GATEWAY_DEVICE)
+    }
+
+    /// What to subscribe to for finding the configs this gateway published earlier. MQTT
+    /// wildcards take whole levels, so `<client_id>_+` is not a valid filter: subscribe to
+    /// every device config and keep the ones [`Topics::device_of_config_topic`] names.
+    pub fn config_filter(&self) -> String {
+        format!("{}/device/+/config", self.discovery_prefix)
+    }
+
+    /// The device name of a config topic this gateway may have published
+    /// (`homeassistant/device/<client_id>_<device>/config` → `<device>`), or None.
+    pub fn device_of_config_topic<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        let object_id = topic
+            .strip_prefix(&self.discovery_prefix)?
+            .strip_prefix("/device/")?
+            .strip_suffix("/config")?;
+        let device = object_id.strip_prefix(&self.client_id)?.strip_prefix('_')?;
+        (!device.is_empty() && !device.contains('/')).then_some(device)
+    }
+
+    /// `homeassistant/status`: Home Assistant's birth and last-will topic.
+    pub fn ha_status_topic(&self) -> String {
+        format!("{}/{}", self.discovery_prefix, HA_STATUS_SUFFIX)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contract_topics() {
+        let topics = Topics::new("rtu2mqtt-edge1", "plant");
+        assert_eq!(
+            topics.state_topic("valve", "opening"),
+            "plant/valve/opening"
+        );
+        assert_eq!(
+            topics.command_topic("valve", "opening"),
+            "plant/valve/opening/set"
+        );
+        assert_eq!(
+            topics.result_topic("valve", "opening"),
+            "plant/valve/opening/result"
+        );
+        assert_eq!(
+            topics.availability_topic("valve"),
+            "plant/valve/availability"
+        );
+        assert_eq!(
+            topics.gateway_status_topic(),
+            "plant/gateway/rtu2mqtt-edge1/status"
+        );
+        assert_eq!(
+            topics.gateway_stats_topic(),
+            "plant/gateway/rtu2mqtt-edge1/stats"
+        );
+        assert_eq!(topics.command_filter(), "plant/+/+/set");
+        assert_eq!(topics.json_view_topic("valve"), "plant/valve");
+    }
+
+    #[test]
+    fn home_assistant_names() {
+        let topics = Topics::new("edge1", "plant").with_discovery_prefix("ha");
+        assert_eq!(topics.unique_id("valve", "opening"), "edge1_valve_opening");
+        assert_eq!(topics.config_topic("valve"), "ha/device/edge1_valve/config");
+        assert_eq!(
+            topics.gateway_config_topic(),
+            "ha/device/edge1_gateway/config"
+        );
+        assert_eq!(topics.config_filter(), "ha/device/+/config");
+        assert_eq!(topics.ha_status_topic(), "ha/status");
+        assert_eq!(
+            topics.device_of_config_topic("ha/device/edge1_valve/config"),
+            Some("valve")
+        );
+        assert_eq!(
+            topics.device_of_config_topic("ha/device/other_valve/config"),
+            None
+        );
+        assert_eq!(
+            topics.unique_id_collisions([("a", "b_c"), ("a_b", "c"), ("v", "x")]),
+            vec!["edge1_a_b_c".to_string()]
+        );
+    }
+
+    #[test]
+    fn command_topics_are_parsed_strictly() {
+        let topics = Topics::new("gw", "site/plant");
+        assert_eq!(
+            topics.parse_command("site/plant/valve/opening/set"),
+            Some(("valve", "opening"))
+        );
+        for bad in [
+            "site/plant/valve/opening",
+            "site/plant/valve/opening/set/extra",
+            "site/plant//opening/set",
+            "site/plant/valve//set",
+            "site/plantx/valve/opening/set",
+            "other/valve/opening/set",
+            "site/plant/valve/opening/result",
+        ] {
+            assert_eq!(topics.parse_command(bad), None, "{bad}");
+        }
+        let long = format!("site/plant/{}/f/set", "d".repeat(MAX_TOPIC_LEN));
+        assert_eq!(topics.parse_command(&long), None);
+    }
+
+    #[test]
+    fn words() {
+        assert!(is_ha_online(b" Online\n"));
+        assert!(!is_ha_online(b"offline"));
+        assert!(!is_ha_online(&[0xff]));
+        assert_eq!(availability_word(true), ONLINE);
+        assert_eq!(availability_word(false), OFFLINE);
+    }
+}

@@ -1,0 +1,98 @@
+//! Process health: systemd readiness and watchdog pings, the status file behind
+//! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
+//!
+//! What enters: each line's [`LineStats`](crate::bus::LineStats) (its `heartbeat` is refreshed
+//! on every turn of the line task) and the MQTT loop's heartbeat and connection state (watch
+//! channels, handed over as an [`MqttProbe`]).
+//! What leaves: `READY=1` / `WATCHDOG=1` / `STOPPING=1` / `STATUS=` to systemd, a JSON
+//! [`StatusReport`] written atomically every few seconds, and, when a loop has been stuck
+//! longer than [`HealthSettings::stall_limit`], a shutdown followed by a non-zero exit
+//! ([`EXIT_STUCK`]): plain Docker never restarts an unhealthy container, so the process must
+//! end itself for `restart: unless-stopped` to act.
+//!
+//! The [`Watchdog`] runs on its own OS thread, not on the tokio runtime, so that it still
+//! judges (and still stops pinging systemd) when the runtime itself is blocked. The judgement
+//! is the pure [`assess()`]; the file check of `rtu2mqtt health` is the pure [`judge_status`].
+//!
+//! One concern per file: [`mod@assess`] (the pure judgement), [`status_file`] (the file and
+//! `rtu2mqtt health`), [`systemd`] (readiness and watchdog notifications) and [`watchdog`]
+//! (the thread). The settings are the configuration's ([`crate::config::HealthSettings`]);
+//! the MQTT loop is seen only through the [`MqttProbe`] the application hands over.
+
+pub mod assess;
+pub mod status_file;
+pub mod systemd;
+pub mod watchdog;
+
+use std::time::Duration;
+
+use tokio::sync::watch;
+
+use crate::bus::LineHandle;
+use crate::shutdown::ShutdownTrigger;
+
+pub use crate::config::{HealthSettings, DEFAULT_STATUS_FILE};
+pub use assess::{
+    assess, judge_status, status_line, Assessment, LineStatus, LoopSnapshot, MqttStatus,
+    StatusReport,
+};
+pub use status_file::{check_status_file, wall_clock_ms, write_status_file};
+pub use systemd::{notify_ready, notify_stopping, systemd_watchdog_period, watchdog_period_from};
+pub use watchdog::{ExitFn, MqttProbe, Watchdog, WatchdogHandle, STUCK_GRACE};
+
+/// Exit status of a process ended by its own watchdog (EX_SOFTWARE): `Restart=on-failure` and
+/// Docker's `restart: unless-stopped` both restart it.
+pub const EXIT_STUCK: i32 = 70;
+
+/// How long readiness waits for the first broker connection: an unreachable broker must not
+/// hold up the start (the daemon polls and reconnects without it).
+pub const FIRST_CONNECT_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits until the bridge is connected or `limit` has passed: the first connect attempt, after
+/// which the service counts as started. True when connected.
+pub async fn first_connect_attempt(connected: &watch::Receiver<bool>, limit: Duration) -> bool {
+    let mut connected = connected.clone();
+    let reached = matches!(
+        tokio::time::timeout(limit, connected.wait_for(|connected| *connected)).await,
+        Ok(Ok(_))
+    );
+    reached
+}
+
+/// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
+/// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
+pub fn supervise(
+    settings: HealthSettings,
+    lines: &[LineHandle],
+    mqtt: MqttProbe,
+    shutdown: ShutdownTrigger,
+) -> Option<WatchdogHandle> {
+    let connected = *mqtt.connected.borrow();
+    let mut watchdog = Watchdog::new(settings, mqtt);
+    for line in lines {
+        watchdog.watch_line(line.stats_rx.clone());
+    }
+    let devices: usize = lines
+        .iter()
+        .map(|l| l.stats_rx.borrow().devices.len())
+        .sum();
+    let mqtt = if connected {
+        "MQTT connected"
+    } else {
+        "MQTT connecting"
+    };
+    notify_ready(&format!(
+        "{devices} devices on {} line(s); {mqtt}",
+        lines.len()
+    ));
+    match watchdog.spawn(shutdown) {
+        Ok(handle) => Some(handle),
+        Err(error) => {
+            tracing::error!(%error, "cannot start the watchdog thread");
+            None
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

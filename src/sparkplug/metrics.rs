@@ -1,0 +1,452 @@
+//! A device profile's fields as Sparkplug metrics: the datatype each field is born with
+//! (Boolean for bits and buttons, the narrowest Int/UInt holding the field's range, Float or
+//! Double for scaled fields, String for enumerations and identifiers), units, descriptions and
+//! ranges as metric properties, stable aliases, field values as metric values, and a command
+//! metric back to the command text the profile's `plan_command` judges. Pure: no topics, no
+//! sequence numbers, no I/O.
+
+use std::sync::Arc;
+
+use super::payload::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
+use crate::profile::{FieldInfo, FieldKind, Profile, Value};
+
+/// Range bounds this large come from the number format (float registers), not the device.
+const NO_RANGE: f64 = 1e15;
+/// Largest scaled magnitude a Float holds to the last digit (2^24).
+const FLOAT_EXACT: f64 = 16_777_216.0;
+
+/// One field of a device as a metric.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricDef {
+    /// The profile's field name, which is also the metric name.
+    pub name: String,
+    pub alias: u64,
+    pub datatype: DataType,
+    pub writable: bool,
+    properties: PropertySet,
+}
+
+/// The metrics of one configured device.
+#[derive(Debug, Clone)]
+pub struct DeviceMetrics {
+    pub device: String,
+    pub profile: Arc<Profile>,
+    defs: Vec<MetricDef>,
+}
+
+/// Why a command metric cannot become a command (nothing reaches the bus).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Refusal(pub String);
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl DeviceMetrics {
+    /// The device's metrics, aliased `alias_base + field index` (stable while the profile's
+    /// field order is).
+    pub fn new(device: &str, profile: Arc<Profile>, alias_base: u64) -> Self {
+        let defs = profile
+            .fields()
+            .iter()
+            .enumerate()
+            .map(|(index, info)| MetricDef {
+                name: info.name.clone(),
+                alias: alias_base + index as u64,
+                datatype: datatype_for(info),
+                writable: info.writable,
+                properties: properties_for(info),
+            })
+            .collect();
+        DeviceMetrics {
+            device: device.to_string(),
+            profile,
+            defs,
+        }
+    }
+
+    pub fn defs(&self) -> &[MetricDef] {
+        &self.defs
+    }
+
+    pub fn by_name(&self, name: &str) -> Option<&MetricDef> {
+        self.defs.iter().find(|def| def.name == name)
+    }
+
+    pub fn by_alias(&self, alias: u64) -> Option<&MetricDef> {
+        self.defs.iter().find(|def| def.alias == alias)
+    }
+
+    /// The metric a host's metric names: by name, or by alias when the name is absent.
+    pub fn named_by(&self, metric: &Metric) -> Option<&MetricDef> {
+        match (&metric.name, metric.alias) {
+            (Some(name), _) => self.by_name(name),
+            (None, Some(alias)) => self.by_alias(alias),
+            (None, None) => None,
+        }
+    }
+
+    /// The DBIRTH form: name, alias, datatype, properties and the value (null when unknown).
+    pub fn birth_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
+        Metric {
+            name: Some(def.name.clone()),
+            properties: (!def.properties.keys.is_empty()).then(|| def.properties.clone()),
+            ..value_metric(def, value, timestamp)
+        }
+    }
+
+    /// The DDATA form: alias only (the name is known from the birth), datatype and value.
+    pub fn data_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
+        value_metric(def, value, timestamp)
+    }
+
+    /// The metric a DCMD names ([`Self::named_by`]) and the command
+    /// text its value stands for. Unknown metrics, read-only fields, a datatype other than the
+    /// birth's and values of the wrong kind are refused.
+    pub fn command_text(&self, metric: &Metric) -> Result<(&MetricDef, String), Refusal> {
+        let def = self.named_by(metric).ok_or_else(|| {
+            Refusal(format!(
+                "{}: unknown metric {}",
+                self.device,
+                metric
+                    .name
+                    .clone()
+                    .or(metric.alias.map(|alias| format!("alias {alias}")))
+                    .unwrap_or_else(|| "without name or alias".to_string())
+            ))
+        })?;
+        let field = &def.name;
+        if !def.writable {
+            return Err(Refusal(format!("{field} is read-only")));
+        }
+        if let Some(number) = metric.datatype {
+            if number != def.datatype.number() {
+                return Err(Refusal(format!(
+                    "{field} is {:?}, the command says datatype {number}",
+                    def.datatype
+                )));
+            }
+        }
+        if metric.is_null == Some(true) {
+            return Err(Refusal(format!("{field}: a null value is no command")));
+        }
+        let wrong_kind = || Refusal(format!("{field}: the value is not a {:?}", def.datatype));
+        let value = metric.value.as_ref().ok_or_else(wrong_kind)?;
+        let text = match (def.datatype, value) {
+            (DataType::Boolean, MetricValue::Boolean(on)) => {
+                if *on { "ON" } else { "OFF" }.to_string()
+            }
+            (DataType::Float, MetricValue::Float(number)) => number.to_string(),
+            (DataType::Float | DataType::Double, MetricValue::Double(number)) => number.to_string(),
+            (DataType::Double, MetricValue::Float(number)) => number.to_string(),
+            (DataType::String | DataType::Text, MetricValue::String(text)) => text.clone(),
+            (datatype, MetricValue::Int(word)) => {
+                integer_from_wire(datatype, u64::from(*word)).ok_or_else(wrong_kind)?
+            }
+            (datatype, MetricValue::Long(word)) => {
+                integer_from_wire(datatype, *word).ok_or_else(wrong_kind)?
+            }
+            _ => return Err(wrong_kind()),
+        };
+        Ok((def, text))
+    }
+}
+
+/// The datatype a field is born with.
+pub fn datatype_for(info: &FieldInfo) -> DataType {
+    match &info.kind {
+        FieldKind::Bool | FieldKind::Momentary => DataType::Boolean,
+        FieldKind::Integer { min, max } => {
+            let low = info.also.iter().copied().fold(*min, i64::min);
+            let high = info.also.iter().copied().fold(*max, i64::max);
+            integer_type(low, high)
+        }
+        FieldKind::Decimal {
+            min,
+            max,
+            precision,
+        } => {
+            let scaled = min.abs().max(max.abs()) * 10f64.powi(i32::from(*precision));
+            if scaled <= FLOAT_EXACT {
+                DataType::Float
+            } else {
+                DataType::Double
+            }
+        }
+        FieldKind::Enum { .. } | FieldKind::Text => DataType::String,
+    }
+}
+
+/// The narrowest Sparkplug integer type holding `low..=high`.
+fn integer_type(low: i64, high: i64) -> DataType {
+    if low >= 0 {
+        match high {
+            ..=0xff => DataType::UInt8,
+            0x100..=0xffff => DataType::UInt16,
+            0x1_0000..=0xffff_ffff => DataType::UInt32,
+            _ => DataType::UInt64,
+        }
+    } else if low >= i64::from(i8::MIN) && high <= i64::from(i8::MAX) {
+        DataType::Int8
+    } else if low >= i64::from(i16::MIN) && high <= i64::from(i16::MAX) {
+        DataType::Int16
+    } else if low >= i64::from(i32::MIN) && high <= i64::from(i32::MAX) {
+        DataType::Int32
+    } else {
+        DataType::Int64
+    }
+}
+
+/// Unit, description and range of a field as metric properties (only those the profile has).
+fn properties_for(info: &FieldInfo) -> PropertySet {
+    let mut set = PropertySet::default();
+    let mut push = |key: &str, datatype: DataType, value: PropertyScalar| {
+        set.keys.push(key.to_string());
+        set.values.push(PropertyValue {
+            r#type: Some(datatype.number()),
+            is_null: None,
+            value: Some(value),
+        });
+    };
+    if let Some(unit) = &info.unit {
+        push(
+            "engUnit",
+            DataType::String,
+            PropertyScalar::String(unit.clone()),
+        );
+    }
+    let (low, high) = match &info.kind {
+        FieldKind::Integer { min, max } => (Some(*min as f64), Some(*max as f64)),
+        FieldKind::Decimal { min, max, .. } => (Some(*min), Some(*max)),
+        _ => (None, None),
+    };
+    // Float registers span the whole float range: no device range worth showing.
+    let range = low
+        .zip(high)
+        .filter(|(low, high)| low.abs() < NO_RANGE && high.abs() < NO_RANGE);
+    if let Some((low, high)) = range {
+        push("engLow", DataType::Double, PropertyScalar::Double(low));
+        push("engHigh", DataType::Double, PropertyScalar::Double(high));
+    }
+    if !info.description.trim().is_empty() {
+        push(
+            "description",
+            DataType::String,
+            PropertyScalar::String(info.description.clone()),
+        );
+    }
+    if let FieldKind::Enum { options } = &info.kind {
+        push(
+            "options",
+            DataType::String,
+            PropertyScalar::String(options.join(",")),
+        );
+    }
+    push(
+        "readOnly",
+        DataType::Boolean,
+        PropertyScalar::Boolean(!info.writable),
+    );
+    set
+}
+
+/// Alias, datatype, timestamp and value (or the null flag).
+fn value_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
+    let value = value.and_then(|value| metric_value(def.datatype, value));
+    Metric {
+        alias: Some(def.alias),
+        timestamp: Some(timestamp),
+        datatype: Some(def.datatype.number()),
+        is_null: value.is_none().then_some(true),
+        value,
+        ..Default::default()
+    }
+}
+
+/// A field value in the metric's datatype; None when the value does not fit it (sent as null
+/// rather than as something else).
+pub fn metric_value(datatype: DataType, value: &Value) -> Option<MetricValue> {
+    match (datatype, value) {
+        (DataType::Boolean, Value::Bool(on)) => Some(MetricValue::Boolean(*on)),
+        (DataType::String | DataType::Text, Value::Enum(text) | Value::Text(text)) => {
+            Some(MetricValue::String(text.clone()))
+        }
+        (DataType::Float | DataType::Double, Value::Int(_) | Value::Decimal { .. }) => {
+            // Through the text form so 12.34 becomes the float nearest 12.34.
+            let number: f64 = value.to_text().parse().ok()?;
+            Some(if datatype == DataType::Float {
+                MetricValue::Float(number as f32)
+            } else {
+                MetricValue::Double(number)
+            })
+        }
+        (datatype, Value::Int(number)) => integer_to_wire(datatype, *number),
+        (
+            datatype,
+            Value::Decimal {
+                scaled,
+                precision: 0,
+            },
+        ) => integer_to_wire(datatype, *scaled),
+        _ => None,
+    }
+}
+
+/// An integer in its Sparkplug wire form: 8-, 16- and 32-bit types in `int_value`, 64-bit ones
+/// in `long_value`, negatives as two's complement in the type's width.
+fn integer_to_wire(datatype: DataType, number: i64) -> Option<MetricValue> {
+    let (bits, signed) = datatype.integer_bits()?;
+    let fits = if signed {
+        bits == 64 || (-(1i64 << (bits - 1))..(1i64 << (bits - 1))).contains(&number)
+    } else {
+        number >= 0 && (bits == 64 || number < (1i64 << bits))
+    };
+    if !fits {
+        return None;
+    }
+    let word = if bits == 64 {
+        number as u64
+    } else {
+        (number as u64) & ((1u64 << bits) - 1)
+    };
+    Some(if bits == 64 {
+        MetricValue::Long(word)
+    } else {
+        MetricValue::Int(u32::try_from(word).ok()?)
+    })
+}
+
+/// The decimal text of an integer metric's wire word; None for a word outside the type.
+fn integer_from_wire(datatype: DataType, word: u64) -> Option<String> {
+    let (bits, signed) = datatype.integer_bits()?;
+    if bits < 64 && word >> bits != 0 {
+        return None;
+    }
+    Some(match (signed, bits) {
+        (false, _) => word.to_string(),
+        (true, 64) => (word as i64).to_string(),
+        (true, _) => {
+            let sign_bit = 1u64 << (bits - 1);
+            let number = if word & sign_bit != 0 {
+                word as i64 - (1i64 << bits)
+            } else {
+                word as i64
+            };
+            number.to_string()
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integer_types_are_the_narrowest_holding_the_range() {
+        assert_eq!(integer_type(0, 1), DataType::UInt8);
+        assert_eq!(integer_type(0, 255), DataType::UInt8);
+        assert_eq!(integer_type(0, 256), DataType::UInt16);
+        assert_eq!(integer_type(0, 70_000), DataType::UInt32);
+        assert_eq!(integer_type(0, 1 << 40), DataType::UInt64);
+        assert_eq!(integer_type(-1, 127), DataType::Int8);
+        assert_eq!(integer_type(-1, 128), DataType::Int16);
+        assert_eq!(integer_type(-40_000, 0), DataType::Int32);
+        assert_eq!(integer_type(i64::MIN, 0), DataType::Int64);
+    }
+
+    #[test]
+    fn signed_integers_travel_as_twos_complement_of_their_width() {
+        assert_eq!(
+            integer_to_wire(DataType::Int8, -1),
+            Some(MetricValue::Int(255))
+        );
+        assert_eq!(
+            integer_to_wire(DataType::Int16, -2),
+            Some(MetricValue::Int(0xfffe))
+        );
+        assert_eq!(
+            integer_to_wire(DataType::Int64, -1),
+            Some(MetricValue::Long(u64::MAX))
+        );
+        assert_eq!(integer_to_wire(DataType::UInt8, 256), None);
+        assert_eq!(integer_to_wire(DataType::UInt8, -1), None);
+        assert_eq!(
+            integer_from_wire(DataType::Int8, 255).as_deref(),
+            Some("-1")
+        );
+        assert_eq!(
+            integer_from_wire(DataType::Int16, 0x7fff).as_deref(),
+            Some("32767")
+        );
+        assert_eq!(integer_from_wire(DataType::UInt8, 256), None);
+        assert_eq!(
+            integer_from_wire(DataType::Int64, u64::MAX).as_deref(),
+            Some("-1")
+        );
+    }
+
+    #[test]
+    fn decimals_become_floats_near_their_text() {
+        let value = Value::Decimal {
+            scaled: 1234,
+            precision: 2,
+        };
+        assert_eq!(
+            metric_value(DataType::Float, &value),
+            Some(MetricValue::Float(12.34))
+        );
+        assert_eq!(
+            metric_value(DataType::Double, &value),
+            Some(MetricValue::Double(12.34))
+        );
+        assert_eq!(metric_value(DataType::Boolean, &value), None);
+    }
+
+    /// A value of the field's kind near the top of its range.
+    fn sample(info: &FieldInfo) -> Value {
+        match &info.kind {
+            FieldKind::Bool | FieldKind::Momentary => Value::Bool(true),
+            FieldKind::Integer { max, .. } => Value::Int(*max),
+            FieldKind::Decimal { max, precision, .. } => Value::Decimal {
+                scaled: (max.min(9999.99) * 10f64.powi(i32::from(*precision))).round() as i64,
+                precision: *precision,
+            },
+            FieldKind::Enum { options } => Value::Enum(options.last().cloned().unwrap_or_default()),
+            FieldKind::Text => Value::Text("0A".into()),
+        }
+    }
+
+    #[test]
+    fn every_writable_field_round_trips_through_a_command_metric() {
+        for name in crate::profile::registry::built_in_names() {
+            let profile = match crate::profile::registry::built_in(name) {
+                Ok(profile) => Arc::new(profile),
+                Err(error) => panic!("{error}"),
+            };
+            let metrics = DeviceMetrics::new("d", Arc::clone(&profile), 1000);
+            for info in profile.fields().iter().filter(|info| info.writable) {
+                let Some(def) = metrics.by_name(&info.name) else {
+                    panic!("{name}.{} has no metric", info.name);
+                };
+                let value = sample(info);
+                let metric = Metric {
+                    alias: Some(def.alias),
+                    value: metric_value(def.datatype, &value),
+                    ..Default::default()
+                };
+                let text = match metrics.command_text(&metric) {
+                    Ok((_, text)) => text,
+                    Err(refusal) => panic!("{name}.{}: {refusal}", info.name),
+                };
+                assert_eq!(
+                    profile.parse_value(&info.name, &text),
+                    Ok(value),
+                    "{name}.{} as {text}",
+                    info.name
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,117 @@
+//! The crate's layers point one way: a top-level module of `src/` names only modules below it
+//! (`crate::<module>` in code, test code and comments aside). The order is the crate map of
+//! `lib.rs`; an arrow pointing up, and so any import circle between top-level modules, fails.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// Lowest first: each module may use only modules listed before it.
+const LAYERS: &[&str] = &[
+    "shutdown",
+    "rtu",
+    "profile",
+    "bus",
+    "sim",
+    "contract",
+    "config",
+    "health",
+    "bridge",
+    "sparkplug",
+    "broker",
+    "cli",
+    "app",
+];
+
+fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            rust_files(&path, found);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            found.push(path);
+        }
+    }
+}
+
+/// The top-level modules `text` names as `crate::<module>`, test modules and comments aside.
+fn named_modules(text: &str) -> BTreeSet<String> {
+    let mut names = BTreeSet::new();
+    for line in text.lines() {
+        let code = line.trim_start();
+        if code.starts_with("#[cfg(test)]") {
+            // Test modules close the file in this crate.
+            break;
+        }
+        if code.starts_with("//") {
+            continue;
+        }
+        for (at, _) in code.match_indices("crate::") {
+            let rest = &code[at + "crate::".len()..];
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                .collect();
+            if !name.is_empty() {
+                names.insert(name);
+            }
+        }
+    }
+    names
+}
+
+/// The top-level module a file of `src/` belongs to (None for `lib.rs` and `main.rs`).
+fn module_of(src: &Path, file: &Path) -> Option<String> {
+    let relative = file.strip_prefix(src).ok()?;
+    let first = relative.components().next()?.as_os_str().to_str()?;
+    let name = first.strip_suffix(".rs").unwrap_or(first);
+    (name != "lib" && name != "main").then(|| name.to_string())
+}
+
+#[test]
+fn top_level_modules_only_use_the_layers_below_them() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut upward = Vec::new();
+    let mut seen_modules = BTreeSet::new();
+    for file in &files {
+        let Some(module) = module_of(&src, file) else {
+            continue;
+        };
+        if file.to_string_lossy().ends_with("tests.rs") {
+            continue;
+        }
+        seen_modules.insert(module.clone());
+        let rank = LAYERS.iter().position(|layer| *layer == module);
+        let rank = rank.unwrap_or_else(|| panic!("{module} is not in LAYERS"));
+        let text = std::fs::read_to_string(file).unwrap();
+        for used in named_modules(&text) {
+            if used == module {
+                continue;
+            }
+            match LAYERS.iter().position(|layer| *layer == used) {
+                Some(used_rank) if used_rank < rank => {}
+                _ => upward.push(format!("{} uses crate::{used}", file.display())),
+            }
+        }
+    }
+    assert!(
+        upward.is_empty(),
+        "arrows pointing up:\n{}",
+        upward.join("\n")
+    );
+    for layer in ["contract", "config", "health", "bridge"] {
+        assert!(seen_modules.contains(layer), "{layer} was not scanned");
+    }
+}
+
+#[test]
+fn the_scan_sees_uses_and_paths_but_not_comments_or_tests() {
+    let text = "use crate::bus::LineStats;\nlet x = crate::bridge::TICK;\n// crate::app\n\
+                #[cfg(test)]\nmod tests { use crate::sim; }\n";
+    let names: Vec<String> = named_modules(text).into_iter().collect();
+    assert_eq!(names, vec!["bridge".to_string(), "bus".to_string()]);
+}
