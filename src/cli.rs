@@ -46,7 +46,8 @@ pub enum Command {
         /// Port of the embedded broker on 127.0.0.1.
         #[arg(long, default_value_t = 1883)]
         port: u16,
-        /// Print one log line per published change instead of the live table.
+        /// Print log lines instead of the live table: changes, commands and outcomes at once,
+        /// values that change on every poll gathered into a summary at most every 10 s.
         #[arg(long)]
         log: bool,
     },
