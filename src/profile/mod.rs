@@ -16,6 +16,7 @@ pub mod compile;
 pub mod field;
 pub mod format;
 pub mod model;
+pub mod number;
 pub mod raw;
 pub mod registry;
 pub mod rejection;
@@ -279,8 +280,8 @@ impl Profile {
         let target = match codec::parse_command(info, text) {
             Ok(value) => value,
             Err(rejection) if def.also.is_empty() => return Err(rejection),
-            Err(rejection) => match text.trim().parse::<i64>() {
-                Ok(value) if def.also.contains(&value) => Value::Int(value),
+            Err(rejection) => match number::integer(text) {
+                Some(value) if def.also.contains(&value) => Value::Int(value),
                 _ => {
                     let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
                     let or = format!(" or {}, got ", list.join(", "));
