@@ -36,6 +36,8 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         step: None,
         also: Vec::new(),
         ha: HaHints::default(),
+        label: None,
+        identity: None,
         min_write_interval: None,
     }
 }
@@ -237,7 +239,9 @@ fn number_steps_follow_the_raw_count_of_scaled_fields() {
     let valve = document("wuzhou-valve");
     assert_eq!(component(&valve, "setpoint")["step"], json!(0.01));
     assert_eq!(component(&valve, "opening")["step"], 1);
-    // 255 (alarm disabled) is published and accepted besides 0–100: the entity must hold it.
+    // 0–100 or 255 (alarm disabled): a select of exactly these values, so Home Assistant
+    // never offers 101–254, which the gateway always refuses.
+    let accepted: Vec<String> = (0..=100).chain([255]).map(|v: i64| v.to_string()).collect();
     for field in [
         "high_alarm_opening_1",
         "high_alarm_opening_2",
@@ -245,7 +249,12 @@ fn number_steps_follow_the_raw_count_of_scaled_fields() {
         "low_alarm_opening_2",
     ] {
         let alarm = component(&valve, field);
-        assert_eq!((&alarm["min"], &alarm["max"]), (&json!(0), &json!(255)));
+        assert_eq!(alarm["p"], "select", "{field}");
+        assert_eq!(alarm["options"], json!(accepted), "{field}");
+        assert_eq!(alarm["entity_category"], "config", "{field}");
+        for key in ["min", "max", "unit_of_measurement", "device_class"] {
+            assert!(alarm.get(key).is_none(), "{field} has {key}");
+        }
     }
     let dust = document("ruiwan-dust-collector");
     assert_eq!(component(&dust, "gear")["step"], 1);
@@ -321,11 +330,13 @@ fn command_topics_are_the_set_topics_of_writable_fields_only_and_never_retained(
                 );
             }
         }
+        // One component per field, and the device's command-result event.
         assert_eq!(
             document["cmps"].as_object().map(|c| c.len()),
-            Some(fields.len()),
+            Some(fields.len() + 1),
             "one component per field of {device}"
         );
+        assert_eq!(document["cmps"]["command-result"]["p"], "event", "{device}");
     }
 }
 
@@ -354,7 +365,9 @@ fn device_documents_carry_dev_origin_and_both_availabilities() {
         let origin = &document["o"];
         assert_eq!(origin["name"], "rtu2mqtt");
         assert_eq!(origin["sw_version"], env!("CARGO_PKG_VERSION"));
-        assert!(origin["support_url"].is_string());
+        // No project URL to give: Home Assistant refuses an empty `support_url`.
+        assert!(origin.get("support_url").is_none());
+        assert_eq!(origin.as_object().map(|o| o.len()), Some(2));
 
         let topics: Vec<&str> = document["availability"]
             .as_array()
@@ -827,9 +840,25 @@ fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones()
         assert_eq!(document["availability_mode"], "all");
         assert_eq!(document["availability"].as_array().map(Vec::len), Some(2));
 
+        // Identity fields fill the device entry instead of being entities; every other field
+        // is one, and the command-result event is one more.
         let components = document["cmps"].as_object().unwrap();
-        assert_eq!(components.len(), profile.fields().len(), "{device}");
+        let identities = profile
+            .fields()
+            .iter()
+            .filter(|f| f.identity.is_some())
+            .count();
+        assert_eq!(
+            components.len(),
+            profile.fields().len() - identities + 1,
+            "{device}"
+        );
+        assert_eq!(components["command-result"]["p"], "event", "{device}");
         for field in profile.fields() {
+            if field.identity.is_some() {
+                assert!(!components.contains_key(&field.name), "{}", field.name);
+                continue;
+            }
             let config = &components[&field.name];
             let platform = config["p"].as_str().unwrap();
             assert!(

@@ -324,10 +324,11 @@ impl Core {
         let mut documents = vec![discovery::gateway_config(&self.topics, &self.line_names)];
         for device in self.cache.devices() {
             if let Some(entry) = self.devices.get(device) {
-                documents.push(discovery::device_config(
+                documents.push(discovery::device_config_with_state(
                     &self.topics,
                     device,
                     &entry.profile,
+                    self.cache.state(device),
                 ));
             }
         }
@@ -362,6 +363,22 @@ impl Core {
         match event {
             LineEvent::Values { device, values } => {
                 let updates = self.cache.update(&device, values, self.connected);
+                if let Some((topic, document)) = self
+                    .devices
+                    .get(&device)
+                    .filter(|_| self.discovery)
+                    .and_then(|entry| {
+                        discovery::identity_update(
+                            &self.topics,
+                            &device,
+                            &entry.profile,
+                            self.cache.state(&device),
+                            &updates,
+                        )
+                    })
+                {
+                    self.publish(topic, document.to_string(), true);
+                }
                 self.publish_state(updates);
                 if self.options.json_view {
                     self.publish_json_view(&device);

@@ -30,7 +30,7 @@ use crate::rtu::{Request, Response};
 pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Verification};
 pub use compile::{ProfileError, ProfileErrors};
-pub use field::{FieldInfo, FieldKind, HaHints};
+pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Limits, PollClass, ReadBlock};
 pub use rejection::Rejection;
 pub use value::Value;
