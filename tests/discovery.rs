@@ -1453,6 +1453,30 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         identified["cmps"] == device_config(&ctx, "valve", &devices[1].1).1["cmps"],
         "the identity changed the valve's entities"
     );
+
+    // The alarm openings' states (the simulated valve has one disabled: 255) are options of
+    // their selects, so Home Assistant can show every value the gateway publishes.
+    let mut disabled_seen = false;
+    for field in [
+        "high_alarm_opening_1",
+        "high_alarm_opening_2",
+        "low_alarm_opening_1",
+        "low_alarm_opening_2",
+    ] {
+        let state = observer
+            .wait_for(&format!("plant/valve/{field}"), ANSWER, |m| {
+                !m.payload.is_empty()
+            })
+            .await
+            .text();
+        let options = identified["cmps"][field]["options"].as_array().unwrap();
+        assert!(options.contains(&json!(state)), "{field} = {state}");
+        disabled_seen |= state == "255";
+    }
+    assert!(
+        disabled_seen,
+        "no alarm opening is disabled in the simulated valve"
+    );
     let gateway_document = observer
         .wait_for(&ctx.gateway_config_topic(), ANSWER, |m| {
             !m.payload.is_empty()
