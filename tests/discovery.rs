@@ -1160,46 +1160,27 @@ fn integers_with_also_values_offer_only_accepted_values() {
 /// A small profile with two read-only numbers (`serial`, `firmware`) and a writable one
 /// (`level`), each followed by the extra lines given for it.
 fn identity_profile(serial_extra: &str, version_extra: &str, level_extra: &str) -> String {
-    format!(
-        r#"
-[device]
-name = "ident"
-manufacturer = "Test"
-model = "T1"
-
-[line]
-max_read_registers = 10
-
-[[blocks]]
-name = "main"
-function = 3
-start = 0
-count = 4
-
-[[fields]]
-name = "serial"
-block = "main"
-offset = 0
-codec = {{ type = "u16" }}
-{serial_extra}
-
-[[fields]]
-name = "firmware"
-block = "main"
-offset = 1
-codec = {{ type = "u16" }}
-{version_extra}
-
-[[fields]]
-name = "level"
-block = "main"
-offset = 2
-codec = {{ type = "u16" }}
-range = [0, 100]
-write = {{ function = 6, address = 2 }}
-{level_extra}
-"#
-    )
+    let mut text = String::from(
+        "device = { name = \"ident\", manufacturer = \"Test\", model = \"T1\" }\n\
+         line = { max_read_registers = 10 }\n\
+         blocks = [{ name = \"main\", function = 3, start = 0, count = 4 }]\n",
+    );
+    let fields = [
+        ("serial", "", serial_extra),
+        ("firmware", "", version_extra),
+        (
+            "level",
+            "range = [0, 100]\nwrite = { function = 6, address = 2 }\n",
+            level_extra,
+        ),
+    ];
+    for (offset, (name, write, extra)) in fields.into_iter().enumerate() {
+        text.push_str(&format!(
+            "\n[[fields]]\nname = \"{name}\"\nblock = \"main\"\noffset = {offset}\n\
+             codec = {{ type = \"u16\" }}\n{write}{extra}\n"
+        ));
+    }
+    text
 }
 
 #[test]
@@ -1421,33 +1402,30 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
 
     // Once the valve's identity block is read, its device entry carries the serial number and
     // versions the gateway publishes as state, in a document otherwise unchanged.
-    let serial = observer
-        .wait_for("plant/valve/serial_number", ANSWER, |m| {
-            !m.payload.is_empty()
-        })
-        .await
-        .text();
-    let software = observer
-        .wait_for("plant/valve/software_version", ANSWER, |m| {
-            !m.payload.is_empty()
-        })
-        .await
-        .text();
-    let hardware = observer
-        .wait_for("plant/valve/hardware_version", ANSWER, |m| {
-            !m.payload.is_empty()
-        })
-        .await
-        .text();
+    let mut identity = Vec::new();
+    for (field, key) in [
+        ("serial_number", "serial_number"),
+        ("software_version", "sw_version"),
+        ("hardware_version", "hw_version"),
+    ] {
+        let state = observer
+            .wait_for(&format!("plant/valve/{field}"), ANSWER, |m| {
+                !m.payload.is_empty()
+            })
+            .await
+            .text();
+        identity.push((key, state));
+    }
     let identified = observer
         .wait_for(&ctx.config_topic("valve"), ANSWER, |m| {
             m.json()["dev"].get("serial_number").is_some()
         })
         .await
         .json();
-    assert_eq!(identified["dev"]["serial_number"], json!(serial));
-    assert_eq!(identified["dev"]["sw_version"], json!(software));
-    assert_eq!(identified["dev"]["hw_version"], json!(hardware));
+    for (key, state) in &identity {
+        assert_eq!(identified["dev"][*key], json!(state), "{key}");
+    }
+    let serial = identity[0].1.clone();
     assert!(identified["cmps"].get("serial_number").is_none());
     assert!(
         identified["cmps"] == device_config(&ctx, "valve", &devices[1].1).1["cmps"],
