@@ -7,15 +7,18 @@
 //!
 //! One document per device on `homeassistant/device/<client_id>_<device>/config`:
 //! - `dev`: the device registry entry (identifiers, name, manufacturer and model from the
-//!   profile, `via_device` pointing at the gateway's own entry);
-//! - `o`: the origin (`rtu2mqtt`, its version and project URL);
+//!   profile, `via_device` pointing at the gateway's own entry, and the serial number and
+//!   versions once the profile's identity fields have been read);
+//! - `o`: the origin (`rtu2mqtt` and its version);
 //! - shared `availability` (gateway status and device availability, `availability_mode: all`)
 //!   and `qos`;
 //! - `cmps`: one component per profile field, keyed by the field name. The component follows
 //!   the field's kind and access (see [`platform_for`]); profile [`HaHints`] override the
 //!   defaults. Command topics appear only on writable fields and are exactly the topics the
 //!   gateway subscribes to, with `retain: false` so Home Assistant never leaves a command
-//!   behind in the broker.
+//!   behind in the broker. Identity fields are not components (they fill `dev`); a device that
+//!   takes commands has one more, the command-result event ([`result_event`]). Names are field
+//!   labels only: Home Assistant prefixes the device name itself.
 //!
 //! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
 //! device with a connectivity sensor and line statistics.
