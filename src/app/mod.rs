@@ -1,5 +1,6 @@
-//! Wiring for the daemon: load and validate the config, start one bus task per line and the
-//! MQTT bridge, run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the library
+//! Wiring for the daemon: load and validate the config, start one bus task per line, the
+//! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, run until SIGTERM/SIGINT,
+//! then stop cleanly. [`run_gateway`] is the library
 //! entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
@@ -14,20 +15,27 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc, oneshot};
 
 use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
-use crate::bus::{spawn_line, LineHandle};
+use crate::bus::{spawn_line, LineEvent, LineHandle};
 use crate::config::{self, Config};
 use crate::health;
 use crate::rtu::frame_log::FrameLog;
 use crate::shutdown::{self, Shutdown};
+use crate::sparkplug::{self, NodeLinks};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
 const LINE_EVENTS: usize = 1024;
 /// How often the bridge loop promises to turn: it beats every tick; four ticks leave room for
 /// a busy machine.
 const BRIDGE_MAX_QUIET: Duration = bridge::TICK.saturating_mul(4);
+/// Line events the Sparkplug node may fall behind by before it misses some (and rebirths).
+const SPARKPLUG_EVENTS: usize = 1024;
+/// Commands from Sparkplug hosts, and their reports, in flight between the node and the bridge.
+const SPARKPLUG_COMMANDS: usize = 64;
+/// How long the Sparkplug node gets to publish its NDEATH after the bridge has stopped.
+const SPARKPLUG_STOP_GRACE: Duration = Duration::from_secs(5);
 /// How long the lines get to finish their transaction after the bridge has stopped.
 const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 
@@ -88,7 +96,35 @@ pub async fn run_gateway(
     }
     drop(events_tx);
 
-    let (bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
+    let (mut bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
+    let mut events_rx = events_rx;
+    let mut node_task = None;
+    if let Some((session, node_mqtt)) = sparkplug::session_for(&config) {
+        let (bridge_events_tx, bridge_events_rx) = mpsc::channel(LINE_EVENTS);
+        let (node_events_tx, node_events_rx) = broadcast::channel(SPARKPLUG_EVENTS);
+        tokio::spawn(fan_out(events_rx, bridge_events_tx, node_events_tx));
+        events_rx = bridge_events_rx;
+        let (commands_tx, commands_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        let (reports_tx, reports_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        bridge.accept_external_commands(commands_rx, reports_tx);
+        let (values_tx, values_rx) = mpsc::channel(1);
+        let stats = handles.iter().map(|line| line.stats_rx.clone()).collect();
+        let interval = config.gateway.stats_interval;
+        tokio::spawn(sparkplug::figures::feed(
+            stats,
+            values_tx,
+            interval,
+            shutdown.clone(),
+        ));
+        let links = NodeLinks {
+            line_events: node_events_rx,
+            commands: commands_tx,
+            reports: reports_rx,
+            node_values: values_rx,
+            shutdown: shutdown.clone(),
+        };
+        node_task = Some(tokio::spawn(sparkplug::run(session, node_mqtt, links)));
+    }
     if let Some(listener) = metrics_listener {
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
@@ -100,6 +136,14 @@ pub async fn run_gateway(
         });
     }
     bridge.run(events_rx, shutdown).await;
+    if let Some(task) = node_task {
+        if tokio::time::timeout(SPARKPLUG_STOP_GRACE, task)
+            .await
+            .is_err()
+        {
+            tracing::warn!("the Sparkplug node did not stop in time");
+        }
+    }
 
     for task in line_tasks {
         match tokio::time::timeout(LINE_STOP_GRACE, task).await {
@@ -109,6 +153,22 @@ pub async fn run_gateway(
         }
     }
     Ok(())
+}
+
+/// Hands every line event to the bridge (waiting for room: it must see them all) and to the
+/// Sparkplug node (never waiting: a slow node lags, notices and rebirths).
+async fn fan_out(
+    mut events: mpsc::Receiver<LineEvent>,
+    bridge: mpsc::Sender<LineEvent>,
+    node: broadcast::Sender<LineEvent>,
+) {
+    while let Some(event) = events.recv().await {
+        // No receiver only while the node has ended: nothing to keep.
+        let _ = node.send(event.clone());
+        if bridge.send(event).await.is_err() {
+            return;
+        }
+    }
 }
 
 /// `rtu2mqtt run`.

@@ -29,14 +29,9 @@ pub const VERSION: &str = "Properties/Software Version";
 /// node metrics use the aliases below the first.
 const ALIAS_STRIDE: u64 = 1000;
 
-/// A DCMD metric turned into a command for the gateway's validated command path.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SparkplugCommand {
-    pub device: String,
-    pub field: String,
-    /// The command text, as `…/set` would carry it (`ON`, `8`, `12.5`, `opening`).
-    pub text: String,
-}
+/// A DCMD metric turned into a command for the gateway's validated command path: the field
+/// and the command text as `…/set` would carry it (`ON`, `8`, `12.5`, `opening`).
+pub use crate::bridge::core::ExternalCommand as SparkplugCommand;
 
 /// MQTT delivery of a publish.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -441,6 +436,15 @@ impl Session {
         ];
         self.on_disconnected();
         actions
+    }
+
+    /// NBIRTH and every DBIRTH again, when the node is born on this connection (the driver
+    /// asks for it after missing line events: the births carry the values it still has).
+    pub fn rebirth(&mut self, now: u64) -> Vec<Action> {
+        if self.connected && self.host_online && self.node_born {
+            return self.births(now);
+        }
+        Vec::new()
     }
 
     fn on_ncmd(&mut self, now: u64, payload: &[u8]) -> Vec<Action> {
