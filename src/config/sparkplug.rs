@@ -212,4 +212,77 @@ mod tests {
             .is_some_and(|mqtt| mqtt.url == "mqtt://broker:1883"));
         assert!(toml::from_str::<SparkplugSettings>("group = \"x\"").is_err());
     }
+
+    const PLAIN: &str = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n";
+    const LINE: &str = "[[lines]]\nname = \"a\"\nport = \"/dev/ttyS0\"\n[[lines.devices]]\nname = \"valve\"\nprofile = \"wuzhou-valve\"\naddress = 3\n";
+
+    fn load(extra: &str) -> Result<super::super::Config, String> {
+        super::super::from_str(&format!("{PLAIN}{LINE}{extra}"), Path::new("."))
+            .map_err(|problems| problems.to_string())
+    }
+
+    #[test]
+    fn absent_means_no_edge_node_and_present_shares_the_broker_by_default() {
+        let config = load("").unwrap_or_else(|problems| panic!("{problems}"));
+        assert!(config.sparkplug.is_none());
+        let Ok(config) = load("[sparkplug]\ngroup_id = \"plant\"\n") else {
+            panic!("[sparkplug] refused");
+        };
+        let Some(sparkplug) = config.sparkplug else {
+            panic!("[sparkplug] ignored");
+        };
+        assert_eq!(sparkplug.identity.edge_node_id, "edge1");
+        assert_eq!(sparkplug.mqtt.client_id, "edge1-sparkplug");
+        assert_eq!(sparkplug.mqtt.port, 1883);
+        assert!(sparkplug.mqtt.clean_session);
+    }
+
+    #[test]
+    fn its_own_broker_is_checked_like_mqtt_with_every_problem_placed() {
+        let Ok(config) = load(
+            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://scada:1884\"\nclient_id = \"edge1\"\n",
+        ) else {
+            panic!("own broker refused");
+        };
+        let mqtt = config.sparkplug.map(|sparkplug| sparkplug.mqtt);
+        assert_eq!(
+            mqtt.map(|mqtt| (mqtt.host, mqtt.port)),
+            Some(("scada".into(), 1884))
+        );
+
+        let Err(problems) = load(
+            "[sparkplug]\ngroup_id = \"a/b\"\n[sparkplug.mqtt]\nurl = \"http://x\"\nclient_id = \"edge1\"\ninflight = 0\n",
+        ) else {
+            panic!("bad section accepted");
+        };
+        for expected in [
+            "sparkplug.group_id: `a/b` contains `/`",
+            "sparkplug.mqtt.url: \"http://x\" must start with mqtt://",
+            "sparkplug.mqtt.inflight: must be at least 1",
+        ] {
+            assert!(problems.contains(expected), "{expected}\n{problems}");
+        }
+
+        let Err(problems) = load(
+            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n",
+        ) else {
+            panic!("a client id taking over the plain connection accepted");
+        };
+        assert!(
+            problems.contains("sparkplug.mqtt.client_id: \"edge1\" is also mqtt.client_id"),
+            "{problems}"
+        );
+
+        let Err(problems) = load("[sparkplug]\nedge_node_id = \"gw\"\ncolour = 1\n") else {
+            panic!("missing group_id accepted");
+        };
+        assert!(
+            problems.contains("sparkplug.group_id: required"),
+            "{problems}"
+        );
+        assert!(
+            problems.contains("sparkplug.colour: unknown key"),
+            "{problems}"
+        );
+    }
 }
