@@ -28,6 +28,9 @@ pub use crate::config::sparkplug::{
 };
 pub use session::{Action, NodeMetricSpec, Session, SessionSettings, SparkplugCommand};
 
+/// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
+/// at a slower interval, a block that failed once); then it is born with those null.
+const BIRTH_WAIT: Duration = Duration::from_secs(10);
 /// How long the connection may take to flush the NDEATH and close at shutdown.
 const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// A connection that lived this long resets the reconnect back-off.
@@ -52,7 +55,8 @@ pub fn session_for(config: &Config) -> Option<(Session, MqttSettings)> {
         version: env!("CARGO_PKG_VERSION").to_string(),
         node_metrics: figures::node_metric_specs(&lines),
     };
-    Some((Session::new(settings, 0), sparkplug.mqtt.clone()))
+    let session = Session::new(settings, 0).with_birth_wait(BIRTH_WAIT);
+    Some((session, sparkplug.mqtt.clone()))
 }
 
 /// Milliseconds since the Unix epoch (Sparkplug timestamps).
