@@ -9,14 +9,16 @@
 //!
 //! Needs `python3` with `pysparkplug` (`pip install pysparkplug==0.6.1`).
 
+#[path = "sparkplug/pysparkplug.rs"]
+mod pysparkplug;
 mod support;
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::Write as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use pysparkplug::decode_with_pysparkplug;
 use rtu2mqtt::config::{self, Config};
 use rtu2mqtt::profile::registry;
 use rtu2mqtt::sim::{self, SeedPlant};
@@ -184,42 +186,6 @@ fn named(name: &str, datatype: DataType, value: MetricValue) -> Metric {
         value: Some(value),
         ..Default::default()
     }
-}
-
-/// pysparkplug's view of `messages` (in publishing order; data decoded against the births).
-fn decode_with_pysparkplug(messages: &[&Message]) -> Vec<Json> {
-    let input: Vec<Json> = messages
-        .iter()
-        .map(|message| {
-            let hex: String = message.payload.iter().map(|b| format!("{b:02x}")).collect();
-            json!({ "topic": message.topic, "hex": hex })
-        })
-        .collect();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug/decode.py");
-    let mut child = Command::new("python3")
-        .arg(&script)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap_or_else(|error| panic!("python3 could not be started: {error}"));
-    if let Some(mut stdin) = child.stdin.take() {
-        let text = serde_json::to_vec(&input).unwrap_or_default();
-        stdin
-            .write_all(&text)
-            .unwrap_or_else(|error| panic!("writing to the decoder: {error}"));
-    }
-    let output = child
-        .wait_with_output()
-        .unwrap_or_else(|error| panic!("the decoder: {error}"));
-    assert!(
-        output.status.success(),
-        "the pysparkplug decoder failed ({}); it needs `pip install pysparkplug==0.6.1`:\n{}",
-        output.status,
-        String::from_utf8_lossy(&output.stderr)
-    );
-    serde_json::from_slice(&output.stdout)
-        .unwrap_or_else(|error| panic!("decoder output is no JSON list: {error}"))
 }
 
 fn metric<'a>(message: &'a Json, name: &str) -> Option<&'a Json> {
@@ -395,7 +361,7 @@ async fn the_seed_plant_is_born_commanded_reborn_and_mourned() {
 
     // Everything the node said, through pysparkplug.
     let log: Vec<&Message> = client.received.iter().filter(|m| from_node(m)).collect();
-    let decoded = decode_with_pysparkplug(&log);
+    let decoded = decode_with_pysparkplug(log.iter().map(|m| (m.topic.as_str(), &m.payload[..])));
     // Node messages before the first change the test makes.
     let cut = client.received[..snapshot]
         .iter()
@@ -533,7 +499,8 @@ async fn killing_the_gateway_leaves_the_ndeath_of_its_last_birth() {
     let death = wait_in_log(&mut client, nbirth, "NDEATH", |_, m| is(m, "NDEATH", None)).await;
     let birth = &client.received[nbirth];
     let will = &client.received[death];
-    let decoded = decode_with_pysparkplug(&[birth, will]);
+    let decoded =
+        decode_with_pysparkplug([birth, will].map(|m| (m.topic.as_str(), &m.payload[..])));
     let bd_seq = |entry: &Json| metric(entry, "bdSeq").map(|m| m["value"].clone());
     assert_eq!(decoded[1]["type"], "NDEATH");
     assert!(bd_seq(&decoded[0]).is_some(), "{}", decoded[0]);

@@ -517,6 +517,16 @@ fn external(field: &str, text: &str) -> ExternalCommand {
     }
 }
 
+/// The line's report that command `id` was applied.
+fn applied(id: u64) -> LineEvent {
+    finished(
+        id,
+        CommandOutcome::Applied {
+            detail: "ok".into(),
+        },
+    )
+}
+
 fn reports(actions: &[Action]) -> Vec<(String, bool)> {
     actions
         .iter()
@@ -557,15 +567,7 @@ fn an_external_command_is_validated_and_reported_like_a_plain_one() {
     let ids = sent(&actions);
     assert_eq!(ids.len(), 1);
     assert!(reports(&actions).is_empty(), "no end yet");
-    let actions = core.on_line_event(
-        finished(
-            ids[0],
-            CommandOutcome::Applied {
-                detail: "ok".into(),
-            },
-        ),
-        now,
-    );
+    let actions = core.on_line_event(applied(ids[0]), now);
     assert_eq!(
         results(&actions),
         vec![("50".to_string(), "applied".to_string(), "ok".to_string())]
@@ -620,14 +622,6 @@ fn plain_commands_are_never_reported() {
     let actions = command(&mut core, "opening", "banana", 1, now);
     assert!(reports(&actions).is_empty());
     let ids = sent(&command(&mut core, "opening", "50", 2, now));
-    let actions = core.on_line_event(
-        finished(
-            ids[0],
-            CommandOutcome::Applied {
-                detail: "ok".into(),
-            },
-        ),
-        now,
-    );
+    let actions = core.on_line_event(applied(ids[0]), now);
     assert!(reports(&actions).is_empty());
 }
