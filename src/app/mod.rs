@@ -76,6 +76,10 @@ pub async fn run_gateway(
     }
     // Everything that can fail comes before the lines start: TLS files, the metrics port.
     let mqtt = mqtt::connect(&config.mqtt).context("MQTT client")?;
+    let node = sparkplug::session_for(&config);
+    if let Some((_, node_mqtt)) = &node {
+        mqtt::options(node_mqtt, &node_mqtt.topics()).context("Sparkplug MQTT client")?;
+    }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
             prometheus::bind(address)
@@ -97,34 +101,18 @@ pub async fn run_gateway(
     drop(events_tx);
 
     let (mut bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
-    let mut events_rx = events_rx;
-    let mut node_task = None;
-    if let Some((session, node_mqtt)) = sparkplug::session_for(&config) {
-        let (bridge_events_tx, bridge_events_rx) = mpsc::channel(LINE_EVENTS);
-        let (node_events_tx, node_events_rx) = broadcast::channel(SPARKPLUG_EVENTS);
-        tokio::spawn(fan_out(events_rx, bridge_events_tx, node_events_tx));
-        events_rx = bridge_events_rx;
-        let (commands_tx, commands_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
-        let (reports_tx, reports_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
-        bridge.accept_external_commands(commands_rx, reports_tx);
-        let (values_tx, values_rx) = mpsc::channel(1);
-        let stats = handles.iter().map(|line| line.stats_rx.clone()).collect();
-        let interval = config.gateway.stats_interval;
-        tokio::spawn(sparkplug::figures::feed(
-            stats,
-            values_tx,
-            interval,
-            shutdown.clone(),
-        ));
-        let links = NodeLinks {
-            line_events: node_events_rx,
-            commands: commands_tx,
-            reports: reports_rx,
-            node_values: values_rx,
-            shutdown: shutdown.clone(),
-        };
-        node_task = Some(tokio::spawn(sparkplug::run(session, node_mqtt, links)));
-    }
+    let (events_rx, node_task) = match node {
+        Some((session, node_mqtt)) => {
+            let node = NodeWiring {
+                session,
+                mqtt: node_mqtt,
+                stats_interval: config.gateway.stats_interval,
+            };
+            let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
+            (events_rx, Some(task))
+        }
+        None => (events_rx, None),
+    };
     if let Some(listener) = metrics_listener {
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
@@ -153,6 +141,52 @@ pub async fn run_gateway(
         }
     }
     Ok(())
+}
+
+/// The Sparkplug edge node, ready to be wired beside the bridge.
+struct NodeWiring {
+    session: sparkplug::Session,
+    mqtt: config::MqttSettings,
+    stats_interval: Duration,
+}
+
+impl NodeWiring {
+    /// Starts the node: line events fanned out to the bridge and the node (the returned
+    /// receiver is the bridge's), the node's commands into the bridge's command path with
+    /// their reports back, line figures sampled into node metrics. The task ends after
+    /// `shutdown` with the node's NDEATH.
+    fn start(
+        self,
+        bridge: &mut Bridge,
+        lines: &[LineHandle],
+        events: mpsc::Receiver<LineEvent>,
+        shutdown: &Shutdown,
+    ) -> (mpsc::Receiver<LineEvent>, tokio::task::JoinHandle<()>) {
+        let (bridge_events_tx, bridge_events_rx) = mpsc::channel(LINE_EVENTS);
+        let (node_events_tx, node_events_rx) = broadcast::channel(SPARKPLUG_EVENTS);
+        tokio::spawn(fan_out(events, bridge_events_tx, node_events_tx));
+        let (commands_tx, commands_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        let (reports_tx, reports_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        bridge.accept_external_commands(commands_rx, reports_tx);
+        // One sample in flight: a slow node gets the next, fresher one.
+        let (values_tx, values_rx) = mpsc::channel(1);
+        let stats = lines.iter().map(|line| line.stats_rx.clone()).collect();
+        tokio::spawn(sparkplug::figures::feed(
+            stats,
+            values_tx,
+            self.stats_interval,
+            shutdown.clone(),
+        ));
+        let links = NodeLinks {
+            line_events: node_events_rx,
+            commands: commands_tx,
+            reports: reports_rx,
+            node_values: values_rx,
+            shutdown: shutdown.clone(),
+        };
+        let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
+        (bridge_events_rx, task)
+    }
 }
 
 /// Hands every line event to the bridge (waiting for room: it must see them all) and to the

@@ -569,7 +569,14 @@ impl Core {
                     }
                 }
                 if let Some(older) = superseded {
+                    let older_was_plain = !self.external.contains(&older.id);
                     self.supersede(older);
+                    if origin == Origin::External && older_was_plain {
+                        // Its retained message is still on `…/set`: it must not run again
+                        // at the next start.
+                        let set = self.topics.command_topic(device, field);
+                        self.publish_or_keep(set, String::new(), true);
+                    }
                 }
             }
         }

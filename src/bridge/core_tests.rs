@@ -605,10 +605,12 @@ fn an_external_command_waits_expires_and_is_superseded_like_a_plain_one() {
     let actions = command(&mut core, "opening", "30", 1, now);
     assert_eq!(results(&actions)[0].1, "superseded");
     assert_eq!(reports(&actions), vec![("opening".to_string(), false)]);
-    // An external one replacing a plain one: nothing to report for the plain one.
+    // An external one replacing a plain one: nothing to report for the plain one, whose
+    // (possibly retained) message is cleared.
     let actions = core.on_external_command(external("opening", "40"), now);
     assert_eq!(results(&actions)[0].0, "30");
     assert!(reports(&actions).is_empty());
+    assert_eq!(clears(&actions, "opening"), 1);
     // The device stays offline past the time to live.
     let actions = core.on_tick(now + TTL, Vec::new);
     assert_eq!(results(&actions)[0].1, "expired");

@@ -1277,4 +1277,20 @@ mod tests {
         );
         assert_eq!(metric(&late[0].1, "station_address").is_null, Some(true));
     }
+
+    #[test]
+    fn a_rebirth_after_missed_events_is_only_for_a_born_node() {
+        let mut session = Session::new(settings(Some("scada")), 0);
+        session.prepare_connect(T);
+        session.on_connected(T);
+        assert!(
+            session.rebirth(T).is_empty(),
+            "not born yet: the host's STATE decides"
+        );
+        let mut session = connected();
+        session.on_line_event(T, &dust_values(3));
+        let topics = topics(&session.rebirth(T + 1));
+        assert_eq!(topics[0], "spBv1.0/plant/NBIRTH/gw1");
+        assert!(topics.contains(&"spBv1.0/plant/DBIRTH/gw1/dust".to_string()));
+    }
 }
