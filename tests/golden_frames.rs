@@ -4,7 +4,7 @@
 
 use rtu2mqtt::rtu::codec::{
     decode_answer, decode_request, encode_answer, encode_exception, encode_request,
-    expected_answer_len, request_frame_len, Answer,
+    request_frame_len, Answer,
 };
 use rtu2mqtt::rtu::{ExceptionCode, FunctionCode, Request, Response};
 
@@ -21,7 +21,7 @@ fn assert_request_golden(slave: u8, request: &Request, frame: &[u8]) {
 
 /// Server side encodes exactly `frame`; the master decodes it to `response`.
 fn assert_answer_golden(slave: u8, request: &Request, response: &Response, frame: &[u8]) {
-    assert_eq!(expected_answer_len(request), frame.len());
+    assert_eq!(request.answer_len(), frame.len());
     assert_eq!(
         encode_answer(slave, response),
         frame,

@@ -14,7 +14,8 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{
-    spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineHandle, LineSpec,
+    spawn_line, Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle,
+    LineSpec,
 };
 use rtu2mqtt::profile::{registry, CommandPlan, DeviceState, Profile, Value};
 use rtu2mqtt::rtu::timing::{CharFormat, Parity};
@@ -934,13 +935,31 @@ async fn commands_fail_with_the_exception_code_or_after_the_retries() {
     });
     let writes_before = line.journal().writes_to(air_shower::ADDRESS);
     match running.command("air_shower", "light", "ON").await {
-        CommandOutcome::Failed { detail } => assert!(detail.contains("04"), "{detail}"),
+        CommandOutcome::Failed { cause } => {
+            let detail = cause.to_string();
+            assert!(detail.contains("04"), "{detail}");
+            // The device's exception stays its own answer, apart from transport failures.
+            assert_eq!(
+                cause,
+                CommandFailure::Exception(rtu2mqtt::rtu::ExceptionCode::ServerDeviceFailure)
+            );
+        }
         other => panic!("expected a failure, got {other:?}"),
     }
     line.faults().clear();
     line.faults().silence(air_shower::ADDRESS, true);
     match running.command("air_shower", "light", "ON").await {
-        CommandOutcome::Failed { detail } => assert!(detail.contains("no answer"), "{detail}"),
+        CommandOutcome::Failed { cause } => {
+            let detail = cause.to_string();
+            assert!(detail.contains("no answer"), "{detail}");
+            assert!(
+                matches!(
+                    cause,
+                    CommandFailure::NoAnswer(rtu2mqtt::rtu::master::Error::Timeout(_))
+                ),
+                "{cause:?}"
+            );
+        }
         other => panic!("expected a failure, got {other:?}"),
     }
     // The read-modify-write never got its fresh read: nothing was written.

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use rtu2mqtt::rtu::clock::sleep_until_precise;
 use rtu2mqtt::rtu::codec::{self, request_frame_len};
-use rtu2mqtt::rtu::master::{Error, Master, MasterOptions};
+use rtu2mqtt::rtu::master::{Error, Master, MasterOptions, Reply};
 use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt::rtu::transport::{Port, SerialSettings};
 use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
@@ -249,14 +249,14 @@ fn read_two() -> Request {
 }
 
 /// The master's transaction of `read_two()` with the device, within `TIMEOUT`.
-async fn read_from_device(master: &mut Master) -> Result<Response, Error> {
+async fn read_from_device(master: &mut Master) -> Result<Reply, Error> {
     master.transact(DEVICE, &read_two(), TIMEOUT).await
 }
 
 /// `read_two()` gets the scripted device's normal answer to its `sequence`-th request (1-based):
 /// both registers hold that number.
 async fn assert_answered(master: &mut Master, sequence: u16) {
-    let response = read_from_device(master).await.unwrap();
+    let response = read_from_device(master).await.unwrap().unwrap();
     assert_eq!(
         response,
         Response::HoldingRegisters(vec![sequence; 2]),
@@ -309,10 +309,7 @@ async fn exception_answer() {
     );
     let result = read_from_device(&mut master).await;
     assert!(
-        matches!(
-            result,
-            Err(Error::Exception(ExceptionCode::IllegalDataAddress))
-        ),
+        matches!(result, Ok(Err(ExceptionCode::IllegalDataAddress))),
         "{result:?}"
     );
     assert_answered(&mut master, 2).await;
@@ -367,6 +364,7 @@ async fn late_answer_heard_while_talking_to_another_address() {
     let response = master
         .transact(DEVICE + 1, &read_two(), TIMEOUT)
         .await
+        .unwrap()
         .unwrap();
     assert_eq!(response, Response::HoldingRegisters(vec![2, 2]));
     let counters = master.counters();
@@ -437,7 +435,7 @@ async fn garbage_during_the_silence_restarts_it() {
         ],
         MasterOptions::default(),
     );
-    read_from_device(&mut master).await.unwrap();
+    read_from_device(&mut master).await.unwrap().unwrap();
     assert_answered(&mut master, 2).await;
     assert_eq!(master.counters().stray_bytes, 1);
     assert_silences(&seen_by(device).await);
@@ -571,7 +569,11 @@ async fn echo_is_stripped_when_configured() {
     let (mut master, device) = connect(vec![Act::EchoThenAnswer, Act::EchoThenAnswer], options);
     assert_answered(&mut master, 1).await;
     assert_eq!(
-        master.transact(DEVICE, &write, TIMEOUT).await.unwrap(),
+        master
+            .transact(DEVICE, &write, TIMEOUT)
+            .await
+            .unwrap()
+            .unwrap(),
         Response::WriteMultipleCoils {
             start: 0,
             quantity: 3
@@ -662,7 +664,7 @@ async fn out_of_spec_request_is_refused_before_the_wire() {
     ));
     assert_eq!(master.counters().requests, 0);
     // The device sees only the valid request that follows.
-    read_from_device(&mut master).await.unwrap();
+    read_from_device(&mut master).await.unwrap().unwrap();
     assert_eq!(
         seen_by(device).await[0].frame,
         codec::encode_request(DEVICE, &read_two()).unwrap()
@@ -688,7 +690,7 @@ async fn frame_recorder_writes_one_line_per_frame() {
     let (mut master, device) = connect(vec![Act::Answer], MasterOptions::default());
     let recording = SharedBuffer::default();
     master.record_frames_to(Box::new(recording.clone()));
-    read_from_device(&mut master).await.unwrap();
+    read_from_device(&mut master).await.unwrap().unwrap();
     seen_by(device).await;
     let text = String::from_utf8(recording.0.lock().unwrap().clone()).unwrap();
     let lines: Vec<Vec<&str>> = text.lines().map(|line| line.split(' ').collect()).collect();

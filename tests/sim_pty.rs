@@ -621,8 +621,8 @@ async fn read_block(
     request: &Request,
 ) -> Response {
     match master.transact(address, request, MASTER_TIMEOUT).await {
-        Ok(answer) => answer,
-        Err(rtu2mqtt::rtu::master::Error::Exception(ExceptionCode::IllegalDataAddress)) => {
+        Ok(Ok(answer)) => answer,
+        Ok(Err(ExceptionCode::IllegalDataAddress)) => {
             let block = profile
                 .read_blocks()
                 .iter()
@@ -630,6 +630,7 @@ async fn read_block(
                 .unwrap_or_else(|| panic!("{request:?} refused and not a block"));
             assemble_from_runs(master, address, request, &block.used_runs).await
         }
+        Ok(Err(code)) => panic!("{}: {request:?}: device answered {code}", profile.name()),
         Err(error) => panic!("{}: {request:?}: {error}", profile.name()),
     }
 }
@@ -667,6 +668,7 @@ async fn assemble_from_runs(
         let answer = master
             .transact(address, &run, MASTER_TIMEOUT)
             .await
+            .unwrap()
             .unwrap();
         let got = answer.registers().unwrap();
         words[usize::from(offset)..usize::from(offset + length)].copy_from_slice(got);
@@ -706,6 +708,7 @@ async fn command(
         master
             .transact(address, write, MASTER_TIMEOUT)
             .await
+            .unwrap()
             .unwrap();
     }
     let mut back = Vec::new();
@@ -836,7 +839,11 @@ async fn master_leaves_t3_5_between_frames_on_a_paced_line() {
     let started = Instant::now();
     let count = 10;
     for _ in 0..count {
-        master.transact(1, &read, MASTER_TIMEOUT).await.unwrap();
+        master
+            .transact(1, &read, MASTER_TIMEOUT)
+            .await
+            .unwrap()
+            .unwrap();
     }
     let elapsed = started.elapsed();
     let journal = line.journal();

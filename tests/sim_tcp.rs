@@ -63,7 +63,7 @@ async fn read_bytes(stream: &mut TcpStream, len: usize, patience: Duration) -> (
 }
 
 fn dust_answer_len() -> usize {
-    rtu2mqtt::rtu::codec::expected_answer_len(&READ_DUST)
+    READ_DUST.answer_len()
 }
 
 #[tokio::test]

@@ -14,7 +14,7 @@ use anyhow::{bail, Context as _};
 use crate::app::simulate::parse_parity;
 use crate::cli::ReadArgs;
 use crate::rtu::codec::{encode_answer, encode_request, hex};
-use crate::rtu::master::{self, Master, MasterOptions};
+use crate::rtu::master::{Master, MasterOptions};
 use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::rtu::transport::{Port, SerialSettings, TransportError};
 use crate::rtu::{Request, Response, SlaveId};
@@ -148,11 +148,11 @@ pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
     })?;
     println!("request  {}", hex(&frame));
     match result {
-        Ok(response) => {
+        Ok(Ok(response)) => {
             print!("{}", render(args.address, &request, &response));
             Ok(ExitCode::SUCCESS)
         }
-        Err(master::Error::Exception(code)) => {
+        Ok(Err(code)) => {
             println!("answer   device answered {code}");
             Ok(ExitCode::from(2))
         }
@@ -164,13 +164,7 @@ pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
 pub fn render(slave: SlaveId, request: &Request, response: &Response) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "answer   {}", hex(&encode_answer(slave, response)));
-    let start = match request {
-        Request::ReadCoils { start, .. }
-        | Request::ReadDiscreteInputs { start, .. }
-        | Request::ReadHoldingRegisters { start, .. }
-        | Request::ReadInputRegisters { start, .. } => *start,
-        _ => 0,
-    };
+    let start = request.read_span().map_or(0, |(start, _)| start);
     if let Some(words) = response.registers() {
         out.push_str(&render_registers(start, words));
     } else if let Some(bits) = response.bits() {

@@ -89,10 +89,10 @@ async fn probe(
 ) -> anyhow::Result<Probe> {
     let function = request.function().value();
     Ok(match master.transact(address, request, timeout).await {
-        Ok(_) => Probe::Answered(format!("FC{function:02} ok")),
-        Err(master::Error::Exception(code)) => Probe::Answered(format!("FC{function:02} {code}")),
+        Ok(Ok(_)) => Probe::Answered(format!("FC{function:02} ok")),
+        Ok(Err(code)) => Probe::Answered(format!("FC{function:02} {code}")),
         Err(master::Error::Timeout(_)) => Probe::Silent,
-        Err(master::Error::Io(error)) => return Err(error).context("serial port"),
+        Err(master::Error::PortGone(fault)) => return Err(fault).context("serial port"),
         Err(other) => Probe::Garbled(other.to_string()),
     })
 }
@@ -265,7 +265,7 @@ async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::R
                 )
                 .await
             {
-                Ok(response) => {
+                Ok(Ok(response)) => {
                     for reading in profile.decode_block(index, &response) {
                         let value = match &reading.value {
                             Ok(value) => value.to_text(),
@@ -274,6 +274,7 @@ async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::R
                         println!("  {:<28} {value}", reading.field);
                     }
                 }
+                Ok(Err(code)) => println!("  block `{}`: device answered {code}", block.name),
                 Err(error) => println!("  block `{}`: {error}", block.name),
             }
         }

@@ -713,7 +713,7 @@ impl Core {
             CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail, true),
             CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail, false),
             // A failed write may have reached the device: count it for the write interval.
-            CommandOutcome::Failed { detail } => (Outcome::Failed, detail, true),
+            CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string(), true),
         };
         match word {
             Outcome::Applied => self.counters.commands_applied += 1,

@@ -5,6 +5,7 @@ use std::time::Duration;
 use serde_json::Value as Json;
 
 use super::*;
+use crate::bus::CommandFailure;
 use crate::profile::registry;
 
 const TTL: Duration = Duration::from_secs(60);
@@ -154,7 +155,9 @@ fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
         ),
         (
             CommandOutcome::Failed {
-                detail: "no answer".into(),
+                cause: CommandFailure::NoAnswer(crate::rtu::master::Error::Timeout(
+                    Duration::from_millis(300),
+                )),
             },
             "failed",
         ),
@@ -168,8 +171,8 @@ fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
         let detail = match &outcome {
             CommandOutcome::Applied { detail }
             | CommandOutcome::NotApplied { detail }
-            | CommandOutcome::Rejected { detail }
-            | CommandOutcome::Failed { detail } => detail.clone(),
+            | CommandOutcome::Rejected { detail } => detail.clone(),
+            CommandOutcome::Failed { cause } => cause.to_string(),
         };
         let actions = core.on_line_event(finished(ids[0], outcome), now);
         assert_eq!(
@@ -427,7 +430,9 @@ fn results_wait_for_the_next_connection_while_mqtt_is_down() {
     assert_eq!(clears(&actions, "opening"), 1);
     // A result the client could not queue is kept too.
     let id = sent(&command(&mut core, "opening", "60", 2, now + LATER))[0];
-    let failed = CommandOutcome::Failed { detail: "x".into() };
+    let failed = CommandOutcome::Failed {
+        cause: CommandFailure::PortNotOpen,
+    };
     for action in core.on_line_event(finished(id, failed), now + LATER) {
         if let Action::Publish(publish) = action {
             core.on_published(publish, false);

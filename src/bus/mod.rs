@@ -4,9 +4,14 @@
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
 //! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll.
 
+mod commands;
+pub mod device;
 pub mod health;
 pub mod line;
+pub mod outcome;
 pub mod plan;
+pub mod poll;
+pub mod port;
 pub mod scheduler;
 pub mod slot;
 pub mod stats;
@@ -21,6 +26,7 @@ use crate::profile::{CommandPlan, Profile, Value};
 use crate::rtu::transport::SerialSettings;
 use crate::rtu::SlaveId;
 
+pub use outcome::CommandFailure;
 pub use stats::LineStats;
 
 /// One configured device on a line.
@@ -84,7 +90,7 @@ pub enum CommandOutcome {
     /// Refused by the profile's rules on the fresh state: nothing written.
     Rejected { detail: String },
     /// An exception answer, no answer after the retries, or the port is gone.
-    Failed { detail: String },
+    Failed { cause: CommandFailure },
 }
 
 /// A command for the line's queue. Its end comes back as [`LineEvent::CommandFinished`] with

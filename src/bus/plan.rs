@@ -5,8 +5,7 @@
 
 use std::time::Duration;
 
-use crate::profile::{PollClass, ReadBlock};
-use crate::rtu::Request;
+use crate::profile::PollClass;
 
 use super::DeviceSpec;
 
@@ -44,7 +43,7 @@ impl DevicePlan {
                 .iter()
                 .map(|block| BlockPlan {
                     class: block.class,
-                    answer_bytes: read_answer_bytes(block),
+                    answer_bytes: block.request.answer_len(),
                 })
                 .collect()
         };
@@ -74,69 +73,9 @@ impl DevicePlan {
     }
 }
 
-/// Length of the answer frame to a read request (address, function, byte count, data, CRC).
-pub fn read_answer_bytes(block: &ReadBlock) -> usize {
-    request_answer_bytes(&block.request)
-}
-
-/// Length of the normal answer frame to `request`, address and CRC included.
-pub fn request_answer_bytes(request: &Request) -> usize {
-    match request {
-        Request::ReadCoils { quantity, .. } | Request::ReadDiscreteInputs { quantity, .. } => {
-            5 + usize::from(*quantity).div_ceil(8)
-        }
-        Request::ReadHoldingRegisters { quantity, .. }
-        | Request::ReadInputRegisters { quantity, .. } => 5 + 2 * usize::from(*quantity),
-        // Echo of address and value, or of start and quantity.
-        Request::WriteSingleCoil { .. }
-        | Request::WriteSingleRegister { .. }
-        | Request::WriteMultipleCoils { .. }
-        | Request::WriteMultipleRegisters { .. } => 8,
-    }
-}
-
-/// Length of the request frame itself, address and CRC included.
-pub fn request_bytes(request: &Request) -> usize {
-    match request {
-        Request::WriteMultipleCoils { values, .. } => 9 + values.len().div_ceil(8),
-        Request::WriteMultipleRegisters { values, .. } => 9 + 2 * values.len(),
-        _ => 8,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn frame_lengths_match_the_golden_frames() {
-        // 81 01 00 00 00 16 A2 04 → 81 01 03 b0 b1 b2 CRC (8 bytes).
-        let coils = Request::ReadCoils {
-            start: 0,
-            quantity: 22,
-        };
-        assert_eq!(request_bytes(&coils), 8);
-        assert_eq!(request_answer_bytes(&coils), 8);
-        // 01 03 10 00 00 06 → 01 03 0C + 12 bytes + CRC (17 bytes).
-        let words = Request::ReadHoldingRegisters {
-            start: 0x1000,
-            quantity: 6,
-        };
-        assert_eq!(request_answer_bytes(&words), 17);
-        // The golden FC10 write of four words is 17 bytes long.
-        let write = Request::WriteMultipleRegisters {
-            start: 0x1000,
-            values: vec![0x0300, 5, 2, 10],
-        };
-        assert_eq!(request_bytes(&write), 17);
-        // 81 0F 00 00 00 0C 02 b0 b1 CRC: 11 bytes.
-        let coils_write = Request::WriteMultipleCoils {
-            start: 0,
-            values: vec![false; 12],
-        };
-        assert_eq!(request_bytes(&coils_write), 11);
-        assert_eq!(request_answer_bytes(&coils_write), 8);
-    }
 
     #[test]
     fn probe_is_the_smallest_block() {

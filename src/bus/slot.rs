@@ -13,9 +13,10 @@
 use std::time::Instant;
 
 use crate::profile::{CommandPlan, Verification};
-use crate::rtu::master::{Error as MasterError, Master};
+use crate::rtu::master::{Error as MasterError, Master, PortFault};
 use crate::rtu::{ExceptionCode, Request, Response};
 
+use super::outcome::CommandFailure;
 use super::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
@@ -31,7 +32,43 @@ pub enum SlotEnd {
         deadline: Instant,
     },
     /// The port failed inside the slot; the command failed and the port must be reopened.
-    PortGone(std::io::Error),
+    PortGone(PortFault),
+}
+
+/// Why a slot stopped before its verification: the device refused (an exception answer, the
+/// device's word) or was not heard.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Stop {
+    Refused(ExceptionCode),
+    Failed(Failure),
+}
+
+impl From<Failure> for Stop {
+    fn from(failure: Failure) -> Self {
+        Stop::Failed(failure)
+    }
+}
+
+impl Stop {
+    /// What the slot ends with: a port that is gone must also be reopened.
+    pub fn end(self) -> SlotEnd {
+        match self {
+            Stop::Failed(Failure::PortGone(fault)) => SlotEnd::PortGone(fault),
+            stop => failed_with(stop.cause()),
+        }
+    }
+
+    /// The command's failure cause.
+    pub fn cause(self) -> CommandFailure {
+        match self {
+            Stop::Refused(code) => CommandFailure::Exception(code),
+            Stop::Failed(failure) => failure.into(),
+        }
+    }
+}
+
+fn failed_with(cause: CommandFailure) -> SlotEnd {
+    SlotEnd::Done(CommandOutcome::Failed { cause })
 }
 
 /// Reads made in a slot with their answers: the line publishes the values of those that are
@@ -51,13 +88,12 @@ pub async fn run_slot(
     if exchange.slave == 0 {
         return broadcast(master, plan).await;
     }
-    let mut last_problem = String::from("not sent");
-    let mut written = false;
-    for _ in 0..attempts.max(1) {
+    let attempts = attempts.max(1);
+    for attempt in 1..=attempts {
         let before =
             match read_all(exchange, master, stats, plan.reads_before(), attempts, seen).await {
                 Ok(answers) => answers,
-                Err(failure) => return failed(failure),
+                Err(stop) => return stop.end(),
             };
         let writes = match plan.writes(&before) {
             Ok(writes) => writes,
@@ -68,18 +104,14 @@ pub async fn run_slot(
             }
         };
         match write_all(exchange, master, stats, &writes).await {
-            Ok(()) => {
-                written = true;
-                break;
+            Ok(()) => break,
+            Err(Stop::Failed(Failure::NoAnswer(problem))) => {
+                if attempt == attempts {
+                    return failed_with(CommandFailure::WriteUnanswered(problem));
+                }
             }
-            Err(Failure::NoAnswer(problem)) => last_problem = problem,
-            Err(failure) => return failed(failure),
+            Err(stop) => return stop.end(),
         }
-    }
-    if !written {
-        return SlotEnd::Done(CommandOutcome::Failed {
-            detail: format!("no answer to the write: {last_problem}"),
-        });
     }
     match reread(exchange, master, stats, plan, attempts, seen).await {
         Ok(Verification::Applied) => SlotEnd::Done(CommandOutcome::Applied {
@@ -96,7 +128,7 @@ pub async fn run_slot(
                 detail: "the read-back still shows the device moving".into(),
             }),
         },
-        Err(failure) => failed(failure),
+        Err(stop) => stop.end(),
     }
 }
 
@@ -108,22 +140,9 @@ pub async fn reread(
     plan: &CommandPlan,
     attempts: u32,
     seen: &mut SeenReads,
-) -> Result<Verification, Failure> {
+) -> Result<Verification, Stop> {
     let answers = read_all(exchange, master, stats, plan.readback(), attempts, seen).await?;
     Ok(plan.verify(&answers))
-}
-
-/// The outcome of a failure inside a slot.
-pub fn failed(failure: Failure) -> SlotEnd {
-    match failure {
-        Failure::PortGone(error) => SlotEnd::PortGone(error),
-        Failure::Exception(code) => SlotEnd::Done(CommandOutcome::Failed {
-            detail: format!("device answered {code}"),
-        }),
-        Failure::NoAnswer(problem) => SlotEnd::Done(CommandOutcome::Failed {
-            detail: format!("no answer after the retries: {problem}"),
-        }),
-    }
 }
 
 async fn broadcast(master: &mut Master, plan: &CommandPlan) -> SlotEnd {
@@ -138,12 +157,8 @@ async fn broadcast(master: &mut Master, plan: &CommandPlan) -> SlotEnd {
     for write in &writes {
         match master.broadcast(write).await {
             Ok(()) => {}
-            Err(MasterError::Io(error)) => return SlotEnd::PortGone(error),
-            Err(error) => {
-                return SlotEnd::Done(CommandOutcome::Failed {
-                    detail: format!("broadcast failed: {error}"),
-                })
-            }
+            Err(MasterError::PortGone(fault)) => return SlotEnd::PortGone(fault),
+            Err(error) => return failed_with(CommandFailure::BroadcastFailed(error)),
         }
     }
     SlotEnd::Done(CommandOutcome::Applied {
@@ -158,7 +173,7 @@ async fn read_all(
     requests: &[Request],
     attempts: u32,
     seen: &mut SeenReads,
-) -> Result<Vec<Response>, Failure> {
+) -> Result<Vec<Response>, Stop> {
     let mut answers = Vec::with_capacity(requests.len());
     for request in requests {
         let answer = patiently(exchange, master, stats, request, attempts).await?;
@@ -174,7 +189,7 @@ async fn write_all(
     master: &mut Master,
     stats: &mut DeviceStats,
     writes: &[Request],
-) -> Result<(), Failure> {
+) -> Result<(), Stop> {
     for write in writes {
         // One attempt each: a repeat is decided by the caller after fresh reads.
         patiently(exchange, master, stats, write, 1).await?;
@@ -182,23 +197,25 @@ async fn write_all(
     Ok(())
 }
 
-/// An exchange that waits out exception 06 (busy) a bounded number of times.
+/// An exchange that waits out exception 06 (busy) a bounded number of times; any other
+/// exception stops the slot.
 async fn patiently(
     exchange: &Exchange<'_>,
     master: &mut Master,
     stats: &mut DeviceStats,
     request: &Request,
     attempts: u32,
-) -> Result<Response, Failure> {
+) -> Result<Response, Stop> {
     let mut busy = 0;
     loop {
-        match exchange.run(master, stats, request, attempts).await {
-            Err(Failure::Exception(ExceptionCode::ServerDeviceBusy)) if busy < BUSY_LIMIT => {
+        match exchange.run(master, stats, request, attempts).await? {
+            Ok(response) => return Ok(response),
+            Err(ExceptionCode::ServerDeviceBusy) if busy < BUSY_LIMIT => {
                 busy += 1;
                 exchange.turnaround.idle();
                 tokio::time::sleep(BUSY_RETRY_DELAY).await;
             }
-            other => return other,
+            Err(code) => return Err(Stop::Refused(code)),
         }
     }
 }

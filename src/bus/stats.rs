@@ -1,7 +1,10 @@
 //! Live statistics of a line and its devices, published by the line task on a watch channel
 //! after every transaction and at least once a second.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
+
+use crate::rtu::master::WireCounters;
 
 /// Counters and latencies of one device.
 #[derive(Debug, Clone, PartialEq)]
@@ -24,6 +27,63 @@ pub struct DeviceStats {
     pub consecutive_failures: u32,
     pub last_latency: Option<Duration>,
     pub worst_latency: Option<Duration>,
+}
+
+impl DeviceStats {
+    /// Empty statistics of a device that has not been heard yet.
+    pub fn new(name: &str) -> Self {
+        DeviceStats {
+            name: name.to_string(),
+            online: false,
+            transactions: 0,
+            timeouts: 0,
+            crc_errors: 0,
+            exceptions: 0,
+            bad_answers: 0,
+            polls_ok: 0,
+            polls_failed: 0,
+            field_errors: 0,
+            consecutive_failures: 0,
+            last_latency: None,
+            worst_latency: None,
+        }
+    }
+}
+
+/// Bus load over a sliding window: wire time carried per wall time, from samples of the line's
+/// growing wire time.
+#[derive(Debug, Clone)]
+pub struct LoadWindow {
+    window: Duration,
+    samples: VecDeque<(Instant, Duration)>,
+}
+
+impl LoadWindow {
+    pub fn new(window: Duration) -> Self {
+        LoadWindow {
+            window,
+            samples: VecDeque::new(),
+        }
+    }
+
+    /// Adds the wire time carried so far at `now`; the load since the oldest sample still in
+    /// the window (0.0–1.0), `None` while no wall time has passed.
+    pub fn sample(&mut self, now: Instant, wire_time: Duration) -> Option<f64> {
+        self.samples.push_back((now, wire_time));
+        while self
+            .samples
+            .get(1)
+            .is_some_and(|(at, _)| now.duration_since(*at) >= self.window)
+        {
+            self.samples.pop_front();
+        }
+        let (since, wire_then) = self.samples.front()?;
+        let wall = now.duration_since(*since).as_secs_f64();
+        (wall > 0.0).then(|| {
+            let wire = wire_time.saturating_sub(*wire_then).as_secs_f64();
+            (wire / wall).min(1.0)
+        })
+    }
 }
 
 /// A snapshot of a line's statistics.
@@ -85,24 +145,41 @@ impl LineStats {
             commands: 0,
             last_command_latency: None,
             worst_command_latency: None,
-            devices: devices
-                .iter()
-                .map(|name| DeviceStats {
-                    name: name.clone(),
-                    online: false,
-                    transactions: 0,
-                    timeouts: 0,
-                    crc_errors: 0,
-                    exceptions: 0,
-                    bad_answers: 0,
-                    polls_ok: 0,
-                    polls_failed: 0,
-                    field_errors: 0,
-                    consecutive_failures: 0,
-                    last_latency: None,
-                    worst_latency: None,
-                })
-                .collect(),
+            devices: devices.iter().map(|name| DeviceStats::new(name)).collect(),
         }
+    }
+
+    /// Takes the line's wire counters (the sum over every master the line has had). The
+    /// snapshot keeps them as flat fields: that is the shape the metrics and status file show.
+    pub fn record_wire(&mut self, counters: &WireCounters) {
+        self.transactions = counters.requests;
+        self.timeouts = counters.timeouts;
+        self.crc_errors = counters.crc_errors;
+        self.truncated = counters.truncated;
+        self.unexpected_answers = counters.unexpected;
+        self.exceptions = counters.exceptions;
+        self.late_answers = counters.late_answers;
+        self.stray_bytes = counters.stray_bytes;
+        self.wrong_address = counters.wrong_address;
+        self.wire_time = counters.wire_time;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn load_is_wire_time_per_wall_time_over_the_window() {
+        let start = Instant::now();
+        let mut load = LoadWindow::new(Duration::from_secs(10));
+        assert_eq!(load.sample(start, Duration::ZERO), None);
+        let half = load.sample(start + Duration::from_secs(2), Duration::from_secs(1));
+        assert_eq!(half, Some(0.5));
+        // The first sample leaves the window: the load is measured from the second.
+        let later = load.sample(start + Duration::from_secs(12), Duration::from_secs(6));
+        assert_eq!(later, Some(0.5));
+        let capped = load.sample(start + Duration::from_secs(13), Duration::from_secs(30));
+        assert_eq!(capped, Some(1.0));
     }
 }

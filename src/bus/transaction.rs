@@ -8,26 +8,25 @@ use std::time::{Duration, Instant};
 
 use tracing::Instrument;
 
-use crate::rtu::master::{Error as MasterError, Master};
-use crate::rtu::{ExceptionCode, Request, Response, SlaveId};
+use crate::rtu::master::{Error as MasterError, Master, PortFault, Reply};
+use crate::rtu::{Request, SlaveId};
 
 use super::stats::DeviceStats;
+use super::DeviceSpec;
 
-/// Why an exchange gave no normal answer.
-#[derive(Debug)]
+/// Why an exchange gave no answer from the device. A device's exception answer is not a
+/// failure: it comes back as the `Err` of a [`Reply`].
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Failure {
-    /// The device answered with an exception (not retried: it is the device's word).
-    Exception(ExceptionCode),
-    /// No usable answer after every attempt; the last problem, for logs and outcomes.
-    NoAnswer(String),
+    /// No usable answer after every attempt: the last attempt's problem (timeout, CRC, …).
+    NoAnswer(MasterError),
     /// The port failed (EOF, EIO): it must be closed and reopened.
-    PortGone(std::io::Error),
+    PortGone(PortFault),
 }
 
 impl std::fmt::Display for Failure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Failure::Exception(code) => write!(f, "device answered {code}"),
             Failure::NoAnswer(last) => write!(f, "no answer ({last})"),
             Failure::PortGone(error) => write!(f, "port failed: {error}"),
         }
@@ -112,18 +111,34 @@ impl Turnaround {
     }
 }
 
-impl Exchange<'_> {
-    /// Sends `request` up to `attempts` times (at least once) until a normal or exception
-    /// answer arrives.
+impl<'a> Exchange<'a> {
+    /// The exchanges with the configured `device` on the line named `line`.
+    pub fn for_device(
+        line: &'a str,
+        device: &'a DeviceSpec,
+        timeout: Duration,
+        turnaround: &'a Turnaround,
+    ) -> Self {
+        Exchange {
+            line,
+            device: &device.name,
+            slave: device.address,
+            timeout,
+            turnaround,
+        }
+    }
+
+    /// Sends `request` up to `attempts` times (at least once) until the device answers,
+    /// normally or with an exception (not retried: it is the device's word).
     pub async fn run(
         &self,
         master: &mut Master,
         stats: &mut DeviceStats,
         request: &Request,
         attempts: u32,
-    ) -> Result<Response, Failure> {
-        let mut last = String::from("not sent");
-        for attempt in 0..attempts.max(1) {
+    ) -> Result<Reply, Failure> {
+        let mut attempt = 0;
+        loop {
             let span = tracing::debug_span!(
                 "transaction",
                 line = self.line,
@@ -139,34 +154,33 @@ impl Exchange<'_> {
                 .await;
             self.turnaround.ended();
             stats.transactions += 1;
-            match result {
-                Ok(response) => {
-                    record_latency(stats, started.elapsed());
-                    return Ok(response);
-                }
-                Err(MasterError::Exception(code)) => {
-                    stats.exceptions += 1;
-                    record_latency(stats, started.elapsed());
-                    return Err(Failure::Exception(code));
-                }
-                Err(MasterError::Io(error)) => return Err(Failure::PortGone(error)),
-                Err(error) => {
-                    match error {
-                        MasterError::Timeout(_) => stats.timeouts += 1,
-                        MasterError::Crc => stats.crc_errors += 1,
-                        _ => stats.bad_answers += 1,
+            let error = match result {
+                Ok(reply) => {
+                    if reply.is_err() {
+                        stats.exceptions += 1;
                     }
-                    tracing::debug!(
-                        line = self.line,
-                        device = self.device,
-                        attempt,
-                        "transaction failed: {error}"
-                    );
-                    last = error.to_string();
+                    record_latency(stats, started.elapsed());
+                    return Ok(reply);
                 }
+                Err(MasterError::PortGone(fault)) => return Err(Failure::PortGone(fault)),
+                Err(error) => error,
+            };
+            match error {
+                MasterError::Timeout(_) => stats.timeouts += 1,
+                MasterError::Crc => stats.crc_errors += 1,
+                _ => stats.bad_answers += 1,
+            }
+            tracing::debug!(
+                line = self.line,
+                device = self.device,
+                attempt,
+                "transaction failed: {error}"
+            );
+            attempt += 1;
+            if attempt >= attempts.max(1) {
+                return Err(Failure::NoAnswer(error));
             }
         }
-        Err(Failure::NoAnswer(last))
     }
 }
 

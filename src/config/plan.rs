@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::profile::PollClass;
-use crate::rtu::codec::{expected_answer_len, expected_request_len};
 use crate::rtu::timing::LineTiming;
 
 /// One device's share of its line.
@@ -62,8 +61,8 @@ impl LinePlan {
 
 /// Wire time of one transaction: request, answer and the t3.5 silence after each.
 pub fn transaction_wire_time(timing: &LineTiming, request: &crate::rtu::Request) -> Duration {
-    let request_len = expected_request_len(request);
-    let answer_len = expected_answer_len(request);
+    let request_len = request.frame_len();
+    let answer_len = request.answer_len();
     timing.frame_time(request_len) + timing.frame_time(answer_len) + 2 * timing.t3_5
 }
 

@@ -170,12 +170,7 @@ impl CommandPlan {
 
     /// An image of the whole of `block`, all zero.
     fn empty_image(&self, block: usize) -> BlockImage {
-        let len = super::model::block_quantity(&self.profile.blocks[block].request) as usize;
-        if self.profile.block_kinds[block].is_bits() {
-            BlockImage::Bits(vec![false; len])
-        } else {
-            BlockImage::Words(vec![0; len])
-        }
+        empty_image(&self.profile.blocks[block].request)
     }
 
     /// The answer to `request` (a part of `block` from offset `base`) placed in an image of
@@ -187,7 +182,7 @@ impl CommandPlan {
         request: &Request,
         base: u16,
     ) -> Option<BlockImage> {
-        let len = super::model::block_quantity(request) as usize;
+        let len = usize::from(request.read_span()?.1);
         let part = image_of(answer, len)?;
         let mut image = self.empty_image(block);
         let base = usize::from(base);
@@ -420,6 +415,14 @@ pub(crate) fn image_of(answer: &Response, expected_len: usize) -> Option<BlockIm
     (len >= expected_len).then_some(image)
 }
 
+/// An all-zero image of the block `request` reads (an empty word image for a write).
+pub(crate) fn empty_image(request: &Request) -> BlockImage {
+    request
+        .empty_answer()
+        .and_then(|answer| image_of(&answer, 0))
+        .unwrap_or(BlockImage::Words(Vec::new()))
+}
+
 /// `span` (start, end) widened to cover `width` places from `offset`.
 fn widen(span: (u16, u16), offset: u16, width: u16) -> (u16, u16) {
     (span.0.min(offset), span.1.max(offset + width))
@@ -438,25 +441,10 @@ fn run_read(profile: &Compiled, block: usize, span: (u16, u16)) -> (Request, u16
         }
     }
     let quantity = end.saturating_sub(start);
-    let request = match read.request {
-        Request::ReadCoils { start: first, .. } => Request::ReadCoils {
-            start: first + start,
-            quantity,
-        },
-        Request::ReadDiscreteInputs { start: first, .. } => Request::ReadDiscreteInputs {
-            start: first + start,
-            quantity,
-        },
-        Request::ReadInputRegisters { start: first, .. } => Request::ReadInputRegisters {
-            start: first + start,
-            quantity,
-        },
-        Request::ReadHoldingRegisters { start: first, .. } => Request::ReadHoldingRegisters {
-            start: first + start,
-            quantity,
-        },
-        ref other => other.clone(),
-    };
+    let request = read
+        .request
+        .sub_read(start, quantity)
+        .unwrap_or_else(|| read.request.clone());
     (request, start)
 }
 

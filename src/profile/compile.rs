@@ -16,8 +16,7 @@ use super::format::{
     WriteFrameSection, WriteSection,
 };
 use super::model::{
-    block_quantity, Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass,
-    ReadBlock, WriteFrame,
+    Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass, ReadBlock, WriteFrame,
 };
 use super::value::Value;
 use crate::rtu::timing::Parity;
@@ -469,7 +468,10 @@ fn build_write_frames(
             );
             continue;
         };
-        let block_len = block_quantity(&blocks[block].request);
+        let block_len = blocks[block]
+            .request
+            .read_span()
+            .map_or(0, |(_, quantity)| u32::from(quantity));
         if section.count == 0 || u32::from(section.offset) + u32::from(section.count) > block_len {
             problems.add(
                 format!("{place}.count"),
@@ -714,7 +716,10 @@ fn build_field(
         problems.add(format!("{place}.codec"), what);
         return None;
     }
-    let block_len = block_quantity(&blocks[block].request);
+    let block_len = blocks[block]
+        .request
+        .read_span()
+        .map_or(0, |(_, quantity)| u32::from(quantity));
     let end = u32::from(field.offset) + u32::from(codec.width());
     if end > block_len {
         problems.add(

@@ -116,7 +116,10 @@ impl Profile {
         let Some(read) = self.inner.blocks.get(block) else {
             return Vec::new();
         };
-        let expected = model::block_quantity(&read.request) as usize;
+        let expected = read
+            .request
+            .read_span()
+            .map_or(0, |(_, quantity)| usize::from(quantity));
         let image = command::image_of(answer, expected).filter(|image| {
             matches!(
                 (image, self.inner.block_kinds[block].is_bits()),
@@ -145,23 +148,18 @@ impl Profile {
     /// or a command slot's read): the values of the fields that lie entirely inside the read.
     /// Empty when no block of the profile contains the read.
     pub fn decode_read(&self, request: &Request, answer: &Response) -> Vec<FieldReading> {
-        let Some((start, quantity)) = raw::read_span(request) else {
+        let Some((_, quantity)) = request.read_span() else {
             return Vec::new();
         };
         let inner = &self.inner;
-        let Some(block) = inner.blocks.iter().position(|block| {
-            raw::read_span(&block.request).is_some_and(|(first, len)| {
-                std::mem::discriminant(&block.request) == std::mem::discriminant(request)
-                    && start >= first
-                    && u32::from(start) + u32::from(quantity) <= u32::from(first) + u32::from(len)
-            })
-        }) else {
+        let Some((block, base)) = inner
+            .blocks
+            .iter()
+            .enumerate()
+            .find_map(|(index, block)| Some((index, block.request.offset_of(request)?)))
+        else {
             return Vec::new();
         };
-        let Some((first, _)) = raw::read_span(&inner.blocks[block].request) else {
-            return Vec::new();
-        };
-        let base = start - first;
         let Some(part) = command::image_of(answer, usize::from(quantity)) else {
             return Vec::new();
         };
@@ -307,12 +305,7 @@ impl Profile {
     ) -> Result<(), Rejection> {
         let inner = &self.inner;
         let block = inner.defs[targets[0].0].block;
-        let block_len = model::block_quantity(&inner.blocks[block].request) as usize;
-        let mut image = if inner.block_kinds[block].is_bits() {
-            BlockImage::Bits(vec![false; block_len])
-        } else {
-            BlockImage::Words(vec![0; block_len])
-        };
+        let mut image = command::empty_image(&inner.blocks[block].request);
         let mut known = vec![false; inner.defs.len()];
         for (i, other) in inner.defs.iter().enumerate() {
             if other.block != block || other.overlay {

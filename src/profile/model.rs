@@ -141,14 +141,3 @@ pub struct Compiled {
     /// The `[[write_frames]]` by name, in file order.
     pub named_frames: Vec<(String, WriteFrame)>,
 }
-
-/// Number of coils or registers a read request covers.
-pub fn block_quantity(request: &Request) -> u32 {
-    match request {
-        Request::ReadCoils { quantity, .. }
-        | Request::ReadDiscreteInputs { quantity, .. }
-        | Request::ReadHoldingRegisters { quantity, .. }
-        | Request::ReadInputRegisters { quantity, .. } => u32::from(*quantity),
-        _ => 0,
-    }
-}

@@ -4,7 +4,7 @@
 //! read block is consecutive). Pure: the simulator owns the images and the behaviour.
 
 use super::codec::BlockImage;
-use super::model::{block_quantity, Behaviour};
+use super::model::Behaviour;
 use super::{FieldKind, Profile, Value};
 use crate::rtu::{Request, Response};
 
@@ -56,12 +56,7 @@ impl Profile {
     /// and unused places zero). None for an unknown block.
     pub fn initial_image(&self, block: usize) -> Option<BlockImage> {
         let read = self.inner.blocks.get(block)?;
-        let len = block_quantity(&read.request) as usize;
-        let mut image = if self.inner.block_kinds[block].is_bits() {
-            BlockImage::Bits(vec![false; len])
-        } else {
-            BlockImage::Words(vec![0; len])
-        };
+        let mut image = super::command::empty_image(&read.request);
         for (def, info) in self.inner.defs.iter().zip(&self.inner.infos) {
             if def.block != block || def.overlay {
                 continue;
@@ -128,21 +123,15 @@ impl Profile {
     /// block of the same kind covers it: the whole block or any part of it. None otherwise (a
     /// real device would answer exception 02).
     pub fn answer_read(&self, images: &[BlockImage], request: &Request) -> Option<Response> {
-        let (start, quantity) = read_span(request)?;
+        let quantity = usize::from(request.read_span()?.1);
         self.inner
             .blocks
             .iter()
             .zip(images)
             .find_map(|(block, image)| {
-                let (first, len) = read_span(&block.request)?;
-                if std::mem::discriminant(&block.request) != std::mem::discriminant(request)
-                    || start < first
-                    || u32::from(start) + u32::from(quantity) > u32::from(first) + u32::from(len)
-                {
-                    return None;
-                }
-                let from = usize::from(start - first);
-                let to = from + usize::from(quantity);
+                let offset = block.request.offset_of(request)?;
+                let from = usize::from(offset);
+                let to = from + quantity;
                 Some(match (request, image) {
                     (Request::ReadCoils { .. }, BlockImage::Bits(bits)) => {
                         Response::Coils(bits.get(from..to)?.to_vec())
@@ -189,16 +178,5 @@ fn on_step(value: i64, min: i64, step: i64) -> i64 {
         down + step
     } else {
         down
-    }
-}
-
-/// (start, quantity) of a read request.
-pub(crate) fn read_span(request: &Request) -> Option<(u16, u16)> {
-    match *request {
-        Request::ReadCoils { start, quantity }
-        | Request::ReadDiscreteInputs { start, quantity }
-        | Request::ReadHoldingRegisters { start, quantity }
-        | Request::ReadInputRegisters { start, quantity } => Some((start, quantity)),
-        _ => None,
     }
 }

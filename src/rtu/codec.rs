@@ -150,7 +150,7 @@ fn coil_word(value: bool) -> u16 {
 /// should accept.
 pub fn encode_request(slave: SlaveId, request: &Request) -> Result<Vec<u8>, EncodeError> {
     validate_request(request)?;
-    let mut frame = Vec::with_capacity(expected_request_len(request));
+    let mut frame = Vec::with_capacity(request.frame_len());
     frame.push(slave);
     frame.push(request.function().value());
     match request {
@@ -189,37 +189,6 @@ pub fn encode_request(slave: SlaveId, request: &Request) -> Result<Vec<u8>, Enco
     Ok(frame)
 }
 
-/// Length in bytes of the request frame of `request` (address and CRC included).
-pub fn expected_request_len(request: &Request) -> usize {
-    match request {
-        Request::WriteMultipleCoils { values, .. } => 9 + bit_bytes(values.len()),
-        Request::WriteMultipleRegisters { values, .. } => 9 + 2 * values.len(),
-        _ => 8,
-    }
-}
-
-/// Data bytes of the normal answer to a read request (`None` for writes).
-fn expected_read_bytes(request: &Request) -> Option<usize> {
-    match request {
-        Request::ReadCoils { quantity, .. } | Request::ReadDiscreteInputs { quantity, .. } => {
-            Some(bit_bytes(usize::from(*quantity)))
-        }
-        Request::ReadHoldingRegisters { quantity, .. }
-        | Request::ReadInputRegisters { quantity, .. } => Some(2 * usize::from(*quantity)),
-        _ => None,
-    }
-}
-
-/// Length in bytes of the normal answer frame to `request` (address and CRC included).
-pub fn expected_answer_len(request: &Request) -> usize {
-    match expected_read_bytes(request) {
-        // Address, function, byte count, data, CRC.
-        Some(data) => 5 + data,
-        // Writes echo address and value/quantity: address, function, 4 bytes, CRC.
-        None => 8,
-    }
-}
-
 /// Decodes a complete answer frame to `request` sent to `slave`.
 ///
 /// Checks in wire order: address, exception flag, length (a read's byte count is checked as
@@ -230,7 +199,7 @@ pub fn decode_answer(
     frame: &[u8],
 ) -> Result<Answer, DecodeError> {
     let function = request.function().value();
-    let normal_len = expected_answer_len(request);
+    let normal_len = request.answer_len();
     let Some(&address) = frame.first() else {
         return Err(DecodeError::Truncated {
             needed: normal_len,
@@ -257,7 +226,7 @@ pub fn decode_answer(
         });
     }
     if !is_exception {
-        if let (Some(expected), Some(&count)) = (expected_read_bytes(request), frame.get(2)) {
+        if let (Some(expected), Some(&count)) = (request.answer_data_len(), frame.get(2)) {
             if usize::from(count) != expected {
                 return Err(DecodeError::WrongByteCount {
                     expected,

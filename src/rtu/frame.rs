@@ -133,13 +133,89 @@ impl Request {
 
     /// True for the four read functions.
     pub fn is_read(&self) -> bool {
-        matches!(
-            self,
-            Self::ReadCoils { .. }
-                | Self::ReadDiscreteInputs { .. }
-                | Self::ReadHoldingRegisters { .. }
-                | Self::ReadInputRegisters { .. }
-        )
+        self.read_span().is_some()
+    }
+
+    /// `(start, quantity)` of a read request; `None` for writes.
+    pub fn read_span(&self) -> Option<(u16, u16)> {
+        match *self {
+            Self::ReadCoils { start, quantity }
+            | Self::ReadDiscreteInputs { start, quantity }
+            | Self::ReadHoldingRegisters { start, quantity }
+            | Self::ReadInputRegisters { start, quantity } => Some((start, quantity)),
+            _ => None,
+        }
+    }
+
+    /// Where `part` lies inside this read: the offset of its first item, when `part` reads the
+    /// same table and every item it asks for is one this read asks for too.
+    pub fn offset_of(&self, part: &Request) -> Option<u16> {
+        let (first, len) = self.read_span()?;
+        let (start, quantity) = part.read_span()?;
+        let same_table = std::mem::discriminant(self) == std::mem::discriminant(part);
+        let inside = start >= first
+            && u32::from(start) + u32::from(quantity) <= u32::from(first) + u32::from(len);
+        (same_table && inside).then(|| start - first)
+    }
+
+    /// True when this read asks for every item `part` asks for, in the same table.
+    pub fn covers(&self, part: &Request) -> bool {
+        self.offset_of(part).is_some()
+    }
+
+    /// The read of the same table for `quantity` items from `offset` inside this read
+    /// (`None` for writes or when the start would pass the last address).
+    pub fn sub_read(&self, offset: u16, quantity: u16) -> Option<Request> {
+        let (first, _) = self.read_span()?;
+        let start = first.checked_add(offset)?;
+        Some(match self {
+            Self::ReadCoils { .. } => Self::ReadCoils { start, quantity },
+            Self::ReadDiscreteInputs { .. } => Self::ReadDiscreteInputs { start, quantity },
+            Self::ReadHoldingRegisters { .. } => Self::ReadHoldingRegisters { start, quantity },
+            _ => Self::ReadInputRegisters { start, quantity },
+        })
+    }
+
+    /// The answer this read would get from a device whose items are all zero (`None` for
+    /// writes): the image a block's parts are assembled in.
+    pub fn empty_answer(&self) -> Option<Response> {
+        let (_, quantity) = self.read_span()?;
+        let quantity = usize::from(quantity);
+        Some(match self {
+            Self::ReadCoils { .. } => Response::Coils(vec![false; quantity]),
+            Self::ReadDiscreteInputs { .. } => Response::DiscreteInputs(vec![false; quantity]),
+            Self::ReadHoldingRegisters { .. } => Response::HoldingRegisters(vec![0; quantity]),
+            _ => Response::InputRegisters(vec![0; quantity]),
+        })
+    }
+
+    /// Length in bytes of this request's frame, address and CRC included.
+    pub fn frame_len(&self) -> usize {
+        match self {
+            Self::WriteMultipleCoils { values, .. } => 9 + values.len().div_ceil(8),
+            Self::WriteMultipleRegisters { values, .. } => 9 + 2 * values.len(),
+            _ => 8,
+        }
+    }
+
+    /// Data bytes of the normal answer to a read (`None` for writes).
+    pub fn answer_data_len(&self) -> Option<usize> {
+        let (_, quantity) = self.read_span()?;
+        let quantity = usize::from(quantity);
+        Some(match self {
+            Self::ReadCoils { .. } | Self::ReadDiscreteInputs { .. } => quantity.div_ceil(8),
+            _ => 2 * quantity,
+        })
+    }
+
+    /// Length in bytes of the normal answer frame to this request, address and CRC included.
+    pub fn answer_len(&self) -> usize {
+        match self.answer_data_len() {
+            // Address, function, byte count, data, CRC.
+            Some(data) => 5 + data,
+            // Writes echo address and value, or start and quantity: address, function, 4, CRC.
+            None => 8,
+        }
     }
 }
 
@@ -172,5 +248,178 @@ impl Response {
             Self::Coils(bits) | Self::DiscreteInputs(bits) => Some(bits),
             _ => None,
         }
+    }
+
+    /// Copies the items of `part` (an answer to a part of this read) into this answer from
+    /// `offset` on; anything beyond this answer's end, or of another kind, is ignored.
+    pub fn place(&mut self, offset: u16, part: &Response) {
+        let offset = usize::from(offset);
+        match self {
+            Self::Coils(bits) | Self::DiscreteInputs(bits) => {
+                if let Some(part) = part.bits() {
+                    for (slot, bit) in bits.iter_mut().skip(offset).zip(part) {
+                        *slot = *bit;
+                    }
+                }
+            }
+            Self::HoldingRegisters(words) | Self::InputRegisters(words) => {
+                if let Some(part) = part.registers() {
+                    for (slot, word) in words.iter_mut().skip(offset).zip(part) {
+                        *slot = *word;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_read_covers_the_reads_of_its_own_table_inside_its_span() {
+        let block = Request::ReadHoldingRegisters {
+            start: 0x70,
+            quantity: 8,
+        };
+        let inside = Request::ReadHoldingRegisters {
+            start: 0x74,
+            quantity: 4,
+        };
+        assert!(block.covers(&inside));
+        assert_eq!(block.offset_of(&inside), Some(4));
+        assert!(block.covers(&block));
+        let past_the_end = Request::ReadHoldingRegisters {
+            start: 0x74,
+            quantity: 5,
+        };
+        assert!(!block.covers(&past_the_end));
+        let before = Request::ReadHoldingRegisters {
+            start: 0x6F,
+            quantity: 2,
+        };
+        assert!(!block.covers(&before));
+        let other_table = Request::ReadInputRegisters {
+            start: 0x70,
+            quantity: 1,
+        };
+        assert!(!block.covers(&other_table));
+        let write = Request::WriteSingleRegister {
+            address: 0x70,
+            value: 1,
+        };
+        assert!(!block.covers(&write));
+        assert!(!write.covers(&write));
+        // No overflow at the top of the address space.
+        let top = Request::ReadCoils {
+            start: u16::MAX,
+            quantity: 1,
+        };
+        assert!(top.covers(&top));
+        assert_eq!(top.sub_read(1, 1), None);
+    }
+
+    #[test]
+    fn a_sub_read_keeps_the_table_and_moves_the_start() {
+        let block = Request::ReadDiscreteInputs {
+            start: 10,
+            quantity: 20,
+        };
+        assert_eq!(
+            block.sub_read(5, 3),
+            Some(Request::ReadDiscreteInputs {
+                start: 15,
+                quantity: 3
+            })
+        );
+        let write = Request::WriteSingleCoil {
+            address: 1,
+            value: true,
+        };
+        assert_eq!(write.sub_read(0, 1), None);
+    }
+
+    #[test]
+    fn frame_lengths_match_the_golden_frames() {
+        // 81 01 00 00 00 16 A2 04 → 81 01 03 b0 b1 b2 CRC (8 bytes).
+        let coils = Request::ReadCoils {
+            start: 0,
+            quantity: 22,
+        };
+        assert_eq!(coils.frame_len(), 8);
+        assert_eq!(coils.answer_len(), 8);
+        assert_eq!(coils.answer_data_len(), Some(3));
+        // 01 03 10 00 00 06 → 01 03 0C + 12 bytes + CRC (17 bytes).
+        let words = Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6,
+        };
+        assert_eq!(words.answer_len(), 17);
+        // The golden FC10 write of four words is 17 bytes long; its answer an 8-byte echo.
+        let write = Request::WriteMultipleRegisters {
+            start: 0x1000,
+            values: vec![0x0300, 5, 2, 10],
+        };
+        assert_eq!(write.frame_len(), 17);
+        assert_eq!(write.answer_len(), 8);
+        assert_eq!(write.answer_data_len(), None);
+        // 81 0F 00 00 00 0C 02 b0 b1 CRC: 11 bytes.
+        let coils_write = Request::WriteMultipleCoils {
+            start: 0,
+            values: vec![false; 12],
+        };
+        assert_eq!(coils_write.frame_len(), 11);
+        assert_eq!(coils_write.answer_len(), 8);
+    }
+
+    #[test]
+    fn the_empty_answer_has_the_shape_of_the_read() {
+        let coils = Request::ReadCoils {
+            start: 3,
+            quantity: 4,
+        };
+        assert_eq!(coils.empty_answer(), Some(Response::Coils(vec![false; 4])));
+        let inputs = Request::ReadInputRegisters {
+            start: 0,
+            quantity: 2,
+        };
+        assert_eq!(
+            inputs.empty_answer(),
+            Some(Response::InputRegisters(vec![0, 0]))
+        );
+        let write = Request::WriteSingleRegister {
+            address: 0,
+            value: 0,
+        };
+        assert_eq!(write.empty_answer(), None);
+    }
+
+    #[test]
+    fn parts_are_placed_with_zeros_in_unread_places() {
+        let block = Request::ReadHoldingRegisters {
+            start: 0x70,
+            quantity: 8,
+        };
+        assert_eq!(
+            block.sub_read(4, 2),
+            Some(Request::ReadHoldingRegisters {
+                start: 0x74,
+                quantity: 2
+            })
+        );
+        let mut answer = block.empty_answer().unwrap();
+        answer.place(4, &Response::HoldingRegisters(vec![0x64, 0x12]));
+        answer.place(7, &Response::HoldingRegisters(vec![9, 9, 9]));
+        // A part of another kind is ignored.
+        answer.place(0, &Response::Coils(vec![true]));
+        assert_eq!(
+            answer,
+            Response::HoldingRegisters(vec![0, 0, 0, 0, 0x64, 0x12, 0, 9])
+        );
+        let mut bits = Response::Coils(vec![false; 4]);
+        bits.place(2, &Response::Coils(vec![true, true]));
+        assert_eq!(bits, Response::Coils(vec![false, false, true, true]));
     }
 }

@@ -23,8 +23,15 @@ use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 use super::timing::LineTiming;
 use super::transport::Port;
 
-/// Why a transaction gave no normal answer.
-#[derive(Debug, thiserror::Error)]
+/// A device's word on a request: its normal answer, or the exception it answered with. Both
+/// are valid answers (the device is there and has spoken); only [`Error`] means it was not
+/// heard.
+pub type Reply = Result<Response, ExceptionCode>;
+
+/// Why a transaction gave no answer from the device: the transport's failures, each its own
+/// variant for callers to count and match on. A device's exception answer is never one of them
+/// (see [`Reply`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum Error {
     #[error("no answer within {0:?}")]
     Timeout(Duration),
@@ -32,18 +39,42 @@ pub enum Error {
     Crc,
     #[error("truncated answer ({got} of {needed} bytes)")]
     Truncated { needed: usize, got: usize },
+    /// From the wrong address or function, with the wrong byte count, or malformed.
     #[error("unexpected answer: {0}")]
     UnexpectedReply(DecodeError),
-    #[error("device answered {0}")]
-    Exception(ExceptionCode),
+    /// The port failed (EOF, EIO, the adapter vanished): it must be closed and reopened.
     #[error("serial i/o: {0}")]
-    Io(#[from] std::io::Error),
+    PortGone(PortFault),
     /// The request cannot be framed (quantity out of the specification's range); nothing sent.
     #[error("request not sent: {0}")]
     InvalidRequest(#[from] EncodeError),
     /// Bytes kept arriving for this long without a t3.5 silence; nothing sent.
     #[error("line never went silent within {0:?}")]
     LineBusy(Duration),
+}
+
+impl From<std::io::Error> for Error {
+    fn from(error: std::io::Error) -> Self {
+        Error::PortGone(PortFault::from(error))
+    }
+}
+
+/// An I/O failure of the serial port, kept as its kind and the system's words for it (so that
+/// outcomes that carry it can be compared and cloned).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct PortFault {
+    pub kind: std::io::ErrorKind,
+    message: String,
+}
+
+impl From<std::io::Error> for PortFault {
+    fn from(error: std::io::Error) -> Self {
+        PortFault {
+            kind: error.kind(),
+            message: error.to_string(),
+        }
+    }
 }
 
 /// Added to t1.5 for the default inter-character gap limit. USB serial adapters hand received
@@ -103,6 +134,43 @@ pub struct WireCounters {
     pub wrong_address: u64,
     /// Wire time of all frames sent and received plus the mandatory silences, for bus load.
     pub wire_time: Duration,
+}
+
+impl std::ops::AddAssign for WireCounters {
+    /// Adds another master's counters: a line sums the masters of every port it opened.
+    fn add_assign(&mut self, other: WireCounters) {
+        let WireCounters {
+            requests,
+            timeouts,
+            crc_errors,
+            truncated,
+            unexpected,
+            exceptions,
+            late_answers,
+            stray_bytes,
+            wrong_address,
+            wire_time,
+        } = other;
+        self.requests += requests;
+        self.timeouts += timeouts;
+        self.crc_errors += crc_errors;
+        self.truncated += truncated;
+        self.unexpected += unexpected;
+        self.exceptions += exceptions;
+        self.late_answers += late_answers;
+        self.stray_bytes += stray_bytes;
+        self.wrong_address += wrong_address;
+        self.wire_time += wire_time;
+    }
+}
+
+impl std::ops::Add for WireCounters {
+    type Output = WireCounters;
+
+    fn add(mut self, other: WireCounters) -> WireCounters {
+        self += other;
+        self
+    }
 }
 
 /// How far the bytes received so far go towards an answer.
@@ -205,7 +273,7 @@ impl Master {
         slave: SlaveId,
         request: &Request,
         timeout: Duration,
-    ) -> Result<Response, Error> {
+    ) -> Result<Reply, Error> {
         let span = tracing::debug_span!(
             "transaction",
             port = %self.port.path(),
@@ -217,7 +285,8 @@ impl Master {
             .instrument(span)
             .await;
         match &result {
-            Ok(_) => {}
+            Ok(Ok(_)) => {}
+            Ok(Err(_)) => self.counters.exceptions += 1,
             Err(Error::Timeout(_)) => {
                 self.counters.timeouts += 1;
                 let guard = self.options.late_answer_guard.unwrap_or(timeout);
@@ -228,9 +297,8 @@ impl Master {
             }
             Err(Error::Crc) => self.counters.crc_errors += 1,
             Err(Error::Truncated { .. }) => self.counters.truncated += 1,
-            Err(Error::Exception(_)) => self.counters.exceptions += 1,
             Err(Error::UnexpectedReply(_)) => self.counters.unexpected += 1,
-            Err(Error::Io(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
+            Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
         }
         result
     }
@@ -241,7 +309,7 @@ impl Master {
         slave: SlaveId,
         request: &Request,
         timeout: Duration,
-    ) -> Result<Response, Error> {
+    ) -> Result<Reply, Error> {
         let frame = codec::encode_request(slave, request)?;
         // Only a request to the address that timed out could take its late answer for its own:
         // the guard applies to it alone; for any other address the late answer is a frame
@@ -374,7 +442,7 @@ impl Master {
         sent: &[u8],
         drained_at: Instant,
         timeout: Duration,
-    ) -> Result<Response, Error> {
+    ) -> Result<Reply, Error> {
         let answer_deadline = drained_at + timeout;
         if self.options.echo {
             self.strip_echo(sent, answer_deadline, timeout).await?;
@@ -517,7 +585,7 @@ impl Master {
             return match received.first() {
                 Some(&address) if address != slave => Framing::Foreign,
                 _ => Framing::NeedMore {
-                    needed: codec::expected_answer_len(request),
+                    needed: request.answer_len(),
                 },
             };
         };
@@ -545,12 +613,12 @@ impl Master {
                     Some(&count) => 5 + usize::from(count),
                     None => {
                         return Framing::NeedMore {
-                            needed: codec::expected_answer_len(request),
+                            needed: request.answer_len(),
                         }
                     }
                 }
             } else {
-                codec::expected_answer_len(request)
+                request.answer_len()
             }
         } else {
             return if received.len() >= MAX_FRAME_LEN {
@@ -602,10 +670,10 @@ impl Master {
         self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
     }
 
-    fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Response, Error> {
+    fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
         match codec::decode_answer(slave, request, frame) {
-            Ok(Answer::Normal(response)) => Ok(response),
-            Ok(Answer::Exception(code)) => Err(Error::Exception(code)),
+            Ok(Answer::Normal(response)) => Ok(Ok(response)),
+            Ok(Answer::Exception(code)) => Ok(Err(code)),
             Err(DecodeError::BadCrc { .. }) => Err(Error::Crc),
             Err(DecodeError::Truncated { needed, got }) => Err(Error::Truncated { needed, got }),
             Err(other) => Err(Error::UnexpectedReply(other)),
@@ -678,6 +746,39 @@ mod tests {
 
     fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
         codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
+    }
+
+    #[test]
+    fn counters_add_field_by_field() {
+        let one = WireCounters {
+            requests: 3,
+            timeouts: 1,
+            crc_errors: 2,
+            truncated: 1,
+            unexpected: 4,
+            exceptions: 1,
+            late_answers: 2,
+            stray_bytes: 7,
+            wrong_address: 1,
+            wire_time: Duration::from_millis(5),
+        };
+        let sum = one + one;
+        assert_eq!(
+            sum,
+            WireCounters {
+                requests: 6,
+                timeouts: 2,
+                crc_errors: 4,
+                truncated: 2,
+                unexpected: 8,
+                exceptions: 2,
+                late_answers: 4,
+                stray_bytes: 14,
+                wrong_address: 2,
+                wire_time: Duration::from_millis(10),
+            }
+        );
+        assert_eq!(WireCounters::default() + one, one);
     }
 
     #[test]
@@ -775,6 +876,7 @@ mod tests {
             master
                 .transact(0x81, &read, Duration::from_secs(1))
                 .await
+                .unwrap()
                 .unwrap();
         }
         let records = line.journal().requests();

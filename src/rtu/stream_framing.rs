@@ -8,7 +8,7 @@
 //! Pure byte work, no I/O and no clock: the caller appends what it reads and gives up on its
 //! own timeout.
 
-use super::codec::{self, expected_answer_len, Answer, EXCEPTION_FRAME_LEN};
+use super::codec::{self, Answer, EXCEPTION_FRAME_LEN};
 use super::crc::carried_and_computed;
 use super::frame::{Request, SlaveId};
 
@@ -61,7 +61,7 @@ impl AnswerFramer {
         AnswerFramer {
             slave,
             request: request.clone(),
-            normal_len: expected_answer_len(request),
+            normal_len: request.answer_len(),
             max_skip,
             skipped: 0,
         }

@@ -1,0 +1,103 @@
+//! One poll of one block: the merged block, or its used runs one by one once the device has
+//! refused the merged block with exception 02 (remembered per device), and what the reply
+//! means for the device's health. Decoding and reporting are the line's.
+
+use crate::profile::ReadBlock;
+use crate::rtu::master::{Master, Reply};
+use crate::rtu::{ExceptionCode, Response};
+
+use super::device::DeviceRuntime;
+use super::scheduler::PollOutcome;
+use super::stats::DeviceStats;
+use super::transaction::{Exchange, Failure, Turnaround};
+
+/// What one poll of a device needs from its line.
+#[derive(Debug, Clone, Copy)]
+pub struct PollContext<'a> {
+    pub line: &'a str,
+    pub timeout: std::time::Duration,
+    pub turnaround: &'a Turnaround,
+    pub attempts: u32,
+}
+
+/// Reads `block`, `device`'s read block number `index`, falling back to its used runs (for
+/// good) when the device refuses the merged block with exception 02.
+pub async fn read_block(
+    context: PollContext<'_>,
+    master: &mut Master,
+    device: &mut DeviceRuntime,
+    index: usize,
+    block: &ReadBlock,
+) -> Result<Reply, Failure> {
+    let DeviceRuntime {
+        spec,
+        stats,
+        read_by_parts,
+    } = device;
+    let exchange = Exchange::for_device(context.line, spec, context.timeout, context.turnaround);
+    let attempts = context.attempts;
+    let by_parts = read_by_parts.get(index).copied().unwrap_or(false);
+    if by_parts {
+        return read_runs(&exchange, master, stats, block, attempts).await;
+    }
+    let reply = exchange
+        .run(master, stats, &block.request, attempts)
+        .await?;
+    if block.used_runs.len() > 1 && reply == Err(ExceptionCode::IllegalDataAddress) {
+        tracing::info!(
+            device = %spec.name,
+            block = %block.name,
+            "device refuses the merged block (exception 02): reading its parts one by one from now on"
+        );
+        if let Some(flag) = read_by_parts.get_mut(index) {
+            *flag = true;
+        }
+        return read_runs(&exchange, master, stats, block, attempts).await;
+    }
+    Ok(reply)
+}
+
+/// What a poll's reply says about the device.
+pub fn outcome(reply: &Reply, device: &str, block: &str) -> PollOutcome {
+    match reply {
+        Ok(_) => PollOutcome::Answered,
+        Err(ExceptionCode::ServerDeviceBusy) => PollOutcome::Busy,
+        Err(
+            code @ (ExceptionCode::ServerDeviceFailure
+            | ExceptionCode::GatewayTargetFailedToRespond),
+        ) => {
+            tracing::warn!(device, block, "poll failed: {code}");
+            PollOutcome::Failed
+        }
+        Err(code) => {
+            // The device is there and refuses this read: a profile problem, not an outage.
+            tracing::warn!(device, block, "poll refused: {code}");
+            PollOutcome::Answered
+        }
+    }
+}
+
+/// Reads a block's used runs one by one and assembles the block's answer with zeros in the
+/// places no field uses. An exception to any run is the block's reply.
+async fn read_runs(
+    exchange: &Exchange<'_>,
+    master: &mut Master,
+    stats: &mut DeviceStats,
+    block: &ReadBlock,
+    attempts: u32,
+) -> Result<Reply, Failure> {
+    let mut answer = block
+        .request
+        .empty_answer()
+        .unwrap_or(Response::HoldingRegisters(Vec::new()));
+    for &(offset, length) in &block.used_runs {
+        let Some(request) = block.request.sub_read(offset, length) else {
+            continue;
+        };
+        match exchange.run(master, stats, &request, attempts).await? {
+            Ok(part) => answer.place(offset, &part),
+            Err(code) => return Ok(Err(code)),
+        }
+    }
+    Ok(Ok(answer))
+}
