@@ -11,9 +11,10 @@ use std::time::Duration;
 use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
-use crate::bus::{DeviceSpec, LineSpec};
+use crate::bus::{DeviceSpec, LineSpec, Transport};
 use crate::contract::GATEWAY_DEVICE;
 use crate::profile::Profile;
+use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use crate::rtu::timing::CharFormat;
 use crate::rtu::transport::{Rs485Settings, SerialSettings};
 
@@ -431,7 +432,7 @@ fn validate_lines(
         ));
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();
-    let mut ports: HashMap<&str, usize> = HashMap::new();
+    let mut links: HashMap<String, usize> = HashMap::new();
     let mut device_names: HashMap<String, String> = HashMap::new();
     let mut profiles: HashMap<String, Arc<Profile>> = HashMap::new();
     let mut lines = Vec::new();
@@ -447,24 +448,7 @@ fn validate_lines(
                 format!("{:?} is already the name of lines[{first}]", raw.name),
             ));
         }
-        if raw.port.is_empty() {
-            problems.push(Problem::new(format!("{place}.port"), "must not be empty"));
-        } else if let Some(first) = ports.insert(&raw.port, index) {
-            problems.push(Problem::new(
-                format!("{place}.port"),
-                format!("{} is already the port of lines[{first}]", raw.port),
-            ));
-        }
-        if is_unstable_port_path(&raw.port) {
-            warnings.push(Problem::new(
-                format!("{place}.port"),
-                format!(
-                    "{} may name another adapter after a replug or reboot; prefer \
-                     /dev/serial/by-id/… or /dev/serial/by-path/…",
-                    raw.port
-                ),
-            ));
-        }
+        let transport = validate_transport(raw, &place, index, &mut links, problems, warnings);
         if raw.data_bits != 8 {
             problems.push(Problem::new(
                 format!("{place}.data_bits"),
@@ -537,15 +521,20 @@ fn validate_lines(
                 devices.push(spec);
             }
         }
+        let Some((path, transport)) = transport else {
+            continue;
+        };
         if problems.len() != before || devices.is_empty() {
             continue;
         }
+        // A Modbus TCP gateway runs its serial side itself: no baud of ours times it.
+        let our_timing = !is_modbus_tcp(&transport);
 
         // Character format: the line's own, else the first device's profile defaults.
         let first_limits = devices[0].profile.limits().clone();
         let baud = raw.baud.unwrap_or(first_limits.default_baud);
         let parity = raw.parity.unwrap_or(first_limits.default_parity);
-        for device in &devices {
+        for device in devices.iter().filter(|_| our_timing) {
             let limits = device.profile.limits();
             if limits.default_parity != parity || limits.default_baud != baud {
                 warnings.push(Problem::new(
@@ -564,7 +553,7 @@ fn validate_lines(
         let spec = LineSpec {
             name: raw.name.clone(),
             serial: SerialSettings {
-                path: raw.port.clone(),
+                path,
                 baud,
                 format: CharFormat {
                     data_bits: raw.data_bits,
@@ -577,6 +566,7 @@ fn validate_lines(
                     delay_after_send: rs485.delay_after_send,
                 }),
             },
+            transport,
             response_timeout: raw.response_timeout,
             retries: raw.retries,
             offline_after: raw.offline_after,
@@ -587,7 +577,7 @@ fn validate_lines(
             devices,
         };
         let plan = LinePlan::of(&spec);
-        if plan.bus_load > 1.0 {
+        if our_timing && plan.bus_load > 1.0 {
             problems.push(Problem::new(
                 place.clone(),
                 format!(
@@ -689,6 +679,134 @@ fn validate_device(
         profile,
         poll_interval,
     })
+}
+
+/// Default network allowance of TCP lines (on top of the default response timeout).
+pub const DEFAULT_NETWORK_ALLOWANCE: Duration = Duration::from_millis(200);
+
+fn is_modbus_tcp(transport: &Transport) -> bool {
+    matches!(transport, Transport::Tcp { endpoint, .. } if endpoint.kind == TcpKind::ModbusTcp)
+}
+
+/// The line's link from exactly one of `port` and `url`, with its keys checked: the path (or
+/// url, which stands for it in logs) and the transport. Two lines on one port or one server
+/// are a problem.
+fn validate_transport(
+    raw: &RawLine,
+    place: &str,
+    index: usize,
+    links: &mut HashMap<String, usize>,
+    problems: &mut Vec<Problem>,
+    warnings: &mut Vec<Problem>,
+) -> Option<(String, Transport)> {
+    let tcp_keys = [
+        ("network_allowance", raw.network_allowance),
+        ("connect_timeout", raw.connect_timeout),
+        ("keepalive", raw.keepalive),
+    ];
+    let (path, transport, key, taken) = match (&raw.port, &raw.url) {
+        (Some(_), Some(_)) => {
+            problems.push(Problem::new(
+                place,
+                "set either `port` (a serial port) or `url` (tcp://… or modbus-tcp://…), not both",
+            ));
+            return None;
+        }
+        (None, None) => {
+            problems.push(Problem::new(
+                place,
+                "needs `port` (a serial port such as /dev/serial/by-id/…) or `url` \
+                 (tcp://host:port for a serial device server, modbus-tcp://host:port for a \
+                 Modbus TCP gateway)",
+            ));
+            return None;
+        }
+        (Some(port), None) => {
+            let port_place = format!("{place}.port");
+            if port.is_empty() {
+                problems.push(Problem::new(port_place, "must not be empty"));
+                return None;
+            }
+            if is_unstable_port_path(port) {
+                warnings.push(Problem::new(
+                    &port_place,
+                    format!(
+                        "{port} may name another adapter after a replug or reboot; prefer \
+                         /dev/serial/by-id/… or /dev/serial/by-path/…"
+                    ),
+                ));
+            }
+            for (key, value) in tcp_keys {
+                if value.is_some() {
+                    problems.push(Problem::new(
+                        format!("{place}.{key}"),
+                        "applies only to lines with a `url`",
+                    ));
+                }
+            }
+            (port.clone(), Transport::Serial, "port", port.clone())
+        }
+        (None, Some(url)) => {
+            let url_place = format!("{place}.url");
+            let endpoint = match TcpEndpoint::parse(url) {
+                Ok(endpoint) => endpoint,
+                Err(error) => {
+                    problems.push(Problem::new(url_place, error.to_string()));
+                    return None;
+                }
+            };
+            if raw.echo {
+                problems.push(Problem::new(
+                    format!("{place}.echo"),
+                    "applies only to serial ports (a TCP server does not echo)",
+                ));
+            }
+            if raw.rs485.is_some() {
+                problems.push(Problem::new(
+                    format!("{place}.rs485"),
+                    "applies only to serial ports (the server drives its own RS485 transceiver)",
+                ));
+            }
+            if endpoint.kind == TcpKind::ModbusTcp {
+                for (key, set) in [
+                    ("baud", raw.baud.is_some()),
+                    ("parity", raw.parity.is_some()),
+                ] {
+                    if set {
+                        warnings.push(Problem::new(
+                            format!("{place}.{key}"),
+                            "means nothing on a modbus-tcp:// line (the gateway's own serial \
+                             settings apply): ignored",
+                        ));
+                    }
+                }
+            }
+            for (key, value) in &tcp_keys {
+                if let Some(value) = value {
+                    check_timeout(&format!("{place}.{key}"), *value, problems);
+                }
+            }
+            let defaults = TcpOptions::default();
+            let transport = Transport::Tcp {
+                options: TcpOptions {
+                    connect_timeout: raw.connect_timeout.unwrap_or(defaults.connect_timeout),
+                    keepalive: raw.keepalive.unwrap_or(defaults.keepalive),
+                    broadcast_turnaround: raw.broadcast_turnaround,
+                },
+                network_allowance: raw.network_allowance.unwrap_or(DEFAULT_NETWORK_ALLOWANCE),
+                endpoint: endpoint.clone(),
+            };
+            // One server, one line, whichever kind names it.
+            (endpoint.url(), transport, "url", endpoint.address)
+        }
+    };
+    if let Some(first) = links.insert(taken, index) {
+        problems.push(Problem::new(
+            format!("{place}.{key}"),
+            format!("{path} is already the {key} of lines[{first}]"),
+        ));
+    }
+    Some((path, transport))
 }
 
 fn check_timeout(place: &str, timeout: Duration, problems: &mut Vec<Problem>) {
