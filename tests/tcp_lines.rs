@@ -555,3 +555,71 @@ address = 1
     gateway.stop().await;
     drop(server);
 }
+
+const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
+
+/// Runs `rtu2mqtt args…` and returns its exit success and standard output.
+async fn run_cli(args: &[&str]) -> (bool, String) {
+    let output = tokio::process::Command::new(BIN)
+        .args(args)
+        .output()
+        .await
+        .expect("rtu2mqtt runs");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_and_read_take_a_url_and_never_write() {
+    let raw = bind(
+        "127.0.0.1:0",
+        Protocol::RawRtu,
+        Parity::None,
+        vec![share(DustCollector::new(1)).1],
+    )
+    .await;
+    let modbus = bind(
+        "127.0.0.1:0",
+        Protocol::ModbusTcp,
+        Parity::None,
+        vec![share(DustCollector::new(1)).1, share(AirShower::new()).1],
+    )
+    .await;
+    let (ok, out) = run_cli(&[
+        "read",
+        "--url",
+        &raw.url(),
+        "--address",
+        "1",
+        "--start",
+        "0x1000",
+        "--count",
+        "6",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    assert!(out.contains("request  01 03 10 00 00 06 C1 08"), "{out}");
+    let (ok, out) = run_cli(&[
+        "scan",
+        "--url",
+        &modbus.url(),
+        "--addresses",
+        "1-3,0x81",
+        "--timeout",
+        "300ms",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    assert!(out.contains("  1 (0x01)"), "{out}");
+    assert!(out.contains("129 (0x81)"), "{out}");
+    assert!(!out.contains("  2 (0x02)"), "{out}");
+    for frames in [raw.journal().frames(), modbus.journal().frames()] {
+        assert!(!frames.is_empty());
+        assert!(
+            frames.iter().all(|f| (1..=4).contains(&f[1])),
+            "a frame other than a read: {frames:?}"
+        );
+    }
+}
