@@ -897,6 +897,125 @@ mod tests {
         }
     }
 
+    /// Validates one-device lines given by their link keys; problems and warnings as text.
+    fn link_findings(lines: &[&str]) -> (Vec<String>, Vec<String>) {
+        let mut text = String::from("[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n");
+        for (index, keys) in lines.iter().enumerate() {
+            text.push_str(&format!(
+                "[[lines]]\nname = \"line{index}\"\n{keys}\n[[lines.devices]]\nname = \"dev{index}\"\n\
+                 profile = \"wuzhou-valve\"\naddress = 1\n"
+            ));
+        }
+        match crate::config::from_str(&text, Path::new(".")) {
+            Ok(config) => (
+                Vec::new(),
+                config.warnings.iter().map(|w| w.to_string()).collect(),
+            ),
+            Err(problems) => (
+                problems.0.iter().map(|p| p.to_string()).collect(),
+                Vec::new(),
+            ),
+        }
+    }
+
+    fn has(findings: &[String], words: &str) -> bool {
+        findings.iter().any(|finding| finding.contains(words))
+    }
+
+    #[test]
+    fn a_line_has_exactly_one_of_port_and_url() {
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"\nurl = \"tcp://h:4001\""]);
+        assert!(
+            has(&problems, "lines[0]: set either `port`"),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&[""]);
+        assert!(has(&problems, "lines[0]: needs `port`"), "{problems:?}");
+    }
+
+    #[test]
+    fn urls_are_checked_with_clear_reasons() {
+        let (problems, _) = link_findings(&["url = \"udp://h:4001\""]);
+        assert!(
+            has(&problems, "lines[0].url: unknown scheme \"udp\""),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["url = \"tcp://10.0.0.5\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[0].url: \"tcp://10.0.0.5\" has no port number"
+            ),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["url = \"modbus-tcp://h:502\"\necho = true"]);
+        assert!(
+            has(&problems, "lines[0].echo: applies only to serial ports"),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"\nnetwork_allowance = \"50ms\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[0].network_allowance: applies only to lines with a `url`"
+            ),
+            "{problems:?}"
+        );
+    }
+
+    #[test]
+    fn two_lines_on_one_server_are_refused() {
+        let (problems, _) =
+            link_findings(&["url = \"tcp://h:4001\"", "url = \"modbus-tcp://h:4001\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[1].url: modbus-tcp://h:4001 is already the url of lines[0]"
+            ),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"", "port = \"/dev/ttyS1\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[1].port: /dev/ttyS1 is already the port of lines[0]"
+            ),
+            "{problems:?}"
+        );
+    }
+
+    #[test]
+    fn tcp_lines_get_their_transport_and_modbus_tcp_warns_about_serial_settings() {
+        let (problems, warnings) = link_findings(&["url = \"modbus-tcp://gw:502\"\nbaud = 19200"]);
+        assert!(problems.is_empty(), "{problems:?}");
+        assert!(
+            has(
+                &warnings,
+                "lines[0].baud: means nothing on a modbus-tcp:// line"
+            ),
+            "{warnings:?}"
+        );
+        let text =
+            "[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n[[lines]]\nname = \"a\"\n\
+                    url = \"tcp://10.0.0.5:4001\"\nconnect_timeout = \"2s\"\n[[lines.devices]]\n\
+                    name = \"v\"\nprofile = \"wuzhou-valve\"\naddress = 1\n";
+        let config = crate::config::from_str(text, Path::new(".")).unwrap();
+        let line = &config.lines[0];
+        assert_eq!(line.serial.path, "tcp://10.0.0.5:4001");
+        match &line.transport {
+            Transport::Tcp {
+                endpoint,
+                options,
+                network_allowance,
+            } => {
+                assert_eq!(endpoint.kind, TcpKind::RawRtu);
+                assert_eq!(options.connect_timeout, Duration::from_secs(2));
+                assert_eq!(*network_allowance, DEFAULT_NETWORK_ALLOWANCE);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
     fn mqtt_problems(mqtt_table: &str, base: &Path) -> Vec<String> {
         let text = format!("[mqtt]\nclient_id = \"edge1\"\n{mqtt_table}\n");
         let raw = crate::config::load::load_str(&text).unwrap();
