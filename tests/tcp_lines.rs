@@ -13,8 +13,8 @@ use std::time::Duration;
 use rtu2mqtt::config::{self, Config};
 use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::sim::{
-    self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
-    VirtualLine,
+    self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
+    TcpSimulator, Valve, VirtualLine,
 };
 use support::{free_port, Gateway, Mosquitto, TestClient};
 
@@ -39,6 +39,8 @@ struct Plant {
     dust_gw: std::sync::Arc<std::sync::Mutex<DustCollector>>,
     raw_devices: Vec<sim::SharedDevice>,
     gateway: Option<Gateway>,
+    /// `plant/gateway/<client id>/stats`.
+    stats_topic: String,
 }
 
 async fn bind(
@@ -98,6 +100,7 @@ impl Plant {
             dust_gw,
             raw_devices,
             gateway: None,
+            stats_topic: format!("plant/gateway/{name}-gw/stats"),
         };
         let config = fast(&plant.config_text(&format!("{name}-gw")));
         plant.gateway = Some(Gateway::start(config).await);
@@ -355,27 +358,41 @@ async fn every_field_is_published_and_commands_apply_on_every_transport() {
     plant.stop().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_server_closing_mid_answer_fails_transactions_and_the_line_reconnects() {
-    let mut plant = Plant::start("close").await;
+/// The TCP lines' devices under `fault` on both servers go offline; without it they come
+/// back. Returns the line statistics seen once they are back.
+async fn offline_under_and_back(plant: &mut Plant, fault: fn(&mut TcpFaults)) -> serde_json::Value {
+    const TCP_DEVICES: [&str; 3] = ["valve", "dust_gw", "shower_gw"];
     plant.watch_from_now().await;
     for sim in [&plant.raw, &plant.modbus] {
-        sim.tcp_faults()
-            .update(|f| f.close_mid_answer = Occurrence::ALWAYS);
+        sim.tcp_faults().update(fault);
     }
-    plant
-        .wait_all(&["valve", "dust_gw", "shower_gw"], "offline")
-        .await;
-    let requests_before = plant.raw.journal().requests().len();
+    plant.wait_all(&TCP_DEVICES, "offline").await;
     plant.watch_from_now().await;
     for sim in [&plant.raw, &plant.modbus] {
         sim.tcp_faults().clear();
     }
+    plant.wait_all(&TCP_DEVICES, "online").await;
     plant
-        .wait_all(&["valve", "dust_gw", "shower_gw"], "online")
-        .await;
-    // Each closed connection was opened again: the server kept hearing requests.
-    assert!(plant.raw.journal().requests().len() > requests_before);
+        .client
+        .next_on(&plant.stats_topic, ANSWER)
+        .await
+        .json()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_closing_mid_answer_fails_transactions_and_the_line_reconnects() {
+    let mut plant = Plant::start("close").await;
+    let stats =
+        offline_under_and_back(&mut plant, |f| f.close_mid_answer = Occurrence::ALWAYS).await;
+    // Each drop failed its transaction (counted with the truncated answers); the next one
+    // reconnected, so the server kept hearing requests and the devices came back.
+    for line in ["line-raw", "line-modbus"] {
+        assert!(
+            stats["lines"][line]["truncated"].as_u64().unwrap_or(0) > 0,
+            "{stats}"
+        );
+        assert_eq!(stats["lines"][line]["port_open"], true, "{stats}");
+    }
     plant.assert_no_wrong_value(&[]).await;
     plant.stop().await;
 }
@@ -383,21 +400,13 @@ async fn a_server_closing_mid_answer_fails_transactions_and_the_line_reconnects(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_server_that_accepts_but_never_answers_takes_the_devices_offline() {
     let mut plant = Plant::start("silent").await;
-    plant.watch_from_now().await;
-    for sim in [&plant.raw, &plant.modbus] {
-        sim.tcp_faults()
-            .update(|f| f.never_answer = Occurrence::ALWAYS);
+    let stats = offline_under_and_back(&mut plant, |f| f.never_answer = Occurrence::ALWAYS).await;
+    for line in ["line-raw", "line-modbus"] {
+        assert!(
+            stats["lines"][line]["timeouts"].as_u64().unwrap_or(0) > 0,
+            "{stats}"
+        );
     }
-    plant
-        .wait_all(&["valve", "dust_gw", "shower_gw"], "offline")
-        .await;
-    plant.watch_from_now().await;
-    for sim in [&plant.raw, &plant.modbus] {
-        sim.tcp_faults().clear();
-    }
-    plant
-        .wait_all(&["valve", "dust_gw", "shower_gw"], "online")
-        .await;
     plant.assert_no_wrong_value(&[]).await;
     plant.stop().await;
 }

@@ -46,8 +46,8 @@ impl Link {
     pub fn counters(&self) -> WireCounters {
         match self {
             Link::Serial(master) => master.counters(),
-            Link::RawTcp(master) => master.counters(),
-            Link::ModbusTcp(master) => master.counters(),
+            Link::RawTcp(master) => master.connection().counters(),
+            Link::ModbusTcp(master) => master.connection().counters(),
         }
     }
 
@@ -55,17 +55,8 @@ impl Link {
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
         match self {
             Link::Serial(master) => master.record_frames_to(writer),
-            Link::RawTcp(master) => master.record_frames_to(writer),
-            Link::ModbusTcp(master) => master.record_frames_to(writer),
-        }
-    }
-
-    /// The port's path or the url, for logs.
-    pub fn label(&self) -> &str {
-        match self {
-            Link::Serial(master) => master.port_path(),
-            Link::RawTcp(master) => master.label(),
-            Link::ModbusTcp(master) => master.label(),
+            Link::RawTcp(master) => master.connection_mut().record_frames_to(writer),
+            Link::ModbusTcp(master) => master.connection_mut().record_frames_to(writer),
         }
     }
 }

@@ -151,18 +151,47 @@ impl Default for TcpOptions {
     }
 }
 
-/// One TCP connection to the server, reopened on demand.
-#[derive(Debug)]
-struct Connection {
+/// One TCP connection to the server, reopened on demand, with the link's counters and frame
+/// recording.
+pub struct Connection {
     endpoint: TcpEndpoint,
     label: String,
     options: TcpOptions,
     stream: Option<TcpStream>,
     /// Bytes read and not yet framed.
     buffer: Vec<u8>,
+    counters: WireCounters,
+    recorder: Recorder,
+}
+
+impl std::fmt::Debug for Connection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Connection")
+            .field("url", &self.label)
+            .field("counters", &self.counters)
+            .finish_non_exhaustive()
+    }
 }
 
 impl Connection {
+    /// Writes every frame to `writer` (the frame log).
+    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+        self.recorder.writer = Some(writer);
+    }
+
+    pub fn counters(&self) -> WireCounters {
+        self.counters
+    }
+
+    /// The url, for logs.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    fn record(&mut self, direction: &str, bytes: &[u8]) {
+        self.recorder.record(&self.label, direction, bytes);
+    }
+
     async fn open(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Connection> {
         let label = endpoint.url();
         let mut connection = Connection {
@@ -171,6 +200,8 @@ impl Connection {
             options,
             stream: None,
             buffer: Vec::new(),
+            counters: WireCounters::default(),
+            recorder: Recorder::default(),
         };
         connection.connect().await?;
         Ok(connection)
@@ -326,25 +357,15 @@ fn reply_of(answer: Answer) -> Reply {
 /// arrives before the next request is sent (it is then drained and counted late), or together
 /// with the current answer in one segment (the last complete answer is taken, the earlier one
 /// counted late).
+#[derive(Debug)]
 pub struct RawTcpMaster {
     connection: Connection,
     timing: LineTiming,
-    counters: WireCounters,
     /// The server's serial side may be driven again from this instant.
     next_send_at: Instant,
     /// After a timeout: the address that timed out and until when its late answer is awaited
     /// before the next request to it goes out.
     late_guard: Option<(SlaveId, Instant)>,
-    recorder: Recorder,
-}
-
-impl std::fmt::Debug for RawTcpMaster {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RawTcpMaster")
-            .field("url", &self.connection.label)
-            .field("counters", &self.counters)
-            .finish_non_exhaustive()
-    }
 }
 
 impl RawTcpMaster {
@@ -357,23 +378,18 @@ impl RawTcpMaster {
         Ok(RawTcpMaster {
             connection: Connection::open(endpoint, options).await?,
             timing,
-            counters: WireCounters::default(),
             next_send_at: Instant::now(),
             late_guard: None,
-            recorder: Recorder::default(),
         })
     }
 
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        self.recorder.writer = Some(writer);
+    /// The connection with the link's counters and frame recording.
+    pub fn connection(&self) -> &Connection {
+        &self.connection
     }
 
-    pub fn counters(&self) -> WireCounters {
-        self.counters
-    }
-
-    pub fn label(&self) -> &str {
-        &self.connection.label
+    pub fn connection_mut(&mut self) -> &mut Connection {
+        &mut self.connection
     }
 
     /// Sends `request` to `slave` and waits up to `timeout` (from the instant it was handed to
@@ -385,7 +401,7 @@ impl RawTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(slave, request, timeout).await;
-        account(&mut self.counters, &result);
+        account(&mut self.connection.counters, &result);
         if let Err(Error::Timeout(_)) = result {
             self.late_guard = Some((slave, Instant::now() + timeout));
         }
@@ -411,15 +427,15 @@ impl RawTcpMaster {
                     frame,
                     skipped,
                 } => {
-                    self.counters.stray_bytes += skipped as u64;
+                    self.connection.counters.stray_bytes += skipped as u64;
                     let (answer, frame) = self.newest_answer(slave, request, answer, frame);
                     self.took_answer(&frame);
                     return Ok(reply_of(answer));
                 }
                 Framed::OutOfStep { skipped } => {
-                    self.counters.stray_bytes += skipped as u64;
+                    self.connection.counters.stray_bytes += skipped as u64;
                     let garbage = std::mem::take(&mut self.connection.buffer);
-                    self.recorder.record(&self.connection.label, "rx", &garbage);
+                    self.connection.record("rx", &garbage);
                     self.next_send_at = Instant::now() + self.timing.t3_5;
                     return Err(Error::UnexpectedReply(DecodeError::Malformed(
                         "no answer among the bytes received",
@@ -432,7 +448,7 @@ impl RawTcpMaster {
                 let got = self.connection.buffer.len();
                 if got > 0 {
                     let partial = std::mem::take(&mut self.connection.buffer);
-                    self.recorder.record(&self.connection.label, "rx", &partial);
+                    self.connection.record("rx", &partial);
                     return Err(Error::Truncated {
                         needed: request.answer_len(),
                         got,
@@ -476,11 +492,11 @@ impl RawTcpMaster {
         sleep_until_precise(self.next_send_at).await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
-            self.recorder.record(&self.connection.label, "rx", &pending);
+            self.connection.record("rx", &pending);
             if pending.first() == Some(&slave) {
-                self.counters.late_answers += 1;
+                self.connection.counters.late_answers += 1;
             } else {
-                self.counters.stray_bytes += pending.len() as u64;
+                self.connection.counters.stray_bytes += pending.len() as u64;
             }
             tracing::debug!(url = %self.connection.label, bytes = pending.len(), "bytes before the request dropped");
         }
@@ -488,10 +504,11 @@ impl RawTcpMaster {
     }
 
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
-        self.recorder.record(&self.connection.label, "tx", frame);
+        self.connection.record("tx", frame);
         let sent_at = self.connection.send(frame).await?;
-        self.counters.requests += 1;
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.connection.counters.requests += 1;
+        self.connection.counters.wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
         Ok(sent_at)
     }
 
@@ -513,8 +530,8 @@ impl RawTcpMaster {
                     frame: newer_frame,
                     ..
                 } => {
-                    self.recorder.record(&self.connection.label, "rx", &frame);
-                    self.counters.late_answers += 1;
+                    self.connection.record("rx", &frame);
+                    self.connection.counters.late_answers += 1;
                     answer = newer;
                     frame = newer_frame;
                     self.connection.buffer = rest;
@@ -526,8 +543,9 @@ impl RawTcpMaster {
     }
 
     fn took_answer(&mut self, frame: &[u8]) {
-        self.recorder.record(&self.connection.label, "rx", frame);
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.connection.record("rx", frame);
+        self.connection.counters.wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
         self.next_send_at = Instant::now() + self.timing.t3_5;
     }
 }
@@ -536,45 +554,31 @@ impl RawTcpMaster {
 /// framed by their MBAP length and matched by id; an answer with another id (the late answer of
 /// a request that timed out) is discarded and counted in `late_answers`. The gateway paces its
 /// own serial side; its busy time (request sent to answer received) is counted as wire time.
+#[derive(Debug)]
 pub struct ModbusTcpMaster {
     connection: Connection,
-    counters: WireCounters,
     next_transaction: u16,
-    recorder: Recorder,
-}
-
-impl std::fmt::Debug for ModbusTcpMaster {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ModbusTcpMaster")
-            .field("url", &self.connection.label)
-            .field("counters", &self.counters)
-            .finish_non_exhaustive()
-    }
 }
 
 impl ModbusTcpMaster {
     pub async fn connect(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Self> {
         Ok(ModbusTcpMaster {
             connection: Connection::open(endpoint, options).await?,
-            counters: WireCounters::default(),
             // Not 0: some gateways treat id 0 specially.
             next_transaction: 1,
-            recorder: Recorder::default(),
         })
     }
 
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        self.recorder.writer = Some(writer);
+    /// The connection with the link's counters and frame recording.
+    pub fn connection(&self) -> &Connection {
+        &self.connection
     }
 
-    pub fn counters(&self) -> WireCounters {
-        self.counters
+    pub fn connection_mut(&mut self) -> &mut Connection {
+        &mut self.connection
     }
 
-    pub fn label(&self) -> &str {
-        &self.connection.label
-    }
-
+    /// Sends `request` to `unit` and waits up to `timeout` for the answer with its id.
     pub async fn transact(
         &mut self,
         unit: SlaveId,
@@ -582,7 +586,7 @@ impl ModbusTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(unit, request, timeout).await;
-        account(&mut self.counters, &result);
+        account(&mut self.connection.counters, &result);
         result
     }
 
@@ -606,14 +610,14 @@ impl ModbusTcpMaster {
         let deadline = sent_at + timeout;
         loop {
             while let Some(answer) = self.next_adu()? {
-                self.recorder.record(&self.connection.label, "rx", &answer);
+                self.connection.record("rx", &answer);
                 match mbap::decode_answer(transaction, unit, request, &answer) {
                     Ok(Matched::Current(answer)) => {
-                        self.counters.wire_time += sent_at.elapsed();
+                        self.connection.counters.wire_time += sent_at.elapsed();
                         return Ok(reply_of(answer));
                     }
                     Ok(Matched::Stale { transaction: old }) => {
-                        self.counters.late_answers += 1;
+                        self.connection.counters.late_answers += 1;
                         tracing::debug!(url = %self.connection.label, transaction = old, "answer to an earlier request dropped");
                     }
                     Err(MbapError::WrongUnit { expected, found }) => {
@@ -634,7 +638,7 @@ impl ModbusTcpMaster {
                 }
             }
             if !self.connection.read_until(deadline).await? {
-                self.counters.wire_time += timeout;
+                self.connection.counters.wire_time += timeout;
                 let got = self.connection.buffer.len();
                 if got > 0 {
                     return Err(Error::Truncated {
@@ -661,9 +665,9 @@ impl ModbusTcpMaster {
     }
 
     async fn send(&mut self, adu: &[u8]) -> Result<Instant, Error> {
-        self.recorder.record(&self.connection.label, "tx", adu);
+        self.connection.record("tx", adu);
         let sent_at = self.connection.send(adu).await?;
-        self.counters.requests += 1;
+        self.connection.counters.requests += 1;
         Ok(sent_at)
     }
 
@@ -672,8 +676,8 @@ impl ModbusTcpMaster {
     fn drop_pending(&mut self) -> Result<(), Error> {
         self.connection.buffer = self.connection.take_pending()?;
         while let Some(adu) = self.next_adu()? {
-            self.recorder.record(&self.connection.label, "rx", &adu);
-            self.counters.late_answers += 1;
+            self.connection.record("rx", &adu);
+            self.connection.counters.late_answers += 1;
         }
         Ok(())
     }
@@ -687,9 +691,9 @@ impl ModbusTcpMaster {
             }
             Ok(_) => Ok(None),
             Err(error) => {
-                self.counters.stray_bytes += self.connection.buffer.len() as u64;
+                self.connection.counters.stray_bytes += self.connection.buffer.len() as u64;
                 let garbage = std::mem::take(&mut self.connection.buffer);
-                self.recorder.record(&self.connection.label, "rx", &garbage);
+                self.connection.record("rx", &garbage);
                 Err(self.connection.lost(std::io::Error::new(
                     std::io::ErrorKind::InvalidData,
                     error.to_string(),
