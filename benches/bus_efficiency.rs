@@ -192,6 +192,7 @@ async fn measure(
             format,
             rs485: None,
         },
+        transport: rtu2mqtt::bus::Transport::Serial,
         response_timeout: None,
         retries: 1,
         offline_after: 3,

@@ -119,8 +119,12 @@ pub struct SimulateArgs {
 #[derive(Debug, Args)]
 pub struct ScanArgs {
     /// Serial port path (a running gateway's port is refused).
+    #[arg(long, required_unless_present = "url", conflicts_with = "url")]
+    pub port: Option<PathBuf>,
+    /// Instead of a port: `tcp://host:port` (a serial device server) or
+    /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
     #[arg(long)]
-    pub port: PathBuf,
+    pub url: Option<String>,
     /// Baud rates to try, comma-separated.
     #[arg(
         long,
@@ -145,8 +149,12 @@ pub struct ScanArgs {
 #[derive(Debug, Args)]
 pub struct ReadArgs {
     /// Serial port path (a running gateway's port is refused).
+    #[arg(long, required_unless_present = "url", conflicts_with = "url")]
+    pub port: Option<PathBuf>,
+    /// Instead of a port: `tcp://host:port` (a serial device server) or
+    /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
     #[arg(long)]
-    pub port: PathBuf,
+    pub url: Option<String>,
     #[arg(long, value_parser = parse_address)]
     pub address: u8,
     /// 1 (coils), 2 (discrete inputs), 3 (holding registers) or 4 (input registers).

@@ -67,6 +67,7 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
             },
             rs485: None,
         },
+        transport: rtu2mqtt::bus::Transport::Serial,
         response_timeout: None,
         retries: 1,
         offline_after: 3,

@@ -1,14 +1,17 @@
 //! `rtu2mqtt check`: validates the configuration and its profiles without touching a port or a
 //! broker, and prints each line's poll plan (devices, blocks, frames and wire time per cycle,
-//! bus load) in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
+//! bus load) and what each line talks through, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
 
 use std::fmt::Write as _;
 use std::path::Path;
 use std::process::ExitCode;
 use std::time::Duration;
 
+use crate::bus::line::default_response_timeout;
+use crate::bus::Transport;
 use crate::config::plan::LinePlan;
 use crate::config::{self, Config};
+use crate::rtu::tcp_link::TcpKind;
 use crate::rtu::timing::Parity;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
@@ -54,17 +57,46 @@ pub fn report(path: &Path, config: &Config) -> String {
     for line in &config.lines {
         let plan = LinePlan::of(line);
         let serial = &line.serial;
-        let _ = writeln!(
-            out,
-            "\nline {} on {}: {} baud {}{}{}, t3.5 {}",
-            line.name,
-            serial.path,
+        let format = format!(
+            "{} baud {}{}{}",
             serial.baud,
             serial.format.data_bits,
             parity_letter(serial.format.parity),
-            serial.format.stop_bits,
-            millis(plan.timing.t3_5)
+            serial.format.stop_bits
         );
+        let t3_5 = millis(plan.timing.t3_5);
+        let timeout = millis(
+            line.response_timeout
+                .unwrap_or_else(|| default_response_timeout(line, &plan.timing)),
+        );
+        let _ = match &line.transport {
+            Transport::Serial => writeln!(
+                out,
+                "\nline {} on {}: {format}, t3.5 {t3_5}",
+                line.name, serial.path
+            ),
+            Transport::Tcp {
+                endpoint,
+                network_allowance,
+                ..
+            } => match endpoint.kind {
+                TcpKind::RawRtu => writeln!(
+                    out,
+                    "\nline {} on {} (serial device server, raw RTU): {format} on its serial \
+                     side, t3.5 {t3_5}, response timeout {timeout} (network allowance {})",
+                    line.name,
+                    endpoint.url(),
+                    millis(*network_allowance)
+                ),
+                TcpKind::ModbusTcp => writeln!(
+                    out,
+                    "\nline {} on {} (Modbus TCP gateway, unit id = address): response timeout \
+                     {timeout}; the gateway times its serial side, load estimated at {format}",
+                    line.name,
+                    endpoint.url()
+                ),
+            },
+        };
         let _ = writeln!(
             out,
             "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>7}",

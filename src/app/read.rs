@@ -1,7 +1,8 @@
-//! `rtu2mqtt read`: one raw read on a serial port, shown as hex and decoded every way a profile
+//! `rtu2mqtt read`: one raw read on a serial port or over TCP (`--url`), shown as hex and decoded every way a profile
 //! could (u16, i16, u32/i32/f32 in both word orders, packed BCD, characters, bits), to help
-//! write a profile. Also the port opening both commissioning commands share: it refuses a
-//! port another rtu2mqtt process holds (a running gateway) and names the holder.
+//! write a profile. Also the port opening both commissioning commands share ([`Target`]): it
+//! refuses a port another rtu2mqtt process holds (a running gateway) and names the holder, or
+//! connects to a serial device server or a Modbus TCP gateway.
 //!
 //! Read functions only: this module never builds a write request.
 
@@ -14,7 +15,9 @@ use anyhow::{bail, Context as _};
 use crate::app::simulate::parse_parity;
 use crate::cli::ReadArgs;
 use crate::rtu::codec::{encode_answer, encode_request, hex};
+use crate::rtu::link::Link;
 use crate::rtu::master::{Master, MasterOptions};
+use crate::rtu::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions};
 use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::rtu::transport::{Port, SerialSettings, TransportError};
 use crate::rtu::{Request, Response, SlaveId};
@@ -132,6 +135,61 @@ pub fn master_on(port: Port, baud: u32, parity: Parity) -> Master {
     )
 }
 
+/// Where a commissioning command talks: `--port` or `--url`.
+#[derive(Debug, Clone, Copy)]
+pub enum Target<'a> {
+    Port(&'a Path),
+    Url(&'a str),
+}
+
+impl<'a> Target<'a> {
+    /// The one of `port` and `url` given (the command line requires exactly one).
+    pub fn of(port: Option<&'a Path>, url: Option<&'a str>) -> anyhow::Result<Self> {
+        match (port, url) {
+            (Some(port), None) => Ok(Target::Port(port)),
+            (None, Some(url)) => Ok(Target::Url(url)),
+            _ => bail!("give either --port or --url"),
+        }
+    }
+
+    /// A Modbus TCP gateway: baud and parity are its own, not ours to try.
+    pub fn is_modbus_tcp(&self) -> anyhow::Result<bool> {
+        Ok(match self {
+            Target::Port(_) => false,
+            Target::Url(url) => TcpEndpoint::parse(url)?.kind == TcpKind::ModbusTcp,
+        })
+    }
+
+    /// Opens the port (refusing one a running gateway holds) or connects to the server, at
+    /// `baud`/`parity` (the server's serial side on `tcp://`; unused on `modbus-tcp://`).
+    pub async fn open(&self, baud: u32, parity: Parity) -> anyhow::Result<Link> {
+        match self {
+            Target::Port(path) => Ok(Link::Serial(master_on(
+                open_port(path, baud, parity)?,
+                baud,
+                parity,
+            ))),
+            Target::Url(url) => {
+                let endpoint = TcpEndpoint::parse(url)?;
+                let options = TcpOptions::default();
+                let connected = match endpoint.kind {
+                    TcpKind::RawRtu => RawTcpMaster::connect(
+                        endpoint,
+                        options,
+                        LineTiming::new(baud, char_format(parity)),
+                    )
+                    .await
+                    .map(Link::RawTcp),
+                    TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint, options)
+                        .await
+                        .map(Link::ModbusTcp),
+                };
+                connected.with_context(|| format!("connecting to {url}"))
+            }
+        }
+    }
+}
+
 pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
     let parity = parse_parity(&args.parity)?;
     let request = read_request(args.function, args.start, args.count)?;
@@ -142,8 +200,8 @@ pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
         .context("starting the runtime")?;
     let result = runtime.block_on(async {
         // The serial stream registers with the runtime's reactor: opened inside it.
-        let port = open_port(&args.port, args.baud, parity)?;
-        let mut master = master_on(port, args.baud, parity);
+        let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+        let mut master = target.open(args.baud, parity).await?;
         anyhow::Ok(master.transact(args.address, &request, args.timeout).await)
     })?;
     println!("request  {}", hex(&frame));

@@ -1,5 +1,6 @@
 //! `rtu2mqtt scan`: which device answers at which address, baud rate and parity on a serial
-//! port. Read-only: every probe is a read of one register or bit at 0.
+//! port or behind a serial device server (`--url tcp://…`; on `modbus-tcp://` only addresses,
+//! the gateway's serial setting being its own). Read-only: every probe is a read of one register or bit at 0.
 //!
 //! The probe is FC03 (one holding register at 0). Any valid answer means a device is there,
 //! including an exception: a device that does not have register 0 answers 02, one without
@@ -25,10 +26,11 @@ use std::time::Duration;
 
 use anyhow::{bail, Context as _};
 
-use super::read::{master_on, open_port, read_request};
+use super::read::{read_request, Target};
 use crate::app::simulate::parse_parity;
 use crate::cli::ScanArgs;
-use crate::rtu::master::{self, Master};
+use crate::rtu::link::Link;
+use crate::rtu::master;
 use crate::rtu::timing::Parity;
 use crate::rtu::{Request, SlaveId};
 
@@ -82,7 +84,7 @@ enum Probe {
 }
 
 async fn probe(
-    master: &mut Master,
+    master: &mut Link,
     address: SlaveId,
     request: &Request,
     timeout: Duration,
@@ -99,7 +101,7 @@ async fn probe(
 
 /// Probes `address` on `master`: FC03, and FC04/FC01 when FC03 was refused.
 async fn probe_address(
-    master: &mut Master,
+    master: &mut Link,
     address: SlaveId,
     timeout: Duration,
 ) -> anyhow::Result<(Vec<String>, Option<String>)> {
@@ -179,13 +181,22 @@ async fn run_scan(
     found: &mut Vec<Found>,
     garbled: &mut Vec<String>,
 ) -> anyhow::Result<()> {
-    let settings = args.baud.len() * parities.len();
+    let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+    // A Modbus TCP gateway has one serial setting, its own: probed once.
+    let (bauds, parities) = if target.is_modbus_tcp()? {
+        (
+            &args.baud[..args.baud.len().min(1)],
+            &parities[..parities.len().min(1)],
+        )
+    } else {
+        (&args.baud[..], parities)
+    };
+    let settings = bauds.len() * parities.len();
     let mut setting_index = 0;
-    for &baud in &args.baud {
+    for &baud in bauds {
         for &parity in parities {
             setting_index += 1;
-            let port = open_port(&args.port, baud, parity)?;
-            let mut master = master_on(port, baud, parity);
+            let mut master = target.open(baud, parity).await?;
             for (i, &address) in addresses.iter().enumerate() {
                 eprint!(
                     "\rscanning {baud} {} ({setting_index}/{settings}): address {address} ({}/{}), {} found   ",
@@ -251,8 +262,8 @@ async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::R
             device.baud,
             format_name(device.parity)
         );
-        let port = open_port(&args.port, device.baud, device.parity)?;
-        let mut master = master_on(port, device.baud, device.parity);
+        let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+        let mut master = target.open(device.baud, device.parity).await?;
         for (index, block) in profile.read_blocks().iter().enumerate() {
             if !block.request.is_read() {
                 continue;

@@ -1,4 +1,5 @@
-//! The task that owns one serial line: its loop. It keeps the port open ([`super::port`]),
+//! The task that owns one line: its loop. It keeps the link open ([`super::port`]: a serial
+//! port or a TCP connection, the same loop for both),
 //! asks the [`Scheduler`] what is due, runs command slots and settle re-reads
 //! ([`super::commands`]) before polls ([`super::poll`]), turns answers into values through each
 //! device's runtime ([`super::device`]) and reports [`LineEvent`]s. It publishes [`LineStats`]
@@ -22,13 +23,14 @@ use super::device::{DeviceRuntime, Values};
 use super::health::{HealthChange, HealthPolicy};
 use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
-use super::port::{self, Backoff, Reopen, MISSING_PORT};
+use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::stats::LoadWindow;
 use super::transaction::{Failure, Turnaround};
-use super::{Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats};
+use super::{Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats, Transport};
 use crate::profile::Profile;
-use crate::rtu::master::{Master, PortFault, WireCounters};
+use crate::rtu::link::Link;
+use crate::rtu::master::{PortFault, WireCounters};
 use crate::rtu::timing::LineTiming;
 use crate::rtu::transport::TransportError;
 use crate::shutdown::Shutdown;
@@ -65,8 +67,15 @@ pub fn spawn_line(
 }
 
 /// The response timeout of a line when none is configured: the wire time of the longest answer
-/// any of its devices' blocks can give, the end-of-frame silence, and a device margin.
+/// any of its devices' blocks can give, the end-of-frame silence, and a device margin; on a
+/// TCP line also the network allowance.
 pub fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duration {
+    let network = match &spec.transport {
+        Transport::Serial => Duration::ZERO,
+        Transport::Tcp {
+            network_allowance, ..
+        } => *network_allowance,
+    };
     let longest = spec
         .devices
         .iter()
@@ -75,7 +84,7 @@ pub fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duratio
         .max()
         .unwrap_or(8)
         .max(8);
-    timing.default_response_timeout(longest, DEVICE_MARGIN)
+    timing.default_response_timeout(longest, DEVICE_MARGIN) + network
 }
 
 /// The line task's state. Its command handling lives in [`super::commands`].
@@ -86,7 +95,7 @@ pub(super) struct Line {
     timing: LineTiming,
     pub(super) timeout: Duration,
     pub(super) scheduler: Scheduler<Pending>,
-    pub(super) master: Option<Master>,
+    pub(super) master: Option<Link>,
     reopen: Reopen,
     pub(super) settling: Vec<Settle>,
     events_tx: mpsc::Sender<LineEvent>,
@@ -128,7 +137,7 @@ impl Line {
             .collect();
         let stats = stats_tx.borrow().clone();
         tracing::info!(
-            port = %spec.serial.path,
+            link = %spec.transport.describe(&spec.serial),
             baud = spec.serial.baud,
             devices = devices.len(),
             ?timeout,
@@ -166,7 +175,7 @@ impl Line {
             self.accept_commands(now).await;
             if self.master.is_none() {
                 if now >= self.reopen.at() {
-                    self.open_port(now).await;
+                    self.open_link(now).await;
                 } else {
                     self.fail_queued(&CommandFailure::PortReopening).await;
                     self.wait(Some(self.reopen.at())).await;
@@ -254,11 +263,18 @@ impl Line {
         self.emit(event).await;
     }
 
-    async fn open_port(&mut self, now: Instant) {
+    async fn open_link(&mut self, now: Instant) {
         self.turnaround.idle();
-        match port::open_master(&self.spec, self.timing) {
-            Ok(master) => {
-                self.master = Some(master);
+        let opened = tokio::select! {
+            opened = port::open_link(&self.spec, self.timing) => Some(opened),
+            () = self.shutdown.fired() => None,
+        };
+        let Some(opened) = opened else {
+            return;
+        };
+        match opened {
+            Ok(link) => {
+                self.master = Some(link);
                 if self.stats.port_failures > 0 {
                     tracing::info!(port = %self.spec.serial.path, "port open again");
                 } else {
@@ -271,8 +287,8 @@ impl Line {
             Err(error) => {
                 self.stats.port_failures += 1;
                 let backoff = Backoff::after(&error);
-                let delay = self.reopen.failed(now, backoff);
-                if let TransportError::NotATerminal { .. } = error {
+                let delay = self.reopen.failed(Instant::now(), backoff);
+                if let OpenError::Serial(TransportError::NotATerminal { .. }) = error {
                     tracing::error!(
                         port = %self.spec.serial.path,
                         retry_in = ?delay,
@@ -301,7 +317,11 @@ impl Line {
         self.stats.port_open = false;
         self.stats.port_failures += 1;
         self.reopen.opened();
-        let delay = self.reopen.failed(now, MISSING_PORT);
+        let backoff = match self.spec.transport {
+            Transport::Serial => MISSING_PORT,
+            Transport::Tcp { .. } => UNREACHABLE_SERVER,
+        };
+        let delay = self.reopen.failed(now, backoff);
         tracing::warn!(
             port = %self.spec.serial.path,
             retry_in = ?delay,
@@ -467,6 +487,7 @@ mod tests {
                 },
                 rs485: None,
             },
+            transport: Transport::Serial,
             response_timeout: None,
             retries: 1,
             offline_after: 2,

@@ -1,4 +1,4 @@
-//! One task per serial line. [`spawn_line`] starts it: it owns the port (through
+//! One task per line (a serial port or a TCP link). [`spawn_line`] starts it: it owns the port (through
 //! [`crate::rtu::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
@@ -23,6 +23,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 
 use crate::profile::{CommandPlan, Profile, Value};
+use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use crate::rtu::transport::SerialSettings;
 use crate::rtu::SlaveId;
 
@@ -38,11 +39,42 @@ pub struct DeviceSpec {
     pub poll_interval: Duration,
 }
 
-/// One configured serial line with its devices.
+/// What a line talks through.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Transport {
+    /// The serial port at [`LineSpec::serial`]'s path.
+    Serial,
+    /// A serial device server (`tcp://`: raw RTU, timed by [`LineSpec::serial`]'s baud and
+    /// format) or a Modbus TCP gateway (`modbus-tcp://`).
+    Tcp {
+        endpoint: TcpEndpoint,
+        options: TcpOptions,
+        /// Added to the default response timeout for the network's round trip.
+        network_allowance: Duration,
+    },
+}
+
+impl Transport {
+    /// How `check` and the logs name it.
+    pub fn describe(&self, serial: &SerialSettings) -> String {
+        match self {
+            Transport::Serial => format!("serial port {}", serial.path),
+            Transport::Tcp { endpoint, .. } => match endpoint.kind {
+                TcpKind::RawRtu => format!("serial device server {} (raw RTU)", endpoint.url()),
+                TcpKind::ModbusTcp => format!("Modbus TCP gateway {}", endpoint.url()),
+            },
+        }
+    }
+}
+
+/// One configured line with its devices.
 #[derive(Debug, Clone)]
 pub struct LineSpec {
     pub name: String,
+    /// The serial port and its character format. On a TCP line `path` holds the url (for logs)
+    /// and baud and format time the server's serial side.
     pub serial: SerialSettings,
+    pub transport: Transport,
     /// None: derived from baud and the longest expected answer plus a device margin.
     pub response_timeout: Option<Duration>,
     /// Retries after a failed transaction (timeout, CRC, truncated answer).

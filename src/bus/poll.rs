@@ -3,7 +3,8 @@
 //! means for the device's health. Decoding and reporting are the line's.
 
 use crate::profile::ReadBlock;
-use crate::rtu::master::{Master, Reply};
+use crate::rtu::link::Link;
+use crate::rtu::master::Reply;
 use crate::rtu::{ExceptionCode, Response};
 
 use super::device::DeviceRuntime;
@@ -24,7 +25,7 @@ pub struct PollContext<'a> {
 /// good) when the device refuses the merged block with exception 02.
 pub async fn read_block(
     context: PollContext<'_>,
-    master: &mut Master,
+    master: &mut Link,
     device: &mut DeviceRuntime,
     index: usize,
     block: &ReadBlock,
@@ -81,7 +82,7 @@ pub fn outcome(reply: &Reply, device: &str, block: &str) -> PollOutcome {
 /// places no field uses. An exception to any run is the block's reply.
 async fn read_runs(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     block: &ReadBlock,
     attempts: u32,

@@ -1,21 +1,25 @@
-//! A line's serial port: opening it as a [`Master`] with the line's settings, and when to try
-//! again after it was missing, failed under a transaction, or turned out to be no serial port
-//! at all. One back-off policy ([`Reopen`]) with two schedules ([`Backoff`]). Nothing here runs
-//! a transaction or reports to the bridge.
+//! A line's link: opening its serial port as a [`Master`] or connecting to its TCP server,
+//! with the line's settings, and when to try again after it was missing, failed under a
+//! transaction, or turned out to be no serial port at all. One back-off policy ([`Reopen`])
+//! with three schedules ([`Backoff`]). Nothing here runs a transaction or reports to the
+//! bridge.
 //!
 //! A missing or failed port (adapter unplugged, EOF, EIO) is tried again quickly: 100 ms
 //! doubling to 3 s. A path that exists but is no serial port (a regular file, `/dev/null`) is a
 //! configuration mistake that waiting does not fix (docs/reliability.md B11): it is looked at
 //! again only after 5 s doubling to 60 s (the path may be a link that gets pointed at the
-//! adapter).
+//! adapter). A TCP server that refuses or does not accept the connection is tried again after
+//! 200 ms doubling to 10 s.
 
 use std::time::{Duration, Instant};
 
+use crate::rtu::link::Link;
 use crate::rtu::master::{Master, MasterOptions};
+use crate::rtu::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpKind};
 use crate::rtu::timing::LineTiming;
 use crate::rtu::transport::{Port, TransportError};
 
-use super::LineSpec;
+use super::{LineSpec, Transport};
 
 /// Waits between attempts: the first one, doubling up to the longest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,14 +40,30 @@ pub const NOT_A_PORT: Backoff = Backoff {
     longest: Duration::from_secs(60),
 };
 
+/// For a TCP server that cannot be reached.
+pub const UNREACHABLE_SERVER: Backoff = Backoff {
+    first: Duration::from_millis(200),
+    longest: Duration::from_secs(10),
+};
+
 impl Backoff {
-    /// The schedule for a failed attempt to open the port.
-    pub fn after(error: &TransportError) -> Backoff {
+    /// The schedule for a failed attempt to open the link.
+    pub fn after(error: &OpenError) -> Backoff {
         match error {
-            TransportError::NotATerminal { .. } => NOT_A_PORT,
-            _ => MISSING_PORT,
+            OpenError::Serial(TransportError::NotATerminal { .. }) => NOT_A_PORT,
+            OpenError::Serial(_) => MISSING_PORT,
+            OpenError::Connect { .. } => UNREACHABLE_SERVER,
         }
     }
+}
+
+/// Why a line's link could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error(transparent)]
+    Serial(#[from] TransportError),
+    #[error("cannot connect to {url}: {source}")]
+    Connect { url: String, source: std::io::Error },
 }
 
 /// When the line tries to open its port next.
@@ -84,19 +104,41 @@ impl Reopen {
     }
 }
 
-/// Opens the line's port and puts a master on it with the line's settings.
-pub fn open_master(spec: &LineSpec, timing: LineTiming) -> Result<Master, TransportError> {
-    let port = Port::open(&spec.serial)?;
-    let options = MasterOptions {
-        echo: spec.echo,
-        broadcast_turnaround: spec.broadcast_turnaround,
-        ..MasterOptions::default()
+/// Opens the line's port, or connects to its server, with the line's settings.
+pub async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Link, OpenError> {
+    let mut link = match &spec.transport {
+        Transport::Serial => {
+            let port = Port::open(&spec.serial)?;
+            let options = MasterOptions {
+                echo: spec.echo,
+                broadcast_turnaround: spec.broadcast_turnaround,
+                ..MasterOptions::default()
+            };
+            Link::Serial(Master::new(port, timing, options))
+        }
+        Transport::Tcp {
+            endpoint, options, ..
+        } => {
+            let mut options = *options;
+            options.broadcast_turnaround = spec.broadcast_turnaround;
+            let connected = match endpoint.kind {
+                TcpKind::RawRtu => RawTcpMaster::connect(endpoint.clone(), options, timing)
+                    .await
+                    .map(Link::RawTcp),
+                TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint.clone(), options)
+                    .await
+                    .map(Link::ModbusTcp),
+            };
+            connected.map_err(|source| OpenError::Connect {
+                url: endpoint.url(),
+                source,
+            })?
+        }
     };
-    let mut master = Master::new(port, timing, options);
     if let Some(log) = &spec.frame_log {
-        master.record_frames_to(Box::new(log.writer(&spec.name)));
+        link.record_frames_to(Box::new(log.writer(&spec.name)));
     }
-    Ok(master)
+    Ok(link)
 }
 
 #[cfg(test)]

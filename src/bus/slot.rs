@@ -13,7 +13,8 @@
 use std::time::Instant;
 
 use crate::profile::{CommandPlan, Verification};
-use crate::rtu::master::{Error as MasterError, Master, PortFault};
+use crate::rtu::link::Link;
+use crate::rtu::master::{Error as MasterError, PortFault};
 use crate::rtu::{ExceptionCode, Request, Response};
 
 use super::outcome::CommandFailure;
@@ -79,7 +80,7 @@ pub type SeenReads = Vec<(Request, Response)>;
 /// Every read answered in the slot is added to `seen`.
 pub async fn run_slot(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     plan: &CommandPlan,
     attempts: u32,
@@ -135,7 +136,7 @@ pub async fn run_slot(
 /// Reads the plan's read-back and judges it.
 pub async fn reread(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     plan: &CommandPlan,
     attempts: u32,
@@ -145,7 +146,7 @@ pub async fn reread(
     Ok(plan.verify(&answers))
 }
 
-async fn broadcast(master: &mut Master, plan: &CommandPlan) -> SlotEnd {
+async fn broadcast(master: &mut Link, plan: &CommandPlan) -> SlotEnd {
     let writes = match plan.writes(&[]) {
         Ok(writes) => writes,
         Err(rejection) => {
@@ -168,7 +169,7 @@ async fn broadcast(master: &mut Master, plan: &CommandPlan) -> SlotEnd {
 
 async fn read_all(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     requests: &[Request],
     attempts: u32,
@@ -186,7 +187,7 @@ async fn read_all(
 
 async fn write_all(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     writes: &[Request],
 ) -> Result<(), Stop> {
@@ -201,7 +202,7 @@ async fn write_all(
 /// exception stops the slot.
 async fn patiently(
     exchange: &Exchange<'_>,
-    master: &mut Master,
+    master: &mut Link,
     stats: &mut DeviceStats,
     request: &Request,
     attempts: u32,

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use tracing::Instrument;
 
-use crate::rtu::master::{Error as MasterError, Master, PortFault, Reply};
+use crate::rtu::link::Link;
+use crate::rtu::master::{Error as MasterError, PortFault, Reply};
 use crate::rtu::{Request, SlaveId};
 
 use super::stats::DeviceStats;
@@ -132,7 +133,7 @@ impl<'a> Exchange<'a> {
     /// normally or with an exception (not retried: it is the device's word).
     pub async fn run(
         &self,
-        master: &mut Master,
+        master: &mut Link,
         stats: &mut DeviceStats,
         request: &Request,
         attempts: u32,

@@ -101,7 +101,19 @@ impl Default for RawGateway {
 #[serde(deny_unknown_fields)]
 pub struct RawLine {
     pub name: String,
-    pub port: String,
+    /// A serial port; exactly one of `port` and `url` is set.
+    pub port: Option<String>,
+    /// `tcp://host:port` (serial device server) or `modbus-tcp://host:port` (gateway).
+    pub url: Option<String>,
+    /// TCP lines: added to the default response timeout. Default 200 ms.
+    #[serde(default, with = "humantime_serde")]
+    pub network_allowance: Option<Duration>,
+    /// TCP lines: longest wait for the connection. Default 3 s.
+    #[serde(default, with = "humantime_serde")]
+    pub connect_timeout: Option<Duration>,
+    /// TCP lines: idle time before keepalive probes. Default 10 s.
+    #[serde(default, with = "humantime_serde")]
+    pub keepalive: Option<Duration>,
     /// Default: the first device's profile default.
     pub baud: Option<u32>,
     /// Default: the first device's profile default.
@@ -269,7 +281,11 @@ pub const GATEWAY_SHAPE: &[Key] = &[
 ];
 pub const LINE_SHAPE: &[Key] = &[
     required("name", Kind::Text),
-    required("port", Kind::Text),
+    optional("port", Kind::Text),
+    optional("url", Kind::Text),
+    optional("network_allowance", Kind::Duration),
+    optional("connect_timeout", Kind::Duration),
+    optional("keepalive", Kind::Duration),
     optional("baud", U32),
     optional("parity", Kind::OneOf(PARITY_WORDS)),
     optional("data_bits", U8),
@@ -326,6 +342,10 @@ pub const GATEWAY_KEYS: &[&str] = &[
 pub const LINE_KEYS: &[&str] = &[
     "name",
     "port",
+    "url",
+    "network_allowance",
+    "connect_timeout",
+    "keepalive",
     "baud",
     "parity",
     "data_bits",

@@ -12,9 +12,10 @@ use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
 use super::sparkplug::validate_sparkplug;
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
-use crate::bus::{DeviceSpec, LineSpec};
+use crate::bus::{DeviceSpec, LineSpec, Transport};
 use crate::contract::GATEWAY_DEVICE;
 use crate::profile::Profile;
+use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use crate::rtu::timing::CharFormat;
 use crate::rtu::transport::{Rs485Settings, SerialSettings};
 
@@ -452,7 +453,7 @@ fn validate_lines(
         ));
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();
-    let mut ports: HashMap<&str, usize> = HashMap::new();
+    let mut links: HashMap<String, usize> = HashMap::new();
     let mut device_names: HashMap<String, String> = HashMap::new();
     let mut profiles: HashMap<String, Arc<Profile>> = HashMap::new();
     let mut lines = Vec::new();
@@ -468,24 +469,7 @@ fn validate_lines(
                 format!("{:?} is already the name of lines[{first}]", raw.name),
             ));
         }
-        if raw.port.is_empty() {
-            problems.push(Problem::new(format!("{place}.port"), "must not be empty"));
-        } else if let Some(first) = ports.insert(&raw.port, index) {
-            problems.push(Problem::new(
-                format!("{place}.port"),
-                format!("{} is already the port of lines[{first}]", raw.port),
-            ));
-        }
-        if is_unstable_port_path(&raw.port) {
-            warnings.push(Problem::new(
-                format!("{place}.port"),
-                format!(
-                    "{} may name another adapter after a replug or reboot; prefer \
-                     /dev/serial/by-id/… or /dev/serial/by-path/…",
-                    raw.port
-                ),
-            ));
-        }
+        let transport = validate_transport(raw, &place, index, &mut links, problems, warnings);
         if raw.data_bits != 8 {
             problems.push(Problem::new(
                 format!("{place}.data_bits"),
@@ -558,15 +542,20 @@ fn validate_lines(
                 devices.push(spec);
             }
         }
+        let Some((path, transport)) = transport else {
+            continue;
+        };
         if problems.len() != before || devices.is_empty() {
             continue;
         }
+        // A Modbus TCP gateway runs its serial side itself: no baud of ours times it.
+        let our_timing = !is_modbus_tcp(&transport);
 
         // Character format: the line's own, else the first device's profile defaults.
         let first_limits = devices[0].profile.limits().clone();
         let baud = raw.baud.unwrap_or(first_limits.default_baud);
         let parity = raw.parity.unwrap_or(first_limits.default_parity);
-        for device in &devices {
+        for device in devices.iter().filter(|_| our_timing) {
             let limits = device.profile.limits();
             if limits.default_parity != parity || limits.default_baud != baud {
                 warnings.push(Problem::new(
@@ -585,7 +574,7 @@ fn validate_lines(
         let spec = LineSpec {
             name: raw.name.clone(),
             serial: SerialSettings {
-                path: raw.port.clone(),
+                path,
                 baud,
                 format: CharFormat {
                     data_bits: raw.data_bits,
@@ -598,6 +587,7 @@ fn validate_lines(
                     delay_after_send: rs485.delay_after_send,
                 }),
             },
+            transport,
             response_timeout: raw.response_timeout,
             retries: raw.retries,
             offline_after: raw.offline_after,
@@ -608,7 +598,7 @@ fn validate_lines(
             devices,
         };
         let plan = LinePlan::of(&spec);
-        if plan.bus_load > 1.0 {
+        if our_timing && plan.bus_load > 1.0 {
             problems.push(Problem::new(
                 place.clone(),
                 format!(
@@ -712,6 +702,134 @@ fn validate_device(
     })
 }
 
+/// Default network allowance of TCP lines (on top of the default response timeout).
+pub const DEFAULT_NETWORK_ALLOWANCE: Duration = Duration::from_millis(200);
+
+fn is_modbus_tcp(transport: &Transport) -> bool {
+    matches!(transport, Transport::Tcp { endpoint, .. } if endpoint.kind == TcpKind::ModbusTcp)
+}
+
+/// The line's link from exactly one of `port` and `url`, with its keys checked: the path (or
+/// url, which stands for it in logs) and the transport. Two lines on one port or one server
+/// are a problem.
+fn validate_transport(
+    raw: &RawLine,
+    place: &str,
+    index: usize,
+    links: &mut HashMap<String, usize>,
+    problems: &mut Vec<Problem>,
+    warnings: &mut Vec<Problem>,
+) -> Option<(String, Transport)> {
+    let tcp_keys = [
+        ("network_allowance", raw.network_allowance),
+        ("connect_timeout", raw.connect_timeout),
+        ("keepalive", raw.keepalive),
+    ];
+    let (path, transport, key, taken) = match (&raw.port, &raw.url) {
+        (Some(_), Some(_)) => {
+            problems.push(Problem::new(
+                place,
+                "set either `port` (a serial port) or `url` (tcp://… or modbus-tcp://…), not both",
+            ));
+            return None;
+        }
+        (None, None) => {
+            problems.push(Problem::new(
+                place,
+                "needs `port` (a serial port such as /dev/serial/by-id/…) or `url` \
+                 (tcp://host:port for a serial device server, modbus-tcp://host:port for a \
+                 Modbus TCP gateway)",
+            ));
+            return None;
+        }
+        (Some(port), None) => {
+            let port_place = format!("{place}.port");
+            if port.is_empty() {
+                problems.push(Problem::new(port_place, "must not be empty"));
+                return None;
+            }
+            if is_unstable_port_path(port) {
+                warnings.push(Problem::new(
+                    &port_place,
+                    format!(
+                        "{port} may name another adapter after a replug or reboot; prefer \
+                         /dev/serial/by-id/… or /dev/serial/by-path/…"
+                    ),
+                ));
+            }
+            for (key, value) in tcp_keys {
+                if value.is_some() {
+                    problems.push(Problem::new(
+                        format!("{place}.{key}"),
+                        "applies only to lines with a `url`",
+                    ));
+                }
+            }
+            (port.clone(), Transport::Serial, "port", port.clone())
+        }
+        (None, Some(url)) => {
+            let url_place = format!("{place}.url");
+            let endpoint = match TcpEndpoint::parse(url) {
+                Ok(endpoint) => endpoint,
+                Err(error) => {
+                    problems.push(Problem::new(url_place, error.to_string()));
+                    return None;
+                }
+            };
+            if raw.echo {
+                problems.push(Problem::new(
+                    format!("{place}.echo"),
+                    "applies only to serial ports (a TCP server does not echo)",
+                ));
+            }
+            if raw.rs485.is_some() {
+                problems.push(Problem::new(
+                    format!("{place}.rs485"),
+                    "applies only to serial ports (the server drives its own RS485 transceiver)",
+                ));
+            }
+            if endpoint.kind == TcpKind::ModbusTcp {
+                for (key, set) in [
+                    ("baud", raw.baud.is_some()),
+                    ("parity", raw.parity.is_some()),
+                ] {
+                    if set {
+                        warnings.push(Problem::new(
+                            format!("{place}.{key}"),
+                            "means nothing on a modbus-tcp:// line (the gateway's own serial \
+                             settings apply): ignored",
+                        ));
+                    }
+                }
+            }
+            for (key, value) in &tcp_keys {
+                if let Some(value) = value {
+                    check_timeout(&format!("{place}.{key}"), *value, problems);
+                }
+            }
+            let defaults = TcpOptions::default();
+            let transport = Transport::Tcp {
+                options: TcpOptions {
+                    connect_timeout: raw.connect_timeout.unwrap_or(defaults.connect_timeout),
+                    keepalive: raw.keepalive.unwrap_or(defaults.keepalive),
+                    broadcast_turnaround: raw.broadcast_turnaround,
+                },
+                network_allowance: raw.network_allowance.unwrap_or(DEFAULT_NETWORK_ALLOWANCE),
+                endpoint: endpoint.clone(),
+            };
+            // One server, one line, whichever kind names it.
+            (endpoint.url(), transport, "url", endpoint.address)
+        }
+    };
+    if let Some(first) = links.insert(taken, index) {
+        problems.push(Problem::new(
+            format!("{place}.{key}"),
+            format!("{path} is already the {key} of lines[{first}]"),
+        ));
+    }
+    Some((path, transport))
+}
+
 fn check_timeout(place: &str, timeout: Duration, problems: &mut Vec<Problem>) {
     if timeout.is_zero() || timeout > MAX_TIMEOUT {
         problems.push(Problem::new(
@@ -797,6 +915,125 @@ mod tests {
         assert!(is_valid_name("line-a"));
         for bad in ["", "Dust", "a b", "a/b", "a+", "ä", &"x".repeat(65)] {
             assert!(!is_valid_name(bad), "{bad:?} accepted");
+        }
+    }
+
+    /// Validates one-device lines given by their link keys; problems and warnings as text.
+    fn link_findings(lines: &[&str]) -> (Vec<String>, Vec<String>) {
+        let mut text = String::from("[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n");
+        for (index, keys) in lines.iter().enumerate() {
+            text.push_str(&format!(
+                "[[lines]]\nname = \"line{index}\"\n{keys}\n[[lines.devices]]\nname = \"dev{index}\"\n\
+                 profile = \"wuzhou-valve\"\naddress = 1\n"
+            ));
+        }
+        match crate::config::from_str(&text, Path::new(".")) {
+            Ok(config) => (
+                Vec::new(),
+                config.warnings.iter().map(|w| w.to_string()).collect(),
+            ),
+            Err(problems) => (
+                problems.0.iter().map(|p| p.to_string()).collect(),
+                Vec::new(),
+            ),
+        }
+    }
+
+    fn has(findings: &[String], words: &str) -> bool {
+        findings.iter().any(|finding| finding.contains(words))
+    }
+
+    #[test]
+    fn a_line_has_exactly_one_of_port_and_url() {
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"\nurl = \"tcp://h:4001\""]);
+        assert!(
+            has(&problems, "lines[0]: set either `port`"),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&[""]);
+        assert!(has(&problems, "lines[0]: needs `port`"), "{problems:?}");
+    }
+
+    #[test]
+    fn urls_are_checked_with_clear_reasons() {
+        let (problems, _) = link_findings(&["url = \"udp://h:4001\""]);
+        assert!(
+            has(&problems, "lines[0].url: unknown scheme \"udp\""),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["url = \"tcp://10.0.0.5\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[0].url: \"tcp://10.0.0.5\" has no port number"
+            ),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["url = \"modbus-tcp://h:502\"\necho = true"]);
+        assert!(
+            has(&problems, "lines[0].echo: applies only to serial ports"),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"\nnetwork_allowance = \"50ms\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[0].network_allowance: applies only to lines with a `url`"
+            ),
+            "{problems:?}"
+        );
+    }
+
+    #[test]
+    fn two_lines_on_one_server_are_refused() {
+        let (problems, _) =
+            link_findings(&["url = \"tcp://h:4001\"", "url = \"modbus-tcp://h:4001\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[1].url: modbus-tcp://h:4001 is already the url of lines[0]"
+            ),
+            "{problems:?}"
+        );
+        let (problems, _) = link_findings(&["port = \"/dev/ttyS1\"", "port = \"/dev/ttyS1\""]);
+        assert!(
+            has(
+                &problems,
+                "lines[1].port: /dev/ttyS1 is already the port of lines[0]"
+            ),
+            "{problems:?}"
+        );
+    }
+
+    #[test]
+    fn tcp_lines_get_their_transport_and_modbus_tcp_warns_about_serial_settings() {
+        let (problems, warnings) = link_findings(&["url = \"modbus-tcp://gw:502\"\nbaud = 19200"]);
+        assert!(problems.is_empty(), "{problems:?}");
+        assert!(
+            has(
+                &warnings,
+                "lines[0].baud: means nothing on a modbus-tcp:// line"
+            ),
+            "{warnings:?}"
+        );
+        let text =
+            "[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n[[lines]]\nname = \"a\"\n\
+                    url = \"tcp://10.0.0.5:4001\"\nconnect_timeout = \"2s\"\n[[lines.devices]]\n\
+                    name = \"v\"\nprofile = \"wuzhou-valve\"\naddress = 1\n";
+        let config = crate::config::from_str(text, Path::new(".")).unwrap();
+        let line = &config.lines[0];
+        assert_eq!(line.serial.path, "tcp://10.0.0.5:4001");
+        match &line.transport {
+            Transport::Tcp {
+                endpoint,
+                options,
+                network_allowance,
+            } => {
+                assert_eq!(endpoint.kind, TcpKind::RawRtu);
+                assert_eq!(options.connect_timeout, Duration::from_secs(2));
+                assert_eq!(*network_allowance, DEFAULT_NETWORK_ALLOWANCE);
+            }
+            other => panic!("{other:?}"),
         }
     }
 

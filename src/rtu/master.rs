@@ -51,6 +51,10 @@ pub enum Error {
     /// Bytes kept arriving for this long without a t3.5 silence; nothing sent.
     #[error("line never went silent within {0:?}")]
     LineBusy(Duration),
+    /// A network link's connection dropped while the answer was awaited (the next
+    /// transaction reconnects).
+    #[error("connection lost: {0}")]
+    ConnectionLost(PortFault),
 }
 
 impl From<std::io::Error> for Error {
@@ -298,7 +302,12 @@ impl Master {
             Err(Error::Crc) => self.counters.crc_errors += 1,
             Err(Error::Truncated { .. }) => self.counters.truncated += 1,
             Err(Error::UnexpectedReply(_)) => self.counters.unexpected += 1,
-            Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
+            Err(
+                Error::PortGone(_)
+                | Error::InvalidRequest(_)
+                | Error::LineBusy(_)
+                | Error::ConnectionLost(_),
+            ) => {}
         }
         result
     }

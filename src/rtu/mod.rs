@@ -4,16 +4,19 @@
 //! `crc`, `frame`, `codec` and `timing` are pure (no I/O, no tokio). `clock` holds the precise
 //! sleep the line's silences need. `transport` is the only code in the crate that touches a
 //! serial port; `master` runs one transaction at a time on it with the serial-line
-//! specification's timing.
+//! specification's timing. `tcp_link` runs them over TCP (a serial device server's raw stream,
+//! or Modbus TCP with `mbap`); `link` is what a line holds, whichever of them it is.
 
 pub mod clock;
 pub mod codec;
 pub mod crc;
 pub mod frame;
 pub mod frame_log;
+pub mod link;
 pub mod master;
 pub mod mbap;
 pub mod stream_framing;
+pub mod tcp_link;
 pub mod timing;
 pub mod transport;
 

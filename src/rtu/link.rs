@@ -1,0 +1,62 @@
+//! What a line talks through: a serial port ([`Master`]), a serial device server's raw TCP
+//! stream ([`RawTcpMaster`]) or a Modbus TCP gateway ([`ModbusTcpMaster`]). The line task runs
+//! the same transactions, counters and frame log on each; only this enum knows which it is.
+
+use std::io::Write;
+use std::time::Duration;
+
+use super::frame::{Request, SlaveId};
+use super::master::{Error, Master, Reply, WireCounters};
+use super::tcp_link::{ModbusTcpMaster, RawTcpMaster};
+
+/// One line's open link.
+#[derive(Debug)]
+pub enum Link {
+    Serial(Master),
+    RawTcp(RawTcpMaster),
+    ModbusTcp(ModbusTcpMaster),
+}
+
+impl Link {
+    /// One transaction: `request` to `slave` (the unit id on Modbus TCP), its answer within
+    /// `timeout`.
+    pub async fn transact(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        match self {
+            Link::Serial(master) => master.transact(slave, request, timeout).await,
+            Link::RawTcp(master) => master.transact(slave, request, timeout).await,
+            Link::ModbusTcp(master) => master.transact(slave, request, timeout).await,
+        }
+    }
+
+    /// Sends `request` to every device (address 0) and keeps the line quiet for the
+    /// broadcast turnaround.
+    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+        match self {
+            Link::Serial(master) => master.broadcast(request).await,
+            Link::RawTcp(master) => master.broadcast(request).await,
+            Link::ModbusTcp(master) => master.broadcast(request).await,
+        }
+    }
+
+    pub fn counters(&self) -> WireCounters {
+        match self {
+            Link::Serial(master) => master.counters(),
+            Link::RawTcp(master) => master.connection().counters(),
+            Link::ModbusTcp(master) => master.connection().counters(),
+        }
+    }
+
+    /// Writes every frame to `writer` (the frame log).
+    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+        match self {
+            Link::Serial(master) => master.record_frames_to(writer),
+            Link::RawTcp(master) => master.connection_mut().record_frames_to(writer),
+            Link::ModbusTcp(master) => master.connection_mut().record_frames_to(writer),
+        }
+    }
+}

@@ -1,0 +1,756 @@
+//! Modbus transactions over TCP, one at a time: raw RTU frames on the stream of a serial device
+//! server (`tcp://`, [`RawTcpMaster`]) and Modbus TCP to a TCP-to-RTU gateway (`modbus-tcp://`,
+//! [`ModbusTcpMaster`]). Both keep one connection ([`Connection`]: connect timeout, TCP
+//! keepalive, reconnected inside the next transaction after it dropped).
+//!
+//! A connection that drops while an answer is awaited fails that transaction with
+//! [`Error::ConnectionLost`] (the line retries it under its rules); only a reconnect that fails
+//! is [`Error::PortGone`], which makes the line close the link and try again with back-off.
+//! No partial answer is ever decoded: raw answers are framed by expected length and CRC
+//! ([`AnswerFramer`]), Modbus TCP answers by their MBAP length and matched by transaction id.
+//!
+//! Nothing here knows about devices, polls or the bridge.
+
+use std::io::Write;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::time::Instant;
+
+use super::clock::sleep_until_precise;
+use super::codec::{self, Answer, DecodeError};
+use super::frame::{Request, SlaveId};
+use super::master::{Error, PortFault, Reply, WireCounters};
+use super::mbap::{self, Matched, MbapError};
+use super::stream_framing::{AnswerFramer, Framed};
+use super::timing::LineTiming;
+
+/// What a TCP line's stream carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TcpKind {
+    /// RTU frames with their CRC, as a serial device server in transparent mode passes them.
+    RawRtu,
+    /// Modbus TCP (MBAP header, unit id = the device's address).
+    ModbusTcp,
+}
+
+impl TcpKind {
+    pub fn scheme(self) -> &'static str {
+        match self {
+            TcpKind::RawRtu => "tcp",
+            TcpKind::ModbusTcp => "modbus-tcp",
+        }
+    }
+}
+
+/// Why a line's `url` is not usable.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UrlError {
+    #[error("{0:?} has no scheme: use tcp://host:port or modbus-tcp://host:port")]
+    NoScheme(String),
+    #[error("unknown scheme {scheme:?} in {url:?}: use tcp:// or modbus-tcp://")]
+    UnknownScheme { url: String, scheme: String },
+    #[error("{0:?} has no host")]
+    NoHost(String),
+    #[error("{0:?} has no port number (such as tcp://10.0.0.5:4001)")]
+    NoPort(String),
+    #[error("{url:?}: port {port:?} is not 1–65535")]
+    BadPort { url: String, port: String },
+    #[error("{0:?}: give only host and port")]
+    ExtraParts(String),
+}
+
+/// A parsed `tcp://host:port` or `modbus-tcp://host:port`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TcpEndpoint {
+    pub kind: TcpKind,
+    /// `host:port` as `TcpStream::connect` takes it (IPv6 hosts in brackets).
+    pub address: String,
+}
+
+impl TcpEndpoint {
+    /// Parses a line's `url`. The port number is required: device servers have no common
+    /// default, and a Modbus TCP gateway's 502 is better written out.
+    pub fn parse(url: &str) -> Result<TcpEndpoint, UrlError> {
+        let Some((scheme, rest)) = url.split_once("://") else {
+            return Err(UrlError::NoScheme(url.to_string()));
+        };
+        let kind = match scheme {
+            "tcp" => TcpKind::RawRtu,
+            "modbus-tcp" => TcpKind::ModbusTcp,
+            other => {
+                return Err(UrlError::UnknownScheme {
+                    url: url.to_string(),
+                    scheme: other.to_string(),
+                })
+            }
+        };
+        let rest = rest.strip_suffix('/').unwrap_or(rest);
+        if rest.contains(['/', '@', '?', '#']) {
+            return Err(UrlError::ExtraParts(url.to_string()));
+        }
+        let (host, port) = match rest.strip_prefix('[') {
+            Some(bracketed) => match bracketed.split_once(']') {
+                Some((host, after)) => (host, after.strip_prefix(':')),
+                None => return Err(UrlError::NoHost(url.to_string())),
+            },
+            None => match rest.rsplit_once(':') {
+                Some((host, port)) => (host, Some(port)),
+                None => (rest, None),
+            },
+        };
+        if host.is_empty() {
+            return Err(UrlError::NoHost(url.to_string()));
+        }
+        let port = match port {
+            None | Some("") => return Err(UrlError::NoPort(url.to_string())),
+            Some(text) => match text.parse::<u16>() {
+                Ok(port) if port > 0 => port,
+                _ => {
+                    return Err(UrlError::BadPort {
+                        url: url.to_string(),
+                        port: text.to_string(),
+                    })
+                }
+            },
+        };
+        let address = if host.contains(':') {
+            format!("[{host}]:{port}")
+        } else {
+            format!("{host}:{port}")
+        };
+        Ok(TcpEndpoint { kind, address })
+    }
+
+    /// The url again, in its normal form.
+    pub fn url(&self) -> String {
+        format!("{}://{}", self.kind.scheme(), self.address)
+    }
+}
+
+/// Settings shared by both kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TcpOptions {
+    /// Quiet time after a broadcast before the next request.
+    pub broadcast_turnaround: Duration,
+    /// Longest wait for the server to accept a connection.
+    pub connect_timeout: Duration,
+    /// Idle time before TCP keepalive probes start (and the interval between them): a server
+    /// that vanished without closing is noticed even when no transaction is running.
+    pub keepalive: Duration,
+}
+
+impl Default for TcpOptions {
+    fn default() -> Self {
+        TcpOptions {
+            broadcast_turnaround: Duration::from_millis(100),
+            connect_timeout: Duration::from_secs(3),
+            keepalive: Duration::from_secs(10),
+        }
+    }
+}
+
+/// One TCP connection to the server, reopened on demand, with the link's counters and frame
+/// recording.
+pub struct Connection {
+    endpoint: TcpEndpoint,
+    label: String,
+    options: TcpOptions,
+    stream: Option<TcpStream>,
+    /// Bytes read and not yet framed.
+    buffer: Vec<u8>,
+    counters: WireCounters,
+    recorder: Recorder,
+}
+
+impl std::fmt::Debug for Connection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Connection")
+            .field("url", &self.label)
+            .field("counters", &self.counters)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Connection {
+    /// Writes every frame to `writer` (the frame log).
+    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+        self.recorder.writer = Some(writer);
+    }
+
+    pub fn counters(&self) -> WireCounters {
+        self.counters
+    }
+
+    /// The url, for logs.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    fn record(&mut self, direction: &str, bytes: &[u8]) {
+        self.recorder.record(&self.label, direction, bytes);
+    }
+
+    async fn open(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Connection> {
+        let label = endpoint.url();
+        let mut connection = Connection {
+            endpoint,
+            label,
+            options,
+            stream: None,
+            buffer: Vec::new(),
+            counters: WireCounters::default(),
+            recorder: Recorder::default(),
+        };
+        connection.connect().await?;
+        Ok(connection)
+    }
+
+    async fn connect(&mut self) -> std::io::Result<()> {
+        let connecting = TcpStream::connect(&self.endpoint.address);
+        let stream = match tokio::time::timeout(self.options.connect_timeout, connecting).await {
+            Ok(connected) => connected?,
+            Err(_) => {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    format!("no connection within {:?}", self.options.connect_timeout),
+                ))
+            }
+        };
+        // Requests are small and must leave at once.
+        stream.set_nodelay(true)?;
+        let keepalive = socket2::TcpKeepalive::new()
+            .with_time(self.options.keepalive)
+            .with_interval(self.options.keepalive);
+        socket2::SockRef::from(&stream).set_tcp_keepalive(&keepalive)?;
+        self.buffer.clear();
+        self.stream = Some(stream);
+        tracing::debug!(url = %self.label, "connected");
+        Ok(())
+    }
+
+    /// The stream, reconnected when the previous one dropped; a failed reconnect is the link
+    /// gone (the line backs off).
+    async fn ensure(&mut self) -> Result<(), Error> {
+        if self.stream.is_none() {
+            tracing::info!(url = %self.label, "reconnecting");
+            self.connect().await.map_err(Error::from)?;
+        }
+        Ok(())
+    }
+
+    fn lost(&mut self, error: std::io::Error) -> Error {
+        tracing::warn!(url = %self.label, %error, "connection lost");
+        self.stream = None;
+        self.buffer.clear();
+        Error::ConnectionLost(PortFault::from(error))
+    }
+
+    /// Takes whatever already arrived (late answers, garbage) without waiting.
+    fn take_pending(&mut self) -> Result<Vec<u8>, Error> {
+        let mut pending = std::mem::take(&mut self.buffer);
+        let Some(stream) = self.stream.as_ref() else {
+            return Ok(pending);
+        };
+        let mut chunk = [0u8; 512];
+        loop {
+            match stream.try_read(&mut chunk) {
+                Ok(0) => {
+                    return Err(self.lost(std::io::ErrorKind::UnexpectedEof.into()));
+                }
+                Ok(count) => pending.extend_from_slice(&chunk[..count]),
+                Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => return Ok(pending),
+                Err(error) => return Err(self.lost(error)),
+            }
+        }
+    }
+
+    async fn send(&mut self, bytes: &[u8]) -> Result<Instant, Error> {
+        let Some(stream) = self.stream.as_mut() else {
+            return Err(self.lost(std::io::ErrorKind::NotConnected.into()));
+        };
+        match stream.write_all(bytes).await {
+            Ok(()) => Ok(Instant::now()),
+            Err(error) => Err(self.lost(error)),
+        }
+    }
+
+    /// Appends what arrives before `deadline` to the buffer. `Ok(false)`: the deadline passed.
+    async fn read_until(&mut self, deadline: Instant) -> Result<bool, Error> {
+        let Some(stream) = self.stream.as_mut() else {
+            return Err(self.lost(std::io::ErrorKind::NotConnected.into()));
+        };
+        let mut chunk = [0u8; 512];
+        match tokio::time::timeout_at(deadline, stream.read(&mut chunk)).await {
+            Err(_) => Ok(false),
+            Ok(Ok(0)) => Err(self.lost(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                "closed by the server",
+            ))),
+            Ok(Ok(count)) => {
+                self.buffer.extend_from_slice(&chunk[..count]);
+                Ok(true)
+            }
+            Ok(Err(error)) => Err(self.lost(error)),
+        }
+    }
+}
+
+/// Writes the frame log's records (`<unix time µs> <tx|rx> <hex>`), as the serial master does.
+#[derive(Default)]
+struct Recorder {
+    writer: Option<Box<dyn Write + Send>>,
+}
+
+impl Recorder {
+    fn record(&mut self, label: &str, direction: &str, bytes: &[u8]) {
+        tracing::debug!(url = %label, frame = %codec::hex(bytes), "{direction}");
+        let Some(writer) = self.writer.as_mut() else {
+            return;
+        };
+        let since_epoch = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default();
+        let line = format!(
+            "{}.{:06} {direction} {}\n",
+            since_epoch.as_secs(),
+            since_epoch.subsec_micros(),
+            codec::hex(bytes).replace(' ', "")
+        );
+        if let Err(error) = writer
+            .write_all(line.as_bytes())
+            .and_then(|()| writer.flush())
+        {
+            tracing::warn!(url = %label, %error, "frame recording stopped");
+            self.writer = None;
+        }
+    }
+}
+
+/// Counts a transaction's result into the wire counters, as the serial master does.
+fn account(counters: &mut WireCounters, result: &Result<Reply, Error>) {
+    match result {
+        Ok(Ok(_)) => {}
+        Ok(Err(_)) => counters.exceptions += 1,
+        Err(Error::Timeout(_)) => counters.timeouts += 1,
+        Err(Error::Crc) => counters.crc_errors += 1,
+        Err(Error::Truncated { .. } | Error::ConnectionLost(_)) => counters.truncated += 1,
+        Err(Error::UnexpectedReply(_)) => counters.unexpected += 1,
+        Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
+    }
+}
+
+fn reply_of(answer: Answer) -> Reply {
+    match answer {
+        Answer::Normal(response) => Ok(response),
+        Answer::Exception(code) => Err(code),
+    }
+}
+
+/// RTU frames over a raw TCP stream (a serial device server). The stream has no silences, so
+/// answers are framed by expected length and CRC; the server's serial side still needs them,
+/// so requests go out no sooner than t3.5 after the previous answer was received (or after
+/// the previous request's wire time, when nothing answered).
+///
+/// Raw RTU carries no transaction id: a late answer is told from the current one only when it
+/// arrives before the next request is sent (it is then drained and counted late), or together
+/// with the current answer in one segment (the last complete answer is taken, the earlier one
+/// counted late).
+#[derive(Debug)]
+pub struct RawTcpMaster {
+    connection: Connection,
+    timing: LineTiming,
+    /// The server's serial side may be driven again from this instant.
+    next_send_at: Instant,
+    /// After a timeout: the address that timed out and until when its late answer is awaited
+    /// before the next request to it goes out.
+    late_guard: Option<(SlaveId, Instant)>,
+}
+
+impl RawTcpMaster {
+    /// Connects to the device server. `timing` is the server's serial side (baud, parity).
+    pub async fn connect(
+        endpoint: TcpEndpoint,
+        options: TcpOptions,
+        timing: LineTiming,
+    ) -> std::io::Result<Self> {
+        Ok(RawTcpMaster {
+            connection: Connection::open(endpoint, options).await?,
+            timing,
+            next_send_at: Instant::now(),
+            late_guard: None,
+        })
+    }
+
+    /// The connection with the link's counters and frame recording.
+    pub fn connection(&self) -> &Connection {
+        &self.connection
+    }
+
+    pub fn connection_mut(&mut self) -> &mut Connection {
+        &mut self.connection
+    }
+
+    /// Sends `request` to `slave` and waits up to `timeout` (from the instant it was handed to
+    /// the network) for its complete answer.
+    pub async fn transact(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        let result = self.exchange(slave, request, timeout).await;
+        account(&mut self.connection.counters, &result);
+        if let Err(Error::Timeout(_)) = result {
+            self.late_guard = Some((slave, Instant::now() + timeout));
+        }
+        result
+    }
+
+    async fn exchange(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        let frame = codec::encode_request(slave, request)?;
+        self.connection.ensure().await?;
+        self.wait_out_late_answer(slave).await?;
+        let sent_at = self.send(&frame).await?;
+        let deadline = sent_at + timeout;
+        let mut framer = AnswerFramer::new(slave, request);
+        loop {
+            match framer.poll(&mut self.connection.buffer) {
+                Framed::Answer {
+                    answer,
+                    frame,
+                    skipped,
+                } => {
+                    self.connection.counters.stray_bytes += skipped as u64;
+                    let (answer, frame) = self.newest_answer(slave, request, answer, frame);
+                    self.took_answer(&frame);
+                    return Ok(reply_of(answer));
+                }
+                Framed::OutOfStep { skipped } => {
+                    self.connection.counters.stray_bytes += skipped as u64;
+                    let garbage = std::mem::take(&mut self.connection.buffer);
+                    self.connection.record("rx", &garbage);
+                    self.next_send_at = Instant::now() + self.timing.t3_5;
+                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                        "no answer among the bytes received",
+                    )));
+                }
+                Framed::NeedMore => {}
+            }
+            if !self.connection.read_until(deadline).await? {
+                self.next_send_at = Instant::now() + self.timing.t3_5;
+                let got = self.connection.buffer.len();
+                if got > 0 {
+                    let partial = std::mem::take(&mut self.connection.buffer);
+                    self.connection.record("rx", &partial);
+                    return Err(Error::Truncated {
+                        needed: request.answer_len(),
+                        got,
+                    });
+                }
+                if framer.skipped() > 0 {
+                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                        "no answer among the bytes received",
+                    )));
+                }
+                return Err(Error::Timeout(timeout));
+            }
+        }
+    }
+
+    /// Sends `request` to address 0; nothing answers. The line is then kept silent for the
+    /// request's wire time and the broadcast turnaround.
+    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+        let turnaround = self.connection.options.broadcast_turnaround;
+        let frame = codec::encode_request(0, request)?;
+        self.connection.ensure().await?;
+        let sent_at = self.send(&frame).await?;
+        self.next_send_at = sent_at + self.timing.frame_time(frame.len()) + turnaround;
+        sleep_until_precise(self.next_send_at).await;
+        Ok(())
+    }
+
+    /// Before a request to the address that timed out last: its late answer, if it comes
+    /// within the guard, is drained and counted, never taken for this request's. Bytes
+    /// already waiting are drained before any request.
+    async fn wait_out_late_answer(&mut self, slave: SlaveId) -> Result<(), Error> {
+        if let Some((timed_out, until)) = self.late_guard {
+            if timed_out == slave {
+                self.late_guard = None;
+                // Until the late answer starts to arrive or the guard ends.
+                while self.connection.buffer.is_empty() && self.connection.read_until(until).await?
+                {
+                }
+            }
+        }
+        sleep_until_precise(self.next_send_at).await;
+        let pending = self.connection.take_pending()?;
+        if !pending.is_empty() {
+            self.connection.record("rx", &pending);
+            if pending.first() == Some(&slave) {
+                self.connection.counters.late_answers += 1;
+            } else {
+                self.connection.counters.stray_bytes += pending.len() as u64;
+            }
+            tracing::debug!(url = %self.connection.label, bytes = pending.len(), "bytes before the request dropped");
+        }
+        Ok(())
+    }
+
+    async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
+        self.connection.record("tx", frame);
+        let sent_at = self.connection.send(frame).await?;
+        self.connection.counters.requests += 1;
+        self.connection.counters.wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        Ok(sent_at)
+    }
+
+    /// An answer followed in the same read by another complete answer to the same request:
+    /// the first was the late answer of an earlier one (it is counted late and dropped).
+    fn newest_answer(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        mut answer: Answer,
+        mut frame: Vec<u8>,
+    ) -> (Answer, Vec<u8>) {
+        while !self.connection.buffer.is_empty() {
+            let mut rest = self.connection.buffer.clone();
+            let mut framer = AnswerFramer::with_max_skip(slave, request, 0);
+            match framer.poll(&mut rest) {
+                Framed::Answer {
+                    answer: newer,
+                    frame: newer_frame,
+                    ..
+                } => {
+                    self.connection.record("rx", &frame);
+                    self.connection.counters.late_answers += 1;
+                    answer = newer;
+                    frame = newer_frame;
+                    self.connection.buffer = rest;
+                }
+                _ => break,
+            }
+        }
+        (answer, frame)
+    }
+
+    fn took_answer(&mut self, frame: &[u8]) {
+        self.connection.record("rx", frame);
+        self.connection.counters.wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.next_send_at = Instant::now() + self.timing.t3_5;
+    }
+}
+
+/// Modbus TCP to a TCP-to-RTU gateway: each request carries a new transaction id, answers are
+/// framed by their MBAP length and matched by id; an answer with another id (the late answer of
+/// a request that timed out) is discarded and counted in `late_answers`. The gateway paces its
+/// own serial side; its busy time (request sent to answer received) is counted as wire time.
+#[derive(Debug)]
+pub struct ModbusTcpMaster {
+    connection: Connection,
+    next_transaction: u16,
+}
+
+impl ModbusTcpMaster {
+    pub async fn connect(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Self> {
+        Ok(ModbusTcpMaster {
+            connection: Connection::open(endpoint, options).await?,
+            // Not 0: some gateways treat id 0 specially.
+            next_transaction: 1,
+        })
+    }
+
+    /// The connection with the link's counters and frame recording.
+    pub fn connection(&self) -> &Connection {
+        &self.connection
+    }
+
+    pub fn connection_mut(&mut self) -> &mut Connection {
+        &mut self.connection
+    }
+
+    /// Sends `request` to `unit` and waits up to `timeout` for the answer with its id.
+    pub async fn transact(
+        &mut self,
+        unit: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        let result = self.exchange(unit, request, timeout).await;
+        account(&mut self.connection.counters, &result);
+        result
+    }
+
+    fn take_transaction(&mut self) -> u16 {
+        let transaction = self.next_transaction;
+        self.next_transaction = self.next_transaction.wrapping_add(1).max(1);
+        transaction
+    }
+
+    async fn exchange(
+        &mut self,
+        unit: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        let transaction = self.take_transaction();
+        let adu = mbap::encode_request(transaction, unit, request)?;
+        self.connection.ensure().await?;
+        self.drop_pending()?;
+        let sent_at = self.send(&adu).await?;
+        let deadline = sent_at + timeout;
+        loop {
+            while let Some(answer) = self.next_adu()? {
+                self.connection.record("rx", &answer);
+                match mbap::decode_answer(transaction, unit, request, &answer) {
+                    Ok(Matched::Current(answer)) => {
+                        self.connection.counters.wire_time += sent_at.elapsed();
+                        return Ok(reply_of(answer));
+                    }
+                    Ok(Matched::Stale { transaction: old }) => {
+                        self.connection.counters.late_answers += 1;
+                        tracing::debug!(url = %self.connection.label, transaction = old, "answer to an earlier request dropped");
+                    }
+                    Err(MbapError::WrongUnit { expected, found }) => {
+                        return Err(Error::UnexpectedReply(DecodeError::WrongAddress {
+                            expected,
+                            found,
+                        }))
+                    }
+                    Err(MbapError::Pdu(DecodeError::Truncated { needed, got })) => {
+                        return Err(Error::Truncated { needed, got })
+                    }
+                    Err(MbapError::Pdu(error)) => return Err(Error::UnexpectedReply(error)),
+                    Err(_) => {
+                        return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                            "unusable MBAP header",
+                        )))
+                    }
+                }
+            }
+            if !self.connection.read_until(deadline).await? {
+                self.connection.counters.wire_time += timeout;
+                let got = self.connection.buffer.len();
+                if got > 0 {
+                    return Err(Error::Truncated {
+                        needed: mbap::HEADER_LEN + request.answer_len() - 3,
+                        got,
+                    });
+                }
+                return Err(Error::Timeout(timeout));
+            }
+        }
+    }
+
+    /// Sends `request` to unit 0 (broadcast) and waits the broadcast turnaround; nothing
+    /// answers.
+    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+        let turnaround = self.connection.options.broadcast_turnaround;
+        let transaction = self.take_transaction();
+        let adu = mbap::encode_request(transaction, 0, request)?;
+        self.connection.ensure().await?;
+        self.drop_pending()?;
+        self.send(&adu).await?;
+        tokio::time::sleep(turnaround).await;
+        Ok(())
+    }
+
+    async fn send(&mut self, adu: &[u8]) -> Result<Instant, Error> {
+        self.connection.record("tx", adu);
+        let sent_at = self.connection.send(adu).await?;
+        self.connection.counters.requests += 1;
+        Ok(sent_at)
+    }
+
+    /// Late answers already waiting are dropped whole (counted late); a header out of step
+    /// ends the connection.
+    fn drop_pending(&mut self) -> Result<(), Error> {
+        self.connection.buffer = self.connection.take_pending()?;
+        while let Some(adu) = self.next_adu()? {
+            self.connection.record("rx", &adu);
+            self.connection.counters.late_answers += 1;
+        }
+        Ok(())
+    }
+
+    /// The next complete ADU in the buffer. A header that cannot be right means the stream is
+    /// out of step: the connection is dropped (the next transaction reconnects).
+    fn next_adu(&mut self) -> Result<Option<Vec<u8>>, Error> {
+        match mbap::adu_len(&self.connection.buffer) {
+            Ok(Some(len)) if self.connection.buffer.len() >= len => {
+                Ok(Some(self.connection.buffer.drain(..len).collect()))
+            }
+            Ok(_) => Ok(None),
+            Err(error) => {
+                self.connection.counters.stray_bytes += self.connection.buffer.len() as u64;
+                let garbage = std::mem::take(&mut self.connection.buffer);
+                self.connection.record("rx", &garbage);
+                Err(self.connection.lost(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    error.to_string(),
+                )))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_parse_with_their_kind_and_port() {
+        assert_eq!(
+            TcpEndpoint::parse("tcp://10.0.0.5:4001"),
+            Ok(TcpEndpoint {
+                kind: TcpKind::RawRtu,
+                address: "10.0.0.5:4001".into()
+            })
+        );
+        assert_eq!(
+            TcpEndpoint::parse("modbus-tcp://gw.local:502/").map(|e| e.url()),
+            Ok("modbus-tcp://gw.local:502".into())
+        );
+        assert_eq!(
+            TcpEndpoint::parse("tcp://[fe80::1]:4001").map(|e| e.address),
+            Ok("[fe80::1]:4001".into())
+        );
+        assert!(matches!(
+            TcpEndpoint::parse("udp://10.0.0.5:4001"),
+            Err(UrlError::UnknownScheme { .. })
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("tcp://10.0.0.5"),
+            Err(UrlError::NoPort(_))
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("tcp://10.0.0.5:"),
+            Err(UrlError::NoPort(_))
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("tcp://10.0.0.5:70000"),
+            Err(UrlError::BadPort { .. })
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("10.0.0.5:4001"),
+            Err(UrlError::NoScheme(_))
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("tcp://:4001"),
+            Err(UrlError::NoHost(_))
+        ));
+        assert!(matches!(
+            TcpEndpoint::parse("tcp://user@host:4001"),
+            Err(UrlError::ExtraParts(_))
+        ));
+    }
+}
