@@ -10,6 +10,7 @@
 pub mod commands;
 pub mod core;
 pub mod discovery;
+pub mod guard;
 pub mod json_view;
 pub mod metrics;
 pub mod mqtt;
