@@ -347,7 +347,8 @@ impl Bridge {
                 loop {
                     tokio::select! {
                         permit = &mut reserve => return permit.ok(),
-                        event = link_rx.recv() => if event.is_none() { return None },
+                        // Link events while stopping only keep the event loop turning.
+                        event = link_rx.recv() => { event?; }
                     }
                 }
             })
