@@ -326,3 +326,76 @@ async fn the_gateway_sets_its_overwritten_topics_right() {
     assert_eq!(other, ["offline"]);
     bench.stop().await;
 }
+
+/// A gateway binary with its stderr in `log`; killed when dropped.
+struct Daemon(std::process::Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn spawn_daemon(dir: &std::path::Path, name: &str, config: &str) -> Daemon {
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, config).expect("write config");
+    let log = std::fs::File::create(dir.join(format!("{name}.log"))).expect("log file");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        .args(["run", "--config"])
+        .arg(&path)
+        .env(
+            "RTU2MQTT__HEALTH__STATUS_FILE",
+            dir.join(format!("{name}.health")),
+        )
+        .env("RUST_LOG", "warn")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(log)
+        .spawn()
+        .expect("rtu2mqtt run starts");
+    Daemon(child)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_with_one_client_id_say_so_once() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plants = [
+        SeedPlant::spawn(false).unwrap(),
+        SeedPlant::spawn(false).unwrap(),
+    ];
+    let daemons: Vec<Daemon> = plants
+        .iter()
+        .enumerate()
+        .map(|(index, plant)| {
+            let text = PlantConfig::default().text(&broker, plant, "twin-gw");
+            spawn_daemon(dir.path(), &format!("twin-{index}"), &text)
+        })
+        .collect();
+    let said = "another client probably uses the same client id";
+    let read_logs = || -> Vec<String> {
+        (0..2)
+            .map(|index| {
+                std::fs::read_to_string(dir.path().join(format!("twin-{index}.log")))
+                    .unwrap_or_default()
+            })
+            .collect()
+    };
+    let deadline = Instant::now() + Duration::from_secs(40);
+    while !read_logs().iter().any(|log| log.contains(said)) && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // Some more turns of the clash: still said once per gateway.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    drop(daemons);
+    let logs = read_logs();
+    eprintln!("{}", logs.join("\n---\n"));
+    let counts: Vec<usize> = logs.iter().map(|log| log.matches(said).count()).collect();
+    assert!(counts.iter().any(|n| *n == 1), "{counts:?}: {logs:?}");
+    assert!(counts.iter().all(|n| *n <= 1), "{counts:?}");
+    assert!(
+        logs.iter().any(|log| log.contains("twin-gw")),
+        "names the client id"
+    );
+}
