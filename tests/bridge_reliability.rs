@@ -392,7 +392,7 @@ async fn two_gateways_with_one_client_id_say_so_once() {
     let logs = read_logs();
     eprintln!("{}", logs.join("\n---\n"));
     let counts: Vec<usize> = logs.iter().map(|log| log.matches(said).count()).collect();
-    assert!(counts.iter().any(|n| *n == 1), "{counts:?}: {logs:?}");
+    assert!(counts.contains(&1), "{counts:?}: {logs:?}");
     assert!(counts.iter().all(|n| *n <= 1), "{counts:?}");
     assert!(
         logs.iter().any(|log| log.contains("twin-gw")),
