@@ -122,12 +122,7 @@ impl Topics {
     /// `(device, field)` of a command topic, or None when the topic is not exactly
     /// `<prefix>/<device>/<field>/set` with non-empty levels (or is too long to look at).
     pub fn parse_command<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
-        if topic.len() > MAX_TOPIC_LEN {
-            return None;
-        }
-        let rest = topic
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix('/')?;
+        let rest = self.under_prefix(topic)?;
         let mut levels = rest.splitn(4, '/');
         let device = levels.next()?;
         let field = levels.next()?;
@@ -147,17 +142,21 @@ impl Topics {
     /// `(device, level)` of a topic exactly two levels under the prefix: a state topic
     /// `<prefix>/<device>/<field>` or an availability topic.
     pub fn parse_device_topic<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
-        if topic.len() > MAX_TOPIC_LEN {
-            return None;
-        }
-        let rest = topic
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix('/')?;
+        let rest = self.under_prefix(topic)?;
         let (device, level) = rest.split_once('/')?;
         if device.is_empty() || level.is_empty() || level.contains('/') {
             return None;
         }
         Some((device, level))
+    }
+
+    /// What follows `<prefix>/` in `topic` (None for other topics and for topics too long to
+    /// look at).
+    fn under_prefix<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        if topic.len() > MAX_TOPIC_LEN {
+            return None;
+        }
+        topic.strip_prefix(self.prefix.as_str())?.strip_prefix('/')
     }
 
     /// `device` of `<prefix>/<device>/availability`.

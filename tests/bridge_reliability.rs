@@ -9,23 +9,12 @@ mod support;
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::config::{self, Config};
 use rtu2mqtt::sim::{self, SeedPlant};
 use rumqttc::QoS;
-use support::{Gateway, Mosquitto, PlantConfig, TestClient};
+use support::{fast_config, Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
-
-fn fast(text: &str) -> Config {
-    let mut config = config::from_str(text, std::path::Path::new(".")).unwrap();
-    for line in &mut config.lines {
-        for device in &mut line.devices {
-            device.poll_interval = Duration::from_millis(300);
-        }
-    }
-    config
-}
 
 struct Bench {
     broker: Mosquitto,
@@ -52,7 +41,7 @@ impl Bench {
             observer.subscribe(filter).await;
         }
         let text = config.text(&broker, &plant, client_id);
-        let gateway = Some(Gateway::start(fast(&text)).await);
+        let gateway = Some(Gateway::start(fast_config(&text)).await);
         let mut bench = Bench {
             broker,
             plant,

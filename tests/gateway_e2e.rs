@@ -6,7 +6,7 @@ mod support;
 
 use std::time::Duration;
 
-use rtu2mqtt::config::{self, Config};
+use rtu2mqtt::config::Config;
 use rtu2mqtt::sim::{self, SeedPlant};
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
@@ -34,13 +34,7 @@ fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, extra: &
 /// Validated as a user's file would be, then polled faster than the profiles' minimums so the
 /// suite stays short (the simulators do not mind).
 fn fast(text: &str) -> Config {
-    let mut config = config::from_str(text, std::path::Path::new(".")).unwrap();
-    for line in &mut config.lines {
-        for device in &mut line.devices {
-            device.poll_interval = Duration::from_millis(300);
-        }
-    }
-    config
+    support::fast_config(text)
 }
 
 /// The plant, a broker, the gateway and a client subscribed to everything under `plant/`.
