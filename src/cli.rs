@@ -46,7 +46,8 @@ pub enum Command {
         /// Port of the embedded broker on 127.0.0.1.
         #[arg(long, default_value_t = 1883)]
         port: u16,
-        /// Print one log line per published change instead of the live table.
+        /// Print log lines instead of the live table: changes, commands and outcomes at once,
+        /// values that change on every poll gathered into a summary at most every 10 s.
         #[arg(long)]
         log: bool,
     },
@@ -58,9 +59,10 @@ pub enum Command {
     Scan(ScanArgs),
     /// One raw read, shown as hex and decoded every way a profile could (never a write).
     Read(ReadArgs),
-    /// List the built-in profiles (and profile files given) with their fields.
+    /// List profiles with their fields: every built-in one, or only those named.
     Profiles {
-        /// Extra profile files to list.
+        /// Built-in profile names and/or profile file paths (none: every built-in profile).
+        #[arg(value_name = "NAME|FILE")]
         paths: Vec<PathBuf>,
     },
     /// Exit 0 when the daemon's status file is fresh (Docker HEALTHCHECK).

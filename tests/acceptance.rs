@@ -267,13 +267,26 @@ async fn home_assistant_numbers_can_hold_the_values_the_gateway_publishes() {
         .next_on("homeassistant/device/ha-range-gw_valve/config", ANSWER)
         .await
         .json();
-    // The slow configuration block holds the alarm openings.
+    // The slow configuration block holds the alarm openings and ratios; its last number is the
+    // regulation ratio.
     observer
-        .wait_for("plant/valve/low_alarm_opening_2", ANSWER, |_| true)
+        .wait_for("plant/valve/regulation_ratio", ANSWER, |_| true)
         .await;
     let components = document["cmps"].as_object().unwrap();
     let mut checked = 0;
     for (field, component) in components {
+        // A select of integers (the alarm openings: 0–100 or 255) must list every state.
+        if component["p"] == "select" {
+            let topic = format!("plant/valve/{field}");
+            if let Some(state) = observer.on(&topic).last().map(|m| m.text()) {
+                let options = component["options"].as_array().unwrap();
+                assert!(
+                    options.iter().any(|option| option == state.as_str()),
+                    "{topic} = {state}, not an option of the entity"
+                );
+            }
+            continue;
+        }
         if component["p"] != "number" {
             continue;
         }

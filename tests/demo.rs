@@ -3,7 +3,8 @@
 //! the real `rtu2mqtt demo` binary publishes every field of the three seed devices, applies
 //! commands (the simulated devices behave: gear set, e-stop opens the doors, the valve moves),
 //! and stops cleanly with exit status 0 on SIGINT, with its own broker, with a broker already
-//! on its port, and with `--broker`.
+//! on its port, and with `--broker`; on a broker it did not start it leaves nothing retained
+//! of its own behind (and everybody else's untouched).
 
 mod support;
 
@@ -385,4 +386,52 @@ fn demo_uses_the_broker_given() {
     let demo = Demo::start(&["--broker", &mosquitto.url()]);
     let stdout = exercise_the_plant(demo, mosquitto.port);
     assert!(stdout.contains("(--broker)"), "{stdout}");
+}
+
+#[test]
+fn demo_leaves_nothing_retained_on_a_broker_it_did_not_start() {
+    let mosquitto = support::Mosquitto::start();
+    let port = mosquitto.port;
+    // Somebody else's retained topics, which the demo must leave alone.
+    let foreign = [
+        ("plant/boiler/temperature", "21.5"),
+        ("plant/gateway/edge-1/status", "offline"),
+        ("homeassistant/device/edge-1_boiler/config", "{}"),
+    ];
+    for (topic, payload) in foreign {
+        mosquitto_pub(port, &["-r", "-t", topic, "-m", payload]);
+    }
+    let demo = Demo::start(&["--broker", &mosquitto.url()]);
+    let mut plant = Plant::watch(port);
+    let expected = expected_topics();
+    assert!(
+        plant.until(Duration::from_secs(60), move |latest| expected
+            .iter()
+            .all(|topic| latest.contains_key(topic))),
+        "the plant was never fully published"
+    );
+    mosquitto_pub(port, &["-t", "plant/dust_collector/gear/set", "-m", "8"]);
+    assert_eq!(plant.outcome("plant/dust_collector/gear"), "applied");
+    let discovery = collect_for(port, "homeassistant/device/+/config", 2);
+    assert!(
+        discovery
+            .iter()
+            .any(|line| line.starts_with("1 homeassistant/device/rtu2mqtt-demo_valve/config ")),
+        "{discovery:?}"
+    );
+
+    let (status, stdout, stderr) = demo.interrupt();
+    assert!(status.success(), "exit {status:?}\n{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("Cleared the ") && stdout.contains("retained topics the demo used"),
+        "{stdout}"
+    );
+    let mut left = collect_for(port, "#", 2);
+    left.sort();
+    let mut wanted: Vec<String> = foreign
+        .iter()
+        .map(|(topic, payload)| format!("1 {topic} {payload}"))
+        .collect();
+    wanted.sort();
+    assert_eq!(left, wanted, "retained after the demo stopped");
 }

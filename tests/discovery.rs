@@ -14,14 +14,20 @@ use serde_json::{json, Value as Json};
 
 use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::bridge::discovery::{
-    all_configs, device_config, device_config_from_fields, gateway_config, is_stale_config,
-    platform_for, reannounce_delay, removal, unique_id_collisions, Platform, REANNOUNCE_DELAY,
+    all_configs, device_config, device_config_from_fields, device_config_with_state,
+    gateway_config, identity_update, is_stale_config, platform_for, reannounce_delay, removal,
+    unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
+    RESULT_EVENT_TEMPLATE,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
 use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
+use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
+use rtu2mqtt::bridge::state::StateUpdate;
 use rtu2mqtt::bus::LineStats;
 use rtu2mqtt::contract::{is_ha_online, json_view_topic, Topics};
-use rtu2mqtt::profile::{registry, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
+use rtu2mqtt::profile::{
+    registry, DeviceState, FieldInfo, FieldKind, HaHints, Identity, Profile, Value,
+};
 use rtu2mqtt::shutdown;
 use rtu2mqtt::sim::SeedPlant;
 use support::{Mosquitto, PlantConfig, TestClient};
@@ -36,6 +42,8 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         step: None,
         also: Vec::new(),
         ha: HaHints::default(),
+        label: None,
+        identity: None,
         min_write_interval: None,
     }
 }
@@ -237,7 +245,9 @@ fn number_steps_follow_the_raw_count_of_scaled_fields() {
     let valve = document("wuzhou-valve");
     assert_eq!(component(&valve, "setpoint")["step"], json!(0.01));
     assert_eq!(component(&valve, "opening")["step"], 1);
-    // 255 (alarm disabled) is published and accepted besides 0–100: the entity must hold it.
+    // 0–100 or 255 (alarm disabled): a select of exactly these values, so Home Assistant
+    // never offers 101–254, which the gateway always refuses.
+    let accepted: Vec<String> = (0..=100).chain([255]).map(|v: i64| v.to_string()).collect();
     for field in [
         "high_alarm_opening_1",
         "high_alarm_opening_2",
@@ -245,7 +255,12 @@ fn number_steps_follow_the_raw_count_of_scaled_fields() {
         "low_alarm_opening_2",
     ] {
         let alarm = component(&valve, field);
-        assert_eq!((&alarm["min"], &alarm["max"]), (&json!(0), &json!(255)));
+        assert_eq!(alarm["p"], "select", "{field}");
+        assert_eq!(alarm["options"], json!(accepted), "{field}");
+        assert_eq!(alarm["entity_category"], "config", "{field}");
+        for key in ["min", "max", "unit_of_measurement", "device_class"] {
+            assert!(alarm.get(key).is_none(), "{field} has {key}");
+        }
     }
     let dust = document("ruiwan-dust-collector");
     assert_eq!(component(&dust, "gear")["step"], 1);
@@ -321,11 +336,13 @@ fn command_topics_are_the_set_topics_of_writable_fields_only_and_never_retained(
                 );
             }
         }
+        // One component per field, and the device's command-result event.
         assert_eq!(
             document["cmps"].as_object().map(|c| c.len()),
-            Some(fields.len()),
+            Some(fields.len() + 1),
             "one component per field of {device}"
         );
+        assert_eq!(document["cmps"]["command-result"]["p"], "event", "{device}");
     }
 }
 
@@ -354,7 +371,9 @@ fn device_documents_carry_dev_origin_and_both_availabilities() {
         let origin = &document["o"];
         assert_eq!(origin["name"], "rtu2mqtt");
         assert_eq!(origin["sw_version"], env!("CARGO_PKG_VERSION"));
-        assert!(origin["support_url"].is_string());
+        // No project URL to give: Home Assistant refuses an empty `support_url`.
+        assert!(origin.get("support_url").is_none());
+        assert_eq!(origin.as_object().map(|o| o.len()), Some(2));
 
         let topics: Vec<&str> = document["availability"]
             .as_array()
@@ -827,9 +846,25 @@ fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones()
         assert_eq!(document["availability_mode"], "all");
         assert_eq!(document["availability"].as_array().map(Vec::len), Some(2));
 
+        // Identity fields fill the device entry instead of being entities; every other field
+        // is one, and the command-result event is one more.
         let components = document["cmps"].as_object().unwrap();
-        assert_eq!(components.len(), profile.fields().len(), "{device}");
+        let identities = profile
+            .fields()
+            .iter()
+            .filter(|f| f.identity.is_some())
+            .count();
+        assert_eq!(
+            components.len(),
+            profile.fields().len() - identities + 1,
+            "{device}"
+        );
+        assert_eq!(components["command-result"]["p"], "event", "{device}");
         for field in profile.fields() {
+            if field.identity.is_some() {
+                assert!(!components.contains_key(&field.name), "{}", field.name);
+                continue;
+            }
             let config = &components[&field.name];
             let platform = config["p"].as_str().unwrap();
             assert!(
@@ -870,6 +905,332 @@ fn built_in_profiles_expose_every_field_with_commands_exactly_on_writable_ones()
         let fields: Vec<FieldInfo> = profile.fields().to_vec();
         assert!(unique_id_collisions(&ctx, &[(device, &fields)]).is_empty());
     }
+}
+
+/// The built-in document of one seed device.
+fn built_in_document(device: &str) -> (Profile, Json) {
+    built_in_documents()
+        .into_iter()
+        .find(|(name, ..)| *name == device)
+        .map(|(_, profile, document)| (profile, document))
+        .unwrap()
+}
+
+#[test]
+fn every_device_home_assistant_can_command_has_an_event_entity_fed_by_its_results() {
+    let words: Vec<&str> = Outcome::ALL.iter().map(|o| o.word()).collect();
+    assert_eq!(
+        words,
+        [
+            "applied",
+            "not_applied",
+            "rejected",
+            "failed",
+            "expired",
+            "superseded"
+        ]
+    );
+    for (device, _, document) in built_in_documents() {
+        let event = &document["cmps"][RESULT_EVENT];
+        assert_eq!(event["p"], "event", "{device}");
+        assert_eq!(event["name"], "Command result");
+        assert_eq!(
+            event["unique_id"],
+            format!("rtu2mqtt-edge1_{device}_{RESULT_EVENT}")
+        );
+        // Every `…/result` of the device, whichever field: one level wildcard.
+        assert_eq!(event["state_topic"], format!("plant/{device}/+/result"));
+        assert_eq!(event["event_types"], json!(words));
+        assert_eq!(event["value_template"], RESULT_EVENT_TEMPLATE);
+        assert!(event.get("command_topic").is_none());
+    }
+    // The template reads exactly the keys a result carries, and makes the outcome the type.
+    let result: Json = serde_json::from_str(
+        &CommandResult::new("150", Outcome::Rejected, "must be 0–100 or 255").to_json(),
+    )
+    .unwrap();
+    for key in ["outcome", "value", "detail"] {
+        assert!(result.get(key).is_some(), "{key}");
+        assert!(
+            RESULT_EVENT_TEMPLATE.contains(&format!("value_json.{key}")),
+            "{key}"
+        );
+    }
+    assert!(RESULT_EVENT_TEMPLATE.contains("'event_type': value_json.outcome"));
+    assert!(RESULT_EVENT_TEMPLATE.ends_with("| to_json }}"));
+
+    // A device Home Assistant cannot command has no results to show.
+    let (_, sensor_only) = device_config_from_fields(
+        &context(),
+        "probe",
+        "m",
+        "n",
+        "p",
+        &[field("temperature", int(0, 99), false)],
+    );
+    assert!(sensor_only["cmps"].get(RESULT_EVENT).is_none());
+}
+
+#[test]
+fn identity_fields_fill_the_device_entry_once_their_values_are_known() {
+    let ctx = context();
+    let (profile, before) = built_in_document("valve");
+    let identities: Vec<(&str, Identity)> = profile
+        .fields()
+        .iter()
+        .filter_map(|f| f.identity.map(|identity| (f.name.as_str(), identity)))
+        .collect();
+    assert_eq!(
+        identities,
+        [
+            ("serial_number", Identity::SerialNumber),
+            ("software_version", Identity::SoftwareVersion),
+            ("hardware_version", Identity::HardwareVersion),
+        ]
+    );
+    // Not entities, and nothing in the entry before the device answered.
+    for (name, identity) in &identities {
+        assert!(before["cmps"].get(*name).is_none(), "{name}");
+        assert!(before["dev"].get(identity.key()).is_none(), "{name}");
+    }
+
+    let mut state = DeviceState::new();
+    state.insert(
+        "serial_number".to_string(),
+        Value::Text("0a1b2c3d4e5f60".to_string()),
+    );
+    state.insert("software_version".to_string(), Value::Int(12));
+    state.insert("hardware_version".to_string(), Value::Int(3));
+    state.insert("opening".to_string(), Value::Int(40));
+    let (topic, after) = device_config_with_state(&ctx, "valve", &profile, Some(&state));
+    assert_eq!(topic, ctx.config_topic("valve"));
+    assert_eq!(after["dev"]["serial_number"], "0a1b2c3d4e5f60");
+    assert_eq!(after["dev"]["sw_version"], "12");
+    assert_eq!(after["dev"]["hw_version"], "3");
+    // Everything else is the document as before.
+    let mut stripped = after.clone();
+    for key in ["serial_number", "sw_version", "hw_version"] {
+        stripped["dev"].as_object_mut().unwrap().remove(key);
+    }
+    assert_eq!(stripped, before);
+
+    // An empty text fills nothing (Home Assistant would show a blank entry).
+    state.insert("serial_number".to_string(), Value::Text(String::new()));
+    let (_, blank) = device_config_with_state(&ctx, "valve", &profile, Some(&state));
+    assert!(blank["dev"].get("serial_number").is_none());
+
+    // The document goes out again when an identity value arrives or changes, not otherwise.
+    let update = |field: &str| StateUpdate {
+        device: "valve".to_string(),
+        field: field.to_string(),
+        text: "x".to_string(),
+    };
+    assert_eq!(
+        identity_update(
+            &ctx,
+            "valve",
+            &profile,
+            Some(&state),
+            &[update("opening"), update("software_version")]
+        ),
+        Some(device_config_with_state(
+            &ctx,
+            "valve",
+            &profile,
+            Some(&state)
+        ))
+    );
+    assert_eq!(
+        identity_update(&ctx, "valve", &profile, Some(&state), &[update("opening")]),
+        None
+    );
+    assert_eq!(
+        identity_update(&ctx, "valve", &profile, Some(&state), &[]),
+        None
+    );
+}
+
+#[test]
+fn entity_names_are_labels_without_the_device_name() {
+    for (device, profile, document) in built_in_documents() {
+        for (key, config) in document["cmps"].as_object().unwrap() {
+            let name = config["name"].as_str().unwrap();
+            // Home Assistant puts the device name in front by itself.
+            for word in [device, profile.name()] {
+                assert!(
+                    !name.to_lowercase().contains(&word.replace('_', " ")) && !name.contains(word),
+                    "{device}/{key}: {name}"
+                );
+            }
+            assert!(!name.contains('_'), "{device}/{key}: {name}");
+        }
+    }
+    let (_, valve) = built_in_document("valve");
+    let (_, shower) = built_in_document("air_shower");
+    let (_, dust) = built_in_document("dust_collector");
+    // Acronyms as the manual writes them, and the profile's `label` where it gives one.
+    assert_eq!(
+        valve["cmps"]["pid_invalid_flags"]["name"],
+        "PID invalid flags"
+    );
+    assert_eq!(valve["cmps"]["sample_period"]["name"], "PID sample period");
+    assert_eq!(
+        shower["cmps"]["hepa_filter_expired"]["name"],
+        "HEPA filter expired"
+    );
+    assert_eq!(dust["cmps"]["gear"]["name"], "Gear");
+    assert_eq!(dust["cmps"]["pulse_interval"]["name"], "Pulse interval");
+
+    let mut labelled = field("pv_1", int(0, 9), false);
+    labelled.label = Some("Process value (channel 1)".to_string());
+    let (_, document) = device_config_from_fields(&context(), "d", "m", "n", "p", &[labelled]);
+    assert_eq!(
+        document["cmps"]["pv_1"]["name"],
+        "Process value (channel 1)"
+    );
+}
+
+#[test]
+fn clock_texts_called_durations_are_seconds_for_home_assistant() {
+    let (_, valve) = built_in_document("valve");
+    for name in ["sample_period", "integral_time", "derivative_time"] {
+        let config = &valve["cmps"][name];
+        assert_eq!(config["p"], "sensor", "{name}");
+        assert_eq!(config["device_class"], "duration", "{name}");
+        assert_eq!(config["unit_of_measurement"], "s", "{name}");
+        assert_eq!(config["value_template"], CLOCK_TO_SECONDS, "{name}");
+        assert_eq!(config["entity_category"], "diagnostic", "{name}");
+        assert!(config.get("state_class").is_none(), "{name}");
+    }
+    // Invalid clocks (`27:81:62`, `00:00`) must come out as `None`, Home Assistant's unknown.
+    assert!(CLOCK_TO_SECONDS.contains("p | length == 3"));
+    assert!(CLOCK_TO_SECONDS.contains("p[1] < 60 and p[2] < 60"));
+    assert!(CLOCK_TO_SECONDS.contains("{% else %}None{% endif %}"));
+    // Numeric durations keep their unit and need no template.
+    let (_, dust) = built_in_document("dust_collector");
+    let interval = &dust["cmps"]["pulse_interval"];
+    assert_eq!(
+        (&interval["device_class"], &interval["unit_of_measurement"]),
+        (&json!("duration"), &json!("min"))
+    );
+    assert!(interval.get("value_template").is_none());
+    // A text without the hint stays text.
+    let (_, plain) = device_config_from_fields(
+        &context(),
+        "d",
+        "m",
+        "n",
+        "p",
+        &[field("clock", FieldKind::Text, false)],
+    );
+    assert!(plain["cmps"]["clock"].get("value_template").is_none());
+    assert!(plain["cmps"]["clock"].get("unit_of_measurement").is_none());
+}
+
+#[test]
+fn integers_with_also_values_offer_only_accepted_values() {
+    let ctx = context();
+    // Too many values for a select: a number over the range only, the `also` values unknown.
+    let mut wide = field("limit", int(0, 1000), true);
+    wide.also = vec![65535];
+    // A hint cannot bring back the number box over a small range with `also` values.
+    let mut small = field("opening_alarm", int(0, 100), true);
+    small.also = vec![255];
+    small.ha.component = Some("number".to_string());
+    let (_, document) = device_config_from_fields(&ctx, "d", "m", "n", "p", &[wide, small]);
+    let limit = &document["cmps"]["limit"];
+    assert_eq!(limit["p"], "number");
+    assert_eq!((&limit["min"], &limit["max"]), (&json!(0), &json!(1000)));
+    assert_eq!(
+        limit["value_template"],
+        "{% if value in ['65535'] %}None{% else %}{{ value }}{% endif %}"
+    );
+    let alarm = &document["cmps"]["opening_alarm"];
+    assert_eq!(alarm["p"], "select");
+    assert_eq!(alarm["options"].as_array().map(Vec::len), Some(102));
+    assert_eq!(alarm["options"][101], "255");
+    assert_eq!(alarm["command_topic"], "plant/d/opening_alarm/set");
+    // Without `also` the number stays a number.
+    let (_, plain) =
+        device_config_from_fields(&ctx, "d", "m", "n", "p", &[field("x", int(0, 100), true)]);
+    assert_eq!(plain["cmps"]["x"]["p"], "number");
+    assert!(plain["cmps"]["x"].get("value_template").is_none());
+}
+
+/// A small profile with two read-only numbers (`serial`, `firmware`) and a writable one
+/// (`level`), each followed by the extra lines given for it.
+fn identity_profile(serial_extra: &str, version_extra: &str, level_extra: &str) -> String {
+    let mut text = String::from(
+        "device = { name = \"ident\", manufacturer = \"Test\", model = \"T1\" }\n\
+         line = { max_read_registers = 10 }\n\
+         blocks = [{ name = \"main\", function = 3, start = 0, count = 4 }]\n",
+    );
+    let fields = [
+        ("serial", "", serial_extra),
+        ("firmware", "", version_extra),
+        (
+            "level",
+            "range = [0, 100]\nwrite = { function = 6, address = 2 }\n",
+            level_extra,
+        ),
+    ];
+    for (offset, (name, write, extra)) in fields.into_iter().enumerate() {
+        text.push_str(&format!(
+            "\n[[fields]]\nname = \"{name}\"\nblock = \"main\"\noffset = {offset}\n\
+             codec = {{ type = \"u16\" }}\n{write}{extra}\n"
+        ));
+    }
+    text
+}
+
+#[test]
+fn identity_and_label_keys_are_checked_when_a_profile_loads() {
+    let load = |text: String| Profile::from_toml(&text, "test.toml");
+    let profile = load(identity_profile(
+        "identity = \"serial_number\"",
+        "identity = \"sw_version\"\nlabel = \"Firmware (PLC)\"",
+        "",
+    ))
+    .unwrap();
+    assert_eq!(
+        profile.field("serial").unwrap().identity,
+        Some(Identity::SerialNumber)
+    );
+    assert_eq!(
+        profile.field("firmware").unwrap().label.as_deref(),
+        Some("Firmware (PLC)")
+    );
+    assert_eq!(profile.field("level").unwrap().identity, None);
+
+    let refused = |text: String, fragments: &[&str]| {
+        let errors = load(text).expect_err("accepted").to_string();
+        for fragment in fragments {
+            assert!(errors.contains(fragment), "{fragment:?} not in {errors}");
+        }
+    };
+    refused(
+        identity_profile(
+            "identity = \"serial_number\"",
+            "identity = \"serial_number\"",
+            "",
+        ),
+        &[
+            "fields[1] (firmware).identity",
+            "`serial_number` is already the identity of field `serial`",
+        ],
+    );
+    refused(
+        identity_profile("identity = \"firmware\"", "", ""),
+        &["firmware", "serial_number"],
+    );
+    refused(
+        identity_profile("", "", "identity = \"hw_version\""),
+        &["fields[2] (level).identity", "never written"],
+    );
+    refused(
+        identity_profile("label = \" \"", "", ""),
+        &["fields[0] (serial).label"],
+    );
 }
 
 #[test]
@@ -1014,15 +1375,86 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
     let (trigger, shutdown) = shutdown::channel();
     let gateway = tokio::spawn(run_gateway(config, shutdown, Hooks::default()));
 
-    // One config per device, equal to what the profile gives, and the gateway's own.
+    // A client that follows the command-result events exactly as announced.
+    let mut events = TestClient::connect(broker.port, "disc-e2e-events").await;
+
+    // One config per device, equal to what the profile gives, and the gateway's own. (Should
+    // the valve's identity block already have been read, its entry carries those values.)
     let devices = built_in_documents();
     for (device, profile, _) in &devices {
         let message = observer
             .wait_for(&ctx.config_topic(device), ANSWER, |m| !m.payload.is_empty())
             .await;
         let (_, expected) = device_config(&ctx, device, profile);
-        assert_eq!(message.json(), expected, "{device}");
+        let mut announced = message.json();
+        if let Some(dev) = announced["dev"].as_object_mut() {
+            for identity in ["serial_number", "sw_version", "hw_version"] {
+                dev.remove(identity);
+            }
+        }
+        assert_eq!(announced, expected, "{device}");
+        let event_topic = expected["cmps"][RESULT_EVENT]["state_topic"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        events.subscribe(&event_topic).await;
     }
+
+    // Once the valve's identity block is read, its device entry carries the serial number and
+    // versions the gateway publishes as state, in a document otherwise unchanged.
+    let mut identity = Vec::new();
+    for (field, key) in [
+        ("serial_number", "serial_number"),
+        ("software_version", "sw_version"),
+        ("hardware_version", "hw_version"),
+    ] {
+        let state = observer
+            .wait_for(&format!("plant/valve/{field}"), ANSWER, |m| {
+                !m.payload.is_empty()
+            })
+            .await
+            .text();
+        identity.push((key, state));
+    }
+    let identified = observer
+        .wait_for(&ctx.config_topic("valve"), ANSWER, |m| {
+            m.json()["dev"].get("serial_number").is_some()
+        })
+        .await
+        .json();
+    for (key, state) in &identity {
+        assert_eq!(identified["dev"][*key], json!(state), "{key}");
+    }
+    let serial = identity[0].1.clone();
+    assert!(identified["cmps"].get("serial_number").is_none());
+    assert!(
+        identified["cmps"] == device_config(&ctx, "valve", &devices[1].1).1["cmps"],
+        "the identity changed the valve's entities"
+    );
+
+    // The alarm openings' states (the simulated valve has one disabled: 255) are options of
+    // their selects, so Home Assistant can show every value the gateway publishes.
+    let mut disabled_seen = false;
+    for field in [
+        "high_alarm_opening_1",
+        "high_alarm_opening_2",
+        "low_alarm_opening_1",
+        "low_alarm_opening_2",
+    ] {
+        let state = observer
+            .wait_for(&format!("plant/valve/{field}"), ANSWER, |m| {
+                !m.payload.is_empty()
+            })
+            .await
+            .text();
+        let options = identified["cmps"][field]["options"].as_array().unwrap();
+        assert!(options.contains(&json!(state)), "{field} = {state}");
+        disabled_seen |= state == "255";
+    }
+    assert!(
+        disabled_seen,
+        "no alarm opening is disabled in the simulated valve"
+    );
     let gateway_document = observer
         .wait_for(&ctx.gateway_config_topic(), ANSWER, |m| {
             !m.payload.is_empty()
@@ -1096,6 +1528,17 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
                 .json();
             let detail = result["detail"].as_str().unwrap_or_default().to_string();
             assert_eq!(result["outcome"], "rejected", "{device}/{field}: {result}");
+            // The same result reaches Home Assistant's event entity through its wildcard.
+            let event = events
+                .next_on(&format!("plant/{device}/{field}/result"), ANSWER)
+                .await
+                .json();
+            assert_eq!(event, result, "{device}/{field}");
+            let types = document["cmps"][RESULT_EVENT]["event_types"].clone();
+            assert!(
+                types.as_array().unwrap().contains(&result["outcome"]),
+                "{device}/{field}"
+            );
             assert!(
                 !detail.contains("unknown field") && !detail.contains("read-only"),
                 "{device}/{field}: {detail}"
@@ -1103,7 +1546,8 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         }
     }
 
-    // Home Assistant's birth message brings every document again.
+    // Home Assistant's birth message brings every document again, the valve's with its
+    // identity.
     observer.settle(Duration::from_millis(200)).await;
     observer.forget();
     observer
@@ -1114,6 +1558,9 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
             .wait_for(&ctx.config_topic(device), ANSWER, |m| !m.payload.is_empty())
             .await;
         assert_eq!(message.json()["dev"]["via_device"], client_id);
+        if *device == "valve" {
+            assert_eq!(message.json()["dev"]["serial_number"], json!(serial));
+        }
     }
 
     trigger.fire();

@@ -5,11 +5,13 @@
 //!
 //! Needs `python3` with `pysparkplug` (`pip install pysparkplug==0.6.1`).
 
-use std::io::Write as _;
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::sync::Arc;
 
+#[path = "sparkplug/pysparkplug.rs"]
+mod pysparkplug;
+
+use pysparkplug::decode_with_pysparkplug;
 use rtu2mqtt::bus::LineEvent;
 use rtu2mqtt::profile::{registry, FieldInfo, FieldKind, Profile, Value};
 use rtu2mqtt::sparkplug::metrics::datatype_for;
@@ -65,42 +67,6 @@ fn expected_json(datatype: DataType, value: &Value) -> Json {
         }
         _ => value.to_json(),
     }
-}
-
-/// Runs the Python decoder on the messages in publishing order.
-fn decode_with_pysparkplug(messages: &[(String, Vec<u8>)]) -> Vec<Json> {
-    let input: Vec<Json> = messages
-        .iter()
-        .map(|(topic, payload)| {
-            let hex: String = payload.iter().map(|b| format!("{b:02x}")).collect();
-            json!({ "topic": topic, "hex": hex })
-        })
-        .collect();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug/decode.py");
-    let mut child = Command::new("python3")
-        .arg(&script)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap_or_else(|error| panic!("python3 could not be started: {error}"));
-    if let Some(mut stdin) = child.stdin.take() {
-        let text = serde_json::to_vec(&input).unwrap_or_default();
-        stdin
-            .write_all(&text)
-            .unwrap_or_else(|error| panic!("writing to the decoder: {error}"));
-    }
-    let output = child
-        .wait_with_output()
-        .unwrap_or_else(|error| panic!("the decoder: {error}"));
-    assert!(
-        output.status.success(),
-        "the pysparkplug decoder failed ({}); it needs `pip install pysparkplug==0.6.1`:\n{}",
-        output.status,
-        String::from_utf8_lossy(&output.stderr)
-    );
-    serde_json::from_slice(&output.stdout)
-        .unwrap_or_else(|error| panic!("decoder output is no JSON list: {error}"))
 }
 
 fn publishes(actions: Vec<Action>) -> Vec<(String, Vec<u8>)> {
@@ -159,7 +125,11 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
     };
     messages.extend(publishes(session.on_line_event(NOW + 2, &change)));
 
-    let decoded = decode_with_pysparkplug(&messages);
+    let decoded = decode_with_pysparkplug(
+        messages
+            .iter()
+            .map(|(topic, payload)| (topic.as_str(), payload.as_slice())),
+    );
     assert_eq!(decoded.len(), messages.len());
 
     // The Will and the NBIRTH carry the same bdSeq.

@@ -314,3 +314,27 @@ async fn a_new_connection_gets_the_next_bd_seq_and_its_will_carries_it() {
     let death = decode(&host.next_on(NDEATH, WAIT).await);
     assert_eq!(value_of(&death, "bdSeq"), Some(MetricValue::Long(bd_seq)));
 }
+
+/// Line events the node could not keep up with (the broadcast overflowed): it cannot know
+/// what it missed, so it tells the host everything again with a rebirth.
+#[tokio::test]
+async fn missed_line_events_bring_a_rebirth() {
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "lag-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start(session(None), broker.port);
+    host.next_on(NBIRTH, WAIT).await;
+    let _ = node.events.send(dust(3));
+    host.next_on(DBIRTH, WAIT).await;
+    // More events than the channel holds, without letting the node run in between (this
+    // test's runtime has one thread).
+    for gear in 0..200 {
+        let _ = node.events.send(dust(1 + gear % 10));
+    }
+    let reborn = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(reborn.seq, Some(0));
+    assert_eq!(value_of(&reborn, "bdSeq"), Some(MetricValue::Long(0)));
+    host.next_on(DBIRTH, WAIT).await;
+    node.trigger.fire();
+    let _ = tokio::time::timeout(WAIT, node.task).await;
+}

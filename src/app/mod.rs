@@ -1,5 +1,6 @@
-//! Wiring for the daemon: load and validate the config, start one bus task per line and the
-//! MQTT bridge, run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the library
+//! Wiring for the daemon: load and validate the config, start one bus task per line, the
+//! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, run until SIGTERM/SIGINT,
+//! then stop cleanly. [`run_gateway`] is the library
 //! entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
@@ -14,20 +15,27 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc, oneshot};
 
 use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
-use crate::bus::{spawn_line, LineHandle};
+use crate::bus::{spawn_line, LineEvent, LineHandle};
 use crate::config::{self, Config};
 use crate::health;
 use crate::rtu::frame_log::FrameLog;
 use crate::shutdown::{self, Shutdown};
+use crate::sparkplug::{self, NodeLinks};
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
 const LINE_EVENTS: usize = 1024;
 /// How often the bridge loop promises to turn: it beats every tick; four ticks leave room for
 /// a busy machine.
 const BRIDGE_MAX_QUIET: Duration = bridge::TICK.saturating_mul(4);
+/// Line events the Sparkplug node may fall behind by before it misses some (and rebirths).
+const SPARKPLUG_EVENTS: usize = 1024;
+/// Commands from Sparkplug hosts, and their reports, in flight between the node and the bridge.
+const SPARKPLUG_COMMANDS: usize = 64;
+/// How long the Sparkplug node gets to publish its NDEATH after the bridge has stopped.
+const SPARKPLUG_STOP_GRACE: Duration = Duration::from_secs(5);
 /// How long the lines get to finish their transaction after the bridge has stopped.
 const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 
@@ -68,6 +76,10 @@ pub async fn run_gateway(
     }
     // Everything that can fail comes before the lines start: TLS files, the metrics port.
     let mqtt = mqtt::connect(&config.mqtt).context("MQTT client")?;
+    let node = sparkplug::session_for(&config);
+    if let Some((_, node_mqtt)) = &node {
+        mqtt::options(node_mqtt, &node_mqtt.topics()).context("Sparkplug MQTT client")?;
+    }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
             prometheus::bind(address)
@@ -88,7 +100,19 @@ pub async fn run_gateway(
     }
     drop(events_tx);
 
-    let (bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
+    let (mut bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
+    let (events_rx, node_task) = match node {
+        Some((session, node_mqtt)) => {
+            let node = NodeWiring {
+                session,
+                mqtt: node_mqtt,
+                stats_interval: config.gateway.stats_interval,
+            };
+            let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
+            (events_rx, Some(task))
+        }
+        None => (events_rx, None),
+    };
     if let Some(listener) = metrics_listener {
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
@@ -100,6 +124,14 @@ pub async fn run_gateway(
         });
     }
     bridge.run(events_rx, shutdown).await;
+    if let Some(task) = node_task {
+        if tokio::time::timeout(SPARKPLUG_STOP_GRACE, task)
+            .await
+            .is_err()
+        {
+            tracing::warn!("the Sparkplug node did not stop in time");
+        }
+    }
 
     for task in line_tasks {
         match tokio::time::timeout(LINE_STOP_GRACE, task).await {
@@ -109,6 +141,68 @@ pub async fn run_gateway(
         }
     }
     Ok(())
+}
+
+/// The Sparkplug edge node, ready to be wired beside the bridge.
+struct NodeWiring {
+    session: sparkplug::Session,
+    mqtt: config::MqttSettings,
+    stats_interval: Duration,
+}
+
+impl NodeWiring {
+    /// Starts the node: line events fanned out to the bridge and the node (the returned
+    /// receiver is the bridge's), the node's commands into the bridge's command path with
+    /// their reports back, line figures sampled into node metrics. The task ends after
+    /// `shutdown` with the node's NDEATH.
+    fn start(
+        self,
+        bridge: &mut Bridge,
+        lines: &[LineHandle],
+        events: mpsc::Receiver<LineEvent>,
+        shutdown: &Shutdown,
+    ) -> (mpsc::Receiver<LineEvent>, tokio::task::JoinHandle<()>) {
+        let (bridge_events_tx, bridge_events_rx) = mpsc::channel(LINE_EVENTS);
+        let (node_events_tx, node_events_rx) = broadcast::channel(SPARKPLUG_EVENTS);
+        tokio::spawn(fan_out(events, bridge_events_tx, node_events_tx));
+        let (commands_tx, commands_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        let (reports_tx, reports_rx) = mpsc::channel(SPARKPLUG_COMMANDS);
+        bridge.accept_external_commands(commands_rx, reports_tx);
+        // One sample in flight: a slow node gets the next, fresher one.
+        let (values_tx, values_rx) = mpsc::channel(1);
+        let stats = lines.iter().map(|line| line.stats_rx.clone()).collect();
+        tokio::spawn(sparkplug::figures::feed(
+            stats,
+            values_tx,
+            self.stats_interval,
+            shutdown.clone(),
+        ));
+        let links = NodeLinks {
+            line_events: node_events_rx,
+            commands: commands_tx,
+            reports: reports_rx,
+            node_values: values_rx,
+            shutdown: shutdown.clone(),
+        };
+        let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
+        (bridge_events_rx, task)
+    }
+}
+
+/// Hands every line event to the bridge (waiting for room: it must see them all) and to the
+/// Sparkplug node (never waiting: a slow node lags, notices and rebirths).
+async fn fan_out(
+    mut events: mpsc::Receiver<LineEvent>,
+    bridge: mpsc::Sender<LineEvent>,
+    node: broadcast::Sender<LineEvent>,
+) {
+    while let Some(event) = events.recv().await {
+        // No receiver only while the node has ended: nothing to keep.
+        let _ = node.send(event.clone());
+        if bridge.send(event).await.is_err() {
+            return;
+        }
+    }
 }
 
 /// `rtu2mqtt run`.

@@ -9,7 +9,9 @@
 //! of stale discovery documents, command validation (planned once, by the device's profile),
 //! the [`CommandBook`] (waiting while offline, time to live, superseding, write interval, QoS 1
 //! redeliveries), results on `…/result`, clearing of retained commands once they have an
-//! outcome, and results kept while MQTT is down.
+//! outcome, and results kept while MQTT is down. Commands from outside the plain topics (a
+//! Sparkplug DCMD, [`Core::on_external_command`]) go through the same validation and book,
+//! with their results on `…/result` too, and their end reported back ([`Action::Report`]).
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
@@ -60,6 +62,36 @@ pub enum Action {
         line: usize,
         command: Command,
     },
+    /// Tell the sender of an external command how it ended.
+    Report(CommandReport),
+}
+
+/// A command that did not come from a plain `…/set` topic (a Sparkplug DCMD): the field and
+/// the command text as `…/set` would carry it (`ON`, `8`, `12.5`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExternalCommand {
+    pub device: String,
+    pub field: String,
+    pub text: String,
+}
+
+/// How an [`ExternalCommand`] ended: `applied` only when the device took the value; any other
+/// end (refused, superseded, expired, failed, not applied) lets the sender show the device's
+/// true value again.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CommandReport {
+    pub device: String,
+    pub field: String,
+    pub applied: bool,
+}
+
+/// Where a command came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Origin {
+    /// `…/set`: its (possibly retained) message is cleared once it has an outcome.
+    Plain,
+    /// [`Core::on_external_command`]: its end is reported.
+    External,
 }
 
 /// An incoming MQTT message, as much of it as the rules look at.
@@ -145,6 +177,8 @@ pub struct Core {
     plans: HashMap<u64, CommandPlan>,
     /// Commands handed to a line, by id, until their [`LineEvent::CommandFinished`].
     on_bus: HashMap<u64, TrackedCommand>,
+    /// Ids of booked commands that came from [`Core::on_external_command`].
+    external: HashSet<u64>,
     connected: bool,
     deferred: VecDeque<Publish>,
     counters: BridgeStats,
@@ -190,6 +224,7 @@ impl Core {
             book: CommandBook::new(settings.options.command_ttl),
             plans: HashMap::new(),
             on_bus: HashMap::new(),
+            external: HashSet::new(),
             connected: false,
             deferred: VecDeque::new(),
             counters: BridgeStats::default(),
@@ -360,10 +395,11 @@ impl Core {
         let mut documents = vec![discovery::gateway_config(&self.topics, &self.line_names)];
         for device in self.cache.devices() {
             if let Some(entry) = self.devices.get(device) {
-                documents.push(discovery::device_config(
+                documents.push(discovery::device_config_with_state(
                     &self.topics,
                     device,
                     &entry.profile,
+                    self.cache.state(device),
                 ));
             }
         }
@@ -398,6 +434,22 @@ impl Core {
         match event {
             LineEvent::Values { device, values } => {
                 let updates = self.cache.update(&device, values, self.connected);
+                if let Some((topic, document)) = self
+                    .devices
+                    .get(&device)
+                    .filter(|_| self.discovery)
+                    .and_then(|entry| {
+                        discovery::identity_update(
+                            &self.topics,
+                            &device,
+                            &entry.profile,
+                            self.cache.state(&device),
+                            &updates,
+                        )
+                    })
+                {
+                    self.publish(topic, document.to_string(), true);
+                }
                 self.publish_state(updates);
                 if self.options.json_view {
                     self.publish_json_view(&device);
@@ -478,35 +530,105 @@ impl Core {
             tracing::debug!(%device, %field, "QoS 1 redelivery ignored");
             return;
         }
-        let Some(entry) = self.devices.get(device).cloned() else {
+        if !self.devices.contains_key(device) {
             self.reject_unknown_device(device, field, message.payload);
             return;
-        };
+        }
         if self.overloaded {
             self.shed(device, field, message.payload, now);
             return;
         }
-        self.counters.commands_received += 1;
         // Echoed in `value` exactly as sent (bounded); logged with `?` so control characters
         // and escapes cannot forge log lines.
         let value = payload::echo(message.payload);
         let text = match decode_command(message.payload, self.options.max_payload) {
             CommandPayload::Clear => return,
             CommandPayload::Refused { shown, reason } => {
-                self.reject_incoming(device, field, &shown, reason);
+                if self.devices.contains_key(device) {
+                    self.counters.commands_received += 1;
+                    self.reject_incoming(device, field, &shown, reason, Origin::Plain);
+                } else {
+                    self.note_unknown_device(device, topic);
+                }
                 return;
             }
             CommandPayload::Text(text) => text,
         };
+        self.admit(
+            device,
+            field,
+            &text,
+            &value,
+            Origin::Plain,
+            message.retain,
+            now,
+        );
+    }
+
+    /// A command from outside the plain topics (a Sparkplug DCMD metric turned into command
+    /// text): the same validation, book and results as `…/set`, and its end is reported with
+    /// an [`Action::Report`] so the sender can show the device's true value after a refusal.
+    pub fn on_external_command(&mut self, command: ExternalCommand, now: Instant) -> Vec<Action> {
+        let ExternalCommand {
+            device,
+            field,
+            text,
+        } = command;
+        let value = payload::shortened(&text);
+        let (shown, reason) = match decode_command(text.as_bytes(), self.options.max_payload) {
+            CommandPayload::Text(text) => {
+                self.admit(&device, &field, &text, &value, Origin::External, false, now);
+                return self.take();
+            }
+            CommandPayload::Clear => (value, "the command is empty".to_string()),
+            CommandPayload::Refused { shown, reason } => (shown, reason),
+        };
+        if self.devices.contains_key(&device) {
+            self.counters.commands_received += 1;
+            self.reject_incoming(&device, &field, &shown, reason, Origin::External);
+        } else {
+            self.note_unknown_device(&device, "an external command");
+            self.report(&device, &field, false);
+        }
+        self.take()
+    }
+
+    fn note_unknown_device(&mut self, device: &str, via: &str) {
+        self.counters.unknown_device_commands += 1;
+        tracing::warn!(%device, %via, "command for a device that is not configured");
+    }
+
+    /// Validates a decoded command (`text` as planned, `value` as sent) and books it.
+    /// `from_store`: the broker sent it from its retained store (the MQTT retain flag).
+    #[allow(clippy::too_many_arguments)]
+    fn admit(
+        &mut self,
+        device: &str,
+        field: &str,
+        text: &str,
+        value: &str,
+        origin: Origin,
+        from_store: bool,
+        now: Instant,
+    ) {
+        let Some(entry) = self.devices.get(device).cloned() else {
+            let topic = self.topics.command_topic(device, field);
+            self.note_unknown_device(device, &topic);
+            if origin == Origin::External {
+                self.report(device, field, false);
+            }
+            return;
+        };
+        self.counters.commands_received += 1;
         // The one plan of the command: the profile refuses unknown and read-only fields and
         // values its rules forbid on the last known state. The line's slot recomputes the
         // writes from its fresh reads.
         let empty = Default::default();
         let state = self.cache.state(device).unwrap_or(&empty);
-        let plan = match entry.profile.plan_command(field, &text, state) {
+        let plan = match entry.profile.plan_command(field, text, state) {
             Ok(plan) => plan,
             Err(rejection) => {
-                self.reject_incoming(device, field, &value, rejection.0);
+                self.reject_incoming(device, field, value, rejection.0, origin);
                 return;
             }
         };
@@ -514,28 +636,59 @@ impl Core {
             .profile
             .field(field)
             .and_then(|info| info.min_write_interval);
-        tracing::info!(%device, %field, command = ?value, "command received");
-        let admission = if message.retain {
+        tracing::info!(%device, %field, command = ?value, ?origin, "command received");
+        let admission = if from_store {
             // From the broker's retained store: the same command again when it is the one
             // waiting or running (a re-subscription), so it gets no second run or outcome.
             self.book
-                .submit(device, field, &text, &value, min_write_interval, now)
+                .submit(device, field, text, value, min_write_interval, now)
         } else {
             self.book
-                .queue(device, field, &text, &value, min_write_interval, now)
+                .queue(device, field, text, value, min_write_interval, now)
         };
         match admission {
-            Admission::AlreadyWaiting => {}
+            Admission::AlreadyWaiting => {
+                if let Some(id) = self.book.waiting_id(device, field) {
+                    if origin == Origin::External {
+                        self.external.insert(id);
+                    }
+                }
+            }
             Admission::Queued { superseded } => {
                 if let Some(id) = self.book.waiting_id(device, field) {
                     self.plans.insert(id, plan);
+                    if origin == Origin::External {
+                        self.external.insert(id);
+                    }
                 }
                 if let Some(older) = superseded {
+                    let older_was_plain = !self.external.contains(&older.id);
                     self.supersede(older);
+                    if origin == Origin::External && older_was_plain {
+                        // Its retained message is still on `…/set`: it must not run again
+                        // at the next start.
+                        let set = self.topics.command_topic(device, field);
+                        self.publish_or_keep(set, String::new(), true);
+                    }
                 }
             }
         }
         self.dispatch_ready(now);
+    }
+
+    /// Tells the sender of an external command how it ended (nothing for plain commands).
+    fn report_end(&mut self, command: &TrackedCommand, applied: bool) {
+        if self.external.remove(&command.id) {
+            self.report(&command.device, &command.field, applied);
+        }
+    }
+
+    fn report(&mut self, device: &str, field: &str, applied: bool) {
+        self.out.push(Action::Report(CommandReport {
+            device: device.to_string(),
+            field: field.to_string(),
+            applied,
+        }));
     }
 
     // ----- commands -----
@@ -544,6 +697,7 @@ impl Core {
     /// message has been replaced by the newer one too: no clear.
     fn supersede(&mut self, older: TrackedCommand) {
         self.plans.remove(&older.id);
+        self.report_end(&older, false);
         self.counters.commands_superseded += 1;
         tracing::info!(device = %older.device, field = %older.field, command = ?older.value,
             "command superseded by a newer one");
@@ -558,14 +712,26 @@ impl Core {
 
     /// Rejects a command as it arrives. It is the newest message on its topic, so its
     /// (possibly retained) copy is cleared whatever waits for the field.
-    fn reject_incoming(&mut self, device: &str, field: &str, shown: &str, reason: String) {
-        tracing::warn!(%device, %field, command = ?shown, %reason, "command rejected");
+    fn reject_incoming(
+        &mut self,
+        device: &str,
+        field: &str,
+        shown: &str,
+        reason: String,
+        origin: Origin,
+    ) {
+        tracing::warn!(%device, %field, command = ?shown, %reason, ?origin, "command rejected");
         self.counters.commands_rejected += 1;
         let result = CommandResult::new(shown, Outcome::Rejected, reason);
         let topic = self.topics.result_topic(device, field);
         self.publish_or_keep(topic, result.to_json(), false);
-        let set = self.topics.command_topic(device, field);
-        self.publish_or_keep(set, String::new(), true);
+        match origin {
+            Origin::Plain => {
+                let set = self.topics.command_topic(device, field);
+                self.publish_or_keep(set, String::new(), true);
+            }
+            Origin::External => self.report(device, field, false),
+        }
     }
 
     /// Publishes a result, then clears the (possibly retained) command unless a newer one for
@@ -628,6 +794,7 @@ impl Core {
     fn fail(&mut self, command: TrackedCommand, detail: &str, now: Instant) {
         self.book
             .finish(&command.device, &command.field, false, now);
+        self.report_end(&command, false);
         self.counters.commands_failed += 1;
         let result = CommandResult::new(&command.value, Outcome::Failed, detail);
         self.finish_with(&command.device, &command.field, result);
@@ -657,6 +824,7 @@ impl Core {
             outcome = word.word(), %detail, "command finished");
         self.book
             .finish(&command.device, &command.field, wrote, now);
+        self.report_end(&command, word == Outcome::Applied);
         let result = CommandResult::new(&command.value, word, detail);
         self.finish_with(&command.device, &command.field, result);
         self.dispatch_ready(now);
@@ -677,6 +845,7 @@ impl Core {
             .take_expired(now, |device| cache.is_online(device));
         for command in expired {
             self.plans.remove(&command.id);
+            self.report_end(&command, false);
             self.counters.commands_expired += 1;
             let detail = format!(
                 "device {} stayed offline for {} (the command's time to live)",
@@ -718,6 +887,7 @@ impl Core {
         self.drop_uncleared();
         let waiting = self.book.drain_waiting();
         self.plans.clear();
+        self.external.clear();
         if !waiting.is_empty() {
             tracing::info!(
                 count = waiting.len(),

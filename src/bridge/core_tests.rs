@@ -708,3 +708,124 @@ fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
     let gear = core.on_message(message("plant/shower/breeze/set", b"ON", 2, false), now);
     assert_eq!(sent(&gear).len(), 1);
 }
+
+// ----- external commands (Sparkplug DCMDs) -----
+
+fn external(field: &str, text: &str) -> ExternalCommand {
+    ExternalCommand {
+        device: "valve".to_string(),
+        field: field.to_string(),
+        text: text.to_string(),
+    }
+}
+
+/// The line's report that command `id` was applied.
+fn applied(id: u64) -> LineEvent {
+    finished(
+        id,
+        CommandOutcome::Applied {
+            detail: "ok".into(),
+        },
+    )
+}
+
+fn reports(actions: &[Action]) -> Vec<(String, bool)> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Report(report) => Some((report.field.clone(), report.applied)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn an_external_command_is_validated_and_reported_like_a_plain_one() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    for (field, text, reason) in [
+        ("no_such_field", "1", "unknown field"),
+        ("serial_number", "1", "read-only"),
+        ("opening", "banana", ""),
+        ("opening", "", "empty"),
+    ] {
+        let actions = core.on_external_command(external(field, text), now);
+        assert!(
+            sent(&actions).is_empty(),
+            "{field} {text:?}: nothing for the bus"
+        );
+        let results = results(&actions);
+        assert_eq!(results.len(), 1, "{field} {text:?}");
+        assert_eq!(results[0].1, "rejected");
+        assert!(results[0].2.contains(reason), "{field}: {:?}", results[0]);
+        assert_eq!(clears(&actions, field), 0, "no retained command to clear");
+        assert_eq!(reports(&actions), vec![(field.to_string(), false)]);
+    }
+    let counters = core.counters(now);
+    assert_eq!(counters.commands_received, 4);
+    assert_eq!(counters.commands_rejected, 4);
+
+    let actions = core.on_external_command(external("opening", "50"), now);
+    let ids = sent(&actions);
+    assert_eq!(ids.len(), 1);
+    assert!(reports(&actions).is_empty(), "no end yet");
+    let actions = core.on_line_event(applied(ids[0]), now);
+    assert_eq!(
+        results(&actions),
+        vec![("50".to_string(), "applied".to_string(), "ok".to_string())]
+    );
+    assert_eq!(reports(&actions), vec![("opening".to_string(), true)]);
+    assert_eq!(core.counters(now).commands_applied, 1);
+}
+
+#[test]
+fn an_external_command_that_does_not_apply_is_reported_as_not_applied() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let ids = sent(&core.on_external_command(external("opening", "50"), now));
+    let actions = core.on_line_event(
+        finished(
+            ids[0],
+            CommandOutcome::NotApplied {
+                detail: "reads 40".into(),
+            },
+        ),
+        now,
+    );
+    assert_eq!(results(&actions)[0].1, "not_applied");
+    assert_eq!(reports(&actions), vec![("opening".to_string(), false)]);
+}
+
+#[test]
+fn an_external_command_waits_expires_and_is_superseded_like_a_plain_one() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    let waiting = core.on_external_command(external("opening", "20"), now);
+    assert!(sent(&waiting).is_empty() && reports(&waiting).is_empty());
+    // A plain command for the same field replaces it: the sender learns it did not apply.
+    let actions = command(&mut core, "opening", "30", 1, now);
+    assert_eq!(results(&actions)[0].1, "superseded");
+    assert_eq!(reports(&actions), vec![("opening".to_string(), false)]);
+    // An external one replacing a plain one: nothing to report for the plain one, whose
+    // (possibly retained) message is cleared.
+    let actions = core.on_external_command(external("opening", "40"), now);
+    assert_eq!(results(&actions)[0].0, "30");
+    assert!(reports(&actions).is_empty());
+    assert_eq!(clears(&actions, "opening"), 1);
+    // The device stays offline past the time to live.
+    let actions = core.on_tick(now + TTL, Vec::new);
+    assert_eq!(results(&actions)[0].1, "expired");
+    assert_eq!(reports(&actions), vec![("opening".to_string(), false)]);
+}
+
+#[test]
+fn plain_commands_are_never_reported() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let actions = command(&mut core, "opening", "banana", 1, now);
+    assert!(reports(&actions).is_empty());
+    let ids = sent(&command(&mut core, "opening", "50", 2, now));
+    let actions = core.on_line_event(applied(ids[0]), now);
+    assert!(reports(&actions).is_empty());
+}

@@ -7,15 +7,18 @@
 //!
 //! One document per device on `homeassistant/device/<client_id>_<device>/config`:
 //! - `dev`: the device registry entry (identifiers, name, manufacturer and model from the
-//!   profile, `via_device` pointing at the gateway's own entry);
-//! - `o`: the origin (`rtu2mqtt`, its version and project URL);
+//!   profile, `via_device` pointing at the gateway's own entry, and the serial number and
+//!   versions once the profile's identity fields have been read);
+//! - `o`: the origin (`rtu2mqtt` and its version);
 //! - shared `availability` (gateway status and device availability, `availability_mode: all`)
 //!   and `qos`;
 //! - `cmps`: one component per profile field, keyed by the field name. The component follows
 //!   the field's kind and access (see [`platform_for`]); profile [`HaHints`] override the
 //!   defaults. Command topics appear only on writable fields and are exactly the topics the
 //!   gateway subscribes to, with `retain: false` so Home Assistant never leaves a command
-//!   behind in the broker.
+//!   behind in the broker. Identity fields are not components (they fill `dev`); a device that
+//!   takes commands has one more, the command-result event ([`result_event`]). Names are field
+//!   labels only: Home Assistant prefixes the device name itself.
 //!
 //! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
 //! device with a connectivity sensor and line statistics.
@@ -26,8 +29,10 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
+use super::payload::Outcome;
+use super::state::StateUpdate;
 use crate::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
-use crate::profile::{FieldInfo, FieldKind, HaHints, Profile, Value};
+use crate::profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
 /// range spreads the load when several gateways restart discovery at once (HA's own advice).
@@ -106,6 +111,7 @@ fn default_platform(field: &FieldInfo) -> Platform {
         // A button nobody can press is at best a state: show it as one.
         (FieldKind::Momentary, false) => Platform::BinarySensor,
         (FieldKind::Integer { .. } | FieldKind::Decimal { .. }, false) => Platform::Sensor,
+        (FieldKind::Integer { .. }, true) if integer_choices(field).is_some() => Platform::Select,
         (FieldKind::Integer { .. } | FieldKind::Decimal { .. }, true) => Platform::Number,
         (FieldKind::Enum { .. }, false) => Platform::Sensor,
         (FieldKind::Enum { .. }, true) => Platform::Select,
@@ -130,10 +136,34 @@ fn platform_fits(platform: Platform, field: &FieldInfo) -> bool {
             matches!(field.kind, FieldKind::Bool | FieldKind::Momentary)
         }
         Platform::Button => matches!(field.kind, FieldKind::Momentary | FieldKind::Bool),
-        Platform::Number => numeric,
-        Platform::Select => matches!(field.kind, FieldKind::Enum { .. }),
+        // A number would offer the gap between the range and `also` (the valve's 101–254),
+        // which the gateway always refuses: such a field is a select of its valid values.
+        Platform::Number => numeric && integer_choices(field).is_none(),
+        Platform::Select => {
+            matches!(field.kind, FieldKind::Enum { .. }) || integer_choices(field).is_some()
+        }
         Platform::Sensor | Platform::Text => true,
     }
+}
+
+/// Most options a select of integers may have: beyond this, a list is no way to pick a value.
+const MAX_CHOICES: i64 = 256;
+
+/// Every value a writable integer field with `also` values accepts, as select options
+/// (`0`…`100`, `255`), when they are few and one count apart; None for any other field.
+fn integer_choices(field: &FieldInfo) -> Option<Vec<String>> {
+    let FieldKind::Integer { min, max } = field.kind else {
+        return None;
+    };
+    let unit_step = matches!(field.step, None | Some(Value::Int(1)));
+    let count = max.checked_sub(min)?.checked_add(1)?;
+    if field.also.is_empty() || !field.writable || !unit_step || count > MAX_CHOICES {
+        return None;
+    }
+    let mut values: Vec<i64> = (min..=max).chain(field.also.iter().copied()).collect();
+    values.sort_unstable();
+    values.dedup();
+    Some(values.iter().map(i64::to_string).collect())
 }
 
 /// The platform a field is exposed as: the profile's `component` hint when it names a platform
@@ -151,14 +181,41 @@ pub fn platform_for(field: &FieldInfo) -> Platform {
         .unwrap_or_else(|| default_platform(field))
 }
 
-/// A display name from a field name: `pulse_interval` → `Pulse interval`.
+/// Words of field names that are abbreviations, written in capitals in a display name.
+const ACRONYMS: &[&str] = &["pid", "hepa", "crc", "id", "pv", "sv", "co2", "pm25", "rtu"];
+
+/// A display name from a field name: `pulse_interval` → `Pulse interval`,
+/// `pid_invalid_flags` → `PID invalid flags` (see [`ACRONYMS`]).
 pub fn display_name(field: &str) -> String {
-    let spaced = field.replace(['_', '-'], " ");
-    let mut chars = spaced.chars();
-    match chars.next() {
-        Some(first) => first.to_uppercase().chain(chars).collect(),
-        None => String::new(),
-    }
+    let words: Vec<String> = field
+        .split(['_', '-'])
+        .filter(|word| !word.is_empty())
+        .enumerate()
+        .map(|(index, word)| {
+            if ACRONYMS.contains(&word) {
+                word.to_uppercase()
+            } else if index == 0 {
+                let mut chars = word.chars();
+                chars
+                    .next()
+                    .map(|first| first.to_uppercase().chain(chars).collect())
+                    .unwrap_or_default()
+            } else {
+                word.to_string()
+            }
+        })
+        .collect();
+    words.join(" ")
+}
+
+/// The entity's name in Home Assistant: the profile's `label`, else [`display_name`]. Never
+/// the device name: Home Assistant puts the device name in front by itself
+/// (`has_entity_name`), so the entity list of a device reads `Gear`, not `dust_collector Gear`.
+pub fn entity_name(field: &FieldInfo) -> String {
+    field
+        .label
+        .clone()
+        .unwrap_or_else(|| display_name(&field.name))
 }
 
 /// Words in a field name that mark it as a diagnostic (identity or health bookkeeping, not
@@ -261,6 +318,38 @@ fn number_step(field: &FieldInfo) -> Json {
     }
 }
 
+/// Turns a clock text `h:min:s` into seconds; anything else (the valve's `27:81:62` or
+/// `00:00` mark an unset time) gives `None`, which Home Assistant shows as unknown.
+pub const CLOCK_TO_SECONDS: &str = "{% set p = value.split(':') | map('int', -1) | list %}\
+{% if p | length == 3 and p | min >= 0 and p[1] < 60 and p[2] < 60 %}\
+{{ p[0] * 3600 + p[1] * 60 + p[2] }}{% else %}None{% endif %}";
+
+/// The component key of a device's command-result event. The `-` keeps it apart from every
+/// field (field names have none), so its unique id can equal no field's.
+pub const RESULT_EVENT: &str = "command-result";
+
+/// Builds Home Assistant's event JSON (`event_type` plus attributes) from a `…/result`
+/// payload: the outcome is the event type, the command and the detail its attributes.
+pub const RESULT_EVENT_TEMPLATE: &str = "{{ {'event_type': value_json.outcome, \
+'value': value_json.value, 'detail': value_json.detail} | to_json }}";
+
+/// The event entity that makes every command outcome of a device visible in Home Assistant
+/// (a refused command included): fed by every `…/result` of the device, one event type per
+/// outcome word.
+pub fn result_event(ctx: &Topics, device: &str) -> Json {
+    let outcomes: Vec<&str> = Outcome::ALL.iter().map(|outcome| outcome.word()).collect();
+    json!({
+        "p": "event",
+        "name": "Command result",
+        "unique_id": ctx.unique_id(device, RESULT_EVENT),
+        "state_topic": ctx.result_topic(device, "+"),
+        "event_types": outcomes,
+        "value_template": RESULT_EVENT_TEMPLATE,
+        "icon": "mdi:console-line",
+        "entity_category": "diagnostic",
+    })
+}
+
 /// One component of a device document (without the shared keys).
 pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     let platform = platform_for(field);
@@ -271,7 +360,7 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     };
 
     put("p", json!(platform.as_str()));
-    put("name", json!(display_name(&field.name)));
+    put("name", json!(entity_name(field)));
     put("unique_id", json!(ctx.unique_id(device, &field.name)));
     if platform.has_state() {
         put("state_topic", json!(ctx.state_topic(device, &field.name)));
@@ -288,7 +377,15 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
         put("icon", json!(icon));
     }
 
-    let unit = unit_of(field);
+    // A clock text (`0:0:2`, h:min:s) the profile calls a duration: seconds for Home
+    // Assistant, which then shows it as a duration rather than as text.
+    let clock = field.kind == FieldKind::Text
+        && platform == Platform::Sensor
+        && hints.device_class.as_deref() == Some("duration");
+    if clock {
+        put("value_template", json!(CLOCK_TO_SECONDS));
+    }
+    let unit = unit_of(field).or(clock.then_some("s"));
     let enumeration = matches!(field.kind, FieldKind::Enum { .. });
     match platform {
         Platform::BinarySensor | Platform::Switch => {
@@ -307,14 +404,15 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
         }
         Platform::Number => {
             let (min, max) = match &field.kind {
-                // The entity must hold every value the gateway publishes and accepts, the
-                // profile's `also` included (the valve's 255 = alarm disabled): Home Assistant
-                // refuses a state outside min–max. Values between the range and `also` are
-                // refused by the gateway, with a `…/result` saying which are valid.
+                // The range only: Home Assistant must not offer what the gateway refuses.
+                // `also` values of a field too wide for a select show as unknown (the
+                // template gives `None`, Home Assistant's reset payload) instead of an
+                // out-of-range error.
                 FieldKind::Integer { min, max } => {
-                    let low = field.also.iter().copied().fold(*min, i64::min);
-                    let high = field.also.iter().copied().fold(*max, i64::max);
-                    (json!(low), json!(high))
+                    if !field.also.is_empty() {
+                        put("value_template", json!(also_as_unknown(&field.also)));
+                    }
+                    (json!(min), json!(max))
                 }
                 FieldKind::Decimal { min, max, .. } => (json_number(*min), json_number(*max)),
                 // `platform_fits` admits only numeric kinds here.
@@ -325,11 +423,10 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
             put("step", number_step(field));
             put("mode", json!("box"));
         }
-        Platform::Select => {
-            if let FieldKind::Enum { options } = &field.kind {
-                put("options", json!(options));
-            }
-        }
+        Platform::Select => match &field.kind {
+            FieldKind::Enum { options } => put("options", json!(options)),
+            _ => put("options", json!(integer_choices(field).unwrap_or_default())),
+        },
         Platform::Sensor => {
             if let FieldKind::Enum { options } = &field.kind {
                 put("options", json!(options));
@@ -341,8 +438,9 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
         Platform::Text => {}
     }
 
-    // Home Assistant refuses a unit or a state class on an enumeration sensor.
-    if !enumeration {
+    // Home Assistant refuses a unit or a state class on an enumeration sensor, and a select
+    // has neither.
+    if !enumeration && platform != Platform::Select {
         if let Some(unit) = unit {
             put("unit_of_measurement", json!(unit));
         }
@@ -399,12 +497,22 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     Json::Object(config)
 }
 
+/// A number's `value_template` that turns the `also` values into `None` (unknown).
+fn also_as_unknown(also: &[i64]) -> String {
+    let values: Vec<String> = also.iter().map(|value| format!("'{value}'")).collect();
+    format!(
+        "{{% if value in [{}] %}}None{{% else %}}{{{{ value }}}}{{% endif %}}",
+        values.join(", ")
+    )
+}
+
 /// The `o` (origin) block: who published the document.
 pub fn origin() -> Json {
+    // No `support_url`: the package names no repository, and Home Assistant refuses an
+    // empty URL.
     json!({
         "name": "rtu2mqtt",
         "sw_version": env!("CARGO_PKG_VERSION"),
-        "support_url": env!("CARGO_PKG_REPOSITORY"),
     })
 }
 
@@ -425,9 +533,9 @@ fn device_availability(ctx: &Topics, device: &str) -> Json {
     ])
 }
 
-/// The discovery document of one device from its profile's identity and fields. The profile
-/// only supplies data here, so this is what [`device_config`] calls and what tests can feed
-/// with hand-made fields.
+/// The discovery document of one device from its profile's identity and fields, before any
+/// value is known. The profile only supplies data here, so this is what tests can feed with
+/// hand-made fields.
 pub fn device_config_from_fields(
     ctx: &Topics,
     device: &str,
@@ -436,19 +544,60 @@ pub fn device_config_from_fields(
     profile_name: &str,
     fields: &[FieldInfo],
 ) -> (String, Json) {
-    let components: Map<String, Json> = fields
+    let model = DeviceModel {
+        manufacturer,
+        model,
+        profile_name,
+    };
+    device_document(ctx, device, &model, fields, None)
+}
+
+/// Who made a device and which profile describes it: the fixed part of its registry entry.
+struct DeviceModel<'a> {
+    manufacturer: &'a str,
+    model: &'a str,
+    profile_name: &'a str,
+}
+
+/// A device's document: `dev` (with the identity values known in `state`), the shared keys,
+/// one component per field that is not an identity field, and the command-result event when
+/// Home Assistant can send the device commands.
+fn device_document(
+    ctx: &Topics,
+    device: &str,
+    model: &DeviceModel<'_>,
+    fields: &[FieldInfo],
+    state: Option<&DeviceState>,
+) -> (String, Json) {
+    let mut components: Map<String, Json> = fields
         .iter()
+        .filter(|field| field.identity.is_none())
         .map(|field| (field.name.clone(), component(ctx, device, field)))
         .collect();
+    if fields.iter().any(|field| platform_for(field).commands()) {
+        components.insert(RESULT_EVENT.to_string(), result_event(ctx, device));
+    }
+    let mut dev = json!({
+        "identifiers": [ctx.device_id(device)],
+        "name": device,
+        "manufacturer": model.manufacturer,
+        "model": model.model,
+        "model_id": model.profile_name,
+        "via_device": ctx.gateway_id(),
+    });
+    if let (Some(entry), Some(state)) = (dev.as_object_mut(), state) {
+        for field in fields {
+            let Some(identity) = field.identity else {
+                continue;
+            };
+            let text = state.get(&field.name).map(Value::to_text);
+            if let Some(text) = text.filter(|text| !text.trim().is_empty()) {
+                entry.insert(identity.key().to_string(), json!(text));
+            }
+        }
+    }
     let document = json!({
-        "dev": {
-            "identifiers": [ctx.device_id(device)],
-            "name": device,
-            "manufacturer": manufacturer,
-            "model": model,
-            "model_id": profile_name,
-            "via_device": ctx.gateway_id(),
-        },
+        "dev": dev,
         "o": origin(),
         "availability": device_availability(ctx, device),
         "availability_mode": "all",
@@ -458,16 +607,46 @@ pub fn device_config_from_fields(
     (ctx.config_topic(device), document)
 }
 
-/// The retained discovery document of one configured device: `(topic, payload)`.
+/// The retained discovery document of one configured device before any value is known:
+/// `(topic, payload)`.
 pub fn device_config(ctx: &Topics, device: &str, profile: &Profile) -> (String, Json) {
-    device_config_from_fields(
-        ctx,
-        device,
-        profile.manufacturer(),
-        profile.model(),
-        profile.name(),
-        profile.fields(),
-    )
+    device_config_with_state(ctx, device, profile, None)
+}
+
+/// The retained discovery document of one configured device, its `dev` entry carrying the
+/// serial number and versions from the last known values of the profile's identity fields.
+pub fn device_config_with_state(
+    ctx: &Topics,
+    device: &str,
+    profile: &Profile,
+    state: Option<&DeviceState>,
+) -> (String, Json) {
+    let model = DeviceModel {
+        manufacturer: profile.manufacturer(),
+        model: profile.model(),
+        profile_name: profile.name(),
+    };
+    device_document(ctx, device, &model, profile.fields(), state)
+}
+
+/// The device's document again when `updates` (the state about to be published: changed
+/// values, or all of them when the device came back) carry an identity field, so the device
+/// registry learns the serial number and versions when they first arrive or change. None
+/// when no identity field is among them.
+pub fn identity_update(
+    ctx: &Topics,
+    device: &str,
+    profile: &Profile,
+    state: Option<&DeviceState>,
+    updates: &[StateUpdate],
+) -> Option<(String, Json)> {
+    let identity_changed = updates.iter().any(|update| {
+        update.device == device
+            && profile
+                .field(&update.field)
+                .is_some_and(|field| field.identity.is_some())
+    });
+    identity_changed.then(|| device_config_with_state(ctx, device, profile, state))
 }
 
 /// Every discovery message of a gateway, ready to publish retained: the gateway's own document

@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
-use self::core::{Action, Core, CoreSettings, Incoming, Publish};
+use self::core::{Action, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish};
 use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
 use self::outbox::{Lane, Outbox, Request};
@@ -79,6 +79,8 @@ pub struct Bridge {
     counters_tx: watch::Sender<BridgeStats>,
     heartbeat_tx: watch::Sender<Instant>,
     connected_tx: watch::Sender<bool>,
+    /// Commands from outside the plain topics, and where their ends are reported.
+    external: Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
 }
 
 impl Bridge {
@@ -111,6 +113,7 @@ impl Bridge {
             counters_tx: watch::channel(BridgeStats::default()).0,
             heartbeat_tx,
             connected_tx,
+            external: None,
         };
         (
             bridge,
@@ -119,6 +122,16 @@ impl Bridge {
                 connected,
             },
         )
+    }
+
+    /// Also takes commands from `commands` (a Sparkplug edge node's DCMDs) through the same
+    /// validation and book as `…/set`, and reports how each ended on `reports`.
+    pub fn accept_external_commands(
+        &mut self,
+        commands: mpsc::Receiver<ExternalCommand>,
+        reports: mpsc::Sender<CommandReport>,
+    ) {
+        self.external = Some((commands, reports));
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
@@ -145,6 +158,14 @@ impl Bridge {
                     let actions = self.core.on_line_event(event, Instant::now());
                     self.execute(actions);
                 }
+                command = next_external(&mut self.external) => match command {
+                    Some(command) => {
+                        let actions = self.core.on_external_command(command, Instant::now());
+                        self.execute(actions);
+                    }
+                    // The sender has ended: nothing more comes.
+                    None => self.external = None,
+                },
                 _ = tick.tick() => {
                     let now = Instant::now();
                     let lines = &self.lines;
@@ -210,6 +231,15 @@ impl Bridge {
                     };
                     if let Some((command, full)) = refused {
                         queue.extend(self.core.on_send_failed(command, full, Instant::now()));
+                    }
+                }
+                Action::Report(report) => {
+                    // Never waits: a full queue loses only the re-publication of a true value
+                    // that the next births or data carry anyway.
+                    if let Some((_, reports)) = &self.external {
+                        if let Err(error) = reports.try_send(report) {
+                            tracing::warn!(%error, "command report dropped");
+                        }
                     }
                 }
             }
@@ -401,4 +431,14 @@ fn line_stats(lines: &[LineHandle]) -> Vec<LineStats> {
         .iter()
         .map(|line| line.stats_rx.borrow().clone())
         .collect()
+}
+
+/// The next external command; never ready when none are accepted.
+async fn next_external(
+    external: &mut Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
+) -> Option<ExternalCommand> {
+    match external {
+        Some((commands, _)) => commands.recv().await,
+        None => std::future::pending().await,
+    }
 }

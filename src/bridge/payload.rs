@@ -29,6 +29,16 @@ pub enum Outcome {
 }
 
 impl Outcome {
+    /// Every outcome, in the order of the contract.
+    pub const ALL: [Outcome; 6] = [
+        Outcome::Applied,
+        Outcome::NotApplied,
+        Outcome::Rejected,
+        Outcome::Failed,
+        Outcome::Expired,
+        Outcome::Superseded,
+    ];
+
     pub fn word(self) -> &'static str {
         match self {
             Outcome::Applied => "applied",
@@ -153,14 +163,7 @@ mod tests {
 
     #[test]
     fn outcome_words_match_serde() {
-        for outcome in [
-            Outcome::Applied,
-            Outcome::NotApplied,
-            Outcome::Rejected,
-            Outcome::Failed,
-            Outcome::Expired,
-            Outcome::Superseded,
-        ] {
+        for outcome in Outcome::ALL {
             assert_eq!(
                 serde_json::to_value(outcome).unwrap(),
                 serde_json::json!(outcome.word())

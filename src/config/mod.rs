@@ -1,7 +1,8 @@
 //! The gateway configuration: serde structs ([`schema`]), `config` layering (file <
 //! `RTU2MQTT__*` environment, [`load`]), and complete validation ([`validate`]) that names the
 //! place of every problem before anything is opened. [`plan`] computes each line's poll plan
-//! and bus load from the wire timing, for validation and `rtu2mqtt check`.
+//! and bus load from the wire timing, for validation and `rtu2mqtt check`. [`sparkplug`] holds
+//! the optional `[sparkplug]` section.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
@@ -10,6 +11,7 @@ pub mod health;
 pub mod load;
 pub mod plan;
 pub mod schema;
+pub mod sparkplug;
 pub mod validate;
 
 use std::fmt;
@@ -21,6 +23,7 @@ use crate::bus::LineSpec;
 use crate::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
+pub use sparkplug::{SparkplugConfig, SparkplugIdentity, SparkplugSettings};
 
 /// A validated gateway configuration.
 #[derive(Debug, Clone)]
@@ -29,6 +32,8 @@ pub struct Config {
     pub gateway: GatewayOptions,
     pub health: HealthSettings,
     pub lines: Vec<LineSpec>,
+    /// The Sparkplug B edge node, when `[sparkplug]` is present.
+    pub sparkplug: Option<SparkplugConfig>,
     /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
     pub warnings: Vec<Problem>,
 }

@@ -8,6 +8,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::health::HealthSettings;
+use super::sparkplug::SparkplugSettings;
 use crate::rtu::timing::Parity;
 
 /// The whole file.
@@ -22,6 +23,9 @@ pub struct RawConfig {
     pub health: HealthSettings,
     #[serde(default)]
     pub lines: Vec<RawLine>,
+    /// The Sparkplug B edge node (off when absent).
+    #[serde(default)]
+    pub sparkplug: Option<SparkplugSettings>,
 }
 
 /// `[mqtt]`.
@@ -224,6 +228,13 @@ pub const TOP_SHAPE: &[Key] = &[
     optional("gateway", Kind::Table(GATEWAY_SHAPE)),
     optional("health", Kind::Table(HEALTH_SHAPE)),
     optional("lines", Kind::Tables(LINE_SHAPE)),
+    optional("sparkplug", Kind::Table(SPARKPLUG_SHAPE)),
+];
+pub const SPARKPLUG_SHAPE: &[Key] = &[
+    required("group_id", Kind::Text),
+    optional("edge_node_id", Kind::Text),
+    optional("primary_host_id", Kind::Text),
+    optional("mqtt", Kind::Table(MQTT_SHAPE)),
 ];
 pub const MQTT_SHAPE: &[Key] = &[
     required("url", Kind::Text),
@@ -284,7 +295,8 @@ pub const DEVICE_SHAPE: &[Key] = &[
 ];
 
 /// The key names of each table (the README documents each of them).
-pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines"];
+pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines", "sparkplug"];
+pub const SPARKPLUG_KEYS: &[&str] = &["group_id", "edge_node_id", "primary_host_id", "mqtt"];
 pub const MQTT_KEYS: &[&str] = &[
     "url",
     "client_id",
@@ -375,7 +387,7 @@ mod tests {
 
     #[test]
     fn the_key_lists_name_the_shapes_keys() {
-        let pairs: [(&[&str], &[Key]); 7] = [
+        let pairs: [(&[&str], &[Key]); 8] = [
             (TOP_KEYS, TOP_SHAPE),
             (MQTT_KEYS, MQTT_SHAPE),
             (HEALTH_KEYS, HEALTH_SHAPE),
@@ -383,6 +395,7 @@ mod tests {
             (LINE_KEYS, LINE_SHAPE),
             (RS485_KEYS, RS485_SHAPE),
             (DEVICE_KEYS, DEVICE_SHAPE),
+            (SPARKPLUG_KEYS, SPARKPLUG_SHAPE),
         ];
         for (names, shape) in pairs {
             let shape_names: Vec<&str> = shape.iter().map(|key| key.name).collect();

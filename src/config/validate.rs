@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
+use super::sparkplug::validate_sparkplug;
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::contract::GATEWAY_DEVICE;
@@ -41,11 +42,21 @@ pub fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
     if let Some(mqtt) = mqtt.as_ref().filter(|mqtt| mqtt.discovery) {
         check_unique_ids(mqtt, &lines, &mut problems);
     }
+    let sparkplug = raw.sparkplug.as_ref().map(|section| {
+        validate_sparkplug(
+            section,
+            &raw.mqtt.client_id,
+            mqtt.as_ref(),
+            base,
+            &mut problems,
+        )
+    });
     if problems.is_empty() {
         if let (Some(mqtt), Some(gateway)) = (mqtt, gateway) {
             return Ok(Config {
                 mqtt,
                 gateway,
+                sparkplug: sparkplug.flatten(),
                 health: raw.health.clone(),
                 lines,
                 warnings,
@@ -95,9 +106,19 @@ pub fn topic_prefix_problem(prefix: &str) -> Option<String> {
 }
 
 fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Option<MqttSettings> {
+    validate_mqtt_section("mqtt", raw, base, problems)
+}
+
+/// A broker table in the form of `[mqtt]` at `section` (`mqtt`, `sparkplug.mqtt`).
+pub(super) fn validate_mqtt_section(
+    section: &str,
+    raw: &RawMqtt,
+    base: &Path,
+    problems: &mut Vec<Problem>,
+) -> Option<MqttSettings> {
     let before = problems.len();
     let mut fail = |key: &str, reason: String| {
-        problems.push(Problem::new(format!("mqtt.{key}"), reason));
+        problems.push(Problem::new(format!("{section}.{key}"), reason));
     };
     let endpoint = parse_broker_url(&raw.url);
     if let Err(reason) = &endpoint {

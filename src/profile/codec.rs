@@ -9,6 +9,7 @@
 use serde::Deserialize;
 
 use super::field::{FieldInfo, FieldKind};
+use super::number::{self, DecimalText, ScaleError};
 use super::rejection::Rejection;
 use super::Value;
 
@@ -591,16 +592,27 @@ fn format_limit(value: f64, precision: u8) -> String {
     format!("{value:.*}", usize::from(precision))
 }
 
+/// `decimal` or `decimals`, as a count calls for.
+pub fn decimals_word(precision: u8) -> &'static str {
+    if precision == 1 {
+        "decimal"
+    } else {
+        "decimals"
+    }
+}
+
 /// Parses command text for a field against its kind and range. The accepted words:
 /// booleans `ON`/`OFF`, `true`/`false`, `1`/`0` (any case, surrounding blanks ignored);
-/// momentary fields `PRESS` or `ON` (also `true`, `1`); integers in decimal; decimals with at
-/// most the field's precision; enumerations by their word (any case).
+/// momentary fields `PRESS` or `ON` (also `true`, `1`); enumerations by their word (any case).
+/// Integers and decimals are numbers as [`super::number`] defines them, read exactly: an
+/// integer takes no decimals other than zeros (`8.0`), a decimal at most the field's precision
+/// (`12.340` for two decimals, never `12.345`, at any magnitude).
 pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
     let name = &info.name;
     let trimmed = text.trim();
     // Numbers are shown as sent (`got 11`), anything else quoted (`got "abc"`), shortened.
     let short: String = trimmed.chars().take(40).collect();
-    let shown = if trimmed.parse::<f64>().is_ok_and(f64::is_finite) {
+    let shown = if number::is_number(trimmed) {
         short
     } else {
         format!("\"{short}\"")
@@ -620,28 +632,12 @@ pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
                 "{name} is a button: send PRESS (or ON), got {shown}"
             ))),
         },
-        FieldKind::Integer { min, max } => {
-            let refuse = || {
-                Rejection(format!(
-                    "{name} must be an integer {min}–{max}, got {shown}"
-                ))
-            };
-            let value: i64 = match trimmed.parse::<i64>() {
-                Ok(v) => v,
-                Err(_) => {
-                    // Accept "8.0" as 8, refuse "8.5" and anything that is not a number.
-                    let float: f64 = trimmed.parse().map_err(|_| refuse())?;
-                    if !float.is_finite() || float.fract() != 0.0 || float.abs() > 9.0e15 {
-                        return Err(refuse());
-                    }
-                    float as i64
-                }
-            };
-            if value < *min || value > *max {
-                return Err(refuse());
-            }
-            Ok(Value::Int(value))
-        }
+        FieldKind::Integer { min, max } => match number::integer(trimmed) {
+            Some(value) if (*min..=*max).contains(&value) => Ok(Value::Int(value)),
+            _ => Err(Rejection(format!(
+                "{name} must be an integer {min}–{max}, got {shown}"
+            ))),
+        },
         FieldKind::Decimal {
             min,
             max,
@@ -652,26 +648,31 @@ pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
                 format_limit(*min, *precision),
                 format_limit(*max, *precision)
             );
-            let refuse = |why: &str| {
+            let places = decimals_word(*precision);
+            let refuse = || {
                 Rejection(format!(
-                    "{name} must be {why} {range} with at most {precision} decimals, got {shown}"
+                    "{name} must be a number {range} with at most {precision} {places}, got {shown}"
                 ))
             };
-            let float: f64 = trimmed.parse().map_err(|_| refuse("a number"))?;
-            if !float.is_finite() {
-                return Err(refuse("a finite number"));
-            }
+            let parsed = DecimalText::parse(trimmed).ok_or_else(refuse)?;
+            let scaled = match parsed.scaled(*precision) {
+                Ok(scaled) => scaled,
+                Err(ScaleError::TooPrecise) => {
+                    return Err(Rejection(format!(
+                        "{name} takes at most {precision} {places} ({range}), got {shown}"
+                    )))
+                }
+                Err(ScaleError::TooLarge) => return Err(refuse()),
+            };
+            // The limits are exact at the field's precision (they come from its raw range).
             let factor = pow10(*precision) as f64;
-            let scaled = (float * factor).round();
-            if ((float * factor) - scaled).abs() > 1e-6 * scaled.abs().max(1.0) {
-                return Err(refuse("a number"));
-            }
-            // Compare in scaled units so 0.1 + rounding never slips past a limit.
-            if scaled < (min * factor).round() || scaled > (max * factor).round() {
-                return Err(refuse("a number"));
+            let (low, high) = ((min * factor).round(), (max * factor).round());
+            let value = i64::try_from(scaled).map_err(|_| refuse())?;
+            if (value as f64) < low || (value as f64) > high {
+                return Err(refuse());
             }
             Ok(Value::Decimal {
-                scaled: scaled as i64,
+                scaled: value,
                 precision: *precision,
             })
         }

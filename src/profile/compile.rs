@@ -10,10 +10,10 @@
 use std::collections::HashMap;
 
 use super::codec::{FieldCodec, NumberType};
-use super::field::{FieldInfo, FieldKind, HaHints};
+use super::field::{FieldInfo, FieldKind, HaHints, Identity};
 use super::format::{
-    BlockSection, CodecSection, FieldSection, ForbiddenSection, LineSection, ProfileFile,
-    WriteFrameSection, WriteSection,
+    BlockSection, CodecSection, FieldSection, ForbiddenSection, IdentityKey, LineSection,
+    ProfileFile, WriteFrameSection, WriteSection,
 };
 use super::model::{
     Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass, ReadBlock, WriteFrame,
@@ -82,6 +82,25 @@ pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
         Ok(compiled)
     } else {
         Err(ProfileErrors(problems.list))
+    }
+}
+
+/// Each device-registry entry is filled by one field at most.
+fn check_identities(places: &[String], infos: &[FieldInfo], problems: &mut Problems<'_>) {
+    let mut first: HashMap<Identity, &str> = HashMap::new();
+    for (info, place) in infos.iter().zip(places) {
+        let Some(identity) = info.identity else {
+            continue;
+        };
+        if let Some(earlier) = first.insert(identity, &info.name) {
+            problems.add(
+                format!("{place}.identity"),
+                format!(
+                    "`{}` is already the identity of field `{earlier}`",
+                    identity.key()
+                ),
+            );
+        }
     }
 }
 
@@ -159,6 +178,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         }
     }
     check_overlaps(&places, &infos, &defs, &layout.blocks, problems);
+    check_identities(&places, &infos, problems);
     for (index, (section, place)) in built_sections.iter().zip(&places).enumerate() {
         let until = resolve_settle_until(section, place, &infos, &defs, problems);
         defs[index].settle_until = until;
@@ -865,8 +885,28 @@ fn build_field(
             icon: field.ha.icon.clone(),
             entity_category: field.ha.entity_category.clone(),
         },
+        label: field.label.clone(),
+        identity: field.identity.map(|key| match key {
+            IdentityKey::SerialNumber => Identity::SerialNumber,
+            IdentityKey::HwVersion => Identity::HardwareVersion,
+            IdentityKey::SwVersion => Identity::SoftwareVersion,
+        }),
         min_write_interval: field.min_write_interval,
     };
+    if let Some(label) = &field.label {
+        if label.trim().is_empty() || label.trim() != label || label.chars().any(char::is_control) {
+            problems.add(
+                format!("{place}.label"),
+                "a label is words without leading or trailing spaces or control characters",
+            );
+        }
+    }
+    if info.identity.is_some() && info.writable {
+        problems.add(
+            format!("{place}.identity"),
+            "an identity field is read from the device, never written",
+        );
+    }
     if let Some(example) = &field.example {
         if !info.writable {
             problems.add(

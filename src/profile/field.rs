@@ -39,6 +39,26 @@ pub struct HaHints {
     pub entity_category: Option<String>,
 }
 
+/// Which entry of the device registry a field fills (Home Assistant's `serial_number`,
+/// `hw_version`, `sw_version`): a profile's `identity` key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Identity {
+    SerialNumber,
+    HardwareVersion,
+    SoftwareVersion,
+}
+
+impl Identity {
+    /// The key in a profile (`identity = "serial_number"`) and in Home Assistant's `dev` block.
+    pub fn key(self) -> &'static str {
+        match self {
+            Identity::SerialNumber => "serial_number",
+            Identity::HardwareVersion => "hw_version",
+            Identity::SoftwareVersion => "sw_version",
+        }
+    }
+}
+
 /// A field as the outside world sees it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FieldInfo {
@@ -54,6 +74,10 @@ pub struct FieldInfo {
     /// `255` = alarm disabled); empty for most fields.
     pub also: Vec<i64>,
     pub ha: HaHints,
+    /// The name people read (`PID invalid flags`); None derives one from `name`.
+    pub label: Option<String>,
+    /// The device-registry entry this field's value fills, if any.
+    pub identity: Option<Identity>,
     /// Minimum time between two writes of this field (protects device EEPROM).
     pub min_write_interval: Option<Duration>,
 }

@@ -157,8 +157,21 @@ pub(super) struct FieldSection {
     /// A command value that shows what the field does (`gear = 8`), offered as an example by the
     /// demo; it must be a valid command for the field.
     pub(super) example: Option<String>,
+    /// The name people read where the field name says too little (`PID invalid flags`).
+    pub(super) label: Option<String>,
+    /// The device-registry entry the field's value fills (serial number, versions).
+    pub(super) identity: Option<IdentityKey>,
     #[serde(default)]
     pub(super) ha: HaSection,
+}
+
+/// The values of a field's `identity` key.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum IdentityKey {
+    SerialNumber,
+    HwVersion,
+    SwVersion,
 }
 
 #[derive(Debug, Deserialize)]

@@ -16,6 +16,7 @@ pub mod compile;
 pub mod field;
 pub mod format;
 pub mod model;
+pub mod number;
 pub mod raw;
 pub mod registry;
 pub mod rejection;
@@ -29,7 +30,7 @@ use crate::rtu::{Request, Response};
 pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Verification};
 pub use compile::{ProfileError, ProfileErrors};
-pub use field::{FieldInfo, FieldKind, HaHints};
+pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Limits, PollClass, ReadBlock};
 pub use rejection::Rejection;
 pub use value::Value;
@@ -279,8 +280,8 @@ impl Profile {
         let target = match codec::parse_command(info, text) {
             Ok(value) => value,
             Err(rejection) if def.also.is_empty() => return Err(rejection),
-            Err(rejection) => match text.trim().parse::<i64>() {
-                Ok(value) if def.also.contains(&value) => Value::Int(value),
+            Err(rejection) => match number::integer(text) {
+                Some(value) if def.also.contains(&value) => Value::Int(value),
                 _ => {
                     let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
                     let or = format!(" or {}, got ", list.join(", "));

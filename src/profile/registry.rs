@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use super::codec;
 use super::model::Behaviour;
 use super::{FieldInfo, FieldKind, PollClass, Profile, ProfileErrors};
 use crate::rtu::timing::Parity;
@@ -33,6 +34,8 @@ pub enum LoadError {
         "no built-in profile `{name}` (built-in: {known}); a profile file path must end in .toml"
     )]
     UnknownBuiltIn { name: String, known: String },
+    #[error("`{name}` is neither a built-in profile (built-in: {known}) nor a profile file")]
+    NeitherBuiltInNorFile { name: String, known: String },
     #[error("cannot read profile {path}: {source}")]
     Read {
         path: String,
@@ -107,7 +110,7 @@ fn describe_kind(kind: &FieldKind) -> String {
         } => {
             let p = usize::from(*precision);
             if min.abs() > 1e15 || max.abs() > 1e15 {
-                format!("decimal, {p} places")
+                format!("decimal, {p} {}", codec::decimals_word(*precision))
             } else {
                 format!("decimal {min:.p$}–{max:.p$}")
             }
@@ -254,20 +257,46 @@ pub fn describe(profile: &Profile) -> String {
     out
 }
 
-/// `rtu2mqtt profiles`: prints every built-in profile (and the files given) with its fields.
-pub fn print_profiles(paths: &[PathBuf]) -> anyhow::Result<ExitCode> {
+/// What one argument of `rtu2mqtt profiles` names: a built-in profile by its name, else a
+/// profile file by its path.
+fn load_listed(argument: &Path) -> Result<(Profile, Option<&Path>), LoadError> {
+    if let Some(name) = argument
+        .to_str()
+        .filter(|name| built_in_names().contains(name))
+    {
+        return built_in(name).map(|profile| (profile, None));
+    }
+    match std::fs::metadata(argument) {
+        Ok(_) => load_file(argument).map(|profile| (profile, Some(argument))),
+        Err(source) if source.kind() == std::io::ErrorKind::NotFound => {
+            Err(LoadError::NeitherBuiltInNorFile {
+                name: argument.display().to_string(),
+                known: built_in_names().join(", "),
+            })
+        }
+        Err(source) => Err(LoadError::Read {
+            path: argument.display().to_string(),
+            source,
+        }),
+    }
+}
+
+/// `rtu2mqtt profiles [NAME|FILE]…`: with no argument every built-in profile, otherwise only
+/// the built-ins named and the files given, in argument order, each with its fields. Any
+/// argument that cannot be listed is reported on stderr and makes the exit status 1.
+pub fn print_profiles(arguments: &[PathBuf]) -> anyhow::Result<ExitCode> {
     use std::io::Write as _;
+    let listed: Vec<PathBuf> = if arguments.is_empty() {
+        built_in_names().into_iter().map(PathBuf::from).collect()
+    } else {
+        arguments.to_vec()
+    };
     let mut listing = String::new();
     let mut problems = String::new();
-    for name in built_in_names() {
-        match built_in(name) {
-            Ok(profile) => listing.push_str(&format!("{}\n", describe(&profile))),
-            Err(err) => problems.push_str(&format!("{err}\n")),
-        }
-    }
-    for path in paths {
-        match load_file(path) {
-            Ok(profile) => listing.push_str(&format!(
+    for argument in &listed {
+        match load_listed(argument) {
+            Ok((profile, None)) => listing.push_str(&format!("{}\n", describe(&profile))),
+            Ok((profile, Some(path))) => listing.push_str(&format!(
                 "{}  file: {}\n\n",
                 describe(&profile),
                 path.display()

@@ -1,11 +1,13 @@
 //! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`payload`] is the
 //! protobuf payload, [`metrics`] turns profile fields into typed metrics and command metrics
-//! back into command text, [`session`] is the pure edge node state machine. This module holds
-//! the `[sparkplug]` settings with their validation and the thin driver ([`run`]) that owns
+//! back into command text, [`figures`] turns line statistics into node metrics, [`session`] is
+//! the pure edge node state machine. This module makes the session for a configuration
+//! (the `[sparkplug]` settings are `crate::config`'s) and holds the thin driver ([`run`]) that owns
 //! the node's own MQTT connection (its Last Will is the NDEATH, so it cannot share the plain
 //! connection whose Will is the gateway status), feeds line events to the session, and hands
 //! commands from hosts to the gateway's validated command path. It never touches the bus.
 
+pub mod figures;
 pub mod metrics;
 pub mod payload;
 pub mod session;
@@ -13,106 +15,48 @@ pub mod session;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
-use serde::Deserialize;
 use tokio::sync::{broadcast, mpsc};
 
 use crate::bridge::mqtt::{options, Backoff, REQUEST_QUEUE};
 
 use crate::bus::LineEvent;
-use crate::config::{MqttSettings, Problem};
+use crate::config::{Config, MqttSettings};
 use crate::shutdown::Shutdown;
 
+pub use crate::config::sparkplug::{
+    shared_broker, SparkplugConfig, SparkplugIdentity, SparkplugSettings, CLIENT_ID_SUFFIX,
+};
 pub use session::{Action, NodeMetricSpec, Session, SessionSettings, SparkplugCommand};
 
-/// Appended to the plain connection's client id when the node shares its broker: two
-/// connections with one client id would take each other over.
-pub const CLIENT_ID_SUFFIX: &str = "-sparkplug";
-
+/// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
+/// at a slower interval, a block that failed once); then it is born with those null.
+const BIRTH_WAIT: Duration = Duration::from_secs(10);
 /// How long the connection may take to flush the NDEATH and close at shutdown.
 const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// A connection that lived this long resets the reconnect back-off.
 const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 
-/// The `[sparkplug]` section as written.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SparkplugSettings {
-    /// The Sparkplug group (required).
-    #[serde(default)]
-    pub group_id: String,
-    /// Default: the MQTT client id.
-    #[serde(default)]
-    pub edge_node_id: Option<String>,
-    /// With a primary host, births wait for its STATE `online`.
-    #[serde(default)]
-    pub primary_host_id: Option<String>,
-    /// A broker of its own, in the form of `[mqtt]` (validated by the same rules); default:
-    /// the `[mqtt]` broker with the client id suffixed [`CLIENT_ID_SUFFIX`].
-    #[serde(default)]
-    pub mqtt: Option<toml::Table>,
-}
-
-/// The checked Sparkplug identity of the node.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SparkplugIdentity {
-    pub group_id: String,
-    pub edge_node_id: String,
-    pub primary_host_id: Option<String>,
-}
-
-impl SparkplugSettings {
-    /// Checks the ids by Sparkplug's rules (non-empty, no `+`, `#` or `/`; they are topic
-    /// levels) and fills the edge node id from the MQTT client id. Every problem is named
-    /// with its place (`sparkplug.group_id`).
-    pub fn validate(&self, mqtt_client_id: &str) -> Result<SparkplugIdentity, Vec<Problem>> {
-        let mut problems = Vec::new();
-        let edge_node_id = self
-            .edge_node_id
-            .clone()
-            .unwrap_or_else(|| mqtt_client_id.to_string());
-        check_id("sparkplug.group_id", &self.group_id, &mut problems);
-        let place = if self.edge_node_id.is_some() {
-            "sparkplug.edge_node_id"
-        } else {
-            "sparkplug.edge_node_id (from mqtt.client_id)"
-        };
-        check_id(place, &edge_node_id, &mut problems);
-        if let Some(host) = &self.primary_host_id {
-            check_id("sparkplug.primary_host_id", host, &mut problems);
-        }
-        if !problems.is_empty() {
-            return Err(problems);
-        }
-        Ok(SparkplugIdentity {
-            group_id: self.group_id.clone(),
-            edge_node_id,
-            primary_host_id: self.primary_host_id.clone(),
-        })
-    }
-}
-
-/// The plain broker settings made fit for the node's own connection: same broker, own client
-/// id, clean session (Sparkplug 3.0 requires a clean session on MQTT 3.1.1).
-pub fn shared_broker(plain: &MqttSettings) -> MqttSettings {
-    MqttSettings {
-        client_id: format!("{}{CLIENT_ID_SUFFIX}", plain.client_id),
-        clean_session: true,
-        ..plain.clone()
-    }
-}
-
-fn check_id(place: &str, id: &str, problems: &mut Vec<Problem>) {
-    if id.is_empty() {
-        problems.push(Problem::new(
-            place,
-            "is required (a non-empty Sparkplug id)",
-        ));
-    } else if let Some(bad) = id.chars().find(|c| matches!(c, '+' | '#' | '/')) {
-        problems.push(Problem::new(
-            place,
-            format!("`{id}` contains `{bad}`; Sparkplug ids must not contain +, # or /"),
-        ));
-    }
+/// The session for `config`'s devices, identity and lines (None without `[sparkplug]`),
+/// with the broker settings of its own connection.
+pub fn session_for(config: &Config) -> Option<(Session, MqttSettings)> {
+    let sparkplug = config.sparkplug.as_ref()?;
+    let devices = config
+        .lines
+        .iter()
+        .flat_map(|line| &line.devices)
+        .map(|device| (device.name.clone(), device.profile.clone()))
+        .collect();
+    let lines: Vec<String> = config.lines.iter().map(|line| line.name.clone()).collect();
+    let settings = SessionSettings {
+        group_id: sparkplug.identity.group_id.clone(),
+        edge_node_id: sparkplug.identity.edge_node_id.clone(),
+        primary_host_id: sparkplug.identity.primary_host_id.clone(),
+        devices,
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        node_metrics: figures::node_metric_specs(&lines),
+    };
+    let session = Session::new(settings, 0).with_birth_wait(BIRTH_WAIT);
+    Some((session, sparkplug.mqtt.clone()))
 }
 
 /// Milliseconds since the Unix epoch (Sparkplug timestamps).
@@ -126,12 +70,7 @@ pub fn now_millis() -> u64 {
 
 /// How a command handed out by the node ended, reported back so a refused or failed one is
 /// re-published with the device's true value.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct CommandReport {
-    pub device: String,
-    pub field: String,
-    pub applied: bool,
-}
+pub use crate::bridge::core::CommandReport;
 
 /// The channels the node is wired with.
 #[derive(Debug)]
@@ -215,7 +154,11 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                         closing |= carry_out(&client, &links.commands, actions).await;
                     }
                     Err(broadcast::error::RecvError::Lagged(missed)) => {
-                        tracing::warn!(missed, "Sparkplug: line events missed; the next values catch up");
+                        // A device may have come or gone unseen: births tell the host the
+                        // node's whole view again, the next polls bring the values.
+                        tracing::warn!(missed, "Sparkplug: line events missed; rebirth");
+                        let actions = session.rebirth(now_millis());
+                        closing |= carry_out(&client, &links.commands, actions).await;
                     }
                     Err(broadcast::error::RecvError::Closed) => {
                         closing = true;
@@ -321,67 +264,4 @@ async fn carry_out(
         }
     }
     closing
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn settings(group: &str, node: Option<&str>, host: Option<&str>) -> SparkplugSettings {
-        SparkplugSettings {
-            group_id: group.to_string(),
-            edge_node_id: node.map(str::to_string),
-            primary_host_id: host.map(str::to_string),
-            mqtt: None,
-        }
-    }
-
-    #[test]
-    fn the_edge_node_id_defaults_to_the_client_id() {
-        let identity = settings("plant", None, Some("scada")).validate("rtu2mqtt-1");
-        assert_eq!(
-            identity,
-            Ok(SparkplugIdentity {
-                group_id: "plant".into(),
-                edge_node_id: "rtu2mqtt-1".into(),
-                primary_host_id: Some("scada".into()),
-            })
-        );
-    }
-
-    #[test]
-    fn ids_follow_the_sparkplug_rules() {
-        let Err(problems) = settings("", Some("a/b"), Some("h+")).validate("gw") else {
-            panic!("invalid ids accepted");
-        };
-        let shown: Vec<String> = problems.iter().map(ToString::to_string).collect();
-        assert_eq!(
-            shown,
-            [
-                "sparkplug.group_id: is required (a non-empty Sparkplug id)",
-                "sparkplug.edge_node_id: `a/b` contains `/`; Sparkplug ids must not contain +, # or /",
-                "sparkplug.primary_host_id: `h+` contains `+`; Sparkplug ids must not contain +, # or /",
-            ]
-        );
-        let Err(problems) = settings("g", None, None).validate("gw#1") else {
-            panic!("invalid client id accepted as edge node id");
-        };
-        assert_eq!(
-            problems[0].place,
-            "sparkplug.edge_node_id (from mqtt.client_id)"
-        );
-    }
-
-    #[test]
-    fn the_section_parses_from_toml() {
-        let parsed: Result<SparkplugSettings, _> = toml::from_str(
-            "group_id = \"plant\"\nprimary_host_id = \"scada\"\n[mqtt]\nurl = \"mqtt://broker:1883\"\n",
-        );
-        let Ok(parsed) = parsed else {
-            panic!("{parsed:?}");
-        };
-        assert_eq!(parsed.group_id, "plant");
-        assert!(parsed.mqtt.is_some_and(|table| table.contains_key("url")));
-        assert!(toml::from_str::<SparkplugSettings>("group = \"x\"").is_err());
-    }
 }

@@ -29,14 +29,9 @@ pub const VERSION: &str = "Properties/Software Version";
 /// node metrics use the aliases below the first.
 const ALIAS_STRIDE: u64 = 1000;
 
-/// A DCMD metric turned into a command for the gateway's validated command path.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SparkplugCommand {
-    pub device: String,
-    pub field: String,
-    /// The command text, as `…/set` would carry it (`ON`, `8`, `12.5`, `opening`).
-    pub text: String,
-}
+/// A DCMD metric turned into a command for the gateway's validated command path: the field
+/// and the command text as `…/set` would carry it (`ON`, `8`, `12.5`, `opening`).
+pub use crate::bridge::core::ExternalCommand as SparkplugCommand;
 
 /// MQTT delivery of a publish.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -100,6 +95,26 @@ struct DeviceSession {
     values: HashMap<String, Value>,
     /// Values as the host knows them (last birth or data).
     published: HashMap<String, Value>,
+    /// When its first values (since it was last offline) arrived.
+    first_values_at: Option<u64>,
+}
+
+impl DeviceSession {
+    /// A device is born once it has a value for every field (a line reads a device block by
+    /// block), or with nulls for the missing ones once `wait` has passed since its first
+    /// values (a block that keeps failing must not keep it unborn).
+    fn ready_for_birth(&self, now: u64, wait: u64) -> bool {
+        let Some(first) = self.first_values_at else {
+            return false;
+        };
+        self.online
+            && (now.saturating_sub(first) >= wait
+                || self
+                    .metrics
+                    .defs()
+                    .iter()
+                    .all(|def| self.values.contains_key(&def.name)))
+    }
 }
 
 /// The edge node session.
@@ -122,6 +137,8 @@ pub struct Session {
     host_state_timestamp: Option<u64>,
     /// The node's own metrics besides bdSeq, in NBIRTH order.
     node_metrics: Vec<NodeMetric>,
+    /// How long a device's birth may wait for its missing fields, in milliseconds.
+    birth_wait: u64,
 }
 
 /// A gateway figure published as a node metric (line statistics, bus load). Declared when the
@@ -174,6 +191,7 @@ impl Session {
                 born: false,
                 values: HashMap::new(),
                 published: HashMap::new(),
+                first_values_at: None,
             })
             .collect();
         let host_online = settings.primary_host_id.is_none();
@@ -218,7 +236,15 @@ impl Session {
             host_online,
             host_state_timestamp: None,
             node_metrics,
+            birth_wait: 0,
         }
+    }
+
+    /// Lets each DBIRTH wait up to `wait` for the device's first complete set of values
+    /// (default: born with its first values, the missing ones null).
+    pub fn with_birth_wait(mut self, wait: std::time::Duration) -> Self {
+        self.birth_wait = u64::try_from(wait.as_millis()).unwrap_or(u64::MAX);
+        self
     }
 
     /// `spBv1.0/<group>/<kind>/<edge node>`.
@@ -320,10 +346,12 @@ impl Session {
                 };
                 let entry = &mut self.devices[index];
                 entry.online = true;
+                entry.first_values_at.get_or_insert(now);
                 for (field, value) in values {
                     entry.values.insert(field.clone(), value.clone());
                 }
                 let born = entry.born;
+                let ready = entry.ready_for_birth(now, self.birth_wait);
                 let changed: Vec<String> = values
                     .iter()
                     .filter(|(field, value)| entry.published.get(field) != Some(value))
@@ -332,7 +360,7 @@ impl Session {
                 if self.node_born {
                     if born {
                         actions.extend(self.ddata(now, index, &changed));
-                    } else {
+                    } else if ready {
                         actions.extend(self.dbirth(now, index));
                     }
                 }
@@ -349,6 +377,7 @@ impl Session {
                 if !*online {
                     // A returning device is born with fresh values, not those from before.
                     entry.values.clear();
+                    entry.first_values_at = None;
                     if entry.born {
                         entry.born = false;
                         entry.published.clear();
@@ -358,7 +387,10 @@ impl Session {
                                 .push(self.publish(self.device_topic("DDEATH", device), payload));
                         }
                     }
-                } else if self.node_born && !entry.born && !entry.values.is_empty() {
+                } else if self.node_born
+                    && !entry.born
+                    && entry.ready_for_birth(now, self.birth_wait)
+                {
                     actions.extend(self.dbirth(now, index));
                 }
             }
@@ -441,6 +473,15 @@ impl Session {
         ];
         self.on_disconnected();
         actions
+    }
+
+    /// NBIRTH and every DBIRTH again, when the node is born on this connection (the driver
+    /// asks for it after missing line events: the births carry the values it still has).
+    pub fn rebirth(&mut self, now: u64) -> Vec<Action> {
+        if self.connected && self.host_online && self.node_born {
+            return self.births(now);
+        }
+        Vec::new()
     }
 
     fn on_ncmd(&mut self, now: u64, payload: &[u8]) -> Vec<Action> {
@@ -529,7 +570,7 @@ impl Session {
         let mut actions = vec![self.publish(self.node_topic("NBIRTH"), payload)];
         for index in 0..self.devices.len() {
             let device = &self.devices[index];
-            if device.online && !device.values.is_empty() {
+            if device.ready_for_birth(now, self.birth_wait) {
                 actions.extend(self.dbirth(now, index));
             }
         }
@@ -683,6 +724,7 @@ fn parse_host_state(payload: &[u8]) -> Option<(bool, u64)> {
 mod tests {
     use super::*;
     use crate::profile::registry;
+    use crate::profile::FieldKind;
 
     const T: u64 = 1_700_000_000_000;
 
@@ -1173,5 +1215,82 @@ mod tests {
             (DEVICES.to_string(), MetricValue::Int(99)),
         ];
         assert!(session.on_node_values(T, &undeclared).is_empty());
+    }
+
+    fn dbirths(actions: &[Action]) -> Vec<(String, Payload)> {
+        published(actions)
+            .into_iter()
+            .filter(|(topic, _)| topic.contains("/DBIRTH/"))
+            .collect()
+    }
+
+    #[test]
+    fn a_birth_waits_for_every_field_or_for_its_bound() {
+        let wait = std::time::Duration::from_secs(10);
+        let mut session = Session::new(settings(None), 0).with_birth_wait(wait);
+        session.prepare_connect(T);
+        session.on_connected(T);
+        // The first block: not every field yet, no birth.
+        assert!(dbirths(&session.on_line_event(T + 1, &dust_values(3))).is_empty());
+        // The rest of the device's fields: born with all of them.
+        let fields = profile("ruiwan-dust-collector").fields().to_vec();
+        let rest = LineEvent::Values {
+            device: "dust".into(),
+            values: fields
+                .iter()
+                .map(|info| {
+                    let value = match &info.kind {
+                        FieldKind::Enum { options } => {
+                            Value::Enum(options.first().cloned().unwrap_or_default())
+                        }
+                        FieldKind::Text => Value::Text("1".into()),
+                        FieldKind::Bool | FieldKind::Momentary => Value::Bool(false),
+                        _ => Value::Int(1),
+                    };
+                    (info.name.clone(), value)
+                })
+                .filter(|(name, _)| !["power", "gear", "fan_speed"].contains(&name.as_str()))
+                .collect(),
+        };
+        let births = dbirths(&session.on_line_event(T + 2, &rest));
+        assert_eq!(births.len(), 1);
+        assert_eq!(births[0].0, "spBv1.0/plant/DBIRTH/gw1/dust");
+        assert!(births[0].1.metrics.iter().all(|m| m.is_null != Some(true)));
+        assert_eq!(
+            metric(&births[0].1, "gear").value,
+            Some(MetricValue::Int(3))
+        );
+
+        // The valve never sends its other blocks: born at the bound, the rest null.
+        let valve = |gear| LineEvent::Values {
+            device: "valve".into(),
+            values: vec![("opening".into(), Value::Int(gear))],
+        };
+        assert!(dbirths(&session.on_line_event(T + 3, &valve(10))).is_empty());
+        assert!(dbirths(&session.on_line_event(T + 9_000, &valve(11))).is_empty());
+        let late = dbirths(&session.on_line_event(T + 10_003, &valve(12)));
+        assert_eq!(late.len(), 1);
+        assert_eq!(late[0].0, "spBv1.0/plant/DBIRTH/gw1/valve");
+        assert_eq!(
+            metric(&late[0].1, "opening").value,
+            Some(MetricValue::Int(12))
+        );
+        assert_eq!(metric(&late[0].1, "station_address").is_null, Some(true));
+    }
+
+    #[test]
+    fn a_rebirth_after_missed_events_is_only_for_a_born_node() {
+        let mut session = Session::new(settings(Some("scada")), 0);
+        session.prepare_connect(T);
+        session.on_connected(T);
+        assert!(
+            session.rebirth(T).is_empty(),
+            "not born yet: the host's STATE decides"
+        );
+        let mut session = connected();
+        session.on_line_event(T, &dust_values(3));
+        let topics = topics(&session.rebirth(T + 1));
+        assert_eq!(topics[0], "spBv1.0/plant/NBIRTH/gw1");
+        assert!(topics.contains(&"spBv1.0/plant/DBIRTH/gw1/dust".to_string()));
     }
 }

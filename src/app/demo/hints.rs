@@ -61,7 +61,8 @@ pub(super) fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String
     text
 }
 
-/// The table's lines under the plant: where things run and how to poke them.
+/// The table's lines under the plant: where things run and how to poke them (the footer says
+/// how to stop).
 pub(super) fn table_hints(endpoint: &BrokerEndpoint, config: &Config) -> String {
     let lines: Vec<String> = config
         .lines
@@ -81,19 +82,9 @@ pub(super) fn table_hints(endpoint: &BrokerEndpoint, config: &Config) -> String 
         endpoint.origin,
         lines.join(" · ")
     );
-    let commands = example_commands(endpoint, config);
-    let last = commands.len().saturating_sub(1);
-    for (index, command) in commands.iter().enumerate() {
+    for (index, command) in example_commands(endpoint, config).iter().enumerate() {
         let lead = if index == 0 { "try: " } else { "     " };
-        let tail = if index == last {
-            "    Ctrl-C stops"
-        } else {
-            ""
-        };
-        text.push_str(&format!("{lead}{command}{tail}\n"));
-    }
-    if commands.is_empty() {
-        text.push_str("Ctrl-C stops\n");
+        text.push_str(&format!("{lead}{command}\n"));
     }
     text
 }

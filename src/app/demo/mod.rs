@@ -4,17 +4,21 @@
 //! MQTT broker listens on 127.0.0.1 (unless `--broker` names one), and the very gateway of
 //! `rtu2mqtt run` drives them with the example configuration. The demo then watches the broker
 //! like any user would and shows what the gateway publishes: a table redrawn in place on a
-//! terminal (`view`), or one log line per change with `--log` or when stdout is not a
-//! terminal. Ctrl-C (or SIGTERM) stops everything cleanly with exit status 0.
+//! terminal (`view`), or log lines paced so that command results stay readable with `--log` or
+//! when stdout is not a terminal. Ctrl-C (or SIGTERM) stops everything cleanly with exit
+//! status 0; on a broker the demo did not start, everything it left retained there is cleared.
 //!
 //! Parts: `endpoint` (which broker and prefix), `plant` (the configuration), `watch` (the
 //! subscription), `view` (messages to per-device state), `hints` (the words and example
-//! commands), `screen` and `terminal` (the live table), `capture` (the log under it); this
-//! file runs them together.
+//! commands), `screen` and `terminal` (the live table), `capture` (the log under it), `pacing`
+//! (log mode's rhythm), `cleanup` (leaving a foreign broker clean); this file runs them
+//! together.
 
 mod capture;
+mod cleanup;
 mod endpoint;
 mod hints;
+mod pacing;
 mod plant;
 mod screen;
 mod terminal;
@@ -30,12 +34,14 @@ use anyhow::Context as _;
 use tokio::sync::mpsc;
 
 use self::capture::StderrCapture;
-use self::endpoint::{choose_broker, choose_placement};
+use self::cleanup::{clear_retained, Leftovers};
+use self::endpoint::{choose_broker, choose_placement, EMBEDDED_ORIGIN};
 use self::hints::{introduction, table_hints};
+use self::pacing::LogPacing;
 use self::plant::{demo_config, example_prefix};
 use self::screen::{compose_screen, keep_log_line, remember_log_line};
 use self::terminal::terminal_size;
-use self::view::{log_line, PlantView};
+use self::view::{log_line, DeviceOutline, PlantView};
 use self::watch::watch_broker;
 use super::{run_gateway, Hooks};
 use crate::shutdown;
@@ -46,6 +52,10 @@ const STOP_GRACE: Duration = Duration::from_secs(10);
 
 /// The table is redrawn at most this often.
 const REDRAW: Duration = Duration::from_millis(200);
+
+/// Beyond a device's start-up delay, how long its first polls may take before an `offline`
+/// means offline (a device that needs split reads retries its first blocks).
+const FIRST_POLLS: Duration = Duration::from_secs(10);
 
 /// `rtu2mqtt demo`.
 pub fn demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Result<ExitCode> {
@@ -71,22 +81,35 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     )?;
 
     let table = !log && std::io::stdout().is_terminal();
-    let mut view = PlantView::new(
-        &config.mqtt.prefix,
-        &config
-            .lines
-            .iter()
-            .flat_map(|line| &line.devices)
-            .map(|device| {
-                let fields = device
-                    .profile
-                    .fields()
-                    .iter()
-                    .map(|field| (field.name.clone(), field.ha.entity_category.is_some()));
-                (device.name.clone(), fields.collect())
-            })
-            .collect::<Vec<_>>(),
-    );
+    let devices = config.lines.iter().flat_map(|line| &line.devices);
+    let outlines: Vec<DeviceOutline> = devices
+        .clone()
+        .map(|device| DeviceOutline {
+            name: device.name.clone(),
+            fields: device
+                .profile
+                .fields()
+                .iter()
+                .map(|field| (field.name.clone(), field.ha.entity_category.is_some()))
+                .collect(),
+            starting_allowance: device.profile.limits().startup_delay + FIRST_POLLS,
+        })
+        .collect();
+    let mut view = PlantView::new(&config.mqtt.prefix, &outlines);
+    let mut pacing = LogPacing::default();
+    // On a broker others use, whatever the demo leaves retained is cleared when it stops.
+    let mut leftovers = (endpoint.origin != EMBEDDED_ORIGIN).then(|| {
+        let names: Vec<String> = devices.map(|device| device.name.clone()).collect();
+        Leftovers::new(
+            &config.mqtt.prefix,
+            &config.mqtt.client_id,
+            &names,
+            config
+                .mqtt
+                .discovery
+                .then_some(config.mqtt.discovery_prefix.as_str()),
+        )
+    });
     let mut intro = introduction(&endpoint, &config);
     let mut hints = table_hints(&endpoint, &config);
     if let Some(notice) = &placement.notice {
@@ -97,9 +120,11 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     let (trigger, shutdown) = shutdown::channel();
     let signals = tokio::spawn(super::stop_on_signals(trigger.clone()));
     let (messages_tx, mut messages_rx) = mpsc::channel(1024);
+    let mut filters = vec![format!("{}/#", config.mqtt.prefix)];
+    filters.extend(leftovers.as_ref().and_then(Leftovers::discovery_filter));
     let watcher = tokio::spawn(watch_broker(
         endpoint.clone(),
-        format!("{}/#", config.mqtt.prefix),
+        filters,
         messages_tx,
         shutdown.clone(),
     ));
@@ -128,6 +153,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     let started = Instant::now();
     let mut recent_log: VecDeque<String> = VecDeque::new();
     let mut dirty = true;
+    let mut marked_on_screen = false;
     let mut redraw = tokio::time::interval(REDRAW);
     redraw.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     if table {
@@ -138,12 +164,18 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
         tokio::select! {
             _ = stopping.fired() => break None,
             result = &mut gateway => break Some(result),
-            Some((topic, payload)) = messages_rx.recv() => {
-                if let Some(change) = view.apply(&topic, &payload) {
+            Some(seen) = messages_rx.recv() => {
+                if let Some(leftovers) = &mut leftovers {
+                    leftovers.note(&seen.topic);
+                }
+                let now = started.elapsed();
+                if let Some(change) = view.apply_at(&seen.topic, &seen.payload, seen.retained, now) {
                     if table {
                         dirty = true;
-                    } else if writeln!(stdout, "{}", log_line(started.elapsed(), &change)).is_err() {
-                        trigger.fire();
+                    } else if let Some(line) = pacing.on_change(now, &change) {
+                        if writeln!(stdout, "{line}").is_err() {
+                            trigger.fire();
+                        }
                     }
                 }
             }
@@ -154,16 +186,33 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
                 }
             }
             _ = redraw.tick() => {
-                if table && dirty {
-                    dirty = false;
-                    let header = format!(
-                        "rtu2mqtt demo: {} fields published, {}s",
-                        view.published_fields(),
-                        started.elapsed().as_secs()
-                    );
-                    let screen = compose_screen(&view, &header, &hints, &recent_log, terminal_size());
-                    let _ = stdout.write_all(screen.as_bytes());
-                    let _ = stdout.flush();
+                let now = started.elapsed();
+                let mut lines: Vec<String> = view
+                    .expired_starts(now)
+                    .iter()
+                    .map(|change| log_line(now, change))
+                    .collect();
+                dirty |= !lines.is_empty();
+                if table {
+                    let marked = view.highlights_at(now);
+                    if dirty || marked || marked_on_screen {
+                        dirty = false;
+                        marked_on_screen = marked;
+                        let header = format!(
+                            "rtu2mqtt demo: {} fields published, {}s",
+                            view.published_fields(),
+                            now.as_secs()
+                        );
+                        let screen =
+                            compose_screen(&view, &header, &hints, &recent_log, terminal_size(), now);
+                        let _ = stdout.write_all(screen.as_bytes());
+                        let _ = stdout.flush();
+                    }
+                } else {
+                    lines.extend(pacing.due(now));
+                    if lines.iter().any(|line| writeln!(stdout, "{line}").is_err()) {
+                        trigger.fire();
+                    }
                 }
             }
         }
@@ -190,6 +239,28 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     let _ = watcher.await;
     signals.abort();
     drop(plant);
+    if table {
+        // Off the footer's row.
+        let _ = writeln!(stdout);
+    } else {
+        for line in pacing.summary(started.elapsed()) {
+            let _ = writeln!(stdout, "{line}");
+        }
+    }
+    if let Some(leftovers) = &leftovers {
+        // The gateway has stopped: nothing republishes what is cleared now.
+        match clear_retained(&endpoint, &leftovers.topics()).await {
+            Ok(cleared) => {
+                let _ = writeln!(
+                    stdout,
+                    "Cleared the {cleared} retained topics the demo used on {} (values, \
+                     availability, discovery).",
+                    endpoint.url()
+                );
+            }
+            Err(error) => tracing::warn!("{error:#}: the demo's retained topics may remain"),
+        }
+    }
     outcome?;
     let _ = writeln!(
         stdout,

@@ -1,7 +1,13 @@
 //! What the demo shows: the plant as seen from MQTT. [`PlantView`] folds the messages of a
 //! `<prefix>/#` subscription into per-device state and renders it either as a compact table
 //! (redrawn in place on a terminal) or as one log line per change. Pure: no I/O, no clock
-//! (the caller passes elapsed time), so the rendering is testable.
+//! (the caller passes the time elapsed since the demo started), so the rendering is testable.
+//!
+//! A device is `starting` until the gateway has polled it: its first `offline` is the gateway's
+//! announcement at connect (or a retained word from an earlier run), not a verdict; it shows
+//! `OFFLINE` only when the gateway says so again after that, or when it never came online
+//! within its start-up allowance. A value that changed within [`HIGHLIGHT`] is marked for the
+//! table.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -23,7 +29,7 @@ pub enum Change {
     },
     Availability {
         device: String,
-        online: bool,
+        status: DeviceStatus,
     },
     GatewayStatus {
         gateway: String,
@@ -45,15 +51,91 @@ pub enum Change {
     },
 }
 
+/// What the view knows of a device's availability.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum DeviceStatus {
+    /// Nothing heard yet.
+    #[default]
+    Waiting,
+    /// Not polled yet (its start-up delay, the first transactions).
+    Starting,
+    Online,
+    /// The gateway says so after having polled it.
+    Offline,
+}
+
+impl DeviceStatus {
+    pub fn word(self) -> &'static str {
+        match self {
+            DeviceStatus::Waiting => "waiting for the gateway",
+            DeviceStatus::Starting => "starting",
+            DeviceStatus::Online => "online",
+            DeviceStatus::Offline => "OFFLINE",
+        }
+    }
+}
+
+/// How long a changed value stays highlighted in the table.
+pub const HIGHLIGHT: Duration = Duration::from_secs(2);
+
+/// Reverse video on, off: how the table marks a value that just changed.
+pub const MARK_ON: &str = "\x1b[7m";
+pub const MARK_OFF: &str = "\x1b[27m";
+
+/// One field as the view knows it.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct FieldView {
+    pub name: String,
+    /// Empty until first published (and after a clearing).
+    pub value: String,
+    /// When the value last changed from one value to another (not its first appearance).
+    pub changed_at: Option<Duration>,
+}
+
 /// One device as the view knows it.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct DeviceView {
-    /// Field values in display order (the profile's order when known, else first seen).
-    pub fields: Vec<(String, String)>,
+    /// Fields in display order (the profile's order when known, else first seen).
+    pub fields: Vec<FieldView>,
     /// Settings and diagnostics (Home Assistant's entity categories), left out of a compact
     /// table.
     pub secondary: Vec<String>,
-    pub online: Option<bool>,
+    pub status: DeviceStatus,
+    /// Live (not retained) `offline` words heard; the first is the gateway's announcement.
+    live_offline_words: u32,
+    /// Until when (since the demo started) an `offline` before the first `online` still means
+    /// "starting".
+    starting_until: Duration,
+}
+
+impl DeviceView {
+    /// The status as of `now`: a device still starting past its allowance is offline.
+    pub fn status_at(&self, now: Duration) -> DeviceStatus {
+        match self.status {
+            DeviceStatus::Starting if now > self.starting_until => DeviceStatus::Offline,
+            status => status,
+        }
+    }
+
+    /// The value of a field (empty when not published).
+    #[cfg(test)]
+    pub fn value(&self, field: &str) -> Option<&str> {
+        self.fields
+            .iter()
+            .find(|f| f.name == field)
+            .map(|f| f.value.as_str())
+    }
+}
+
+/// A configured device as the view starts with it.
+#[derive(Debug, Clone)]
+pub struct DeviceOutline {
+    pub name: String,
+    /// (field, is a setting or diagnostic) in the profile's order.
+    pub fields: Vec<(String, bool)>,
+    /// How long after the demo's start the device may take to come online (its start-up delay
+    /// and the first polls) before an `offline` counts.
+    pub starting_allowance: Duration,
 }
 
 /// The plant as seen from the broker.
@@ -71,27 +153,33 @@ pub struct PlantView {
 const RESULTS_SHOWN: usize = 4;
 
 impl PlantView {
-    /// A view of the devices under `prefix`, listed in `devices` order with their fields
-    /// (name, secondary) in the given order, so the table does not reshuffle as values arrive.
-    pub fn new(prefix: &str, devices: &[(String, Vec<(String, bool)>)]) -> Self {
+    /// A view of the devices under `prefix`, listed in `devices` order with their fields in
+    /// the given order, so the table does not reshuffle as values arrive.
+    pub fn new(prefix: &str, devices: &[DeviceOutline]) -> Self {
         PlantView {
             prefix: prefix.to_string(),
             devices: devices
                 .iter()
-                .map(|(name, fields)| {
+                .map(|outline| {
                     let view = DeviceView {
-                        fields: fields
+                        fields: outline
+                            .fields
                             .iter()
-                            .map(|(f, _)| (f.clone(), String::new()))
+                            .map(|(name, _)| FieldView {
+                                name: name.clone(),
+                                ..FieldView::default()
+                            })
                             .collect(),
-                        secondary: fields
+                        secondary: outline
+                            .fields
                             .iter()
                             .filter(|(_, secondary)| *secondary)
-                            .map(|(f, _)| f.clone())
+                            .map(|(name, _)| name.clone())
                             .collect(),
-                        online: None,
+                        starting_until: outline.starting_allowance,
+                        ..DeviceView::default()
                     };
-                    (name.clone(), view)
+                    (outline.name.clone(), view)
                 })
                 .collect(),
             gateways: BTreeMap::new(),
@@ -99,9 +187,22 @@ impl PlantView {
         }
     }
 
-    /// Interprets one message; None when it changes nothing (same value again, another
-    /// prefix, a topic the view does not know).
+    /// Interprets one live message received at `now`; see [`PlantView::apply_at`].
+    #[cfg(test)]
     pub fn apply(&mut self, topic: &str, payload: &[u8]) -> Option<Change> {
+        self.apply_at(topic, payload, false, Duration::ZERO)
+    }
+
+    /// Interprets one message (`retained`: delivered from the broker's store on subscribing,
+    /// so possibly from an earlier run) received `now` after the demo started; None when it
+    /// changes nothing (same value again, another prefix, a topic the view does not know).
+    pub fn apply_at(
+        &mut self,
+        topic: &str,
+        payload: &[u8],
+        retained: bool,
+        now: Duration,
+    ) -> Option<Change> {
         let rest = topic.strip_prefix(&self.prefix)?.strip_prefix('/')?;
         let levels: Vec<&str> = rest.split('/').collect();
         let text = String::from_utf8_lossy(payload).trim().to_string();
@@ -115,17 +216,29 @@ impl PlantView {
             }
             ["gateway", ..] => None,
             [device, "availability"] => {
-                let online = match text.as_str() {
-                    "online" => true,
-                    "offline" => false,
+                let view = self.device_mut(device);
+                let before = view.status_at(now);
+                view.status = match text.as_str() {
+                    "online" => DeviceStatus::Online,
+                    "offline" => {
+                        let verdict =
+                            matches!(view.status, DeviceStatus::Online | DeviceStatus::Offline)
+                                || (!retained && view.live_offline_words > 0);
+                        if !retained {
+                            view.live_offline_words += 1;
+                        }
+                        if verdict {
+                            DeviceStatus::Offline
+                        } else {
+                            DeviceStatus::Starting
+                        }
+                    }
                     _ => return None,
                 };
-                let view = self.device_mut(device);
-                let changed = view.online != Some(online);
-                view.online = Some(online);
-                changed.then(|| Change::Availability {
+                let status = view.status_at(now);
+                (status != before).then(|| Change::Availability {
                     device: device.to_string(),
-                    online,
+                    status,
                 })
             }
             [device, field, "set"] => (!text.is_empty()).then(|| Change::CommandSent {
@@ -150,18 +263,24 @@ impl PlantView {
             }
             [device, field] => {
                 let view = self.device_mut(device);
-                let slot = match view.fields.iter_mut().find(|(name, _)| name == field) {
-                    Some((_, value)) => value,
+                let index = match view.fields.iter().position(|f| f.name == *field) {
+                    Some(index) => index,
                     None => {
-                        view.fields.push((field.to_string(), String::new()));
-                        let last = view.fields.len() - 1;
-                        &mut view.fields[last].1
+                        view.fields.push(FieldView {
+                            name: field.to_string(),
+                            ..FieldView::default()
+                        });
+                        view.fields.len() - 1
                     }
                 };
-                if *slot == text {
+                let slot = &mut view.fields[index];
+                if slot.value == text {
                     return None;
                 }
-                *slot = text.clone();
+                if !slot.value.is_empty() && !text.is_empty() {
+                    slot.changed_at = Some(now);
+                }
+                slot.value = text.clone();
                 Some(if text.is_empty() {
                     Change::Cleared {
                         device: device.to_string(),
@@ -204,63 +323,142 @@ impl PlantView {
     pub fn published_fields(&self) -> usize {
         self.devices
             .iter()
-            .map(|(_, view)| view.fields.iter().filter(|(_, v)| !v.is_empty()).count())
+            .map(|(_, view)| view.fields.iter().filter(|f| !f.value.is_empty()).count())
             .sum()
     }
 
-    /// The table: a header line, then per device its availability and its fields as
-    /// `name value` cells in aligned columns fitting `width`, then the latest outcomes.
-    /// `compact` leaves settings and diagnostics out (counted on the device's line).
-    pub fn render_table(&self, header: &str, width: usize, compact: bool) -> String {
-        let width = width.max(40);
-        let mut out = String::new();
-        let _ = write!(out, "{header}");
-        for (gateway, status) in &self.gateways {
-            let _ = write!(out, "  (gateway {gateway} {status})");
+    /// Whether some value is highlighted at `now` (the table must be redrawn when it fades).
+    pub fn highlights_at(&self, now: Duration) -> bool {
+        self.devices
+            .iter()
+            .flat_map(|(_, view)| &view.fields)
+            .any(|field| is_fresh(field, now))
+    }
+
+    /// Devices whose start-up allowance ran out at `now` without an `online`: their status
+    /// changes as time passes.
+    pub fn expired_starts(&mut self, now: Duration) -> Vec<Change> {
+        let mut changes = Vec::new();
+        for (name, view) in &mut self.devices {
+            if view.status == DeviceStatus::Starting && view.status_at(now) == DeviceStatus::Offline
+            {
+                view.status = DeviceStatus::Offline;
+                changes.push(Change::Availability {
+                    device: name.clone(),
+                    status: DeviceStatus::Offline,
+                });
+            }
         }
-        out.push('\n');
+        changes
+    }
+
+    /// The table as sections: a header line, then per device a heading (its name and status)
+    /// with its fields as `name value` cells in aligned columns fitting `width` (values that
+    /// changed within [`HIGHLIGHT`] of `now` marked), then the latest outcomes. `compact`
+    /// leaves settings and diagnostics out (counted in the device's heading).
+    pub fn render_sections(
+        &self,
+        header: &str,
+        width: usize,
+        compact: bool,
+        now: Duration,
+    ) -> Vec<Section> {
+        let width = width.max(40);
+        let mut heading = header.to_string();
+        for (gateway, status) in &self.gateways {
+            let _ = write!(heading, "  (gateway {gateway} {status})");
+        }
+        let mut sections = vec![Section {
+            heading,
+            rows: Vec::new(),
+        }];
         for (name, view) in &self.devices {
-            let availability = match view.online {
-                Some(true) => "online",
-                Some(false) => "OFFLINE",
-                None => "waiting for the first poll",
-            };
-            let shown: Vec<&(String, String)> = view
+            let shown: Vec<&FieldView> = view
                 .fields
                 .iter()
-                .filter(|(field, _)| !compact || !view.secondary.contains(field))
+                .filter(|field| !compact || !view.secondary.contains(&field.name))
                 .collect();
             let hidden = view.fields.len() - shown.len();
-            let _ = write!(out, "{name} [{availability}]");
+            let mut heading = format!("{name} [{}]", view.status_at(now).word());
             if hidden > 0 {
-                let _ = write!(out, "  + {hidden} settings and diagnostics not shown");
+                let _ = write!(heading, "  + {hidden} settings and diagnostics not shown");
             }
-            out.push('\n');
-            let cells: Vec<String> = shown
+            let cells: Vec<Cell> = shown
                 .iter()
-                .map(|(field, value)| {
-                    let value = if value.is_empty() { "·" } else { value };
-                    format!("{field} {value}")
+                .map(|field| {
+                    let value = if field.value.is_empty() {
+                        "·"
+                    } else {
+                        field.value.as_str()
+                    };
+                    Cell {
+                        name: field.name.clone(),
+                        value: value.to_string(),
+                        marked: is_fresh(field, now),
+                    }
                 })
                 .collect();
-            for line in grid(&cells, width - 2) {
-                let _ = writeln!(out, "  {line}");
-            }
+            let rows = grid(&cells, width - 2)
+                .into_iter()
+                .map(|line| format!("  {line}"))
+                .collect();
+            sections.push(Section { heading, rows });
         }
         if !self.results.is_empty() {
-            let _ = writeln!(out, "latest commands:");
-            for result in &self.results {
-                let _ = writeln!(out, "  {result}");
+            sections.push(Section {
+                heading: "latest commands:".to_string(),
+                rows: self.results.iter().map(|r| format!("  {r}")).collect(),
+            });
+        }
+        sections
+    }
+
+    /// The whole table as text (every section's heading and rows).
+    #[cfg(test)]
+    pub fn render_table(&self, header: &str, width: usize, compact: bool) -> String {
+        let mut out = String::new();
+        for section in self.render_sections(header, width, compact, Duration::ZERO) {
+            let _ = writeln!(out, "{}", section.heading);
+            for row in section.rows {
+                let _ = writeln!(out, "{row}");
             }
         }
         out
     }
 }
 
+/// A part of the table: a heading line (the header, a device, the outcomes) and its rows.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Section {
+    pub heading: String,
+    pub rows: Vec<String>,
+}
+
+fn is_fresh(field: &FieldView, now: Duration) -> bool {
+    field
+        .changed_at
+        .is_some_and(|at| now.saturating_sub(at) < HIGHLIGHT && at <= now)
+}
+
+/// One `name value` cell of the table.
+struct Cell {
+    name: String,
+    value: String,
+    /// Changed a moment ago: the value is shown in reverse video.
+    marked: bool,
+}
+
+impl Cell {
+    fn width(&self) -> usize {
+        self.name.chars().count() + 1 + self.value.chars().count()
+    }
+}
+
 /// `cells` in as many aligned columns as fit `width` (each column as wide as its widest cell,
-/// two spaces apart), row by row.
-fn grid(cells: &[String], width: usize) -> Vec<String> {
-    let lengths: Vec<usize> = cells.iter().map(|c| c.chars().count()).collect();
+/// two spaces apart), row by row. Marks take no room on screen, so they are added around the
+/// value after the widths are measured.
+fn grid(cells: &[Cell], width: usize) -> Vec<String> {
+    let lengths: Vec<usize> = cells.iter().map(Cell::width).collect();
     let mut columns = cells.len().max(1);
     let widths = loop {
         let widths: Vec<usize> = (0..columns)
@@ -285,7 +483,13 @@ fn grid(cells: &[String], width: usize) -> Vec<String> {
         .map(|row| {
             let mut line = String::new();
             for (cell, cell_width) in row.iter().zip(&widths) {
-                let _ = write!(line, "{cell:<cell_width$}  ");
+                let padding = " ".repeat(cell_width.saturating_sub(cell.width()) + 2);
+                let (on, off) = if cell.marked {
+                    (MARK_ON, MARK_OFF)
+                } else {
+                    ("", "")
+                };
+                let _ = write!(line, "{} {on}{}{off}{padding}", cell.name, cell.value);
             }
             line.trim_end().to_string()
         })
@@ -320,9 +524,10 @@ pub fn describe(change: &Change) -> String {
             value,
         } => format!("{device}/{field} = {value}"),
         Change::Cleared { device, field } => format!("{device}/{field} cleared"),
-        Change::Availability { device, online } => {
-            format!("{device} is {}", if *online { "online" } else { "OFFLINE" })
-        }
+        Change::Availability { device, status } => match status {
+            DeviceStatus::Starting => format!("{device} is starting (not polled yet)"),
+            status => format!("{device} is {}", status.word()),
+        },
         Change::GatewayStatus { gateway, status } => format!("gateway {gateway} is {status}"),
         Change::CommandSent {
             device,
@@ -354,21 +559,20 @@ pub fn log_line(elapsed: Duration, change: &Change) -> String {
 mod tests {
     use super::*;
 
+    fn outline(name: &str, fields: &[(&str, bool)]) -> DeviceOutline {
+        DeviceOutline {
+            name: name.to_string(),
+            fields: fields.iter().map(|(f, s)| (f.to_string(), *s)).collect(),
+            starting_allowance: Duration::from_secs(10),
+        }
+    }
+
     fn view() -> PlantView {
         PlantView::new(
             "plant",
             &[
-                (
-                    "dust_collector".to_string(),
-                    vec![("power".to_string(), false), ("gear".to_string(), false)],
-                ),
-                (
-                    "valve".to_string(),
-                    vec![
-                        ("opening".to_string(), false),
-                        ("setpoint".to_string(), true),
-                    ],
-                ),
+                outline("dust_collector", &[("power", false), ("gear", false)]),
+                outline("valve", &[("opening", false), ("setpoint", true)]),
             ],
         )
     }
@@ -387,13 +591,9 @@ mod tests {
         assert_eq!(view.apply("plant/dust_collector/gear", b"5"), None);
         assert!(view.apply("plant/dust_collector/gear", b"8").is_some());
         assert_eq!(view.published_fields(), 1);
-        assert_eq!(
-            view.device("dust_collector").unwrap().fields,
-            vec![
-                ("power".to_string(), String::new()),
-                ("gear".to_string(), "8".to_string())
-            ]
-        );
+        let dust = view.device("dust_collector").unwrap();
+        assert_eq!(dust.value("power"), Some(""));
+        assert_eq!(dust.value("gear"), Some("8"));
         assert_eq!(view.apply("other/dust_collector/gear", b"1"), None);
         assert_eq!(view.apply("plantx/dust_collector/gear", b"1"), None);
     }
@@ -405,7 +605,7 @@ mod tests {
             view.apply("plant/valve/availability", b"online"),
             Some(Change::Availability {
                 device: "valve".into(),
-                online: true
+                status: DeviceStatus::Online
             })
         );
         assert_eq!(view.apply("plant/valve/availability", b"maybe"), None);
@@ -442,7 +642,9 @@ mod tests {
         view.apply("plant/valve/availability", b"online");
         view.apply("plant/new_device/x", b"1");
         let table = view.render_table("header", 80, false);
-        let dust = table.find("dust_collector [waiting").unwrap();
+        let dust = table
+            .find("dust_collector [waiting for the gateway]")
+            .unwrap();
         let valve = table.find("valve [online]").unwrap();
         let new = table.find("new_device").unwrap();
         assert!(dust < valve && valve < new, "{table}");
@@ -456,8 +658,9 @@ mod tests {
 
     #[test]
     fn table_wraps_to_the_width() {
-        let fields: Vec<(String, bool)> = (0..12).map(|i| (format!("field_{i}"), false)).collect();
-        let mut view = PlantView::new("p", &[("d".to_string(), fields)]);
+        let names: Vec<String> = (0..12).map(|i| format!("field_{i}")).collect();
+        let fields: Vec<(&str, bool)> = names.iter().map(|n| (n.as_str(), false)).collect();
+        let mut view = PlantView::new("p", &[outline("d", &fields)]);
         for i in 0..12 {
             view.apply(&format!("p/d/field_{i}"), b"123");
         }
@@ -472,9 +675,13 @@ mod tests {
 
     #[test]
     fn grid_columns_take_their_own_widths() {
-        let cells: Vec<String> = ["a 1", "long_name 2", "b 3", "c 4"]
+        let cells: Vec<Cell> = [("a", "1"), ("long_name", "2"), ("b", "3"), ("c", "4")]
             .iter()
-            .map(|c| c.to_string())
+            .map(|(name, value)| Cell {
+                name: name.to_string(),
+                value: value.to_string(),
+                marked: false,
+            })
             .collect();
         assert_eq!(grid(&cells, 100), vec!["a 1  long_name 2  b 3  c 4"]);
         assert_eq!(grid(&cells, 16), vec!["a 1  long_name 2", "b 3  c 4"]);
@@ -493,5 +700,89 @@ mod tests {
             log_line(Duration::from_millis(3_210), &change),
             "    3.21s  valve/opening = 40"
         );
+    }
+
+    #[test]
+    fn a_device_is_starting_until_the_gateway_has_polled_it() {
+        let mut view = view();
+        let second = Duration::from_secs(1);
+        // A retained word from an earlier run, then the gateway's announcement at connect.
+        let change = view.apply_at(
+            "plant/dust_collector/availability",
+            b"offline",
+            true,
+            second,
+        );
+        assert_eq!(
+            change,
+            Some(Change::Availability {
+                device: "dust_collector".into(),
+                status: DeviceStatus::Starting
+            })
+        );
+        assert_eq!(
+            view.apply_at(
+                "plant/dust_collector/availability",
+                b"offline",
+                false,
+                second
+            ),
+            None
+        );
+        assert!(view
+            .render_table("h", 80, false)
+            .contains("dust_collector [starting]"));
+        // The gateway says it again after having polled: now it is offline.
+        let change = view.apply_at(
+            "plant/dust_collector/availability",
+            b"offline",
+            false,
+            2 * second,
+        );
+        assert_eq!(describe(&change.unwrap()), "dust_collector is OFFLINE");
+        // A device that was online and goes offline is offline at once.
+        view.apply_at("plant/valve/availability", b"online", false, second);
+        let change = view.apply_at("plant/valve/availability", b"offline", false, 2 * second);
+        assert!(matches!(
+            change,
+            Some(Change::Availability {
+                status: DeviceStatus::Offline,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn a_start_that_never_ends_becomes_offline() {
+        let mut view = view();
+        view.apply_at("plant/valve/availability", b"offline", true, Duration::ZERO);
+        assert!(view.expired_starts(Duration::from_secs(5)).is_empty());
+        let changes = view.expired_starts(Duration::from_secs(11));
+        assert_eq!(
+            changes,
+            vec![Change::Availability {
+                device: "valve".into(),
+                status: DeviceStatus::Offline
+            }]
+        );
+        assert!(view.expired_starts(Duration::from_secs(12)).is_empty());
+    }
+
+    #[test]
+    fn changed_values_are_marked_for_a_moment() {
+        let mut view = view();
+        let at = |s: u64| Duration::from_secs(s);
+        view.apply_at("plant/dust_collector/gear", b"5", false, at(1));
+        // A first value is news, not a change.
+        assert!(!view.highlights_at(at(1)));
+        view.apply_at("plant/dust_collector/gear", b"8", false, at(3));
+        assert!(view.highlights_at(at(4)));
+        let sections = view.render_sections("h", 80, false, at(4));
+        let marked = format!("gear {MARK_ON}8{MARK_OFF}");
+        assert!(sections[1].rows[0].contains(&marked), "{sections:?}");
+        assert!(!view.highlights_at(at(5)));
+        let sections = view.render_sections("h", 80, false, at(5));
+        assert!(sections[1].rows[0].contains("gear 8"), "{sections:?}");
+        assert!(!sections[1].rows[0].contains(MARK_ON));
     }
 }

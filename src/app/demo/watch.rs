@@ -1,5 +1,5 @@
-//! The demo's eyes: a subscription like any MQTT user's, forwarding every message under the
-//! demo's prefix to the view until shutdown.
+//! The demo's eyes: subscriptions like any MQTT user's, forwarding every message under the
+//! demo's prefix (and its discovery documents) with its retain flag until shutdown.
 
 use std::time::Duration;
 
@@ -10,12 +10,21 @@ use super::endpoint::BrokerEndpoint;
 use crate::broker;
 use crate::shutdown::Shutdown;
 
-/// Subscribes to `filter` like any MQTT user and forwards every message until shutdown;
+/// A message as the view receives it.
+#[derive(Debug, Clone)]
+pub(super) struct Seen {
+    pub(super) topic: String,
+    pub(super) payload: Vec<u8>,
+    /// Delivered from the broker's store on subscribing (possibly from an earlier run).
+    pub(super) retained: bool,
+}
+
+/// Subscribes to `filters` like any MQTT user and forwards every message until shutdown;
 /// reconnects with a pause (the broker may start after the view, or restart).
 pub(super) async fn watch_broker(
     endpoint: BrokerEndpoint,
-    filter: String,
-    messages_tx: mpsc::Sender<(String, Vec<u8>)>,
+    filters: Vec<String>,
+    messages_tx: mpsc::Sender<Seen>,
     mut shutdown: Shutdown,
 ) {
     let client_id = format!("rtu2mqtt-demo-view-{}", std::process::id());
@@ -30,16 +39,19 @@ pub(super) async fn watch_broker(
         };
         match event {
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                if let Err(error) = client.try_subscribe(filter.clone(), QoS::AtMostOnce) {
-                    tracing::warn!(%error, "demo view: cannot subscribe");
+                for filter in &filters {
+                    if let Err(error) = client.try_subscribe(filter.clone(), QoS::AtMostOnce) {
+                        tracing::warn!(%error, "demo view: cannot subscribe");
+                    }
                 }
             }
             Ok(Event::Incoming(Packet::Publish(publish))) => {
-                if messages_tx
-                    .send((publish.topic.clone(), publish.payload.to_vec()))
-                    .await
-                    .is_err()
-                {
+                let seen = Seen {
+                    topic: publish.topic.clone(),
+                    payload: publish.payload.to_vec(),
+                    retained: publish.retain,
+                };
+                if messages_tx.send(seen).await.is_err() {
                     break;
                 }
             }
