@@ -17,6 +17,8 @@ pub const OFFLINE: &str = "offline";
 /// The device name reserved for the gateway's own topics (`<prefix>/gateway/<client_id>/…`)
 /// and its own discovery document.
 pub const GATEWAY_DEVICE: &str = "gateway";
+/// The last level of a device's availability topic.
+pub const AVAILABILITY: &str = "availability";
 
 /// The default Home Assistant discovery prefix.
 pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
@@ -94,7 +96,7 @@ impl Topics {
 
     /// `<prefix>/<device>/availability`.
     pub fn availability_topic(&self, device: &str) -> String {
-        format!("{}/{device}/availability", self.prefix)
+        format!("{}/{device}/{AVAILABILITY}", self.prefix)
     }
 
     /// `<prefix>/<device>`: the device's JSON view.
@@ -120,12 +122,7 @@ impl Topics {
     /// `(device, field)` of a command topic, or None when the topic is not exactly
     /// `<prefix>/<device>/<field>/set` with non-empty levels (or is too long to look at).
     pub fn parse_command<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
-        if topic.len() > MAX_TOPIC_LEN {
-            return None;
-        }
-        let rest = topic
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix('/')?;
+        let rest = self.under_prefix(topic)?;
         let mut levels = rest.splitn(4, '/');
         let device = levels.next()?;
         let field = levels.next()?;
@@ -134,6 +131,40 @@ impl Topics {
             return None;
         }
         Some((device, field))
+    }
+
+    /// The subscription that carries every device's state and availability, ours and other
+    /// gateways': `<prefix>/+/+`.
+    pub fn device_topics_filter(&self) -> String {
+        format!("{}/+/+", self.prefix)
+    }
+
+    /// `(device, level)` of a topic exactly two levels under the prefix: a state topic
+    /// `<prefix>/<device>/<field>` or an availability topic.
+    pub fn parse_device_topic<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
+        let rest = self.under_prefix(topic)?;
+        let (device, level) = rest.split_once('/')?;
+        if device.is_empty() || level.is_empty() || level.contains('/') {
+            return None;
+        }
+        Some((device, level))
+    }
+
+    /// What follows `<prefix>/` in `topic` (None for other topics and for topics too long to
+    /// look at).
+    fn under_prefix<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        if topic.len() > MAX_TOPIC_LEN {
+            return None;
+        }
+        topic.strip_prefix(self.prefix.as_str())?.strip_prefix('/')
+    }
+
+    /// `device` of `<prefix>/<device>/availability`.
+    pub fn device_of_availability_topic<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        match self.parse_device_topic(topic)? {
+            (device, AVAILABILITY) => Some(device),
+            _ => None,
+        }
     }
 
     // ----- Home Assistant -----

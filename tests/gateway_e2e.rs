@@ -6,7 +6,7 @@ mod support;
 
 use std::time::Duration;
 
-use rtu2mqtt::config::{self, Config};
+use rtu2mqtt::config::Config;
 use rtu2mqtt::sim::{self, SeedPlant};
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
@@ -34,13 +34,7 @@ fn plant_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, extra: &
 /// Validated as a user's file would be, then polled faster than the profiles' minimums so the
 /// suite stays short (the simulators do not mind).
 fn fast(text: &str) -> Config {
-    let mut config = config::from_str(text, std::path::Path::new(".")).unwrap();
-    for line in &mut config.lines {
-        for device in &mut line.devices {
-            device.poll_interval = Duration::from_millis(300);
-        }
-    }
-    config
+    support::fast_config(text)
 }
 
 /// The plant, a broker, the gateway and a client subscribed to everything under `plant/`.
@@ -646,15 +640,30 @@ async fn bad_payloads_are_rejected_without_a_frame() {
             m.payload.is_empty()
         })
         .await;
-    // A command for a device that is not configured gets nothing back, and nothing happens.
+    // A command for a device that is not configured is rejected, naming the configured ones;
+    // a topic that is not of our shape gets nothing back. Nothing happens on the lines.
     h.client
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
         .await;
     h.client
         .publish("plant/dust_collector/gear/set/x", b"1".to_vec(), false)
         .await;
+    let unknown = h.result("intruder", "gear").await;
+    assert_eq!(outcome(&unknown), "rejected", "{unknown}");
+    let detail = unknown["detail"].as_str().unwrap_or_default();
+    assert!(
+        detail.contains("dust_collector") && detail.contains("valve"),
+        "{detail}"
+    );
     h.client.settle(Duration::from_secs(1)).await;
-    assert!(h.client.on("plant/intruder/gear/result").is_empty());
+    assert!(h
+        .client
+        .on("plant/dust_collector/gear/set/x/result")
+        .is_empty());
+    assert!(
+        h.client.on("plant/intruder/gear/result").is_empty(),
+        "one result"
+    );
     for writes_on in [
         writes(&h.frames(&h.plant.line_a), DUST),
         writes(&h.frames(&h.plant.line_a), SHOWER),

@@ -109,10 +109,32 @@ impl CommandBook {
         min_write_interval: Option<Duration>,
         now: Instant,
     ) -> Admission {
-        let key = (device.to_string(), field.to_string());
-        if self.waiting.get(&key).is_some_and(|w| w.value == value) {
+        if self.is_current(device, field, value) {
             return Admission::AlreadyWaiting;
         }
+        self.queue(device, field, text, value, min_write_interval, now)
+    }
+
+    /// The command waiting for this field, or on the bus for it, carries `value`: a retained
+    /// command the broker delivers again (a re-subscription) is that same command.
+    pub fn is_current(&self, device: &str, field: &str, value: &str) -> bool {
+        let key = (device.to_string(), field.to_string());
+        self.waiting.get(&key).is_some_and(|w| w.value == value)
+            || self.on_bus.get(&key).is_some_and(|c| c.value == value)
+    }
+
+    /// Queues a command that arrived live: a new command even when its payload equals the one
+    /// waiting (the older one is superseded, so each gets its own outcome).
+    pub fn queue(
+        &mut self,
+        device: &str,
+        field: &str,
+        text: &str,
+        value: &str,
+        min_write_interval: Option<Duration>,
+        now: Instant,
+    ) -> Admission {
+        let key = (device.to_string(), field.to_string());
         let command = TrackedCommand {
             id: self.next_id,
             device: device.to_string(),

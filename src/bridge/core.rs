@@ -15,7 +15,7 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rand::SeedableRng;
@@ -23,6 +23,7 @@ use rumqttc::QoS;
 
 use super::commands::{Admission, CommandBook, TrackedCommand};
 use super::discovery;
+use super::guard::{TopicGuard, Verdict};
 use super::json_view;
 use super::metrics::{self, BridgeStats};
 use super::payload::{self, decode_command, CommandPayload, CommandResult, Outcome};
@@ -34,6 +35,8 @@ use crate::profile::{CommandPlan, Profile};
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
+/// Shortest time between two log lines about shed commands.
+const SHED_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// One message to publish.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -99,6 +102,9 @@ pub struct Incoming<'m> {
     pub qos: QoS,
     pub pkid: u16,
     pub dup: bool,
+    /// Set by the broker only for a retained message sent because we subscribed (MQTT 3.1.1
+    /// clears it on live messages, retained or not).
+    pub retain: bool,
 }
 
 impl<'m> Incoming<'m> {
@@ -109,6 +115,7 @@ impl<'m> Incoming<'m> {
             qos: publish.qos,
             pkid: publish.pkid,
             dup: publish.dup,
+            retain: publish.retain,
         }
     }
 }
@@ -181,6 +188,21 @@ pub struct Core {
     json_views: HashMap<String, Vec<u8>>,
     started: Instant,
     next_stats: Instant,
+    /// Statistics go out on the next tick (start, reconnect, Home Assistant's birth).
+    stats_due: bool,
+    /// The driver cannot keep up: incoming commands are shed with a `rejected` outcome.
+    overloaded: bool,
+    /// Shed commands not yet reported in the log, and when the log last spoke of them.
+    shed_unlogged: u64,
+    shed_logged_at: Option<Instant>,
+    /// The status, availability and state topics this gateway defends.
+    guard: TopicGuard,
+    /// Devices another gateway announces availability for under our prefix: commands for them
+    /// are that gateway's business.
+    foreign_devices: HashSet<String>,
+    /// Actions that must not run twice, by their `…/set` topic: handed to their line only once
+    /// the broker has passed on our clearing of the (possibly retained) command.
+    clearing: HashMap<String, (usize, Command)>,
     rng: StdRng,
     out: Vec<Action>,
 }
@@ -210,6 +232,13 @@ impl Core {
             json_views: HashMap::new(),
             started: now,
             next_stats: now + settings.options.stats_interval,
+            stats_due: true,
+            overloaded: false,
+            shed_unlogged: 0,
+            shed_logged_at: None,
+            guard: TopicGuard::default(),
+            foreign_devices: HashSet::new(),
+            clearing: HashMap::new(),
             options: settings.options,
             rng: StdRng::from_entropy(),
             out: Vec::new(),
@@ -250,7 +279,10 @@ impl Core {
     pub fn on_connected(&mut self) -> Vec<Action> {
         self.connected = true;
         self.counters.mqtt_connects += 1;
+        self.stats_due = true;
+        self.guard.reset();
         self.subscribe(self.topics.command_filter());
+        self.subscribe_guarded();
         if self.discovery {
             // Home Assistant's birth message, and our own earlier configs (to remove those of
             // devices no longer configured).
@@ -275,6 +307,7 @@ impl Core {
         while let Some(kept) = self.deferred.pop_front() {
             self.out.push(Action::Publish(kept));
         }
+        self.clear_again();
         self.take()
     }
 
@@ -309,6 +342,9 @@ impl Core {
     fn publish(&mut self, topic: String, payload: String, retain: bool) -> bool {
         if !self.connected {
             return false;
+        }
+        if retain && self.guarded(&topic).is_some() {
+            self.guard.sent(&topic, &payload);
         }
         self.out.push(Action::Publish(Publish {
             topic,
@@ -452,6 +488,7 @@ impl Core {
                         "Home Assistant is online: discovery and state follow"
                     );
                     self.reannounce_at = Some(now + delay);
+                    self.stats_due = true;
                 }
                 return;
             }
@@ -464,12 +501,24 @@ impl Core {
                 return;
             }
         }
+        if let Some(guarded) = self.guarded(topic) {
+            self.on_guarded(guarded, topic, message.payload, now);
+            return;
+        }
+        if let Some(device) = self.topics.device_of_availability_topic(topic) {
+            if !self.devices.contains_key(device) && !message.payload.is_empty() {
+                self.foreign_devices.insert(device.to_string());
+            }
+            return;
+        }
         let Some((device, field)) = self.topics.parse_command(topic) else {
             tracing::debug!(%topic, "not a command topic");
             return;
         };
         if message.payload.is_empty() {
-            // The clearing of a retained command (often our own): not a command.
+            // The clearing of a retained command (often our own): not a command. When an
+            // action waits for it, the retained command is gone from the broker now.
+            self.on_cleared(topic);
             return;
         }
         if message.qos != QoS::AtMostOnce
@@ -481,6 +530,16 @@ impl Core {
             tracing::debug!(%device, %field, "QoS 1 redelivery ignored");
             return;
         }
+        if !self.devices.contains_key(device) {
+            self.reject_unknown_device(device, field, message.payload);
+            return;
+        }
+        if self.overloaded {
+            self.shed(device, field, message.payload, now);
+            return;
+        }
+        // Echoed in `value` exactly as sent (bounded); logged with `?` so control characters
+        // and escapes cannot forge log lines.
         let value = payload::echo(message.payload);
         let text = match decode_command(message.payload, self.options.max_payload) {
             CommandPayload::Clear => return,
@@ -495,7 +554,15 @@ impl Core {
             }
             CommandPayload::Text(text) => text,
         };
-        self.admit(device, field, &text, &value, Origin::Plain, now);
+        self.admit(
+            device,
+            field,
+            &text,
+            &value,
+            Origin::Plain,
+            message.retain,
+            now,
+        );
     }
 
     /// A command from outside the plain topics (a Sparkplug DCMD metric turned into command
@@ -510,7 +577,7 @@ impl Core {
         let value = payload::shortened(&text);
         let (shown, reason) = match decode_command(text.as_bytes(), self.options.max_payload) {
             CommandPayload::Text(text) => {
-                self.admit(&device, &field, &text, &value, Origin::External, now);
+                self.admit(&device, &field, &text, &value, Origin::External, false, now);
                 return self.take();
             }
             CommandPayload::Clear => (value, "the command is empty".to_string()),
@@ -532,6 +599,8 @@ impl Core {
     }
 
     /// Validates a decoded command (`text` as planned, `value` as sent) and books it.
+    /// `from_store`: the broker sent it from its retained store (the MQTT retain flag).
+    #[allow(clippy::too_many_arguments)]
     fn admit(
         &mut self,
         device: &str,
@@ -539,6 +608,7 @@ impl Core {
         text: &str,
         value: &str,
         origin: Origin,
+        from_store: bool,
         now: Instant,
     ) {
         let Some(entry) = self.devices.get(device).cloned() else {
@@ -567,10 +637,16 @@ impl Core {
             .field(field)
             .and_then(|info| info.min_write_interval);
         tracing::info!(%device, %field, command = ?value, ?origin, "command received");
-        match self
-            .book
-            .submit(device, field, text, value, min_write_interval, now)
-        {
+        let admission = if from_store {
+            // From the broker's retained store: the same command again when it is the one
+            // waiting or running (a re-subscription), so it gets no second run or outcome.
+            self.book
+                .submit(device, field, text, value, min_write_interval, now)
+        } else {
+            self.book
+                .queue(device, field, text, value, min_write_interval, now)
+        };
+        match admission {
             Admission::AlreadyWaiting => {
                 if let Some(id) = self.book.waiting_id(device, field) {
                     if origin == Origin::External {
@@ -686,6 +762,10 @@ impl Core {
                 device: command.device.clone(),
                 plan,
             };
+            if !bus_command.plan.is_idempotent() {
+                self.clear_then_send(line, bus_command, command);
+                continue;
+            }
             self.on_bus.insert(command.id, command);
             self.out.push(Action::Send {
                 line,
@@ -783,7 +863,9 @@ impl Core {
             let updates = self.cache.republish_all();
             self.publish_state(updates);
         }
-        if now >= self.next_stats {
+        self.reassert_due(now);
+        if self.connected && (self.stats_due || now >= self.next_stats) {
+            self.stats_due = false;
             self.next_stats = now + self.options.stats_interval;
             // Retained: the gateway's Home Assistant sensors (and any client arriving later)
             // read the last document at once instead of waiting up to a statistics interval.
@@ -802,6 +884,7 @@ impl Core {
     /// The last words: every device and the gateway `offline`. Waiting commands stay retained
     /// in the broker for the next start.
     pub fn on_stop(&mut self) -> Vec<Action> {
+        self.drop_uncleared();
         let waiting = self.book.drain_waiting();
         self.plans.clear();
         self.external.clear();
@@ -821,6 +904,170 @@ impl Core {
             true,
         );
         self.take()
+    }
+}
+
+/// A topic this gateway owns and defends.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Guarded {
+    Status,
+    Availability(String),
+    State(String, String),
+}
+
+/// Defence of the gateway's topics, unknown devices, load shedding and at-most-once actions.
+impl Core {
+    /// Tells the core whether the driver keeps up with what it is asked to publish.
+    pub fn set_overloaded(&mut self, overloaded: bool) {
+        self.overloaded = overloaded;
+    }
+
+    fn subscribe_guarded(&mut self) {
+        self.subscribe(self.topics.gateway_status_topic());
+        self.subscribe(self.topics.device_topics_filter());
+    }
+
+    fn guarded(&self, topic: &str) -> Option<Guarded> {
+        if topic == self.topics.gateway_status_topic() {
+            return Some(Guarded::Status);
+        }
+        let (device, level) = self.topics.parse_device_topic(topic)?;
+        let entry = self.devices.get(device)?;
+        if level == crate::contract::AVAILABILITY {
+            return Some(Guarded::Availability(device.to_string()));
+        }
+        entry.profile.field(level)?;
+        Some(Guarded::State(device.to_string(), level.to_string()))
+    }
+
+    /// What the topic must say now; None when there is nothing to defend yet.
+    fn truth(&self, guarded: &Guarded) -> Option<String> {
+        match guarded {
+            Guarded::Status => self.connected.then(|| ONLINE.to_string()),
+            Guarded::Availability(device) => {
+                Some(availability_word(self.cache.is_online(device)).to_string())
+            }
+            Guarded::State(device, field) => {
+                self.cache.published_text(device, field).map(str::to_string)
+            }
+        }
+    }
+
+    fn on_guarded(&mut self, guarded: Guarded, topic: &str, payload: &[u8], now: Instant) {
+        let Some(truth) = self.truth(&guarded) else {
+            return;
+        };
+        let seen = String::from_utf8_lossy(payload);
+        if self.guard.judge(topic, &seen, &truth, now) == Verdict::Reassert {
+            self.counters.topics_reasserted += 1;
+            self.publish(topic.to_string(), truth, true);
+        }
+    }
+
+    /// Topics overwritten again too soon, now that their interval has passed.
+    fn reassert_due(&mut self, now: Instant) {
+        for topic in self.guard.due(now) {
+            let truth = self.guarded(&topic).and_then(|g| self.truth(&g));
+            if let Some(truth) = truth {
+                self.counters.topics_reasserted += 1;
+                self.publish(topic, truth, true);
+            }
+        }
+    }
+
+    /// A command on our topic shape for a device that is not configured: rejected, naming the
+    /// configured devices, unless another gateway announces that device under our prefix. Its
+    /// retained copy is left alone (it may be meant for a gateway that is not running now).
+    fn reject_unknown_device(&mut self, device: &str, field: &str, payload: &[u8]) {
+        self.counters.unknown_device_commands += 1;
+        if self.foreign_devices.contains(device) || payload.is_empty() {
+            tracing::debug!(%device, "command for another gateway's device");
+            return;
+        }
+        let shown = payload::echo(payload);
+        let reason = format!(
+            "unknown device {device:?}: this gateway has {}",
+            self.cache.devices().join(", ")
+        );
+        tracing::warn!(%device, %field, command = ?shown, %reason, "command rejected");
+        self.counters.commands_rejected += 1;
+        let result = CommandResult::new(&shown, Outcome::Rejected, reason);
+        let topic = self.topics.result_topic(device, field);
+        self.publish_or_keep(topic, result.to_json(), false);
+    }
+
+    /// Load shedding: the command is refused at once, with its outcome, and the log says so at
+    /// most once per [`SHED_LOG_INTERVAL`] with the count.
+    fn shed(&mut self, device: &str, field: &str, payload: &[u8], now: Instant) {
+        self.counters.commands_shed += 1;
+        self.shed_unlogged += 1;
+        if self.shed_logged_at.map_or(true, |at| {
+            now.saturating_duration_since(at) >= SHED_LOG_INTERVAL
+        }) {
+            tracing::warn!(
+                shed = self.shed_unlogged,
+                "overloaded: commands refused until the MQTT link catches up"
+            );
+            self.shed_logged_at = Some(now);
+            self.shed_unlogged = 0;
+        }
+        let shown = payload::echo(payload);
+        self.counters.commands_rejected += 1;
+        let result = CommandResult::new(
+            &shown,
+            Outcome::Rejected,
+            "gateway overloaded: the command was not run; send it again later",
+        );
+        let topic = self.topics.result_topic(device, field);
+        self.publish_or_keep(topic, result.to_json(), false);
+        let set = self.topics.command_topic(device, field);
+        self.publish_or_keep(set, String::new(), true);
+    }
+
+    /// An action that must not run twice: its (possibly retained) command is cleared first, and
+    /// the command goes to the line only when the broker passes that clearing back to us. A
+    /// crash before then loses the action (at most once); a crash after cannot replay it.
+    fn clear_then_send(&mut self, line: usize, command: Command, tracked: TrackedCommand) {
+        let set = self.topics.command_topic(&tracked.device, &tracked.field);
+        tracing::debug!(device = %tracked.device, field = %tracked.field,
+            "clearing the command before the action runs");
+        self.on_bus.insert(tracked.id, tracked);
+        self.clearing.insert(set.clone(), (line, command));
+        self.publish_or_keep(set, String::new(), true);
+    }
+
+    /// An empty message on `set`: an action waiting for its clearing may run now. The broker
+    /// delivers one topic's messages in order, so it was published after the command.
+    fn on_cleared(&mut self, set: &str) {
+        if let Some((line, command)) = self.clearing.remove(set) {
+            tracing::debug!(device = %command.device, "command cleared: handed to the line");
+            self.out.push(Action::Send { line, command });
+        }
+    }
+
+    /// After a reconnect, clear again what may not have reached the broker.
+    fn clear_again(&mut self) {
+        let topics: Vec<String> = self.clearing.keys().cloned().collect();
+        for set in topics {
+            self.publish_or_keep(set, String::new(), true);
+        }
+    }
+
+    /// Stopping: actions still waiting for their clearing never ran.
+    fn drop_uncleared(&mut self) {
+        let waiting: Vec<(String, (usize, Command))> = self.clearing.drain().collect();
+        for (_, (_, command)) in waiting {
+            if let Some(tracked) = self.on_bus.remove(&command.id) {
+                self.counters.commands_failed += 1;
+                let result = CommandResult::new(
+                    &tracked.value,
+                    Outcome::Failed,
+                    "the gateway stopped before the action was sent",
+                );
+                let topic = self.topics.result_topic(&tracked.device, &tracked.field);
+                self.publish_or_keep(topic, result.to_json(), false);
+            }
+        }
     }
 }
 

@@ -64,6 +64,7 @@ fn message<'m>(topic: &'m str, payload: &'m [u8], pkid: u16, dup: bool) -> Incom
         qos: QoS::AtLeastOnce,
         pkid,
         dup,
+        retain: false,
     }
 }
 
@@ -309,6 +310,8 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         filters,
         vec![
             "plant/+/+/set",
+            "plant/gateway/edge1/status",
+            "plant/+/+",
             "homeassistant/status",
             "homeassistant/device/+/config"
         ]
@@ -376,6 +379,12 @@ fn home_assistant_online_brings_discovery_and_state_again() {
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
     };
     core.on_line_event(values, now);
+    let start = core.on_tick(now, Vec::new);
+    assert_eq!(
+        publishes(&start)[0].0,
+        "plant/gateway/edge1/stats",
+        "statistics at start"
+    );
     let quiet = core.on_tick(now + LATER, Vec::new);
     assert!(publishes(&quiet).is_empty());
     let birth = core.on_message(message("homeassistant/status", b"online", 1, false), now);
@@ -510,6 +519,194 @@ fn stopping_announces_offline_and_leaves_waiting_commands_retained() {
         ]
     );
     assert_eq!(core.counters(now).waiting_commands, 0);
+}
+
+#[test]
+fn a_command_for_an_unknown_device_is_rejected_naming_the_configured_ones() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let topic = "plant/valv/opening/set";
+    let actions = core.on_message(message(topic, b"50", 1, false), now);
+    let published = publishes(&actions);
+    assert_eq!(published.len(), 1, "a result, no clear: {published:?}");
+    assert_eq!(published[0].0, "plant/valv/opening/result");
+    let (value, outcome, detail) = results(&actions).remove(0);
+    assert_eq!((value.as_str(), outcome.as_str()), ("50", "rejected"));
+    assert!(
+        detail.contains("\"valv\"") && detail.contains("valve"),
+        "{detail}"
+    );
+    // A device another gateway announces under the same prefix is that gateway's business.
+    core.on_message(message("plant/pump/availability", b"online", 0, false), now);
+    let other = core.on_message(message("plant/pump/speed/set", b"3", 2, false), now);
+    assert!(other.is_empty(), "{other:?}");
+}
+
+#[test]
+fn statistics_go_out_at_start_on_every_reconnect_and_on_home_assistant_online() {
+    let now = Instant::now();
+    let stats = |actions: &[Action]| {
+        publishes(actions)
+            .iter()
+            .filter(|p| p.0 == "plant/gateway/edge1/stats")
+            .count()
+    };
+    let mut core = core(now);
+    assert_eq!(
+        stats(&core.on_tick(now, Vec::new)),
+        0,
+        "not before connecting"
+    );
+    core.on_connected();
+    assert_eq!(stats(&core.on_tick(now, Vec::new)), 1, "at start");
+    assert_eq!(stats(&core.on_tick(now + LATER, Vec::new)), 0);
+    core.on_disconnected();
+    core.on_connected();
+    assert_eq!(stats(&core.on_tick(now + LATER, Vec::new)), 1, "reconnect");
+    core.on_message(message("homeassistant/status", b"online", 1, false), now);
+    assert_eq!(stats(&core.on_tick(now + LATER, Vec::new)), 1, "HA online");
+}
+
+#[test]
+fn five_identical_commands_at_once_get_five_outcomes() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let mut actions = Vec::new();
+    for pkid in 1..=5 {
+        actions.extend(command(&mut core, "opening", "50", pkid, now));
+    }
+    let first = sent(&actions);
+    assert_eq!(first.len(), 1, "one on the bus");
+    let applied = || CommandOutcome::Applied {
+        detail: "ok".into(),
+    };
+    actions.extend(core.on_line_event(finished(first[0], applied()), now));
+    let second = sent(&actions);
+    assert_eq!(second.len(), 2, "the newest runs next");
+    actions.extend(core.on_line_event(finished(second[1], applied()), now));
+    let outcomes: Vec<String> = results(&actions).into_iter().map(|r| r.1).collect();
+    assert_eq!(
+        outcomes,
+        [
+            "superseded",
+            "superseded",
+            "superseded",
+            "applied",
+            "applied"
+        ]
+    );
+}
+
+#[test]
+fn a_retained_copy_of_the_waiting_command_is_the_same_command() {
+    let now = Instant::now();
+    let mut core = core(now);
+    core.on_connected();
+    command(&mut core, "opening", "50", 1, now);
+    let mut again = message("plant/valve/opening/set", b"50", 0, false);
+    again.retain = true;
+    again.qos = QoS::AtMostOnce;
+    assert!(publishes(&core.on_message(again, now)).is_empty());
+}
+
+#[test]
+fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let values = LineEvent::Values {
+        device: "valve".to_string(),
+        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+    };
+    core.on_line_event(values, now);
+    let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
+    assert!(echo.is_empty());
+    let fake = core.on_message(message("plant/valve/opening", b"99", 0, false), now);
+    assert_eq!(
+        publishes(&fake),
+        [("plant/valve/opening".to_string(), "40".to_string(), true)]
+    );
+    let will = core.on_message(
+        message("plant/gateway/edge1/status", b"offline", 0, false),
+        now,
+    );
+    assert_eq!(
+        publishes(&will),
+        [(
+            "plant/gateway/edge1/status".to_string(),
+            "online".to_string(),
+            true
+        )]
+    );
+    // Our own two announcements come back first (in order), then the stranger's.
+    for word in [&b"offline"[..], b"online"] {
+        let echo = core.on_message(message("plant/valve/availability", word, 0, false), now);
+        assert!(echo.is_empty());
+    }
+    let gone = core.on_message(
+        message("plant/valve/availability", b"offline", 0, false),
+        now,
+    );
+    assert_eq!(publishes(&gone)[0].1, "online");
+    // Another gateway's status is not ours to defend.
+    let other = core.on_message(
+        message("plant/gateway/edge2/status", b"offline", 0, false),
+        now,
+    );
+    assert!(other.is_empty());
+}
+
+#[test]
+fn overloaded_commands_are_refused_with_their_outcome() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    core.set_overloaded(true);
+    let actions = command(&mut core, "opening", "50", 1, now);
+    assert!(sent(&actions).is_empty());
+    let (_, outcome, detail) = results(&actions).remove(0);
+    assert_eq!(outcome, "rejected");
+    assert!(detail.contains("overloaded"), "{detail}");
+    core.set_overloaded(false);
+    assert_eq!(sent(&command(&mut core, "opening", "50", 2, now)).len(), 1);
+}
+
+#[test]
+fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
+    let now = Instant::now();
+    let profile = Arc::new(registry::built_in("lixian-air-shower").unwrap());
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: false,
+            options: options(),
+            line_names: vec!["a".to_string()],
+            devices: vec![BridgeDevice {
+                name: "shower".to_string(),
+                profile,
+                line: 0,
+            }],
+        },
+        now,
+    );
+    core.on_connected();
+    core.on_line_event(
+        LineEvent::Availability {
+            device: "shower".to_string(),
+            online: true,
+        },
+        now,
+    );
+    let set = "plant/shower/voice_start/set";
+    let actions = core.on_message(message(set, b"PRESS", 1, false), now);
+    assert!(sent(&actions).is_empty(), "not before the clearing is back");
+    assert_eq!(
+        publishes(&actions),
+        [(set.to_string(), String::new(), true)]
+    );
+    let back = core.on_message(message(set, b"", 0, false), now);
+    assert_eq!(sent(&back).len(), 1);
+    // A state write is idempotent: it goes at once.
+    let gear = core.on_message(message("plant/shower/breeze/set", b"ON", 2, false), now);
+    assert_eq!(sent(&gear).len(), 1);
 }
 
 // ----- external commands (Sparkplug DCMDs) -----

@@ -35,6 +35,10 @@ pub struct BridgeStats {
     pub redeliveries_ignored: u64,
     /// Commands for devices that are not configured.
     pub unknown_device_commands: u64,
+    /// Commands refused unrun because the gateway was overloaded (counted as rejected too).
+    pub commands_shed: u64,
+    /// Own topics published again after another client overwrote them.
+    pub topics_reasserted: u64,
     /// Messages received on `…/set` topics (empty clearing payloads excluded).
     pub commands_received: u64,
     /// Outcomes of commands, by outcome.
@@ -249,7 +253,7 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
     );
     family.sample(&[], bridge.waiting_commands as f64);
 
-    let bridge_counters: [(&str, &str, u64); 8] = [
+    let bridge_counters: [(&str, &str, u64); 10] = [
         (
             "rtu2mqtt_mqtt_connects_total",
             "Successful connections to the broker, the first one included.",
@@ -279,6 +283,16 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
             "rtu2mqtt_unknown_device_commands_total",
             "Commands for devices that are not configured.",
             bridge.unknown_device_commands,
+        ),
+        (
+            "rtu2mqtt_commands_shed_total",
+            "Commands refused unrun because the gateway was overloaded.",
+            bridge.commands_shed,
+        ),
+        (
+            "rtu2mqtt_topics_reasserted_total",
+            "Own topics published again after another client overwrote them.",
+            bridge.topics_reasserted,
         ),
         (
             "rtu2mqtt_commands_received_total",
@@ -507,6 +521,8 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
             "received": bridge.commands_received,
             "redeliveries_ignored": bridge.redeliveries_ignored,
             "unknown_device": bridge.unknown_device_commands,
+            "shed": bridge.commands_shed,
+            "topics_reasserted": bridge.topics_reasserted,
             "applied": bridge.commands_applied,
             "not_applied": bridge.commands_not_applied,
             "rejected": bridge.commands_rejected,

@@ -1,18 +1,24 @@
 //! The only MQTT user: state, commands, outcomes, availability, discovery and statistics.
 //!
 //! The decisions are the I/O-free [`core`]; this file is its thin driver. [`Bridge::run`] is
-//! one task that owns the core, the MQTT client and the channels, feeds every event to the
+//! one task that owns the core, the outbox and the channels, feeds every event to the
 //! core (link events from rumqttc's event loop, which runs in its own task ([`mqtt`]); line
-//! events, values and command ends alike; a tick) and executes the actions it returns. Every
-//! send is a non-blocking `try_*`, so line events are always consumed (polling never stops
-//! because MQTT is down).
+//! events, values and command ends alike; a tick) and executes the actions it returns. Sends
+//! to lines are non-blocking `try_*`, so line events are always consumed (polling never stops
+//! because MQTT is down). What goes to MQTT waits in the driver's [`outbox::Outbox`] and is
+//! handed to a writer task that awaits room in the client's short request queue: nothing is
+//! dropped because the client is busy, and when the outbox grows past [`OVERLOAD_HIGH`] the
+//! core sheds incoming commands (each still gets its outcome) until it is back under
+//! [`OVERLOAD_LOW`].
 
 pub mod commands;
 pub mod core;
 pub mod discovery;
+pub mod guard;
 pub mod json_view;
 pub mod metrics;
 pub mod mqtt;
+pub mod outbox;
 pub mod payload;
 pub mod prometheus;
 pub mod state;
@@ -24,9 +30,10 @@ use std::time::{Duration, Instant};
 use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
-use self::core::{Action, CommandReport, Core, CoreSettings, ExternalCommand, Incoming};
+use self::core::{Action, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish};
 use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
+use self::outbox::{Lane, Outbox, Request};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
 use crate::shutdown::Shutdown;
@@ -36,6 +43,14 @@ use crate::shutdown::Shutdown;
 pub const TICK: Duration = Duration::from_millis(250);
 /// How long shutdown waits for commands on the bus, and then for the Disconnect to complete.
 const STOP_GRACE: Duration = Duration::from_secs(3);
+/// Requests handed to the writer task ahead of the client.
+const WRITER_QUEUE: usize = 32;
+/// Outbox entries above which incoming commands are shed.
+pub const OVERLOAD_HIGH: usize = 5_000;
+/// Outbox entries below which commands are taken again.
+pub const OVERLOAD_LOW: usize = 1_000;
+/// Shortest time between two log lines about publishes the outbox had to drop.
+const DROP_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// Liveness of the bridge for the watchdog and the status file.
 #[derive(Debug, Clone)]
@@ -48,7 +63,15 @@ pub struct BridgeHealth {
 /// The bridge task: the core and everything it must not touch itself.
 pub struct Bridge {
     core: Core,
-    client: AsyncClient,
+    outbox: Outbox,
+    /// To the writer task, which owns the client's sending side.
+    writer_tx: mpsc::Sender<Request>,
+    writer: tokio::task::JoinHandle<()>,
+    /// The link is up: the outbox is fed to the writer.
+    link_up: bool,
+    overloaded: bool,
+    dropped_unlogged: u64,
+    dropped_logged_at: Option<Instant>,
     link_rx: mpsc::Receiver<LinkEvent>,
     event_loop: tokio::task::JoinHandle<()>,
     lines: Vec<LineHandle>,
@@ -70,13 +93,20 @@ impl Bridge {
         (client, eventloop): (AsyncClient, rumqttc::EventLoop),
     ) -> (Bridge, BridgeHealth) {
         let (link_tx, link_rx) = mpsc::channel(256);
-        let event_loop = mqtt::spawn_event_loop(eventloop, link_tx);
+        let event_loop = mqtt::spawn_event_loop(eventloop, link_tx, config.mqtt.client_id.clone());
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
+        let (writer_tx, writer_rx) = mpsc::channel(WRITER_QUEUE);
         let bridge = Bridge {
             core: Core::new(CoreSettings::from_config(config), now),
-            client,
+            outbox: Outbox::default(),
+            writer_tx,
+            writer: spawn_writer(client, writer_rx),
+            link_up: false,
+            overloaded: false,
+            dropped_unlogged: 0,
+            dropped_logged_at: None,
             link_rx,
             event_loop,
             lines,
@@ -110,8 +140,19 @@ impl Bridge {
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             self.heartbeat_tx.send_replace(Instant::now());
+            self.pump();
+            let feed = self.link_up && !self.outbox.is_empty();
+            let writer_tx = self.writer_tx.clone();
             tokio::select! {
                 _ = shutdown.fired() => break,
+                permit = writer_tx.reserve_owned(), if feed => {
+                    if let Ok(permit) = permit {
+                        if let Some(request) = self.outbox.pop() {
+                            self.note_handed(&request);
+                            permit.send(request);
+                        }
+                    }
+                }
                 Some(event) = self.link_rx.recv() => self.on_link(event),
                 Some(event) = events_rx.recv() => {
                     let actions = self.core.on_line_event(event, Instant::now());
@@ -140,11 +181,18 @@ impl Bridge {
     fn on_link(&mut self, event: LinkEvent) {
         match event {
             LinkEvent::Connected { .. } => {
+                self.link_up = true;
                 let actions = self.core.on_connected();
                 self.connected_tx.send_replace(true);
                 self.execute(actions);
             }
             LinkEvent::Disconnected { .. } => {
+                self.link_up = false;
+                let dropped = self.outbox.on_disconnect();
+                tracing::debug!(
+                    dropped,
+                    "state waiting for MQTT dropped: it is republished on connect"
+                );
                 self.core.on_disconnected();
                 self.connected_tx.send_replace(false);
             }
@@ -162,24 +210,13 @@ impl Bridge {
         while let Some(action) = queue.pop_front() {
             match action {
                 Action::Publish(publish) => {
-                    let sent = match self.client.try_publish(
-                        publish.topic.as_str(),
-                        publish.qos,
-                        publish.retain,
-                        publish.payload.clone(),
-                    ) {
-                        Ok(()) => true,
-                        Err(error) => {
-                            tracing::warn!(%error, topic = %publish.topic, "publish dropped");
-                            false
-                        }
-                    };
-                    self.core.on_published(publish, sent);
+                    let lane = self.lane_of(&publish);
+                    if let Some(dropped) = self.outbox.push(publish, lane) {
+                        self.on_dropped(dropped);
+                    }
                 }
                 Action::Subscribe { filter, qos } => {
-                    if let Err(error) = self.client.try_subscribe(&filter, qos) {
-                        tracing::error!(%error, topic = %filter, "cannot subscribe");
-                    }
+                    self.outbox.push_control(Request::Subscribe { filter, qos });
                 }
                 Action::Send { line, command } => {
                     let refused = match self.lines.get(line) {
@@ -207,6 +244,71 @@ impl Bridge {
                 }
             }
         }
+    }
+
+    /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
+    fn lane_of(&self, publish: &Publish) -> Lane {
+        let topics = self.core.topics();
+        if publish.topic == topics.gateway_stats_topic()
+            || publish
+                .topic
+                .starts_with(&format!("{}/", topics.discovery_prefix))
+        {
+            Lane::Resend
+        } else {
+            Lane::Urgent
+        }
+    }
+
+    /// Hands the writer what it has room for, and tells the core whether it keeps up.
+    fn pump(&mut self) {
+        while self.link_up {
+            let Ok(permit) = self.writer_tx.try_reserve() else {
+                break;
+            };
+            let Some(request) = self.outbox.pop() else {
+                break;
+            };
+            if let Request::Publish(publish) = &request {
+                self.core.on_published(publish.clone(), true);
+            }
+            permit.send(request);
+        }
+        let waiting = self.outbox.len();
+        let overloaded = if self.overloaded {
+            waiting > OVERLOAD_LOW
+        } else {
+            waiting > OVERLOAD_HIGH
+        };
+        if overloaded != self.overloaded {
+            self.overloaded = overloaded;
+            self.core.set_overloaded(overloaded);
+            tracing::debug!(waiting, overloaded, "MQTT outbox");
+        }
+    }
+
+    fn note_handed(&mut self, request: &Request) {
+        if let Request::Publish(publish) = request {
+            self.core.on_published(publish.clone(), true);
+        }
+    }
+
+    /// The outbox was full: counted, reported at most once per [`DROP_LOG_INTERVAL`]; results
+    /// and clears go back to the core, which keeps them for the next connection.
+    fn on_dropped(&mut self, publish: Publish) {
+        self.dropped_unlogged += 1;
+        let now = Instant::now();
+        if self.dropped_logged_at.map_or(true, |at| {
+            now.saturating_duration_since(at) >= DROP_LOG_INTERVAL
+        }) {
+            tracing::warn!(
+                dropped = self.dropped_unlogged,
+                "MQTT outbox full: oldest messages dropped"
+            );
+            self.dropped_unlogged = 0;
+            self.dropped_logged_at = Some(now);
+        }
+        self.core.on_published(publish, false);
     }
 
     /// Renders the Prometheus text for the metrics endpoint from live line statistics and the
@@ -241,9 +343,11 @@ impl Bridge {
         let actions = self.core.on_stop();
         self.execute(actions);
         if self.core.is_connected() {
-            if let Err(error) = self.client.try_disconnect() {
-                tracing::warn!(%error, "cannot queue the MQTT disconnect");
-            }
+            let until = tokio::time::Instant::now() + STOP_GRACE;
+            self.flush(until).await;
+            // Control requests jump the queue: the Disconnect only once the rest is handed on.
+            self.outbox.push_control(Request::Disconnect);
+            self.flush(until).await;
             // Its own bound: the event loop waits up to its close grace for the broker.
             let closed = tokio::time::timeout(STOP_GRACE, async {
                 while let Some(event) = self.link_rx.recv().await {
@@ -258,8 +362,67 @@ impl Bridge {
             }
         }
         self.event_loop.abort();
+        self.writer.abort();
         tracing::info!("bridge stopped");
     }
+
+    /// Hands the whole outbox to the writer, reading link events meanwhile so the event loop
+    /// keeps turning.
+    async fn flush(&mut self, until: tokio::time::Instant) {
+        while let Some(request) = self.outbox.pop() {
+            let writer_tx = self.writer_tx.clone();
+            let link_rx = &mut self.link_rx;
+            let handed = tokio::time::timeout_at(until, async {
+                let mut reserve = std::pin::pin!(writer_tx.reserve_owned());
+                loop {
+                    tokio::select! {
+                        permit = &mut reserve => return permit.ok(),
+                        // Link events while stopping only keep the event loop turning.
+                        event = link_rx.recv() => { event?; }
+                    }
+                }
+            })
+            .await;
+            match handed {
+                Ok(Some(permit)) => {
+                    self.note_handed(&request);
+                    permit.send(request);
+                }
+                _ => {
+                    tracing::warn!(
+                        left = self.outbox.len() + 1,
+                        "MQTT did not take the last messages in time"
+                    );
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// The writer task: hands each request to the client, waiting for room in its queue.
+fn spawn_writer(
+    client: AsyncClient,
+    mut requests: mpsc::Receiver<Request>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        while let Some(request) = requests.recv().await {
+            let result = match request {
+                Request::Publish(publish) => {
+                    client
+                        .publish(publish.topic, publish.qos, publish.retain, publish.payload)
+                        .await
+                }
+                Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
+                Request::Disconnect => client.disconnect().await,
+            };
+            if let Err(error) = result {
+                // Only when the event loop has ended (shutdown).
+                tracing::debug!(%error, "MQTT client gone");
+                return;
+            }
+        }
+    })
 }
 
 /// The current statistics of every line.

@@ -3,7 +3,8 @@
 //! sees into [`LinkEvent`]s for the bridge. rumqttc reconnects on the very next poll, so this
 //! task waits a capped, jittered exponential back-off after every connection error; a
 //! connection that dies young (a client-id takeover, an auth refusal) keeps the back-off
-//! growing instead of resetting it.
+//! growing instead of resetting it. Connections the broker keeps closing right after they
+//! are made are what a second client with the same client id causes: said once, plainly.
 
 use std::time::{Duration, Instant};
 
@@ -26,6 +27,12 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// Requests the bridge may queue ahead of the event loop (all sends are `try_*`: a full queue
 /// costs a message, never a blocked bridge).
 pub const REQUEST_QUEUE: usize = 4096;
+/// The bridge's own client queue: short, because the bridge holds what waits in its outbox
+/// (ordered, coalesced, bounded) and its writer awaits room here instead of dropping.
+pub const BRIDGE_REQUEST_QUEUE: usize = 64;
+/// Connections that end within [`STABLE_CONNECTION`] in a row before a client-id clash is
+/// reported.
+const CLASH_SUSPECTED_AFTER: u32 = 3;
 /// Incoming packets above this end the connection in rumqttc (it reads a packet's length and
 /// gives up before reading its body), and the connection is lost *before* the message is
 /// acknowledged: a retained one comes back with every re-subscription and a QoS 1 one with
@@ -97,8 +104,9 @@ pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttO
 /// The client handle and its event loop (nothing is sent until the loop is polled).
 pub fn connect(settings: &MqttSettings) -> anyhow::Result<(AsyncClient, EventLoop)> {
     let topics = settings.topics();
-    let options = options(settings, &topics)?;
-    Ok(AsyncClient::new(options, REQUEST_QUEUE))
+    let mut options = options(settings, &topics)?;
+    options.set_request_channel_capacity(BRIDGE_REQUEST_QUEUE);
+    Ok(AsyncClient::new(options, BRIDGE_REQUEST_QUEUE))
 }
 
 /// Capped exponential back-off with ±20 % jitter (so a fleet does not reconnect in step).
@@ -133,9 +141,11 @@ impl Backoff {
 pub fn spawn_event_loop(
     mut eventloop: EventLoop,
     events_tx: mpsc::Sender<LinkEvent>,
+    client_id: String,
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut backoff = Backoff::default();
+        let mut clash = ClashWatch::default();
         let mut connected_since: Option<Instant> = None;
         let mut reported_down = false;
         // Failed attempts since the link went down, for the log.
@@ -164,8 +174,16 @@ pub fn spawn_event_loop(
                 Ok(_) => continue,
                 Err(error) => {
                     if let Some(since) = connected_since.take() {
-                        if since.elapsed() >= STABLE_CONNECTION {
+                        let lived = since.elapsed();
+                        if lived >= STABLE_CONNECTION {
                             backoff.reset();
+                        }
+                        if clash.connection_ended(lived) {
+                            tracing::error!(client_id = %client_id,
+                                "the broker keeps closing this gateway's connection right after it is made: \
+                                 another client probably uses the same client id (each connection takes \
+                                 the other's session over, so availability flaps); give each gateway its \
+                                 own mqtt.client_id");
                         }
                     }
                     let wait = backoff.next_wait();
@@ -192,6 +210,30 @@ pub fn spawn_event_loop(
             }
         }
     })
+}
+
+/// Counts connections that die young in a row; says once when that looks like a client-id
+/// clash.
+#[derive(Debug, Default)]
+struct ClashWatch {
+    young_in_a_row: u32,
+    reported: bool,
+}
+
+impl ClashWatch {
+    /// A connection ended after `lived`; true the one time a clash should be reported.
+    fn connection_ended(&mut self, lived: Duration) -> bool {
+        if lived >= STABLE_CONNECTION {
+            self.young_in_a_row = 0;
+            return false;
+        }
+        self.young_in_a_row += 1;
+        if self.young_in_a_row >= CLASH_SUSPECTED_AFTER && !self.reported {
+            self.reported = true;
+            return true;
+        }
+        false
+    }
 }
 
 /// One line per back-off step, with the wait before the next attempt: the link going down
@@ -223,5 +265,17 @@ mod tests {
         assert!(previous_base >= BACKOFF_MAX.mul_f64(0.8));
         backoff.reset();
         assert!(backoff.next_wait() <= BACKOFF_INITIAL.mul_f64(1.2));
+    }
+
+    #[test]
+    fn connections_dying_young_in_a_row_are_reported_once() {
+        let mut watch = ClashWatch::default();
+        let young = Duration::from_millis(300);
+        assert!(!watch.connection_ended(young));
+        assert!(!watch.connection_ended(STABLE_CONNECTION));
+        assert!(!watch.connection_ended(young));
+        assert!(!watch.connection_ended(young));
+        assert!(watch.connection_ended(young));
+        assert!(!watch.connection_ended(young));
     }
 }

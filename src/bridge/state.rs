@@ -60,6 +60,14 @@ impl StateCache {
         self.devices.get(device).map(|cache| &cache.state)
     }
 
+    /// The text last handed to MQTT for this field, if any.
+    pub fn published_text(&self, device: &str, field: &str) -> Option<&str> {
+        self.devices
+            .get(device)
+            .and_then(|cache| cache.published.get(field))
+            .map(String::as_str)
+    }
+
     pub fn is_online(&self, device: &str) -> bool {
         self.devices
             .get(device)

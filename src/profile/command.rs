@@ -163,6 +163,14 @@ impl CommandPlan {
             .collect()
     }
 
+    /// Running the command twice leaves the device as running it once: every commanded field
+    /// is a state (a momentary button or a toggle is an action, not a state).
+    pub fn is_idempotent(&self) -> bool {
+        self.targets
+            .iter()
+            .all(|(field, _)| self.profile.defs[*field].behaviour == Behaviour::State)
+    }
+
     /// Reads to make in the slot before writing (empty when no read-modify-write is needed).
     pub fn reads_before(&self) -> &[Request] {
         &self.reads_before

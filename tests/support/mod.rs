@@ -570,3 +570,16 @@ impl Gateway {
             .expect("gateway failed");
     }
 }
+
+/// `text` validated as a user's file would be, then polled faster than the profiles' minimums
+/// (every 300 ms) so tests stay short (the simulators do not mind).
+pub fn fast_config(text: &str) -> Config {
+    let mut config =
+        rtu2mqtt::config::from_str(text, std::path::Path::new(".")).expect("valid configuration");
+    for line in &mut config.lines {
+        for device in &mut line.devices {
+            device.poll_interval = Duration::from_millis(300);
+        }
+    }
+    config
+}

@@ -1,0 +1,139 @@
+//! The gateway's claim on its own topics: its status, its devices' availability and state.
+//! It remembers what it published on each (in flight until the broker echoes it back) so that
+//! an echo of its own message is never mistaken for someone else's; any other message that
+//! contradicts the truth (a retained `offline` by another client, a stale Will, a fake state
+//! value) is answered by publishing the truth again, at most once per topic per
+//! [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed. Pure: it decides,
+//! the core publishes; the clock is passed in.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::time::{Duration, Instant};
+
+/// Own messages remembered per topic while their echo is awaited.
+const IN_FLIGHT: usize = 8;
+/// The shortest time between two re-assertions of one topic.
+pub const REASSERT_INTERVAL: Duration = Duration::from_secs(2);
+
+/// What to do about a message seen on a guarded topic.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Verdict {
+    /// Our own message, or one that agrees with the truth.
+    Fine,
+    /// Someone else contradicted the truth: publish it again.
+    Reassert,
+    /// Contradicted, but re-asserted too recently: [`TopicGuard::due`] names it later.
+    Hold,
+}
+
+#[derive(Debug, Default)]
+pub struct TopicGuard {
+    /// Our payloads per topic, oldest first, until the broker echoes them.
+    in_flight: HashMap<String, VecDeque<String>>,
+    last_reassert: HashMap<String, Instant>,
+    /// Topics already reported in the log (once each).
+    reported: HashSet<String>,
+    /// Contradicted topics waiting for their interval to pass.
+    held: HashSet<String>,
+}
+
+impl TopicGuard {
+    /// We publish `payload` on `topic`.
+    pub fn sent(&mut self, topic: &str, payload: &str) {
+        let queue = self.in_flight.entry(topic.to_string()).or_default();
+        if queue.len() >= IN_FLIGHT {
+            queue.pop_front();
+        }
+        queue.push_back(payload.to_string());
+    }
+
+    /// A new connection: echoes of the old one will not come.
+    pub fn reset(&mut self) {
+        self.in_flight.clear();
+    }
+
+    /// `payload` arrived on `topic`, whose truth is `truth`. The broker delivers one topic's
+    /// messages in order, so our echo is the oldest of our in-flight payloads that matches.
+    pub fn judge(&mut self, topic: &str, payload: &str, truth: &str, now: Instant) -> Verdict {
+        if let Some(queue) = self.in_flight.get_mut(topic) {
+            if let Some(position) = queue.iter().position(|sent| sent == payload) {
+                queue.drain(..=position);
+                return Verdict::Fine;
+            }
+        }
+        if payload == truth {
+            return Verdict::Fine;
+        }
+        if self
+            .last_reassert
+            .get(topic)
+            .is_some_and(|at| now.saturating_duration_since(*at) < REASSERT_INTERVAL)
+        {
+            self.held.insert(topic.to_string());
+            return Verdict::Hold;
+        }
+        self.held.remove(topic);
+        self.last_reassert.insert(topic.to_string(), now);
+        if self.reported.insert(topic.to_string()) {
+            tracing::warn!(%topic, seen = ?payload, truth = %truth,
+                "another client overwrote one of this gateway's topics: publishing the truth again");
+        } else {
+            tracing::debug!(%topic, seen = ?payload, "overwritten again: publishing the truth again");
+        }
+        Verdict::Reassert
+    }
+
+    /// Held topics whose interval has passed, to re-assert now.
+    pub fn due(&mut self, now: Instant) -> Vec<String> {
+        let last = &self.last_reassert;
+        let due: Vec<String> = self
+            .held
+            .iter()
+            .filter(|topic| {
+                last.get(*topic).map_or(true, |at| {
+                    now.saturating_duration_since(*at) >= REASSERT_INTERVAL
+                })
+            })
+            .cloned()
+            .collect();
+        for topic in &due {
+            self.held.remove(topic);
+            self.last_reassert.insert(topic.clone(), now);
+        }
+        due
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn own_echoes_pass_and_a_foreign_contradiction_is_answered_once_per_interval() {
+        let now = Instant::now();
+        let mut guard = TopicGuard::default();
+        guard.sent("plant/a/gear", "3");
+        guard.sent("plant/a/gear", "4");
+        // The echo of the older value while the newer is in flight is ours.
+        assert_eq!(guard.judge("plant/a/gear", "3", "4", now), Verdict::Fine);
+        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), Verdict::Fine);
+        assert_eq!(
+            guard.judge("plant/a/gear", "99", "4", now),
+            Verdict::Reassert
+        );
+        guard.sent("plant/a/gear", "4");
+        assert_eq!(
+            guard.judge("plant/a/gear", "98", "4", now + Duration::from_millis(10)),
+            Verdict::Hold
+        );
+        assert!(guard.due(now + Duration::from_millis(20)).is_empty());
+        assert_eq!(guard.due(now + REASSERT_INTERVAL), vec!["plant/a/gear"]);
+        assert_eq!(
+            guard.judge("plant/a/gear", "4", "4", now + REASSERT_INTERVAL),
+            Verdict::Fine
+        );
+        assert_eq!(
+            guard.judge("plant/a/gear", "97", "4", now + REASSERT_INTERVAL * 2),
+            Verdict::Reassert
+        );
+    }
+}

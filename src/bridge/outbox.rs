@@ -1,0 +1,214 @@
+//! The driver's own queue of what goes to the MQTT client: the client's request queue is kept
+//! short, and everything waiting is held here, where it can be ordered and bounded. Control
+//! requests (subscriptions, the Disconnect) go first, then outcomes and state, then re-sends
+//! (discovery documents, statistics). A retained topic is queued once: a newer payload replaces
+//! the waiting one in place (newest wins). On a lost connection everything the core publishes
+//! again on the next one (state, availability, discovery) is dropped, so nothing stale goes out
+//! after a reconnect; outcomes and clears are kept. Pure data: no client, no clock.
+
+use std::collections::{HashMap, VecDeque};
+
+use rumqttc::QoS;
+
+use super::core::Publish;
+
+/// Entries held at most; beyond, the oldest re-send, then the oldest entry, is dropped (and
+/// reported by [`Outbox::push`]).
+pub const MAX_OUTBOX: usize = 100_000;
+
+/// One request for the MQTT client.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Request {
+    Publish(Publish),
+    Subscribe { filter: String, qos: QoS },
+    Disconnect,
+}
+
+/// How urgent a publish is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lane {
+    /// Outcomes, clears, state, availability.
+    Urgent,
+    /// Documents the core sends again anyway (discovery, statistics).
+    Resend,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Entry {
+    Once(Publish),
+    /// The newest payload for this retained topic is in `retained`.
+    Retained(String),
+}
+
+#[derive(Debug, Default)]
+pub struct Outbox {
+    control: VecDeque<Request>,
+    urgent: VecDeque<Entry>,
+    resend: VecDeque<Entry>,
+    retained: HashMap<String, Publish>,
+}
+
+impl Outbox {
+    /// Entries waiting (a coalesced retained topic counts once).
+    pub fn len(&self) -> usize {
+        self.control.len() + self.urgent.len() + self.resend.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn push_control(&mut self, request: Request) {
+        self.control.push_back(request);
+    }
+
+    /// Queues `publish`; returns what had to be dropped to stay within [`MAX_OUTBOX`].
+    pub fn push(&mut self, publish: Publish, lane: Lane) -> Option<Publish> {
+        if publish.retain {
+            if let Some(queued) = self.retained.get_mut(&publish.topic) {
+                let keep = queued.keep || publish.keep;
+                *queued = Publish { keep, ..publish };
+                return None;
+            }
+        }
+        let dropped = if self.len() >= MAX_OUTBOX {
+            self.drop_oldest()
+        } else {
+            None
+        };
+        let entry = if publish.retain {
+            let topic = publish.topic.clone();
+            self.retained.insert(topic.clone(), publish);
+            Entry::Retained(topic)
+        } else {
+            Entry::Once(publish)
+        };
+        match lane {
+            Lane::Urgent => self.urgent.push_back(entry),
+            Lane::Resend => self.resend.push_back(entry),
+        }
+        dropped
+    }
+
+    fn drop_oldest(&mut self) -> Option<Publish> {
+        let entry = self
+            .resend
+            .pop_front()
+            .or_else(|| self.urgent.pop_front())?;
+        self.resolve(entry)
+    }
+
+    fn resolve(&mut self, entry: Entry) -> Option<Publish> {
+        match entry {
+            Entry::Once(publish) => Some(publish),
+            Entry::Retained(topic) => self.retained.remove(&topic),
+        }
+    }
+
+    /// The next request in priority order.
+    pub fn pop(&mut self) -> Option<Request> {
+        if let Some(control) = self.control.pop_front() {
+            return Some(control);
+        }
+        while let Some(entry) = self.urgent.pop_front().or_else(|| self.resend.pop_front()) {
+            if let Some(publish) = self.resolve(entry) {
+                return Some(Request::Publish(publish));
+            }
+        }
+        None
+    }
+
+    /// The connection is gone: what the next connection publishes afresh is dropped, outcomes
+    /// and clears (`keep`) stay. Returns how many were dropped.
+    pub fn on_disconnect(&mut self) -> usize {
+        let before = self.len();
+        self.control.clear();
+        self.resend.clear();
+        let retained = &self.retained;
+        self.urgent.retain(|entry| match entry {
+            Entry::Once(publish) => publish.keep,
+            Entry::Retained(topic) => retained.get(topic).is_some_and(|p| p.keep),
+        });
+        let kept: std::collections::HashSet<&String> = self
+            .urgent
+            .iter()
+            .filter_map(|entry| match entry {
+                Entry::Retained(topic) => Some(topic),
+                Entry::Once(_) => None,
+            })
+            .collect();
+        let stale: Vec<String> = self
+            .retained
+            .keys()
+            .filter(|topic| !kept.contains(topic))
+            .cloned()
+            .collect();
+        for topic in stale {
+            self.retained.remove(&topic);
+        }
+        before - self.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn publish(topic: &str, payload: &str, retain: bool, keep: bool) -> Publish {
+        Publish {
+            topic: topic.to_string(),
+            payload: payload.to_string(),
+            qos: QoS::AtLeastOnce,
+            retain,
+            keep,
+        }
+    }
+
+    fn topics_in_order(outbox: &mut Outbox) -> Vec<String> {
+        std::iter::from_fn(|| outbox.pop())
+            .map(|request| match request {
+                Request::Publish(p) => format!("{}={}", p.topic, p.payload),
+                Request::Subscribe { filter, .. } => format!("sub {filter}"),
+                Request::Disconnect => "disconnect".to_string(),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn control_first_then_urgent_then_resends_and_newest_retained_wins_in_place() {
+        let mut outbox = Outbox::default();
+        outbox.push(publish("ha/config", "{}", true, false), Lane::Resend);
+        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
+        outbox.push(publish("p/a/gear/result", "r1", false, true), Lane::Urgent);
+        outbox.push(publish("p/a/gear", "4", true, false), Lane::Urgent);
+        outbox.push_control(Request::Subscribe {
+            filter: "p/+/+/set".to_string(),
+            qos: QoS::AtLeastOnce,
+        });
+        assert_eq!(outbox.len(), 4);
+        assert_eq!(
+            topics_in_order(&mut outbox),
+            [
+                "sub p/+/+/set",
+                "p/a/gear=4",
+                "p/a/gear/result=r1",
+                "ha/config={}"
+            ]
+        );
+        assert!(outbox.is_empty());
+    }
+
+    #[test]
+    fn a_lost_connection_keeps_outcomes_and_clears_only() {
+        let mut outbox = Outbox::default();
+        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
+        outbox.push(publish("p/a/gear/result", "r1", false, true), Lane::Urgent);
+        outbox.push(publish("p/a/gear/set", "", true, true), Lane::Urgent);
+        outbox.push(publish("ha/config", "{}", true, false), Lane::Resend);
+        assert_eq!(outbox.on_disconnect(), 2);
+        assert_eq!(
+            topics_in_order(&mut outbox),
+            ["p/a/gear/result=r1", "p/a/gear/set="]
+        );
+    }
+}
