@@ -419,9 +419,20 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
             true,
         )
         .await;
+    // The broker holds it before any gateway runs: a client subscribing after the publish was
+    // routed gets it from the retained store. (A subscription racing the publish may see it
+    // live first, without the retain flag; the second subscriber settles that.)
+    let mut first_look = TestClient::connect(broker.port, "f25-first-look").await;
+    first_look
+        .subscribe("plant/dust_collector/pulse_interval/set")
+        .await;
+    first_look
+        .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
+            m.text() == "12"
+        })
+        .await;
     let mut observer = TestClient::connect(broker.port, "f25-observer").await;
     observer.subscribe("plant/#").await;
-    // The broker holds it before any gateway runs.
     observer
         .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
             m.retain && m.text() == "12"
