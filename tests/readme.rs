@@ -130,3 +130,49 @@ fn architecture_maps_every_module_of_the_crate() {
         );
     }
 }
+
+#[test]
+fn quick_start_pokes_the_plant_with_the_demos_own_example_commands() {
+    let config = rtu2mqtt::config::from_str(
+        include_str!("../config/rtu2mqtt.toml"),
+        std::path::Path::new("config"),
+    )
+    .unwrap_or_else(|problems| panic!("the example configuration: {problems:?}"));
+    let prefix = &config.mqtt.prefix;
+    let from_profiles: Vec<String> = config
+        .lines
+        .iter()
+        .flat_map(|line| &line.devices)
+        .flat_map(|device| {
+            device
+                .profile
+                .example_commands()
+                .into_iter()
+                .map(|(field, value)| {
+                    format!(
+                        "mosquitto_pub -t {prefix}/{}/{field}/set -m {value}",
+                        device.name
+                    )
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let quick_start = section(README, "Quick start");
+    let in_readme: Vec<String> = code_blocks(quick_start)
+        .iter()
+        .flat_map(|block| block.lines().map(str::to_string).collect::<Vec<_>>())
+        .filter(|line| line.starts_with("mosquitto_pub "))
+        .map(|line| {
+            line.split('#')
+                .next()
+                .unwrap_or_default()
+                .trim()
+                .to_string()
+        })
+        .collect();
+    assert!(!from_profiles.is_empty());
+    assert_eq!(
+        in_readme, from_profiles,
+        "the README's commands are the ones the demo prints (the profiles' examples)"
+    );
+}
