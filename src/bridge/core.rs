@@ -672,6 +672,9 @@ impl Core {
     }
 }
 
+#[path = "core_reconfigure.rs"]
+mod reconfigure;
+
 #[cfg(test)]
 #[path = "core_tests.rs"]
 mod tests;

@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
-use self::core::{Action, Core, CoreSettings, Incoming};
+use self::core::{Action, BridgeDevice, Core, CoreSettings, Incoming};
 use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
 use crate::bus::{LineEvent, LineHandle, LineStats};
@@ -45,6 +45,14 @@ pub struct BridgeHealth {
     pub connected: watch::Receiver<bool>,
 }
 
+/// A configuration reload, as the bridge learns it: the devices (in configuration order, each
+/// with the index of its line) and the running lines' handles in that order.
+#[derive(Debug)]
+pub struct Reconfiguration {
+    pub devices: Vec<BridgeDevice>,
+    pub lines: Vec<LineHandle>,
+}
+
 /// The bridge task: the core and everything it must not touch itself.
 pub struct Bridge {
     core: Core,
@@ -56,6 +64,8 @@ pub struct Bridge {
     counters_tx: watch::Sender<BridgeStats>,
     heartbeat_tx: watch::Sender<Instant>,
     connected_tx: watch::Sender<bool>,
+    /// Reloads, once [`Bridge::reconfigurations`] has been asked for.
+    reconfigure_rx: Option<mpsc::Receiver<Reconfiguration>>,
 }
 
 impl Bridge {
@@ -81,6 +91,7 @@ impl Bridge {
             counters_tx: watch::channel(BridgeStats::default()).0,
             heartbeat_tx,
             connected_tx,
+            reconfigure_rx: None,
         };
         (
             bridge,
@@ -100,6 +111,9 @@ impl Bridge {
             tokio::select! {
                 _ = shutdown.fired() => break,
                 Some(event) = self.link_rx.recv() => self.on_link(event),
+                Some(news) = next_reconfiguration(&mut self.reconfigure_rx) => {
+                    self.on_reconfigure(news);
+                }
                 Some(event) = events_rx.recv() => {
                     let actions = self.core.on_line_event(event, Instant::now());
                     self.execute(actions);
@@ -114,6 +128,22 @@ impl Bridge {
             }
         }
         self.stop(events_rx).await;
+    }
+
+    /// Where a configuration reload tells this bridge its new devices and lines.
+    pub fn reconfigurations(&mut self) -> mpsc::Sender<Reconfiguration> {
+        let (tx, rx) = mpsc::channel(1);
+        self.reconfigure_rx = Some(rx);
+        tx
+    }
+
+    fn on_reconfigure(&mut self, news: Reconfiguration) {
+        let names = news.lines.iter().map(|line| line.name.clone()).collect();
+        self.lines = news.lines;
+        let actions = self
+            .core
+            .on_reconfigure(names, news.devices, Instant::now());
+        self.execute(actions);
     }
 
     fn on_link(&mut self, event: LinkEvent) {
@@ -230,6 +260,19 @@ impl Bridge {
         self.event_loop.abort();
         tracing::info!("bridge stopped");
     }
+}
+
+/// The next reload, or never when nobody can send one.
+async fn next_reconfiguration(
+    rx: &mut Option<mpsc::Receiver<Reconfiguration>>,
+) -> Option<Reconfiguration> {
+    if let Some(receiver) = rx {
+        if let Some(news) = receiver.recv().await {
+            return Some(news);
+        }
+        *rx = None;
+    }
+    std::future::pending().await
 }
 
 /// The current statistics of every line.
