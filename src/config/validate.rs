@@ -8,11 +8,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use super::link::{self, shown};
 use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
 use crate::bus::{DeviceSpec, LineSpec};
-use crate::contract::GATEWAY_DEVICE;
+use crate::contract::{self, reserved_name_problem, MAX_TOPIC_LEN};
 use crate::profile::Profile;
 use crate::rtu::timing::CharFormat;
 use crate::rtu::transport::{Rs485Settings, SerialSettings};
@@ -24,9 +25,15 @@ pub const ALLOWED_BAUDS: &[u32] = &[
 /// The serial-line specification's longest sensible wait; rumqttc-style zero means "never".
 const MAX_TIMEOUT: Duration = Duration::from_secs(120);
 /// Device, line and client names become topic levels: keep them short.
-const MAX_NAME_LEN: usize = 64;
+const MAX_NAME_LEN: usize = contract::MAX_NAME_LEN;
 /// Topic prefixes (`plant`, `site1/plant`).
 const MAX_PREFIX_LEN: usize = 128;
+// The longest topic the gateway builds (`<prefix>/<device>/<field>/result`, and the discovery
+// topic `<discovery_prefix>/device/<client_id>_<device>/config`) stays within the length it
+// accepts on incoming topics, far below MQTT's 65,535 bytes.
+const _: () = assert!(MAX_PREFIX_LEN + 2 * MAX_NAME_LEN + "///result".len() <= MAX_TOPIC_LEN);
+const _: () =
+    assert!(MAX_PREFIX_LEN + 2 * MAX_NAME_LEN + "/device/_/config".len() <= MAX_TOPIC_LEN);
 /// Largest accepted command payload limit (a command is a word or a number).
 const MAX_PAYLOAD_LIMIT: usize = 64 * 1024;
 
@@ -68,7 +75,10 @@ pub fn is_valid_name(name: &str) -> bool {
 fn invalid_name(place: &str, name: &str) -> Problem {
     Problem::new(
         format!("{place}.name"),
-        format!("{name:?} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN})"),
+        format!(
+            "{} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN} characters)",
+            shown(name)
+        ),
     )
 }
 
@@ -78,7 +88,10 @@ pub fn topic_prefix_problem(prefix: &str) -> Option<String> {
         return Some("must not be empty".into());
     }
     if prefix.len() > MAX_PREFIX_LEN {
-        return Some(format!("longer than {MAX_PREFIX_LEN} bytes"));
+        return Some(format!(
+            "is {} bytes, longer than {MAX_PREFIX_LEN}",
+            prefix.len()
+        ));
     }
     if let Some(bad) = prefix.chars().find(|c| matches!(c, '+' | '#' | '\0')) {
         return Some(format!(
@@ -114,19 +127,23 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
         fail(
             "client_id",
             format!(
-                "{:?} must be 1–{MAX_NAME_LEN} characters of A–Z a–z 0–9 _ - .",
-                raw.client_id
+                "{} must be 1–{MAX_NAME_LEN} characters of A–Z a–z 0–9 _ - .",
+                shown(&raw.client_id)
             ),
         );
     }
     if let Some(reason) = topic_prefix_problem(&raw.prefix) {
-        fail("prefix", format!("{:?} {reason}", raw.prefix));
+        fail("prefix", format!("{} {reason}", shown(&raw.prefix)));
     }
     if let Some(reason) = topic_prefix_problem(&raw.discovery_prefix) {
         fail(
             "discovery_prefix",
-            format!("{:?} {reason}", raw.discovery_prefix),
+            format!("{} {reason}", shown(&raw.discovery_prefix)),
         );
+    } else if raw.discovery {
+        if let Some(reason) = link::prefix_overlap(&raw.prefix, &raw.discovery_prefix) {
+            fail("prefix", reason);
+        }
     }
     // rumqttc panics on a keep-alive under one second (other than zero, which we refuse too).
     if raw.keep_alive < Duration::from_secs(1) || raw.keep_alive > Duration::from_secs(65535) {
@@ -184,6 +201,9 @@ fn validate_mqtt(raw: &RawMqtt, base: &Path, problems: &mut Vec<Problem>) -> Opt
     let ca = existing_file("ca_file", &raw.ca_file);
     let cert = existing_file("cert_file", &raw.cert_file);
     let key = existing_file("key_file", &raw.key_file);
+    if let Some(reason) = ca.as_deref().and_then(link::ca_file_problem) {
+        fail("ca_file", reason);
+    }
     if raw.cert_file.is_some() != raw.key_file.is_some() {
         fail(
             "cert_file",
@@ -243,28 +263,34 @@ pub struct BrokerEndpoint {
 
 /// Parses `mqtt://host[:port]` / `mqtts://host[:port]` (IPv6 hosts in brackets).
 pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
+    // Every message shows the URL with any password masked: it goes to the journal.
+    let shown_url = link::masked_url(url);
     let (tls, rest) = if let Some(rest) = url.strip_prefix("mqtt://") {
         (false, rest)
     } else if let Some(rest) = url.strip_prefix("mqtts://") {
         (true, rest)
     } else {
-        return Err(format!("{url:?} must start with mqtt:// or mqtts://"));
+        return Err(format!("{shown_url:?} must start with mqtt:// or mqtts://"));
     };
     let rest = rest.strip_suffix('/').unwrap_or(rest);
     if rest.contains('/') || rest.contains('@') || rest.contains('?') {
         return Err(format!(
-            "{url:?}: give only host and port (credentials go in username/password)"
+            "{shown_url:?}: give only host and port (credentials go in username/password)"
         ));
     }
     let default_port = if tls { 8883 } else { 1883 };
     let (host, port) = if let Some(bracketed) = rest.strip_prefix('[') {
         let Some((host, after)) = bracketed.split_once(']') else {
-            return Err(format!("{url:?}: unclosed '[' in an IPv6 address"));
+            return Err(format!("{shown_url:?}: unclosed '[' in an IPv6 address"));
         };
         match after.strip_prefix(':') {
             Some(port) => (host, Some(port)),
             None if after.is_empty() => (host, None),
-            None => return Err(format!("{url:?}: unexpected text after the IPv6 address")),
+            None => {
+                return Err(format!(
+                    "{shown_url:?}: unexpected text after the IPv6 address"
+                ))
+            }
         }
     } else {
         match rest.rsplit_once(':') {
@@ -273,13 +299,13 @@ pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
         }
     };
     if host.is_empty() {
-        return Err(format!("{url:?} has no host"));
+        return Err(format!("{shown_url:?} has no host"));
     }
     let port = match port {
         None => default_port,
         Some(text) => match text.parse::<u16>() {
             Ok(port) if port > 0 => port,
-            _ => return Err(format!("{url:?}: port {text:?} is not 1–65535")),
+            _ => return Err(format!("{shown_url:?}: port {text:?} is not 1–65535")),
         },
     };
     Ok(BrokerEndpoint {
@@ -431,7 +457,9 @@ fn validate_lines(
         ));
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();
-    let mut ports: HashMap<&str, usize> = HashMap::new();
+    // Keyed by the port each name reaches: a by-id link and its target, or `/dev/./ttyA`
+    // and `/dev/ttyA`, are one port (the second line would fail for ever at run time).
+    let mut ports: HashMap<PathBuf, usize> = HashMap::new();
     let mut device_names: HashMap<String, String> = HashMap::new();
     let mut profiles: HashMap<String, Arc<Profile>> = HashMap::new();
     let mut lines = Vec::new();
@@ -449,10 +477,15 @@ fn validate_lines(
         }
         if raw.port.is_empty() {
             problems.push(Problem::new(format!("{place}.port"), "must not be empty"));
-        } else if let Some(first) = ports.insert(&raw.port, index) {
+        } else if let Some(first) = ports.insert(link::port_identity(&raw.port), index) {
+            let same = if raw_lines[first].port == raw.port {
+                String::new()
+            } else {
+                format!(" ({}: the same port)", raw_lines[first].port)
+            };
             problems.push(Problem::new(
                 format!("{place}.port"),
-                format!("{} is already the port of lines[{first}]", raw.port),
+                format!("{} is already the port of lines[{first}]{same}", raw.port),
             ));
         }
         if is_unstable_port_path(&raw.port) {
@@ -613,11 +646,8 @@ fn validate_device(
     let before = problems.len();
     if !is_valid_name(&raw.name) {
         problems.push(invalid_name(place, &raw.name));
-    } else if raw.name == GATEWAY_DEVICE {
-        problems.push(Problem::new(
-            format!("{place}.name"),
-            format!("{GATEWAY_DEVICE:?} is reserved for the gateway's own topics"),
-        ));
+    } else if let Some(reason) = reserved_name_problem(&raw.name) {
+        problems.push(Problem::new(format!("{place}.name"), reason));
     } else {
         if let Some(first) = names.get(&raw.name) {
             problems.push(Problem::new(
@@ -633,6 +663,10 @@ fn validate_device(
         Some(profile) => Some(profile.clone()),
         None => match resolve_profile(&raw.profile, base) {
             Ok(profile) => {
+                // Once per profile: its field names become topic levels.
+                for reason in field_name_problems(&profile) {
+                    problems.push(Problem::new(format!("{place}.profile"), reason));
+                }
                 let profile = Arc::new(profile);
                 profiles.insert(raw.profile.clone(), profile.clone());
                 Some(profile)
@@ -689,6 +723,26 @@ fn validate_device(
         profile,
         poll_interval,
     })
+}
+
+/// Field names of `profile` the contract cannot carry: reserved words, or longer than a topic
+/// level may be.
+fn field_name_problems(profile: &Profile) -> Vec<String> {
+    let mut reasons = Vec::new();
+    for field in profile.fields() {
+        let name = &field.name;
+        if name.len() > MAX_NAME_LEN {
+            reasons.push(format!(
+                "profile {}: field {} is a topic level and must be at most {MAX_NAME_LEN} \
+                 characters",
+                shown(profile.name()),
+                shown(name)
+            ));
+        } else if let Some(reason) = reserved_name_problem(name) {
+            reasons.push(format!("profile {}: field {reason}", shown(profile.name())));
+        }
+    }
+    reasons
 }
 
 fn check_timeout(place: &str, timeout: Duration, problems: &mut Vec<Problem>) {
@@ -791,7 +845,7 @@ mod tests {
     #[test]
     fn tls_settings_are_checked() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("ca.crt"), "x").unwrap();
+        std::fs::write(dir.path().join("ca.crt"), super::link::TEST_CA_PEM).unwrap();
         std::fs::write(dir.path().join("client.crt"), "x").unwrap();
         let base = dir.path();
         assert_eq!(
