@@ -102,3 +102,120 @@ impl Core {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use rumqttc::QoS;
+
+    use super::super::{CoreSettings, Incoming};
+    use super::*;
+    use crate::bus::LineEvent;
+    use crate::config::GatewayOptions;
+    use crate::contract::Topics;
+    use crate::profile::registry;
+
+    fn device(name: &str, profile: &str, line: usize) -> BridgeDevice {
+        BridgeDevice {
+            name: name.to_string(),
+            profile: Arc::new(registry::built_in(profile).unwrap()),
+            line,
+        }
+    }
+
+    fn retained_clears(actions: &[Action]) -> Vec<String> {
+        actions
+            .iter()
+            .filter_map(|action| match action {
+                Action::Publish(p) if p.retain && p.payload.is_empty() => Some(p.topic.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_removed_device_is_cleared_and_a_kept_ones_waiting_command_stays() {
+        let now = Instant::now();
+        let options = GatewayOptions {
+            command_ttl: Duration::from_secs(60),
+            json_view: true,
+            stats_interval: Duration::from_secs(3600),
+            metrics_listen: None,
+            frame_log: None,
+            allow_raw_writes: false,
+            max_payload: 256,
+        };
+        let valve = device("valve", "wuzhou-valve", 1);
+        let dust = device("dust_collector", "ruiwan-dust-collector", 0);
+        let mut core = Core::new(
+            CoreSettings {
+                topics: Topics::new("edge1", "plant"),
+                discovery: true,
+                options,
+                line_names: vec!["a".into(), "b".into()],
+                devices: vec![dust.clone(), valve.clone()],
+            },
+            now,
+        );
+        core.on_connected();
+        core.on_line_event(
+            LineEvent::Availability {
+                device: "dust_collector".into(),
+                online: false,
+            },
+            now,
+        );
+        // Commands for two offline devices wait.
+        for topic in ["plant/valve/opening/set", "plant/dust_collector/gear/set"] {
+            core.on_message(
+                Incoming {
+                    topic,
+                    payload: b"3",
+                    qos: QoS::AtLeastOnce,
+                    pkid: 1,
+                    dup: false,
+                },
+                now,
+            );
+        }
+        assert_eq!(core.book.waiting_count(), 2);
+
+        // The dust collector's line is gone; the valve's line is now the first.
+        let moved = BridgeDevice { line: 0, ..valve };
+        let actions = core.on_reconfigure(vec!["b".into()], vec![moved], now);
+        let cleared = retained_clears(&actions);
+        for topic in [
+            "plant/dust_collector/gear",
+            "plant/dust_collector/availability",
+            "plant/dust_collector",
+            "homeassistant/device/edge1_dust_collector/config",
+            "plant/dust_collector/gear/set",
+        ] {
+            assert!(
+                cleared.iter().any(|t| t == topic),
+                "{topic} not cleared: {cleared:?}"
+            );
+        }
+        assert!(cleared.iter().all(|t| !t.contains("valve")), "{cleared:?}");
+        let failed = actions.iter().any(|action| {
+            matches!(action, Action::Publish(p) if p.topic == "plant/dust_collector/gear/result"
+                && p.payload.contains("no longer configured"))
+        });
+        assert!(failed, "no result for the removed device's command");
+        assert_eq!(core.book.waiting_count(), 1, "the valve's command was lost");
+
+        // Once the valve is online, its command goes to its new line index.
+        let actions = core.on_line_event(
+            LineEvent::Availability {
+                device: "valve".into(),
+                online: true,
+            },
+            now,
+        );
+        assert!(actions
+            .iter()
+            .any(|action| matches!(action, Action::Send { line: 0, .. })));
+    }
+}
