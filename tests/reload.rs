@@ -83,6 +83,21 @@ async fn retained(port: u16, id: &str, filter: &str) -> Vec<String> {
         .collect()
 }
 
+/// The body of `GET path` on the metrics endpoint (empty when it cannot be reached).
+async fn http_get(port: u16, path: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let Ok(mut stream) = tokio::net::TcpStream::connect(("127.0.0.1", port)).await else {
+        return String::new();
+    };
+    let request = format!("GET {path} HTTP/1.1\r\nHost: test\r\n\r\n");
+    if stream.write_all(request.as_bytes()).await.is_err() {
+        return String::new();
+    }
+    let mut response = String::new();
+    let _ = stream.read_to_string(&mut response).await;
+    response
+}
+
 /// The longest gap between two valve requests seen on line-b from `from` to `to`.
 fn longest_gap(plant: &SeedPlant, from: Instant, to: Instant) -> Duration {
     let arrivals: Vec<Instant> = plant
@@ -113,8 +128,11 @@ async fn sighup_reloads_one_line_and_keeps_the_other_polling() {
     let dir = tempfile::tempdir().expect("temp dir");
     let config_path = dir.path().join("config.toml");
     let log_path = dir.path().join("rtu2mqtt.log");
+    let metrics_port = support::free_port();
+    let gateway = format!("metrics_listen = \"127.0.0.1:{metrics_port}\"");
     let first = PlantConfig {
         discovery: true,
+        gateway: &gateway,
         ..PlantConfig::default()
     }
     .text(&mosquitto, &plant, CLIENT_ID);
@@ -199,6 +217,22 @@ async fn sighup_reloads_one_line_and_keeps_the_other_polling() {
             Instant::now() < deadline,
             "left after the reload: {left:?} {config:?}"
         );
+    }
+    // The metrics endpoint follows: the restarted line-a without the dust collector.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let metrics = http_get(metrics_port, "/metrics").await;
+        if !metrics.contains("device=\"dust_collector\"")
+            && metrics.contains("device=\"air_shower\"")
+            && metrics.contains("device=\"valve\"")
+        {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "stale metrics after the reload:\n{metrics}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
     }
     tokio::time::sleep(Duration::from_secs(2)).await;
     // Line-b polled on without a gap longer than its poll interval, on its first task.

@@ -66,6 +66,8 @@ pub struct Bridge {
     connected_tx: watch::Sender<bool>,
     /// Reloads, once [`Bridge::reconfigurations`] has been asked for.
     reconfigure_rx: Option<mpsc::Receiver<Reconfiguration>>,
+    /// The running lines' statistics for the metrics endpoint (replaced by a reload).
+    line_stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
 }
 
 impl Bridge {
@@ -82,6 +84,7 @@ impl Bridge {
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
+        let line_stats_tx = watch::channel(stats_receivers(&lines)).0;
         let bridge = Bridge {
             core: Core::new(CoreSettings::from_config(config), now),
             client,
@@ -92,6 +95,7 @@ impl Bridge {
             heartbeat_tx,
             connected_tx,
             reconfigure_rx: None,
+            line_stats_tx,
         };
         (
             bridge,
@@ -139,6 +143,8 @@ impl Bridge {
 
     fn on_reconfigure(&mut self, news: Reconfiguration) {
         let names = news.lines.iter().map(|line| line.name.clone()).collect();
+        self.line_stats_tx
+            .send_replace(stats_receivers(&news.lines));
         self.lines = news.lines;
         let actions = self
             .core
@@ -209,17 +215,17 @@ impl Bridge {
         }
     }
 
-    /// Renders the Prometheus text for the metrics endpoint from live line statistics and the
-    /// bridge's counters (refreshed every tick).
+    /// Renders the Prometheus text for the metrics endpoint from live line statistics (of the
+    /// lines running now, reloads included) and the bridge's counters (refreshed every tick).
     pub fn metrics_renderer(&self) -> prometheus::Render {
-        let lines: Vec<_> = self
-            .lines
-            .iter()
-            .map(|line| line.stats_rx.clone())
-            .collect();
+        let lines = self.line_stats_tx.subscribe();
         let counters = self.counters_tx.subscribe();
         Arc::new(move || {
-            let stats: Vec<LineStats> = lines.iter().map(|rx| rx.borrow().clone()).collect();
+            let stats: Vec<LineStats> = lines
+                .borrow()
+                .iter()
+                .map(|rx| rx.borrow().clone())
+                .collect();
             let bridge = counters.borrow().clone();
             metrics::prometheus_text(&stats, &bridge)
         })
@@ -273,6 +279,11 @@ async fn next_reconfiguration(
         *rx = None;
     }
     std::future::pending().await
+}
+
+/// Where each line's statistics can be read.
+fn stats_receivers(lines: &[LineHandle]) -> Vec<watch::Receiver<LineStats>> {
+    lines.iter().map(|line| line.stats_rx.clone()).collect()
 }
 
 /// The current statistics of every line.
