@@ -1,6 +1,8 @@
 //! The configuration as users meet it: the shipped example is valid, `rtu2mqtt check` prints
 //! the poll plan and exits 0; a configuration with many mistakes gets every one of them listed
-//! with its place, exit 1; environment overrides reach the settings.
+//! with its place, exit 1, in one run whatever the phase; environment overrides reach the
+//! settings; names, prefixes, ports, the CA file and secrets are checked so that nothing
+//! accepted breaks the MQTT link or leaks a password.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -116,7 +118,7 @@ address = 1
 fn every_problem_is_listed_with_its_place() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("config.toml");
-    // Unknown keys are reported first, on their own.
+    // Unknown keys are reported first (with the other problems after them).
     std::fs::write(&path, MANY_MISTAKES).unwrap();
     let (ok, _, stderr) = check(&path);
     assert!(!ok);
