@@ -20,6 +20,32 @@ pub const GATEWAY_DEVICE: &str = "gateway";
 /// The last level of a device's availability topic.
 pub const AVAILABILITY: &str = "availability";
 
+/// Names a device or a field must not have: every word the contract itself uses as a topic
+/// level next to device and field names. A field `availability` would publish its values on
+/// the device's availability topic; `set` and `result` are the command and outcome levels;
+/// `gateway` holds the gateway's own `status` and `stats`.
+pub const RESERVED_NAMES: &[&str] = &[
+    "availability",
+    GATEWAY_DEVICE,
+    "result",
+    "set",
+    "stats",
+    "status",
+];
+
+/// Longest device, line or field name (a topic level). Keeps every topic the gateway builds
+/// (prefix of at most 128 bytes, device, field, `/result`) far below [`MAX_TOPIC_LEN`] and
+/// MQTT's 65,535-byte limit, and below the broker's and Home Assistant's practical limits
+/// on ids (`<client_id>_<device>_<field>`).
+pub const MAX_NAME_LEN: usize = 64;
+
+/// Why `name` cannot be a device or field name of the contract, if it cannot.
+pub fn reserved_name_problem(name: &str) -> Option<String> {
+    RESERVED_NAMES
+        .contains(&name)
+        .then(|| format!("{name:?} is reserved: the gateway uses it as a topic level of its own"))
+}
+
 /// The default Home Assistant discovery prefix.
 pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
 

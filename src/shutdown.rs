@@ -1,6 +1,8 @@
 //! Process shutdown as a cloneable token: one [`ShutdownTrigger`] fires it (SIGTERM, SIGINT,
 //! Ctrl-C in the demo, a fatal watchdog finding); every task holds a [`Shutdown`] and finishes
-//! its current work before returning.
+//! its current work before returning. [`Shutdown::child`] makes a token that can also be fired
+//! alone (one line stopped by a configuration reload). [`hangups`] turns SIGHUP into reload
+//! requests, so the signal's default action (ending the process) never applies.
 
 use tokio::sync::watch;
 
@@ -39,6 +41,22 @@ impl Shutdown {
         *self.rx.borrow()
     }
 
+    /// A token that fires with this one, or alone through the returned trigger. Needs a Tokio
+    /// runtime (a small task forwards this token's firing).
+    pub fn child(&self) -> (ShutdownTrigger, Shutdown) {
+        let (trigger, token) = channel();
+        let mut parent = self.clone();
+        let forward = trigger.clone();
+        tokio::spawn(async move {
+            tokio::select! {
+                () = parent.fired() => forward.fire(),
+                // Every token of the child is gone: nothing left to stop.
+                () = forward.tx.closed() => {}
+            }
+        });
+        (trigger, token)
+    }
+
     /// Resolves once the shutdown has been fired (at once if it already was, or if the trigger
     /// is gone).
     pub async fn fired(&mut self) {
@@ -46,6 +64,23 @@ impl Shutdown {
         // treat it as a shutdown rather than running forever unstoppable.
         let _ = self.rx.wait_for(|fired| *fired).await;
     }
+}
+
+/// Installs the SIGHUP handler and returns its requests: one per signal, coalesced while one
+/// is waiting. From here on SIGHUP never ends the process.
+pub fn hangups() -> std::io::Result<tokio::sync::mpsc::Receiver<()>> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut hangup = signal(SignalKind::hangup())?;
+    let (tx, rx) = tokio::sync::mpsc::channel(1);
+    tokio::spawn(async move {
+        while hangup.recv().await.is_some() {
+            tracing::info!("SIGHUP: reloading the configuration");
+            if let Err(tokio::sync::mpsc::error::TrySendError::Closed(())) = tx.try_send(()) {
+                tracing::warn!("SIGHUP: the gateway does not take reloads now; ignored");
+            }
+        }
+    });
+    Ok(rx)
 }
 
 #[cfg(test)]
@@ -62,5 +97,17 @@ mod tests {
         a.fired().await;
         b.fired().await;
         assert!(token.is_fired());
+    }
+
+    #[tokio::test]
+    async fn a_child_fires_alone_or_with_its_parent() {
+        let (trigger, token) = channel();
+        let (alone, mut first) = token.child();
+        let (_other, mut second) = token.child();
+        alone.fire();
+        first.fired().await;
+        assert!(!second.is_fired());
+        trigger.fire();
+        second.fired().await;
     }
 }

@@ -44,6 +44,12 @@ fn unit_supervises_the_daemon() {
 }
 
 #[test]
+fn unit_reloads_with_sighup() {
+    let unit = settings(UNIT);
+    assert_eq!(one(&unit, "ExecReload"), "/bin/kill -HUP $MAINPID");
+}
+
+#[test]
 fn unit_runs_unprivileged_with_serial_devices_only() {
     let unit = settings(UNIT);
     assert_eq!(one(&unit, "DynamicUser"), "yes");

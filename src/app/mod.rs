@@ -1,12 +1,13 @@
 //! Wiring for the daemon: load and validate the config, start one bus task per line, the
-//! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, run until SIGTERM/SIGINT,
-//! then stop cleanly. [`run_gateway`] is the library
-//! entry point that `run`, the demo and the end-to-end tests share.
+//! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, reload the configuration on
+//! SIGHUP ([`reload`]), run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the
+//! library entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
 pub mod demo;
 pub mod logging;
 pub mod read;
+pub mod reload;
 pub mod scan;
 pub mod simulate;
 
@@ -18,7 +19,7 @@ use anyhow::Context as _;
 use tokio::sync::{broadcast, mpsc, oneshot};
 
 use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
-use crate::bus::{spawn_line, LineEvent, LineHandle};
+use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::{self, Config};
 use crate::health;
 use crate::rtu::frame_log::FrameLog;
@@ -42,8 +43,10 @@ const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 /// What a caller gets once everything has started.
 #[derive(Debug, Clone)]
 pub struct Running {
-    /// One handle per configured line (statistics with heartbeats, command queues).
+    /// One handle per configured line (statistics with heartbeats, command queues), as started.
     pub lines: Vec<LineHandle>,
+    /// Every running line's statistics, following configuration reloads (the watchdog).
+    pub line_stats: tokio::sync::watch::Receiver<Vec<tokio::sync::watch::Receiver<LineStats>>>,
     /// The bridge's heartbeat and connection state.
     pub bridge: BridgeHealth,
 }
@@ -54,6 +57,8 @@ pub struct Hooks {
     /// Receives [`Running`] once the lines and the bridge are started (systemd `READY=1`,
     /// the watchdog, tests).
     pub ready_tx: Option<oneshot::Sender<Running>>,
+    /// Where reloads come from (SIGHUP for `run`); none: the configuration is never reloaded.
+    pub reload: Option<reload::ReloadSource>,
 }
 
 /// Runs the gateway described by `config` until `shutdown` fires: the lines finish their
@@ -90,15 +95,10 @@ pub async fn run_gateway(
     };
 
     let (events_tx, events_rx) = mpsc::channel(LINE_EVENTS);
-    let mut handles = Vec::new();
-    let mut line_tasks = Vec::new();
-    for spec in &config.lines {
-        tracing::info!(line = %spec.name, port = %spec.serial.path, devices = spec.devices.len(), "starting line");
-        let (handle, task) = spawn_line(spec.clone(), events_tx.clone(), shutdown.clone());
-        handles.push(handle);
-        line_tasks.push(task);
-    }
-    drop(events_tx);
+    let frame_log = config.lines.first().and_then(|line| line.frame_log.clone());
+    let lines = reload::LineSet::start(&config.lines, events_tx, shutdown.clone(), frame_log);
+    let handles = lines.handles();
+    let line_stats = lines.stats();
 
     let (mut bridge, bridge_health) = Bridge::new(&config, handles.clone(), mqtt);
     let (events_rx, node_task) = match node {
@@ -117,12 +117,23 @@ pub async fn run_gateway(
         let render = bridge.metrics_renderer();
         tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
     }
+    let reconfigurations = bridge.reconfigurations();
     if let Some(ready_tx) = hooks.ready_tx {
         let _ = ready_tx.send(Running {
             lines: handles,
+            line_stats,
             bridge: bridge_health,
         });
     }
+    // The lines' owner from here on: it applies reloads until the shutdown, then hands them
+    // back to be waited for.
+    let reloads = tokio::spawn(reload::serve(
+        lines,
+        config,
+        hooks.reload,
+        reconfigurations,
+        shutdown.clone(),
+    ));
     bridge.run(events_rx, shutdown).await;
     if let Some(task) = node_task {
         if tokio::time::timeout(SPARKPLUG_STOP_GRACE, task)
@@ -133,12 +144,9 @@ pub async fn run_gateway(
         }
     }
 
-    for task in line_tasks {
-        match tokio::time::timeout(LINE_STOP_GRACE, task).await {
-            Ok(Ok(())) => {}
-            Ok(Err(error)) => tracing::error!(%error, "a line task ended abnormally"),
-            Err(_) => tracing::warn!("a line did not stop in time"),
-        }
+    match reloads.await {
+        Ok(lines) => lines.join().await,
+        Err(error) => tracing::error!(%error, "the line supervisor ended abnormally"),
     }
     Ok(())
 }
@@ -222,6 +230,17 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
         let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        // SIGHUP reloads; never the signal's default action (ending the process).
+        let reload = match shutdown::hangups() {
+            Ok(requests) => Some(reload::ReloadSource {
+                path: path.to_path_buf(),
+                requests,
+            }),
+            Err(error) => {
+                tracing::error!(%error, "cannot handle SIGHUP: reload by restarting the service");
+                None
+            }
+        };
         // READY=1 and the watchdog once the lines and the bridge run; STOPPING=1 on shutdown.
         let (ready_tx, ready_rx) = oneshot::channel::<Running>();
         let watchdog_trigger = trigger.clone();
@@ -234,7 +253,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
                 connected: bridge.connected.clone(),
                 max_quiet: BRIDGE_MAX_QUIET,
             };
-            health::supervise(health_settings, &running.lines, probe, watchdog_trigger)
+            health::supervise(health_settings, running.line_stats, probe, watchdog_trigger)
         });
         let mut stopping = shutdown.clone();
         let announce_stop = tokio::spawn(async move {
@@ -243,6 +262,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         });
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
+            reload,
         };
         let result = run_gateway(config, shutdown, hooks).await;
         announce_stop.abort();

@@ -255,6 +255,19 @@ impl CommandBook {
         self.waiting.drain().map(|(_, command)| command).collect()
     }
 
+    /// The waiting commands of `device`, removed (the device is no longer configured).
+    pub fn drain_device(&mut self, device: &str) -> Vec<TrackedCommand> {
+        let keys: Vec<Key> = self
+            .waiting
+            .keys()
+            .filter(|(name, _)| name == device)
+            .cloned()
+            .collect();
+        keys.iter()
+            .filter_map(|key| self.waiting.remove(key))
+            .collect()
+    }
+
     fn write_allowed_at(&self, key: &Key, command: &TrackedCommand) -> Instant {
         match (self.last_write.get(key), command.min_write_interval) {
             (Some(last), Some(interval)) => *last + interval,

@@ -1070,6 +1070,8 @@ impl Core {
         }
     }
 }
+#[path = "core_reconfigure.rs"]
+mod reconfigure;
 
 #[cfg(test)]
 #[path = "core_tests.rs"]

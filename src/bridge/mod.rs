@@ -30,7 +30,9 @@ use std::time::{Duration, Instant};
 use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
-use self::core::{Action, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish};
+use self::core::{
+    Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
+};
 use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
 use self::outbox::{Lane, Outbox, Request};
@@ -60,6 +62,14 @@ pub struct BridgeHealth {
     pub connected: watch::Receiver<bool>,
 }
 
+/// A configuration reload, as the bridge learns it: the devices (in configuration order, each
+/// with the index of its line) and the running lines' handles in that order.
+#[derive(Debug)]
+pub struct Reconfiguration {
+    pub devices: Vec<BridgeDevice>,
+    pub lines: Vec<LineHandle>,
+}
+
 /// The bridge task: the core and everything it must not touch itself.
 pub struct Bridge {
     core: Core,
@@ -81,6 +91,10 @@ pub struct Bridge {
     connected_tx: watch::Sender<bool>,
     /// Commands from outside the plain topics, and where their ends are reported.
     external: Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
+    /// Reloads, once [`Bridge::reconfigurations`] has been asked for.
+    reconfigure_rx: Option<mpsc::Receiver<Reconfiguration>>,
+    /// The running lines' statistics for the metrics endpoint (replaced by a reload).
+    line_stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
 }
 
 impl Bridge {
@@ -98,6 +112,7 @@ impl Bridge {
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
         let (writer_tx, writer_rx) = mpsc::channel(WRITER_QUEUE);
+        let line_stats_tx = watch::channel(stats_receivers(&lines)).0;
         let bridge = Bridge {
             core: Core::new(CoreSettings::from_config(config), now),
             outbox: Outbox::default(),
@@ -114,6 +129,8 @@ impl Bridge {
             heartbeat_tx,
             connected_tx,
             external: None,
+            reconfigure_rx: None,
+            line_stats_tx,
         };
         (
             bridge,
@@ -154,6 +171,9 @@ impl Bridge {
                     }
                 }
                 Some(event) = self.link_rx.recv() => self.on_link(event),
+                Some(news) = next_reconfiguration(&mut self.reconfigure_rx) => {
+                    self.on_reconfigure(news);
+                }
                 Some(event) = events_rx.recv() => {
                     let actions = self.core.on_line_event(event, Instant::now());
                     self.execute(actions);
@@ -176,6 +196,24 @@ impl Bridge {
             }
         }
         self.stop(events_rx).await;
+    }
+
+    /// Where a configuration reload tells this bridge its new devices and lines.
+    pub fn reconfigurations(&mut self) -> mpsc::Sender<Reconfiguration> {
+        let (tx, rx) = mpsc::channel(1);
+        self.reconfigure_rx = Some(rx);
+        tx
+    }
+
+    fn on_reconfigure(&mut self, news: Reconfiguration) {
+        let names = news.lines.iter().map(|line| line.name.clone()).collect();
+        self.line_stats_tx
+            .send_replace(stats_receivers(&news.lines));
+        self.lines = news.lines;
+        let actions = self
+            .core
+            .on_reconfigure(names, news.devices, Instant::now());
+        self.execute(actions);
     }
 
     fn on_link(&mut self, event: LinkEvent) {
@@ -311,17 +349,17 @@ impl Bridge {
         self.core.on_published(publish, false);
     }
 
-    /// Renders the Prometheus text for the metrics endpoint from live line statistics and the
-    /// bridge's counters (refreshed every tick).
+    /// Renders the Prometheus text for the metrics endpoint from live line statistics (of the
+    /// lines running now, reloads included) and the bridge's counters (refreshed every tick).
     pub fn metrics_renderer(&self) -> prometheus::Render {
-        let lines: Vec<_> = self
-            .lines
-            .iter()
-            .map(|line| line.stats_rx.clone())
-            .collect();
+        let lines = self.line_stats_tx.subscribe();
         let counters = self.counters_tx.subscribe();
         Arc::new(move || {
-            let stats: Vec<LineStats> = lines.iter().map(|rx| rx.borrow().clone()).collect();
+            let stats: Vec<LineStats> = lines
+                .borrow()
+                .iter()
+                .map(|rx| rx.borrow().clone())
+                .collect();
             let bridge = counters.borrow().clone();
             metrics::prometheus_text(&stats, &bridge)
         })
@@ -423,6 +461,24 @@ fn spawn_writer(
             }
         }
     })
+}
+
+/// The next reload, or never when nobody can send one.
+async fn next_reconfiguration(
+    rx: &mut Option<mpsc::Receiver<Reconfiguration>>,
+) -> Option<Reconfiguration> {
+    if let Some(receiver) = rx {
+        if let Some(news) = receiver.recv().await {
+            return Some(news);
+        }
+        *rx = None;
+    }
+    std::future::pending().await
+}
+
+/// Where each line's statistics can be read.
+fn stats_receivers(lines: &[LineHandle]) -> Vec<watch::Receiver<LineStats>> {
+    lines.iter().map(|line| line.stats_rx.clone()).collect()
 }
 
 /// The current statistics of every line.

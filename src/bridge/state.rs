@@ -120,6 +120,20 @@ impl StateCache {
         changed
     }
 
+    /// The configured devices after a reload, in their new order: devices that stay keep what
+    /// is known about them, new ones start unknown, removed ones are forgotten.
+    pub fn reconfigure<'a>(&mut self, devices: impl IntoIterator<Item = &'a str>) {
+        let mut kept = HashMap::new();
+        let mut order = Vec::new();
+        for name in devices {
+            let cache = self.devices.remove(name).unwrap_or_default();
+            kept.insert(name.to_string(), cache);
+            order.push(name.to_string());
+        }
+        self.devices = kept;
+        self.order = order;
+    }
+
     /// Every known value, for the full republish after a (re)connect; recorded as published.
     pub fn republish_all(&mut self) -> Vec<StateUpdate> {
         let mut updates = Vec::new();

@@ -38,18 +38,57 @@ pub fn load_file_with_env(
     path: &Path,
     env: Option<HashMap<String, String>>,
 ) -> Result<RawConfig, Problems> {
+    load_file_lenient(path, env)?.strict()
+}
+
+/// What reading found: every problem of the reading stage (unknown keys, wrong types, missing
+/// keys), and the configuration read without the offending keys and values when that is
+/// possible, so that validation can report the problems elsewhere too.
+#[derive(Debug)]
+pub struct Loaded {
+    pub raw: Option<RawConfig>,
+    pub problems: Vec<Problem>,
+}
+
+impl Loaded {
+    /// The configuration, or every problem of the reading stage.
+    pub fn strict(self) -> Result<RawConfig, Problems> {
+        match self.raw {
+            Some(raw) if self.problems.is_empty() => Ok(raw),
+            Some(_) => Err(Problems(self.problems)),
+            None if self.problems.is_empty() => {
+                Err(Problems::one("", "the configuration cannot be read"))
+            }
+            None => Err(Problems(self.problems)),
+        }
+    }
+}
+
+/// Like [`load_file_with_env`], but a problem of the reading stage does not end the reading
+/// ([`Loaded`]). Err only when the file cannot be read or parsed at all.
+pub fn load_file_lenient(
+    path: &Path,
+    env: Option<HashMap<String, String>>,
+) -> Result<Loaded, Problems> {
     let vars = env.map_or_else(process_environment, Ok)?;
     let overrides = env_overrides(&vars);
     let text = read_file(path)?;
     let file = File::from_str(&text, FileFormat::Toml);
-    build(config::Config::builder().add_source(file), vars)
-        .map_err(|problems| blame_overrides(problems, &overrides, true))
+    let mut loaded = build_lenient(config::Config::builder().add_source(file), vars)
+        .map_err(|problems| blame_overrides(problems, &overrides, true))?;
+    loaded.problems = blame_overrides(Problems(loaded.problems), &overrides, true).0;
+    Ok(loaded)
+}
+
+/// Like [`load_str`], lenient like [`load_file_lenient`].
+pub fn load_str_lenient(text: &str) -> Result<Loaded, Problems> {
+    let file = File::from_str(text, FileFormat::Toml);
+    build_lenient(config::Config::builder().add_source(file), HashMap::new())
 }
 
 /// Parses configuration text (no environment overrides): for tests and `check` of snippets.
 pub fn load_str(text: &str) -> Result<RawConfig, Problems> {
-    let file = File::from_str(text, FileFormat::Toml);
-    build(config::Config::builder().add_source(file), HashMap::new())
+    load_str_lenient(text)?.strict()
 }
 
 /// The process's environment variables. A variable of ours whose name or value is not text is a
@@ -128,7 +167,7 @@ pub fn blame_overrides(
 }
 
 /// `place` is `ancestor` or lies inside it (`lines[0].baud` inside `lines`).
-fn is_within(place: &str, ancestor: &str) -> bool {
+pub fn is_within(place: &str, ancestor: &str) -> bool {
     place
         .strip_prefix(ancestor)
         .is_some_and(|rest| rest.is_empty() || rest.starts_with('.') || rest.starts_with('['))
@@ -155,10 +194,10 @@ fn read_file(path: &Path) -> Result<String, Problems> {
         .map_err(|error| problem(format!("cannot read the configuration file: {error}")))
 }
 
-fn build(
+fn build_lenient(
     builder: config::ConfigBuilder<config::builder::DefaultState>,
     vars: HashMap<String, String>,
-) -> Result<RawConfig, Problems> {
+) -> Result<Loaded, Problems> {
     // No `try_parsing`: a password such as `1e5` must stay text; typed fields parse strings.
     let environment = Environment::with_prefix(ENV_PREFIX)
         .separator(ENV_SEPARATOR)
@@ -168,19 +207,66 @@ fn build(
         .build()
         .map_err(|error| Problems::one("", error.to_string().trim_end()))?;
 
-    let tree: Json = merged
+    let mut tree: Json = merged
         .clone()
         .try_deserialize()
         .map_err(|error| Problems::one("", error.to_string()))?;
     let mut problems = Vec::new();
     check_table(&tree, "", TOP_SHAPE, &mut problems);
-    if !problems.is_empty() {
-        return Err(Problems(problems));
+    if problems.is_empty() {
+        // The walk above accepts only what the serde structs take, so this is a last resort.
+        let raw = merged
+            .try_deserialize::<RawConfig>()
+            .map_err(|error| Problems::one("", error.to_string()))?;
+        return Ok(Loaded {
+            raw: Some(raw),
+            problems,
+        });
     }
-    // The walk above accepts only what the serde structs take, so this is a last resort.
-    merged
-        .try_deserialize::<RawConfig>()
-        .map_err(|error| Problems::one("", error.to_string()))
+    // The second, lenient reading: without the keys and values found wrong, the rest can
+    // still be validated (an unknown key must not hide an address out of range elsewhere).
+    // Read back through `config` so environment text is typed the same way as before.
+    prune_table(&mut tree, TOP_SHAPE);
+    let raw = config::Config::try_from(&tree)
+        .and_then(|pruned| pruned.try_deserialize::<RawConfig>())
+        .ok();
+    Ok(Loaded { raw, problems })
+}
+
+/// Removes from `table` every unknown key and every value [`check_value`] finds wrong.
+fn prune_table(table: &mut Json, keys: &[Key]) {
+    let Json::Object(map) = table else {
+        return;
+    };
+    map.retain(|name, _| keys.iter().any(|key| key.name == name));
+    for key in keys {
+        let Some(value) = map.get_mut(key.name) else {
+            continue;
+        };
+        let keep = match key.kind {
+            Kind::Table(inner) if value.is_object() => {
+                prune_table(value, inner);
+                true
+            }
+            Kind::Tables(inner) => match value {
+                Json::Array(tables) => {
+                    for table in tables.iter_mut() {
+                        prune_table(table, inner);
+                    }
+                    true
+                }
+                _ => false,
+            },
+            kind => {
+                let mut found = Vec::new();
+                check_value(value, "", kind, &mut found);
+                found.is_empty()
+            }
+        };
+        if !keep {
+            map.remove(key.name);
+        }
+    }
 }
 
 /// Every key `table` has that `keys` do not know, every required key it lacks and every value
@@ -243,7 +329,13 @@ fn check_value(value: &Json, place: &str, kind: Kind, problems: &mut Vec<Problem
         },
     };
     if let Some(reason) = reason {
-        problems.push(Problem::new(place, format!("{} {reason}", shown(value))));
+        // A secret is never echoed, not even a mistyped one.
+        let value = if is_secret(place) {
+            "the value (not shown)".to_string()
+        } else {
+            shown(value)
+        };
+        problems.push(Problem::new(place, format!("{value} {reason}")));
     }
 }
 
@@ -275,6 +367,11 @@ fn integer_problem(value: &Json, min: i64, max: i64) -> Option<String> {
         _ => return Some("is not an integer".to_string()),
     };
     (number < min || number > max).then(|| format!("is out of range ({min} to {max})"))
+}
+
+/// Keys whose values are secrets.
+fn is_secret(place: &str) -> bool {
+    place == "password" || place.ends_with(".password")
 }
 
 /// A value as the user wrote it: text in quotes, numbers as they are.

@@ -8,6 +8,7 @@
 //! profiles, and the MQTT and gateway settings, all checked.
 
 pub mod health;
+pub mod link;
 pub mod load;
 pub mod plan;
 pub mod schema;
@@ -164,14 +165,35 @@ pub fn load_with_env(
     env: std::collections::HashMap<String, String>,
 ) -> Result<Config, Problems> {
     let overrides = load::env_overrides(&env);
-    let raw = load::load_file_with_env(path, Some(env))?;
+    let loaded = load::load_file_lenient(path, Some(env))?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
-    validate::validate(&raw, base)
+    validate_loaded(loaded, base)
         .map_err(|problems| load::blame_overrides(problems, &overrides, false))
 }
 
 /// Parses and validates configuration text (profile paths relative to `base`).
 pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
-    let raw = load::load_str(text)?;
-    validate::validate(&raw, base)
+    validate_loaded(load::load_str_lenient(text)?, base)
+}
+
+/// Validates what reading found. Problems of the reading stage come first; validation of the
+/// rest follows, leaving out problems at a place the reading stage already reported.
+fn validate_loaded(loaded: load::Loaded, base: &Path) -> Result<Config, Problems> {
+    let Some(raw) = &loaded.raw else {
+        return Err(Problems(loaded.problems));
+    };
+    let validated = validate::validate(raw, base);
+    if loaded.problems.is_empty() {
+        return validated;
+    }
+    let mut problems = loaded.problems;
+    if let Err(Problems(found)) = validated {
+        let reported: Vec<String> = problems.iter().map(|p| p.place.clone()).collect();
+        problems.extend(found.into_iter().filter(|problem| {
+            !reported
+                .iter()
+                .any(|place| !place.is_empty() && load::is_within(&problem.place, place))
+        }));
+    }
+    Err(Problems(problems))
 }

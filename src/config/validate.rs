@@ -8,12 +8,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use super::link::{self, shown};
 use super::plan::LinePlan;
 use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt};
 use super::sparkplug::validate_sparkplug;
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
 use crate::bus::{DeviceSpec, LineSpec, Transport};
-use crate::contract::GATEWAY_DEVICE;
+use crate::contract::{self, reserved_name_problem, MAX_TOPIC_LEN};
 use crate::profile::Profile;
 use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use crate::rtu::timing::CharFormat;
@@ -26,9 +27,15 @@ pub const ALLOWED_BAUDS: &[u32] = &[
 /// The serial-line specification's longest sensible wait; rumqttc-style zero means "never".
 const MAX_TIMEOUT: Duration = Duration::from_secs(120);
 /// Device, line and client names become topic levels: keep them short.
-const MAX_NAME_LEN: usize = 64;
+const MAX_NAME_LEN: usize = contract::MAX_NAME_LEN;
 /// Topic prefixes (`plant`, `site1/plant`).
 const MAX_PREFIX_LEN: usize = 128;
+// The longest topic the gateway builds (`<prefix>/<device>/<field>/result`, and the discovery
+// topic `<discovery_prefix>/device/<client_id>_<device>/config`) stays within the length it
+// accepts on incoming topics, far below MQTT's 65,535 bytes.
+const _: () = assert!(MAX_PREFIX_LEN + 2 * MAX_NAME_LEN + "///result".len() <= MAX_TOPIC_LEN);
+const _: () =
+    assert!(MAX_PREFIX_LEN + 2 * MAX_NAME_LEN + "/device/_/config".len() <= MAX_TOPIC_LEN);
 /// Largest accepted command payload limit (a command is a word or a number).
 const MAX_PAYLOAD_LIMIT: usize = 64 * 1024;
 
@@ -80,7 +87,10 @@ pub fn is_valid_name(name: &str) -> bool {
 fn invalid_name(place: &str, name: &str) -> Problem {
     Problem::new(
         format!("{place}.name"),
-        format!("{name:?} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN})"),
+        format!(
+            "{} must match [a-z0-9_-]+ (at most {MAX_NAME_LEN} characters)",
+            shown(name)
+        ),
     )
 }
 
@@ -90,7 +100,10 @@ pub fn topic_prefix_problem(prefix: &str) -> Option<String> {
         return Some("must not be empty".into());
     }
     if prefix.len() > MAX_PREFIX_LEN {
-        return Some(format!("longer than {MAX_PREFIX_LEN} bytes"));
+        return Some(format!(
+            "is {} bytes, longer than {MAX_PREFIX_LEN}",
+            prefix.len()
+        ));
     }
     if let Some(bad) = prefix.chars().find(|c| matches!(c, '+' | '#' | '\0')) {
         return Some(format!(
@@ -136,19 +149,23 @@ pub(super) fn validate_mqtt_section(
         fail(
             "client_id",
             format!(
-                "{:?} must be 1–{MAX_NAME_LEN} characters of A–Z a–z 0–9 _ - .",
-                raw.client_id
+                "{} must be 1–{MAX_NAME_LEN} characters of A–Z a–z 0–9 _ - .",
+                shown(&raw.client_id)
             ),
         );
     }
     if let Some(reason) = topic_prefix_problem(&raw.prefix) {
-        fail("prefix", format!("{:?} {reason}", raw.prefix));
+        fail("prefix", format!("{} {reason}", shown(&raw.prefix)));
     }
     if let Some(reason) = topic_prefix_problem(&raw.discovery_prefix) {
         fail(
             "discovery_prefix",
-            format!("{:?} {reason}", raw.discovery_prefix),
+            format!("{} {reason}", shown(&raw.discovery_prefix)),
         );
+    } else if raw.discovery {
+        if let Some(reason) = link::prefix_overlap(&raw.prefix, &raw.discovery_prefix) {
+            fail("prefix", reason);
+        }
     }
     // rumqttc panics on a keep-alive under one second (other than zero, which we refuse too).
     if raw.keep_alive < Duration::from_secs(1) || raw.keep_alive > Duration::from_secs(65535) {
@@ -206,6 +223,9 @@ pub(super) fn validate_mqtt_section(
     let ca = existing_file("ca_file", &raw.ca_file);
     let cert = existing_file("cert_file", &raw.cert_file);
     let key = existing_file("key_file", &raw.key_file);
+    if let Some(reason) = ca.as_deref().and_then(link::ca_file_problem) {
+        fail("ca_file", reason);
+    }
     if raw.cert_file.is_some() != raw.key_file.is_some() {
         fail(
             "cert_file",
@@ -265,28 +285,34 @@ pub struct BrokerEndpoint {
 
 /// Parses `mqtt://host[:port]` / `mqtts://host[:port]` (IPv6 hosts in brackets).
 pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
+    // Every message shows the URL with any password masked: it goes to the journal.
+    let shown_url = link::masked_url(url);
     let (tls, rest) = if let Some(rest) = url.strip_prefix("mqtt://") {
         (false, rest)
     } else if let Some(rest) = url.strip_prefix("mqtts://") {
         (true, rest)
     } else {
-        return Err(format!("{url:?} must start with mqtt:// or mqtts://"));
+        return Err(format!("{shown_url:?} must start with mqtt:// or mqtts://"));
     };
     let rest = rest.strip_suffix('/').unwrap_or(rest);
     if rest.contains('/') || rest.contains('@') || rest.contains('?') {
         return Err(format!(
-            "{url:?}: give only host and port (credentials go in username/password)"
+            "{shown_url:?}: give only host and port (credentials go in username/password)"
         ));
     }
     let default_port = if tls { 8883 } else { 1883 };
     let (host, port) = if let Some(bracketed) = rest.strip_prefix('[') {
         let Some((host, after)) = bracketed.split_once(']') else {
-            return Err(format!("{url:?}: unclosed '[' in an IPv6 address"));
+            return Err(format!("{shown_url:?}: unclosed '[' in an IPv6 address"));
         };
         match after.strip_prefix(':') {
             Some(port) => (host, Some(port)),
             None if after.is_empty() => (host, None),
-            None => return Err(format!("{url:?}: unexpected text after the IPv6 address")),
+            None => {
+                return Err(format!(
+                    "{shown_url:?}: unexpected text after the IPv6 address"
+                ))
+            }
         }
     } else {
         match rest.rsplit_once(':') {
@@ -295,13 +321,13 @@ pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
         }
     };
     if host.is_empty() {
-        return Err(format!("{url:?} has no host"));
+        return Err(format!("{shown_url:?} has no host"));
     }
     let port = match port {
         None => default_port,
         Some(text) => match text.parse::<u16>() {
             Ok(port) if port > 0 => port,
-            _ => return Err(format!("{url:?}: port {text:?} is not 1–65535")),
+            _ => return Err(format!("{shown_url:?}: port {text:?} is not 1–65535")),
         },
     };
     Ok(BrokerEndpoint {
@@ -624,11 +650,8 @@ fn validate_device(
     let before = problems.len();
     if !is_valid_name(&raw.name) {
         problems.push(invalid_name(place, &raw.name));
-    } else if raw.name == GATEWAY_DEVICE {
-        problems.push(Problem::new(
-            format!("{place}.name"),
-            format!("{GATEWAY_DEVICE:?} is reserved for the gateway's own topics"),
-        ));
+    } else if let Some(reason) = reserved_name_problem(&raw.name) {
+        problems.push(Problem::new(format!("{place}.name"), reason));
     } else {
         if let Some(first) = names.get(&raw.name) {
             problems.push(Problem::new(
@@ -644,6 +667,10 @@ fn validate_device(
         Some(profile) => Some(profile.clone()),
         None => match resolve_profile(&raw.profile, base) {
             Ok(profile) => {
+                // Once per profile: its field names become topic levels.
+                for reason in field_name_problems(&profile) {
+                    problems.push(Problem::new(format!("{place}.profile"), reason));
+                }
                 let profile = Arc::new(profile);
                 profiles.insert(raw.profile.clone(), profile.clone());
                 Some(profile)
@@ -765,7 +792,11 @@ fn validate_transport(
                     ));
                 }
             }
-            (port.clone(), Transport::Serial, "port", port.clone())
+            // Keyed by the port the name reaches: a by-id link and its target, or
+            // `/dev/./ttyA` and `/dev/ttyA`, are one port (the second line would fail for ever
+            // at run time).
+            let identity = link::port_identity(port).to_string_lossy().into_owned();
+            (port.clone(), Transport::Serial, "port", identity)
         }
         (None, Some(url)) => {
             let url_place = format!("{place}.url");
@@ -828,6 +859,26 @@ fn validate_transport(
         ));
     }
     Some((path, transport))
+}
+
+/// Field names of `profile` the contract cannot carry: reserved words, or longer than a topic
+/// level may be.
+fn field_name_problems(profile: &Profile) -> Vec<String> {
+    let mut reasons = Vec::new();
+    for field in profile.fields() {
+        let name = &field.name;
+        if name.len() > MAX_NAME_LEN {
+            reasons.push(format!(
+                "profile {}: field {} is a topic level and must be at most {MAX_NAME_LEN} \
+                 characters",
+                shown(profile.name()),
+                shown(name)
+            ));
+        } else if let Some(reason) = reserved_name_problem(name) {
+            reasons.push(format!("profile {}: field {reason}", shown(profile.name())));
+        }
+    }
+    reasons
 }
 
 fn check_timeout(place: &str, timeout: Duration, problems: &mut Vec<Problem>) {
@@ -1049,7 +1100,7 @@ mod tests {
     #[test]
     fn tls_settings_are_checked() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("ca.crt"), "x").unwrap();
+        std::fs::write(dir.path().join("ca.crt"), super::link::TEST_CA_PEM).unwrap();
         std::fs::write(dir.path().join("client.crt"), "x").unwrap();
         let base = dir.path();
         assert_eq!(

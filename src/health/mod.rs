@@ -28,7 +28,7 @@ use std::time::Duration;
 
 use tokio::sync::watch;
 
-use crate::bus::LineHandle;
+use crate::bus::LineStats;
 use crate::shutdown::ShutdownTrigger;
 
 pub use crate::config::{HealthSettings, DEFAULT_STATUS_FILE};
@@ -63,28 +63,24 @@ pub async fn first_connect_attempt(connected: &watch::Receiver<bool>, limit: Dur
 /// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
 pub fn supervise(
     settings: HealthSettings,
-    lines: &[LineHandle],
+    lines: watch::Receiver<Vec<watch::Receiver<LineStats>>>,
     mqtt: MqttProbe,
     shutdown: ShutdownTrigger,
 ) -> Option<WatchdogHandle> {
     let connected = *mqtt.connected.borrow();
     let mut watchdog = Watchdog::new(settings, mqtt);
-    for line in lines {
-        watchdog.watch_line(line.stats_rx.clone());
-    }
-    let devices: usize = lines
-        .iter()
-        .map(|l| l.stats_rx.borrow().devices.len())
-        .sum();
+    let (count, devices) = {
+        let lines = lines.borrow();
+        let devices: usize = lines.iter().map(|l| l.borrow().devices.len()).sum();
+        (lines.len(), devices)
+    };
+    watchdog.follow_lines(lines);
     let mqtt = if connected {
         "MQTT connected"
     } else {
         "MQTT connecting"
     };
-    notify_ready(&format!(
-        "{devices} devices on {} line(s); {mqtt}",
-        lines.len()
-    ));
+    notify_ready(&format!("{devices} devices on {count} line(s); {mqtt}"));
     match watchdog.spawn(shutdown) {
         Ok(handle) => Some(handle),
         Err(error) => {

@@ -24,6 +24,8 @@ pub const STUCK_GRACE: Duration = Duration::from_secs(5);
 pub struct Watchdog {
     settings: HealthSettings,
     lines: Vec<watch::Receiver<LineStats>>,
+    /// The running lines after a configuration reload replaces the watched ones.
+    line_set: Option<watch::Receiver<Vec<watch::Receiver<LineStats>>>>,
     mqtt: MqttProbe,
 }
 
@@ -48,6 +50,7 @@ impl Watchdog {
         Watchdog {
             settings,
             lines: Vec::new(),
+            line_set: None,
             mqtt,
         }
     }
@@ -55,6 +58,13 @@ impl Watchdog {
     /// Watches one more line (its [`crate::bus::LineHandle::stats_rx`]).
     pub fn watch_line(&mut self, stats_rx: watch::Receiver<LineStats>) {
         self.lines.push(stats_rx);
+    }
+
+    /// Watches the lines `line_set` holds from now on, following its changes (a reload stops
+    /// and starts lines: a stopped line's statistics must not look like a stuck loop).
+    pub fn follow_lines(&mut self, line_set: watch::Receiver<Vec<watch::Receiver<LineStats>>>) {
+        self.lines = line_set.borrow().clone();
+        self.line_set = Some(line_set);
     }
 
     /// Starts the watchdog thread. When a loop is stuck past the stall limit it fires
@@ -78,7 +88,7 @@ impl Watchdog {
         Ok(WatchdogHandle { stop_tx, thread })
     }
 
-    fn run(self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger, exit: ExitFn) {
+    fn run(mut self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger, exit: ExitFn) {
         let systemd_period = systemd_watchdog_period();
         let interval = match systemd_period {
             Some(period) => self.settings.interval.min(period / 3),
@@ -92,6 +102,11 @@ impl Watchdog {
         let mut connected = *self.mqtt.connected.borrow();
         let mut connection_changed = Instant::now();
         loop {
+            if let Some(line_set) = &mut self.line_set {
+                if line_set.has_changed().unwrap_or(false) {
+                    self.lines = line_set.borrow_and_update().clone();
+                }
+            }
             let now = Instant::now();
             let connected_now = *self.mqtt.connected.borrow();
             if connected_now != connected {

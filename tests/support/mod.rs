@@ -547,6 +547,7 @@ impl Gateway {
         let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
+            ..Hooks::default()
         };
         let task = tokio::spawn(run_gateway(config, shutdown, hooks));
         let running = tokio::time::timeout(GATEWAY_BOUND, ready_rx)
