@@ -127,7 +127,16 @@ impl Watchdog {
                     Ok(()) => file_warned = false,
                     Err(error) if !file_warned => {
                         file_warned = true;
-                        tracing::warn!(path = %path.display(), %error, "cannot write the status file");
+                        // Met first when running by hand: the service's RuntimeDirectory=
+                        // is what provides /run/rtu2mqtt.
+                        tracing::warn!(
+                            path = %path.display(),
+                            %error,
+                            "cannot write the status file (`rtu2mqtt health` reads it; under \
+                             systemd its directory exists; by hand set \
+                             RTU2MQTT__HEALTH__STATUS_FILE to another path, or to nothing to \
+                             write none)"
+                        );
                     }
                     Err(_) => {}
                 }
