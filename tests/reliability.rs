@@ -219,9 +219,9 @@ async fn f1_a_silent_device_goes_offline_and_comes_back_in_bounded_time() {
         .time_until_availability("dust_collector", "offline")
         .await;
     eprintln!("figure F1: silent device offline after {offline:?}");
-    // 2 failed polls × 2 attempts × 150 ms plus two 300 ms poll intervals ≈ 1.2 s.
+    // 2 failed polls × 2 attempts × 150 ms, plus the waits between the device's polls.
     assert!(
-        offline < Duration::from_secs(5),
+        offline < Duration::from_secs(8),
         "offline after {offline:?}"
     );
     tokio::time::sleep(Duration::from_millis(500)).await;
@@ -243,7 +243,7 @@ async fn f1_a_silent_device_goes_offline_and_comes_back_in_bounded_time() {
         .await;
     eprintln!("figure F1: answering again → online after {online:?}");
     // Probes back off 1 s, 2 s, …: after a short outage the next probe is at most 2 s away.
-    assert!(online < Duration::from_secs(6), "online after {online:?}");
+    assert!(online < Duration::from_secs(8), "online after {online:?}");
     bench.stop().await;
 }
 
@@ -427,7 +427,7 @@ async fn f3_f4_f5_broken_answers_never_publish_a_wrong_value() {
         crc > 0 && truncated + stray > 0,
         "faults not counted: crc {crc}, truncated {truncated}, stray {stray}"
     );
-    assert!(polls_ok >= 20, "only {polls_ok} good polls in 8 s");
+    assert!(polls_ok >= 20, "only {polls_ok} good polls in 10 s");
     bench.stop().await;
 }
 
@@ -505,10 +505,10 @@ async fn f2_a_late_answer_is_never_taken_for_the_next_one() {
     assert!(wrong.is_empty(), "wrong values published: {wrong:?}");
     assert!(late > 0, "no late answer counted");
     assert!(
-        offline < Duration::from_secs(5),
+        offline < Duration::from_secs(8),
         "offline after {offline:?}"
     );
-    assert!(online < Duration::from_secs(6), "online after {online:?}");
+    assert!(online < Duration::from_secs(8), "online after {online:?}");
     assert!(
         bench
             .observer
