@@ -879,3 +879,26 @@ async fn long_noise_never_stops_the_line() {
         hex("01 03 0C 20 40 00 03 00 0A 00 05 00 00 00 18 35 F4")
     );
 }
+
+/// A process started while a line is served (a broker, a gateway under test) inherits no end
+/// of its pty: an unplugged line must really be gone for the gateway.
+#[tokio::test]
+async fn a_served_line_is_not_inherited_by_child_processes() {
+    let (line, _, _) = line_a();
+    let slave = line
+        .path()
+        .canonicalize()
+        .expect("the line's path resolves");
+    let listing = std::process::Command::new("sh")
+        .args(["-c", "for fd in /proc/self/fd/*; do readlink \"$fd\"; done"])
+        .output()
+        .expect("sh runs");
+    let open_files = String::from_utf8_lossy(&listing.stdout);
+    assert!(
+        !open_files
+            .lines()
+            .any(|file| file == "/dev/ptmx" || std::path::Path::new(file) == slave),
+        "the child holds an end of the served pty ({}): {open_files}",
+        slave.display()
+    );
+}

@@ -67,6 +67,14 @@ impl VirtualLine {
 
     fn plug(&mut self) -> std::io::Result<()> {
         let (master, slave) = SerialStream::pair().map_err(std::io::Error::from)?;
+        // serialport opens the pair without close-on-exec: a process started later (a broker,
+        // a gateway under test) would inherit the master end and keep an unplugged line open.
+        for fd in [
+            std::os::fd::AsRawFd::as_raw_fd(&master),
+            std::os::fd::AsRawFd::as_raw_fd(&slave),
+        ] {
+            close_on_exec(fd)?;
+        }
         let slave_path = slave
             .name()
             .map(PathBuf::from)
@@ -166,4 +174,13 @@ impl Drop for VirtualLine {
             let _ = std::fs::remove_file(link);
         }
     }
+}
+
+/// Marks `fd` close-on-exec.
+fn close_on_exec(fd: std::os::fd::RawFd) -> std::io::Result<()> {
+    use nix::fcntl::{fcntl, FcntlArg, FdFlag};
+    let flags = fcntl(fd, FcntlArg::F_GETFD).map_err(std::io::Error::from)?;
+    let flags = FdFlag::from_bits_truncate(flags) | FdFlag::FD_CLOEXEC;
+    fcntl(fd, FcntlArg::F_SETFD(flags)).map_err(std::io::Error::from)?;
+    Ok(())
 }
