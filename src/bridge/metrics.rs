@@ -205,6 +205,12 @@ const DEVICE_COUNTERS: &[DeviceCounter] = &[
         "Failed transactions with the device (timeouts, CRC errors and exceptions).",
         device_failures,
     ),
+    (
+        "split_read_fallbacks_total",
+        "Exception 02 answers to a merged block read after which the block is read in parts \
+         (expected from some devices; not exceptions, not failures).",
+        |d| d.split_read_fallbacks,
+    ),
 ];
 
 fn device_failures(device: &DeviceStats) -> u64 {
@@ -461,6 +467,7 @@ fn device_json(device: &DeviceStats) -> Json {
         "exceptions": device.exceptions,
         "failures": device_failures(device),
         "consecutive_failures": device.consecutive_failures,
+        "split_read_fallbacks": device.split_read_fallbacks,
         "latency_ms": millis(device.last_latency),
         "worst_latency_ms": millis(device.worst_latency),
     })

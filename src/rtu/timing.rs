@@ -12,12 +12,35 @@ pub enum Parity {
     Odd,
 }
 
+/// `none`, `even`, `odd`: the word the configuration uses.
+impl std::fmt::Display for Parity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Parity::None => "none",
+            Parity::Even => "even",
+            Parity::Odd => "odd",
+        })
+    }
+}
+
 /// Bits of one character on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CharFormat {
     pub data_bits: u8,
     pub parity: Parity,
     pub stop_bits: u8,
+}
+
+/// `8N1`, `8E1`: the way serial settings are written on device labels.
+impl std::fmt::Display for CharFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parity = match self.parity {
+            Parity::None => 'N',
+            Parity::Even => 'E',
+            Parity::Odd => 'O',
+        };
+        write!(f, "{}{parity}{}", self.data_bits, self.stop_bits)
+    }
 }
 
 impl CharFormat {
