@@ -541,3 +541,40 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
         "lines": line_documents,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use std::time::Instant;
+
+    use super::*;
+
+    #[test]
+    fn split_read_fallbacks_are_shown_on_their_own_and_are_no_failures() {
+        let mut line = LineStats::new("line-b", &["valve".to_string()], Instant::now());
+        if let Some(valve) = line.devices.first_mut() {
+            valve.transactions = 9;
+            valve.split_read_fallbacks = 2;
+            valve.timeouts = 1;
+        }
+        let lines = [line];
+        let bridge = BridgeStats::default();
+
+        let document = stats_json(&lines, &bridge);
+        let valve = &document["lines"]["line-b"]["devices"]["valve"];
+        assert_eq!(valve["split_read_fallbacks"], 2, "{valve}");
+        assert_eq!(valve["exceptions"], 0, "{valve}");
+        assert_eq!(valve["failures"], 1, "only the timeout fails: {valve}");
+
+        let text = prometheus_text(&lines, &bridge);
+        assert!(
+            text.contains(
+                "rtu2mqtt_device_split_read_fallbacks_total{line=\"line-b\",device=\"valve\"} 2"
+            ),
+            "{text}"
+        );
+        assert!(
+            text.contains("rtu2mqtt_device_failures_total{line=\"line-b\",device=\"valve\"} 1"),
+            "{text}"
+        );
+    }
+}

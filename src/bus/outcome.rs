@@ -83,6 +83,18 @@ mod tests {
     use super::*;
 
     #[test]
+    fn outcomes_read_as_words() {
+        let applied = crate::bus::CommandOutcome::Applied {
+            detail: "read-back confirms the value".to_string(),
+        };
+        assert_eq!(applied.to_string(), "applied: read-back confirms the value");
+        let failed = crate::bus::CommandOutcome::Failed {
+            cause: CommandFailure::PortNotOpen,
+        };
+        assert_eq!(failed.to_string(), "failed: the port is not open");
+    }
+
+    #[test]
     fn causes_read_as_the_outcome_details_always_did() {
         assert_eq!(
             CommandFailure::Exception(ExceptionCode::IllegalDataAddress).to_string(),

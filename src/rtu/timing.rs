@@ -142,6 +142,18 @@ mod tests {
     }
 
     #[test]
+    fn formats_read_as_on_device_labels() {
+        assert_eq!(EIGHT_E_ONE.to_string(), "8E1");
+        assert_eq!(Parity::Even.to_string(), "even");
+        let none_two = CharFormat {
+            parity: Parity::None,
+            stop_bits: 2,
+            ..EIGHT_E_ONE
+        };
+        assert_eq!(none_two.to_string(), "8N2");
+    }
+
+    #[test]
     fn parity_adds_a_bit() {
         let timing = LineTiming::new(9600, EIGHT_E_ONE);
         // 11 bits at 9600 baud: 1145.833 µs.
