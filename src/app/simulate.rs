@@ -98,7 +98,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                         crate::sim::TcpSimulator::bind(address, protocol, options, devices)
                             .await
                             .with_context(|| format!("listening on {url}"))?;
-                    tracing::info!(url = %simulator.url(), baud = args.baud, ?parity, "simulating");
+                    tracing::info!(url = %simulator.url(), baud = args.baud, %parity, "simulating");
                     let journal = simulator.journal().clone();
                     let stopper = simulator.stopper();
                     let mut shutdown = shutdown;
@@ -114,7 +114,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                 (None, Some(port)) => {
                     let stream = open_port(port, args.baud, parity)?;
                     tracing::info!(
-                        port = %port.display(), baud = args.baud, ?parity, pace = args.pace,
+                        port = %port.display(), baud = args.baud, %parity, pace = args.pace,
                         "simulating"
                     );
                     let journal = Journal::new();

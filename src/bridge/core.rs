@@ -94,6 +94,34 @@ enum Origin {
     External,
 }
 
+/// `set` or `external`: how the log says where a command came from.
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Origin::Plain => "set",
+            Origin::External => "external",
+        })
+    }
+}
+
+/// The one INFO line of a command's arrival. `value` as sent (bounded by
+/// [`payload::echo`]), logged with `?` so control characters cannot forge log lines.
+fn log_received(device: &str, field: &str, value: &str, origin: Origin) {
+    tracing::info!(%device, %field, ?value, via = %origin, "command received");
+}
+
+/// The one line of a command's end, its outcome and detail as words. INFO, except for the
+/// outcomes that mean a valid command was not carried out (`failed`, `expired`): the device
+/// or its line needs a look, so they are warnings.
+fn log_outcome(device: &str, field: &str, value: &str, outcome: Outcome, detail: &str) {
+    let word = outcome.word();
+    if matches!(outcome, Outcome::Failed | Outcome::Expired) {
+        tracing::warn!(%device, %field, ?value, outcome = %word, ?detail, "command finished");
+    } else {
+        tracing::info!(%device, %field, ?value, outcome = %word, ?detail, "command finished");
+    }
+}
+
 /// An incoming MQTT message, as much of it as the rules look at.
 #[derive(Debug, Clone, Copy)]
 pub struct Incoming<'m> {
@@ -636,7 +664,6 @@ impl Core {
             .profile
             .field(field)
             .and_then(|info| info.min_write_interval);
-        tracing::info!(%device, %field, command = ?value, ?origin, "command received");
         let admission = if from_store {
             // From the broker's retained store: the same command again when it is the one
             // waiting or running (a re-subscription), so it gets no second run or outcome.
@@ -648,6 +675,7 @@ impl Core {
         };
         match admission {
             Admission::AlreadyWaiting => {
+                tracing::debug!(%device, %field, "the broker sent the waiting command again");
                 if let Some(id) = self.book.waiting_id(device, field) {
                     if origin == Origin::External {
                         self.external.insert(id);
@@ -655,6 +683,7 @@ impl Core {
                 }
             }
             Admission::Queued { superseded } => {
+                log_received(device, field, value, origin);
                 if let Some(id) = self.book.waiting_id(device, field) {
                     self.plans.insert(id, plan);
                     if origin == Origin::External {
@@ -699,13 +728,15 @@ impl Core {
         self.plans.remove(&older.id);
         self.report_end(&older, false);
         self.counters.commands_superseded += 1;
-        tracing::info!(device = %older.device, field = %older.field, command = ?older.value,
-            "command superseded by a newer one");
-        let result = CommandResult::new(
+        let detail = "superseded by a newer command for the same field before it was sent";
+        log_outcome(
+            &older.device,
+            &older.field,
             &older.value,
             Outcome::Superseded,
-            "superseded by a newer command for the same field before it was sent",
+            detail,
         );
+        let result = CommandResult::new(&older.value, Outcome::Superseded, detail);
         let topic = self.topics.result_topic(&older.device, &older.field);
         self.publish_or_keep(topic, result.to_json(), false);
     }
@@ -720,7 +751,8 @@ impl Core {
         reason: String,
         origin: Origin,
     ) {
-        tracing::warn!(%device, %field, command = ?shown, %reason, ?origin, "command rejected");
+        log_received(device, field, shown, origin);
+        log_outcome(device, field, shown, Outcome::Rejected, &reason);
         self.counters.commands_rejected += 1;
         let result = CommandResult::new(shown, Outcome::Rejected, reason);
         let topic = self.topics.result_topic(device, field);
@@ -796,6 +828,13 @@ impl Core {
             .finish(&command.device, &command.field, false, now);
         self.report_end(&command, false);
         self.counters.commands_failed += 1;
+        log_outcome(
+            &command.device,
+            &command.field,
+            &command.value,
+            Outcome::Failed,
+            detail,
+        );
         let result = CommandResult::new(&command.value, Outcome::Failed, detail);
         self.finish_with(&command.device, &command.field, result);
     }
@@ -820,8 +859,13 @@ impl Core {
             Outcome::Expired => self.counters.commands_expired += 1,
             Outcome::Superseded => self.counters.commands_superseded += 1,
         }
-        tracing::info!(device = %command.device, field = %command.field, command = ?command.value,
-            outcome = word.word(), %detail, "command finished");
+        log_outcome(
+            &command.device,
+            &command.field,
+            &command.value,
+            word,
+            &detail,
+        );
         self.book
             .finish(&command.device, &command.field, wrote, now);
         self.report_end(&command, word == Outcome::Applied);
@@ -852,7 +896,13 @@ impl Core {
                 command.device,
                 humantime::format_duration(self.options.command_ttl)
             );
-            tracing::warn!(device = %command.device, field = %command.field, command = ?command.value, "command expired");
+            log_outcome(
+                &command.device,
+                &command.field,
+                &command.value,
+                Outcome::Expired,
+                &detail,
+            );
             let result = CommandResult::new(&command.value, Outcome::Expired, detail);
             self.finish_with(&command.device, &command.field, result);
         }
@@ -989,7 +1039,8 @@ impl Core {
             "unknown device {device:?}: this gateway has {}",
             self.cache.devices().join(", ")
         );
-        tracing::warn!(%device, %field, command = ?shown, %reason, "command rejected");
+        // Not configured here: a typo in the topic or a device missing from the configuration.
+        tracing::warn!(%device, %field, value = ?shown, detail = ?reason, "command for a device that is not configured: rejected");
         self.counters.commands_rejected += 1;
         let result = CommandResult::new(&shown, Outcome::Rejected, reason);
         let topic = self.topics.result_topic(device, field);

@@ -205,6 +205,12 @@ const DEVICE_COUNTERS: &[DeviceCounter] = &[
         "Failed transactions with the device (timeouts, CRC errors and exceptions).",
         device_failures,
     ),
+    (
+        "split_read_fallbacks_total",
+        "Exception 02 answers to a merged block read after which the block is read in parts \
+         (expected from some devices; not exceptions, not failures).",
+        |d| d.split_read_fallbacks,
+    ),
 ];
 
 fn device_failures(device: &DeviceStats) -> u64 {
@@ -461,6 +467,7 @@ fn device_json(device: &DeviceStats) -> Json {
         "exceptions": device.exceptions,
         "failures": device_failures(device),
         "consecutive_failures": device.consecutive_failures,
+        "split_read_fallbacks": device.split_read_fallbacks,
         "latency_ms": millis(device.last_latency),
         "worst_latency_ms": millis(device.worst_latency),
     })
@@ -533,4 +540,41 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
         "invalid_values": bridge.invalid_values,
         "lines": line_documents,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Instant;
+
+    use super::*;
+
+    #[test]
+    fn split_read_fallbacks_are_shown_on_their_own_and_are_no_failures() {
+        let mut line = LineStats::new("line-b", &["valve".to_string()], Instant::now());
+        if let Some(valve) = line.devices.first_mut() {
+            valve.transactions = 9;
+            valve.split_read_fallbacks = 2;
+            valve.timeouts = 1;
+        }
+        let lines = [line];
+        let bridge = BridgeStats::default();
+
+        let document = stats_json(&lines, &bridge);
+        let valve = &document["lines"]["line-b"]["devices"]["valve"];
+        assert_eq!(valve["split_read_fallbacks"], 2, "{valve}");
+        assert_eq!(valve["exceptions"], 0, "{valve}");
+        assert_eq!(valve["failures"], 1, "only the timeout fails: {valve}");
+
+        let text = prometheus_text(&lines, &bridge);
+        assert!(
+            text.contains(
+                "rtu2mqtt_device_split_read_fallbacks_total{line=\"line-b\",device=\"valve\"} 2"
+            ),
+            "{text}"
+        );
+        assert!(
+            text.contains("rtu2mqtt_device_failures_total{line=\"line-b\",device=\"valve\"} 1"),
+            "{text}"
+        );
+    }
 }

@@ -105,7 +105,7 @@ impl Line {
                     outcome,
                     CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. }
                 );
-                tracing::info!(device = %spec.name, field = command.plan.field(), ?outcome, "command done");
+                tracing::debug!(device = %spec.name, field = command.plan.field(), %outcome, "command done on the line");
                 if answered {
                     self.contact(device, now).await;
                 }

@@ -1,6 +1,7 @@
 //! Why a command failed on the bus, as a typed cause: the device's exception answer kept apart
 //! from the transport's failures and from the line's own state (port closed, shutdown). Its
-//! `Display` is the detail the bridge reports; nothing here runs frames.
+//! `Display` is the detail the bridge reports; a command's whole outcome reads as words in the
+//! line's log. Nothing here runs frames.
 
 use crate::rtu::master::{Error as MasterError, PortFault};
 use crate::rtu::ExceptionCode;
@@ -62,11 +63,36 @@ impl std::fmt::Display for CommandFailure {
     }
 }
 
+/// `applied: read-back confirms the value`, `failed: device answered exception 02 (…)`: how the
+/// line's log says how a command ended.
+impl std::fmt::Display for super::CommandOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Applied { detail } => write!(f, "applied: {detail}"),
+            Self::NotApplied { detail } => write!(f, "not applied: {detail}"),
+            Self::Rejected { detail } => write!(f, "rejected: {detail}"),
+            Self::Failed { cause } => write!(f, "failed: {cause}"),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use std::time::Duration;
 
     use super::*;
+
+    #[test]
+    fn outcomes_read_as_words() {
+        let applied = crate::bus::CommandOutcome::Applied {
+            detail: "read-back confirms the value".to_string(),
+        };
+        assert_eq!(applied.to_string(), "applied: read-back confirms the value");
+        let failed = crate::bus::CommandOutcome::Failed {
+            cause: CommandFailure::PortNotOpen,
+        };
+        assert_eq!(failed.to_string(), "failed: the port is not open");
+    }
 
     #[test]
     fn causes_read_as_the_outcome_details_always_did() {

@@ -27,6 +27,9 @@ pub struct DeviceStats {
     pub consecutive_failures: u32,
     pub last_latency: Option<Duration>,
     pub worst_latency: Option<Duration>,
+    /// Exception 02 answers to a merged block read that made the line read the block in
+    /// parts: expected from some devices, so not among `exceptions` or any failure.
+    pub split_read_fallbacks: u64,
 }
 
 impl DeviceStats {
@@ -46,6 +49,7 @@ impl DeviceStats {
             consecutive_failures: 0,
             last_latency: None,
             worst_latency: None,
+            split_read_fallbacks: 0,
         }
     }
 }

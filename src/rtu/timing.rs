@@ -12,12 +12,35 @@ pub enum Parity {
     Odd,
 }
 
+/// `none`, `even`, `odd`: the word the configuration uses.
+impl std::fmt::Display for Parity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Parity::None => "none",
+            Parity::Even => "even",
+            Parity::Odd => "odd",
+        })
+    }
+}
+
 /// Bits of one character on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CharFormat {
     pub data_bits: u8,
     pub parity: Parity,
     pub stop_bits: u8,
+}
+
+/// `8N1`, `8E1`: the way serial settings are written on device labels.
+impl std::fmt::Display for CharFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parity = match self.parity {
+            Parity::None => 'N',
+            Parity::Even => 'E',
+            Parity::Odd => 'O',
+        };
+        write!(f, "{}{parity}{}", self.data_bits, self.stop_bits)
+    }
 }
 
 impl CharFormat {
@@ -116,6 +139,18 @@ mod tests {
         assert_eq!(timing.t1_5, Duration::from_nanos(1_562_499));
         assert_eq!(timing.t3_5, Duration::from_nanos(3_645_831));
         assert_eq!(timing.frame_time(8), Duration::from_nanos(8 * 1_041_666));
+    }
+
+    #[test]
+    fn formats_read_as_on_device_labels() {
+        assert_eq!(EIGHT_E_ONE.to_string(), "8E1");
+        assert_eq!(Parity::Even.to_string(), "even");
+        let none_two = CharFormat {
+            parity: Parity::None,
+            stop_bits: 2,
+            ..EIGHT_E_ONE
+        };
+        assert_eq!(none_two.to_string(), "8N2");
     }
 
     #[test]

@@ -1,8 +1,8 @@
 //! The serial port: the only code in the crate that opens or touches one (tokio-serial).
-//! Opens a line with its character format (a pseudo-terminal that refuses parity runs with a
-//! warning; a real UART that refuses a setting is an error), writes a frame and waits until the
-//! transmit buffer has drained (tcdrain), reads bytes with deadlines, discards stray input, and
-//! optionally switches the kernel's RS485 mode on.
+//! Opens a line with its character format (a pseudo-terminal that refuses parity runs without
+//! it, said once at INFO; a real UART that refuses a setting is an error), writes a frame and
+//! waits until the transmit buffer has drained (tcdrain), reads bytes with deadlines, discards
+//! stray input, and optionally switches the kernel's RS485 mode on.
 
 use std::io;
 use std::os::fd::{AsRawFd, BorrowedFd};
@@ -188,42 +188,58 @@ impl Port {
         let results = [
             (
                 "baud rate",
+                baud.to_string(),
                 self.stream
                     .set_baud_rate(baud)
                     .and_then(|()| self.check(self.stream.baud_rate()? == baud)),
             ),
             (
                 "data bits",
+                format.data_bits.to_string(),
                 self.stream
                     .set_data_bits(data_bits)
                     .and_then(|()| self.check(self.stream.data_bits()? == data_bits)),
             ),
             (
                 "parity",
+                format.parity.to_string(),
                 self.stream
                     .set_parity(parity)
                     .and_then(|()| self.check(self.stream.parity()? == parity)),
             ),
             (
                 "stop bits",
+                format.stop_bits.to_string(),
                 self.stream
                     .set_stop_bits(stop_bits)
                     .and_then(|()| self.check(self.stream.stop_bits()? == stop_bits)),
             ),
         ];
-        for (setting, result) in results {
+        let mut not_applied = Vec::new();
+        for (setting, value, result) in results {
             if let Err(error) = result {
                 let source = io_error(error);
-                if self.pseudo_terminal {
-                    tracing::warn!(path = %self.path, setting, %source, "pseudo-terminal does not take this setting; running without it");
-                } else {
+                if !self.pseudo_terminal {
                     return Err(TransportError::SettingRefused {
                         path: self.path.clone(),
                         setting,
                         source,
                     });
                 }
+                tracing::debug!(path = %self.path, setting, %source, "pseudo-terminal refuses a setting");
+                not_applied.push(format!("{setting} {value}"));
             }
+        }
+        if !not_applied.is_empty() {
+            // Expected on a simulated line: a pty carries bytes, not bits, and the line's
+            // timing is computed from the configured format, not read from the port.
+            let verb = if not_applied.len() == 1 { "is" } else { "are" };
+            tracing::info!(
+                path = %self.path,
+                "{} {verb} not applied by a pseudo-terminal (simulated line); timing still \
+                 follows {format} at {baud} baud",
+                not_applied.join(", ")
+            );
         }
         Ok(())
     }
@@ -241,7 +257,7 @@ impl Port {
     }
 
     /// Switches the kernel's RS485 mode on (TIOCSRS485). A pty or a UART driver without RS485
-    /// support answers ENOTTY: on a pty that is a warning, on a real port an error.
+    /// support answers ENOTTY: on a pty that is an expected fact, on a real port an error.
     fn enable_rs485(&mut self, rs485: &Rs485Settings) -> Result<(), TransportError> {
         let mut config = SerialRs485 {
             flags: SER_RS485_ENABLED
@@ -264,7 +280,8 @@ impl Port {
         }
         let source = io::Error::last_os_error();
         if self.pseudo_terminal {
-            tracing::warn!(path = %self.path, %source, "pseudo-terminal has no RS485 mode; running without it");
+            // Expected on a simulated line: a pty has no transceiver to drive.
+            tracing::info!(path = %self.path, %source, "rs485 mode is not applied by a pseudo-terminal (simulated line)");
             Ok(())
         } else {
             Err(TransportError::SettingRefused {
