@@ -12,7 +12,6 @@ use crate::bus::Transport;
 use crate::config::plan::LinePlan;
 use crate::config::{self, Config};
 use crate::rtu::tcp_link::TcpKind;
-use crate::rtu::timing::Parity;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {
@@ -57,13 +56,7 @@ pub fn report(path: &Path, config: &Config) -> String {
     for line in &config.lines {
         let plan = LinePlan::of(line);
         let serial = &line.serial;
-        let format = format!(
-            "{} baud {}{}{}",
-            serial.baud,
-            serial.format.data_bits,
-            parity_letter(serial.format.parity),
-            serial.format.stop_bits
-        );
+        let format = format!("{} baud {}", serial.baud, serial.format);
         let t3_5 = millis(plan.timing.t3_5);
         let timeout = millis(
             line.response_timeout
@@ -129,14 +122,6 @@ pub fn report(path: &Path, config: &Config) -> String {
         );
     }
     out
-}
-
-fn parity_letter(parity: Parity) -> char {
-    match parity {
-        Parity::None => 'N',
-        Parity::Even => 'E',
-        Parity::Odd => 'O',
-    }
 }
 
 fn millis(duration: Duration) -> String {

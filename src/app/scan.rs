@@ -31,7 +31,7 @@ use crate::app::simulate::parse_parity;
 use crate::cli::ScanArgs;
 use crate::rtu::link::Link;
 use crate::rtu::master;
-use crate::rtu::timing::Parity;
+use crate::rtu::timing::{CharFormat, Parity};
 use crate::rtu::{Request, SlaveId};
 
 /// What one address answered at one serial setting.
@@ -68,11 +68,12 @@ fn parse_one(text: &str) -> anyhow::Result<SlaveId> {
     crate::cli::parse_address(text.trim()).map_err(anyhow::Error::msg)
 }
 
-fn format_name(parity: Parity) -> &'static str {
-    match parity {
-        Parity::None => "8N1",
-        Parity::Even => "8E1",
-        Parity::Odd => "8O1",
+/// `8N1`, `8E1`: the character format a scan tries (8 data bits, 1 stop bit).
+fn format_name(parity: Parity) -> CharFormat {
+    CharFormat {
+        data_bits: 8,
+        parity,
+        stop_bits: 1,
     }
 }
 

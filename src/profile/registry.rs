@@ -9,7 +9,6 @@ use std::process::ExitCode;
 use super::codec;
 use super::model::Behaviour;
 use super::{FieldInfo, FieldKind, PollClass, Profile, ProfileErrors};
-use crate::rtu::timing::Parity;
 
 /// (name, TOML text) of every built-in profile.
 const BUILT_IN: &[(&str, &str)] = &[
@@ -197,10 +196,10 @@ pub fn describe(profile: &Profile) -> String {
     if !profile.description().is_empty() {
         let _ = writeln!(out, "  {}", profile.description());
     }
-    let parity = match limits.default_parity {
-        Parity::None => "8N1",
-        Parity::Even => "8E1",
-        Parity::Odd => "8O1",
+    let parity = crate::rtu::timing::CharFormat {
+        data_bits: 8,
+        parity: limits.default_parity,
+        stop_bits: 1,
     };
     let default_address = profile
         .default_address()

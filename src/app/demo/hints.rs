@@ -4,7 +4,6 @@
 
 use super::endpoint::BrokerEndpoint;
 use crate::config::Config;
-use crate::rtu::timing::{CharFormat, Parity};
 
 /// One `mosquitto_pub` line per example command of every configured device, in line order.
 fn example_commands(endpoint: &BrokerEndpoint, config: &Config) -> Vec<String> {
@@ -47,7 +46,7 @@ pub(super) fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String
             line.name,
             line.serial.path,
             line.serial.baud,
-            format_text(&line.serial.format),
+            line.serial.format,
             devices.join(", ")
         ));
     }
@@ -67,14 +66,7 @@ pub(super) fn table_hints(endpoint: &BrokerEndpoint, config: &Config) -> String 
     let lines: Vec<String> = config
         .lines
         .iter()
-        .map(|line| {
-            format!(
-                "{} {} {}",
-                line.name,
-                line.serial.path,
-                format_text(&line.serial.format)
-            )
-        })
+        .map(|line| format!("{} {} {}", line.name, line.serial.path, line.serial.format))
         .collect();
     let mut text = format!(
         "{} ({}) · {}\n",
@@ -87,16 +79,6 @@ pub(super) fn table_hints(endpoint: &BrokerEndpoint, config: &Config) -> String 
         text.push_str(&format!("{lead}{command}\n"));
     }
     text
-}
-
-/// `8N1`, `8E1`: the way serial settings are written on device labels.
-pub(super) fn format_text(format: &CharFormat) -> String {
-    let parity = match format.parity {
-        Parity::None => 'N',
-        Parity::Even => 'E',
-        Parity::Odd => 'O',
-    };
-    format!("{}{parity}{}", format.data_bits, format.stop_bits)
 }
 
 /// `1`, `129 (0x81)`: decimal, with hex where the device's documents use it.
