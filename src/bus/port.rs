@@ -90,6 +90,7 @@ pub fn open_master(spec: &LineSpec, timing: LineTiming) -> Result<Master, Transp
     let options = MasterOptions {
         echo: spec.echo,
         broadcast_turnaround: spec.broadcast_turnaround,
+        inter_char_timeout: spec.byte_timeout,
         ..MasterOptions::default()
     };
     let mut master = Master::new(port, timing, options);
