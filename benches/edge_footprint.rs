@@ -36,8 +36,9 @@ const MANY_LINES: usize = 8;
 const DEVICES_PER_LINE: u8 = 32;
 const MANY_WINDOW: Duration = Duration::from_secs(20);
 
-/// One device type: one block of six holding registers, the first one writable (FC06).
-const PROFILE: &str = r#"
+/// One device type: one block of six holding registers, the first one writable (FC06); the
+/// other five are read-only fields `r1`–`r5` added by [`profile_text`].
+const PROFILE_HEAD: &str = r#"
 [device]
 name = "edge-block"
 manufacturer = "Bench"
@@ -72,37 +73,18 @@ offset = 0
 codec = { type = "u16" }
 range = [0, 60000]
 write = { function = 6, address = 0 }
-
-[[fields]]
-name = "r1"
-block = "block"
-offset = 1
-codec = { type = "u16" }
-
-[[fields]]
-name = "r2"
-block = "block"
-offset = 2
-codec = { type = "u16" }
-
-[[fields]]
-name = "r3"
-block = "block"
-offset = 3
-codec = { type = "u16" }
-
-[[fields]]
-name = "r4"
-block = "block"
-offset = 4
-codec = { type = "u16" }
-
-[[fields]]
-name = "r5"
-block = "block"
-offset = 5
-codec = { type = "u16" }
 "#;
+
+fn profile_text() -> String {
+    let mut text = PROFILE_HEAD.to_string();
+    for register in 1..6 {
+        text += &format!(
+            "\n[[fields]]\nname = \"r{register}\"\nblock = \"block\"\noffset = {register}\n\
+             codec = {{ type = \"u16\" }}\n"
+        );
+    }
+    text
+}
 
 const EIGHT_N_ONE: CharFormat = CharFormat {
     data_bits: 8,
@@ -119,8 +101,9 @@ fn main() -> anyhow::Result<()> {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir()?;
     let profile_path = dir.path().join("edge-block.toml");
-    std::fs::write(&profile_path, PROFILE)?;
-    let profile = Profile::from_toml(PROFILE, "edge-block")
+    let profile_text = profile_text();
+    std::fs::write(&profile_path, &profile_text)?;
+    let profile = Profile::from_toml(&profile_text, "edge-block")
         .map_err(|e| anyhow::anyhow!("bench profile: {e:?}"))?;
     let one = runtime.block_on(one_line(&broker, dir.path(), &profile_path, &profile))?;
     let many = runtime.block_on(many_lines(&broker, dir.path(), &profile_path, &profile))?;
@@ -350,11 +333,7 @@ impl Drop for Gateway {
     }
 }
 
-fn wire_figures(
-    records: &[RequestRecord],
-    wall: Duration,
-    published: &[(u16, Instant)],
-) -> Wire {
+fn wire_figures(records: &[RequestRecord], wall: Duration, published: &[(u16, Instant)]) -> Wire {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
     let busy: Duration = records
         .iter()
@@ -372,7 +351,10 @@ fn wire_figures(
         .filter_map(|(value, at)| {
             records
                 .iter()
-                .find(|r| r.frame.get(1) == Some(&0x06) && r.frame.get(4..6) == Some(&value.to_be_bytes()[..]))
+                .find(|r| {
+                    r.frame.get(1) == Some(&0x06)
+                        && r.frame.get(4..6) == Some(&value.to_be_bytes()[..])
+                })
                 .map(|r| r.arrived.saturating_duration_since(*at))
         })
         .collect();
@@ -410,27 +392,44 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
         println!("{figure:<44} {value:>22}   {target}");
     };
     println!();
-    println!("one line, 9600 8N1, one 6-register block polled continuously, {COMMANDS} commands in {} s", WINDOW.as_secs());
+    println!(
+        "one line, 9600 8N1, one 6-register block polled continuously, {COMMANDS} commands in {} s",
+        WINDOW.as_secs()
+    );
     row("figure", "measured".into(), "target");
     row(
         "transactions/s",
         format!("{:.1}", one.transactions_per_second),
         "wire limit ≈ 30.4",
     );
-    row("bus efficiency", format!("{:.3}", wire.efficiency), "≥ 0.99");
+    row(
+        "bus efficiency",
+        format!("{:.3}", wire.efficiency),
+        "≥ 0.99",
+    );
     row(
         "idle gap before a request p50 / p95",
         format!("{} / {}", ms(wire.gap_p50), ms(wire.gap_p95)),
-        &format!("p50 ≤ t3.5 + 0.25 ms = {}", ms(t3_5 + Duration::from_micros(250))),
+        &format!(
+            "p50 ≤ t3.5 + 0.25 ms = {}",
+            ms(t3_5 + Duration::from_micros(250))
+        ),
     );
-    row("early requests (sooner than t3.5)", wire.early.to_string(), "0");
+    row(
+        "early requests (sooner than t3.5)",
+        wire.early.to_string(),
+        "0",
+    );
     row(
         "command latency p50 / p95",
         match (wire.command_p50, wire.command_p95) {
             (Some(p50), Some(p95)) => format!("{} / {}", ms(p50), ms(p95)),
             _ => "-".into(),
         },
-        &format!("p95 ≤ 35 ms ({} of {COMMANDS} writes seen)", wire.commands_seen),
+        &format!(
+            "p95 ≤ 35 ms ({} of {COMMANDS} writes seen)",
+            wire.commands_seen
+        ),
     );
     row(
         "gateway CPU (one core)",

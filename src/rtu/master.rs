@@ -525,7 +525,12 @@ impl Master {
                 last_byte_at + gap_limit
             };
             if let Some((count, seen)) = self.port.read_until(&mut chunk, wait_until).await? {
-                if !received.is_empty() && seen.duration_since(last_byte_at) > self.timing.t1_5 {
+                // These bytes took their wire time to arrive; anything beyond it plus t1.5 was
+                // a silence inside the answer.
+                if !received.is_empty()
+                    && seen.duration_since(last_byte_at)
+                        > self.timing.frame_time(count) + self.timing.t1_5
+                {
                     self.counters.long_gaps += 1;
                 }
                 received.extend_from_slice(&chunk[..count]);
