@@ -370,6 +370,12 @@ fn wire_figures(records: &[RequestRecord], wall: Duration, published: &[(u16, In
     }
 }
 
+/// One read of the block on the wire: request (8 bytes), answer (17) and both t3.5 silences.
+fn transaction_wire_time() -> Duration {
+    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
+    timing.frame_time(8) + timing.frame_time(17) + 2 * timing.t3_5
+}
+
 fn percentile(sorted: &[Duration], p: usize) -> Duration {
     if sorted.is_empty() {
         return Duration::ZERO;
@@ -397,10 +403,11 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
         WINDOW.as_secs()
     );
     row("figure", "measured".into(), "target");
+    let wire_limit = 1.0 / transaction_wire_time().as_secs_f64();
     row(
         "transactions/s",
         format!("{:.1}", one.transactions_per_second),
-        "wire limit ≈ 30.4",
+        &format!("wire limit {wire_limit:.1}"),
     );
     row(
         "bus efficiency",

@@ -524,6 +524,17 @@ impl Master {
             } else {
                 last_byte_at + gap_limit
             };
+            // Once the length is known (from the third byte on), the rest cannot be complete
+            // before its wire time: it is waited for in one go, not with a wake-up per byte.
+            if let Framing::NeedMore { needed } = framing {
+                if received.len() >= 3 {
+                    let remaining = needed.saturating_sub(received.len());
+                    let due = last_byte_at + self.timing.frame_time(remaining);
+                    if due > Instant::now() {
+                        sleep_until_precise(due.min(wait_until)).await;
+                    }
+                }
+            }
             if let Some((count, seen)) = self.port.read_until(&mut chunk, wait_until).await? {
                 // These bytes took their wire time to arrive; anything beyond it plus t1.5 was
                 // a silence inside the answer.
