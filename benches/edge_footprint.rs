@@ -117,6 +117,9 @@ struct Footprint {
     cpu_percent: f64,
     rss_kib: u64,
     peak_rss_kib: u64,
+    /// Of the RSS: heap and stacks (the rest is the binary's and libraries' pages).
+    anon_kib: u64,
+    threads: u64,
 }
 
 struct Wire {
@@ -161,7 +164,7 @@ async fn one_line(
     tokio::time::sleep_until((start + WINDOW).into()).await;
     let wall = start.elapsed();
     let cpu = gateway.cpu_time()? - cpu_start;
-    let (rss_kib, peak_rss_kib) = gateway.memory()?;
+    let memory = gateway.memory()?;
     gateway.stop();
 
     let records: Vec<RequestRecord> = line
@@ -173,8 +176,10 @@ async fn one_line(
     let footprint = Footprint {
         transactions_per_second: records.len() as f64 / wall.as_secs_f64(),
         cpu_percent: 100.0 * cpu.as_secs_f64() / wall.as_secs_f64(),
-        rss_kib,
-        peak_rss_kib,
+        rss_kib: memory.rss_kib,
+        peak_rss_kib: memory.peak_rss_kib,
+        anon_kib: memory.anon_kib,
+        threads: memory.threads,
     };
     Ok((footprint, wire_figures(&records, wall, &published)))
 }
@@ -202,13 +207,15 @@ async fn many_lines(
     let wall = start.elapsed();
     let cpu = gateway.cpu_time()? - cpu_start;
     let requests = counted(&lines) - requests_start;
-    let (rss_kib, peak_rss_kib) = gateway.memory()?;
+    let memory = gateway.memory()?;
     gateway.stop();
     Ok(Footprint {
         transactions_per_second: requests as f64 / wall.as_secs_f64(),
         cpu_percent: 100.0 * cpu.as_secs_f64() / wall.as_secs_f64(),
-        rss_kib,
-        peak_rss_kib,
+        rss_kib: memory.rss_kib,
+        peak_rss_kib: memory.peak_rss_kib,
+        anon_kib: memory.anon_kib,
+        threads: memory.threads,
     })
 }
 
@@ -256,6 +263,14 @@ fn config_file(
     Ok(path)
 }
 
+/// What /proc/<pid>/status says about the gateway's memory.
+struct Memory {
+    rss_kib: u64,
+    peak_rss_kib: u64,
+    anon_kib: u64,
+    threads: u64,
+}
+
 /// The gateway as its own process.
 struct Gateway {
     child: Child,
@@ -296,8 +311,8 @@ impl Gateway {
         Ok(Duration::from_secs_f64(ticks as f64 / per_second as f64))
     }
 
-    /// (VmRSS, VmHWM) in KiB.
-    fn memory(&self) -> anyhow::Result<(u64, u64)> {
+    /// VmRSS, VmHWM and RssAnon in KiB, and the thread count.
+    fn memory(&self) -> anyhow::Result<Memory> {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id()))?;
         let field = |name: &str| {
             status
@@ -307,7 +322,12 @@ impl Gateway {
                 .and_then(|v| v.parse::<u64>().ok())
                 .unwrap_or(0)
         };
-        Ok((field("VmRSS:"), field("VmHWM:")))
+        Ok(Memory {
+            rss_kib: field("VmRSS:"),
+            peak_rss_kib: field("VmHWM:"),
+            anon_kib: field("RssAnon:"),
+            threads: field("Threads:"),
+        })
     }
 
     fn stop(&mut self) {
@@ -448,6 +468,11 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
         format!("{} / {}", mib(one.rss_kib), mib(one.peak_rss_kib)),
         "≤ 5.5 MiB",
     );
+    row(
+        "  of which heap and stacks; threads",
+        format!("{}; {}", mib(one.anon_kib), one.threads),
+        "",
+    );
     println!();
     println!(
         "{MANY_LINES} lines × {DEVICES_PER_LINE} devices, every device polled continuously, {} s",
@@ -467,6 +492,11 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
         "gateway RSS / peak",
         format!("{} / {}", mib(many.rss_kib), mib(many.peak_rss_kib)),
         "≤ 10 MiB",
+    );
+    row(
+        "  of which heap and stacks; threads",
+        format!("{}; {}", mib(many.anon_kib), many.threads),
+        "",
     );
     println!(
         "\nt3.5 at {BAUD} baud: {}; CPU from /proc/<pid>/stat (utime + stime), memory from \
