@@ -412,11 +412,35 @@ fn mib(kib: u64) -> String {
     format!("{:.1} MiB", kib as f64 / 1024.0)
 }
 
+fn row(figure: &str, value: String, target: &str) {
+    println!("{figure:<44} {value:>22}   {target}");
+}
+
+/// The gateway process's CPU and memory against their targets.
+fn footprint_rows(footprint: &Footprint, cpu_target: &str, rss_target: &str) {
+    row(
+        "gateway CPU (one core)",
+        format!("{:.2} %", footprint.cpu_percent),
+        cpu_target,
+    );
+    row(
+        "gateway RSS / peak",
+        format!(
+            "{} / {}",
+            mib(footprint.rss_kib),
+            mib(footprint.peak_rss_kib)
+        ),
+        rss_target,
+    );
+    row(
+        "  of which heap and stacks; threads",
+        format!("{}; {}", mib(footprint.anon_kib), footprint.threads),
+        "",
+    );
+}
+
 fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
     let t3_5 = LineTiming::new(BAUD, EIGHT_N_ONE).t3_5;
-    let row = |figure: &str, value: String, target: &str| {
-        println!("{figure:<44} {value:>22}   {target}");
-    };
     println!();
     println!(
         "one line, 9600 8N1, one 6-register block polled continuously, {COMMANDS} commands in {} s",
@@ -458,21 +482,7 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
             wire.commands_seen
         ),
     );
-    row(
-        "gateway CPU (one core)",
-        format!("{:.2} %", one.cpu_percent),
-        "≤ 0.7 %",
-    );
-    row(
-        "gateway RSS / peak",
-        format!("{} / {}", mib(one.rss_kib), mib(one.peak_rss_kib)),
-        "≤ 5.5 MiB",
-    );
-    row(
-        "  of which heap and stacks; threads",
-        format!("{}; {}", mib(one.anon_kib), one.threads),
-        "",
-    );
+    footprint_rows(one, "≤ 0.7 %", "≤ 5.5 MiB");
     println!();
     println!(
         "{MANY_LINES} lines × {DEVICES_PER_LINE} devices, every device polled continuously, {} s",
@@ -483,21 +493,7 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
         format!("{:.1}", many.transactions_per_second),
         "",
     );
-    row(
-        "gateway CPU (one core)",
-        format!("{:.2} %", many.cpu_percent),
-        "",
-    );
-    row(
-        "gateway RSS / peak",
-        format!("{} / {}", mib(many.rss_kib), mib(many.peak_rss_kib)),
-        "≤ 10 MiB",
-    );
-    row(
-        "  of which heap and stacks; threads",
-        format!("{}; {}", mib(many.anon_kib), many.threads),
-        "",
-    );
+    footprint_rows(many, "", "≤ 10 MiB");
     println!(
         "\nt3.5 at {BAUD} baud: {}; CPU from /proc/<pid>/stat (utime + stime), memory from \
          /proc/<pid>/status (VmRSS, VmHWM)",
