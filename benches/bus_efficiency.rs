@@ -198,6 +198,7 @@ async fn measure(
         offline_after: 3,
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
+        byte_timeout: None,
         frame_log: frame_log.map(FrameLog::create).transpose()?,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),

@@ -73,6 +73,7 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
         offline_after: 3,
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
+        byte_timeout: None,
         frame_log: None,
         devices,
     }

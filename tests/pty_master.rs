@@ -522,7 +522,7 @@ async fn babbling_line_ends_in_timeout_then_recovers() {
 
 #[tokio::test(flavor = "current_thread")]
 async fn gap_inside_an_answer_follows_the_inter_character_limit() {
-    // Default limit (t1.5 + 5 ms, 6.6 ms at 9600): a 50 ms pause cuts the answer, whose rest
+    // Default byte timeout (32 ms): a 50 ms pause cuts the answer, whose rest
     // is then discarded as stray before the next request; a 100 ms limit takes it whole.
     let script = vec![
         Act::PauseMidAnswer(4, Duration::from_millis(50)),

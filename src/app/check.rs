@@ -102,7 +102,11 @@ pub fn report(path: &Path, config: &Config) -> String {
                 device.name,
                 device.profile,
                 device.address,
-                humantime::format_duration(device.poll_interval).to_string(),
+                if device.continuous {
+                    "continuous".to_string()
+                } else {
+                    humantime::format_duration(device.poll_interval).to_string()
+                },
                 format!("{}/{}", device.fast_blocks, device.slow_blocks),
                 millis(device.fast_wire_time),
                 format!(
@@ -115,10 +119,18 @@ pub fn report(path: &Path, config: &Config) -> String {
         }
         let _ = writeln!(
             out,
-            "  per fast cycle: {} frames, {} on the wire; bus load {:.1} %",
+            "  per fast cycle: {} frames, {} on the wire; bus load {:.1} %{}",
             plan.frames_per_cycle,
             millis(plan.wire_time_per_cycle),
-            plan.bus_load * 100.0
+            plan.bus_load * 100.0,
+            if plan.continuous {
+                format!(
+                    " (polled continuously; periodic polls {:.1} %)",
+                    plan.periodic_load * 100.0
+                )
+            } else {
+                String::new()
+            }
         );
     }
     out

@@ -493,6 +493,7 @@ mod tests {
             offline_after: 2,
             echo: false,
             broadcast_turnaround: Duration::from_millis(200),
+            byte_timeout: None,
             frame_log: None,
             devices: vec![super::super::DeviceSpec {
                 name: "valve".into(),

@@ -36,6 +36,7 @@ pub struct DeviceSpec {
     pub name: String,
     pub address: SlaveId,
     pub profile: Arc<Profile>,
+    /// Zero: continuously, as often as the profile's minimum allows.
     pub poll_interval: Duration,
 }
 
@@ -85,6 +86,8 @@ pub struct LineSpec {
     pub echo: bool,
     /// Silence after a broadcast write.
     pub broadcast_turnaround: Duration,
+    /// Longest pause inside an answer (None: the master's default).
+    pub byte_timeout: Option<Duration>,
     /// Record every frame of the line here (`gateway.frame_log`).
     pub frame_log: Option<crate::rtu::frame_log::FrameLog>,
     pub devices: Vec<DeviceSpec>,

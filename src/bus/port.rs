@@ -112,6 +112,7 @@ pub async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Link, Open
             let options = MasterOptions {
                 echo: spec.echo,
                 broadcast_turnaround: spec.broadcast_turnaround,
+                inter_char_timeout: spec.byte_timeout,
                 ..MasterOptions::default()
             };
             Link::Serial(Master::new(port, timing, options))

@@ -109,6 +109,8 @@ pub struct LineStats {
     pub stray_bytes: u64,
     /// Frames from another address heard while waiting for an answer.
     pub wrong_address: u64,
+    /// Silences longer than t1.5 inside answers, tolerated up to the byte timeout.
+    pub long_gaps: u64,
     /// Share of wall time the line carried frames and mandatory silences, over the last
     /// measuring window (0.0–1.0).
     pub bus_load: f64,
@@ -142,6 +144,7 @@ impl LineStats {
             late_answers: 0,
             stray_bytes: 0,
             wrong_address: 0,
+            long_gaps: 0,
             bus_load: 0.0,
             wire_time: Duration::ZERO,
             turnaround_mean: None,
@@ -165,6 +168,7 @@ impl LineStats {
         self.late_answers = counters.late_answers;
         self.stray_bytes = counters.stray_bytes;
         self.wrong_address = counters.wrong_address;
+        self.long_gaps = counters.long_gaps;
         self.wire_time = counters.wire_time;
     }
 }

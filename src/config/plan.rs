@@ -2,6 +2,10 @@
 //! frames per cycle, wire time per cycle (request + answer + 2 × t3.5 per block) and the bus
 //! load at the configured intervals. Pure arithmetic, used by validation (a plan over 100 % is
 //! an error) and printed by `rtu2mqtt check`.
+//!
+//! A device polled continuously (`poll_interval = "0s"`) takes whatever time the line has left,
+//! as often as its profile's minimum allows: it never makes a plan over 100 %, and a line with
+//! one is counted as full when its periodic polls leave it nothing idle.
 
 use std::time::Duration;
 
@@ -16,6 +20,8 @@ pub struct DevicePlan {
     pub profile: String,
     pub address: u8,
     pub poll_interval: Duration,
+    /// Polled back to back (`poll_interval` zero), never sooner than the profile allows.
+    pub continuous: bool,
     pub slow_interval: Duration,
     pub fast_blocks: usize,
     pub slow_blocks: usize,
@@ -23,7 +29,8 @@ pub struct DevicePlan {
     pub fast_wire_time: Duration,
     /// Wire time of the slow blocks (every slow interval).
     pub slow_wire_time: Duration,
-    /// Share of the line's time this device takes (0.0–1.0 and beyond).
+    /// Share of the line's time this device takes (0.0–1.0 and beyond); for a continuous
+    /// device, what it takes on a line of its own.
     pub bus_load: f64,
 }
 
@@ -37,7 +44,13 @@ pub struct LinePlan {
     pub frames_per_cycle: usize,
     /// Wire time of one fast cycle of every device.
     pub wire_time_per_cycle: Duration,
+    /// Share of the line's time the plan takes: 1.0 with a continuous device.
     pub bus_load: f64,
+    /// Share taken by the polls on a fixed interval (every device's slow blocks included):
+    /// above 1.0 the line cannot keep them.
+    pub periodic_load: f64,
+    /// A device is polled continuously.
+    pub continuous: bool,
 }
 
 impl LinePlan {
@@ -48,12 +61,25 @@ impl LinePlan {
             .iter()
             .map(|device| device_plan(device, &timing))
             .collect();
+        let periodic_load: f64 = devices
+            .iter()
+            .map(|d| {
+                if d.continuous {
+                    share(d.slow_wire_time, d.slow_interval)
+                } else {
+                    d.bus_load
+                }
+            })
+            .sum();
+        let continuous = devices.iter().any(|d| d.continuous);
         LinePlan {
             name: line.name.clone(),
             timing,
             frames_per_cycle: devices.iter().map(|d| 2 * d.fast_blocks).sum(),
             wire_time_per_cycle: devices.iter().map(|d| d.fast_wire_time).sum(),
-            bus_load: devices.iter().map(|d| d.bus_load).sum(),
+            bus_load: if continuous { 1.0 } else { periodic_load },
+            periodic_load,
+            continuous,
             devices,
         }
     }
@@ -73,6 +99,7 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
         profile: device.profile.name().to_string(),
         address: device.address,
         poll_interval: device.poll_interval,
+        continuous: device.poll_interval.is_zero(),
         slow_interval: limits.slow_interval,
         fast_blocks: 0,
         slow_blocks: 0,
@@ -93,8 +120,14 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
             }
         }
     }
-    plan.bus_load = share(plan.fast_wire_time, plan.poll_interval)
-        + share(plan.slow_wire_time, plan.slow_interval);
+    // Continuously: one fast cycle after the other, or the profile's minimum between polls.
+    let fast_period = if plan.continuous {
+        limits.min_poll_interval.max(plan.fast_wire_time)
+    } else {
+        plan.poll_interval
+    };
+    plan.bus_load =
+        share(plan.fast_wire_time, fast_period) + share(plan.slow_wire_time, plan.slow_interval);
     plan
 }
 
@@ -103,4 +136,77 @@ fn share(busy: Duration, every: Duration) -> f64 {
         return if busy.is_zero() { 0.0 } else { f64::INFINITY };
     }
     busy.as_secs_f64() / every.as_secs_f64()
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    /// The valve (min poll interval 500 ms) and the air shower on one 9600 baud line.
+    fn config(valve_poll: &str, shower_poll: &str) -> String {
+        format!(
+            r#"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+
+[[lines]]
+name = "line-a"
+port = "/dev/ttyUSB0"
+baud = 9600
+parity = "even"
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+poll_interval = "{valve_poll}"
+
+[[lines.devices]]
+name = "shower"
+profile = "lixian-air-shower"
+address = 0x81
+poll_interval = "{shower_poll}"
+"#
+        )
+    }
+
+    fn reasons(text: &str) -> Vec<String> {
+        match crate::config::from_str(text, Path::new(".")) {
+            Ok(_) => Vec::new(),
+            Err(problems) => problems.0.iter().map(|p| p.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn zero_is_continuous_and_fills_the_line_without_overloading_it() {
+        let text = config("0s", "1s");
+        assert_eq!(reasons(&text), Vec::<String>::new());
+        let config = crate::config::from_str(&text, Path::new(".")).unwrap();
+        let plan = LinePlan::of(&config.lines[0]);
+        assert!(plan.continuous);
+        assert!(plan.devices[0].continuous && !plan.devices[1].continuous);
+        assert_eq!(plan.bus_load, 1.0);
+        assert!(plan.periodic_load < 1.0, "{}", plan.periodic_load);
+        // On a line of its own the valve is polled no more often than its profile's minimum.
+        let valve = &plan.devices[0];
+        assert_eq!(
+            valve.bus_load,
+            share(valve.fast_wire_time, Duration::from_millis(500))
+                + share(valve.slow_wire_time, valve.slow_interval)
+        );
+    }
+
+    #[test]
+    fn below_the_profile_minimum_is_refused_zero_is_continuous() {
+        // Below the profile's minimum is refused; zero is not "below", it is continuous.
+        let too_fast = reasons(&config("100ms", "1s"));
+        assert!(
+            too_fast.iter().any(|r| r.contains("under the minimum")),
+            "{too_fast:?}"
+        );
+        assert!(reasons(&config("0s", "500ms")).is_empty());
+    }
 }

@@ -133,6 +133,9 @@ pub struct RawLine {
     pub echo: bool,
     #[serde(default = "default_broadcast_turnaround", with = "humantime_serde")]
     pub broadcast_turnaround: Duration,
+    /// Longest pause inside an answer. Default: the master's (USB adapters' latency timer).
+    #[serde(default, with = "humantime_serde")]
+    pub byte_timeout: Option<Duration>,
     /// Kernel RS485 mode for UARTs that drive the transceiver themselves.
     pub rs485: Option<RawRs485>,
     #[serde(default)]
@@ -160,7 +163,7 @@ pub struct RawDevice {
     pub profile: String,
     /// Wide on purpose: an out-of-range address gets a message naming the profile's range.
     pub address: i64,
-    /// Default: the profile's default poll interval.
+    /// Default: the profile's default poll interval. `"0s"`: continuously (back to back).
     #[serde(default, with = "humantime_serde")]
     pub poll_interval: Option<Duration>,
 }
@@ -295,6 +298,7 @@ pub const LINE_SHAPE: &[Key] = &[
     optional("offline_after", U32),
     optional("echo", Kind::Bool),
     optional("broadcast_turnaround", Kind::Duration),
+    optional("byte_timeout", Kind::Duration),
     optional("rs485", Kind::Table(RS485_SHAPE)),
     optional("devices", Kind::Tables(DEVICE_SHAPE)),
 ];
@@ -355,6 +359,7 @@ pub const LINE_KEYS: &[&str] = &[
     "offline_after",
     "echo",
     "broadcast_turnaround",
+    "byte_timeout",
     "rs485",
     "devices",
 ];

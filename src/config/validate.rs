@@ -531,6 +531,17 @@ fn validate_lines(
                 format!("{} must be 1–100 failed polls", raw.offline_after),
             ));
         }
+        if let Some(byte_timeout) = raw.byte_timeout {
+            if byte_timeout.is_zero() || byte_timeout > Duration::from_secs(1) {
+                problems.push(Problem::new(
+                    format!("{place}.byte_timeout"),
+                    format!(
+                        "{} must be more than 0 and at most 1s",
+                        humantime::format_duration(byte_timeout)
+                    ),
+                ));
+            }
+        }
         if raw.broadcast_turnaround > Duration::from_secs(10) {
             problems.push(Problem::new(
                 format!("{place}.broadcast_turnaround"),
@@ -619,18 +630,20 @@ fn validate_lines(
             offline_after: raw.offline_after,
             echo: raw.echo,
             broadcast_turnaround: raw.broadcast_turnaround,
+            byte_timeout: raw.byte_timeout,
             // Opened by the daemon, not by validation.
             frame_log: None,
             devices,
         };
         let plan = LinePlan::of(&spec);
-        if our_timing && plan.bus_load > 1.0 {
+        // Continuous polls take what is left: only the periodic ones can overload a line.
+        if our_timing && plan.periodic_load > 1.0 {
             problems.push(Problem::new(
                 place.clone(),
                 format!(
                     "the poll plan needs {:.0} % of the line's time at {baud} baud: lengthen \
                      poll_interval or split the devices over more lines",
-                    plan.bus_load * 100.0
+                    plan.periodic_load * 100.0
                 ),
             ));
         }
@@ -701,7 +714,8 @@ fn validate_device(
         }
     };
     let poll_interval = raw.poll_interval.unwrap_or(limits.default_poll_interval);
-    if poll_interval < limits.min_poll_interval {
+    // Zero is continuous polling, which keeps the profile's minimum by itself.
+    if !poll_interval.is_zero() && poll_interval < limits.min_poll_interval {
         problems.push(Problem::new(
             format!("{place}.poll_interval"),
             format!(

@@ -1,8 +1,16 @@
 //! One Modbus RTU transaction at a time on a [`Port`], with exact timing: the line is driven
 //! no sooner than t3.5 after the last byte seen on it (measured from when the transmit buffer
 //! drained), stray bytes are flushed and counted before a request, answers are framed by
-//! expected length with an inter-character gap limit and a response timeout, and an answer
-//! arriving after its timeout is discarded and counted, never taken for the next request's.
+//! expected length (from the request, 5 bytes for an exception) and CRC with a response
+//! timeout, and an answer arriving after its timeout is discarded and counted, never taken for
+//! the next request's.
+//!
+//! A pause inside an answer does not end it: the rest is waited for up to the byte timeout
+//! (USB adapters hand bytes over in latency-timer batches, slow devices pause mid-answer), and
+//! pauses longer than t1.5 are counted. After a failed, truncated or foreign answer the line is
+//! driven again only once it has been silent for t3.5 after the last byte heard. A new master
+//! (a start, a reopened port) first listens until the line has been silent for the byte timeout,
+//! so that an answer still on the wire from before is heard out, not collided with.
 //!
 //! While an answer is awaited: frames from other addresses are read to their end and ignored
 //! (serial-line specification 2.4.1), noise just before the answer is skipped, and an adapter's
@@ -81,12 +89,13 @@ impl From<std::io::Error> for PortFault {
     }
 }
 
-/// Added to t1.5 for the default inter-character gap limit. USB serial adapters hand received
-/// bytes over in bursts (CP210x/CH340 about every 1–2 ms, FTDI every `latency_timer` ms,
-/// 16 by default), so a strict t1.5 would cut good answers; 5 ms covers the common adapters
-/// and a busy host. With an FTDI adapter, set its latency_timer to 1 or raise
-/// [`MasterOptions::inter_char_timeout`].
-pub const DEFAULT_GAP_ALLOWANCE: Duration = Duration::from_millis(5);
+/// The default byte timeout: the longest silence inside an answer before it is declared
+/// truncated. USB serial adapters hand received bytes over in bursts (CP210x/CH340 about every
+/// 1–2 ms, FTDI every `latency_timer` ms, 16 by default), so the host sees gaps of up to 16 ms
+/// inside a good answer; twice that leaves as much again for a busy host and a device that
+/// pauses mid-answer. Only a really truncated answer pays for it, once. Lines at very low baud
+/// rates use at least t3.5.
+pub const DEFAULT_BYTE_TIMEOUT: Duration = Duration::from_millis(32);
 
 /// Per-line behaviour of the master.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -95,8 +104,9 @@ pub struct MasterOptions {
     pub echo: bool,
     /// Silence after a broadcast before the line is driven again.
     pub broadcast_turnaround: Duration,
-    /// Longest silence between two bytes of one answer before it is declared truncated.
-    /// `None`: t1.5 + [`DEFAULT_GAP_ALLOWANCE`].
+    /// The byte timeout: the longest silence between two bytes of one answer before it is
+    /// declared truncated, and the silence a new master listens for before its first request.
+    /// `None`: [`DEFAULT_BYTE_TIMEOUT`] (at least t3.5).
     pub inter_char_timeout: Option<Duration>,
     /// After a timeout, how long the line is watched for the late answer before the next
     /// request to the same address goes out (counted from the timeout). `None`: the timed-out
@@ -136,6 +146,9 @@ pub struct WireCounters {
     /// Frames from another address heard while waiting for an answer (ignored, as the
     /// serial-line specification says).
     pub wrong_address: u64,
+    /// Silences longer than t1.5 inside an answer, tolerated up to the byte timeout (an
+    /// adapter's latency timer, a device pausing mid-answer).
+    pub long_gaps: u64,
     /// Wire time of all frames sent and received plus the mandatory silences, for bus load.
     pub wire_time: Duration,
 }
@@ -153,6 +166,7 @@ impl std::ops::AddAssign for WireCounters {
             late_answers,
             stray_bytes,
             wrong_address,
+            long_gaps,
             wire_time,
         } = other;
         self.requests += requests;
@@ -164,6 +178,7 @@ impl std::ops::AddAssign for WireCounters {
         self.late_answers += late_answers;
         self.stray_bytes += stray_bytes;
         self.wrong_address += wrong_address;
+        self.long_gaps += long_gaps;
         self.wire_time += wire_time;
     }
 }
@@ -199,6 +214,9 @@ pub struct Master {
     counters: WireCounters,
     /// Last instant a byte was seen on the line in either direction (drain instant for ours).
     last_activity: Instant,
+    /// Nothing has been sent since the port was opened: the line's state is unknown, and the
+    /// first request waits for a silence of the byte timeout.
+    quiet_start: bool,
     /// After a timeout: the line is watched for the late answer until then before the next
     /// request to the same address goes out.
     late_guard_until: Option<Instant>,
@@ -245,6 +263,7 @@ impl Master {
             counters: WireCounters::default(),
             // The line's state before we opened it is unknown: treat it as just used.
             last_activity: Instant::now(),
+            quiet_start: true,
             late_guard_until: None,
             timed_out_slave: None,
             late_window_open: false,
@@ -264,7 +283,7 @@ impl Master {
     pub fn inter_char_timeout(&self) -> Duration {
         self.options
             .inter_char_timeout
-            .unwrap_or(self.timing.t1_5 + DEFAULT_GAP_ALLOWANCE)
+            .unwrap_or(DEFAULT_BYTE_TIMEOUT.max(self.timing.t3_5))
     }
 
     /// Sends `request` to `slave` and waits for its answer. `timeout` runs from the instant the
@@ -367,7 +386,8 @@ impl Master {
 
     /// Waits until the line has been silent for t3.5 (and until `guard`, a late-answer guard,
     /// has passed), taking and counting every byte that arrives meanwhile; each byte restarts
-    /// the silence.
+    /// the silence. Before the first request after the port was opened the silence is the byte
+    /// timeout: a device may still be answering a request from before, with pauses inside.
     async fn wait_for_silence(
         &mut self,
         guard: Option<Instant>,
@@ -380,7 +400,12 @@ impl Master {
             if !pending.is_empty() {
                 self.absorb_unsolicited(&pending, Instant::now());
             }
-            let mut quiet_at = self.last_activity + self.timing.t3_5;
+            let silence = if self.quiet_start {
+                self.inter_char_timeout().max(self.timing.t3_5)
+            } else {
+                self.timing.t3_5
+            };
+            let mut quiet_at = self.last_activity + silence;
             if let Some(guard) = guard {
                 quiet_at = quiet_at.max(guard);
             }
@@ -437,6 +462,7 @@ impl Master {
         self.record("tx", frame);
         self.counters.requests += 1;
         self.late_window_open = false;
+        self.quiet_start = false;
         let drained_at = self.port.write_frame(frame).await?;
         self.last_activity = drained_at;
         self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
@@ -507,7 +533,26 @@ impl Master {
             } else {
                 last_byte_at + gap_limit
             };
+            // Once the length is known (from the third byte on), the rest cannot be complete
+            // before its wire time: it is waited for in one go, not with a wake-up per byte.
+            if let Framing::NeedMore { needed } = framing {
+                if received.len() >= 3 {
+                    let remaining = needed.saturating_sub(received.len());
+                    let due = last_byte_at + self.timing.frame_time(remaining);
+                    if due > Instant::now() {
+                        sleep_until_precise(due.min(wait_until)).await;
+                    }
+                }
+            }
             if let Some((count, seen)) = self.port.read_until(&mut chunk, wait_until).await? {
+                // These bytes took their wire time to arrive; anything beyond it plus t1.5 was
+                // a silence inside the answer.
+                if !received.is_empty()
+                    && seen.duration_since(last_byte_at)
+                        > self.timing.frame_time(count) + self.timing.t1_5
+                {
+                    self.counters.long_gaps += 1;
+                }
                 received.extend_from_slice(&chunk[..count]);
                 last_byte_at = seen;
                 self.last_activity = seen;
@@ -769,6 +814,7 @@ mod tests {
             late_answers: 2,
             stray_bytes: 7,
             wrong_address: 1,
+            long_gaps: 3,
             wire_time: Duration::from_millis(5),
         };
         let sum = one + one;
@@ -784,6 +830,7 @@ mod tests {
                 late_answers: 4,
                 stray_bytes: 14,
                 wrong_address: 2,
+                long_gaps: 6,
                 wire_time: Duration::from_millis(10),
             }
         );

@@ -1,6 +1,6 @@
 //! Fault injection for a simulated line: a shared, run-time changeable set of [`Faults`]
-//! (dropped, corrupted, truncated, late, misaddressed or echoed answers, garbage, silenced
-//! devices, exceptions on demand). The server asks it once per answer; tests change it while
+//! (dropped, corrupted, truncated, late, misaddressed or echoed answers, answers delivered in
+//! chunks with pauses between them, garbage, silenced devices, exceptions on demand). The server asks it once per answer; tests change it while
 //! the line runs through a [`FaultHandle`].
 
 use std::collections::BTreeSet;
@@ -82,6 +82,9 @@ pub struct Faults {
     pub delay: Duration,
     /// A pause in the middle of the answer (a gap inside a frame).
     pub pause_mid_answer: Option<Duration>,
+    /// The answer goes out in chunks with a pause after each (a slow device, or a USB adapter
+    /// handing bytes over per latency timer). Takes precedence over `pause_mid_answer`.
+    pub answer_chunks: Option<AnswerChunks>,
     /// Every request is echoed back at once, like an RS485 adapter that hears itself.
     pub echo: bool,
     /// Devices that answer nothing at all (they still count as not having received anything).
@@ -101,6 +104,14 @@ pub struct AnswerFaults {
     pub exception: Option<ExceptionCode>,
     pub delay: Duration,
     pub pause_mid_answer: Option<Duration>,
+    pub answer_chunks: Option<AnswerChunks>,
+}
+
+/// An answer sent `bytes` at a time (at least 1) with `gap` of silence between two chunks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AnswerChunks {
+    pub bytes: usize,
+    pub gap: Duration,
 }
 
 /// The shared handle on a line's faults.
@@ -169,6 +180,7 @@ impl FaultHandle {
         let mut decided = AnswerFaults {
             delay: faults.delay,
             pause_mid_answer: faults.pause_mid_answer,
+            answer_chunks: faults.answer_chunks,
             ..AnswerFaults::default()
         };
         decided.drop = faults.drop.strike(&mut rng);

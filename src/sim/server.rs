@@ -4,6 +4,9 @@
 //! byte, the answer is complete one answer-wire-time after it starts), with the line's faults
 //! applied and everything written into its journal.
 //!
+//! While an answer goes out the line is still listened to, so a request sent into it is
+//! journalled as arriving then.
+//!
 //! Framing follows a real device: a frame's length is known from its function code, a bad CRC
 //! makes the device ignore everything up to the next silence, and a function code it does not
 //! know ends at the next silence.
@@ -12,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
-use super::faults::{random_bytes, FaultHandle};
+use super::faults::{random_bytes, AnswerChunks, FaultHandle};
 use super::journal::{AnswerTiming, Journal, RequestRecord};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
@@ -291,7 +294,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         let mut out = faults.garbage_before;
         out.extend_from_slice(&bytes);
         let starts = ended + timing.t3_5 + faults.delay;
-        let timing = self.send(&out, starts, faults.pause_mid_answer).await?;
+        let timing = self
+            .send(&out, starts, faults.pause_mid_answer, faults.answer_chunks)
+            .await?;
         record.answer = Some(out);
         record.answer_timing = Some(timing);
         self.journal.record(record);
@@ -343,33 +348,36 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     }
 
     /// Sends `bytes` so that they start at `starts` (and, paced, are complete one wire time
-    /// later), with an optional gap in the middle. No flush follows the writes: on a pty it is
-    /// a tcdrain system call with nothing to drain, and the bytes are readable on the other end
-    /// as soon as the write returns.
+    /// later), whole, in two halves around `pause`, or in `chunks` with a gap after each. No
+    /// flush follows the writes: on a pty it is a tcdrain system call with nothing to drain,
+    /// and the bytes are readable on the other end as soon as the write returns.
+    ///
+    /// The line is listened to all the while: a request that arrives while the answer is
+    /// still going out is journalled with its true arrival (and no silence before it), as a
+    /// collision on a real wire would garble both.
     async fn send(
         &mut self,
         bytes: &[u8],
         starts: Instant,
         pause: Option<Duration>,
+        chunks: Option<AnswerChunks>,
     ) -> std::io::Result<AnswerTiming> {
         let timing = self.options.timing;
-        let (head, tail) = match pause {
-            Some(_) => bytes.split_at(bytes.len() / 2),
-            None => (bytes, &[][..]),
+        let (size, gap) = match (chunks, pause) {
+            (Some(chunks), _) => (chunks.bytes.max(1), chunks.gap),
+            (None, Some(pause)) => ((bytes.len() / 2).max(1), pause),
+            (None, None) => (bytes.len().max(1), Duration::ZERO),
         };
         let mut at = starts;
         let mut handed_over = Instant::now();
-        for (i, part) in [head, tail].into_iter().enumerate() {
-            if part.is_empty() {
-                continue;
-            }
-            if i == 1 {
-                at += pause.unwrap_or_default();
+        for (i, part) in bytes.chunks(size).enumerate() {
+            if i > 0 {
+                at += gap;
             }
             if self.options.pace {
                 at += timing.frame_time(part.len());
             }
-            sleep_until_precise(tokio::time::Instant::from_std(at)).await;
+            self.listen_until(at).await?;
             handed_over = Instant::now();
             self.stream.write_all(part).await?;
         }
@@ -383,6 +391,32 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             handed_over: handed_over.max(at),
             write_returned,
         })
+    }
+
+    /// Waits precisely until `at`, taking in whatever arrives meanwhile (framed once the answer
+    /// is out).
+    async fn listen_until(&mut self, at: Instant) -> std::io::Result<()> {
+        let mut chunk = [0u8; MAX_FRAME_LEN];
+        loop {
+            tokio::select! {
+                biased;
+                () = sleep_until_precise(tokio::time::Instant::from_std(at)) => return Ok(()),
+                read = self.stream.read(&mut chunk) => {
+                    let count = read?;
+                    if count == 0 {
+                        // The other end closed: the serving loop's next read sees it too.
+                        sleep_until_precise(tokio::time::Instant::from_std(at)).await;
+                        return Ok(());
+                    }
+                    let now = Instant::now();
+                    if self.buffer.is_empty() {
+                        self.first_byte_at = now;
+                    }
+                    self.buffer.extend_from_slice(&chunk[..count]);
+                    self.last_byte_at = now;
+                }
+            }
+        }
     }
 }
 
