@@ -32,6 +32,13 @@
 //! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, `demo`,
 //!   `simulate` and the commissioning tools `scan` and `read`.
 
+// What the codebase keeps true, checked on every build (`-D warnings` in CI):
+// - `pub` means part of the crate's surface: an item only its module uses is `pub(crate)` or
+//   private, so the reader knows how far a change reaches;
+// - every public type can be printed with `{:?}` in a log or a failing test;
+// - the 2018 idioms (elided lifetimes shown as `'_`, no `extern crate`).
+#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+
 pub mod app;
 pub mod bridge;
 pub mod broker;

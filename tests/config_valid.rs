@@ -375,3 +375,20 @@ fn secrets_never_appear_in_a_message() {
     assert!(stderr.contains("mqtt.password:"), "{stderr}");
     assert!(!stderr.contains("987654321"), "{stderr}");
 }
+
+#[test]
+fn check_shows_the_sparkplug_node() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("with-sparkplug.toml");
+    let text = std::fs::read_to_string(example()).expect("example configuration")
+        + "\n[sparkplug]\ngroup_id = \"plant\"\nprimary_host_id = \"scada\"\n";
+    std::fs::write(&path, text).expect("write config");
+    let (valid, stdout, stderr) = check(&path);
+    assert!(valid, "{stderr}");
+    assert!(
+        stdout.lines().any(|line| line
+            == "sparkplug: spBv1.0/plant/…/rtu2mqtt-edge1 on mqtt://127.0.0.1:1883 as \
+                \"rtu2mqtt-edge1-sparkplug\", births wait for primary host \"scada\""),
+        "{stdout}"
+    );
+}

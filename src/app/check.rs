@@ -50,6 +50,27 @@ pub fn report(path: &Path, config: &Config) -> String {
             "off".to_string()
         }
     );
+    if let Some(sparkplug) = &config.sparkplug {
+        let node = &sparkplug.identity;
+        let _ = writeln!(
+            out,
+            "sparkplug: spBv1.0/{}/…/{} on {}://{}:{} as {:?}{}",
+            node.group_id,
+            node.edge_node_id,
+            if sparkplug.mqtt.tls.is_some() {
+                "mqtts"
+            } else {
+                "mqtt"
+            },
+            sparkplug.mqtt.host,
+            sparkplug.mqtt.port,
+            sparkplug.mqtt.client_id,
+            node.primary_host_id
+                .as_ref()
+                .map(|host| format!(", births wait for primary host {host:?}"))
+                .unwrap_or_default()
+        );
+    }
     for warning in &config.warnings {
         let _ = writeln!(out, "warning: {warning}");
     }

@@ -148,6 +148,11 @@ const LINE_COUNTERS: &[LineCounter] = &[
         "Answers from the wrong address or with the wrong function.",
         |s| s.unexpected_answers,
     ),
+    (
+        "long_gaps_total",
+        "Silences longer than t1.5 inside answers, tolerated up to the byte timeout.",
+        |s| s.long_gaps,
+    ),
     ("exceptions_total", "Modbus exception answers.", |s| {
         s.exceptions
     }),
@@ -489,6 +494,7 @@ fn line_json(line: &LineStats) -> Json {
         "exceptions": line.exceptions,
         "late_answers": line.late_answers,
         "stray_bytes": line.stray_bytes,
+        "long_gaps": line.long_gaps,
         // Percent with one decimal: what a person reads on a dashboard.
         "bus_load_percent": (line.bus_load * 1000.0).round() / 10.0,
         "commands": line.commands,

@@ -71,6 +71,7 @@ pub struct Reconfiguration {
 }
 
 /// The bridge task: the core and everything it must not touch itself.
+#[derive(Debug)]
 pub struct Bridge {
     core: Core,
     outbox: Outbox,

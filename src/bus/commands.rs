@@ -20,7 +20,7 @@ use crate::profile::{CommandPlan, Verification};
 use crate::rtu::master::PortFault;
 
 /// Pause between two read-backs of a command whose device is still moving.
-pub const SETTLE_REREAD: Duration = Duration::from_millis(500);
+pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);
 
 /// A command waiting for its slot.
 #[derive(Debug)]

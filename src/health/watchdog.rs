@@ -21,6 +21,7 @@ pub type ExitFn = Box<dyn FnOnce(i32) + Send>;
 pub const STUCK_GRACE: Duration = Duration::from_secs(5);
 
 /// The internal watchdog, before it runs: the loops it watches.
+#[derive(Debug)]
 pub struct Watchdog {
     settings: HealthSettings,
     lines: Vec<watch::Receiver<LineStats>>,
@@ -40,6 +41,7 @@ pub struct MqttProbe {
 }
 
 /// A running [`Watchdog`]; [`WatchdogHandle::stop`] ends it and removes the status file.
+#[derive(Debug)]
 pub struct WatchdogHandle {
     stop_tx: mpsc::Sender<()>,
     thread: std::thread::JoinHandle<()>,

@@ -57,6 +57,7 @@ impl FrameLog {
 
 /// Writes one line's records into the shared [`FrameLog`], each text line prefixed with the
 /// line's name.
+#[derive(Debug)]
 pub struct LineFrameWriter {
     log: FrameLog,
     prefix: String,

@@ -153,6 +153,22 @@ pub struct WireCounters {
     pub wire_time: Duration,
 }
 
+impl WireCounters {
+    /// Counts how one transaction ended (every link counts the same way).
+    pub fn count(&mut self, result: &Result<Reply, Error>) {
+        match result {
+            Ok(Ok(_)) => {}
+            Ok(Err(_)) => self.exceptions += 1,
+            Err(Error::Timeout(_)) => self.timeouts += 1,
+            Err(Error::Crc) => self.crc_errors += 1,
+            // A connection lost mid-answer is an answer cut short.
+            Err(Error::Truncated { .. } | Error::ConnectionLost(_)) => self.truncated += 1,
+            Err(Error::UnexpectedReply(_)) => self.unexpected += 1,
+            Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
+        }
+    }
+}
+
 impl std::ops::AddAssign for WireCounters {
     /// Adds another master's counters: a line sums the masters of every port it opened.
     fn add_assign(&mut self, other: WireCounters) {
@@ -307,26 +323,13 @@ impl Master {
             .exchange(slave, request, timeout)
             .instrument(span)
             .await;
-        match &result {
-            Ok(Ok(_)) => {}
-            Ok(Err(_)) => self.counters.exceptions += 1,
-            Err(Error::Timeout(_)) => {
-                self.counters.timeouts += 1;
-                let guard = self.options.late_answer_guard.unwrap_or(timeout);
-                self.late_guard_until = Some(Instant::now() + guard);
-                self.timed_out_slave = Some(slave);
-                self.late_window_open = true;
-                self.late_answer_counted = false;
-            }
-            Err(Error::Crc) => self.counters.crc_errors += 1,
-            Err(Error::Truncated { .. }) => self.counters.truncated += 1,
-            Err(Error::UnexpectedReply(_)) => self.counters.unexpected += 1,
-            Err(
-                Error::PortGone(_)
-                | Error::InvalidRequest(_)
-                | Error::LineBusy(_)
-                | Error::ConnectionLost(_),
-            ) => {}
+        self.counters.count(&result);
+        if let Err(Error::Timeout(_)) = &result {
+            let guard = self.options.late_answer_guard.unwrap_or(timeout);
+            self.late_guard_until = Some(Instant::now() + guard);
+            self.timed_out_slave = Some(slave);
+            self.late_window_open = true;
+            self.late_answer_counted = false;
         }
         result
     }

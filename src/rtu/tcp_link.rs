@@ -329,18 +329,6 @@ impl Recorder {
 }
 
 /// Counts a transaction's result into the wire counters, as the serial master does.
-fn account(counters: &mut WireCounters, result: &Result<Reply, Error>) {
-    match result {
-        Ok(Ok(_)) => {}
-        Ok(Err(_)) => counters.exceptions += 1,
-        Err(Error::Timeout(_)) => counters.timeouts += 1,
-        Err(Error::Crc) => counters.crc_errors += 1,
-        Err(Error::Truncated { .. } | Error::ConnectionLost(_)) => counters.truncated += 1,
-        Err(Error::UnexpectedReply(_)) => counters.unexpected += 1,
-        Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
-    }
-}
-
 fn reply_of(answer: Answer) -> Reply {
     match answer {
         Answer::Normal(response) => Ok(response),
@@ -401,7 +389,7 @@ impl RawTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(slave, request, timeout).await;
-        account(&mut self.connection.counters, &result);
+        self.connection.counters.count(&result);
         if let Err(Error::Timeout(_)) = result {
             self.late_guard = Some((slave, Instant::now() + timeout));
         }
@@ -586,7 +574,7 @@ impl ModbusTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(unit, request, timeout).await;
-        account(&mut self.connection.counters, &result);
+        self.connection.counters.count(&result);
         result
     }
 

@@ -8,6 +8,7 @@ use super::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
 use crate::rtu::timing::Parity;
 
 /// The three seed devices on two served ptys, with typed handles on each device.
+#[derive(Debug)]
 pub struct SeedPlant {
     pub line_a: VirtualLine,
     pub line_b: VirtualLine,

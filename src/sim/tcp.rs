@@ -124,6 +124,7 @@ impl TcpFaultHandle {
 }
 
 /// Simulated devices served on a TCP port on 127.0.0.1 (or any address given).
+#[derive(Debug)]
 pub struct TcpSimulator {
     local: SocketAddr,
     protocol: Protocol,

@@ -37,6 +37,16 @@ pub struct VirtualLine {
     plugged: Option<Plugged>,
 }
 
+impl std::fmt::Debug for VirtualLine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualLine")
+            .field("path", &self.path())
+            .field("plugged", &self.is_plugged())
+            .field("devices", &self.devices.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl VirtualLine {
     /// Creates a pty pair and serves `devices` on it. Needs a tokio runtime.
     pub fn spawn(options: ServeOptions, devices: Vec<SharedDevice>) -> std::io::Result<Self> {

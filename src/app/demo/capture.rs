@@ -26,13 +26,13 @@ fn restore_stderr() {
 }
 
 /// stderr diverted into a pipe; restored on drop.
-pub struct StderrCapture {
+pub(super) struct StderrCapture {
     saved: OwnedFd,
 }
 
 impl StderrCapture {
     /// Diverts stderr; each complete line (ANSI colours removed) is sent on `lines_tx`.
-    pub fn start(lines_tx: mpsc::UnboundedSender<String>) -> std::io::Result<Self> {
+    pub(super) fn start(lines_tx: mpsc::UnboundedSender<String>) -> std::io::Result<Self> {
         let saved = duplicate(STDERR)?;
         let (read_end, write_end) = nix::unistd::pipe().map_err(std::io::Error::from)?;
         PANIC_HOOK.call_once(|| {
@@ -76,7 +76,7 @@ fn duplicate(fd: RawFd) -> std::io::Result<OwnedFd> {
 }
 
 /// Removes ANSI escape sequences (`ESC [ … letter`), which tracing adds for colours.
-pub fn strip_ansi(text: &str) -> String {
+pub(super) fn strip_ansi(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     let mut chars = text.chars().peekable();
     while let Some(c) = chars.next() {

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 /// What one MQTT message meant to the view.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Change {
+pub(super) enum Change {
     /// A field's value appeared or changed.
     Value {
         device: String,
@@ -53,7 +53,7 @@ pub enum Change {
 
 /// What the view knows of a device's availability.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum DeviceStatus {
+pub(super) enum DeviceStatus {
     /// Nothing heard yet.
     #[default]
     Waiting,
@@ -65,7 +65,7 @@ pub enum DeviceStatus {
 }
 
 impl DeviceStatus {
-    pub fn word(self) -> &'static str {
+    pub(super) fn word(self) -> &'static str {
         match self {
             DeviceStatus::Waiting => "waiting for the gateway",
             DeviceStatus::Starting => "starting",
@@ -76,15 +76,15 @@ impl DeviceStatus {
 }
 
 /// How long a changed value stays highlighted in the table.
-pub const HIGHLIGHT: Duration = Duration::from_secs(2);
+pub(super) const HIGHLIGHT: Duration = Duration::from_secs(2);
 
 /// Reverse video on, off: how the table marks a value that just changed.
-pub const MARK_ON: &str = "\x1b[7m";
-pub const MARK_OFF: &str = "\x1b[27m";
+pub(super) const MARK_ON: &str = "\x1b[7m";
+pub(super) const MARK_OFF: &str = "\x1b[27m";
 
 /// One field as the view knows it.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct FieldView {
+pub(super) struct FieldView {
     pub name: String,
     /// Empty until first published (and after a clearing).
     pub value: String,
@@ -94,7 +94,7 @@ pub struct FieldView {
 
 /// One device as the view knows it.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct DeviceView {
+pub(super) struct DeviceView {
     /// Fields in display order (the profile's order when known, else first seen).
     pub fields: Vec<FieldView>,
     /// Settings and diagnostics (Home Assistant's entity categories), left out of a compact
@@ -110,7 +110,7 @@ pub struct DeviceView {
 
 impl DeviceView {
     /// The status as of `now`: a device still starting past its allowance is offline.
-    pub fn status_at(&self, now: Duration) -> DeviceStatus {
+    pub(super) fn status_at(&self, now: Duration) -> DeviceStatus {
         match self.status {
             DeviceStatus::Starting if now > self.starting_until => DeviceStatus::Offline,
             status => status,
@@ -119,7 +119,7 @@ impl DeviceView {
 
     /// The value of a field (empty when not published).
     #[cfg(test)]
-    pub fn value(&self, field: &str) -> Option<&str> {
+    pub(super) fn value(&self, field: &str) -> Option<&str> {
         self.fields
             .iter()
             .find(|f| f.name == field)
@@ -129,7 +129,7 @@ impl DeviceView {
 
 /// A configured device as the view starts with it.
 #[derive(Debug, Clone)]
-pub struct DeviceOutline {
+pub(super) struct DeviceOutline {
     pub name: String,
     /// (field, is a setting or diagnostic) in the profile's order.
     pub fields: Vec<(String, bool)>,
@@ -140,7 +140,7 @@ pub struct DeviceOutline {
 
 /// The plant as seen from the broker.
 #[derive(Debug, Clone, Default)]
-pub struct PlantView {
+pub(super) struct PlantView {
     prefix: String,
     /// Devices in configuration order, with a profile-ordered field list.
     devices: Vec<(String, DeviceView)>,
@@ -155,7 +155,7 @@ const RESULTS_SHOWN: usize = 4;
 impl PlantView {
     /// A view of the devices under `prefix`, listed in `devices` order with their fields in
     /// the given order, so the table does not reshuffle as values arrive.
-    pub fn new(prefix: &str, devices: &[DeviceOutline]) -> Self {
+    pub(super) fn new(prefix: &str, devices: &[DeviceOutline]) -> Self {
         PlantView {
             prefix: prefix.to_string(),
             devices: devices
@@ -189,14 +189,14 @@ impl PlantView {
 
     /// Interprets one live message received at `now`; see [`PlantView::apply_at`].
     #[cfg(test)]
-    pub fn apply(&mut self, topic: &str, payload: &[u8]) -> Option<Change> {
+    pub(super) fn apply(&mut self, topic: &str, payload: &[u8]) -> Option<Change> {
         self.apply_at(topic, payload, false, Duration::ZERO)
     }
 
     /// Interprets one message (`retained`: delivered from the broker's store on subscribing,
     /// so possibly from an earlier run) received `now` after the demo started; None when it
     /// changes nothing (same value again, another prefix, a topic the view does not know).
-    pub fn apply_at(
+    pub(super) fn apply_at(
         &mut self,
         topic: &str,
         payload: &[u8],
@@ -312,7 +312,7 @@ impl PlantView {
 
     /// A device's state.
     #[cfg(test)]
-    pub fn device(&self, name: &str) -> Option<&DeviceView> {
+    pub(super) fn device(&self, name: &str) -> Option<&DeviceView> {
         self.devices
             .iter()
             .find(|(device, _)| device == name)
@@ -320,7 +320,7 @@ impl PlantView {
     }
 
     /// Fields with a value, over all devices.
-    pub fn published_fields(&self) -> usize {
+    pub(super) fn published_fields(&self) -> usize {
         self.devices
             .iter()
             .map(|(_, view)| view.fields.iter().filter(|f| !f.value.is_empty()).count())
@@ -328,7 +328,7 @@ impl PlantView {
     }
 
     /// Whether some value is highlighted at `now` (the table must be redrawn when it fades).
-    pub fn highlights_at(&self, now: Duration) -> bool {
+    pub(super) fn highlights_at(&self, now: Duration) -> bool {
         self.devices
             .iter()
             .flat_map(|(_, view)| &view.fields)
@@ -337,7 +337,7 @@ impl PlantView {
 
     /// Devices whose start-up allowance ran out at `now` without an `online`: their status
     /// changes as time passes.
-    pub fn expired_starts(&mut self, now: Duration) -> Vec<Change> {
+    pub(super) fn expired_starts(&mut self, now: Duration) -> Vec<Change> {
         let mut changes = Vec::new();
         for (name, view) in &mut self.devices {
             if view.status == DeviceStatus::Starting && view.status_at(now) == DeviceStatus::Offline
@@ -356,7 +356,7 @@ impl PlantView {
     /// with its fields as `name value` cells in aligned columns fitting `width` (values that
     /// changed within [`HIGHLIGHT`] of `now` marked), then the latest outcomes. `compact`
     /// leaves settings and diagnostics out (counted in the device's heading).
-    pub fn render_sections(
+    pub(super) fn render_sections(
         &self,
         header: &str,
         width: usize,
@@ -415,7 +415,7 @@ impl PlantView {
 
     /// The whole table as text (every section's heading and rows).
     #[cfg(test)]
-    pub fn render_table(&self, header: &str, width: usize, compact: bool) -> String {
+    pub(super) fn render_table(&self, header: &str, width: usize, compact: bool) -> String {
         let mut out = String::new();
         for section in self.render_sections(header, width, compact, Duration::ZERO) {
             let _ = writeln!(out, "{}", section.heading);
@@ -429,7 +429,7 @@ impl PlantView {
 
 /// A part of the table: a heading line (the header, a device, the outcomes) and its rows.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Section {
+pub(super) struct Section {
     pub heading: String,
     pub rows: Vec<String>,
 }
@@ -516,7 +516,7 @@ fn parse_result(text: &str) -> (String, String, String) {
 }
 
 /// One change as a human sentence.
-pub fn describe(change: &Change) -> String {
+pub(super) fn describe(change: &Change) -> String {
     match change {
         Change::Value {
             device,
@@ -551,7 +551,7 @@ pub fn describe(change: &Change) -> String {
 }
 
 /// A log line: elapsed time since the demo started, then the change.
-pub fn log_line(elapsed: Duration, change: &Change) -> String {
+pub(super) fn log_line(elapsed: Duration, change: &Change) -> String {
     format!("{:>8.2}s  {}", elapsed.as_secs_f64(), describe(change))
 }
 
