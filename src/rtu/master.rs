@@ -938,7 +938,14 @@ mod tests {
                 .unwrap()
                 .unwrap();
         }
-        let records = line.journal().requests();
+        // The simulator journals a request once its answer is handed over, which may be a
+        // moment after the master already has that answer: wait for the last record.
+        let deadline = Instant::now() + Duration::from_secs(2);
+        let mut records = line.journal().requests();
+        while records.len() < TRANSACTIONS && Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            records = line.journal().requests();
+        }
         let sent = tx_instants.0.lock().unwrap().clone();
         assert_eq!(records.len(), TRANSACTIONS);
         assert_eq!(sent.len(), TRANSACTIONS);
