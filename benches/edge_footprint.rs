@@ -29,7 +29,10 @@ use rtu2mqtt::sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLi
 use support::{Mosquitto, TestClient};
 
 const BAUD: u32 = 9600;
-const WARM_UP: Duration = Duration::from_secs(3);
+const WARM_UP: Duration = Duration::from_secs(5);
+/// The gateway gives back its start-up code this long after start-up (30 s by default), so
+/// that the window measures the running loops.
+const RELEASE_STARTUP_CODE_AFTER: &str = "3s";
 const WINDOW: Duration = Duration::from_secs(60);
 const COMMANDS: u32 = 40;
 const MANY_LINES: usize = 8;
@@ -241,7 +244,8 @@ fn config_file(
     devices: u8,
 ) -> anyhow::Result<PathBuf> {
     let mut text = format!(
-        "[mqtt]\nurl = \"{}\"\nclient_id = \"bench-{name}\"\n\n[health]\nstatus_file = \"\"\n",
+        "[mqtt]\nurl = \"{}\"\nclient_id = \"bench-{name}\"\n\n[health]\nstatus_file = \"\"\n\n\
+         [gateway]\nrelease_startup_code_after = \"{RELEASE_STARTUP_CODE_AFTER}\"\n",
         broker.url()
     );
     for (index, line) in lines.iter().enumerate() {
@@ -271,6 +275,14 @@ struct Memory {
     threads: u64,
 }
 
+/// The gateway binary measured: `EDGE_FOOTPRINT_GATEWAY`, else this build's `rtu2mqtt`.
+fn gateway_binary() -> PathBuf {
+    std::env::var_os("EDGE_FOOTPRINT_GATEWAY").map_or_else(
+        || PathBuf::from(env!("CARGO_BIN_EXE_rtu2mqtt")),
+        PathBuf::from,
+    )
+}
+
 /// The gateway as its own process.
 struct Gateway {
     child: Child,
@@ -278,7 +290,9 @@ struct Gateway {
 
 impl Gateway {
     fn start(config: &Path) -> anyhow::Result<Gateway> {
-        let child = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+        // Another build of the gateway can be measured in its place (a static build, one with
+        // symbols for a profiler): EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt.
+        let child = Command::new(gateway_binary())
             .arg("run")
             .arg("--config")
             .arg(config)
@@ -442,6 +456,7 @@ fn footprint_rows(footprint: &Footprint, cpu_target: &str, rss_target: &str) {
 fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
     let t3_5 = LineTiming::new(BAUD, EIGHT_N_ONE).t3_5;
     println!();
+    println!("gateway: {}", gateway_binary().display());
     println!(
         "one line, 9600 8N1, one 6-register block polled continuously, {COMMANDS} commands in {} s",
         WINDOW.as_secs()

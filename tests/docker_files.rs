@@ -123,3 +123,56 @@ fn compose_configuration_is_valid() {
         );
     }
 }
+
+#[test]
+fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_manifest() {
+    let all = instructions(DOCKERFILE);
+    let builder: Vec<&String> = all
+        .iter()
+        .take_while(|i| !i.starts_with("FROM debian"))
+        .collect();
+    let first_run = builder
+        .iter()
+        .position(|i| i.starts_with("RUN "))
+        .expect("a RUN in the build stage");
+    let copied_before: Vec<&str> = builder[..first_run]
+        .iter()
+        .filter_map(|i| i.strip_prefix("COPY "))
+        .collect();
+    for needed in ["docker/placeholder-sources.sh", "scripts/edge-build"] {
+        assert!(
+            builder[first_run].contains(needed),
+            "the dependency layer runs {needed}: {}",
+            builder[first_run]
+        );
+        assert!(
+            copied_before.iter().any(|copy| copy.starts_with(needed)),
+            "{needed} is copied before the dependency layer runs it: {copied_before:?}"
+        );
+    }
+
+    // The placeholders, made from the manifest as the image does, satisfy cargo: every
+    // [[bench]] and the binary have a source, so the manifest parses.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().expect("temp dir");
+    for file in ["Cargo.toml", "Cargo.lock"] {
+        std::fs::copy(root.join(file), dir.path().join(file)).expect("copy the manifest");
+    }
+    let made = std::process::Command::new("sh")
+        .arg(root.join("docker/placeholder-sources.sh"))
+        .current_dir(dir.path())
+        .status()
+        .expect("sh runs");
+    assert!(made.success());
+    let probe = std::process::Command::new(env!("CARGO"))
+        .args(["check", "--locked", "--offline", "--bin", "no-such-target"])
+        .current_dir(dir.path())
+        .env("CARGO_TARGET_DIR", dir.path().join("target"))
+        .output()
+        .expect("cargo runs");
+    let stderr = String::from_utf8_lossy(&probe.stderr);
+    assert!(
+        stderr.contains("no bin target named `no-such-target`"),
+        "the manifest must parse with the placeholders alone:\n{stderr}"
+    );
+}

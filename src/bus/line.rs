@@ -182,6 +182,11 @@ impl Line {
                 }
                 continue;
             }
+            // What the line does next is chosen once it is free, so that a command arriving
+            // during the silence goes ahead of the poll that would otherwise have been chosen
+            // at its start.
+            self.quiet_unless_command().await;
+            let now = Instant::now();
             if let Some(index) = self.settling.iter().position(|s| s.next_read <= now) {
                 let settle = self.settling.swap_remove(index);
                 self.run_settle(settle).await;
@@ -212,6 +217,27 @@ impl Line {
             }
         }
         self.finish().await;
+    }
+
+    /// Waits until the link could take the next request, or until a command arrives (it is
+    /// queued, and commands go ahead of polls). A link that fails here is left to the next
+    /// transaction to report.
+    async fn quiet_unless_command(&mut self) {
+        let Some(master) = self.master.as_mut() else {
+            return;
+        };
+        let patience = self.timeout;
+        let commands_open = self.commands_open;
+        let arrived = tokio::select! {
+            biased;
+            command = self.command_rx.recv(), if commands_open => Some(command),
+            _ = master.wait_until_quiet(patience) => None,
+        };
+        match arrived {
+            Some(Some(command)) => self.accept(command, Instant::now()).await,
+            Some(None) => self.commands_open = false,
+            None => {}
+        }
     }
 
     /// Sleeps until `until` (or the next heartbeat), a command arrives, or shutdown.
@@ -422,9 +448,11 @@ impl Line {
             stats.turnaround_mean = Some(mean);
             stats.turnaround_worst = Some(worst);
         }
-        stats.devices = self.devices.iter().map(|d| d.stats.clone()).collect();
+        stats.set_devices(self.devices.iter().map(|d| &d.stats));
         self.last_published = now;
-        self.stats_tx.send_replace(stats.clone());
+        // Copied into the published snapshot in place: no allocation per transaction.
+        self.stats_tx
+            .send_modify(|published| published.clone_from(stats));
     }
 
     /// Shutdown: answer every command still waiting, publish the last statistics.

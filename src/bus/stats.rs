@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use crate::rtu::master::WireCounters;
 
 /// Counters and latencies of one device.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, PartialEq)]
 pub struct DeviceStats {
     pub name: String,
     pub online: bool,
@@ -30,6 +30,24 @@ pub struct DeviceStats {
     /// Exception 02 answers to a merged block read that made the line read the block in
     /// parts: expected from some devices, so not among `exceptions` or any failure.
     pub split_read_fallbacks: u64,
+}
+
+/// `clone_from` keeps the name's allocation: the line copies every device's figures into the
+/// published snapshot after each transaction, without allocating.
+impl Clone for DeviceStats {
+    fn clone(&self) -> Self {
+        DeviceStats {
+            name: self.name.clone(),
+            ..*self
+        }
+    }
+
+    fn clone_from(&mut self, source: &Self) {
+        let mut name = std::mem::take(&mut self.name);
+        name.clone_from(&source.name);
+        // Every other field is Copy (a new field that is not fails to compile here).
+        *self = DeviceStats { name, ..*source };
+    }
 }
 
 impl DeviceStats {
@@ -91,7 +109,7 @@ impl LoadWindow {
 }
 
 /// A snapshot of a line's statistics.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, PartialEq)]
 pub struct LineStats {
     pub line: String,
     /// Refreshed on every turn of the line's loop: the watchdog's proof that the task is alive.
@@ -127,6 +145,31 @@ pub struct LineStats {
     pub devices: Vec<DeviceStats>,
 }
 
+/// `clone_from` reuses the name and the device list: the line publishes a snapshot after every
+/// transaction, without allocating.
+impl Clone for LineStats {
+    fn clone(&self) -> Self {
+        LineStats {
+            line: self.line.clone(),
+            devices: self.devices.clone(),
+            ..*self
+        }
+    }
+
+    fn clone_from(&mut self, source: &Self) {
+        let mut line = std::mem::take(&mut self.line);
+        let mut devices = std::mem::take(&mut self.devices);
+        line.clone_from(&source.line);
+        devices.clone_from(&source.devices);
+        // Every other field is Copy (a new field that is not fails to compile here).
+        *self = LineStats {
+            line,
+            devices,
+            ..*source
+        };
+    }
+}
+
 impl LineStats {
     /// Empty statistics of a line that has not run yet.
     pub fn new(line: &str, devices: &[String], now: Instant) -> Self {
@@ -156,6 +199,17 @@ impl LineStats {
         }
     }
 
+    /// Puts the devices' current figures into the snapshot, reusing its allocations.
+    pub fn set_devices<'a>(&mut self, devices: impl ExactSizeIterator<Item = &'a DeviceStats>) {
+        if self.devices.len() != devices.len() {
+            self.devices = devices.cloned().collect();
+            return;
+        }
+        for (kept, current) in self.devices.iter_mut().zip(devices) {
+            kept.clone_from(current);
+        }
+    }
+
     /// Takes the line's wire counters (the sum over every master the line has had). The
     /// snapshot keeps them as flat fields: that is the shape the metrics and status file show.
     pub fn record_wire(&mut self, counters: &WireCounters) {
@@ -176,6 +230,34 @@ impl LineStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_snapshot_copied_in_place_equals_its_source_and_keeps_its_buffers() {
+        let now = Instant::now();
+        let names = ["valve".to_string(), "dust_collector".to_string()];
+        let mut device = DeviceStats::new("dust_collector");
+        device.timeouts = 3;
+        device.worst_latency = Some(Duration::from_millis(12));
+        let mut source = LineStats::new("line-a", &names, now);
+        source.transactions = 7;
+        source.bus_load = 0.5;
+        source.set_devices([DeviceStats::new("valve"), device].iter());
+        assert_eq!(source.devices[1].timeouts, 3);
+
+        let mut published = LineStats::new("line-a", &names, now);
+        let buffers = |stats: &LineStats| {
+            (
+                stats.line.as_ptr(),
+                stats.devices.as_ptr(),
+                stats.devices[1].name.as_ptr(),
+            )
+        };
+        let before = buffers(&published);
+        published.clone_from(&source);
+        assert_eq!(published, source);
+        assert_eq!(buffers(&published), before, "no new allocation");
+        assert_eq!(published.clone(), source);
+    }
 
     #[test]
     fn load_is_wire_time_per_wall_time_over_the_window() {

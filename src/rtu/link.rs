@@ -43,6 +43,20 @@ impl Link {
         }
     }
 
+    /// Waits until the link could take the next request (the silence after the last frame),
+    /// at most `patience`. Cancel-safe. A Modbus TCP gateway keeps its own line's timing, so
+    /// it is ready at once.
+    pub async fn wait_until_quiet(&mut self, patience: Duration) -> Result<(), Error> {
+        match self {
+            Link::Serial(master) => master.wait_until_quiet(patience).await,
+            Link::RawTcp(master) => {
+                master.wait_until_quiet().await;
+                Ok(())
+            }
+            Link::ModbusTcp(_) => Ok(()),
+        }
+    }
+
     pub fn counters(&self) -> WireCounters {
         match self {
             Link::Serial(master) => master.counters(),

@@ -24,7 +24,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::clock::sleep_until_precise;
+use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
 use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
@@ -233,6 +233,8 @@ pub struct Master {
     /// Nothing has been sent since the port was opened: the line's state is unknown, and the
     /// first request waits for a silence of the byte timeout.
     quiet_start: bool,
+    /// The precise timer of every silence and wait of this master.
+    timer: PreciseTimer,
     /// After a timeout: the line is watched for the late answer until then before the next
     /// request to the same address goes out.
     late_guard_until: Option<Instant>,
@@ -280,6 +282,7 @@ impl Master {
             // The line's state before we opened it is unknown: treat it as just used.
             last_activity: Instant::now(),
             quiet_start: true,
+            timer: PreciseTimer::default(),
             late_guard_until: None,
             timed_out_slave: None,
             late_window_open: false,
@@ -370,8 +373,20 @@ impl Master {
             .max(Duration::from_secs(1));
         self.wait_for_silence(None, patience).await?;
         let drained_at = self.send(&frame).await?;
-        sleep_until_precise(drained_at + self.options.broadcast_turnaround).await;
+        self.timer
+            .sleep_until(drained_at + self.options.broadcast_turnaround)
+            .await;
         Ok(())
+    }
+
+    /// Waits until the line could take the next request: t3.5 of silence (the byte timeout
+    /// after the port was opened), taking and counting whatever arrives meanwhile, as every
+    /// transaction does first. Cancel-safe: the line listens for commands beside it and drops
+    /// this wait when one arrives, so that the command, not a poll chosen before the silence,
+    /// takes the free line. A late-answer guard is not waited for here; the transaction to
+    /// that address still waits it out.
+    pub async fn wait_until_quiet(&mut self, patience: Duration) -> Result<(), Error> {
+        self.wait_for_silence(None, patience).await
     }
 
     pub fn counters(&self) -> WireCounters {
@@ -424,7 +439,7 @@ impl Master {
             let heard = tokio::select! {
                 biased;
                 read = self.port.read_until(&mut chunk, give_up) => read?,
-                () = sleep_until_precise(quiet_at.min(give_up)) => None,
+                () = self.timer.sleep_until(quiet_at.min(give_up)) => None,
             };
             if let Some((count, seen)) = heard {
                 let bytes = chunk[..count].to_vec();
@@ -543,7 +558,7 @@ impl Master {
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
                     if due > Instant::now() {
-                        sleep_until_precise(due.min(wait_until)).await;
+                        self.timer.sleep_until(due.min(wait_until)).await;
                     }
                 }
             }

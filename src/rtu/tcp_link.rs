@@ -18,7 +18,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
-use super::clock::sleep_until_precise;
+use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError};
 use super::frame::{Request, SlaveId};
 use super::master::{Error, PortFault, Reply, WireCounters};
@@ -351,6 +351,8 @@ pub struct RawTcpMaster {
     timing: LineTiming,
     /// The server's serial side may be driven again from this instant.
     next_send_at: Instant,
+    /// The precise timer of the link's own t3.5 spacing.
+    timer: PreciseTimer,
     /// After a timeout: the address that timed out and until when its late answer is awaited
     /// before the next request to it goes out.
     late_guard: Option<(SlaveId, Instant)>,
@@ -367,6 +369,7 @@ impl RawTcpMaster {
             connection: Connection::open(endpoint, options).await?,
             timing,
             next_send_at: Instant::now(),
+            timer: PreciseTimer::default(),
             late_guard: None,
         })
     }
@@ -460,7 +463,7 @@ impl RawTcpMaster {
         self.connection.ensure().await?;
         let sent_at = self.send(&frame).await?;
         self.next_send_at = sent_at + self.timing.frame_time(frame.len()) + turnaround;
-        sleep_until_precise(self.next_send_at).await;
+        self.timer.sleep_until(self.next_send_at).await;
         Ok(())
     }
 
@@ -477,7 +480,7 @@ impl RawTcpMaster {
                 }
             }
         }
-        sleep_until_precise(self.next_send_at).await;
+        self.timer.sleep_until(self.next_send_at).await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
             self.connection.record("rx", &pending);
@@ -489,6 +492,12 @@ impl RawTcpMaster {
             tracing::debug!(url = %self.connection.label, bytes = pending.len(), "bytes before the request dropped");
         }
         Ok(())
+    }
+
+    /// Waits until the link's own t3.5 spacing after the last answer has passed
+    /// (cancel-safe; see [`super::master::Master::wait_until_quiet`]).
+    pub async fn wait_until_quiet(&mut self) {
+        self.timer.sleep_until(self.next_send_at).await;
     }
 
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {

@@ -1,0 +1,187 @@
+//! Gives the kernel back the pages of code that only start-up ran. Reading the configuration,
+//! compiling the profiles and announcing Home Assistant discovery run once, but the pages of
+//! their code and constants stay mapped for the life of the process, and the kernel maps the
+//! neighbours of every page touched as well: on an edge box that is several MiB of a small
+//! memory, held by code that never runs again. Once the gateway has settled, it asks the
+//! kernel to reclaim the file-backed pages of its code and constants
+//! (`madvise(MADV_PAGEOUT)`, Linux 5.4 and later); the pages the running loops use come back
+//! on their next touch.
+//!
+//! Safe by construction: the advice never changes memory contents. Clean file pages are
+//! dropped and read again on use; the kernel leaves alone pages that other processes map (a
+//! shared C library's); the private copies of relocated constants go to swap where there is
+//! one and stay otherwise. On a kernel that does not know the advice nothing happens.
+
+use std::ffi::c_void;
+use std::time::Duration;
+
+use tokio::sync::watch;
+
+/// What one reclaim did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Reclaimed {
+    /// Mappings advised.
+    pub mappings: usize,
+    /// Bytes of address space advised.
+    pub bytes: u64,
+    /// VmRSS just before and just after, in KiB (0 where /proc could not be read).
+    pub rss_before_kib: u64,
+    pub rss_after_kib: u64,
+}
+
+/// One read-only, file-backed mapping of the process: code or constants.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Mapping {
+    start: usize,
+    len: usize,
+}
+
+/// The process's file-backed code and constant mappings, from a `/proc/self/maps` text:
+/// `r-xp` (code) and `r--p` (constants, the ELF headers) with an inode, so never the heap, a
+/// stack, writable data or the kernel's vDSO.
+fn code_and_constants(maps: &str) -> Vec<Mapping> {
+    maps.lines()
+        .filter_map(|line| {
+            let mut fields = line.split_ascii_whitespace();
+            let range = fields.next()?;
+            let permissions = fields.next()?;
+            let _offset = fields.next()?;
+            let _device = fields.next()?;
+            let inode = fields.next()?;
+            if !matches!(permissions, "r-xp" | "r--p") || inode == "0" {
+                return None;
+            }
+            let (start, end) = range.split_once('-')?;
+            let start = usize::from_str_radix(start, 16).ok()?;
+            let end = usize::from_str_radix(end, 16).ok()?;
+            (end > start).then(|| Mapping {
+                start,
+                len: end - start,
+            })
+        })
+        .collect()
+}
+
+/// VmRSS of this process in KiB, 0 when it cannot be read.
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|status| {
+            status
+                .lines()
+                .find(|line| line.starts_with("VmRSS:"))
+                .and_then(|line| line.split_whitespace().nth(1))
+                .and_then(|value| value.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// Asks the kernel to reclaim the pages of this process's code and constants now.
+/// An error when `/proc/self/maps` cannot be read or the kernel refuses the advice (before
+/// Linux 5.4: `EINVAL`).
+pub fn reclaim() -> std::io::Result<Reclaimed> {
+    let maps = std::fs::read_to_string("/proc/self/maps")?;
+    let rss_before_kib = rss_kib();
+    let mut reclaimed = Reclaimed {
+        mappings: 0,
+        bytes: 0,
+        rss_before_kib,
+        rss_after_kib: rss_before_kib,
+    };
+    for mapping in code_and_constants(&maps) {
+        // SAFETY: the range is one the kernel listed as mapped in this process a moment ago;
+        // MADV_PAGEOUT only changes where the pages live, never what they contain (a later
+        // touch faults them back in unchanged), so no reference into the range is affected.
+        // A range unmapped meanwhile makes the call fail with ENOMEM, which is reported.
+        let status = unsafe {
+            libc::madvise(
+                mapping.start as *mut c_void,
+                mapping.len,
+                libc::MADV_PAGEOUT,
+            )
+        };
+        if status != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        reclaimed.mappings += 1;
+        reclaimed.bytes += mapping.len as u64;
+    }
+    reclaimed.rss_after_kib = rss_kib();
+    Ok(reclaimed)
+}
+
+/// Gives back the start-up code `settle` after start-up, and again that long after each
+/// reload (a reload compiles profiles and validates the configuration again): each change of
+/// `reloads` counts as one. Ends when `reloads` has no sender left.
+pub async fn reclaim_after_settling<T>(settle: Duration, mut reloads: watch::Receiver<T>) {
+    loop {
+        tokio::time::sleep(settle).await;
+        match reclaim() {
+            Ok(done) => tracing::debug!(
+                mappings = done.mappings,
+                rss_before_kib = done.rss_before_kib,
+                rss_after_kib = done.rss_after_kib,
+                "start-up code pages given back to the kernel"
+            ),
+            Err(error) => {
+                tracing::debug!(%error, "start-up code pages kept: the kernel refused the advice");
+                return;
+            }
+        }
+        if reloads.changed().await.is_err() {
+            return;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MAPS: &str = "\
+55d0c8a00000-55d0c8b00000 r--p 00000000 fe:01 1311 /usr/local/bin/rtu2mqtt
+55d0c8b00000-55d0c9100000 r-xp 00100000 fe:01 1311 /usr/local/bin/rtu2mqtt
+55d0c9100000-55d0c9140000 r--p 00700000 fe:01 1311 /usr/local/bin/rtu2mqtt
+55d0c9140000-55d0c9142000 rw-p 00740000 fe:01 1311 /usr/local/bin/rtu2mqtt
+55d0c9142000-55d0c9150000 rw-p 00000000 00:00 0
+55d0ca000000-55d0ca100000 rw-p 00000000 00:00 0                          [heap]
+7f1c2e000000-7f1c2e028000 r--p 00000000 fe:01 2002 /usr/lib/x86_64-linux-gnu/libc.so.6
+7f1c2e028000-7f1c2e19d000 r-xp 00028000 fe:01 2002 /usr/lib/x86_64-linux-gnu/libc.so.6
+7f1c2e19d000-7f1c2e1f5000 r--p 0019d000 fe:01 2002 /usr/lib/x86_64-linux-gnu/libc.so.6
+7f1c2e1f5000-7f1c2e1f9000 rw-p 001f4000 fe:01 2002 /usr/lib/x86_64-linux-gnu/libc.so.6
+7ffd1e2c1000-7ffd1e2e2000 rw-p 00000000 00:00 0                          [stack]
+7ffd1e3e5000-7ffd1e3e9000 r--p 00000000 00:00 0                          [vvar]
+7ffd1e3e9000-7ffd1e3eb000 r-xp 00000000 00:00 0                          [vdso]
+";
+
+    #[test]
+    fn only_file_backed_code_and_constants_are_chosen() {
+        let chosen = code_and_constants(MAPS);
+        let starts: Vec<usize> = chosen.iter().map(|m| m.start).collect();
+        assert_eq!(
+            starts,
+            vec![
+                0x55d0c8a00000,
+                0x55d0c8b00000,
+                0x55d0c9100000,
+                0x7f1c2e000000,
+                0x7f1c2e028000,
+                0x7f1c2e19d000
+            ]
+        );
+        assert_eq!(chosen[1].len, 0x600000);
+    }
+
+    #[test]
+    fn unreadable_lines_are_skipped() {
+        let maps = "garbage\n1000-0800 r-xp 0 fe:01 7 /x\nzz-yy r-xp 0 fe:01 7 /x\n";
+        assert!(code_and_constants(maps).is_empty());
+    }
+
+    #[test]
+    fn this_kernel_takes_the_advice_for_every_mapping() {
+        // The test's own process: its code runs on after the advice (it returns here).
+        let done = reclaim().expect("MADV_PAGEOUT on this kernel");
+        assert!(done.mappings >= 2 && done.bytes > 0, "{done:?}");
+    }
+}
