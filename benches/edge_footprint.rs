@@ -129,6 +129,8 @@ struct Wire {
     efficiency: f64,
     gap_p50: Duration,
     gap_p95: Duration,
+    gap_p99: Duration,
+    gap_max: Duration,
     early: usize,
     command_p50: Option<Duration>,
     command_p95: Option<Duration>,
@@ -397,6 +399,8 @@ fn wire_figures(records: &[RequestRecord], wall: Duration, published: &[(u16, In
         efficiency: busy.as_secs_f64() / wall.as_secs_f64(),
         gap_p50: percentile(&gaps, 50),
         gap_p95: percentile(&gaps, 95),
+        gap_p99: percentile(&gaps, 99),
+        gap_max: gaps.last().copied().unwrap_or_default(),
         early,
         command_p50: (!latencies.is_empty()).then(|| percentile(&latencies, 50)),
         command_p95: (!latencies.is_empty()).then(|| percentile(&latencies, 95)),
@@ -480,6 +484,11 @@ fn report((one, wire): &(Footprint, Wire), many: &Footprint) {
             "p50 ≤ t3.5 + 0.25 ms = {}",
             ms(t3_5 + Duration::from_micros(250))
         ),
+    );
+    row(
+        "  p99 / longest",
+        format!("{} / {}", ms(wire.gap_p99), ms(wire.gap_max)),
+        "",
     );
     row(
         "early requests (sooner than t3.5)",

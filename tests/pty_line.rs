@@ -165,6 +165,19 @@ impl Running {
         self.values.iter().filter(|v| v.1 == device).count()
     }
 
+    /// Answered polls of `device` so far, from the line's statistics. A poll whose answer
+    /// equals the last one sends no values (nothing changed), so Values events do not count
+    /// polls.
+    fn polls_ok(&self, device: &str) -> u64 {
+        self.handle
+            .stats_rx
+            .borrow()
+            .devices
+            .iter()
+            .find(|d| d.name == device)
+            .map_or(0, |d| d.polls_ok)
+    }
+
     fn went(&self, device: &str, online: bool) -> usize {
         self.availability
             .iter()
@@ -435,13 +448,16 @@ async fn noise_never_yields_a_wrong_value() {
         vec![device("air_shower", profile, 0x81, 0)],
     );
     let enough = running
-        .until(Duration::from_secs(30), |r| r.values_of("air_shower") >= 60)
+        .until(Duration::from_secs(30), |r| r.polls_ok("air_shower") >= 60)
         .await;
     assert!(
         enough,
         "only {} polls delivered",
-        running.values_of("air_shower")
+        running.polls_ok("air_shower")
     );
+    // Every value the line sent is checked below; a wrong one would differ from the last
+    // answer, so it would have been sent.
+    assert!(running.values_of("air_shower") >= 1);
     let coils = sim::lock(&shower).coils();
     let expected: HashMap<&str, String> = [
         ("front_door_lock", air_shower::FRONT_DOOR_LOCK),
@@ -473,6 +489,38 @@ async fn noise_never_yields_a_wrong_value() {
 }
 
 #[tokio::test(flavor = "current_thread")]
+async fn an_unchanged_answer_sends_nothing_and_a_change_is_sent() {
+    let (shower, shower_shared) = share(AirShower::new());
+    let (_line, mut running) = start_on_new_line(
+        "unchanged",
+        Parity::None,
+        vec![shower_shared],
+        vec![device("air_shower", fast_air_shower(), 0x81, 0)],
+    );
+    assert!(
+        running
+            .until(Duration::from_secs(20), |r| r.polls_ok("air_shower") >= 10)
+            .await
+    );
+    // Ten answers, one set of values: the answer never changed.
+    assert_eq!(running.values_of("air_shower"), 1);
+    assert_eq!(running.text("air_shower", "light").as_deref(), Some("OFF"));
+
+    assert!(sim::lock(&shower).set_coil(air_shower::LIGHT, true));
+    assert!(
+        running
+            .until(Duration::from_secs(10), |r| r
+                .text("air_shower", "light")
+                .as_deref()
+                == Some("ON"))
+            .await,
+        "the change was never sent"
+    );
+    assert_eq!(running.values_of("air_shower"), 2);
+    running.stop().await;
+}
+
+#[tokio::test(flavor = "current_thread")]
 async fn busy_answers_are_retried_and_never_take_the_device_offline() {
     let (_shower, shower_shared) = share(AirShower::new());
     let line =
@@ -492,7 +540,7 @@ async fn busy_answers_are_retried_and_never_take_the_device_offline() {
     remember_profiles(&spec.devices);
     let mut running = Running::start(spec);
     let enough = running
-        .until(Duration::from_secs(20), |r| r.values_of("air_shower") >= 20)
+        .until(Duration::from_secs(20), |r| r.polls_ok("air_shower") >= 20)
         .await;
     assert!(enough);
     assert_eq!(running.went("air_shower", false), 0);
@@ -587,7 +635,8 @@ async fn a_command_overtakes_queued_polls() {
     );
     assert!(
         running
-            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 5)
+            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 1
+                && r.polls_ok("air_shower") >= 5)
             .await
     );
     let state = running.latest.get("air_shower").cloned().unwrap();
@@ -677,7 +726,7 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
     assert!(
         running
             .until(Duration::from_secs(20), |r| {
-                has_all_fields(r, "valve", &profile) && r.values_of("valve") >= 12
+                has_all_fields(r, "valve", &profile) && r.polls_ok("valve") >= 12
             })
             .await,
         "valve values: {:?}",
@@ -795,7 +844,8 @@ async fn the_port_disappearing_and_coming_back_is_reopened() {
     );
     assert!(
         running
-            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 3)
+            .until(Duration::from_secs(10), |r| r.values_of("air_shower") >= 1
+                && r.polls_ok("air_shower") >= 3)
             .await
     );
     line.unplug().await;
@@ -833,11 +883,15 @@ async fn the_port_disappearing_and_coming_back_is_reopened() {
         "not back online after the replug"
     );
     assert!(replugged.elapsed() < Duration::from_secs(10));
+    // Polled again, and its values sent again although they did not change: the line
+    // forgot its last answers when the device went offline.
     let values_before = running.values_of("air_shower");
+    let polls_before = running.polls_ok("air_shower");
     assert!(
         running
             .until(Duration::from_secs(5), |r| r.values_of("air_shower")
-                > values_before + 2)
+                > values_before
+                && r.polls_ok("air_shower") > polls_before + 2)
             .await
     );
     assert!(running.handle.stats_rx.borrow().port_open);

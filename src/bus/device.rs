@@ -1,7 +1,8 @@
 //! One device's runtime on its line, in one place instead of parallel per-device vectors: its
 //! configuration, its statistics, the blocks it refused merged (read by parts from then on),
-//! and the one path from a read answer to the values the line publishes (field data that does
-//! not decode is counted and logged, never published). No frames are run here.
+//! the last answer of each block, and the one path from a read answer to the values the line
+//! publishes (field data that does not decode is counted and logged, never published). No
+//! frames are run here.
 
 use crate::profile::Value;
 use crate::rtu::Response;
@@ -19,6 +20,10 @@ pub struct DeviceRuntime {
     pub stats: DeviceStats,
     /// Per block: the device refused the merged block, read its used runs instead.
     pub read_by_parts: Vec<bool>,
+    /// Per block: the last answer whose values went to the bridge while the device has been
+    /// online. An equal answer decodes to the same values, so it is neither decoded nor sent
+    /// again: polling a device whose values do not move allocates nothing.
+    last_answers: Vec<Option<Response>>,
 }
 
 impl DeviceRuntime {
@@ -26,17 +31,34 @@ impl DeviceRuntime {
         DeviceRuntime {
             stats: DeviceStats::new(&spec.name),
             read_by_parts: vec![false; spec.profile.read_blocks().len()],
+            last_answers: vec![None; spec.profile.read_blocks().len()],
             spec,
         }
     }
 
+    /// True when `answer` to `block` equals the last one whose values were sent and the device
+    /// is online: its values are already known to the bridge. A device that comes back online
+    /// sends its values again (the bridge republishes them then).
+    pub fn answer_unchanged(&self, block: usize, answer: &Response) -> bool {
+        self.stats.online && self.last_answers.get(block).and_then(Option::as_ref) == Some(answer)
+    }
+
+    /// The device went offline: its next answers are sent whatever they hold.
+    pub fn forget_answers(&mut self) {
+        self.last_answers.fill(None);
+    }
+
     /// Decodes `answer` to the device's read block `block` and adds its valid values to
-    /// `values`.
+    /// `values`. An answer whose fields all decode is remembered (see
+    /// [`DeviceRuntime::answer_unchanged`]); one with invalid field data is decoded, counted
+    /// and logged each time.
     pub fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
+        let mut all_valid = true;
         for reading in self.spec.profile.decode_block(block, answer) {
             match reading.value {
                 Ok(value) => values.push((reading.field, value)),
                 Err(error) => {
+                    all_valid = false;
                     self.stats.field_errors += 1;
                     tracing::warn!(
                         device = %self.spec.name,
@@ -45,6 +67,9 @@ impl DeviceRuntime {
                     );
                 }
             }
+        }
+        if let Some(last) = self.last_answers.get_mut(block) {
+            *last = all_valid.then(|| answer.clone());
         }
     }
 }

@@ -371,6 +371,9 @@ impl Line {
             return;
         };
         runtime.stats.online = online;
+        if !online {
+            runtime.forget_answers();
+        }
         if online {
             tracing::info!(device = %runtime.spec.name, "device online");
         } else {
@@ -402,10 +405,14 @@ impl Line {
         };
         let result = poll::read_block(context, master, runtime, block, read).await;
         let mut values = Values::new();
+        let mut unchanged = false;
         let outcome = match result {
             Ok(reply) => {
                 if let Ok(answer) = &reply {
-                    runtime.decode_into(block, answer, &mut values);
+                    unchanged = runtime.answer_unchanged(block, answer);
+                    if !unchanged {
+                        runtime.decode_into(block, answer, &mut values);
+                    }
                 }
                 poll::outcome(&reply, &runtime.spec.name, &read.name)
             }
@@ -419,7 +426,7 @@ impl Line {
             }
         };
         match outcome {
-            PollOutcome::Answered if !values.is_empty() => runtime.stats.polls_ok += 1,
+            PollOutcome::Answered if unchanged || !values.is_empty() => runtime.stats.polls_ok += 1,
             PollOutcome::Failed => runtime.stats.polls_failed += 1,
             _ => {}
         }

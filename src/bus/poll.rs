@@ -35,6 +35,7 @@ pub async fn read_block(
         spec,
         stats,
         read_by_parts,
+        ..
     } = device;
     let exchange = Exchange::for_device(context.line, spec, context.timeout, context.turnaround);
     let attempts = context.attempts;

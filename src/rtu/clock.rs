@@ -113,6 +113,9 @@ impl PreciseTimer {
                 )
             };
             if read == 8 {
+                // The expiry is consumed: the next wait sleeps on the reactor at once instead
+                // of first reading the drained timer (one system call per wait).
+                ready.clear_ready();
                 return Ok(());
             }
             let error = std::io::Error::last_os_error();
