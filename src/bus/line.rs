@@ -234,9 +234,14 @@ impl Line {
             _ = master.wait_until_quiet(patience) => None,
         };
         match arrived {
-            Some(Some(command)) => self.accept(command, Instant::now()).await,
+            Some(Some(command)) => {
+                // The command's transaction waits out the rest of the silence itself: that
+                // gap is the wire's, not the line's own time.
+                self.turnaround.idle();
+                self.accept(command, Instant::now()).await;
+            }
             Some(None) => self.commands_open = false,
-            None => {}
+            None => self.turnaround.silence_over(),
         }
     }
 

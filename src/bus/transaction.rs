@@ -95,6 +95,16 @@ impl Turnaround {
             .store(self.nanos(Instant::now()), Ordering::Relaxed);
     }
 
+    /// The silence after the last transaction is over: the line's own time runs from here
+    /// (the silence is the wire's, not overhead).
+    pub fn silence_over(&self) {
+        let ended = self.ended.load(Ordering::Relaxed);
+        if ended != 0 {
+            self.ended
+                .store(self.nanos(Instant::now()).max(ended), Ordering::Relaxed);
+        }
+    }
+
     /// The line waits for something to become due: the gap that follows is not overhead.
     pub fn idle(&self) {
         self.ended.store(0, Ordering::Relaxed);
@@ -188,4 +198,28 @@ impl<'a> Exchange<'a> {
 fn record_latency(stats: &mut DeviceStats, latency: Duration) {
     stats.last_latency = Some(latency);
     stats.worst_latency = Some(stats.worst_latency.map_or(latency, |w| w.max(latency)));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_silence_after_a_transaction_is_not_the_lines_own_time() {
+        let turnaround = Turnaround::default();
+        turnaround.ended();
+        // The wire's silence: far longer than the line's own decision.
+        std::thread::sleep(Duration::from_millis(30));
+        turnaround.silence_over();
+        turnaround.starting();
+        let (mean, worst) = turnaround.figures().expect("one sample");
+        assert!(worst < Duration::from_millis(15), "{mean:?} / {worst:?}");
+
+        // Idle time is no sample at all.
+        turnaround.ended();
+        turnaround.idle();
+        turnaround.silence_over();
+        turnaround.starting();
+        assert_eq!(turnaround.figures().map(|(_, worst)| worst), Some(worst));
+    }
 }
