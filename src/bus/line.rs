@@ -234,14 +234,22 @@ impl Line {
             _ = master.wait_until_quiet(patience) => None,
         };
         match arrived {
-            Some(Some(command)) => {
-                // The command's transaction waits out the rest of the silence itself: that
-                // gap is the wire's, not the line's own time.
+            Some(received) => {
+                // A command's transaction waits out the rest of the silence itself: that gap
+                // is the wire's, not the line's own time.
                 self.turnaround.idle();
-                self.accept(command, Instant::now()).await;
+                self.take_received(received).await;
             }
-            Some(None) => self.commands_open = false,
             None => self.turnaround.silence_over(),
+        }
+    }
+
+    /// What the command queue gave while the line waited: a command is queued; the end of
+    /// the queue (the bridge is gone) stops the line listening to it.
+    async fn take_received(&mut self, received: Option<Command>) {
+        match received {
+            Some(command) => self.accept(command, Instant::now()).await,
+            None => self.commands_open = false,
         }
     }
 
@@ -254,10 +262,9 @@ impl Line {
         let commands_open = self.commands_open;
         tokio::select! {
             () = sleep => {}
-            command = self.command_rx.recv(), if commands_open => match command {
-                Some(command) => self.accept(command, Instant::now()).await,
-                None => self.commands_open = false,
-            },
+            received = self.command_rx.recv(), if commands_open => {
+                self.take_received(received).await;
+            }
             () = self.shutdown.fired() => {}
         }
         if self.last_published.elapsed() >= HEARTBEAT {

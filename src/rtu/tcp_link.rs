@@ -480,7 +480,7 @@ impl RawTcpMaster {
                 }
             }
         }
-        self.timer.sleep_until(self.next_send_at).await;
+        self.wait_until_quiet().await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
             self.connection.record("rx", &pending);
