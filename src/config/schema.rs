@@ -397,7 +397,6 @@ fn default_command_ttl() -> Duration {
 fn default_release_startup_code_after() -> Duration {
     crate::config::STARTUP_CODE_SETTLE_TIME
 }
-
 fn default_stats_interval() -> Duration {
     Duration::from_secs(60)
 }

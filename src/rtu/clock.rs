@@ -81,18 +81,13 @@ impl PreciseTimer {
         if self.unavailable {
             return Err(std::io::Error::from(std::io::ErrorKind::Unsupported));
         }
-        if self.timer.is_none() {
-            match new_timerfd() {
-                Ok(timer) => self.timer = Some(timer),
-                Err(error) => {
-                    self.unavailable = true;
-                    return Err(error);
-                }
+        match self.timer {
+            Some(ref timer) => Ok(timer),
+            None => {
+                let timer = new_timerfd().inspect_err(|_| self.unavailable = true)?;
+                Ok(self.timer.insert(timer))
             }
         }
-        self.timer
-            .as_ref()
-            .ok_or_else(|| std::io::Error::from(std::io::ErrorKind::Unsupported))
     }
 
     /// Sleeps `duration` on the one-shot CLOCK_MONOTONIC timerfd watched by the runtime's
