@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use rtu2mqtt::bus::health::{Availability, HealthChange, HealthPolicy};
 use rtu2mqtt::bus::plan::{BlockPlan, DevicePlan};
-use rtu2mqtt::bus::scheduler::{Due, PollOutcome, Scheduler, BUSY_RETRY_DELAY};
+use rtu2mqtt::bus::scheduler::{Due, PollOutcome, Scheduler, BUSY_LIMIT, BUSY_RETRY_DELAY};
 use rtu2mqtt::profile::PollClass;
 
 const MS: Duration = Duration::from_millis(1);
@@ -380,4 +380,54 @@ fn losing_the_port_takes_every_device_offline_and_restoring_probes_at_once() {
     let back = start + 10_000 * MS;
     scheduler.port_restored(back);
     assert!(matches!(scheduler.next_due(back), Due::Probe { .. }));
+}
+
+#[test]
+fn a_block_busy_beyond_the_limit_counts_as_failed_and_an_answer_resets_the_count() {
+    let start = Instant::now();
+    let mut scheduler = new_scheduler(
+        vec![fast_device(17, 1000, 0)],
+        HealthPolicy::with_offline_after(1),
+        start,
+    );
+    let mut now = start;
+    let poll_busy = |scheduler: &mut Scheduler<u32>, times: u32, now: &mut Instant| {
+        for _ in 0..times {
+            assert_eq!(
+                scheduler.next_due(*now),
+                Due::Poll {
+                    device: 0,
+                    block: 0
+                }
+            );
+            *now += 20 * MS;
+            let change = scheduler.record_poll(0, 0, PollOutcome::Busy, *now);
+            *now += BUSY_RETRY_DELAY;
+            if change.is_some() {
+                return change;
+            }
+        }
+        None
+    };
+    assert_eq!(poll_busy(&mut scheduler, BUSY_LIMIT - 1, &mut now), None);
+    assert_eq!(
+        scheduler.next_due(now),
+        Due::Poll {
+            device: 0,
+            block: 0
+        }
+    );
+    assert_eq!(
+        scheduler.record_poll(0, 0, PollOutcome::Answered, now + 20 * MS),
+        Some(HealthChange::CameOnline)
+    );
+    now += 1000 * MS;
+    // The answer started the count again: another streak one short of the limit is harmless.
+    assert_eq!(poll_busy(&mut scheduler, BUSY_LIMIT - 1, &mut now), None);
+    assert_eq!(scheduler.availability(0), Availability::Online);
+    // One more busy answer reaches the limit: as good as absent.
+    assert_eq!(
+        poll_busy(&mut scheduler, 1, &mut now),
+        Some(HealthChange::WentOffline)
+    );
 }
