@@ -15,7 +15,7 @@ use rtu2mqtt::rtu::transport::{Port, SerialSettings};
 use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
-use tokio_serial::SerialStream;
+use mio_serial::SerialStream;
 
 const DEVICE: u8 = 0x11;
 /// Generous for a busy 2-core machine; the late answer comes at 1.3 × this.

@@ -1,16 +1,19 @@
-//! The serial port: the only code in the crate that opens or touches one (tokio-serial).
+//! The serial port: the only code in the crate that opens or touches one (mio-serial, on the
+//! tokio reactor).
 //! Opens a line with its character format (a pseudo-terminal that refuses parity runs without
 //! it, said once at INFO; a real UART that refuses a setting is an error), writes a frame and
 //! waits until the transmit buffer has drained (tcdrain), reads bytes with deadlines, discards
 //! stray input, and optionally switches the kernel's RS485 mode on.
 
-use std::io;
+use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
 use std::time::Duration;
 
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use mio_serial::SerialStream;
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
 use tokio::time::Instant;
-use tokio_serial::{DataBits, SerialPort, SerialPortBuilderExt, SerialStream, StopBits};
+use tokio_serial::{DataBits, SerialPort, StopBits};
 
 use super::timing::{CharFormat, Parity};
 
@@ -55,9 +58,21 @@ pub enum TransportError {
     Io(#[from] std::io::Error),
 }
 
+/// How long a write waits for room in the kernel's transmit buffer before the port counts as
+/// gone. A frame fits that buffer many times over, so only a port that sends nothing (a pty
+/// whose other end stopped reading) ever waits.
+const WRITE_PATIENCE: Duration = Duration::from_secs(1);
+
+/// How often a write that found the transmit buffer full tries again.
+const WRITE_RETRY: Duration = Duration::from_millis(1);
+
 /// An open serial line.
 pub struct Port {
-    stream: SerialStream,
+    /// Registered with the reactor for reading only. The transmit side signals "writable" each
+    /// time the driver moves bytes out (on a pty: each time the other end reads), and with
+    /// write interest every such signal woke the runtime for nothing, about once per
+    /// transaction; writes never need the reactor (see [`Port::write_frame`]).
+    stream: AsyncFd<SerialStream>,
     path: String,
     pseudo_terminal: bool,
 }
@@ -116,21 +131,20 @@ impl Port {
             .data_bits(DataBits::Eight)
             .parity(tokio_serial::Parity::None)
             .stop_bits(StopBits::One)
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(|source| {
-                let path = settings.path.clone();
-                let source = io_error(source);
-                if is_not_a_terminal(&path) {
-                    TransportError::NotATerminal { path, source }
-                } else {
-                    TransportError::Open { path, source }
-                }
-            })?;
+            .flow_control(tokio_serial::FlowControl::None);
+        let stream = SerialStream::open(&stream).map_err(|source| {
+            let path = settings.path.clone();
+            let source = io_error(source);
+            if is_not_a_terminal(&path) {
+                TransportError::NotATerminal { path, source }
+            } else {
+                TransportError::Open { path, source }
+            }
+        })?;
         Port::from_stream(stream, settings)
     }
 
-    /// Wraps an already open stream (one end of `SerialStream::pair()` in tests and simulators)
+    /// Wraps an already open stream (one end of `mio_serial::SerialStream::pair()` in tests)
     /// and applies `settings` to it; `settings.path` only names it in logs and errors.
     pub fn from_stream(
         mut stream: SerialStream,
@@ -142,6 +156,10 @@ impl Port {
             // Exclusive access is a safeguard, not a requirement for talking on the line.
             tracing::warn!(path = %path, %error, "cannot get exclusive access (TIOCEXCL)");
         }
+        // SAFETY: the AsyncFd owns the stream, whose descriptor stays open and the same until
+        // the AsyncFd is dropped. Needs the runtime's I/O driver.
+        let stream = unsafe { AsyncFd::register_with_interest(stream, Interest::READABLE) }
+            .map_err(io::Error::from)?;
         let mut port = Port {
             stream,
             path,
@@ -190,29 +208,33 @@ impl Port {
                 "baud rate",
                 baud.to_string(),
                 self.stream
+                    .get_mut()
                     .set_baud_rate(baud)
-                    .and_then(|()| self.check(self.stream.baud_rate()? == baud)),
+                    .and_then(|()| self.check(self.stream.get_ref().baud_rate()? == baud)),
             ),
             (
                 "data bits",
                 format.data_bits.to_string(),
                 self.stream
+                    .get_mut()
                     .set_data_bits(data_bits)
-                    .and_then(|()| self.check(self.stream.data_bits()? == data_bits)),
+                    .and_then(|()| self.check(self.stream.get_ref().data_bits()? == data_bits)),
             ),
             (
                 "parity",
                 format.parity.to_string(),
                 self.stream
+                    .get_mut()
                     .set_parity(parity)
-                    .and_then(|()| self.check(self.stream.parity()? == parity)),
+                    .and_then(|()| self.check(self.stream.get_ref().parity()? == parity)),
             ),
             (
                 "stop bits",
                 format.stop_bits.to_string(),
                 self.stream
+                    .get_mut()
                     .set_stop_bits(stop_bits)
-                    .and_then(|()| self.check(self.stream.stop_bits()? == stop_bits)),
+                    .and_then(|()| self.check(self.stream.get_ref().stop_bits()? == stop_bits)),
             ),
         ];
         let mut not_applied = Vec::new();
@@ -330,10 +352,9 @@ impl Port {
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
     /// On a pseudo-terminal the instant the write returned.
     pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
-        // No `flush()`: tokio-serial's flush is a blocking tcdrain on the async worker thread
-        // (mio-serial), which would stall the runtime for the frame's whole wire time. The
-        // drain is awaited below on the blocking pool instead.
-        self.stream.write_all(frame).await?;
+        // No `flush()`: mio-serial's flush is a blocking tcdrain, which would stall the runtime
+        // for the frame's whole wire time. The drain is awaited below on the blocking pool.
+        self.write_all(frame).await?;
         if self.pseudo_terminal {
             // A pty has no transmitter: the bytes are readable on the other side as soon as
             // the write returns, and tcdrain there would only add the blocking pool's latency.
@@ -360,7 +381,7 @@ impl Port {
         buf: &mut [u8],
         deadline: Instant,
     ) -> io::Result<Option<(usize, Instant)>> {
-        match tokio::time::timeout_at(deadline, self.stream.read(buf)).await {
+        match tokio::time::timeout_at(deadline, self.read(buf)).await {
             Err(_elapsed) => Ok(None),
             Ok(Ok(0)) if !buf.is_empty() => Err(port_gone(&self.path)),
             Ok(Ok(count)) => Ok(Some((count, Instant::now()))),
@@ -373,7 +394,10 @@ impl Port {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
         loop {
-            match self.stream.try_read(&mut chunk) {
+            match self
+                .stream
+                .try_io(Interest::READABLE, |mut stream| stream.read(&mut chunk))
+            {
                 Ok(0) => return Err(port_gone(&self.path)),
                 Ok(count) => pending.extend_from_slice(&chunk[..count]),
                 Err(error) if error.kind() == io::ErrorKind::WouldBlock => return Ok(pending),
@@ -381,6 +405,46 @@ impl Port {
                 Err(error) => return Err(error),
             }
         }
+    }
+
+    /// Waits for received bytes and reads them into `buf`.
+    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            let mut ready = self.stream.readable().await?;
+            if let Ok(result) = ready.try_io(|stream| stream.get_ref().read(buf)) {
+                return result;
+            }
+        }
+    }
+
+    /// Writes all of `frame` into the kernel's transmit buffer. It has room for a frame
+    /// practically always; when it has not, the write is tried again on a short timer instead
+    /// of waiting on the reactor (see [`Port::stream`]), until [`WRITE_PATIENCE`] has passed.
+    async fn write_all(&self, frame: &[u8]) -> io::Result<()> {
+        let give_up = Instant::now() + WRITE_PATIENCE;
+        let mut rest = frame;
+        while !rest.is_empty() {
+            match self.stream.get_ref().write(rest) {
+                Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
+                Ok(count) => rest = &rest[count..],
+                Err(error) if error.kind() == io::ErrorKind::Interrupted => {}
+                Err(error) if error.kind() == io::ErrorKind::WouldBlock => {
+                    if Instant::now() >= give_up {
+                        return Err(io::Error::new(
+                            io::ErrorKind::TimedOut,
+                            format!(
+                                "{}: the port took no bytes for {}",
+                                self.path,
+                                humantime::format_duration(WRITE_PATIENCE)
+                            ),
+                        ));
+                    }
+                    tokio::time::sleep(WRITE_RETRY).await;
+                }
+                Err(error) => return Err(error),
+            }
+        }
+        Ok(())
     }
 
     /// Discards pending input, returning how many bytes were thrown away.
