@@ -7,6 +7,7 @@ use std::io::Write;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use mio_serial::SerialStream;
 use rtu2mqtt::rtu::clock::sleep_until_precise;
 use rtu2mqtt::rtu::codec::{self, request_frame_len};
 use rtu2mqtt::rtu::master::{Error, Master, MasterOptions, Reply};
@@ -15,7 +16,6 @@ use rtu2mqtt::rtu::transport::{Port, SerialSettings};
 use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
-use mio_serial::SerialStream;
 
 const DEVICE: u8 = 0x11;
 /// Generous for a busy 2-core machine; the late answer comes at 1.3 × this.
