@@ -17,27 +17,13 @@ use tokio::time::Instant;
 /// listening this long before it.
 pub const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 
-/// How long before the deadline the timerfd fires at first; the rest is spent yielding. A
-/// [`PreciseTimer`] then learns its lead from how late the host wakes it (see [`LEAD_UP`]).
+/// How long before the deadline the timerfd fires; the rest is spent yielding. Covers the
+/// kernel's default timer slack (50 µs) and the reactor's wake-up.
 pub const TIMERFD_SPIN_WINDOW: Duration = Duration::from_micros(120);
-
-/// The bounds of a [`PreciseTimer`]'s learnt lead: a fast host needs almost none, and no host
-/// worth running a line on takes longer than this to wake a sleeping thread.
-const MIN_LEAD: Duration = Duration::from_micros(10);
-const MAX_LEAD: Duration = Duration::from_micros(400);
-
-/// A wait whose wake-up came after its deadline moves the lead up by this much, one that came
-/// before it moves the lead down by [`LEAD_DOWN`]. The lead settles where about one wake-up in
-/// four is late (by less than the spread of the host's wake-up latency), and the others yield
-/// only for as long as they woke early: the CPU spent yielding follows what the host needs
-/// instead of a fixed window that suits one machine.
-const LEAD_UP: Duration = Duration::from_micros(3);
-const LEAD_DOWN: Duration = Duration::from_micros(1);
 
 /// Waits until `deadline`, overshooting as little as the host allows.
 ///
-/// Waits on a timerfd until a lead before the deadline ([`TIMERFD_SPIN_WINDOW`] for a new
-/// timer; a [`PreciseTimer`] kept across waits learns it from the host) (with the tokio timer
+/// Waits on a timerfd until [`TIMERFD_SPIN_WINDOW`] before the deadline (with the tokio timer
 /// until [`SPIN_WINDOW`] before it when no timerfd is available), then yields to the runtime
 /// (`tokio::task::yield_now`) until the deadline has passed, so other tasks keep running even
 /// on a current_thread runtime and no thread is blocked. The CPU is busy for about 0.1 ms per
@@ -63,24 +49,11 @@ pub async fn sleep_until_precise(deadline: Instant) {
 /// reactor, deregistered and closed each time, which saves four system calls per wait.
 /// A wait dropped before its end (a `select!` that took another branch) leaves the timer armed;
 /// the next wait re-arms it, and a stale expiry is read away as `EAGAIN`.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct PreciseTimer {
     timer: Option<AsyncFd<OwnedFd>>,
     /// No timerfd could be had: the tokio timer stands in from then on.
     unavailable: bool,
-    /// How long before a deadline the timerfd is set to fire, learnt from the waits that ran
-    /// to their end.
-    lead: Duration,
-}
-
-impl Default for PreciseTimer {
-    fn default() -> Self {
-        Self {
-            timer: None,
-            unavailable: false,
-            lead: TIMERFD_SPIN_WINDOW,
-        }
-    }
 }
 
 impl PreciseTimer {
@@ -92,32 +65,15 @@ impl PreciseTimer {
             return;
         }
         let until_deadline = deadline - now;
-        if until_deadline > self.lead {
-            match self.timerfd_sleep(until_deadline - self.lead).await {
-                Ok(()) => self.learn_lead(Instant::now() >= deadline),
-                Err(_) if until_deadline > SPIN_WINDOW => {
-                    tokio::time::sleep_until(deadline - SPIN_WINDOW).await;
-                }
-                Err(_) => {}
+        if until_deadline > TIMERFD_SPIN_WINDOW {
+            let coarse = until_deadline - TIMERFD_SPIN_WINDOW;
+            if self.timerfd_sleep(coarse).await.is_err() && until_deadline > SPIN_WINDOW {
+                tokio::time::sleep_until(deadline - SPIN_WINDOW).await;
             }
         }
         while Instant::now() < deadline {
             tokio::task::yield_now().await;
         }
-    }
-
-    /// The lead the timerfd fires with, as learnt so far.
-    pub fn lead(&self) -> Duration {
-        self.lead
-    }
-
-    /// Moves the lead after a timerfd wake-up that came after (`late`) or before the deadline.
-    fn learn_lead(&mut self, late: bool) {
-        self.lead = if late {
-            (self.lead + LEAD_UP).min(MAX_LEAD)
-        } else {
-            self.lead.saturating_sub(LEAD_DOWN).max(MIN_LEAD)
-        };
     }
 
     /// The timerfd, made and registered on first use (within the runtime that runs the owner).
@@ -261,44 +217,6 @@ mod tests {
             );
         }
         assert!(timer.timer.is_some(), "one timerfd, kept for every wait");
-    }
-
-    #[test]
-    fn the_lead_grows_after_late_wake_ups_shrinks_after_early_ones_and_stays_bounded() {
-        let mut timer = PreciseTimer::default();
-        timer.learn_lead(true);
-        assert_eq!(timer.lead(), TIMERFD_SPIN_WINDOW + LEAD_UP);
-        timer.learn_lead(false);
-        assert_eq!(timer.lead(), TIMERFD_SPIN_WINDOW + LEAD_UP - LEAD_DOWN);
-        for _ in 0..1000 {
-            timer.learn_lead(false);
-        }
-        assert_eq!(timer.lead(), MIN_LEAD);
-        for _ in 0..1000 {
-            timer.learn_lead(true);
-        }
-        assert_eq!(timer.lead(), MAX_LEAD);
-        // One late wake-up in four holds the lead where it is.
-        let settled = timer.lead() - LEAD_UP;
-        timer.lead = settled;
-        for _ in 0..100 {
-            timer.learn_lead(true);
-            for _ in 0..3 {
-                timer.learn_lead(false);
-            }
-        }
-        assert_eq!(timer.lead(), settled);
-    }
-
-    #[tokio::test(flavor = "current_thread")]
-    async fn a_timer_learns_its_lead_and_never_returns_early() {
-        let mut timer = PreciseTimer::default();
-        for _ in 0..200 {
-            let deadline = Instant::now() + Duration::from_micros(1500);
-            timer.sleep_until(deadline).await;
-            assert!(Instant::now() >= deadline);
-        }
-        assert!((MIN_LEAD..=MAX_LEAD).contains(&timer.lead()));
     }
 
     #[tokio::test(flavor = "current_thread")]
