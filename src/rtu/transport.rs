@@ -9,11 +9,10 @@ use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
 use std::time::Duration;
 
-use mio_serial::SerialStream;
+use mio_serial::{DataBits, SerialPort, SerialStream, StopBits};
 use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::time::Instant;
-use tokio_serial::{DataBits, SerialPort, StopBits};
 
 use super::timing::{CharFormat, Parity};
 
@@ -71,7 +70,7 @@ pub struct Port {
     /// Registered with the reactor for reading only. The transmit side signals "writable" each
     /// time the driver moves bytes out (on a pty: each time the other end reads), and with
     /// write interest every such signal woke the runtime for nothing, about once per
-    /// transaction; writes never need the reactor (see [`Port::write_frame`]).
+    /// transaction; writes never need the reactor (see [`Port::write_all`]).
     stream: AsyncFd<SerialStream>,
     path: String,
     pseudo_terminal: bool,
@@ -95,7 +94,7 @@ fn port_gone(path: &str) -> io::Error {
     )
 }
 
-fn io_error(error: tokio_serial::Error) -> io::Error {
+fn io_error(error: mio_serial::Error) -> io::Error {
     io::Error::from(error)
 }
 
@@ -127,12 +126,12 @@ impl Port {
     pub fn open(settings: &SerialSettings) -> Result<Port, TransportError> {
         // Opened as 8N1 first (every port takes that), then each setting is applied and checked
         // on its own so that a refusal names the setting.
-        let stream = tokio_serial::new(&settings.path, settings.baud)
+        let builder = mio_serial::new(&settings.path, settings.baud)
             .data_bits(DataBits::Eight)
-            .parity(tokio_serial::Parity::None)
+            .parity(mio_serial::Parity::None)
             .stop_bits(StopBits::One)
-            .flow_control(tokio_serial::FlowControl::None);
-        let stream = SerialStream::open(&stream).map_err(|source| {
+            .flow_control(mio_serial::FlowControl::None);
+        let stream = SerialStream::open(&builder).map_err(|source| {
             let path = settings.path.clone();
             let source = io_error(source);
             if is_not_a_terminal(&path) {
@@ -194,9 +193,9 @@ impl Port {
             _ => DataBits::Eight,
         };
         let parity = match format.parity {
-            Parity::None => tokio_serial::Parity::None,
-            Parity::Even => tokio_serial::Parity::Even,
-            Parity::Odd => tokio_serial::Parity::Odd,
+            Parity::None => mio_serial::Parity::None,
+            Parity::Even => mio_serial::Parity::Even,
+            Parity::Odd => mio_serial::Parity::Odd,
         };
         let stop_bits = if format.stop_bits >= 2 {
             StopBits::Two
@@ -267,12 +266,12 @@ impl Port {
     }
 
     /// A setting that was accepted but reads back different was silently ignored.
-    fn check(&self, applied: bool) -> tokio_serial::Result<()> {
+    fn check(&self, applied: bool) -> mio_serial::Result<()> {
         if applied {
             Ok(())
         } else {
-            Err(tokio_serial::Error::new(
-                tokio_serial::ErrorKind::InvalidInput,
+            Err(mio_serial::Error::new(
+                mio_serial::ErrorKind::InvalidInput,
                 "accepted but not applied",
             ))
         }
