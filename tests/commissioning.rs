@@ -3,6 +3,9 @@
 //! baud rate on the pty differs from theirs), `read` decodes a known block every way, and
 //! neither puts a write on the line (asserted from the simulators' journals).
 
+#[path = "support/child.rs"]
+mod child;
+
 use std::process::Output;
 use std::time::Duration;
 
@@ -18,11 +21,9 @@ fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
 }
 
 async fn run(args: &[&str]) -> Output {
-    let output = tokio::process::Command::new(BIN)
-        .args(args)
-        .env("RUST_LOG", "error")
-        .output();
-    tokio::time::timeout(Duration::from_secs(60), output)
+    let mut command = std::process::Command::new(BIN);
+    command.args(args).env("RUST_LOG", "error");
+    tokio::time::timeout(Duration::from_secs(60), child::output(command))
         .await
         .expect("command finished")
         .unwrap()
@@ -253,12 +254,11 @@ async fn a_port_held_by_rtu2mqtt_is_refused() {
     let path = tokio_serial::SerialPort::name(&slave).unwrap();
     drop(slave);
     // Another rtu2mqtt process holds the port (here a simulator; a gateway holds it the same way).
-    let mut holder = tokio::process::Command::new(BIN)
+    let mut command = std::process::Command::new(BIN);
+    command
         .args(["simulate", "--profile", "wuzhou-valve", "--port", &path])
-        .env("RUST_LOG", "error")
-        .kill_on_drop(true)
-        .spawn()
-        .unwrap();
+        .env("RUST_LOG", "error");
+    let holder = child::KillOnDrop::spawn(command).unwrap();
     tokio::time::sleep(Duration::from_millis(500)).await;
     for args in [
         vec!["read", "--port", &path, "--address", "1", "--start", "0"],
@@ -268,14 +268,11 @@ async fn a_port_held_by_rtu2mqtt_is_refused() {
         let error = String::from_utf8_lossy(&output.stderr);
         assert!(!output.status.success());
         assert!(
-            error.contains(&format!(
-                "{path} is in use by rtu2mqtt pid {}",
-                holder.id().unwrap()
-            )),
+            error.contains(&format!("{path} is in use by rtu2mqtt pid {}", holder.id())),
             "{error}"
         );
     }
-    holder.kill().await.unwrap();
+    drop(holder);
     drop(master);
 }
 

@@ -2,6 +2,9 @@
 //! (a serial device server) and Modbus TCP (a gateway), byte for byte, with each network fault,
 //! and once through pymodbus, a Modbus TCP client not written here.
 
+#[path = "support/child.rs"]
+mod child;
+
 use std::time::Duration;
 
 use rtu2mqtt::rtu::codec::{decode_answer, encode_request, Answer};
@@ -260,11 +263,9 @@ async fn pymodbus_client_reads_the_seed_devices() {
         "/tests/interop/modbus_tcp_client.py"
     );
     let port = sim.local_addr().port().to_string();
-    let output = tokio::process::Command::new("python3")
-        .args([script, "127.0.0.1", &port])
-        .output()
-        .await
-        .unwrap();
+    let mut command = std::process::Command::new("python3");
+    command.args([script, "127.0.0.1", &port]);
+    let output = child::output(command).await.unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(
         output.status.success(),
@@ -306,12 +307,11 @@ async fn simulate_command_listens_on_tcp() {
         .unwrap()
         .port();
     let url = format!("modbus-tcp://127.0.0.1:{port}");
-    let mut simulator = tokio::process::Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"));
+    command
         .args(["simulate", "--seed-line", "a", "--listen", &url])
-        .env("RUST_LOG", "error")
-        .kill_on_drop(true)
-        .spawn()
-        .unwrap();
+        .env("RUST_LOG", "error");
+    let simulator = child::KillOnDrop::spawn(command).unwrap();
     let mut stream = None;
     for _ in 0..50 {
         if let Ok(connected) = TcpStream::connect(("127.0.0.1", port)).await {
@@ -338,5 +338,5 @@ async fn simulate_command_listens_on_tcp() {
         mbap::decode_answer(5, 0x81, &coils, &answer).unwrap(),
         mbap::Matched::Current(Answer::Normal(Response::Coils(bits))) if bits.len() == 22
     ));
-    simulator.kill().await.unwrap();
+    drop(simulator);
 }

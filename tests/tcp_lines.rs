@@ -5,6 +5,8 @@
 //! as is that no wrong value reaches MQTT and that the pty line never notices. One test talks
 //! to a pymodbus Modbus TCP server (an implementation not written here).
 
+#[path = "support/child.rs"]
+mod child;
 mod support;
 
 use std::process::{Child, Command, Stdio};
@@ -561,11 +563,9 @@ const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
 
 /// Runs `rtu2mqtt args…` and returns its exit success and standard output.
 async fn run_cli(args: &[&str]) -> (bool, String) {
-    let output = tokio::process::Command::new(BIN)
-        .args(args)
-        .output()
-        .await
-        .expect("rtu2mqtt runs");
+    let mut command = Command::new(BIN);
+    command.args(args);
+    let output = child::output(command).await.expect("rtu2mqtt runs");
     (
         output.status.success(),
         String::from_utf8_lossy(&output.stdout).into_owned(),
