@@ -5,7 +5,8 @@
 //! memory, held by code that never runs again. Once the gateway has settled, it asks the
 //! kernel to reclaim the file-backed pages of its code and constants
 //! (`madvise(MADV_PAGEOUT)`, Linux 5.4 and later); the pages the running loops use come back
-//! on their next touch.
+//! on their next touch. The executable is written back to disk first: a page of a binary
+//! installed just before the start may still be only in memory, and such a page cannot go.
 //!
 //! What comes back must be what the loops touch, not the code around it. A fault in a file
 //! mapping reads ahead (`read_ahead_kb` of the disk: 128 KiB by default, 8 MiB on some hosts)
@@ -22,6 +23,7 @@
 //! one and stay otherwise. On a kernel that does not know the advice nothing happens.
 
 use std::ffi::c_void;
+use std::os::fd::AsRawFd;
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -161,12 +163,43 @@ fn advise(mapping: Mapping, advice: libc::c_int) -> std::io::Result<()> {
     }
 }
 
+/// How long the kernel is given to write the executable back before its pages are released.
+const WRITE_BACK_WAIT: Duration = Duration::from_secs(1);
+
+/// Starts writing to disk whatever of the executable's file is still only in memory, without
+/// waiting for it (`sync_file_range`: no thread, and a slow SD card never stalls the lines).
+/// The kernel cannot give back a page that has not been written yet, and a binary installed or
+/// upgraded just before the service (re)started is written back only up to 30 s later
+/// (`vm.dirty_expire_centisecs`). Measured with the edge build copied just before its start:
+/// one line kept 6.4 MiB without this, 2.4 MiB with it (1.8 MiB for a binary written long
+/// before). `true` when the write-back was started (nothing to write is done at once).
+fn start_writing_back_executable() -> bool {
+    let executable = match std::fs::File::open("/proc/self/exe") {
+        Ok(executable) => executable,
+        Err(error) => {
+            tracing::debug!(%error, "the executable cannot be opened to write it back");
+            return false;
+        }
+    };
+    // SAFETY: the descriptor is open for the duration of the call; no memory is passed.
+    let status =
+        unsafe { libc::sync_file_range(executable.as_raw_fd(), 0, 0, libc::SYNC_FILE_RANGE_WRITE) };
+    if status != 0 {
+        let error = std::io::Error::last_os_error();
+        tracing::debug!(%error, "the executable could not be written back before the release");
+    }
+    status == 0
+}
+
 /// Gives back the start-up code `settle` after start-up, and again that long after each
 /// reload (a reload compiles profiles and validates the configuration again): each change of
 /// `reloads` counts as one. Ends when `reloads` has no sender left.
 pub async fn reclaim_after_settling<T>(settle: Duration, mut reloads: watch::Receiver<T>) {
     loop {
         tokio::time::sleep(settle).await;
+        if start_writing_back_executable() {
+            tokio::time::sleep(WRITE_BACK_WAIT).await;
+        }
         match reclaim() {
             Ok(done) => tracing::debug!(
                 mappings = done.mappings,
