@@ -35,8 +35,8 @@ use support::{Mosquitto, TestClient};
 
 const BAUD: u32 = 9600;
 const WARM_UP: Duration = Duration::from_secs(5);
-/// The gateway gives back its start-up code this long after start-up (30 s by default), so
-/// that the window measures the running loops.
+/// The gateway gives back its start-up code this long after start-up (30 s by default) and
+/// one second's write-back of its executable, so that the window measures the running loops.
 const RELEASE_STARTUP_CODE_AFTER: &str = "3s";
 const WINDOW: Duration = Duration::from_secs(60);
 const COMMANDS: u32 = 40;
