@@ -23,10 +23,9 @@ fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
 async fn run(args: &[&str]) -> Output {
     let mut command = std::process::Command::new(BIN);
     command.args(args).env("RUST_LOG", "error");
-    tokio::time::timeout(Duration::from_secs(60), child::output(command))
+    child::output(command, Duration::from_secs(60))
         .await
         .expect("command finished")
-        .unwrap()
 }
 
 fn stdout(output: &Output) -> String {

@@ -265,7 +265,9 @@ async fn pymodbus_client_reads_the_seed_devices() {
     let port = sim.local_addr().port().to_string();
     let mut command = std::process::Command::new("python3");
     command.args([script, "127.0.0.1", &port]);
-    let output = child::output(command).await.unwrap();
+    let output = child::output(command, Duration::from_secs(60))
+        .await
+        .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(
         output.status.success(),

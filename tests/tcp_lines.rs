@@ -565,7 +565,9 @@ const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
 async fn run_cli(args: &[&str]) -> (bool, String) {
     let mut command = Command::new(BIN);
     command.args(args);
-    let output = child::output(command).await.expect("rtu2mqtt runs");
+    let output = child::output(command, Duration::from_secs(60))
+        .await
+        .expect("rtu2mqtt runs and ends");
     (
         output.status.success(),
         String::from_utf8_lossy(&output.stdout).into_owned(),

@@ -12,10 +12,12 @@
 //! mapping reads ahead (`read_ahead_kb` of the disk: 128 KiB by default, 8 MiB on some hosts)
 //! and maps the cached pages around the faulting one (64 KiB); both stay within the mapping.
 //! Constants are advised `MADV_RANDOM` (no read-ahead). For code recent kernels read ahead
-//! even then, so every other 16 KiB window of it is advised `MADV_RANDOM` as well: the kernel
-//! keeps such a window as a mapping of its own, and no fault in the code brings back more than
-//! one window. On a host with an 8 MiB read-ahead that is the difference between giving back
+//! even then, so every other 16 KiB window of it (a page, where pages are larger) is advised
+//! `MADV_RANDOM` as well: the kernel keeps such a window as a mapping of its own, and no fault
+//! in the code brings back more than one window. On a host with an 8 MiB read-ahead that is the difference between giving back
 //! a third of the code and giving back most of it.
+//!
+//! The write-back and the advice run on the blocking pool: neither may stall the lines.
 //!
 //! Safe by construction: the advice never changes memory contents. Clean file pages are
 //! dropped and read again on use; the kernel leaves alone pages that other processes map (a
@@ -31,8 +33,11 @@ use tokio::sync::watch;
 /// What one reclaim did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Reclaimed {
-    /// Mappings advised.
+    /// Mappings paged out: the executable's and the libraries' segments on the first reclaim,
+    /// and the windows the code was split into on later ones.
     pub mappings: usize,
+    /// Ranges the kernel would not advise `MADV_RANDOM` (their pages went all the same).
+    pub random_refused: usize,
     /// Bytes of address space advised.
     pub bytes: u64,
     /// VmRSS just before and just after, in KiB (0 where /proc could not be read).
@@ -49,26 +54,36 @@ struct Mapping {
     executable: bool,
 }
 
-/// The most a fault in the code may bring back once its pages are given back. A quarter of
-/// the kernel's default fault-around (64 KiB): a touch brings back little, and the code is
-/// kept as one mapping per 32 KiB (a few hundred for this executable), not one per page.
+/// The most a fault in the code may bring back once its pages are given back, where pages are
+/// smaller. A quarter of the kernel's default fault-around (64 KiB): a touch brings back
+/// little, and the code is kept as one mapping per 16 KiB (a few hundred for this
+/// executable), not one per page.
 const WINDOW: usize = 16 * 1024;
 
+/// [`WINDOW`], or the page size where pages are larger (64 KiB on some ARM kernels): advice
+/// is given in whole pages only.
+fn window() -> usize {
+    // SAFETY: sysconf takes no pointers.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    usize::try_from(page).map_or(WINDOW, |page| page.max(WINDOW))
+}
+
 impl Mapping {
-    /// The ranges to advise `MADV_RANDOM`: all of a constants mapping; every other
-    /// [`WINDOW`] of a code mapping, counted from address 0 so that the same windows are
-    /// chosen however the kernel has split the mapping since.
-    fn random_access_ranges(self) -> Vec<Mapping> {
+    /// The ranges to advise `MADV_RANDOM`: all of a constants mapping; every other `window`
+    /// bytes of a code mapping, counted from address 0 so that the same windows are chosen
+    /// however the kernel has split the mapping since.
+    fn random_access_ranges(self, window_len: usize) -> Vec<Mapping> {
         if !self.executable {
             return vec![self];
         }
-        let end = self.start + self.len;
+        let end = self.start.saturating_add(self.len);
         let mut ranges = Vec::new();
-        let mut window = self.start / WINDOW;
-        while window * WINDOW < end {
+        let mut window = self.start / window_len;
+        while window.saturating_mul(window_len) < end {
+            let window_start = window * window_len;
             if window % 2 == 0 {
-                let start = (window * WINDOW).max(self.start);
-                let stop = ((window + 1) * WINDOW).min(end);
+                let start = window_start.max(self.start);
+                let stop = window_start.saturating_add(window_len).min(end);
                 ranges.push(Mapping {
                     start,
                     len: stop - start,
@@ -130,15 +145,19 @@ pub fn reclaim() -> std::io::Result<Reclaimed> {
     let rss_before_kib = rss_kib();
     let mut reclaimed = Reclaimed {
         mappings: 0,
+        random_refused: 0,
         bytes: 0,
         rss_before_kib,
         rss_after_kib: rss_before_kib,
     };
+    let window_len = window();
     for mapping in code_and_constants(&maps) {
         // Random access first, so that what the loops fault back in comes without the
-        // read-ahead around it; then the pages go.
-        for range in mapping.random_access_ranges() {
-            advise(range, libc::MADV_RANDOM)?;
+        // read-ahead around it; then the pages go, with the advice or without it.
+        for range in mapping.random_access_ranges(window_len) {
+            if advise(range, libc::MADV_RANDOM).is_err() {
+                reclaimed.random_refused += 1;
+            }
         }
         advise(mapping, libc::MADV_PAGEOUT)?;
         reclaimed.mappings += 1;
@@ -150,7 +169,8 @@ pub fn reclaim() -> std::io::Result<Reclaimed> {
 
 /// Gives `mapping` the advice `advice` (`MADV_RANDOM` or `MADV_PAGEOUT`).
 fn advise(mapping: Mapping, advice: libc::c_int) -> std::io::Result<()> {
-    // SAFETY: the range is one the kernel listed as mapped in this process a moment ago;
+    // SAFETY: the range lies within one the kernel listed as mapped in this process a moment
+    // ago;
     // MADV_RANDOM only changes how much a fault reads ahead and MADV_PAGEOUT only where the
     // pages live, never what they contain (a later touch faults them back in unchanged), so
     // no reference into the range is affected. A range unmapped meanwhile makes the call fail
@@ -166,13 +186,14 @@ fn advise(mapping: Mapping, advice: libc::c_int) -> std::io::Result<()> {
 /// How long the kernel is given to write the executable back before its pages are released.
 const WRITE_BACK_WAIT: Duration = Duration::from_secs(1);
 
-/// Starts writing to disk whatever of the executable's file is still only in memory, without
-/// waiting for it (`sync_file_range`: no thread, and a slow SD card never stalls the lines).
-/// The kernel cannot give back a page that has not been written yet, and a binary installed or
-/// upgraded just before the service (re)started is written back only up to 30 s later
-/// (`vm.dirty_expire_centisecs`). Measured with the edge build copied just before its start:
-/// one line kept 6.4 MiB without this, 2.4 MiB with it (1.8 MiB for a binary written long
-/// before). `true` when the write-back was started (nothing to write is done at once).
+/// Starts writing to disk whatever of the executable's file is still only in memory
+/// (`sync_file_range`, which does not wait for the writes; it may wait for the disk's queue,
+/// so it runs on the blocking pool). The kernel cannot give back a page that has not been
+/// written yet, and a binary installed or upgraded just before the service (re)started is
+/// written back only up to 30 s later (`vm.dirty_expire_centisecs`). Measured with the edge
+/// build copied just before its start: one line kept 6.4 MiB without this, 2.4 MiB with it
+/// (1.8 MiB for a binary written long before). `true` when the write-back was started
+/// (nothing to write is done at once).
 fn start_writing_back_executable() -> bool {
     let executable = match std::fs::File::open("/proc/self/exe") {
         Ok(executable) => executable,
@@ -197,12 +218,16 @@ fn start_writing_back_executable() -> bool {
 pub async fn reclaim_after_settling<T>(settle: Duration, mut reloads: watch::Receiver<T>) {
     loop {
         tokio::time::sleep(settle).await;
-        if start_writing_back_executable() {
+        if let Ok(true) = tokio::task::spawn_blocking(start_writing_back_executable).await {
             tokio::time::sleep(WRITE_BACK_WAIT).await;
         }
-        match reclaim() {
+        let released = tokio::task::spawn_blocking(reclaim)
+            .await
+            .unwrap_or_else(|error| Err(std::io::Error::other(error)));
+        match released {
             Ok(done) => tracing::debug!(
                 mappings = done.mappings,
+                random_refused = done.random_refused,
                 rss_before_kib = done.rss_before_kib,
                 rss_after_kib = done.rss_after_kib,
                 "start-up code pages given back to the kernel"
@@ -263,15 +288,15 @@ mod tests {
             len: 0x1_0000,
             executable: false,
         };
-        assert_eq!(constants.random_access_ranges(), vec![constants]);
-        // Code from the middle of an odd window to the middle of window 6 (of 16 KiB).
+        assert_eq!(constants.random_access_ranges(WINDOW), vec![constants]);
+        // Code from 4 KiB into window 1 to 4 KiB into window 6 (of 16 KiB).
         let code = Mapping {
             start: WINDOW + 0x1000,
             len: 5 * WINDOW,
             executable: true,
         };
         let ranges: Vec<(usize, usize)> = code
-            .random_access_ranges()
+            .random_access_ranges(WINDOW)
             .iter()
             .map(|range| (range.start / 0x1000, range.len / 0x1000))
             .collect();
@@ -283,13 +308,32 @@ mod tests {
             len: WINDOW,
             executable: true,
         };
-        assert_eq!(split.random_access_ranges(), vec![split]);
+        assert_eq!(split.random_access_ranges(WINDOW), vec![split]);
         let odd = Mapping {
             start: 3 * WINDOW,
             len: WINDOW,
             executable: true,
         };
-        assert!(odd.random_access_ranges().is_empty());
+        assert!(odd.random_access_ranges(WINDOW).is_empty());
+        // 64 KiB pages: whole pages, every other one.
+        let big_pages = Mapping {
+            start: 0x4_0000,
+            len: 0x4_0000,
+            executable: true,
+        };
+        let starts: Vec<usize> = big_pages
+            .random_access_ranges(0x1_0000)
+            .iter()
+            .map(|range| range.start)
+            .collect();
+        assert_eq!(starts, vec![0x4_0000, 0x6_0000]);
+        // A mapping at the top of the address space does not overflow.
+        let top = Mapping {
+            start: usize::MAX - 0x3fff - WINDOW,
+            len: WINDOW,
+            executable: true,
+        };
+        assert!(top.random_access_ranges(WINDOW).len() <= 2);
     }
 
     #[test]
