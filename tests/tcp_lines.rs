@@ -9,7 +9,7 @@
 mod child;
 mod support;
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use rtu2mqtt::config::{self, Config};
@@ -477,16 +477,6 @@ async fn a_restarted_server_is_reconnected_with_back_off() {
     plant.stop().await;
 }
 
-/// Kills the pymodbus server when the test ends.
-struct PythonServer(Child);
-
-impl Drop for PythonServer {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_pymodbus_server_is_read_over_modbus_tcp() {
     use std::io::BufRead;
@@ -502,7 +492,8 @@ async fn a_pymodbus_server_is_read_over_modbus_tcp() {
         .spawn()
         .expect("python3 runs");
     let stdout = child.stdout.take().unwrap();
-    let server = PythonServer(child);
+    // Killed when the test ends.
+    let server = child::KillOnDrop(child);
     let ready = tokio::task::spawn_blocking(move || {
         let mut line = String::new();
         std::io::BufReader::new(stdout).read_line(&mut line).ok();

@@ -14,8 +14,8 @@
 //! Constants are advised `MADV_RANDOM` (no read-ahead). For code recent kernels read ahead
 //! even then, so every other 16 KiB window of it (a page, where pages are larger) is advised
 //! `MADV_RANDOM` as well: the kernel keeps such a window as a mapping of its own, and no fault
-//! in the code brings back more than one window. On a host with an 8 MiB read-ahead that is the difference between giving back
-//! a third of the code and giving back most of it.
+//! in the code brings back more than one window. On a host with an 8 MiB read-ahead that is
+//! the difference between giving back a third of the code and giving back most of it.
 //!
 //! The write-back and the advice run on the blocking pool: neither may stall the lines.
 //!
@@ -62,14 +62,14 @@ const WINDOW: usize = 16 * 1024;
 
 /// [`WINDOW`], or the page size where pages are larger (64 KiB on some ARM kernels): advice
 /// is given in whole pages only.
-fn window() -> usize {
+fn code_window_len() -> usize {
     // SAFETY: sysconf takes no pointers.
     let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
     usize::try_from(page).map_or(WINDOW, |page| page.max(WINDOW))
 }
 
 impl Mapping {
-    /// The ranges to advise `MADV_RANDOM`: all of a constants mapping; every other `window`
+    /// The ranges to advise `MADV_RANDOM`: all of a constants mapping; every other `window_len`
     /// bytes of a code mapping, counted from address 0 so that the same windows are chosen
     /// however the kernel has split the mapping since.
     fn random_access_ranges(self, window_len: usize) -> Vec<Mapping> {
@@ -150,7 +150,7 @@ pub fn reclaim() -> std::io::Result<Reclaimed> {
         rss_before_kib,
         rss_after_kib: rss_before_kib,
     };
-    let window_len = window();
+    let window_len = code_window_len();
     for mapping in code_and_constants(&maps) {
         // Random access first, so that what the loops fault back in comes without the
         // read-ahead around it; then the pages go, with the advice or without it.
@@ -170,11 +170,10 @@ pub fn reclaim() -> std::io::Result<Reclaimed> {
 /// Gives `mapping` the advice `advice` (`MADV_RANDOM` or `MADV_PAGEOUT`).
 fn advise(mapping: Mapping, advice: libc::c_int) -> std::io::Result<()> {
     // SAFETY: the range lies within one the kernel listed as mapped in this process a moment
-    // ago;
-    // MADV_RANDOM only changes how much a fault reads ahead and MADV_PAGEOUT only where the
-    // pages live, never what they contain (a later touch faults them back in unchanged), so
-    // no reference into the range is affected. A range unmapped meanwhile makes the call fail
-    // with ENOMEM, which is reported.
+    // ago; MADV_RANDOM only changes how much a fault reads ahead and MADV_PAGEOUT only where
+    // the pages live, never what they contain (a later touch faults them back in unchanged),
+    // so no reference into the range is affected. A range unmapped meanwhile makes the call
+    // fail with ENOMEM, which is reported.
     let status = unsafe { libc::madvise(mapping.start as *mut c_void, mapping.len, advice) };
     if status == 0 {
         Ok(())
