@@ -16,8 +16,8 @@ WORKDIR /src
 # Dependencies first, in their own layer: a change to the sources does not rebuild them.
 # Placeholder sources stand in for every target of the manifest; the crate's own artefacts are
 # removed afterwards so the real sources are always compiled. (scripts/edge-build makes a
-# static binary that keeps about 2 MiB less resident; its wire timing's tail was longer in some
-# measured runs: README, Performance. This image ships the default build.)
+# static binary that maps no shared C library; its wire timing's tail is longer:
+# docs/performance.md. This image ships the default build.)
 COPY Cargo.toml Cargo.lock ./
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \

@@ -641,7 +641,7 @@ async fn broadcast_keeps_the_line_silent_for_the_turnaround() {
     let seen = seen_by(device).await;
     assert_eq!(seen[0].frame, codec::encode_request(0, &write).unwrap());
     // The device notes the broadcast when it reads it, which a loaded host can delay well
-    // after the master's drain (10 ms seen under load): hence the allowance. A master that
+    // after the master's drain: hence the allowance. A master that
     // skipped the turnaround would leave only t3.5 (3.6 ms), far below it.
     let read_delay_allowance = Duration::from_millis(25);
     let quiet = seen[1].first_byte_at - seen[0].last_byte_at;

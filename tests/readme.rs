@@ -1,12 +1,16 @@
-//! The README and ARCHITECTURE.md stay true to the code: the quick start's two commands, the
-//! configuration reference's keys, the Home Assistant section copied from its source, the
-//! module map.
+//! The README, docs/ and ARCHITECTURE.md stay true to the code: the quick start's two
+//! commands, the configuration reference's keys, the module map, and every relative link
+//! between the documents.
+
+use std::path::{Path, PathBuf};
 
 const README: &str = include_str!("../README.md");
 const ARCHITECTURE: &str = include_str!("../ARCHITECTURE.md");
 const LIB: &str = include_str!("../src/lib.rs");
 const CI: &str = include_str!("../.ci/run");
-const HOME_ASSISTANT: &str = include_str!("../docs/home-assistant.md");
+const CONFIGURATION: &str = include_str!("../docs/configuration.md");
+/// The README stays a first read; everything else lives in docs/.
+const README_MAX_LINES: usize = 400;
 
 /// The text between the heading `## {title}` and the next `## ` heading.
 fn section<'a>(text: &'a str, title: &str) -> &'a str {
@@ -57,7 +61,7 @@ fn configuration_reference_lists_every_key_and_no_other() {
     use rtu2mqtt::config::schema::{
         DEVICE_KEYS, GATEWAY_KEYS, HEALTH_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS,
     };
-    let reference = section(README, "Configuration reference");
+    let reference = section(CONFIGURATION, "Configuration reference");
     for (table, keys) in [
         ("### `[mqtt]`", MQTT_KEYS),
         ("### `[gateway]`", GATEWAY_KEYS),
@@ -102,16 +106,109 @@ fn configuration_reference_lists_every_key_and_no_other() {
 }
 
 #[test]
-fn home_assistant_section_is_the_discovery_documentation() {
-    let begin = "<!-- BEGIN docs/home-assistant.md -->\n";
-    let end = "<!-- END docs/home-assistant.md -->";
-    let start = README.find(begin).expect("begin marker") + begin.len();
-    let stop = README.find(end).expect("end marker");
+fn the_readme_is_short_and_links_every_document() {
+    let lines = README.lines().count();
     assert!(
-        README[start..stop] == *HOME_ASSISTANT,
-        "README.md's Home Assistant section differs from docs/home-assistant.md: run \
-         .ci/sync-readme"
+        lines <= README_MAX_LINES,
+        "README.md has {lines} lines; move detail into docs/"
     );
+    for doc in markdown_files()
+        .iter()
+        .filter(|path| path.starts_with("docs"))
+    {
+        let link = format!("]({})", doc.display());
+        assert!(README.contains(&link), "README.md does not link {link}");
+    }
+}
+
+/// The repository's Markdown documents outside target/ and hidden folders, relative to the
+/// repository's root.
+fn markdown_files() -> Vec<PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = vec![PathBuf::from("README.md"), PathBuf::from("ARCHITECTURE.md")];
+    let docs = std::fs::read_dir(root.join("docs")).expect("docs/ is readable");
+    let mut in_docs: Vec<PathBuf> = docs
+        .map(|entry| entry.expect("a docs/ entry").path())
+        .filter(|path| path.extension().is_some_and(|ext| ext == "md"))
+        .map(|path| Path::new("docs").join(path.file_name().expect("a file name")))
+        .collect();
+    in_docs.sort();
+    files.extend(in_docs);
+    files
+}
+
+/// The link targets of `text` (`[text](target)`), outside fenced code blocks.
+fn link_targets(text: &str) -> Vec<&str> {
+    text.split("```")
+        .step_by(2)
+        .flat_map(|prose| prose.split("](").skip(1))
+        .filter_map(|rest| rest.split_once(')').map(|(target, _)| target))
+        .collect()
+}
+
+/// The anchors GitHub gives the headings of `text`: lower case, spaces as `-`, punctuation
+/// other than `-` and `_` dropped.
+fn heading_anchors(text: &str) -> Vec<String> {
+    let mut in_code = false;
+    text.lines()
+        .filter(|line| {
+            if line.starts_with("```") {
+                in_code = !in_code;
+            }
+            !in_code && line.starts_with('#')
+        })
+        .map(|line| {
+            line.trim_start_matches('#')
+                .trim()
+                .chars()
+                .filter_map(|c| match c {
+                    ' ' => Some('-'),
+                    '-' | '_' => Some(c),
+                    c if c.is_alphanumeric() => Some(c.to_lowercase().next().unwrap_or(c)),
+                    _ => None,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn every_relative_link_between_the_documents_resolves() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut broken = Vec::new();
+    for file in markdown_files() {
+        let text = std::fs::read_to_string(root.join(&file)).expect("a readable document");
+        let dir = file.parent().unwrap_or(Path::new(""));
+        for target in link_targets(&text) {
+            if target.contains("://") || target.starts_with("mailto:") {
+                continue;
+            }
+            let (path, anchor) = target.split_once('#').unwrap_or((target, ""));
+            let linked = if path.is_empty() {
+                file.clone()
+            } else {
+                dir.join(path)
+            };
+            let Ok(resolved) = root.join(&linked).canonicalize() else {
+                broken.push(format!("{}: {target} (no such file)", file.display()));
+                continue;
+            };
+            if !resolved.starts_with(root.canonicalize().expect("the root")) {
+                broken.push(format!(
+                    "{}: {target} (outside the repository)",
+                    file.display()
+                ));
+                continue;
+            }
+            if !anchor.is_empty() {
+                let linked_text = std::fs::read_to_string(&resolved).unwrap_or_default();
+                if !heading_anchors(&linked_text).iter().any(|a| a == anchor) {
+                    broken.push(format!("{}: {target} (no such heading)", file.display()));
+                }
+            }
+        }
+    }
+    assert!(broken.is_empty(), "broken links:\n{}", broken.join("\n"));
 }
 
 #[test]

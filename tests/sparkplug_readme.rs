@@ -1,12 +1,13 @@
-//! The README's "SCADA (Sparkplug B)" section stays true to the code: its metric table is the
-//! one the profiles of the seed plant give (name, Sparkplug datatype, unit, writable), and the
-//! configuration reference's `[sparkplug]` table names exactly the section's keys.
+//! docs/sparkplug.md stays true to the code: its metric table is the one the profiles of the
+//! seed plant give (name, Sparkplug datatype, unit, writable), and the configuration
+//! reference's `[sparkplug]` table (docs/configuration.md) names exactly the section's keys.
 
 use rtu2mqtt::config::schema::SPARKPLUG_KEYS;
 use rtu2mqtt::profile::registry;
 use rtu2mqtt::sparkplug::metrics::datatype_for;
 
-const README: &str = include_str!("../README.md");
+const SPARKPLUG: &str = include_str!("../docs/sparkplug.md");
+const CONFIGURATION: &str = include_str!("../docs/configuration.md");
 const BEGIN: &str = "<!-- BEGIN sparkplug metrics (tests/sparkplug_readme.rs) -->\n";
 const END: &str = "<!-- END sparkplug metrics -->";
 /// The seed plant's devices as `config/rtu2mqtt.toml` names them.
@@ -61,19 +62,19 @@ fn section<'a>(text: &'a str, heading: &str) -> &'a str {
 
 #[test]
 fn the_seed_plant_metric_table_is_the_profiles() {
-    let scada = section(README, "## SCADA (Sparkplug B)");
+    let scada = SPARKPLUG;
     let start = scada.find(BEGIN).expect("begin marker") + BEGIN.len();
     let stop = scada.find(END).expect("end marker");
     let expected = metric_table();
     assert!(
         scada[start..stop] == expected,
-        "README.md's Sparkplug metric table differs from the profiles; it should read:\n{expected}"
+        "docs/sparkplug.md's metric table differs from the profiles; it should read:\n{expected}"
     );
 }
 
 #[test]
 fn the_sparkplug_configuration_reference_lists_every_key_and_no_other() {
-    let reference = section(README, "## Configuration reference");
+    let reference = section(CONFIGURATION, "## Configuration reference");
     let table = section(reference, "### `[sparkplug]` (optional)");
     let documented: Vec<&str> = table
         .lines()

@@ -1,6 +1,7 @@
-//! `systemd/rtu2mqtt.service` keeps its promises: the settings the README and docs/reliability.md's
-//! security checklist rely on are present, the paths agree with the code's defaults, and, where
-//! `systemd-analyze` is installed, the unit verifies cleanly and scores 2.0 or lower.
+//! `systemd/rtu2mqtt.service` keeps its promises: the settings docs/operations.md and
+//! docs/reliability.md's security checklist rely on are present, the paths agree with the code's
+//! defaults, and, where `systemd-analyze` is installed, the unit verifies cleanly and scores 2.0
+//! or lower.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -136,10 +137,10 @@ fn unit_verifies_and_scores_ok_where_systemd_analyze_exists() {
         .and_then(|number| number.parse::<f64>().ok())
         .expect("an exposure level");
     assert!(score <= 2.0, "exposure {score}");
-    let readme = include_str!("../README.md");
+    let operations = include_str!("../docs/operations.md");
     let claimed = format!("rates it **{score:.1} OK**");
     assert!(
-        readme.contains(&claimed),
-        "README.md must report the measured exposure: {claimed}"
+        operations.contains(&claimed),
+        "docs/operations.md must report the measured exposure: {claimed}"
     );
 }

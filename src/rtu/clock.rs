@@ -26,20 +26,17 @@ pub const TIMERFD_SPIN_WINDOW: Duration = Duration::from_micros(120);
 /// Waits on a timerfd until [`TIMERFD_SPIN_WINDOW`] before the deadline (with the tokio timer
 /// until [`SPIN_WINDOW`] before it when no timerfd is available), then yields to the runtime
 /// (`tokio::task::yield_now`) until the deadline has passed, so other tasks keep running even
-/// on a current_thread runtime and no thread is blocked. The CPU is busy for about 0.1 ms per
-/// wait (1.5 ms on the fallback).
+/// on a current_thread runtime and no thread is blocked. The CPU is busy only for the yielding
+/// window at the end of each wait.
 ///
-/// Measured overshoot (`cargo bench --bench timer_overshoot`, 200 waits of 1–4 ms
-/// on a shared 2-core machine): median 0.7 µs, p99 10 µs, worst 86 µs, against a median of
-/// 1.1 ms and worst 4.8 ms for a plain `tokio::time::sleep_until`. The earlier version spun
-/// for the last 1.5 ms of every wait; on a busy host the scheduler preempted the spinning
-/// thread, which cost far more than the spin saved.
+/// The window is short because a thread that spins long is preempted on a busy host, which
+/// costs far more than the spin saves; `cargo bench --bench timer_overshoot` compares the
+/// overshoot with a plain `tokio::time::sleep_until` (docs/performance.md).
 ///
-/// The short yield is kept on purpose (`cargo bench --bench edge_footprint`, saturated 9600
-/// baud line): a timerfd set to the deadline itself saved about 0.15 % of a core but let the
-/// wake-up from a full sleep stretch the idle gap's p95 from 4.0 to 4.3–4.7 ms (bus efficiency
-/// 0.983–0.985 instead of 0.993), and a second short timerfd in place of the yield was no
-/// cheaper.
+/// The short yield is kept on purpose: a timerfd set to the deadline itself saves a little CPU,
+/// but the wake-up from a full sleep stretches the idle gap's tail and lowers bus efficiency
+/// (`cargo bench --bench edge_footprint`), and a second short timerfd in place of the yield is
+/// no cheaper.
 pub async fn sleep_until_precise(deadline: Instant) {
     PreciseTimer::default().sleep_until(deadline).await;
 }
