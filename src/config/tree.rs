@@ -691,3 +691,104 @@ impl<'de> de::MapAccess<'de> for TableAccess<'_> {
         seed.deserialize(placed.reader())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::schema::{RawDevice, RawRs485};
+
+    fn text(text: &str, from_env: bool) -> Node {
+        Node::Text {
+            text: text.to_string(),
+            from_env,
+        }
+    }
+
+    fn table(entries: &[(&str, Node)]) -> Node {
+        Node::Table(
+            entries
+                .iter()
+                .map(|(key, node)| (key.to_string(), node.clone()))
+                .collect(),
+        )
+    }
+
+    fn reason_for<T: DeserializeOwned + fmt::Debug>(tree: &Node) -> String {
+        let fault = read::<T>(tree, &Declared::default()).unwrap_err();
+        format!("{}: {}", place_text(&fault.place), fault.reason)
+    }
+
+    #[test]
+    fn the_keys_are_the_structs_declaration() {
+        assert_eq!(
+            keys_of::<RawDevice>(),
+            ["name", "profile", "address", "poll_interval"]
+        );
+        assert_eq!(
+            keys_of::<RawRs485>(),
+            ["rts_on_send", "delay_before_send", "delay_after_send"]
+        );
+        assert!(keys_of::<String>().is_empty());
+    }
+
+    #[test]
+    fn file_values_are_taken_only_as_their_own_type() {
+        let device = |address: Node, name: Node| {
+            table(&[
+                ("name", name),
+                ("profile", text("wuzhou-valve", false)),
+                ("address", address),
+            ])
+        };
+        assert_eq!(
+            reason_for::<RawDevice>(&device(text("3", false), text("valve", false))),
+            "address: \"3\" is not an integer"
+        );
+        assert_eq!(
+            reason_for::<RawDevice>(&device(Node::Integer(3), Node::Integer(5))),
+            "name: 5 is not text (write it in quotes)"
+        );
+        assert_eq!(
+            reason_for::<RawRs485>(&table(&[("rts_on_send", Node::Integer(1))])),
+            "rts_on_send: 1 is not true or false"
+        );
+    }
+
+    #[test]
+    fn environment_text_is_read_as_its_key_takes() {
+        let tree = table(&[
+            ("name", text("7", true)),
+            ("profile", text("wuzhou-valve", true)),
+            ("address", text(" 3 ", true)),
+            ("poll_interval", text("2s", true)),
+        ]);
+        let device: RawDevice = read(&tree, &Declared::default()).unwrap();
+        assert_eq!(device.name, "7");
+        assert_eq!(device.address, 3);
+        assert_eq!(
+            device.poll_interval,
+            Some(std::time::Duration::from_secs(2))
+        );
+        let tree = table(&[("rts_on_send", text("off", true))]);
+        let rs485: RawRs485 = read(&tree, &Declared::default()).unwrap();
+        assert!(!rs485.rts_on_send);
+    }
+
+    #[test]
+    fn a_stand_in_reads_as_the_emptiest_value_and_grows_into_a_table() {
+        let mut tree = table(&[("devices", Node::List(vec![Node::Integer(5)]))]);
+        let place = [Step::Key("devices".into()), Step::Index(0)];
+        assert!(tree.remove(&place));
+        let mut name = place.to_vec();
+        name.push(Step::Key("name".into()));
+        assert!(tree.stand_in(&name));
+        assert_eq!(
+            tree,
+            table(&[(
+                "devices",
+                Node::List(vec![table(&[("name", Node::StandIn)])])
+            )])
+        );
+        assert_eq!(place_text(&name), "devices[0].name");
+    }
+}
