@@ -7,8 +7,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use config::ValueKind;
-use config::{Environment, File, FileFormat};
+use config::{Environment, File, FileFormat, ValueKind};
 
 use super::schema::RawConfig;
 use super::tree::{self, Declared, Node, Step};
@@ -75,7 +74,7 @@ pub fn load_file_lenient(
     let overrides = env_overrides(&vars);
     let text = read_file(path)?;
     let file = File::from_str(&text, FileFormat::Toml);
-    let mut loaded = build_lenient(config::Config::builder().add_source(file), vars)
+    let mut loaded = layer_and_read(config::Config::builder().add_source(file), vars)
         .map_err(|problems| blame_overrides(problems, &overrides, true))?;
     loaded.problems = blame_overrides(Problems(loaded.problems), &overrides, true).0;
     Ok(loaded)
@@ -84,7 +83,7 @@ pub fn load_file_lenient(
 /// Like [`load_str`], lenient like [`load_file_lenient`].
 pub fn load_str_lenient(text: &str) -> Result<Loaded, Problems> {
     let file = File::from_str(text, FileFormat::Toml);
-    build_lenient(config::Config::builder().add_source(file), HashMap::new())
+    layer_and_read(config::Config::builder().add_source(file), HashMap::new())
 }
 
 /// Parses configuration text (no environment overrides): for tests and `check` of snippets.
@@ -195,7 +194,7 @@ fn read_file(path: &Path) -> Result<String, Problems> {
         .map_err(|error| problem(format!("cannot read the configuration file: {error}")))
 }
 
-fn build_lenient(
+fn layer_and_read(
     builder: config::ConfigBuilder<config::builder::DefaultState>,
     vars: HashMap<String, String>,
 ) -> Result<Loaded, Problems> {

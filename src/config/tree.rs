@@ -432,11 +432,12 @@ impl Reader<'_> {
         )
     }
 
-    fn child(&self, step: Step) -> Placed<'_> {
+    /// The value `node` at `step` inside this one.
+    fn child<'b>(&'b self, node: &'b Node, step: Step) -> Placed<'b> {
         let mut place = self.place.to_vec();
         place.push(step);
         Placed {
-            node: self.node,
+            node,
             place,
             declared: self.declared,
         }
@@ -653,8 +654,7 @@ impl<'de> de::SeqAccess<'de> for ListAccess<'_> {
         let Some(item) = self.items.get(self.next) else {
             return Ok(None);
         };
-        let mut placed = self.reader.child(Step::Index(self.next));
-        placed.node = item;
+        let placed = self.reader.child(item, Step::Index(self.next));
         self.next += 1;
         seed.deserialize(placed.reader()).map(Some)
     }
@@ -686,8 +686,7 @@ impl<'de> de::MapAccess<'de> for TableAccess<'_> {
             return Err(de::Error::custom("a value without a key"));
         };
         self.next += 1;
-        let mut placed = self.reader.child(Step::Key(key.clone()));
-        placed.node = node;
+        let placed = self.reader.child(node, Step::Key(key.clone()));
         seed.deserialize(placed.reader())
     }
 }
