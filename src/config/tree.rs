@@ -387,7 +387,7 @@ impl Reader<'_> {
             },
             Kind::UnknownKey { key, known } => Fault {
                 place: inside(key),
-                reason: unknown_key_reason(known),
+                reason: unknown_key_reason(key, known),
                 missing: false,
             },
             kind => Fault {
@@ -459,9 +459,36 @@ impl Reader<'_> {
     }
 }
 
-/// An unknown key, with the keys its table knows.
-fn unknown_key_reason(known: &[&str]) -> String {
-    format!("unknown key (known here: {})", known.join(", "))
+/// An unknown key, with the keys its table knows and the one it is most likely a typo of.
+fn unknown_key_reason(key: &str, known: &[&str]) -> String {
+    let known_here = known.join(", ");
+    let nearest = known
+        .iter()
+        .map(|candidate| (edit_distance(key, candidate), candidate))
+        .filter(|(distance, _)| *distance <= 2)
+        .min();
+    match nearest {
+        Some((_, near)) => {
+            format!("unknown key, did you mean `{near}`? (known here: {known_here})")
+        }
+        None => format!("unknown key (known here: {known_here})"),
+    }
+}
+
+/// Letters to insert, delete or change to turn `a` into `b` (Levenshtein).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, a_char) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, b_char) in b.iter().enumerate() {
+            let changed = diagonal + usize::from(a_char != *b_char);
+            diagonal = row[j + 1];
+            row[j + 1] = changed.min(row[j] + 1).min(diagonal + 1);
+        }
+    }
+    row[b.len()]
 }
 
 macro_rules! integers {
@@ -771,6 +798,23 @@ mod tests {
         let tree = table(&[("rts_on_send", text("off", true))]);
         let rs485: RawRs485 = read(&tree, &Declared::default()).unwrap();
         assert!(!rs485.rts_on_send);
+    }
+
+    #[test]
+    fn an_unknown_key_names_the_key_it_is_likely_a_typo_of() {
+        let tree = table(&[("name", text("valve", false)), ("adress", Node::Integer(3))]);
+        assert_eq!(
+            reason_for::<RawDevice>(&tree),
+            "adress: unknown key, did you mean `address`? \
+             (known here: name, profile, address, poll_interval)"
+        );
+        let tree = table(&[("colour", Node::Integer(3))]);
+        assert_eq!(
+            reason_for::<RawDevice>(&tree),
+            "colour: unknown key (known here: name, profile, address, poll_interval)"
+        );
+        assert_eq!(edit_distance("intervall", "interval"), 1);
+        assert_eq!(edit_distance("", "url"), 3);
     }
 
     #[test]
