@@ -560,4 +560,61 @@ poll_interval = "2s"
         assert_eq!(raw.lines[0].stop_bits, 2);
         assert_eq!(raw.gateway.max_payload, 2048);
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(300))]
+
+        /// Whatever keys and values a file holds, reading ends with the configuration or
+        /// with problems, each placed.
+        #[test]
+        fn reading_any_file_ends_with_placed_problems(
+            entries in proptest::collection::vec(
+                (
+                    proptest::sample::select(vec![
+                        "mqtt", "mqtt.url", "mqtt.client_id", "mqtt.inflight", "mqtt.password",
+                        "gateway", "gateway.json_view", "lines", "sparkplug", "sparkplug.mqtt",
+                        "sparkplug.group_id", "health.interval", "colour",
+                    ]),
+                    proptest::sample::select(vec![
+                        "1", "70000", "1.5", "true", "\"x\"", "\"5s\"", "{}", "[]", "[{}]",
+                        "[1]", "{ name = 2 }", "[{ name = \"a\", devices = [{}] }]",
+                    ]),
+                ),
+                0..8,
+            )
+        ) {
+            let text: String = entries
+                .iter()
+                .map(|(key, value)| format!("{key} = {value}\n"))
+                .collect();
+            // A key given twice ends at the TOML parser; everything else is read.
+            let Ok(loaded) = load_str_lenient(&text) else {
+                return Ok(());
+            };
+            for problem in &loaded.problems {
+                proptest::prop_assert!(!problem.reason.is_empty(), "{problem}");
+            }
+            proptest::prop_assert!(loaded.raw.is_some() || !loaded.problems.is_empty());
+        }
+
+        #[test]
+        fn reading_nested_tables_of_any_shape_ends(
+            mqtt in proptest::sample::select(vec!["", "url = 1", "client_id = []", "x = 1"]),
+            line in proptest::sample::select(vec![
+                "", "name = 1", "devices = 5", "devices = [1, {}]", "rs485 = 3",
+                "rs485 = { rts_on_send = \"x\" }", "parity = 1", "baud = -1",
+            ]),
+            device in proptest::sample::select(vec![
+                "", "address = \"a\"", "name = []", "poll_interval = 1", "x = 2",
+            ]),
+        ) {
+            let text = format!(
+                "[mqtt]\n{mqtt}\n[[lines]]\n{line}\n[[lines.devices]]\n{device}\n"
+            );
+            let Ok(loaded) = load_str_lenient(&text) else {
+                return Ok(());
+            };
+            proptest::prop_assert!(loaded.raw.is_some() || !loaded.problems.is_empty());
+        }
+    }
 }
