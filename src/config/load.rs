@@ -42,8 +42,9 @@ pub fn load_file_with_env(
 }
 
 /// What reading found: every problem of the reading stage (unknown keys, wrong types, missing
-/// keys), and the configuration read without the offending keys and values when that is
-/// possible, so that validation can report the problems elsewhere too.
+/// keys), and the configuration read without the offending keys and values (with stand-ins
+/// for required ones) when that is possible, so that validation can report the problems
+/// elsewhere too.
 #[derive(Debug)]
 pub struct Loaded {
     pub raw: Option<RawConfig>,
