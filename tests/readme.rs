@@ -58,16 +58,30 @@ fn quick_start_is_two_commands_and_ci_runs_the_second() {
 
 #[test]
 fn configuration_reference_lists_every_key_and_no_other() {
-    use rtu2mqtt::config::schema::{
-        DEVICE_KEYS, GATEWAY_KEYS, HEALTH_KEYS, LINE_KEYS, MQTT_KEYS, RS485_KEYS,
-    };
+    use rtu2mqtt::config::keys_of;
+    use rtu2mqtt::config::schema::{RawDevice, RawGateway, RawLine, RawMqtt, RawRs485};
+    use rtu2mqtt::config::HealthSettings;
+    let (mqtt_keys, gateway_keys, health_keys) = (
+        keys_of::<RawMqtt>(),
+        keys_of::<RawGateway>(),
+        keys_of::<HealthSettings>(),
+    );
+    let (line_keys, device_keys, rs485_keys) = (
+        keys_of::<RawLine>(),
+        keys_of::<RawDevice>(),
+        keys_of::<RawRs485>(),
+    );
+    assert!(
+        !rs485_keys.is_empty(),
+        "the key names of [lines.rs485] are not derived"
+    );
     let reference = section(CONFIGURATION, "Configuration reference");
     for (table, keys) in [
-        ("### `[mqtt]`", MQTT_KEYS),
-        ("### `[gateway]`", GATEWAY_KEYS),
-        ("### `[health]`", HEALTH_KEYS),
-        ("### `[[lines]]`", LINE_KEYS),
-        ("### `[[lines.devices]]`", DEVICE_KEYS),
+        ("### `[mqtt]`", mqtt_keys),
+        ("### `[gateway]`", gateway_keys),
+        ("### `[health]`", health_keys),
+        ("### `[[lines]]`", line_keys),
+        ("### `[[lines.devices]]`", device_keys),
     ] {
         let start = reference
             .find(table)
@@ -95,7 +109,7 @@ fn configuration_reference_lists_every_key_and_no_other() {
             assert!(keys.contains(key), "{table}: `{key}` is not a key");
         }
         if *table == *"### `[[lines]]`" {
-            for key in RS485_KEYS {
+            for key in rs485_keys {
                 assert!(
                     body.contains(&format!("`{key}`")),
                     "rs485.{key} undocumented"

@@ -2,7 +2,7 @@
 //! seed plant give (name, Sparkplug datatype, unit, writable), and the configuration
 //! reference's `[sparkplug]` table (docs/configuration.md) names exactly the section's keys.
 
-use rtu2mqtt::config::schema::SPARKPLUG_KEYS;
+use rtu2mqtt::config::{keys_of, SparkplugSettings};
 use rtu2mqtt::profile::registry;
 use rtu2mqtt::sparkplug::metrics::datatype_for;
 
@@ -82,5 +82,5 @@ fn the_sparkplug_configuration_reference_lists_every_key_and_no_other() {
         .filter_map(|line| line.split('|').nth(1))
         .map(|cell| cell.trim().trim_matches('`'))
         .collect();
-    assert_eq!(documented, SPARKPLUG_KEYS);
+    assert_eq!(documented, keys_of::<SparkplugSettings>());
 }

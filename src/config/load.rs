@@ -1,16 +1,16 @@
 //! Reading the configuration: the TOML file, then `RTU2MQTT__SECTION__KEY` environment
-//! overrides (the `config` crate), into [`RawConfig`]. Every unknown key, missing required key
-//! and wrongly typed value is reported with its place, in our words, before serde gets to stop
-//! at the first one; a problem in a value from the environment names its variable. No
+//! overrides (the `config` crate's layering), into [`RawConfig`] through the strict reading of
+//! `tree`. Every unknown key, missing required key and wrongly typed value is reported with
+//! its place, in our words; a problem in a value from the environment names its variable. No
 //! validation beyond types here.
 
 use std::collections::HashMap;
 use std::path::Path;
 
-use config::{Environment, File, FileFormat};
-use serde_json::Value as Json;
+use config::{Environment, File, FileFormat, ValueKind};
 
-use super::schema::{Key, Kind, RawConfig, TOP_SHAPE};
+use super::schema::RawConfig;
+use super::tree::{self, Declared, Node, Step};
 use super::{Problem, Problems};
 
 /// Environment variables that override file keys start with this (`RTU2MQTT__MQTT__PASSWORD`).
@@ -42,8 +42,9 @@ pub fn load_file_with_env(
 }
 
 /// What reading found: every problem of the reading stage (unknown keys, wrong types, missing
-/// keys), and the configuration read without the offending keys and values when that is
-/// possible, so that validation can report the problems elsewhere too.
+/// keys), and the configuration read without the offending keys and values (with stand-ins
+/// for required ones) when that is possible, so that validation can report the problems
+/// elsewhere too.
 #[derive(Debug)]
 pub struct Loaded {
     pub raw: Option<RawConfig>,
@@ -74,7 +75,7 @@ pub fn load_file_lenient(
     let overrides = env_overrides(&vars);
     let text = read_file(path)?;
     let file = File::from_str(&text, FileFormat::Toml);
-    let mut loaded = build_lenient(config::Config::builder().add_source(file), vars)
+    let mut loaded = layer_and_read(config::Config::builder().add_source(file), vars)
         .map_err(|problems| blame_overrides(problems, &overrides, true))?;
     loaded.problems = blame_overrides(Problems(loaded.problems), &overrides, true).0;
     Ok(loaded)
@@ -83,7 +84,7 @@ pub fn load_file_lenient(
 /// Like [`load_str`], lenient like [`load_file_lenient`].
 pub fn load_str_lenient(text: &str) -> Result<Loaded, Problems> {
     let file = File::from_str(text, FileFormat::Toml);
-    build_lenient(config::Config::builder().add_source(file), HashMap::new())
+    layer_and_read(config::Config::builder().add_source(file), HashMap::new())
 }
 
 /// Parses configuration text (no environment overrides): for tests and `check` of snippets.
@@ -194,11 +195,13 @@ fn read_file(path: &Path) -> Result<String, Problems> {
         .map_err(|error| problem(format!("cannot read the configuration file: {error}")))
 }
 
-fn build_lenient(
+fn layer_and_read(
     builder: config::ConfigBuilder<config::builder::DefaultState>,
     vars: HashMap<String, String>,
 ) -> Result<Loaded, Problems> {
-    // No `try_parsing`: a password such as `1e5` must stay text; typed fields parse strings.
+    let from_env: Vec<String> = env_overrides(&vars).into_iter().map(|o| o.place).collect();
+    // No `try_parsing`: a password such as `1e5` must stay text; the reading types
+    // environment text by the key it sets.
     let environment = Environment::with_prefix(ENV_PREFIX)
         .separator(ENV_SEPARATOR)
         .source(Some(vars.into_iter().collect()));
@@ -206,189 +209,91 @@ fn build_lenient(
         .add_source(environment)
         .build()
         .map_err(|error| Problems::one("", error.to_string().trim_end()))?;
-
-    let mut tree: Json = merged
-        .clone()
-        .try_deserialize()
-        .map_err(|error| Problems::one("", error.to_string()))?;
-    let mut problems = Vec::new();
-    check_table(&tree, "", TOP_SHAPE, &mut problems);
-    if problems.is_empty() {
-        // The walk above accepts only what the serde structs take, so this is a last resort.
-        let raw = merged
-            .try_deserialize::<RawConfig>()
-            .map_err(|error| Problems::one("", error.to_string()))?;
-        return Ok(Loaded {
-            raw: Some(raw),
-            problems,
-        });
-    }
-    // The second, lenient reading: without the keys and values found wrong, the rest can
-    // still be validated (an unknown key must not hide an address out of range elsewhere).
-    // Read back through `config` so environment text is typed the same way as before.
-    prune_table(&mut tree, TOP_SHAPE);
-    let raw = config::Config::try_from(&tree)
-        .and_then(|pruned| pruned.try_deserialize::<RawConfig>())
-        .ok();
-    Ok(Loaded { raw, problems })
+    Ok(read_leniently(to_node(merged.cache, "", &from_env)))
 }
 
-/// Removes from `table` every unknown key and every value [`check_value`] finds wrong.
-fn prune_table(table: &mut Json, keys: &[Key]) {
-    let Json::Object(map) = table else {
-        return;
-    };
-    map.retain(|name, _| keys.iter().any(|key| key.name == name));
-    for key in keys {
-        let Some(value) = map.get_mut(key.name) else {
-            continue;
-        };
-        let keep = match key.kind {
-            Kind::Table(inner) if value.is_object() => {
-                prune_table(value, inner);
-                true
-            }
-            Kind::Tables(inner) => match value {
-                Json::Array(tables) => {
-                    for table in tables.iter_mut() {
-                        prune_table(table, inner);
-                    }
-                    true
-                }
-                _ => false,
-            },
-            kind => {
-                let mut found = Vec::new();
-                check_value(value, "", kind, &mut found);
-                found.is_empty()
-            }
-        };
-        if !keep {
-            map.remove(key.name);
-        }
-    }
-}
-
-/// Every key `table` has that `keys` do not know, every required key it lacks and every value
-/// of the wrong type, each with its place (`lines[0].devices[1].adress`).
-fn check_table(table: &Json, place: &str, keys: &[Key], problems: &mut Vec<Problem>) {
-    let Json::Object(map) = table else {
-        problems.push(Problem::new(
-            place,
-            format!("{} is not a table", shown(table)),
-        ));
-        return;
-    };
-    let mut names: Vec<&String> = map.keys().collect();
-    names.sort();
-    for name in names {
-        if !keys.iter().any(|key| key.name == name) {
-            let known: Vec<&str> = keys.iter().map(|key| key.name).collect();
-            problems.push(Problem::new(
-                place_of(place, name),
-                format!("unknown key (known here: {})", known.join(", ")),
-            ));
-        }
-    }
-    for key in keys {
-        let at = place_of(place, key.name);
-        match map.get(key.name) {
-            Some(value) => check_value(value, &at, key.kind, problems),
-            None if key.required => problems.push(Problem::new(at, "required, but not set")),
-            None => {}
-        }
-    }
-}
-
-fn check_value(value: &Json, place: &str, kind: Kind, problems: &mut Vec<Problem>) {
-    let reason = match kind {
-        Kind::Table(keys) => return check_table(value, place, keys, problems),
-        Kind::Tables(keys) => {
-            let Json::Array(tables) = value else {
-                problems.push(Problem::new(
-                    place,
-                    format!("{} is not a list of tables", shown(value)),
-                ));
-                return;
-            };
-            for (index, table) in tables.iter().enumerate() {
-                check_table(table, &format!("{place}[{index}]"), keys, problems);
-            }
-            return;
-        }
-        Kind::Text => (!value.is_string()).then(|| "is not text (write it in quotes)".to_string()),
-        Kind::Bool => (!is_bool(value)).then(|| "is not true or false".to_string()),
-        Kind::Integer { min, max } => integer_problem(value, min, max),
-        Kind::Duration => match value {
-            Json::String(text) if humantime::parse_duration(text).is_ok() => None,
-            _ => Some("is not a duration (such as \"300ms\", \"2s\" or \"5m\")".to_string()),
+/// The layered value as a [`Node`]; text at a place in `from_env` came from the environment.
+fn to_node(value: config::Value, place: &str, from_env: &[String]) -> Node {
+    let wide =
+        |number: i128| i64::try_from(number).map_or(Node::Float(number as f64), Node::Integer);
+    match value.kind {
+        ValueKind::Nil => Node::StandIn,
+        ValueKind::Boolean(value) => Node::Bool(value),
+        ValueKind::I64(number) => Node::Integer(number),
+        ValueKind::I128(number) => wide(number),
+        ValueKind::U64(number) => wide(i128::from(number)),
+        ValueKind::U128(number) => i128::try_from(number).map_or(Node::Float(number as f64), wide),
+        ValueKind::Float(number) => Node::Float(number),
+        ValueKind::String(text) => Node::Text {
+            from_env: from_env.iter().any(|env_place| env_place == place),
+            text,
         },
-        Kind::OneOf(words) => match value {
-            Json::String(text) if words.contains(&text.as_str()) => None,
-            _ => Some(format!("is not one of {}", words.join(", "))),
-        },
-    };
-    if let Some(reason) = reason {
-        // A secret is never echoed, not even a mistyped one.
-        let value = if is_secret(place) {
-            "the value (not shown)".to_string()
-        } else {
-            shown(value)
-        };
-        problems.push(Problem::new(place, format!("{value} {reason}")));
-    }
-}
-
-/// True for a TOML boolean, or the words the `config` crate takes for one (environment values
-/// are text).
-fn is_bool(value: &Json) -> bool {
-    match value {
-        Json::Bool(_) => true,
-        Json::String(text) => matches!(
-            text.to_lowercase().as_str(),
-            "1" | "true" | "on" | "yes" | "0" | "false" | "off" | "no"
+        ValueKind::Table(table) => {
+            let mut entries: Vec<(String, Node)> = table
+                .into_iter()
+                .map(|(key, value)| {
+                    let inner = if place.is_empty() {
+                        key.clone()
+                    } else {
+                        format!("{place}.{key}")
+                    };
+                    (key, to_node(value, &inner, from_env))
+                })
+                .collect();
+            entries.sort_by(|a, b| a.0.cmp(&b.0));
+            Node::Table(entries)
+        }
+        ValueKind::Array(items) => Node::List(
+            items
+                .into_iter()
+                .enumerate()
+                .map(|(index, item)| to_node(item, &format!("{place}[{index}]"), from_env))
+                .collect(),
         ),
-        _ => false,
     }
 }
 
-fn integer_problem(value: &Json, min: i64, max: i64) -> Option<String> {
-    let number = match value {
-        Json::Number(number) => match (number.as_i64(), number.as_u64()) {
-            (Some(number), _) => number,
-            (None, Some(_)) => return Some(format!("is out of range ({min} to {max})")),
-            (None, None) => return Some("is not an integer".to_string()),
-        },
-        // Environment values are text; the `config` crate parses them.
-        Json::String(text) => match text.parse::<i64>() {
-            Ok(number) => number,
-            Err(_) => return Some("is not an integer".to_string()),
-        },
-        _ => return Some("is not an integer".to_string()),
+/// Reads [`RawConfig`] from `tree` again and again, each time taking out the value the
+/// previous reading stopped at (an unknown key, a wrong value) or standing in for a missing
+/// one, until it reads: every problem of the reading stage is reported, and the rest can still
+/// be validated (an unknown key must not hide an address out of range elsewhere). Problems
+/// are listed table by table in the order the structs declare their keys, unknown keys first.
+fn read_leniently(mut tree: Node) -> Loaded {
+    let declared = Declared::default();
+    let mut found: Vec<(Vec<Step>, Problem)> = Vec::new();
+    let mut stood_in: Vec<Vec<Step>> = Vec::new();
+    let raw = loop {
+        let fault = match tree::read::<RawConfig>(&tree, &declared) {
+            Ok(raw) => break Some(raw),
+            Err(fault) => fault,
+        };
+        let in_stand_in = stood_in.iter().any(|place| fault.place.starts_with(place));
+        let reported = found.iter().any(|(place, _)| *place == fault.place);
+        // A stand-in's own keys, and a required key whose wrong value was taken out, are
+        // already accounted for.
+        let quiet = fault.missing && (in_stand_in || reported);
+        if !quiet {
+            let problem = Problem::new(tree::place_text(&fault.place), fault.reason);
+            found.push((fault.place.clone(), problem));
+        }
+        let progressed = if fault.missing {
+            stood_in.push(fault.place.clone());
+            tree.stand_in(&fault.place)
+        } else {
+            if matches!(fault.place.last(), Some(Step::Index(_))) {
+                // An item of a list is not taken out but stood in for (see `Node::remove`).
+                stood_in.push(fault.place.clone());
+            }
+            !in_stand_in && tree.remove(&fault.place)
+        };
+        if !progressed {
+            break None;
+        }
     };
-    (number < min || number > max).then(|| format!("is out of range ({min} to {max})"))
-}
-
-/// Keys whose values are secrets.
-fn is_secret(place: &str) -> bool {
-    place == "password" || place.ends_with(".password")
-}
-
-/// A value as the user wrote it: text in quotes, numbers as they are.
-fn shown(value: &Json) -> String {
-    match value {
-        Json::Object(_) => "a table".to_string(),
-        Json::Array(_) => "a list".to_string(),
-        Json::Null => "nothing".to_string(),
-        other => other.to_string(),
-    }
-}
-
-fn place_of(table: &str, key: &str) -> String {
-    if table.is_empty() {
-        key.to_string()
-    } else {
-        format!("{table}.{key}")
+    found.sort_by_cached_key(|(place, _)| declared.order(place));
+    Loaded {
+        raw,
+        problems: found.into_iter().map(|(_, problem)| problem).collect(),
     }
 }
 
@@ -599,7 +504,7 @@ poll_interval = "300ms"
     }
 
     #[test]
-    fn the_type_walk_accepts_every_key_the_structs_take() {
+    fn every_key_the_structs_take_is_read() {
         let text = r#"
 [mqtt]
 url = "mqtt://127.0.0.1:1883"
@@ -655,5 +560,62 @@ poll_interval = "2s"
         let raw = load_str(text).unwrap();
         assert_eq!(raw.lines[0].stop_bits, 2);
         assert_eq!(raw.gateway.max_payload, 2048);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(300))]
+
+        /// Whatever keys and values a file holds, reading ends with the configuration or
+        /// with problems, each placed.
+        #[test]
+        fn reading_any_file_ends_with_placed_problems(
+            entries in proptest::collection::vec(
+                (
+                    proptest::sample::select(vec![
+                        "mqtt", "mqtt.url", "mqtt.client_id", "mqtt.inflight", "mqtt.password",
+                        "gateway", "gateway.json_view", "lines", "sparkplug", "sparkplug.mqtt",
+                        "sparkplug.group_id", "health.interval", "colour",
+                    ]),
+                    proptest::sample::select(vec![
+                        "1", "70000", "1.5", "true", "\"x\"", "\"5s\"", "{}", "[]", "[{}]",
+                        "[1]", "{ name = 2 }", "[{ name = \"a\", devices = [{}] }]",
+                    ]),
+                ),
+                0..8,
+            )
+        ) {
+            let text: String = entries
+                .iter()
+                .map(|(key, value)| format!("{key} = {value}\n"))
+                .collect();
+            // A key given twice ends at the TOML parser; everything else is read.
+            let Ok(loaded) = load_str_lenient(&text) else {
+                return Ok(());
+            };
+            for problem in &loaded.problems {
+                proptest::prop_assert!(!problem.reason.is_empty(), "{problem}");
+            }
+            proptest::prop_assert!(loaded.raw.is_some() || !loaded.problems.is_empty());
+        }
+
+        #[test]
+        fn reading_nested_tables_of_any_shape_ends(
+            mqtt in proptest::sample::select(vec!["", "url = 1", "client_id = []", "x = 1"]),
+            line in proptest::sample::select(vec![
+                "", "name = 1", "devices = 5", "devices = [1, {}]", "rs485 = 3",
+                "rs485 = { rts_on_send = \"x\" }", "parity = 1", "baud = -1",
+            ]),
+            device in proptest::sample::select(vec![
+                "", "address = \"a\"", "name = []", "poll_interval = 1", "x = 2",
+            ]),
+        ) {
+            let text = format!(
+                "[mqtt]\n{mqtt}\n[[lines]]\n{line}\n[[lines.devices]]\n{device}\n"
+            );
+            let Ok(loaded) = load_str_lenient(&text) else {
+                return Ok(());
+            };
+            proptest::prop_assert!(loaded.raw.is_some() || !loaded.problems.is_empty());
+        }
     }
 }

@@ -1,8 +1,9 @@
-//! The gateway configuration: serde structs ([`schema`]), `config` layering (file <
-//! `RTU2MQTT__*` environment, [`load`]), and complete validation ([`validate`]) that names the
-//! place of every problem before anything is opened. [`plan`] computes each line's poll plan
-//! and bus load from the wire timing, for validation and `rtu2mqtt check`. [`sparkplug`] holds
-//! the optional `[sparkplug]` section.
+//! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
+//! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) read strictly with every
+//! problem placed ([`tree`]), and complete validation ([`validate`]) that names the place of
+//! every problem before anything is opened. [`plan`] computes each line's poll plan and bus
+//! load from the wire timing, for validation and `rtu2mqtt check`. [`sparkplug`] holds the
+//! checked `[sparkplug]` section.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
@@ -13,6 +14,7 @@ pub mod load;
 pub mod plan;
 pub mod schema;
 pub mod sparkplug;
+pub mod tree;
 pub mod validate;
 
 use std::fmt;
@@ -24,7 +26,9 @@ use crate::bus::LineSpec;
 use crate::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
-pub use sparkplug::{SparkplugConfig, SparkplugIdentity, SparkplugSettings};
+pub use schema::SparkplugSettings;
+pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
+pub use tree::keys_of;
 
 /// How long after start-up, and after each reload, the pages of code that only start-up ran
 /// go back to the kernel (`[gateway] release_startup_code_after`): by then every line has

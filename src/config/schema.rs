@@ -1,6 +1,8 @@
-//! The configuration file as written (serde): every table denies unknown keys, durations are
-//! humantime strings (`"300ms"`), addresses plain integers (TOML accepts `0x81`). Nothing here
-//! is checked beyond its type; `validate` turns it into the gateway's settings.
+//! The configuration file as written: these serde structs are the one declaration of every
+//! key (name, type, default, required or not); reading, the list of keys and the reference's
+//! test derive from them. Every table denies unknown keys, durations are humantime strings
+//! (`"300ms"`), addresses plain integers (TOML accepts `0x81`). Nothing here is checked beyond
+//! its type; `validate` turns it into the gateway's settings.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -8,7 +10,6 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::health::HealthSettings;
-use super::sparkplug::SparkplugSettings;
 use crate::rtu::timing::Parity;
 
 /// The whole file.
@@ -150,6 +151,21 @@ pub struct RawLine {
     pub devices: Vec<RawDevice>,
 }
 
+/// `[sparkplug]`: the Sparkplug B edge node's identity and, optionally, a broker of its own.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SparkplugSettings {
+    /// The Sparkplug group.
+    pub group_id: String,
+    /// Default: the MQTT client id.
+    pub edge_node_id: Option<String>,
+    /// With a primary host, births wait for its STATE `online`.
+    pub primary_host_id: Option<String>,
+    /// A broker of its own, in the form of `[mqtt]` (validated by the same rules); default:
+    /// the `[mqtt]` broker under another client id.
+    pub mqtt: Option<RawMqtt>,
+}
+
 /// `[lines.rs485]`.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -175,206 +191,6 @@ pub struct RawDevice {
     #[serde(default, with = "humantime_serde")]
     pub poll_interval: Option<Duration>,
 }
-
-/// What a key's value must be, for reporting every unknown key and wrongly typed value at once
-/// with its place (serde stops at the first problem and words it in its own terms).
-#[derive(Debug, Clone, Copy)]
-pub enum Kind {
-    Text,
-    Bool,
-    /// An integer in `min..=max` (the range of the field's Rust type).
-    Integer {
-        min: i64,
-        max: i64,
-    },
-    /// A humantime duration (`"300ms"`).
-    Duration,
-    /// One of these words.
-    OneOf(&'static [&'static str]),
-    /// A table with these keys.
-    Table(&'static [Key]),
-    /// A list of tables with these keys (`[[lines]]`).
-    Tables(&'static [Key]),
-}
-
-/// One key a table knows.
-#[derive(Debug, Clone, Copy)]
-pub struct Key {
-    pub name: &'static str,
-    pub kind: Kind,
-    pub required: bool,
-}
-
-const fn required(name: &'static str, kind: Kind) -> Key {
-    Key {
-        name,
-        kind,
-        required: true,
-    }
-}
-
-const fn optional(name: &'static str, kind: Kind) -> Key {
-    Key {
-        name,
-        kind,
-        required: false,
-    }
-}
-
-const fn integer_up_to(max: u64) -> Kind {
-    // Every bound used here fits an i64.
-    Kind::Integer {
-        min: 0,
-        max: if max > i64::MAX as u64 {
-            i64::MAX
-        } else {
-            max as i64
-        },
-    }
-}
-
-const U8: Kind = integer_up_to(u8::MAX as u64);
-const U16: Kind = integer_up_to(u16::MAX as u64);
-const U32: Kind = integer_up_to(u32::MAX as u64);
-const USIZE: Kind = integer_up_to(usize::MAX as u64);
-const I64: Kind = Kind::Integer {
-    min: i64::MIN,
-    max: i64::MAX,
-};
-
-/// The parity words ([`Parity`] in lower case).
-pub const PARITY_WORDS: &[&str] = &["none", "even", "odd"];
-
-/// The whole file, key by key (must agree with the serde structs above and the `*_KEYS`).
-pub const TOP_SHAPE: &[Key] = &[
-    required("mqtt", Kind::Table(MQTT_SHAPE)),
-    optional("gateway", Kind::Table(GATEWAY_SHAPE)),
-    optional("health", Kind::Table(HEALTH_SHAPE)),
-    optional("lines", Kind::Tables(LINE_SHAPE)),
-    optional("sparkplug", Kind::Table(SPARKPLUG_SHAPE)),
-];
-pub const SPARKPLUG_SHAPE: &[Key] = &[
-    required("group_id", Kind::Text),
-    optional("edge_node_id", Kind::Text),
-    optional("primary_host_id", Kind::Text),
-    optional("mqtt", Kind::Table(MQTT_SHAPE)),
-];
-pub const MQTT_SHAPE: &[Key] = &[
-    required("url", Kind::Text),
-    required("client_id", Kind::Text),
-    optional("prefix", Kind::Text),
-    optional("username", Kind::Text),
-    optional("password", Kind::Text),
-    optional("password_file", Kind::Text),
-    optional("ca_file", Kind::Text),
-    optional("cert_file", Kind::Text),
-    optional("key_file", Kind::Text),
-    optional("keep_alive", Kind::Duration),
-    optional("clean_session", Kind::Bool),
-    optional("inflight", U16),
-    optional("discovery", Kind::Bool),
-    optional("discovery_prefix", Kind::Text),
-];
-pub const HEALTH_SHAPE: &[Key] = &[
-    optional("status_file", Kind::Text),
-    optional("interval", Kind::Duration),
-    optional("stale_after", Kind::Duration),
-    optional("stall_limit", Kind::Duration),
-];
-pub const GATEWAY_SHAPE: &[Key] = &[
-    optional("command_ttl", Kind::Duration),
-    optional("json_view", Kind::Bool),
-    optional("stats_interval", Kind::Duration),
-    optional("metrics_listen", Kind::Text),
-    optional("frame_log", Kind::Text),
-    optional("allow_raw_writes", Kind::Bool),
-    optional("max_payload", USIZE),
-    optional("release_startup_code_after", Kind::Duration),
-];
-pub const LINE_SHAPE: &[Key] = &[
-    required("name", Kind::Text),
-    optional("port", Kind::Text),
-    optional("url", Kind::Text),
-    optional("network_allowance", Kind::Duration),
-    optional("connect_timeout", Kind::Duration),
-    optional("keepalive", Kind::Duration),
-    optional("baud", U32),
-    optional("parity", Kind::OneOf(PARITY_WORDS)),
-    optional("data_bits", U8),
-    optional("stop_bits", U8),
-    optional("response_timeout", Kind::Duration),
-    optional("retries", U32),
-    optional("offline_after", U32),
-    optional("echo", Kind::Bool),
-    optional("broadcast_turnaround", Kind::Duration),
-    optional("byte_timeout", Kind::Duration),
-    optional("rs485", Kind::Table(RS485_SHAPE)),
-    optional("devices", Kind::Tables(DEVICE_SHAPE)),
-];
-pub const RS485_SHAPE: &[Key] = &[
-    optional("rts_on_send", Kind::Bool),
-    optional("delay_before_send", Kind::Duration),
-    optional("delay_after_send", Kind::Duration),
-];
-pub const DEVICE_SHAPE: &[Key] = &[
-    required("name", Kind::Text),
-    required("profile", Kind::Text),
-    required("address", I64),
-    optional("poll_interval", Kind::Duration),
-];
-
-/// The key names of each table (the README documents each of them).
-pub const TOP_KEYS: &[&str] = &["mqtt", "gateway", "health", "lines", "sparkplug"];
-pub const SPARKPLUG_KEYS: &[&str] = &["group_id", "edge_node_id", "primary_host_id", "mqtt"];
-pub const MQTT_KEYS: &[&str] = &[
-    "url",
-    "client_id",
-    "prefix",
-    "username",
-    "password",
-    "password_file",
-    "ca_file",
-    "cert_file",
-    "key_file",
-    "keep_alive",
-    "clean_session",
-    "inflight",
-    "discovery",
-    "discovery_prefix",
-];
-pub const HEALTH_KEYS: &[&str] = &["status_file", "interval", "stale_after", "stall_limit"];
-pub const GATEWAY_KEYS: &[&str] = &[
-    "command_ttl",
-    "json_view",
-    "stats_interval",
-    "metrics_listen",
-    "frame_log",
-    "allow_raw_writes",
-    "max_payload",
-    "release_startup_code_after",
-];
-pub const LINE_KEYS: &[&str] = &[
-    "name",
-    "port",
-    "url",
-    "network_allowance",
-    "connect_timeout",
-    "keepalive",
-    "baud",
-    "parity",
-    "data_bits",
-    "stop_bits",
-    "response_timeout",
-    "retries",
-    "offline_after",
-    "echo",
-    "broadcast_turnaround",
-    "byte_timeout",
-    "rs485",
-    "devices",
-];
-pub const RS485_KEYS: &[&str] = &["rts_on_send", "delay_before_send", "delay_after_send"];
-pub const DEVICE_KEYS: &[&str] = &["name", "profile", "address", "poll_interval"];
 
 fn default_prefix() -> String {
     "plant".to_string()
@@ -417,27 +233,4 @@ fn default_offline_after() -> u32 {
 }
 fn default_broadcast_turnaround() -> Duration {
     Duration::from_millis(200)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_key_lists_name_the_shapes_keys() {
-        let pairs: [(&[&str], &[Key]); 8] = [
-            (TOP_KEYS, TOP_SHAPE),
-            (MQTT_KEYS, MQTT_SHAPE),
-            (HEALTH_KEYS, HEALTH_SHAPE),
-            (GATEWAY_KEYS, GATEWAY_SHAPE),
-            (LINE_KEYS, LINE_SHAPE),
-            (RS485_KEYS, RS485_SHAPE),
-            (DEVICE_KEYS, DEVICE_SHAPE),
-            (SPARKPLUG_KEYS, SPARKPLUG_SHAPE),
-        ];
-        for (names, shape) in pairs {
-            let shape_names: Vec<&str> = shape.iter().map(|key| key.name).collect();
-            assert_eq!(names, shape_names.as_slice());
-        }
-    }
 }

@@ -1,38 +1,15 @@
-//! The `[sparkplug]` section: the Sparkplug B identity of the gateway's edge node (group,
-//! edge node and optional primary host ids, checked by Sparkplug's rules) and the broker of
-//! its own connection (its own `mqtt` table, checked like `[mqtt]`, or the plain broker under
-//! another client id). Only settings: the edge node itself is `crate::sparkplug`'s.
+//! The checked `[sparkplug]` section: the Sparkplug B identity of the gateway's edge node
+//! (group, edge node and optional primary host ids, checked by Sparkplug's rules) and the
+//! broker of its own connection (its own `mqtt` table, or the plain broker under another
+//! client id). Only settings: the edge node itself is `crate::sparkplug`'s; the section as
+//! written is `schema`'s, and `validate` checks its broker like `[mqtt]`.
 
-use std::path::Path;
-
-use serde::Deserialize;
-
-use super::schema::RawMqtt;
-use super::validate::validate_mqtt_section;
+use super::schema::SparkplugSettings;
 use super::{MqttSettings, Problem};
 
 /// Appended to the plain connection's client id when the node shares its broker: two
 /// connections with one client id would take each other over.
 pub const CLIENT_ID_SUFFIX: &str = "-sparkplug";
-
-/// The `[sparkplug]` section as written.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SparkplugSettings {
-    /// The Sparkplug group (required).
-    #[serde(default)]
-    pub group_id: String,
-    /// Default: the MQTT client id.
-    #[serde(default)]
-    pub edge_node_id: Option<String>,
-    /// With a primary host, births wait for its STATE `online`.
-    #[serde(default)]
-    pub primary_host_id: Option<String>,
-    /// A broker of its own, in the form of `[mqtt]` (validated by the same rules); default:
-    /// the `[mqtt]` broker with the client id suffixed [`CLIENT_ID_SUFFIX`].
-    #[serde(default)]
-    pub mqtt: Option<RawMqtt>,
-}
 
 /// The checked Sparkplug identity of the node.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -50,79 +27,36 @@ pub struct SparkplugConfig {
     pub mqtt: MqttSettings,
 }
 
-impl SparkplugSettings {
-    /// Checks the ids by Sparkplug's rules (non-empty, no `+`, `#` or `/`; they are topic
-    /// levels) and fills the edge node id from the MQTT client id. Every problem is named
-    /// with its place (`sparkplug.group_id`).
-    pub fn validate(&self, mqtt_client_id: &str) -> Result<SparkplugIdentity, Vec<Problem>> {
-        let mut problems = Vec::new();
-        let edge_node_id = self
-            .edge_node_id
-            .clone()
-            .unwrap_or_else(|| mqtt_client_id.to_string());
-        check_id("sparkplug.group_id", &self.group_id, &mut problems);
-        let place = if self.edge_node_id.is_some() {
-            "sparkplug.edge_node_id"
-        } else {
-            "sparkplug.edge_node_id (from mqtt.client_id)"
-        };
-        check_id(place, &edge_node_id, &mut problems);
-        if let Some(host) = &self.primary_host_id {
-            check_id("sparkplug.primary_host_id", host, &mut problems);
-        }
-        if !problems.is_empty() {
-            return Err(problems);
-        }
-        Ok(SparkplugIdentity {
-            group_id: self.group_id.clone(),
-            edge_node_id,
-            primary_host_id: self.primary_host_id.clone(),
-        })
-    }
-}
-
-/// The whole section: identity and broker, every problem added to `problems`. `plain` is the
-/// checked `[mqtt]` (None when it has problems of its own; the identity is still checked).
-pub fn validate_sparkplug(
+/// Checks the ids of `raw` by Sparkplug's rules (non-empty, no `+`, `#` or `/`; they are
+/// topic levels) and fills the edge node id from the MQTT client id. Every problem is named
+/// with its place (`sparkplug.group_id`).
+pub fn check_identity(
     raw: &SparkplugSettings,
-    plain_client_id: &str,
-    plain: Option<&MqttSettings>,
-    base: &Path,
-    problems: &mut Vec<Problem>,
-) -> Option<SparkplugConfig> {
-    let identity = raw
-        .validate(plain_client_id)
-        .map_err(|found| problems.extend(found))
-        .ok();
-    let mqtt = match &raw.mqtt {
-        Some(own) => {
-            let checked = validate_mqtt_section("sparkplug.mqtt", own, base, problems)?;
-            if let Some(plain) = plain.filter(|plain| same_client(plain, &checked)) {
-                problems.push(Problem::new(
-                    "sparkplug.mqtt.client_id",
-                    format!(
-                        "{:?} is also mqtt.client_id on the same broker: the two connections \
-                         would take each other over",
-                        plain.client_id
-                    ),
-                ));
-                return None;
-            }
-            MqttSettings {
-                clean_session: true,
-                ..checked
-            }
-        }
-        None => shared_broker(plain?),
+    mqtt_client_id: &str,
+) -> Result<SparkplugIdentity, Vec<Problem>> {
+    let mut problems = Vec::new();
+    let edge_node_id = raw
+        .edge_node_id
+        .clone()
+        .unwrap_or_else(|| mqtt_client_id.to_string());
+    check_id("sparkplug.group_id", &raw.group_id, &mut problems);
+    let place = if raw.edge_node_id.is_some() {
+        "sparkplug.edge_node_id"
+    } else {
+        "sparkplug.edge_node_id (from mqtt.client_id)"
     };
-    Some(SparkplugConfig {
-        identity: identity?,
-        mqtt,
+    check_id(place, &edge_node_id, &mut problems);
+    if let Some(host) = &raw.primary_host_id {
+        check_id("sparkplug.primary_host_id", host, &mut problems);
+    }
+    if !problems.is_empty() {
+        return Err(problems);
+    }
+    Ok(SparkplugIdentity {
+        group_id: raw.group_id.clone(),
+        edge_node_id,
+        primary_host_id: raw.primary_host_id.clone(),
     })
-}
-
-fn same_client(a: &MqttSettings, b: &MqttSettings) -> bool {
-    a.host == b.host && a.port == b.port && a.client_id == b.client_id
 }
 
 /// The plain broker settings made fit for the node's own connection: same broker, own client
@@ -164,7 +98,7 @@ mod tests {
 
     #[test]
     fn the_edge_node_id_defaults_to_the_client_id() {
-        let identity = settings("plant", None, Some("scada")).validate("rtu2mqtt-1");
+        let identity = check_identity(&settings("plant", None, Some("scada")), "rtu2mqtt-1");
         assert_eq!(
             identity,
             Ok(SparkplugIdentity {
@@ -177,7 +111,7 @@ mod tests {
 
     #[test]
     fn ids_follow_the_sparkplug_rules() {
-        let Err(problems) = settings("", Some("a/b"), Some("h+")).validate("gw") else {
+        let Err(problems) = check_identity(&settings("", Some("a/b"), Some("h+")), "gw") else {
             panic!("invalid ids accepted");
         };
         let shown: Vec<String> = problems.iter().map(ToString::to_string).collect();
@@ -189,7 +123,7 @@ mod tests {
                 "sparkplug.primary_host_id: `h+` contains `+`; Sparkplug ids must not contain +, # or /",
             ]
         );
-        let Err(problems) = settings("g", None, None).validate("gw#1") else {
+        let Err(problems) = check_identity(&settings("g", None, None), "gw#1") else {
             panic!("invalid client id accepted as edge node id");
         };
         assert_eq!(
@@ -211,78 +145,5 @@ mod tests {
             .mqtt
             .is_some_and(|mqtt| mqtt.url == "mqtt://broker:1883"));
         assert!(toml::from_str::<SparkplugSettings>("group = \"x\"").is_err());
-    }
-
-    const PLAIN: &str = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n";
-    const LINE: &str = "[[lines]]\nname = \"a\"\nport = \"/dev/ttyS0\"\n[[lines.devices]]\nname = \"valve\"\nprofile = \"wuzhou-valve\"\naddress = 3\n";
-
-    fn load(extra: &str) -> Result<super::super::Config, String> {
-        super::super::from_str(&format!("{PLAIN}{LINE}{extra}"), Path::new("."))
-            .map_err(|problems| problems.to_string())
-    }
-
-    #[test]
-    fn absent_means_no_edge_node_and_present_shares_the_broker_by_default() {
-        let config = load("").unwrap_or_else(|problems| panic!("{problems}"));
-        assert!(config.sparkplug.is_none());
-        let Ok(config) = load("[sparkplug]\ngroup_id = \"plant\"\n") else {
-            panic!("[sparkplug] refused");
-        };
-        let Some(sparkplug) = config.sparkplug else {
-            panic!("[sparkplug] ignored");
-        };
-        assert_eq!(sparkplug.identity.edge_node_id, "edge1");
-        assert_eq!(sparkplug.mqtt.client_id, "edge1-sparkplug");
-        assert_eq!(sparkplug.mqtt.port, 1883);
-        assert!(sparkplug.mqtt.clean_session);
-    }
-
-    #[test]
-    fn its_own_broker_is_checked_like_mqtt_with_every_problem_placed() {
-        let Ok(config) = load(
-            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://scada:1884\"\nclient_id = \"edge1\"\n",
-        ) else {
-            panic!("own broker refused");
-        };
-        let mqtt = config.sparkplug.map(|sparkplug| sparkplug.mqtt);
-        assert_eq!(
-            mqtt.map(|mqtt| (mqtt.host, mqtt.port)),
-            Some(("scada".into(), 1884))
-        );
-
-        let Err(problems) = load(
-            "[sparkplug]\ngroup_id = \"a/b\"\n[sparkplug.mqtt]\nurl = \"http://x\"\nclient_id = \"edge1\"\ninflight = 0\n",
-        ) else {
-            panic!("bad section accepted");
-        };
-        for expected in [
-            "sparkplug.group_id: `a/b` contains `/`",
-            "sparkplug.mqtt.url: \"http://x\" must start with mqtt://",
-            "sparkplug.mqtt.inflight: must be at least 1",
-        ] {
-            assert!(problems.contains(expected), "{expected}\n{problems}");
-        }
-
-        let Err(problems) = load(
-            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n",
-        ) else {
-            panic!("a client id taking over the plain connection accepted");
-        };
-        assert!(
-            problems.contains("sparkplug.mqtt.client_id: \"edge1\" is also mqtt.client_id"),
-            "{problems}"
-        );
-
-        let Err(problems) = load("[sparkplug]\nedge_node_id = \"gw\"\ncolour = 1\n") else {
-            panic!("missing group_id accepted");
-        };
-        assert!(
-            problems.contains("sparkplug.group_id: required"),
-            "{problems}"
-        );
-        assert!(
-            problems.contains("sparkplug.colour: unknown key"),
-            "{problems}"
-        );
     }
 }

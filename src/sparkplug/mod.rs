@@ -24,8 +24,9 @@ use crate::config::{Config, MqttSettings};
 use crate::shutdown::Shutdown;
 
 pub use crate::config::sparkplug::{
-    shared_broker, SparkplugConfig, SparkplugIdentity, SparkplugSettings, CLIENT_ID_SUFFIX,
+    shared_broker, SparkplugConfig, SparkplugIdentity, CLIENT_ID_SUFFIX,
 };
+pub use crate::config::SparkplugSettings;
 pub use session::{Action, NodeMetricSpec, Session, SessionSettings, SparkplugCommand};
 
 /// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
