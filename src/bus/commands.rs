@@ -50,12 +50,15 @@ pub(super) struct Finished {
 }
 
 /// What a slot or a settle re-read of `device` leaves for the line to do, in this order:
-/// note that the device answered, publish the reads, report the end, close the failed port.
+/// note that the device answered, publish the reads (and have the blocks the command can have
+/// changed read again unless the reads covered them), report the end, close the failed port.
 #[derive(Debug)]
 pub(super) struct SlotReport {
     pub(super) device: usize,
     pub(super) contact: bool,
     pub(super) reads: Option<SeenReads>,
+    /// The device's read blocks the command can have changed.
+    pub(super) changed: Vec<usize>,
     pub(super) finished: Option<Finished>,
     pub(super) port_gone: Option<PortFault>,
 }
@@ -153,6 +156,7 @@ impl CommandSlots {
             device,
             contact: false,
             reads: None,
+            changed: command.plan.readback_blocks().collect(),
             finished: None,
             port_gone: None,
         };
@@ -213,6 +217,7 @@ impl CommandSlots {
             device: settle.device,
             contact: false,
             reads: None,
+            changed: settle.plan.readback_blocks().collect(),
             finished: None,
             port_gone: None,
         };

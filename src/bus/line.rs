@@ -578,6 +578,7 @@ impl Line {
             device,
             contact,
             reads,
+            changed,
             finished,
             port_gone,
         } = report;
@@ -588,7 +589,7 @@ impl Line {
             }
         }
         if let Some(seen) = reads {
-            self.publish_reads(device, seen, now).await;
+            self.publish_reads(device, seen, &changed, now).await;
         }
         if let Some(finished) = finished {
             self.reply(device, finished).await;
@@ -598,16 +599,24 @@ impl Line {
         }
     }
 
-    /// Sends the values of the reads a command slot made that are poll blocks of the device
-    /// (they count as that block's poll); every other block is polled at once, so that what
-    /// the command changed is reported without waiting for a poll interval.
-    async fn publish_reads(&mut self, device: usize, seen: SeenReads, now: Instant) {
+    /// Sends the values of the reads a command slot made that are poll blocks of the device.
+    /// A block in `changed` (the command can have changed it) that the slot did not read whole
+    /// is polled at once, so that what the command changed is reported without waiting for a
+    /// poll interval; no block's cadence moves ([`Scheduler::after_command`]).
+    async fn publish_reads(
+        &mut self,
+        device: usize,
+        seen: SeenReads,
+        changed: &[usize],
+        now: Instant,
+    ) {
         let Some(runtime) = self.devices.get_mut(device) else {
             return;
         };
         let profile = runtime.spec.profile.clone();
         let mut values = Values::new();
-        let mut covered = vec![false; profile.read_blocks().len()];
+        let blocks = profile.read_blocks().len();
+        let mut covered = vec![false; blocks];
         for (request, answer) in &seen {
             let Some(block) = profile
                 .read_blocks()
@@ -620,10 +629,19 @@ impl Line {
             if let Some(flag) = covered.get_mut(block) {
                 *flag = true;
             }
-            self.scheduler
-                .record_poll(device, block, PollOutcome::Answered, now);
         }
-        self.scheduler.refresh_except(device, &covered, now);
+        let mut changeable = vec![false; blocks];
+        for &block in changed {
+            if let Some(flag) = changeable.get_mut(block) {
+                *flag = true;
+            }
+        }
+        let change = self
+            .scheduler
+            .after_command(device, &changeable, &covered, now);
+        if let Some(change) = change {
+            self.availability_changed(device, change).await;
+        }
         self.emit_values(device, values).await;
     }
 
