@@ -14,7 +14,7 @@
 //! go through the same desk, with their results on `…/result` too, and their end reported
 //! back ([`Action::Report`]).
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rumqttc::QoS;
@@ -105,7 +105,8 @@ impl CoreSettings {
 pub struct Core {
     desk: CommandDesk,
     publisher: Publisher,
-    options: GatewayOptions,
+    /// How often the statistics document goes out.
+    stats_interval: Duration,
     mqtt_connects: u64,
     mqtt_disconnects: u64,
     /// Re-announce discovery at this instant (after Home Assistant's birth message).
@@ -138,8 +139,8 @@ impl Core {
             started: now,
             next_stats: now + options.stats_interval,
             stats_due: true,
+            stats_interval: options.stats_interval,
             rng,
-            options,
         }
     }
 
@@ -310,7 +311,7 @@ impl Core {
         self.publisher.reassert_due(now);
         if self.publisher.is_connected() && (self.stats_due || now >= self.next_stats) {
             self.stats_due = false;
-            self.next_stats = now + self.options.stats_interval;
+            self.next_stats = now + self.stats_interval;
             // Retained: the gateway's Home Assistant sensors (and any client arriving later)
             // read the last document at once instead of waiting up to a statistics interval.
             let document = metrics::stats_json(&line_stats(), &self.counters(now));
