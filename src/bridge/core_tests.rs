@@ -1,12 +1,26 @@
-//! The contract's rules on the bridge core alone: no broker, no line, the clock passed in.
+//! The contract's rules on the bridge core alone: no broker, no line, the clock and the
+//! random generator passed in.
 
-use std::time::Duration;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use rumqttc::QoS;
 use serde_json::Value as Json;
 
-use super::*;
-use crate::bus::CommandFailure;
+use super::core::{Action, BridgeDevice, Core, CoreSettings, ExternalCommand, Incoming};
+use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
+use crate::config::GatewayOptions;
+use crate::contract::Topics;
 use crate::profile::registry;
+
+/// The seed of every test core: equal inputs give equal actions.
+const SEED: u64 = 7;
+
+fn seeded() -> StdRng {
+    StdRng::seed_from_u64(SEED)
+}
 
 const TTL: Duration = Duration::from_secs(60);
 /// Longer than any re-announcement delay after Home Assistant's birth message.
@@ -40,6 +54,7 @@ fn core(now: Instant) -> Core {
             }],
         },
         now,
+        seeded(),
     )
 }
 
@@ -687,6 +702,7 @@ fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
             }],
         },
         now,
+        seeded(),
     );
     core.on_connected();
     core.on_line_event(
@@ -829,4 +845,155 @@ fn plain_commands_are_never_reported() {
     let ids = sent(&command(&mut core, "opening", "50", 2, now));
     let actions = core.on_line_event(applied(ids[0]), now);
     assert!(reports(&actions).is_empty());
+}
+
+// ----- reload -----
+
+fn device(name: &str, profile: &str, line: usize) -> BridgeDevice {
+    BridgeDevice {
+        name: name.to_string(),
+        profile: Arc::new(registry::built_in(profile).unwrap()),
+        line,
+    }
+}
+
+fn retained_clears(actions: &[Action]) -> Vec<String> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Publish(p) if p.retain && p.payload.is_empty() => Some(p.topic.clone()),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_removed_device_is_cleared_and_a_kept_ones_waiting_command_stays() {
+    let now = Instant::now();
+    let options = GatewayOptions {
+        command_ttl: Duration::from_secs(60),
+        json_view: true,
+        stats_interval: Duration::from_secs(3600),
+        metrics_listen: None,
+        frame_log: None,
+        allow_raw_writes: false,
+        max_payload: 256,
+        release_startup_code_after: crate::config::STARTUP_CODE_SETTLE_TIME,
+    };
+    let valve = device("valve", "wuzhou-valve", 1);
+    let dust = device("dust_collector", "ruiwan-dust-collector", 0);
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: true,
+            options,
+            line_names: vec!["a".into(), "b".into()],
+            devices: vec![dust.clone(), valve.clone()],
+        },
+        now,
+        seeded(),
+    );
+    core.on_connected();
+    core.on_line_event(
+        LineEvent::Availability {
+            device: "dust_collector".into(),
+            online: false,
+        },
+        now,
+    );
+    // Commands for two offline devices wait.
+    for topic in ["plant/valve/opening/set", "plant/dust_collector/gear/set"] {
+        core.on_message(
+            Incoming {
+                topic,
+                payload: b"3",
+                qos: QoS::AtLeastOnce,
+                pkid: 1,
+                dup: false,
+                retain: false,
+            },
+            now,
+        );
+    }
+    assert_eq!(core.counters(now).waiting_commands, 2);
+
+    // The dust collector's line is gone; the valve's line is now the first.
+    let moved = BridgeDevice { line: 0, ..valve };
+    let actions = core.on_reconfigure(vec!["b".into()], vec![moved], now);
+    let cleared = retained_clears(&actions);
+    for topic in [
+        "plant/dust_collector/gear",
+        "plant/dust_collector/availability",
+        "plant/dust_collector",
+        "homeassistant/device/edge1_dust_collector/config",
+        "plant/dust_collector/gear/set",
+    ] {
+        assert!(
+            cleared.iter().any(|t| t == topic),
+            "{topic} not cleared: {cleared:?}"
+        );
+    }
+    assert!(cleared.iter().all(|t| !t.contains("valve")), "{cleared:?}");
+    let failed = actions.iter().any(|action| {
+        matches!(action, Action::Publish(p) if p.topic == "plant/dust_collector/gear/result"
+            && p.payload.contains("no longer configured"))
+    });
+    assert!(failed, "no result for the removed device's command");
+    assert_eq!(
+        core.counters(now).waiting_commands,
+        1,
+        "the valve's command was lost"
+    );
+
+    // Once the valve is online, its command goes to its new line index.
+    let actions = core.on_line_event(
+        LineEvent::Availability {
+            device: "valve".into(),
+            online: true,
+        },
+        now,
+    );
+    assert!(actions
+        .iter()
+        .any(|action| matches!(action, Action::Send { line: 0, .. })));
+}
+
+// ----- determinism -----
+
+/// Every action of `core` over a script of events: a command, its end, Home Assistant's birth
+/// and ticks every 10 ms until after the longest re-announcement delay, as the driver would
+/// see them (with the instant of each tick's actions).
+fn script(mut core: Core, now: Instant) -> Vec<String> {
+    let mut seen = Vec::new();
+    let mut record = |at: Duration, actions: Vec<Action>| {
+        for action in actions {
+            seen.push(format!("{at:?} {action:?}"));
+        }
+    };
+    record(Duration::ZERO, core.on_connected());
+    record(Duration::ZERO, core.on_line_event(availability(true), now));
+    let actions = command(&mut core, "opening", "50", 1, now);
+    let id = sent(&actions)[0];
+    record(Duration::ZERO, actions);
+    record(Duration::ZERO, core.on_line_event(applied(id), now));
+    let birth = message("homeassistant/status", b"online", 2, false);
+    record(Duration::ZERO, core.on_message(birth, now));
+    let mut at = Duration::ZERO;
+    while at <= LATER {
+        record(at, core.on_tick(now + at, Vec::new));
+        at += Duration::from_millis(10);
+    }
+    seen
+}
+
+#[test]
+fn two_cores_with_the_same_seed_decide_the_same() {
+    let now = Instant::now();
+    let first = script(core(now), now);
+    let second = script(core(now), now);
+    assert!(
+        first.iter().any(|line| line.contains("edge1_valve/config")),
+        "the script reaches the re-announcement: {first:#?}"
+    );
+    assert_eq!(first, second);
 }

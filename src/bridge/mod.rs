@@ -11,8 +11,13 @@
 //! core sheds incoming commands (each still gets its outcome) until it is back under
 //! [`OVERLOAD_LOW`].
 
+pub mod action;
 pub mod commands;
 pub mod core;
+#[cfg(test)]
+mod core_tests;
+pub mod desk;
+pub mod device;
 pub mod discovery;
 pub mod guard;
 pub mod json_view;
@@ -21,12 +26,15 @@ pub mod mqtt;
 pub mod outbox;
 pub mod payload;
 pub mod prometheus;
+pub mod publisher;
 pub mod state;
 
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use rand::rngs::StdRng;
+use rand::SeedableRng;
 use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
@@ -115,7 +123,11 @@ impl Bridge {
         let (writer_tx, writer_rx) = mpsc::channel(WRITER_QUEUE);
         let line_stats_tx = watch::channel(stats_receivers(&lines)).0;
         let bridge = Bridge {
-            core: Core::new(CoreSettings::from_config(config), now),
+            core: Core::new(
+                CoreSettings::from_config(config),
+                now,
+                StdRng::from_entropy(),
+            ),
             outbox: Outbox::default(),
             writer_tx,
             writer: spawn_writer(client, writer_rx),

@@ -1,7 +1,8 @@
 //! The task that owns one line: its loop. It keeps the link open ([`super::port`]: a serial
 //! port or a TCP connection, the same loop for both),
 //! asks the [`Scheduler`] what is due, runs command slots and settle re-reads
-//! ([`super::commands`]) before polls ([`super::poll`]), turns answers into values through each
+//! ([`super::commands`]) before polls ([`super::poll`]), carries out what they report, turns
+//! answers into values through each
 //! device's runtime ([`super::device`]) and reports [`LineEvent`]s. It publishes [`LineStats`]
 //! after every transaction and at least once a second.
 //!
@@ -18,16 +19,19 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tracing::Instrument;
 
-use super::commands::{Pending, Settle};
+use super::commands::{CommandSlots, Finished, Pending, Settle, SlotLink, SlotReport};
 use super::device::{DeviceRuntime, Values};
 use super::health::{HealthChange, HealthPolicy};
 use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::scheduler::{Due, PollOutcome, Scheduler};
+use super::slot::SeenReads;
 use super::stats::LoadWindow;
-use super::transaction::{Failure, Turnaround};
-use super::{Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats, Transport};
+use super::transaction::{Exchange, Failure, Turnaround};
+use super::{
+    Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats, Transport,
+};
 use crate::profile::Profile;
 use crate::rtu::link::Link;
 use crate::rtu::master::{PortFault, WireCounters};
@@ -87,27 +91,26 @@ pub fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duratio
     timing.default_response_timeout(longest, DEVICE_MARGIN) + network
 }
 
-/// The line task's state. Its command handling lives in [`super::commands`].
-pub(super) struct Line {
+/// The line task's state.
+struct Line {
     /// The line's configuration; its devices have moved into `devices`.
-    pub(super) spec: LineSpec,
-    pub(super) devices: Vec<DeviceRuntime>,
+    spec: LineSpec,
+    devices: Vec<DeviceRuntime>,
     timing: LineTiming,
-    pub(super) timeout: Duration,
-    pub(super) scheduler: Scheduler<Pending>,
-    pub(super) master: Option<Link>,
+    timeout: Duration,
+    scheduler: Scheduler<Pending>,
+    master: Option<Link>,
     reopen: Reopen,
-    pub(super) settling: Vec<Settle>,
+    /// The command queue and the commands whose device is still settling.
+    commands: CommandSlots,
     events_tx: mpsc::Sender<LineEvent>,
-    pub(super) command_rx: mpsc::Receiver<Command>,
-    pub(super) commands_open: bool,
     stats_tx: watch::Sender<LineStats>,
     /// The line's own figures; the devices' are in `devices` until published.
-    pub(super) stats: LineStats,
+    stats: LineStats,
     /// Counters of the masters of ports closed earlier (a reopened port starts a new master).
     closed_counters: WireCounters,
     load: LoadWindow,
-    pub(super) turnaround: Turnaround,
+    turnaround: Turnaround,
     last_published: Instant,
     shutdown: Shutdown,
 }
@@ -150,10 +153,8 @@ impl Line {
             master: None,
             reopen: Reopen::new(now),
             devices,
-            settling: Vec::new(),
+            commands: CommandSlots::new(command_rx),
             events_tx,
-            command_rx,
-            commands_open: true,
             stats_tx,
             stats,
             closed_counters: WireCounters::default(),
@@ -165,7 +166,7 @@ impl Line {
         }
     }
 
-    pub(super) fn attempts(&self) -> u32 {
+    fn attempts(&self) -> u32 {
         self.spec.retries.saturating_add(1)
     }
 
@@ -187,13 +188,12 @@ impl Line {
             // at its start.
             self.quiet_unless_command().await;
             let now = Instant::now();
-            if let Some(index) = self.settling.iter().position(|s| s.next_read <= now) {
-                let settle = self.settling.swap_remove(index);
+            if let Some(settle) = self.commands.take_due_settle(now) {
                 self.run_settle(settle).await;
                 self.publish_stats();
                 continue;
             }
-            let next_settle = self.settling.iter().map(|s| s.next_read).min();
+            let next_settle = self.commands.next_settle();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
                     self.run_command(device, command).await;
@@ -227,10 +227,10 @@ impl Line {
             return;
         };
         let patience = self.timeout;
-        let commands_open = self.commands_open;
+        let commands_open = self.commands.is_open();
         let arrived = tokio::select! {
             biased;
-            command = self.command_rx.recv(), if commands_open => Some(command),
+            command = self.commands.next(), if commands_open => Some(command),
             _ = master.wait_until_quiet(patience) => None,
         };
         match arrived {
@@ -249,7 +249,7 @@ impl Line {
     async fn take_received(&mut self, received: Option<Command>) {
         match received {
             Some(command) => self.accept(command, Instant::now()).await,
-            None => self.commands_open = false,
+            None => self.commands.closed(),
         }
     }
 
@@ -259,10 +259,10 @@ impl Line {
         let heartbeat = self.last_published + HEARTBEAT;
         let wake = until.map_or(heartbeat, |u| u.min(heartbeat));
         let sleep = tokio::time::sleep_until(tokio::time::Instant::from_std(wake));
-        let commands_open = self.commands_open;
+        let commands_open = self.commands.is_open();
         tokio::select! {
             () = sleep => {}
-            received = self.command_rx.recv(), if commands_open => {
+            received = self.commands.next(), if commands_open => {
                 self.take_received(received).await;
             }
             () = self.shutdown.fired() => {}
@@ -274,7 +274,7 @@ impl Line {
 
     /// Hands an event to the bridge. Waits when the bridge is behind (nothing is dropped), but
     /// not past a shutdown; a bridge that is gone is not an error of the line.
-    pub(super) async fn emit(&mut self, event: LineEvent) {
+    async fn emit(&mut self, event: LineEvent) {
         let events_tx = &self.events_tx;
         let shutdown = &mut self.shutdown;
         tokio::select! {
@@ -287,7 +287,7 @@ impl Line {
 
     /// Reports a device's freshly decoded values (nothing when there are none): the one way
     /// values of polls, command slots and settle re-reads reach the bridge.
-    pub(super) async fn emit_values(&mut self, device: usize, values: Values) {
+    async fn emit_values(&mut self, device: usize, values: Values) {
         let Some(runtime) = self.devices.get(device) else {
             return;
         };
@@ -347,7 +347,7 @@ impl Line {
     }
 
     /// The port failed under a transaction: close it, take the devices offline, reopen later.
-    pub(super) async fn port_failed(&mut self, error: PortFault) {
+    async fn port_failed(&mut self, error: PortFault) {
         let now = Instant::now();
         if let Some(master) = self.master.take() {
             self.closed_counters += master.counters();
@@ -365,7 +365,9 @@ impl Line {
             retry_in = ?delay,
             "port failed, closing it: {error}"
         );
-        self.fail_settling(&error).await;
+        for (device, finished) in self.commands.fail_settling(&error) {
+            self.reply(device, finished).await;
+        }
         self.lose_devices(now).await;
         self.publish_stats();
     }
@@ -377,7 +379,7 @@ impl Line {
         }
     }
 
-    pub(super) async fn availability_changed(&mut self, device: usize, change: HealthChange) {
+    async fn availability_changed(&mut self, device: usize, change: HealthChange) {
         let online = change == HealthChange::CameOnline;
         let Some(runtime) = self.devices.get_mut(device) else {
             return;
@@ -451,7 +453,7 @@ impl Line {
         self.emit_values(device, values).await;
     }
 
-    pub(super) fn publish_stats(&mut self) {
+    fn publish_stats(&mut self) {
         let now = Instant::now();
         let counters = match &self.master {
             Some(master) => self.closed_counters + master.counters(),
@@ -477,9 +479,213 @@ impl Line {
     /// Shutdown: answer every command still waiting, publish the last statistics.
     async fn finish(&mut self) {
         self.fail_queued(&CommandFailure::ShuttingDown).await;
-        self.abandon_settling().await;
+        for (device, finished) in self.commands.abandon_settling() {
+            self.reply(device, finished).await;
+        }
         self.publish_stats();
         tracing::info!("line stopped");
+    }
+}
+
+/// Commands: taking them in, running their slots and carrying out what the slots report.
+impl Line {
+    async fn accept_commands(&mut self, now: Instant) {
+        while let Some(command) = self.commands.try_take() {
+            self.accept(command, now).await;
+        }
+    }
+
+    async fn accept(&mut self, command: Command, now: Instant) {
+        match self.device_index(&command.device) {
+            Some(device) => self.scheduler.push_command(
+                device,
+                Pending {
+                    command,
+                    arrived: now,
+                },
+            ),
+            None => {
+                let cause = CommandFailure::UnknownDevice {
+                    device: command.device.clone(),
+                    line: self.spec.name.clone(),
+                };
+                let (id, device) = (command.id, command.device);
+                self.emit(LineEvent::CommandFinished {
+                    id,
+                    device,
+                    outcome: CommandOutcome::Failed { cause },
+                })
+                .await;
+            }
+        }
+    }
+
+    fn device_index(&self, name: &str) -> Option<usize> {
+        self.devices.iter().position(|d| d.spec.name == name)
+    }
+
+    async fn run_command(&mut self, device: usize, pending: Pending) {
+        let attempts = self.attempts();
+        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
+            (self.devices.get_mut(device), self.master.as_mut())
+        else {
+            let finished = Finished {
+                id: pending.command.id,
+                arrived: pending.arrived,
+                outcome: CommandOutcome::Failed {
+                    cause: CommandFailure::PortNotOpen,
+                },
+            };
+            self.reply(device, finished).await;
+            return;
+        };
+        let link = SlotLink {
+            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
+            master,
+            stats,
+            attempts,
+        };
+        let report = self.commands.run(link, device, pending).await;
+        self.carry_out(report).await;
+    }
+
+    async fn run_settle(&mut self, settle: Settle) {
+        let attempts = self.attempts();
+        let device = settle.device();
+        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
+            (self.devices.get_mut(device), self.master.as_mut())
+        else {
+            let finished = settle.finish(CommandOutcome::Failed {
+                cause: CommandFailure::PortNotOpen,
+            });
+            self.reply(device, finished).await;
+            return;
+        };
+        let link = SlotLink {
+            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
+            master,
+            stats,
+            attempts,
+        };
+        let report = self.commands.reread(link, settle).await;
+        self.carry_out(report).await;
+    }
+
+    /// What a slot or a settle re-read reported, in its order: the device's contact, its
+    /// reads, the command's end, and last the port's failure.
+    async fn carry_out(&mut self, report: SlotReport) {
+        let SlotReport {
+            device,
+            contact,
+            reads,
+            changed,
+            finished,
+            port_gone,
+        } = report;
+        let now = Instant::now();
+        if contact {
+            if let Some(change) = self.scheduler.record_contact(device, now) {
+                self.availability_changed(device, change).await;
+            }
+        }
+        if let Some(seen) = reads {
+            self.publish_reads(device, seen, &changed, now).await;
+        }
+        if let Some(finished) = finished {
+            self.reply(device, finished).await;
+        }
+        if let Some(error) = port_gone {
+            self.port_failed(error).await;
+        }
+    }
+
+    /// Sends the values of the reads a command slot made that are poll blocks of the device.
+    /// A block in `changed` (the command can have changed it) that the slot did not read whole
+    /// is polled at once, so that what the command changed is reported without waiting for a
+    /// poll interval; no block's cadence moves ([`Scheduler::after_command`]).
+    async fn publish_reads(
+        &mut self,
+        device: usize,
+        seen: SeenReads,
+        changed: &[usize],
+        now: Instant,
+    ) {
+        let Some(runtime) = self.devices.get_mut(device) else {
+            return;
+        };
+        let profile = runtime.spec.profile.clone();
+        let mut values = Values::new();
+        let blocks = profile.read_blocks().len();
+        let mut covered = vec![false; blocks];
+        for (request, answer) in &seen {
+            let Some(block) = profile
+                .read_blocks()
+                .iter()
+                .position(|b| &b.request == request)
+            else {
+                continue;
+            };
+            runtime.decode_into(block, answer, &mut values);
+            if let Some(flag) = covered.get_mut(block) {
+                *flag = true;
+            }
+        }
+        let mut changeable = vec![false; blocks];
+        for &block in changed {
+            if let Some(flag) = changeable.get_mut(block) {
+                *flag = true;
+            }
+        }
+        let change = self
+            .scheduler
+            .after_command(device, &changeable, &covered, now);
+        if let Some(change) = change {
+            self.availability_changed(device, change).await;
+        }
+        self.emit_values(device, values).await;
+    }
+
+    /// Counts a command's end and reports it on the events channel (after any `Values` of
+    /// its slot, so that a command's state is out before its result).
+    async fn reply(&mut self, device: usize, finished: Finished) {
+        let Finished {
+            id,
+            arrived,
+            outcome,
+        } = finished;
+        let latency = arrived.elapsed();
+        self.stats.commands += 1;
+        self.stats.last_command_latency = Some(latency);
+        self.stats.worst_command_latency = Some(
+            self.stats
+                .worst_command_latency
+                .map_or(latency, |w| w.max(latency)),
+        );
+        let device = self
+            .devices
+            .get(device)
+            .map(|runtime| runtime.spec.name.clone())
+            .unwrap_or_default();
+        self.emit(LineEvent::CommandFinished {
+            id,
+            device,
+            outcome,
+        })
+        .await;
+    }
+
+    async fn fail_queued(&mut self, why: &CommandFailure) {
+        if self.scheduler.queued_commands() == 0 {
+            return;
+        }
+        for (device, pending) in self.scheduler.drain_commands() {
+            let finished = Finished {
+                id: pending.command.id,
+                arrived: pending.arrived,
+                outcome: CommandOutcome::Failed { cause: why.clone() },
+            };
+            self.reply(device, finished).await;
+        }
     }
 }
 

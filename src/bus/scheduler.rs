@@ -16,6 +16,9 @@
 //!    never starve the others: its failing polls push its own due instants, not theirs.
 //! 4. Exception 06 (busy) re-schedules the block a short while later without counting as a
 //!    failure; other devices use the line meanwhile.
+//! 5. A command slot moves no block's cadence: the blocks it read whole and the blocks its
+//!    write cannot have changed stay due when they were; a block the write can have changed
+//!    and the slot did not read is due at once.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -252,21 +255,35 @@ impl<C> Scheduler<C> {
         change
     }
 
-    /// Makes every block of `device` due at `now` (after a command, to send fresh values).
-    pub fn refresh(&mut self, device: usize, now: Instant) {
-        self.refresh_except(device, &[], now);
-    }
-
-    /// Makes every block of `device` not marked in `skip` due at `now`.
-    pub fn refresh_except(&mut self, device: usize, skip: &[bool], now: Instant) {
-        if let Some(slot) = self.devices.get_mut(device) {
-            let at = now.max(slot.ready_at);
-            for (block, due) in slot.block_due.iter_mut().enumerate() {
-                if !skip.get(block).copied().unwrap_or(false) {
-                    *due = (*due).min(at);
-                }
+    /// A command slot on `device` ended at `now`. It read the blocks marked in `read` whole
+    /// (their values are out, which proves the device is there); its write can have changed
+    /// the blocks marked in `changed`. Those of them it did not read are due at `now` (never
+    /// before the device's start-up delay); every other block keeps its due instant, so the
+    /// command moves no block's cadence. Returns an availability change.
+    pub fn after_command(
+        &mut self,
+        device: usize,
+        changed: &[bool],
+        read: &[bool],
+        now: Instant,
+    ) -> Option<HealthChange> {
+        let slot = self.devices.get_mut(device)?;
+        let at = now.max(slot.ready_at);
+        let marked = |marks: &[bool], block: usize| marks.get(block).copied().unwrap_or(false);
+        for (block, due) in slot.block_due.iter_mut().enumerate() {
+            if marked(changed, block) && !marked(read, block) {
+                *due = (*due).min(at);
             }
         }
+        if !read.iter().any(|&whole| whole) {
+            return None;
+        }
+        let was_offline = slot.health.is_offline();
+        let change = slot.health.record_success();
+        if was_offline {
+            slot.block_due.iter_mut().for_each(|due| *due = now);
+        }
+        change
     }
 
     /// The port is gone: every device is offline. Returns the devices that changed.
@@ -302,5 +319,122 @@ impl<C> Scheduler<C> {
         if let Some(slot) = self.devices.get_mut(device) {
             slot.last_served = self.serial;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::plan::BlockPlan;
+    use crate::profile::PollClass;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    /// One device: block 0 fast (every 500 ms), block 1 slow (every 2 s), block 2 fast.
+    fn scheduler(start: Instant) -> Scheduler<u32> {
+        let block = |class| BlockPlan {
+            class,
+            answer_bytes: 9,
+        };
+        let plan = DevicePlan {
+            blocks: vec![
+                block(PollClass::Fast),
+                block(PollClass::Slow),
+                block(PollClass::Fast),
+            ],
+            poll_interval: 500 * MS,
+            slow_interval: 2000 * MS,
+            startup_delay: Duration::ZERO,
+        };
+        Scheduler::new(vec![plan], HealthPolicy::with_offline_after(3), start)
+    }
+
+    /// Runs the scheduler as a line would until `end`, each poll taking 20 ms and a command
+    /// slot being run at each instant of `commands` (as its offset from `start`, with the
+    /// blocks its write can change and the blocks it reads whole). Returns the instants of
+    /// every poll, by block.
+    fn run(
+        scheduler: &mut Scheduler<u32>,
+        start: Instant,
+        end: Duration,
+        commands: &[(Duration, [bool; 3], [bool; 3])],
+    ) -> Vec<Vec<Duration>> {
+        let mut polls = vec![Vec::new(); 3];
+        let mut now = start;
+        let mut pending = commands.iter().peekable();
+        while now < start + end {
+            if let Some((at, changed, read)) = pending.peek() {
+                if start + *at <= now {
+                    // The slot: read before, write, read back: 60 ms on the line.
+                    now += 60 * MS;
+                    scheduler.after_command(0, changed, read, now);
+                    pending.next();
+                    continue;
+                }
+            }
+            match scheduler.next_due(now) {
+                Due::Poll { block, .. } => {
+                    polls[block].push(now - start);
+                    now += 20 * MS;
+                    scheduler.record_poll(0, block, PollOutcome::Answered, now);
+                }
+                Due::Wait(until) => {
+                    let next_command = pending.peek().map(|(at, ..)| start + *at);
+                    now = next_command.map_or(until, |c| c.min(until));
+                }
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+        polls
+    }
+
+    /// The gaps between consecutive instants.
+    fn gaps(instants: &[Duration]) -> Vec<Duration> {
+        instants.windows(2).map(|pair| pair[1] - pair[0]).collect()
+    }
+
+    #[test]
+    fn every_block_keeps_its_interval_after_writes_read_back_whole() {
+        let start = Instant::now();
+        let mut scheduler = scheduler(start);
+        // Two writes to block 0, 90 ms apart, each read back with a read of the whole block.
+        let write = ([true, false, false], [true, false, false]);
+        let commands = [(1230 * MS, write.0, write.1), (1320 * MS, write.0, write.1)];
+        let polls = run(&mut scheduler, start, 6000 * MS, &commands);
+        for gap in gaps(&polls[0]).into_iter().chain(gaps(&polls[2])) {
+            assert!(
+                gap <= 500 * MS + 60 * MS,
+                "a fast block came late: {polls:?}"
+            );
+        }
+        for gap in gaps(&polls[1]) {
+            assert!(
+                gap <= 2000 * MS + 60 * MS,
+                "the slow block came late: {polls:?}"
+            );
+        }
+        assert_eq!(
+            polls[1].len(),
+            3,
+            "the slow block kept its own cadence: {polls:?}"
+        );
+        assert!(polls[0].len() >= 11, "{polls:?}");
+    }
+
+    #[test]
+    fn only_a_block_the_write_can_have_changed_and_not_read_is_polled_at_once() {
+        let start = Instant::now();
+        let mut scheduler = scheduler(start);
+        // The write can change blocks 0 and 1; the read-back reads only block 0 whole.
+        let commands = [(700 * MS, [true, true, false], [true, false, false])];
+        let polls = run(&mut scheduler, start, 2000 * MS, &commands);
+        // Block 1 (slow, last read at 20 ms) is read right after the slot; block 2 is not
+        // read again early, and block 0 stays on its cadence.
+        assert_eq!(polls[1], vec![20 * MS, 760 * MS], "{polls:?}");
+        assert!(
+            polls[2].iter().all(|at| *at < 700 * MS || *at > 900 * MS),
+            "{polls:?}"
+        );
+        assert!(polls[0].contains(&(1000 * MS)), "{polls:?}");
     }
 }

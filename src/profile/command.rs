@@ -316,6 +316,13 @@ impl CommandPlan {
         &self.readback
     }
 
+    /// The profile's read blocks (indices into its `read_blocks()`) whose data the command can
+    /// change, as the profile knows it: those its read-back looks at (the targets' block and
+    /// the blocks of its settle conditions).
+    pub fn readback_blocks(&self) -> impl Iterator<Item = usize> + '_ {
+        self.readback_places.iter().map(|&(block, _)| block)
+    }
+
     /// The answers to `readback()` placed in images of their blocks, by block.
     fn readback_images(&self, answers: &[Response]) -> Vec<(usize, BlockImage)> {
         answers

@@ -1,0 +1,45 @@
+//! What the bridge core asks its driver to do: the [`Action`]s (publish, subscribe, hand a
+//! command to a line, report an external command's end) and the messages they carry.
+
+use rumqttc::QoS;
+
+use crate::bus::Command;
+
+/// One message to publish.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Publish {
+    pub topic: String,
+    pub payload: String,
+    pub qos: QoS,
+    pub retain: bool,
+    /// Kept until the next connection when it cannot be sent (results and clears).
+    pub keep: bool,
+}
+
+/// What the driver is asked to do.
+#[derive(Debug)]
+pub enum Action {
+    Publish(Publish),
+    Subscribe {
+        filter: String,
+        qos: QoS,
+    },
+    /// Hand `command` to line number `line`; report a refusal with
+    /// [`super::core::Core::on_send_failed`].
+    Send {
+        line: usize,
+        command: Command,
+    },
+    /// Tell the sender of an external command how it ended.
+    Report(CommandReport),
+}
+
+/// How an external command (a Sparkplug DCMD) ended: `applied` only when the device took the
+/// value; any other end (refused, superseded, expired, failed, not applied) lets the sender
+/// show the device's true value again.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CommandReport {
+    pub device: String,
+    pub field: String,
+    pub applied: bool,
+}

@@ -1,0 +1,446 @@
+//! The bridge core's publishing side, without I/O: the state cache and what the gateway
+//! publishes from it (retained state, availability, JSON views, Home Assistant discovery),
+//! results and clears kept while MQTT is down, and the defence of the gateway's own topics.
+//! It collects the [`Action`]s of one event in order; the command desk's sends and reports
+//! go into the same list, so that the driver carries them out in the order they were decided.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::Instant;
+
+use rumqttc::QoS;
+
+use super::action::{Action, Publish};
+use super::device::{self, BridgeDevice, Devices};
+use super::discovery;
+use super::guard::{TopicGuard, Verdict};
+use super::json_view;
+use super::state::{StateCache, StateUpdate};
+use crate::contract::{availability_word, Topics, OFFLINE, ONLINE};
+use crate::profile::Value;
+
+/// Results and clears kept while MQTT is down (older ones are dropped first).
+const MAX_DEFERRED: usize = 1024;
+
+/// A topic this gateway owns and defends.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Guarded {
+    Status,
+    Availability(String),
+    State(String, String),
+}
+
+/// Counts of what the publisher handed out and defended.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PublishCounters {
+    pub published: u64,
+    pub publish_failures: u64,
+    pub topics_reasserted: u64,
+}
+
+/// What the gateway publishes and keeps published.
+#[derive(Debug)]
+pub struct Publisher {
+    topics: Topics,
+    /// Home Assistant discovery is published.
+    discovery: bool,
+    /// Each device's JSON view is published.
+    json_view: bool,
+    line_names: Vec<String>,
+    /// The configured devices, by name; their order is the cache's.
+    devices: Devices,
+    connected: bool,
+    cache: StateCache,
+    /// Results and clears that wait for the next connection.
+    deferred: VecDeque<Publish>,
+    /// Last JSON view payload per topic, to skip unchanged ones.
+    json_views: HashMap<String, Vec<u8>>,
+    /// The status, availability and state topics this gateway defends.
+    guard: TopicGuard,
+    counters: PublishCounters,
+    /// The actions of the event being handled, in order.
+    out: Vec<Action>,
+}
+
+impl Publisher {
+    /// A publisher for `devices` (in configuration order) on the lines named `line_names`.
+    pub fn new(
+        topics: Topics,
+        discovery: bool,
+        json_view: bool,
+        line_names: Vec<String>,
+        devices: Vec<BridgeDevice>,
+    ) -> Self {
+        Publisher {
+            topics,
+            discovery,
+            json_view,
+            line_names,
+            cache: StateCache::new(devices.iter().map(|d| d.name.as_str())),
+            devices: device::by_name(devices),
+            connected: false,
+            deferred: VecDeque::new(),
+            json_views: HashMap::new(),
+            guard: TopicGuard::default(),
+            counters: PublishCounters::default(),
+            out: Vec::new(),
+        }
+    }
+
+    pub fn topics(&self) -> &Topics {
+        &self.topics
+    }
+
+    pub fn devices(&self) -> &Devices {
+        &self.devices
+    }
+
+    pub fn cache(&self) -> &StateCache {
+        &self.cache
+    }
+
+    pub fn is_connected(&self) -> bool {
+        self.connected
+    }
+
+    pub fn discovery(&self) -> bool {
+        self.discovery
+    }
+
+    pub fn counters(&self) -> PublishCounters {
+        self.counters
+    }
+
+    /// Adds an action that is not a publication (a send to a line, a report) in its place.
+    pub fn push(&mut self, action: Action) {
+        self.out.push(action);
+    }
+
+    /// The actions of the event, in order.
+    pub fn take(&mut self) -> Vec<Action> {
+        std::mem::take(&mut self.out)
+    }
+
+    /// Every ConnAck: subscriptions are not restored by rumqttc, and a clean session has lost
+    /// whatever was unacknowledged, so everything is sent again, and what waited goes out.
+    pub fn connected(&mut self) {
+        self.connected = true;
+        self.guard.reset();
+        self.subscribe(self.topics.command_filter());
+        self.subscribe(self.topics.gateway_status_topic());
+        self.subscribe(self.topics.device_topics_filter());
+        if self.discovery {
+            // Home Assistant's birth message, and our own earlier configs (to remove those of
+            // devices no longer configured).
+            self.subscribe(self.topics.ha_status_topic());
+            self.subscribe(self.topics.config_filter());
+        }
+        self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
+        self.publish_discovery();
+        for device in self.cache.devices().to_vec() {
+            let word = availability_word(self.cache.is_online(&device));
+            let topic = self.topics.availability_topic(&device);
+            self.publish(topic, word.to_string(), true);
+        }
+        let updates = self.cache.republish_all();
+        self.publish_state(updates);
+        if self.json_view {
+            self.json_views.clear();
+            for device in self.cache.devices().to_vec() {
+                self.publish_json_view(&device);
+            }
+        }
+        while let Some(kept) = self.deferred.pop_front() {
+            self.out.push(Action::Publish(kept));
+        }
+    }
+
+    pub fn disconnected(&mut self) {
+        self.connected = false;
+    }
+
+    /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
+    pub fn on_published(&mut self, publish: Publish, sent: bool) {
+        if sent {
+            self.counters.published += 1;
+            return;
+        }
+        self.counters.publish_failures += 1;
+        self.json_views.remove(&publish.topic);
+        if publish.keep {
+            self.keep(publish);
+        }
+    }
+
+    fn subscribe(&mut self, filter: String) {
+        self.out.push(Action::Subscribe {
+            filter,
+            qos: QoS::AtLeastOnce,
+        });
+    }
+
+    /// A QoS 1 publish when connected; false when there is no connection to send it on.
+    pub fn publish(&mut self, topic: String, payload: String, retain: bool) -> bool {
+        if !self.connected {
+            return false;
+        }
+        if retain && self.guarded(&topic).is_some() {
+            self.guard.sent(&topic, &payload);
+        }
+        self.out.push(Action::Publish(Publish {
+            topic,
+            payload,
+            qos: QoS::AtLeastOnce,
+            retain,
+            keep: false,
+        }));
+        true
+    }
+
+    /// Results and clears must not be lost to a short outage: kept until the next ConnAck.
+    pub fn publish_or_keep(&mut self, topic: String, payload: String, retain: bool) {
+        let publish = Publish {
+            topic,
+            payload,
+            qos: QoS::AtLeastOnce,
+            retain,
+            keep: true,
+        };
+        if self.connected {
+            self.out.push(Action::Publish(publish));
+        } else {
+            self.keep(publish);
+        }
+    }
+
+    fn keep(&mut self, publish: Publish) {
+        if self.deferred.len() >= MAX_DEFERRED {
+            self.deferred.pop_front();
+        }
+        self.deferred.push_back(publish);
+    }
+
+    fn publish_state(&mut self, updates: Vec<StateUpdate>) {
+        for update in updates {
+            let topic = self.topics.state_topic(&update.device, &update.field);
+            self.publish(topic, update.text, true);
+        }
+    }
+
+    /// Home Assistant device-based discovery: the gateway's own document, then one per
+    /// configured device.
+    pub fn publish_discovery(&mut self) {
+        if !self.discovery {
+            return;
+        }
+        let mut documents = vec![discovery::gateway_config(&self.topics, &self.line_names)];
+        for device in self.cache.devices() {
+            if let Some(entry) = self.devices.get(device) {
+                documents.push(discovery::device_config_with_state(
+                    &self.topics,
+                    device,
+                    &entry.profile,
+                    self.cache.state(device),
+                ));
+            }
+        }
+        for (topic, document) in documents {
+            self.publish(topic, document.to_string(), true);
+        }
+    }
+
+    /// Discovery and every state again (after Home Assistant's birth message).
+    pub fn reannounce(&mut self) {
+        self.publish_discovery();
+        let updates = self.cache.republish_all();
+        self.publish_state(updates);
+    }
+
+    /// The device's JSON view on `<prefix>/<device>`, when it changed.
+    fn publish_json_view(&mut self, device: &str) {
+        let Some(state) = self.cache.state(device) else {
+            return;
+        };
+        if state.is_empty() {
+            return;
+        }
+        let payload = json_view::json_view_payload(state);
+        let topic = self.topics.json_view_topic(device);
+        if self.json_views.get(&topic) == Some(&payload) {
+            return;
+        }
+        // Retained JSON is bytes of valid UTF-8 (serde_json output).
+        let text = String::from_utf8_lossy(&payload).into_owned();
+        if self.publish(topic.clone(), text, true) {
+            self.json_views.insert(topic, payload);
+        }
+    }
+
+    /// A line's fresh values of `device`: the state that changed, the discovery document
+    /// when the device's identity changed, and its JSON view.
+    pub fn values(&mut self, device: &str, values: Vec<(String, Value)>) {
+        let updates = self.cache.update(device, values, self.connected);
+        if let Some((topic, document)) = self
+            .devices
+            .get(device)
+            .filter(|_| self.discovery)
+            .and_then(|entry| {
+                discovery::identity_update(
+                    &self.topics,
+                    device,
+                    &entry.profile,
+                    self.cache.state(device),
+                    &updates,
+                )
+            })
+        {
+            self.publish(topic, document.to_string(), true);
+        }
+        self.publish_state(updates);
+        if self.json_view {
+            self.publish_json_view(device);
+        }
+    }
+
+    /// A line's word on `device`'s availability, published when it changed.
+    pub fn availability(&mut self, device: &str, online: bool) {
+        if self.cache.set_online(device, online) {
+            tracing::info!(%device, online, "availability");
+            let topic = self.topics.availability_topic(device);
+            self.publish(topic, availability_word(online).to_string(), true);
+        }
+    }
+
+    /// One of our own discovery documents as the broker holds it: removed when its device is
+    /// no longer configured.
+    pub fn on_config(&mut self, topic: &str, payload: &[u8]) {
+        let configured = self.cache.devices();
+        if discovery::is_stale_config(&self.topics, topic, payload, configured) {
+            tracing::info!(%topic, "removing the discovery config of a device no longer configured");
+            self.publish(topic.to_string(), String::new(), true);
+        }
+    }
+
+    // ----- defence of the gateway's topics -----
+
+    /// The topic as one this gateway defends, if it is one.
+    pub fn guarded(&self, topic: &str) -> Option<Guarded> {
+        if topic == self.topics.gateway_status_topic() {
+            return Some(Guarded::Status);
+        }
+        let (device, level) = self.topics.parse_device_topic(topic)?;
+        let entry = self.devices.get(device)?;
+        if level == crate::contract::AVAILABILITY {
+            return Some(Guarded::Availability(device.to_string()));
+        }
+        entry.profile.field(level)?;
+        Some(Guarded::State(device.to_string(), level.to_string()))
+    }
+
+    /// What the topic must say now; None when there is nothing to defend yet.
+    fn truth(&self, guarded: &Guarded) -> Option<String> {
+        match guarded {
+            Guarded::Status => self.connected.then(|| ONLINE.to_string()),
+            Guarded::Availability(device) => {
+                Some(availability_word(self.cache.is_online(device)).to_string())
+            }
+            Guarded::State(device, field) => {
+                self.cache.published_text(device, field).map(str::to_string)
+            }
+        }
+    }
+
+    /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
+    /// was overwritten again too soon (then later, [`Self::reassert_due`]).
+    pub fn on_guarded(&mut self, guarded: Guarded, topic: &str, payload: &[u8], now: Instant) {
+        let Some(truth) = self.truth(&guarded) else {
+            return;
+        };
+        let seen = String::from_utf8_lossy(payload);
+        if self.guard.judge(topic, &seen, &truth, now) == Verdict::Reassert {
+            self.counters.topics_reasserted += 1;
+            self.publish(topic.to_string(), truth, true);
+        }
+    }
+
+    /// Topics overwritten again too soon, now that their interval has passed.
+    pub fn reassert_due(&mut self, now: Instant) {
+        for topic in self.guard.due(now) {
+            let truth = self.guarded(&topic).and_then(|g| self.truth(&g));
+            if let Some(truth) = truth {
+                self.counters.topics_reasserted += 1;
+                self.publish(topic, truth, true);
+            }
+        }
+    }
+
+    // ----- reload and stop -----
+
+    /// A reload kept `kept`, configured before as `before`: the state of fields its new
+    /// profile no longer has is cleared.
+    pub fn clear_dropped_fields(&mut self, before: &BridgeDevice, kept: &BridgeDevice) {
+        for field in before.profile.fields() {
+            if kept.profile.field(&field.name).is_none() {
+                let topic = self.topics.state_topic(&before.name, &field.name);
+                self.publish_or_keep(topic, String::new(), true);
+            }
+        }
+    }
+
+    /// A reload's devices (in configuration order) on the lines named `line_names`: they
+    /// replace the old ones, discovery goes out again and the availability of devices that
+    /// are new is published.
+    pub fn reconfigure(&mut self, line_names: Vec<String>, devices: Vec<BridgeDevice>) {
+        let added: Vec<String> = devices
+            .iter()
+            .filter(|device| !self.devices.contains_key(&device.name))
+            .map(|device| device.name.clone())
+            .collect();
+        self.cache
+            .reconfigure(devices.iter().map(|device| device.name.as_str()));
+        self.devices = device::by_name(devices);
+        self.line_names = line_names;
+        self.publish_discovery();
+        for device in added {
+            tracing::info!(%device, "device added by the reload");
+            let word = availability_word(self.cache.is_online(&device));
+            let topic = self.topics.availability_topic(&device);
+            self.publish(topic, word.to_string(), true);
+        }
+    }
+
+    /// A device removed by a reload: its retained topics are cleared (state of every field,
+    /// availability, JSON view, discovery document). Results are not retained, so none is
+    /// left to clear.
+    pub fn forget_device(&mut self, device: &BridgeDevice) {
+        let name = device.name.as_str();
+        let mut cleared = Vec::new();
+        for field in device.profile.fields() {
+            cleared.push(self.topics.state_topic(name, &field.name));
+        }
+        cleared.push(self.topics.availability_topic(name));
+        if self.json_view {
+            let topic = self.topics.json_view_topic(name);
+            self.json_views.remove(&topic);
+            cleared.push(topic);
+        }
+        if self.discovery {
+            cleared.push(self.topics.config_topic(name));
+        }
+        for topic in cleared {
+            self.publish_or_keep(topic, String::new(), true);
+        }
+    }
+
+    /// The last words: every device and the gateway `offline`.
+    pub fn stop(&mut self) {
+        for device in self.cache.devices().to_vec() {
+            let topic = self.topics.availability_topic(&device);
+            self.publish(topic, OFFLINE.to_string(), true);
+        }
+        self.publish(
+            self.topics.gateway_status_topic(),
+            OFFLINE.to_string(),
+            true,
+        );
+    }
+}
