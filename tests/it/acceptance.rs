@@ -12,6 +12,7 @@ use std::time::Duration;
 
 use rtu2mqtt::config::{self, Config};
 use rtu2mqtt::sim::{self, SeedPlant};
+use support::child::{self, KillOnDrop};
 use support::{Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.
@@ -125,7 +126,7 @@ fn check(config_text: &str) -> (bool, String) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("config.toml");
     std::fs::write(&path, config_text).unwrap();
-    let output = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let output = Command::new(child::BIN)
         .arg("check")
         .arg("--config")
         .arg(&path)
@@ -223,20 +224,19 @@ fn every_broken_configuration_is_an_error_naming_its_place() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
     use nix::sys::signal::{kill, Signal};
-    use nix::unistd::Pid;
 
     let (broker, _plant, _observer, gateway) = plant_with_gateway("demo-shared").await;
-    let mut demo = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let mut command = Command::new(child::BIN);
+    command
         .args(["demo", "--log", "--broker", &broker.url()])
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+        .stderr(Stdio::null());
+    let mut demo = KillOnDrop::spawn(command).expect("rtu2mqtt demo starts");
     // Long enough for the demo's devices to come online and publish their state.
     tokio::time::sleep(Duration::from_secs(6)).await;
-    kill(Pid::from_raw(demo.id() as i32), Signal::SIGINT).unwrap();
+    kill(demo.pid(), Signal::SIGINT).unwrap();
     let deadline = std::time::Instant::now() + ANSWER;
-    while demo.try_wait().unwrap().is_none() {
+    while demo.0.try_wait().unwrap().is_none() {
         assert!(std::time::Instant::now() < deadline, "demo did not stop");
         tokio::time::sleep(Duration::from_millis(100)).await;
     }

@@ -11,8 +11,6 @@ use std::time::Duration;
 use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::sim::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
 
-const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
-
 /// A pty served at `baud` 8N1 with the devices, answering garbled at any other baud rate.
 fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
     let options = ServeOptions::new(baud, Parity::None).enforcing_baud(true);
@@ -20,7 +18,7 @@ fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
 }
 
 async fn run(args: &[&str]) -> Output {
-    let mut command = std::process::Command::new(BIN);
+    let mut command = std::process::Command::new(child::BIN);
     command.args(args).env("RUST_LOG", "error");
     child::output(command, Duration::from_secs(60))
         .await
@@ -252,7 +250,7 @@ async fn a_port_held_by_rtu2mqtt_is_refused() {
     let path = tokio_serial::SerialPort::name(&slave).unwrap();
     drop(slave);
     // Another rtu2mqtt process holds the port (here a simulator; a gateway holds it the same way).
-    let mut command = std::process::Command::new(BIN);
+    let mut command = std::process::Command::new(child::BIN);
     command
         .args(["simulate", "--profile", "wuzhou-valve", "--port", &path])
         .env("RUST_LOG", "error");

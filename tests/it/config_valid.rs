@@ -14,7 +14,7 @@ fn example() -> PathBuf {
 }
 
 fn check(path: &Path) -> (bool, String, String) {
-    let output = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let output = Command::new(crate::support::child::BIN)
         .arg("check")
         .arg("--config")
         .arg(path)
@@ -146,7 +146,7 @@ fn every_problem_is_listed_with_its_place() {
 
 #[test]
 fn environment_overrides_reach_the_settings() {
-    let output = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let output = Command::new(crate::support::child::BIN)
         .arg("check")
         .arg("--config")
         .arg(example())
@@ -158,7 +158,7 @@ fn environment_overrides_reach_the_settings() {
     assert!(!output.status.success());
     assert!(stderr.contains("mqtt.keep_alive"), "{stderr}");
 
-    let output = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    let output = Command::new(crate::support::child::BIN)
         .arg("check")
         .arg("--config")
         .arg(example())

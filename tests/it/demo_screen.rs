@@ -116,7 +116,7 @@ fn check_the_screen(width: u16, height: u16) {
     };
     let demo = format!(
         "{} demo --port {port}; echo \"demo exited: $?\"; sleep 30",
-        env!("CARGO_BIN_EXE_rtu2mqtt")
+        crate::support::child::BIN
     );
     let started = tmux.run(&[
         "new-session",

@@ -3,20 +3,19 @@
 //! `JOURNAL_STREAM` says the journal stamps the lines.
 
 use std::io::Read;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use nix::sys::signal::{kill, Signal};
-use nix::unistd::Pid;
+
+use crate::support::child::{self, KillOnDrop};
+use crate::support::free_port;
 
 /// Runs the daemon for a moment on a line whose port does not exist and a broker that does
 /// not answer (both are logged at once), stops it with SIGTERM and returns its stderr.
 fn daemon_stderr(extra_env: &[(&str, &str)]) -> String {
     let dir = tempfile::tempdir().expect("temp dir");
-    let closed_port = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|listener| listener.local_addr())
-        .expect("a free port")
-        .port();
+    let closed_port = free_port();
     let config = format!(
         r#"
 [mqtt]
@@ -36,32 +35,28 @@ address = 1
     );
     let config_path = dir.path().join("config.toml");
     std::fs::write(&config_path, config).expect("write config");
-    let mut command = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"));
+    let mut command = child::gateway_run(&config_path);
     command
-        .args(["run", "--config"])
-        .arg(&config_path)
         .env("RTU2MQTT__HEALTH__STATUS_FILE", dir.path().join("health"))
         .env_remove("NO_COLOR")
         .env_remove("JOURNAL_STREAM")
         .env_remove("RTU2MQTT_LOG_FORMAT")
         .env("RUST_LOG", "info")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
         .stderr(Stdio::piped());
     for (key, value) in extra_env {
         command.env(key, value);
     }
-    let mut child = command.spawn().expect("rtu2mqtt run starts");
+    let mut daemon = KillOnDrop::spawn(command).expect("rtu2mqtt run starts");
     std::thread::sleep(Duration::from_millis(2500));
-    kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).expect("SIGTERM");
+    kill(daemon.pid(), Signal::SIGTERM).expect("SIGTERM");
     let mut stderr = String::new();
-    child
+    daemon
+        .0
         .stderr
         .take()
         .expect("piped stderr")
         .read_to_string(&mut stderr)
         .expect("read stderr");
-    let _ = child.wait();
     stderr
 }
 

@@ -5,7 +5,7 @@
 use std::process::{Command, Output};
 
 fn profiles(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
+    Command::new(crate::support::child::BIN)
         .arg("profiles")
         .args(args)
         .output()

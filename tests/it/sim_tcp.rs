@@ -302,13 +302,9 @@ async fn pymodbus_client_reads_the_seed_devices() {
 /// `rtu2mqtt simulate --seed-line a --listen modbus-tcp://…` serves the line to a client.
 #[tokio::test]
 async fn simulate_command_listens_on_tcp() {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = crate::support::free_port();
     let url = format!("modbus-tcp://127.0.0.1:{port}");
-    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"));
+    let mut command = std::process::Command::new(child::BIN);
     command
         .args(["simulate", "--seed-line", "a", "--listen", &url])
         .env("RUST_LOG", "error");

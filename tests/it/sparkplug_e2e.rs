@@ -14,7 +14,6 @@ use crate::support::pysparkplug;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use pysparkplug::decode_with_pysparkplug;
@@ -24,6 +23,7 @@ use rtu2mqtt::sim::{self, SeedPlant};
 use rtu2mqtt::sparkplug::metrics::datatype_for;
 use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
 use serde_json::{json, Value as Json};
+use support::child::{self, KillOnDrop};
 use support::{hex, Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
@@ -471,13 +471,7 @@ async fn killing_the_gateway_leaves_the_ndeath_of_its_last_birth() {
     let path = dir.path().join("config.toml");
     std::fs::write(&path, plant_text(&broker, &plant, "kill-gw", true))
         .unwrap_or_else(|error| panic!("{error}"));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_rtu2mqtt"))
-        .arg("run")
-        .arg("--config")
-        .arg(&path)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
+    let mut daemon = KillOnDrop::spawn(child::gateway_run(&path))
         .unwrap_or_else(|error| panic!("starting rtu2mqtt: {error}"));
     let nbirth = wait_in_log(&mut client, 0, "NBIRTH", |_, m| is(m, "NBIRTH", None)).await;
     wait_in_log(&mut client, nbirth, "a DBIRTH", |_, m| {
@@ -485,8 +479,8 @@ async fn killing_the_gateway_leaves_the_ndeath_of_its_last_birth() {
     })
     .await;
     // SIGKILL: no orderly NDEATH; the broker publishes the connection's Will.
-    child.kill().unwrap_or_else(|error| panic!("{error}"));
-    let _ = child.wait();
+    daemon.0.kill().unwrap_or_else(|error| panic!("{error}"));
+    let _ = daemon.0.wait();
     let death = wait_in_log(&mut client, nbirth, "NDEATH", |_, m| is(m, "NDEATH", None)).await;
     let birth = &client.received[nbirth];
     let will = &client.received[death];

@@ -549,11 +549,9 @@ address = 1
     drop(server);
 }
 
-const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
-
 /// Runs `rtu2mqtt args…` and returns its exit success and standard output.
 async fn run_cli(args: &[&str]) -> (bool, String) {
-    let mut command = Command::new(BIN);
+    let mut command = Command::new(child::BIN);
     command.args(args);
     let output = child::output(command, Duration::from_secs(60))
         .await
