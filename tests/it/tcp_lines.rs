@@ -484,15 +484,14 @@ async fn a_pymodbus_server_is_read_over_modbus_tcp() {
         env!("CARGO_MANIFEST_DIR"),
         "/tests/interop/modbus_tcp_server.py"
     );
-    let mut child = Command::new("python3")
+    let mut command = Command::new("python3");
+    command
         .args([script, "127.0.0.1", &port.to_string()])
         .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python3 runs");
-    let stdout = child.stdout.take().unwrap();
+        .stderr(Stdio::inherit());
     // Killed when the test ends.
-    let server = child::KillOnDrop(child);
+    let mut server = child::KillOnDrop::spawn(command).expect("python3 runs");
+    let stdout = server.0.stdout.take().unwrap();
     let ready = tokio::task::spawn_blocking(move || {
         let mut line = String::new();
         std::io::BufReader::new(stdout).read_line(&mut line).ok();

@@ -5,6 +5,7 @@
 
 #![allow(dead_code)]
 
+use std::os::unix::process::CommandExt as _;
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
@@ -28,14 +29,32 @@ pub fn gateway_run(config: &Path) -> Command {
     command
 }
 
+/// Starts `command` holding none of this process's descriptors beyond stdin, stdout and
+/// stderr. Every test shares this process: a child forked while another test's pty was being
+/// opened (before its ends are marked close-on-exec) would keep that pty's ends, and its
+/// lock, for as long as it runs, so an unplugged line stays open and a plugged one cannot be
+/// locked by the gateway.
+fn spawn_clean(command: &mut Command) -> std::io::Result<Child> {
+    // SAFETY: the closure runs in the forked child before exec and makes one
+    // async-signal-safe system call that only closes that child's own descriptors.
+    unsafe {
+        command.pre_exec(|| {
+            // An old kernel without close_range leaves the child as std would have.
+            let _ = libc::syscall(libc::SYS_close_range, 3, libc::c_uint::MAX, 0);
+            Ok(())
+        });
+    }
+    command.spawn()
+}
+
 /// Runs `command` to its end and returns what it printed; a child still running after `limit`
 /// is killed and the result is a `TimedOut` error (a hung child fails its test, never hangs it).
 pub async fn output(mut command: Command, limit: Duration) -> std::io::Result<Output> {
-    let child = command
+    command
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()?;
+        .stderr(Stdio::piped());
+    let child = spawn_clean(&mut command)?;
     let pid = Pid::from_raw(child.id() as i32);
     let mut waiting = tokio::task::spawn_blocking(move || child.wait_with_output());
     let finished = match tokio::time::timeout(limit, &mut waiting).await {
@@ -57,9 +76,9 @@ pub async fn output(mut command: Command, limit: Duration) -> std::io::Result<Ou
 pub struct KillOnDrop(pub Child);
 
 impl KillOnDrop {
-    /// Spawns `command`.
+    /// Spawns `command` (holding no descriptor of the tests beyond its standard streams).
     pub fn spawn(mut command: Command) -> std::io::Result<Self> {
-        command.spawn().map(KillOnDrop)
+        spawn_clean(&mut command).map(KillOnDrop)
     }
 
     pub fn id(&self) -> u32 {
