@@ -21,7 +21,7 @@
 //! edge_footprint` (about a minute and a half after the build); another build of the gateway
 //! is measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
 
-#[path = "../tests/support/mod.rs"]
+#[path = "../tests/it/support/mod.rs"]
 mod support;
 
 use std::path::{Path, PathBuf};

@@ -1,7 +1,7 @@
 //! rtu2mqtt: a Modbus RTU (RS485) to MQTT gateway.
 //!
 //! The crate is layered from the wire upwards; each layer only knows the ones listed before it
-//! (`tests/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
+//! (`tests/it/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
 //!
 //! - [`shutdown`]: the shutdown token every task holds.
 //! - [`rtu`]: Modbus on the wire. Frame types with their arithmetic, CRC, the codec (pure byte

@@ -155,7 +155,8 @@ impl VirtualLine {
         self.plugged.is_some()
     }
 
-    /// Stops serving and closes both pty ends: the gateway's reads end, its writes fail.
+    /// Stops serving, closes both pty ends and removes the link: the gateway's reads end, its
+    /// writes fail, its reopens find nothing.
     pub async fn unplug(&mut self) {
         if let Some(plugged) = self.plugged.take() {
             plugged.stop.fire();
@@ -163,6 +164,12 @@ impl VirtualLine {
                 tracing::warn!(%error, "virtual line task ended abnormally");
             }
             tracing::debug!(path = %plugged.slave_path.display(), "virtual line unplugged");
+        }
+        // The link goes with the adapter, as udev removes a by-id link: left in place it would
+        // name the freed pty number, which the next pty opened on the machine takes at once, and
+        // the gateway would reopen a stranger's line.
+        if let Some(link) = &self.link {
+            let _ = std::fs::remove_file(link);
         }
     }
 

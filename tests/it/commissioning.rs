@@ -1,0 +1,291 @@
+//! The commissioning commands against simulated devices on real ptys: `scan` finds each seed
+//! device at its address and baud rate (the simulators garble their answers while the master's
+//! baud rate on the pty differs from theirs), `read` decodes a known block every way, and
+//! neither puts a write on the line (asserted from the simulators' journals).
+
+use crate::support::child;
+
+use std::process::Output;
+use std::time::Duration;
+
+use rtu2mqtt::rtu::timing::Parity;
+use rtu2mqtt::sim::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
+
+/// A pty served at `baud` 8N1 with the devices, answering garbled at any other baud rate.
+fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
+    let options = ServeOptions::new(baud, Parity::None).enforcing_baud(true);
+    VirtualLine::spawn(options, devices).unwrap()
+}
+
+async fn run(args: &[&str]) -> Output {
+    let mut command = std::process::Command::new(child::BIN);
+    command.args(args).env("RUST_LOG", "error");
+    child::output(command, Duration::from_secs(60))
+        .await
+        .expect("command finished")
+}
+
+fn stdout(output: &Output) -> String {
+    String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+/// Every frame the devices heard is a read (FC01–FC04).
+async fn assert_only_reads(line: &VirtualLine) {
+    // The journal records an answer once it is written: the command may have printed first.
+    line.journal()
+        .wait_for_requests(1, Duration::from_secs(2))
+        .await;
+    let frames = line.journal().frames();
+    assert!(!frames.is_empty());
+    for frame in frames {
+        assert!(
+            (0x01..=0x04).contains(&frame[1]),
+            "a non-read frame reached the line: {frame:02X?}"
+        );
+    }
+}
+
+/// The table rows (after the header) of a scan's output.
+fn rows(text: &str) -> Vec<String> {
+    text.lines()
+        .skip_while(|line| !line.starts_with("address"))
+        .skip(1)
+        .take_while(|line| !line.is_empty())
+        .map(str::to_owned)
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_finds_each_seed_device_at_its_address_and_baud_rate() {
+    let dust = line(9600, vec![share(DustCollector::new(1)).1]);
+    let shower = line(19200, vec![share(AirShower::new()).1]);
+    let valve = line(4800, vec![share(Valve::new(2)).1]);
+    let scan = |line: &VirtualLine| {
+        let path = line.path().to_string_lossy().into_owned();
+        async move {
+            run(&[
+                "scan",
+                "--port",
+                &path,
+                "--baud",
+                "4800,9600,19200",
+                "--parity",
+                "none",
+                "--addresses",
+                "1,2,0x81",
+                "--timeout",
+                "150ms",
+            ])
+            .await
+        }
+    };
+    let (dust_out, shower_out, valve_out) = tokio::join!(scan(&dust), scan(&shower), scan(&valve));
+    for output in [&dust_out, &shower_out, &valve_out] {
+        assert!(
+            output.status.success(),
+            "{}\n{}",
+            stdout(output),
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+
+    // The dust collector has no register 0: it answers exception 02, and reads no input
+    // registers or coils either.
+    assert_eq!(
+        rows(&stdout(&dust_out)),
+        ["  1 (0x01)    9600  8N1     FC03 exception 02 (illegal data address); FC04 exception 01 (illegal function); FC01 exception 01 (illegal function)"]
+    );
+    // The air shower serves coils only.
+    assert_eq!(
+        rows(&stdout(&shower_out)),
+        ["129 (0x81)   19200  8N1     FC03 exception 01 (illegal function); FC04 exception 01 (illegal function); FC01 ok"]
+    );
+    // The valve reads its address register.
+    assert_eq!(
+        rows(&stdout(&valve_out)),
+        ["  2 (0x02)    4800  8N1     FC03 ok"]
+    );
+    // The valve heard and answered the probe at every baud rate, garbled at the wrong ones,
+    // and the scan took none of those for a device.
+    let answered: Vec<_> = valve
+        .journal()
+        .requests()
+        .into_iter()
+        .filter(|record| record.frame[0] == 2 && record.answer.is_some())
+        .collect();
+    assert_eq!(answered.len(), 3, "one probe per baud rate");
+    let garbled = answered
+        .iter()
+        .filter(|record| !rtu2mqtt::sim::wire::crc_ok(record.answer.as_deref().unwrap_or_default()))
+        .count();
+    assert_eq!(garbled, 2);
+
+    for line in [&dust, &shower, &valve] {
+        assert_only_reads(line).await;
+    }
+    assert_eq!(dust.journal().writes_to(1), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_with_a_profile_shows_the_decoded_fields() {
+    let valve = line(9600, vec![share(Valve::new(1)).1]);
+    let path = valve.path().to_string_lossy().into_owned();
+    let output = run(&[
+        "scan",
+        "--port",
+        &path,
+        "--baud",
+        "9600",
+        "--parity",
+        "none",
+        "--addresses",
+        "1",
+        "--profile",
+        "wuzhou-valve",
+    ])
+    .await;
+    let text = stdout(&output);
+    assert!(output.status.success(), "{text}");
+    assert!(
+        text.contains("wuzhou-valve at address 1 (9600 8N1):"),
+        "{text}"
+    );
+    assert!(text.contains("software_version"), "{text}");
+    assert_only_reads(&valve).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_decodes_the_valve_identity_block_every_way() {
+    let valve = line(9600, vec![share(Valve::new(1)).1]);
+    let path = valve.path().to_string_lossy().into_owned();
+    let output = run(&[
+        "read",
+        "--port",
+        &path,
+        "--address",
+        "1",
+        "--function",
+        "3",
+        "--start",
+        "0x0000",
+        "--count",
+        "11",
+    ])
+    .await;
+    let text = stdout(&output);
+    assert!(
+        output.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // The frames, byte for byte.
+    assert!(text.contains("request  01 03 00 00 00 0B 04 0D"), "{text}");
+    let answer = valve.journal().requests()[0].answer.clone().unwrap();
+    assert!(text.contains(&format!("answer   {}", rtu2mqtt::rtu::codec::hex(&answer))));
+    // Identity registers: address 1, serial 0x20 0x23 0x11 0x22 0x00 0x4A 0x5B, software 0x13,
+    // hardware 0x02, baud code 6. u16, i16, bits, BCD, characters per register.
+    for line in [
+        "0x0000    0x0001        1       1  0000 0000 0000 0001     1  \"..\"",
+        "0x0001    0x0020       32      32  0000 0000 0010 0000    20  \". \"",
+        "0x0006    0x004a       74      74  0000 0000 0100 1010     -  \".J\"",
+        "0x0007    0x005b       91      91  0000 0000 0101 1011     -  \".[\"",
+        "0x000a    0x0006        6       6  0000 0000 0000 0110     6  \"..\"",
+    ] {
+        assert!(text.contains(line), "missing `{line}` in\n{text}");
+    }
+    // Pairs: 0x0001 0x0020 high word first is 0x00010020, low word first 0x00200001; as f32
+    // both are tiny (denormal or near it), shown with an exponent.
+    let high_first = 0x0001_0020u32;
+    let low_first = 0x0020_0001u32;
+    let pair = format!(
+        "0x0000    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
+        high_first as i32,
+        format!("{:e}", f32::from_bits(high_first)),
+        low_first as i32,
+        format!("{:e}", f32::from_bits(low_first)),
+    );
+    assert!(text.contains(&pair), "missing `{pair}` in\n{text}");
+    // The block as characters, both byte orders (non-printable bytes as dots).
+    assert!(
+        text.contains("text (high byte first) \"... .#.......J.[......\""),
+        "{text}"
+    );
+    assert!(
+        text.contains("text (low byte first)  \".. .#.......J.[.......\""),
+        "{text}"
+    );
+    assert_only_reads(&valve).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_shows_bits_of_a_coil_block() {
+    let shower = line(9600, vec![share(AirShower::new()).1]);
+    let path = shower.path().to_string_lossy().into_owned();
+    let output = run(&[
+        "read",
+        "--port",
+        &path,
+        "--address",
+        "0x81",
+        "--function",
+        "1",
+        "--start",
+        "0",
+        "--count",
+        "22",
+    ])
+    .await;
+    let text = stdout(&output);
+    assert!(output.status.success(), "{text}");
+    assert!(text.contains("request  81 01 00 00 00 16"), "{text}");
+    assert!(text.contains("0x0000    "), "{text}");
+    assert!(text.contains("0x0010    "), "{text}");
+    assert!(text.contains("on: "), "{text}");
+    assert_only_reads(&shower).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_held_by_rtu2mqtt_is_refused() {
+    let (master, slave) = tokio_serial::SerialStream::pair().unwrap();
+    let path = tokio_serial::SerialPort::name(&slave).unwrap();
+    drop(slave);
+    // Another rtu2mqtt process holds the port (here a simulator; a gateway holds it the same way).
+    let mut command = std::process::Command::new(child::BIN);
+    command
+        .args(["simulate", "--profile", "wuzhou-valve", "--port", &path])
+        .env("RUST_LOG", "error");
+    let holder = child::KillOnDrop::spawn(command).unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    for args in [
+        vec!["read", "--port", &path, "--address", "1", "--start", "0"],
+        vec!["scan", "--port", &path, "--addresses", "1"],
+    ] {
+        let output = run(&args).await;
+        let error = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success());
+        assert!(
+            error.contains(&format!("{path} is in use by rtu2mqtt pid {}", holder.id())),
+            "{error}"
+        );
+    }
+    drop(holder);
+    drop(master);
+}
+
+#[tokio::test]
+async fn write_functions_are_refused_before_the_port_is_opened() {
+    let output = run(&[
+        "read",
+        "--port",
+        "/nonexistent",
+        "--address",
+        "1",
+        "--function",
+        "6",
+        "--start",
+        "0",
+    ])
+    .await;
+    assert!(!output.status.success());
+    assert!(String::from_utf8_lossy(&output.stderr).contains("only the read functions"));
+}

@@ -1,0 +1,394 @@
+//! The configuration as users meet it: the shipped example is valid, `rtu2mqtt check` prints
+//! the poll plan and exits 0; a configuration with many mistakes gets every one of them listed
+//! with its place, exit 1, in one run whatever the phase; environment overrides reach the
+//! settings; names, prefixes, ports, the CA file and secrets are checked so that nothing
+//! accepted breaks the MQTT link or leaks a password.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use rtu2mqtt::config;
+
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rtu2mqtt.toml")
+}
+
+fn check(path: &Path) -> (bool, String, String) {
+    let output = Command::new(crate::support::child::BIN)
+        .arg("check")
+        .arg("--config")
+        .arg(path)
+        .env_remove("RTU2MQTT_CONFIG")
+        .output()
+        .unwrap();
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_example_configuration_is_the_seed_plant() {
+    let config = config::load(&example()).unwrap();
+    assert_eq!(config.mqtt.client_id, "rtu2mqtt-edge1");
+    assert_eq!(config.mqtt.prefix, "plant");
+    let lines: Vec<(&str, usize)> = config
+        .lines
+        .iter()
+        .map(|line| (line.name.as_str(), line.devices.len()))
+        .collect();
+    assert_eq!(lines, [("line-a", 2), ("line-b", 1)]);
+    let shower = &config.lines[0].devices[1];
+    assert_eq!(shower.name, "air_shower");
+    assert_eq!(shower.address, 0x81);
+    assert_eq!(shower.profile.name(), "lixian-air-shower");
+    assert_eq!(
+        config.lines[1].serial.format.parity,
+        rtu2mqtt::rtu::timing::Parity::Even
+    );
+}
+
+#[test]
+fn check_prints_the_poll_plan() {
+    let (ok, stdout, stderr) = check(&example());
+    assert!(ok, "check failed: {stderr}");
+    for expected in [
+        "valid",
+        "line line-a on /dev/ttyUSB0: 9600 baud 8N1",
+        "line line-b on /dev/ttyUSB1: 9600 baud 8E1",
+        "dust_collector",
+        "ruiwan-dust-collector",
+        "air_shower",
+        "valve",
+        "per fast cycle:",
+        "bus load",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "{expected:?} missing in:\n{stdout}"
+        );
+    }
+    // The /dev/ttyUSB0 names deserve a warning, not an error.
+    assert!(stdout.contains("warning: lines[0].port"), "{stdout}");
+}
+
+const MANY_MISTAKES: &str = r##"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+prefix = "#plant"
+keep_alive = "500ms"
+inflight = 0
+colour = "blue"
+
+[[lines]]
+name = "line-a"
+port = "/dev/ttyS1"
+baud = 9601
+stop_bits = 3
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "ruiwan-dust-collector"
+address = 254
+poll_interval = "200ms"
+
+[[lines.devices]]
+name = "gateway"
+profile = "lixian-air-shower"
+address = 0x81
+
+[[lines.devices]]
+name = "second"
+profile = "lixian-air-shower"
+address = 0x81
+
+[[lines]]
+name = "line-b"
+port = "/dev/ttyS2"
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "no-such-profile"
+address = 1
+"##;
+
+#[test]
+fn every_problem_is_listed_with_its_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("config.toml");
+    // Unknown keys are reported first (with the other problems after them).
+    std::fs::write(&path, MANY_MISTAKES).unwrap();
+    let (ok, _, stderr) = check(&path);
+    assert!(!ok);
+    assert!(stderr.contains("mqtt.colour: unknown key"), "{stderr}");
+
+    std::fs::write(&path, MANY_MISTAKES.replace("colour = \"blue\"\n", "")).unwrap();
+    let (ok, stdout, stderr) = check(&path);
+    assert!(!ok, "accepted: {stdout}");
+    for place in [
+        "mqtt.prefix:",
+        "mqtt.keep_alive:",
+        "mqtt.inflight:",
+        "lines[0].baud:",
+        "lines[0].stop_bits:",
+        "lines[0].devices[0].address: 254 is outside 1–247 allowed by profile ruiwan-dust-collector",
+        "lines[0].devices[0].poll_interval:",
+        "lines[0].devices[1].name: \"gateway\" is reserved",
+        "lines[0].devices[2].address: 129 is already used on this line",
+        "lines[1].devices[0].name: \"dust_collector\" is already the name of lines[0].devices[0]",
+        "lines[1].devices[0].profile:",
+    ] {
+        assert!(stderr.contains(place), "{place:?} missing in:\n{stderr}");
+    }
+}
+
+#[test]
+fn environment_overrides_reach_the_settings() {
+    let output = Command::new(crate::support::child::BIN)
+        .arg("check")
+        .arg("--config")
+        .arg(example())
+        .env("RTU2MQTT__MQTT__PREFIX", "site7")
+        .env("RTU2MQTT__MQTT__KEEP_ALIVE", "0s")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("mqtt.keep_alive"), "{stderr}");
+
+    let output = Command::new(crate::support::child::BIN)
+        .arg("check")
+        .arg("--config")
+        .arg(example())
+        .env("RTU2MQTT__MQTT__PREFIX", "site7")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success());
+    assert!(stdout.contains("prefix \"site7\""), "{stdout}");
+}
+
+#[test]
+fn a_missing_file_is_a_clear_error() {
+    let (ok, _, stderr) = check(Path::new("/nonexistent/rtu2mqtt.toml"));
+    assert!(!ok);
+    assert!(
+        stderr.contains("cannot read the configuration file"),
+        "{stderr}"
+    );
+}
+
+/// `check` on `text` written as config.toml in a fresh directory (with `files` beside it):
+/// (accepted, stdout, stderr).
+fn check_text(text: &str, files: &[(&str, &str)]) -> (bool, String, String) {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, content) in files {
+        std::fs::write(dir.path().join(name), content).unwrap();
+    }
+    let text = text.replace("{dir}", &dir.path().to_string_lossy());
+    let path = dir.path().join("config.toml");
+    std::fs::write(&path, text).unwrap();
+    check(&path)
+}
+
+/// A valid configuration of one valve on `{port}`; `{mqtt}` and `{device}` take more keys.
+const ONE_VALVE: &str = r#"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+{mqtt}
+
+[[lines]]
+name = "line-b"
+port = "/dev/ttyS2"
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+{device}
+"#;
+
+fn one_valve(mqtt: &str, device: &str) -> String {
+    ONE_VALVE
+        .replace("{mqtt}", mqtt)
+        .replace("{device}", device)
+}
+
+#[test]
+fn the_base_of_these_checks_is_valid() {
+    let (ok, stdout, stderr) = check_text(&one_valve("", ""), &[]);
+    assert!(ok, "{stdout}{stderr}");
+}
+
+#[test]
+fn an_unknown_key_or_a_wrong_type_does_not_hide_the_other_problems() {
+    let (ok, _, stderr) = check_text(MANY_MISTAKES, &[]);
+    assert!(!ok);
+    for place in [
+        "mqtt.colour: unknown key",
+        "mqtt.keep_alive:",
+        "lines[0].devices[0].address: 254 is outside 1–247",
+        "lines[0].devices[1].name: \"gateway\" is reserved",
+        "lines[1].devices[0].profile:",
+    ] {
+        assert!(stderr.contains(place), "{place:?} missing in:\n{stderr}");
+    }
+    let text = one_valve("", "").replace("address = 1", "address = 300\npoll_interval = 5");
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("lines[0].devices[0].poll_interval: 5 is not a duration"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("lines[0].devices[0].address: 300 is outside"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn names_the_contract_uses_as_topic_levels_are_refused() {
+    for name in ["availability", "set", "result", "gateway"] {
+        let text = one_valve("", "").replace("name = \"valve\"", &format!("name = \"{name}\""));
+        let (ok, _, stderr) = check_text(&text, &[]);
+        assert!(!ok, "device {name} accepted");
+        assert!(
+            stderr.contains(&format!("lines[0].devices[0].name: \"{name}\" is reserved")),
+            "{stderr}"
+        );
+    }
+    let valve = include_str!("../../config/profiles/wuzhou-valve.toml");
+    for field in ["availability", "set", "result"] {
+        let profile = valve.replace("name = \"serial_number\"", &format!("name = \"{field}\""));
+        assert_ne!(profile, valve, "the valve profile changed shape");
+        let text = one_valve("", "").replace("\"wuzhou-valve\"", "\"valve.toml\"");
+        let (ok, _, stderr) = check_text(&text, &[("valve.toml", &profile)]);
+        assert!(!ok, "field {field} accepted");
+        assert!(
+            stderr.contains("lines[0].devices[0].profile:")
+                && stderr.contains(&format!("field \"{field}\" is reserved")),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn names_are_bounded_and_never_echoed_whole() {
+    let long = "x".repeat(70_000);
+    let valve = include_str!("../../config/profiles/wuzhou-valve.toml");
+    let profile = valve.replace("name = \"serial_number\"", &format!("name = \"{long}\""));
+    let text = one_valve("", "").replace("\"wuzhou-valve\"", "\"valve.toml\"");
+    let (ok, _, stderr) = check_text(&text, &[("valve.toml", &profile)]);
+    assert!(!ok, "a 70,000-character field name was accepted");
+    assert!(stderr.contains("at most 64 characters"), "{stderr}");
+    assert!(stderr.len() < 2_000, "{} bytes of problems", stderr.len());
+
+    let text = one_valve("", "").replace("name = \"valve\"", &format!("name = \"{long}\""));
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok);
+    assert!(stderr.contains("(70000 bytes)"), "{stderr}");
+    assert!(stderr.len() < 2_000, "{} bytes of problems", stderr.len());
+}
+
+#[test]
+fn one_port_spelled_two_ways_is_one_port() {
+    let second_line = |port: &str| {
+        format!(
+            "\n[[lines]]\nname = \"line-c\"\nport = \"{port}\"\n\n[[lines.devices]]\n\
+             name = \"valve2\"\nprofile = \"wuzhou-valve\"\naddress = 2\n"
+        )
+    };
+    // Lexically: the port does not exist here.
+    let text = one_valve("", "") + &second_line("/dev/./ttyS2");
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok, "/dev/./ttyS2 and /dev/ttyS2 accepted as two ports");
+    assert!(
+        stderr.contains("lines[1].port: /dev/./ttyS2 is already the port of lines[0]"),
+        "{stderr}"
+    );
+    // A link (as /dev/serial/by-id/… is) and its target.
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("ttyA");
+    std::fs::write(&target, b"").unwrap();
+    let link = dir.path().join("usb-FTDI-if00-port0");
+    std::os::unix::fs::symlink(&target, &link).unwrap();
+    let text = one_valve("", "").replace("/dev/ttyS2", &target.to_string_lossy())
+        + &second_line(&link.to_string_lossy());
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok, "a link and its target accepted as two ports");
+    assert!(
+        stderr.contains("is already the port of lines[0]"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn the_prefix_stays_out_of_the_discovery_prefix() {
+    for mqtt in [
+        "prefix = \"homeassistant\"\ndiscovery = true",
+        "prefix = \"homeassistant/plant\"\ndiscovery = true",
+        "prefix = \"site\"\ndiscovery_prefix = \"site/ha\"\ndiscovery = true",
+    ] {
+        let (ok, _, stderr) = check_text(&one_valve(mqtt, ""), &[]);
+        assert!(!ok, "{mqtt} accepted");
+        assert!(stderr.contains("mqtt.prefix:"), "{stderr}");
+    }
+}
+
+#[test]
+fn a_ca_file_without_a_certificate_is_refused() {
+    let mqtt = "url = \"mqtts://127.0.0.1:8883\"\nca_file = \"ca.crt\"";
+    let text = one_valve("", "").replace("url = \"mqtt://127.0.0.1:1883\"", mqtt);
+    for junk in [
+        "not a certificate\n",
+        "-----BEGIN CERTIFICATE-----\nMAA=\n-----END CERTIFICATE-----\n",
+    ] {
+        let (ok, _, stderr) = check_text(&text, &[("ca.crt", junk)]);
+        assert!(!ok, "{junk:?} accepted as a CA");
+        assert!(stderr.contains("mqtt.ca_file:"), "{stderr}");
+    }
+}
+
+#[test]
+fn secrets_never_appear_in_a_message() {
+    let text = one_valve("", "").replace(
+        "mqtt://127.0.0.1:1883",
+        "mqtt://user:s3cr3t-pw@127.0.0.1:1883",
+    );
+    let (ok, stdout, stderr) = check_text(&text, &[]);
+    assert!(!ok);
+    assert!(
+        !stderr.contains("s3cr3t") && !stdout.contains("s3cr3t"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("mqtt://user:***@127.0.0.1:1883"),
+        "{stderr}"
+    );
+
+    let text = one_valve("username = \"user\"\npassword = 987654321", "");
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok);
+    assert!(stderr.contains("mqtt.password:"), "{stderr}");
+    assert!(!stderr.contains("987654321"), "{stderr}");
+}
+
+#[test]
+fn check_shows_the_sparkplug_node() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("with-sparkplug.toml");
+    let text = std::fs::read_to_string(example()).expect("example configuration")
+        + "\n[sparkplug]\ngroup_id = \"plant\"\nprimary_host_id = \"scada\"\n";
+    std::fs::write(&path, text).expect("write config");
+    let (valid, stdout, stderr) = check(&path);
+    assert!(valid, "{stderr}");
+    assert!(
+        stdout.lines().any(|line| line
+            == "sparkplug: spBv1.0/plant/…/rtu2mqtt-edge1 on mqtt://127.0.0.1:1883 as \
+                \"rtu2mqtt-edge1-sparkplug\", births wait for primary host \"scada\""),
+        "{stdout}"
+    );
+}

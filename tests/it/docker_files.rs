@@ -1,0 +1,177 @@
+//! The container files agree with the code and with each other (there is no Docker engine in
+//! CI to try them): the health check reads the file the daemon writes, the image runs
+//! unprivileged in group dialout, and the compose example keeps the least-privilege settings
+//! and gives the status file a writable place.
+
+use std::path::Path;
+
+const DOCKERFILE: &str = include_str!("../../Dockerfile");
+const COMPOSE: &str = include_str!("../../docker-compose.yml");
+
+/// Dockerfile instructions with continuation lines joined.
+fn instructions(dockerfile: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut current = String::new();
+    for line in dockerfile.lines() {
+        let trimmed = line.trim();
+        if trimmed.starts_with('#') || (trimmed.is_empty() && current.is_empty()) {
+            continue;
+        }
+        match trimmed.strip_suffix('\\') {
+            Some(head) => {
+                current.push_str(head);
+                current.push(' ');
+            }
+            None => {
+                current.push_str(trimmed);
+                let joined = current.split_whitespace().collect::<Vec<_>>().join(" ");
+                current.clear();
+                out.push(joined);
+            }
+        }
+    }
+    out
+}
+
+fn instruction<'a>(all: &'a [String], keyword: &str) -> Vec<&'a str> {
+    all.iter()
+        .filter_map(|i| i.strip_prefix(keyword))
+        .filter_map(|rest| rest.strip_prefix(' '))
+        .collect()
+}
+
+#[test]
+fn image_builds_in_two_stages_and_runs_unprivileged() {
+    let all = instructions(DOCKERFILE);
+    let from = instruction(&all, "FROM");
+    assert_eq!(
+        from,
+        vec!["rust:1-bookworm AS builder", "debian:bookworm-slim"]
+    );
+    assert_eq!(instruction(&all, "USER"), vec!["rtu2mqtt:dialout"]);
+    assert!(DOCKERFILE.contains("--gid dialout"));
+    assert_eq!(instruction(&all, "STOPSIGNAL"), vec!["SIGTERM"]);
+    assert_eq!(instruction(&all, "ENTRYPOINT"), vec![r#"["rtu2mqtt"]"#]);
+    assert_eq!(
+        instruction(&all, "CMD"),
+        vec![r#"["run", "--config", "/etc/rtu2mqtt/config.toml"]"#]
+    );
+    let runtime_packages = all
+        .iter()
+        .skip_while(|i| !i.starts_with("FROM debian"))
+        .filter(|i| i.contains("apt-get install"))
+        .collect::<Vec<_>>();
+    assert_eq!(runtime_packages.len(), 1);
+    assert!(runtime_packages[0].contains("--no-install-recommends ca-certificates &&"));
+}
+
+#[test]
+fn health_check_reads_the_daemons_status_file() {
+    let all = instructions(DOCKERFILE);
+    let check = instruction(&all, "HEALTHCHECK");
+    assert_eq!(check.len(), 1);
+    let expected = format!(
+        r#"CMD ["rtu2mqtt", "health", "--status-file", "{}", "--max-age", "30s"]"#,
+        rtu2mqtt::health::DEFAULT_STATUS_FILE
+    );
+    assert!(check[0].ends_with(&expected), "{}", check[0]);
+}
+
+#[test]
+fn compose_keeps_least_privilege_and_a_writable_status_directory() {
+    for needed in [
+        "image: eclipse-mosquitto:2",
+        "read_only: true",
+        "cap_drop:\n      - ALL",
+        "no-new-privileges:true",
+        "devices:",
+        "./docker/rtu2mqtt.toml:/etc/rtu2mqtt/config.toml:ro",
+    ] {
+        assert!(
+            COMPOSE.contains(needed),
+            "docker-compose.yml lacks {needed:?}"
+        );
+    }
+    let status_dir = Path::new(rtu2mqtt::health::DEFAULT_STATUS_FILE)
+        .parent()
+        .expect("a directory");
+    // The tmpfs belongs to the image's user (uid 10001) and group dialout (gid 20).
+    assert!(DOCKERFILE.contains("--uid 10001"));
+    let tmpfs = format!("- {}:uid=10001,gid=20,", status_dir.display());
+    assert!(COMPOSE.contains(&tmpfs), "no tmpfs {tmpfs:?}");
+    assert!(!COMPOSE.contains("privileged: true"));
+}
+
+#[test]
+fn compose_configuration_is_valid() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docker/rtu2mqtt.toml");
+    let config = match rtu2mqtt::config::load(&path) {
+        Ok(config) => config,
+        Err(problems) => panic!("docker/rtu2mqtt.toml: {problems}"),
+    };
+    assert_eq!(config.mqtt.host, "mosquitto");
+    let ports: Vec<&str> = config
+        .lines
+        .iter()
+        .map(|l| l.serial.path.as_str())
+        .collect();
+    assert_eq!(ports, vec!["/dev/ttyRS485A", "/dev/ttyRS485B"]);
+    for port in ports {
+        assert!(
+            COMPOSE.contains(&format!(":{port}\n")),
+            "{port} not passed in"
+        );
+    }
+}
+
+#[test]
+fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_manifest() {
+    let all = instructions(DOCKERFILE);
+    let builder: Vec<&String> = all
+        .iter()
+        .take_while(|i| !i.starts_with("FROM debian"))
+        .collect();
+    let first_run = builder
+        .iter()
+        .position(|i| i.starts_with("RUN "))
+        .expect("a RUN in the build stage");
+    let copied_before: Vec<&str> = builder[..first_run]
+        .iter()
+        .filter_map(|i| i.strip_prefix("COPY "))
+        .collect();
+    let needed = "docker/placeholder-sources.sh";
+    assert!(
+        builder[first_run].contains(needed),
+        "the dependency layer runs {needed}: {}",
+        builder[first_run]
+    );
+    assert!(
+        copied_before.iter().any(|copy| copy.starts_with(needed)),
+        "{needed} is copied before the dependency layer runs it: {copied_before:?}"
+    );
+
+    // The placeholders, made from the manifest as the image does, satisfy cargo: every
+    // [[bench]] and the binary have a source, so the manifest parses.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().expect("temp dir");
+    for file in ["Cargo.toml", "Cargo.lock"] {
+        std::fs::copy(root.join(file), dir.path().join(file)).expect("copy the manifest");
+    }
+    let made = std::process::Command::new("sh")
+        .arg(root.join("docker/placeholder-sources.sh"))
+        .current_dir(dir.path())
+        .status()
+        .expect("sh runs");
+    assert!(made.success());
+    let probe = std::process::Command::new(env!("CARGO"))
+        .args(["check", "--locked", "--offline", "--bin", "no-such-target"])
+        .current_dir(dir.path())
+        .env("CARGO_TARGET_DIR", dir.path().join("target"))
+        .output()
+        .expect("cargo runs");
+    let stderr = String::from_utf8_lossy(&probe.stderr);
+    assert!(
+        stderr.contains("no bin target named `no-such-target`"),
+        "the manifest must parse with the placeholders alone:\n{stderr}"
+    );
+}

@@ -1,0 +1,43 @@
+//! The integration tests, one binary: each module is one area's tests (`cargo test --test it
+//! pty_line::` runs one of them), `support` is what they share (a real mosquitto, an MQTT test
+//! client, the gateway over the simulated plant, child processes, frames as hex text).
+
+mod support;
+
+mod acceptance;
+mod answer_gaps;
+mod bridge_reliability;
+mod calm_start;
+mod codec_props;
+mod commissioning;
+mod config_valid;
+mod crash_exactly_once;
+mod daemon_health;
+mod demo;
+mod demo_screen;
+mod discovery;
+mod docker_files;
+mod fuzz_smoke;
+mod gateway_e2e;
+mod golden_frames;
+mod layers;
+mod logs;
+mod number_grammar;
+mod profiles_cli;
+mod profiles_golden;
+mod profiles_valid;
+mod pty_line;
+mod pty_master;
+mod readme;
+mod reliability;
+mod reload;
+mod scheduler_time;
+mod sim_pty;
+mod sim_tcp;
+mod sparkplug_decode;
+mod sparkplug_e2e;
+mod sparkplug_node;
+mod sparkplug_readme;
+mod startup_pages;
+mod systemd_unit;
+mod tcp_lines;

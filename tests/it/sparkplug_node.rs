@@ -1,0 +1,340 @@
+//! The Sparkplug edge node driver on a real mosquitto: births after the primary host's STATE,
+//! DDATA for a change, NDATA for a gateway figure, a DCMD handed to the command path and a failed one re-published, NCMD
+//! rebirth, the NDEATH Will (matching the NBIRTH's bdSeq) when the node dies, and the node's
+//! own NDEATH at an orderly shutdown.
+
+use crate::support;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use rtu2mqtt::bus::LineEvent;
+use rtu2mqtt::config::MqttSettings;
+use rtu2mqtt::profile::{registry, Value};
+use rtu2mqtt::shutdown;
+use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::{
+    run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+};
+use support::{Message, Mosquitto, TestClient};
+use tokio::sync::{broadcast, mpsc};
+
+const WAIT: Duration = Duration::from_secs(10);
+const NBIRTH: &str = "spBv1.0/plant/NBIRTH/gw1";
+const NDEATH: &str = "spBv1.0/plant/NDEATH/gw1";
+const DBIRTH: &str = "spBv1.0/plant/DBIRTH/gw1/dust";
+const DDATA: &str = "spBv1.0/plant/DDATA/gw1/dust";
+const NDATA: &str = "spBv1.0/plant/NDATA/gw1";
+const BUS_LOAD: &str = "Lines/line-a/Bus Load";
+
+fn settings(port: u16) -> MqttSettings {
+    MqttSettings {
+        host: "127.0.0.1".into(),
+        port,
+        tls: None,
+        client_id: "gw1-sparkplug".into(),
+        prefix: "plant".into(),
+        username: None,
+        password: None,
+        keep_alive: Duration::from_secs(5),
+        clean_session: true,
+        inflight: 100,
+        discovery: false,
+        discovery_prefix: "homeassistant".into(),
+    }
+}
+
+fn session(primary_host_id: Option<&str>) -> Session {
+    let dust = registry::built_in("ruiwan-dust-collector").unwrap_or_else(|e| panic!("{e}"));
+    Session::new(
+        SessionSettings {
+            group_id: "plant".into(),
+            edge_node_id: "gw1".into(),
+            primary_host_id: primary_host_id.map(str::to_string),
+            devices: vec![("dust".into(), Arc::new(dust))],
+            version: "test".into(),
+            node_metrics: vec![NodeMetricSpec {
+                name: BUS_LOAD.into(),
+                datatype: DataType::Float,
+            }],
+        },
+        0,
+    )
+}
+
+fn decode(message: &Message) -> Payload {
+    Payload::decode_bytes(&message.payload)
+        .unwrap_or_else(|error| panic!("{}: {error}", message.topic))
+}
+
+fn value_of(payload: &Payload, name: &str) -> Option<MetricValue> {
+    payload
+        .metrics
+        .iter()
+        .find(|m| m.name.as_deref() == Some(name))
+        .and_then(|m| m.value.clone())
+}
+
+fn dust(gear: i64) -> LineEvent {
+    LineEvent::Values {
+        device: "dust".into(),
+        values: vec![
+            ("power".into(), Value::Bool(true)),
+            ("gear".into(), Value::Int(gear)),
+        ],
+    }
+}
+
+fn command(name: &str, datatype: DataType, value: MetricValue) -> Vec<u8> {
+    Payload {
+        timestamp: Some(1),
+        metrics: vec![Metric {
+            name: Some(name.into()),
+            datatype: Some(datatype.number()),
+            value: Some(value),
+            ..Default::default()
+        }],
+        ..Default::default()
+    }
+    .encode_to_bytes()
+}
+
+struct Node {
+    events: broadcast::Sender<LineEvent>,
+    commands: mpsc::Receiver<SparkplugCommand>,
+    reports: mpsc::Sender<CommandReport>,
+    node_values: mpsc::Sender<Vec<(String, MetricValue)>>,
+    trigger: shutdown::ShutdownTrigger,
+    task: tokio::task::JoinHandle<()>,
+}
+
+fn start(session: Session, port: u16) -> Node {
+    let (events, line_events) = broadcast::channel(64);
+    let (commands_tx, commands) = mpsc::channel(16);
+    let (reports, reports_rx) = mpsc::channel(16);
+    let (node_values, node_values_rx) = mpsc::channel(16);
+    let (trigger, shutdown) = shutdown::channel();
+    let links = NodeLinks {
+        line_events,
+        commands: commands_tx,
+        reports: reports_rx,
+        node_values: node_values_rx,
+        shutdown,
+    };
+    let task = tokio::spawn(run(session, settings(port), links));
+    Node {
+        events,
+        commands,
+        reports,
+        node_values,
+        trigger,
+        task,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "scada-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let mut node = start(session(Some("scada")), broker.port);
+
+    // Births wait for the primary host.
+    host.settle(Duration::from_millis(700)).await;
+    assert!(host.on(NBIRTH).is_empty(), "NBIRTH before the host's STATE");
+    let _ = node.events.send(dust(3));
+    host.publish(
+        "spBv1.0/STATE/scada",
+        r#"{"online":true,"timestamp":1764000000000}"#,
+        true,
+    )
+    .await;
+    let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(nbirth.seq, Some(0));
+    let bd_seq = value_of(&nbirth, "bdSeq");
+    assert_eq!(bd_seq, Some(MetricValue::Long(0)));
+    let dbirth = decode(&host.next_on(DBIRTH, WAIT).await);
+    assert_eq!(value_of(&dbirth, "gear"), Some(MetricValue::Int(3)));
+    assert_eq!(dbirth.seq, Some(1));
+
+    // A change arrives as DDATA with the next seq.
+    let _ = node.events.send(dust(5));
+    let ddata = decode(&host.next_on(DDATA, WAIT).await);
+    assert_eq!(ddata.metrics.len(), 1);
+    assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(5)));
+    let after_birth = ddata.seq.unwrap_or(0);
+    assert!(after_birth >= 2, "seq {after_birth} after the births");
+
+    // A gateway figure arrives as NDATA.
+    let _ = node
+        .node_values
+        .send(vec![(BUS_LOAD.to_string(), MetricValue::Float(0.5))])
+        .await;
+    let ndata = host
+        .wait_for(NDATA, WAIT, |m| {
+            decode(m)
+                .metrics
+                .iter()
+                .any(|metric| metric.value == Some(MetricValue::Float(0.5)))
+        })
+        .await;
+    assert!(decode(&ndata).seq > Some(after_birth));
+
+    // A DCMD on the gear reaches the command path; one on a read-only field does not.
+    host.publish(
+        "spBv1.0/plant/DCMD/gw1/dust",
+        command("fan_speed", DataType::UInt16, MetricValue::Int(1)),
+        false,
+    )
+    .await;
+    host.publish(
+        "spBv1.0/plant/DCMD/gw1/dust",
+        command("gear", DataType::UInt8, MetricValue::Int(8)),
+        false,
+    )
+    .await;
+    let handed = tokio::time::timeout(WAIT, node.commands.recv()).await;
+    assert_eq!(
+        handed.ok().flatten(),
+        Some(SparkplugCommand {
+            device: "dust".into(),
+            field: "gear".into(),
+            text: "8".into()
+        })
+    );
+    assert!(
+        node.commands.try_recv().is_err(),
+        "the read-only write was handed on"
+    );
+    // It failed on the bus: the true gear is published again.
+    let _ = node
+        .reports
+        .send(CommandReport {
+            device: "dust".into(),
+            field: "gear".into(),
+            applied: false,
+        })
+        .await;
+    let republished = host
+        .wait_for_new(DDATA, WAIT, |m| {
+            decode(m)
+                .metrics
+                .iter()
+                .any(|metric| metric.value == Some(MetricValue::Int(5)))
+        })
+        .await;
+    assert!(decode(&republished).seq > Some(after_birth));
+
+    // NCMD rebirth: NBIRTH and DBIRTH again, same bdSeq, seq from 0.
+    host.drain();
+    host.forget();
+    host.publish(
+        "spBv1.0/plant/NCMD/gw1",
+        command(
+            "Node Control/Rebirth",
+            DataType::Boolean,
+            MetricValue::Boolean(true),
+        ),
+        false,
+    )
+    .await;
+    let reborn = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(
+        (reborn.seq, value_of(&reborn, "bdSeq")),
+        (Some(0), bd_seq.clone())
+    );
+    let dbirth = decode(&host.next_on(DBIRTH, WAIT).await);
+    assert_eq!(value_of(&dbirth, "gear"), Some(MetricValue::Int(5)));
+
+    // The node dies without a word: the broker publishes its Will, the NDEATH of this bdSeq.
+    node.task.abort();
+    let death = decode(&host.next_on(NDEATH, WAIT).await);
+    assert_eq!(value_of(&death, "bdSeq"), bd_seq);
+    node.trigger.fire();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_orderly_shutdown_publishes_the_ndeath_itself() {
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "observer").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start(session(None), broker.port);
+    let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
+    node.trigger.fire();
+    let death = decode(&host.next_on(NDEATH, WAIT).await);
+    assert_eq!(value_of(&death, "bdSeq"), value_of(&nbirth, "bdSeq"));
+    let ended = tokio::time::timeout(WAIT, node.task).await;
+    assert!(
+        matches!(ended, Ok(Ok(()))),
+        "the node did not end: {ended:?}"
+    );
+}
+
+/// The NBIRTH of the node's current connection, asking for a rebirth until one arrives (the
+/// observer may have subscribed after the node's own births).
+async fn current_nbirth(host: &mut TestClient) -> Payload {
+    for _ in 0..10 {
+        let rebirth = command(
+            "Node Control/Rebirth",
+            DataType::Boolean,
+            MetricValue::Boolean(true),
+        );
+        host.publish("spBv1.0/plant/NCMD/gw1", rebirth, false).await;
+        if let Some(message) = host
+            .try_wait_for(NBIRTH, Duration::from_secs(1), |_| true)
+            .await
+        {
+            return decode(&message);
+        }
+    }
+    panic!("no NBIRTH from the node");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_connection_gets_the_next_bd_seq_and_its_will_carries_it() {
+    let mut broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "observer").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start(session(None), broker.port);
+    let first = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(value_of(&first, "bdSeq"), Some(MetricValue::Long(0)));
+
+    broker.kill();
+    broker.restart();
+    let mut host = TestClient::connect(broker.port, "observer-2").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let second = current_nbirth(&mut host).await;
+    let Some(MetricValue::Long(bd_seq)) = value_of(&second, "bdSeq") else {
+        panic!("no bdSeq in {second:?}");
+    };
+    assert!(bd_seq >= 1, "bdSeq {bd_seq} after a reconnect");
+    assert_eq!(second.seq, Some(0));
+
+    node.task.abort();
+    let death = decode(&host.next_on(NDEATH, WAIT).await);
+    assert_eq!(value_of(&death, "bdSeq"), Some(MetricValue::Long(bd_seq)));
+}
+
+/// Line events the node could not keep up with (the broadcast overflowed): it cannot know
+/// what it missed, so it tells the host everything again with a rebirth.
+#[tokio::test]
+async fn missed_line_events_bring_a_rebirth() {
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "lag-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start(session(None), broker.port);
+    host.next_on(NBIRTH, WAIT).await;
+    let _ = node.events.send(dust(3));
+    host.next_on(DBIRTH, WAIT).await;
+    // More events than the channel holds, without letting the node run in between (this
+    // test's runtime has one thread).
+    for gear in 0..200 {
+        let _ = node.events.send(dust(1 + gear % 10));
+    }
+    let reborn = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(reborn.seq, Some(0));
+    assert_eq!(value_of(&reborn, "bdSeq"), Some(MetricValue::Long(0)));
+    host.next_on(DBIRTH, WAIT).await;
+    node.trigger.fire();
+    let _ = tokio::time::timeout(WAIT, node.task).await;
+}

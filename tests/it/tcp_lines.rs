@@ -1,0 +1,615 @@
+//! End to end over the network: the gateway (`run_gateway`) with one line on a pty, one line to
+//! a simulated serial device server (`tcp://`, raw RTU) and one to a simulated Modbus TCP
+//! gateway (`modbus-tcp://`), behind a real mosquitto. Every network fault of the simulators
+//! is put on the TCP lines and the line's behaviour is asserted (offline/online, reconnects),
+//! as is that no wrong value reaches MQTT and that the pty line never notices. One test talks
+//! to a pymodbus Modbus TCP server (an implementation not written here).
+
+use crate::support;
+use crate::support::child;
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use rtu2mqtt::config::{self, Config};
+use rtu2mqtt::rtu::timing::Parity;
+use rtu2mqtt::sim::{
+    self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
+    TcpSimulator, Valve, VirtualLine,
+};
+use support::{free_port, Gateway, Mosquitto, TestClient};
+
+/// Generous bounds for a busy 2-core machine: they only fail when something is broken.
+const ANSWER: Duration = Duration::from_secs(20);
+
+/// The valve's opening and the Modbus TCP dust collector's gear: constant during a test, so
+/// any other value on their topics would be a wrong one.
+const VALVE_OPENING: u16 = 40;
+const GW_GEAR: u16 = 6;
+
+/// Everything a test needs: the broker, the three lines' simulators and the gateway.
+struct Plant {
+    broker: Mosquitto,
+    client: TestClient,
+    /// Subscribed to everything and never waited on: it keeps every message for the audit.
+    auditor: TestClient,
+    pty: VirtualLine,
+    raw: TcpSimulator,
+    modbus: TcpSimulator,
+    valve: std::sync::Arc<std::sync::Mutex<Valve>>,
+    dust_gw: std::sync::Arc<std::sync::Mutex<DustCollector>>,
+    raw_devices: Vec<sim::SharedDevice>,
+    gateway: Option<Gateway>,
+    /// `plant/gateway/<client id>/stats`.
+    stats_topic: String,
+}
+
+async fn bind(
+    address: &str,
+    protocol: Protocol,
+    parity: Parity,
+    devices: Vec<sim::SharedDevice>,
+) -> TcpSimulator {
+    TcpSimulator::bind(address, protocol, ServeOptions::new(9600, parity), devices)
+        .await
+        .unwrap()
+}
+
+impl Plant {
+    async fn start(name: &str) -> Plant {
+        let broker = Mosquitto::start();
+        let (dust, dust_shared) = share(DustCollector::new(1));
+        sim::lock(&dust).set_power(true);
+        let (_shower, shower_shared) = share(AirShower::new());
+        let pty = VirtualLine::spawn(
+            ServeOptions::new(9600, Parity::None),
+            vec![dust_shared, shower_shared],
+        )
+        .unwrap();
+        let (valve, valve_shared) = share(Valve::new(1));
+        sim::lock(&valve).set_opening(VALVE_OPENING);
+        let raw_devices = vec![valve_shared];
+        let raw = bind(
+            "127.0.0.1:0",
+            Protocol::RawRtu,
+            Parity::Even,
+            raw_devices.clone(),
+        )
+        .await;
+        let (dust_gw, dust_gw_shared) = share(DustCollector::new(1));
+        sim::lock(&dust_gw).set_power(true);
+        let (_shower_gw, shower_gw_shared) = share(AirShower::new());
+        let modbus = bind(
+            "127.0.0.1:0",
+            Protocol::ModbusTcp,
+            Parity::None,
+            vec![dust_gw_shared, shower_gw_shared],
+        )
+        .await;
+        let mut client = TestClient::connect(broker.port, &format!("{name}-observer")).await;
+        client.subscribe("plant/#").await;
+        let mut auditor = TestClient::connect(broker.port, &format!("{name}-auditor")).await;
+        auditor.subscribe("plant/#").await;
+        let mut plant = Plant {
+            broker,
+            client,
+            auditor,
+            pty,
+            raw,
+            modbus,
+            valve,
+            dust_gw,
+            raw_devices,
+            gateway: None,
+            stats_topic: format!("plant/gateway/{name}-gw/stats"),
+        };
+        let config = fast(&plant.config_text(&format!("{name}-gw")));
+        plant.gateway = Some(Gateway::start(config).await);
+        for device in [
+            "dust_collector",
+            "air_shower",
+            "valve",
+            "dust_gw",
+            "shower_gw",
+        ] {
+            plant
+                .wait_text(&format!("plant/{device}/availability"), "online")
+                .await;
+        }
+        // A command over Modbus TCP sets the gear the faults must never change.
+        let result = plant.command("dust_gw", "gear", GW_GEAR).await;
+        assert_eq!(result["outcome"], "applied", "{result}");
+        plant
+    }
+
+    fn config_text(&self, client_id: &str) -> String {
+        format!(
+            r#"
+[mqtt]
+url = "{broker}"
+client_id = "{client_id}"
+prefix = "plant"
+
+[gateway]
+stats_interval = "1s"
+
+[[lines]]
+name = "line-pty"
+port = "{pty}"
+baud = 9600
+parity = "none"
+response_timeout = "150ms"
+retries = 1
+offline_after = 2
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "ruiwan-dust-collector"
+address = 1
+
+[[lines.devices]]
+name = "air_shower"
+profile = "lixian-air-shower"
+address = 0x81
+
+[[lines]]
+name = "line-raw"
+url = "{raw}"
+parity = "even"
+network_allowance = "100ms"
+connect_timeout = "1s"
+retries = 1
+offline_after = 2
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+
+[[lines]]
+name = "line-modbus"
+url = "{modbus}"
+response_timeout = "300ms"
+connect_timeout = "1s"
+retries = 1
+offline_after = 2
+
+[[lines.devices]]
+name = "dust_gw"
+profile = "ruiwan-dust-collector"
+address = 1
+
+[[lines.devices]]
+name = "shower_gw"
+profile = "lixian-air-shower"
+address = 0x81
+"#,
+            broker = self.broker.url(),
+            pty = self.pty.path().display(),
+            raw = self.raw.url(),
+            modbus = self.modbus.url(),
+        )
+    }
+
+    async fn wait_text(&mut self, topic: &str, text: &str) {
+        let text = text.to_string();
+        self.client
+            .wait_for(topic, ANSWER, move |m| m.text() == text)
+            .await;
+    }
+
+    /// Publishes a command and returns its result JSON.
+    async fn command(
+        &mut self,
+        device: &str,
+        field: &str,
+        value: impl ToString,
+    ) -> serde_json::Value {
+        self.client
+            .publish(
+                &format!("plant/{device}/{field}/set"),
+                value.to_string().into_bytes(),
+                false,
+            )
+            .await;
+        self.client
+            .next_on(&format!("plant/{device}/{field}/result"), ANSWER)
+            .await
+            .json()
+    }
+
+    /// Starts watching for availability changes from now on.
+    async fn watch_from_now(&mut self) {
+        self.client.settle(Duration::from_millis(200)).await;
+        self.client.forget();
+    }
+
+    /// Waits for each device's availability to become `text` (after [`Self::watch_from_now`]).
+    async fn wait_all(&mut self, devices: &[&str], text: &str) {
+        for device in devices {
+            self.wait_text(&format!("plant/{device}/availability"), text)
+                .await;
+        }
+    }
+
+    /// No value but the simulators' own was ever published for the fields a fault could
+    /// corrupt, the pty line's devices never went offline once online, and neither did
+    /// `steady` devices.
+    async fn assert_no_wrong_value(&mut self, steady: &[&str]) {
+        self.auditor.settle(Duration::from_millis(500)).await;
+        let values = |topic: &str| -> Vec<String> {
+            self.auditor.on(topic).iter().map(|m| m.text()).collect()
+        };
+        let opening = VALVE_OPENING.to_string();
+        let openings = values("plant/valve/opening");
+        assert!(!openings.is_empty());
+        assert!(
+            openings.iter().all(|v| *v == opening),
+            "valve opening: {openings:?}"
+        );
+        let gear = GW_GEAR.to_string();
+        let gears = values("plant/dust_gw/gear");
+        assert!(gears.contains(&gear), "dust_gw gear: {gears:?}");
+        assert!(
+            gears.iter().skip_while(|v| **v != gear).all(|v| *v == gear),
+            "dust_gw gear: {gears:?}"
+        );
+        for device in ["dust_collector", "air_shower"].iter().chain(steady) {
+            let availability = values(&format!("plant/{device}/availability"));
+            assert!(
+                availability
+                    .iter()
+                    .skip_while(|v| *v != "online")
+                    .all(|v| v == "online"),
+                "{device}: {availability:?}"
+            );
+        }
+    }
+
+    async fn stop(mut self) {
+        if let Some(gateway) = self.gateway.take() {
+            gateway.stop().await;
+        }
+    }
+}
+
+/// Validated as a user's file would be, then polled faster than the profiles' minimums.
+fn fast(text: &str) -> Config {
+    let mut config = config::from_str(text, std::path::Path::new(".")).unwrap();
+    for line in &mut config.lines {
+        for device in &mut line.devices {
+            device.poll_interval = Duration::from_millis(300);
+        }
+    }
+    config
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_field_is_published_and_commands_apply_on_every_transport() {
+    let mut plant = Plant::start("mixed").await;
+    plant
+        .wait_text("plant/dust_gw/gear", &GW_GEAR.to_string())
+        .await;
+    plant.auditor.settle(Duration::from_secs(2)).await;
+    let config = fast(&plant.config_text("x"));
+    for line in &config.lines {
+        for device in &line.devices {
+            for field in device.profile.fields() {
+                let topic = format!("plant/{}/{}", device.name, field.name);
+                assert!(
+                    !plant.auditor.on(&topic).is_empty(),
+                    "{topic} not published"
+                );
+            }
+        }
+    }
+    let last = |topic: &str| {
+        plant
+            .auditor
+            .on(topic)
+            .last()
+            .map(|m| m.text())
+            .unwrap_or_default()
+    };
+    assert_eq!(last("plant/valve/opening"), VALVE_OPENING.to_string());
+    assert_eq!(last("plant/valve/mode"), "manual");
+    assert_eq!(last("plant/dust_gw/power"), "ON");
+    assert_eq!(last("plant/dust_collector/power"), "ON");
+    let pulse = sim::lock(&plant.dust_gw).pulse_interval();
+    assert_eq!(last("plant/dust_gw/pulse_interval"), pulse.to_string());
+
+    // A command on each TCP kind and on the pty.
+    let result = plant.command("valve", "setpoint", "45.67").await;
+    assert_eq!(result["outcome"], "applied", "{result}");
+    assert_eq!(sim::lock(&plant.valve).register(0xB2), Some(0x0045));
+    plant.wait_text("plant/valve/setpoint", "45.67").await;
+    let result = plant.command("shower_gw", "light", "ON").await;
+    assert_eq!(result["outcome"], "applied", "{result}");
+    plant.wait_text("plant/shower_gw/light", "ON").await;
+    let result = plant.command("air_shower", "light", "ON").await;
+    assert_eq!(result["outcome"], "applied", "{result}");
+    // The frames went out as RTU on the raw stream and as MBAP-wrapped RTU to the gateway.
+    assert!(plant
+        .raw
+        .journal()
+        .frames()
+        .iter()
+        .any(|f| f.len() > 2 && f[0] == 0x01 && matches!(f[1], 0x06 | 0x10)));
+    assert!(plant
+        .modbus
+        .journal()
+        .frames()
+        .iter()
+        .any(|f| f.starts_with(&[0x81, 0x0F])));
+    // Statistics and availability work the same on every transport.
+    let stats = plant
+        .client
+        .wait_for("plant/gateway/mixed-gw/stats", ANSWER, |m| {
+            ["line-pty", "line-raw", "line-modbus"].iter().all(|line| {
+                m.json()["lines"][line]["transactions"]
+                    .as_u64()
+                    .unwrap_or(0)
+                    > 0
+            })
+        })
+        .await
+        .json();
+    assert_eq!(stats["devices_total"], 5, "{stats}");
+    plant.assert_no_wrong_value(&[]).await;
+    plant.stop().await;
+}
+
+/// The TCP lines' devices under `fault` on both servers go offline; without it they come
+/// back. Returns the line statistics seen once they are back.
+async fn offline_under_and_back(plant: &mut Plant, fault: fn(&mut TcpFaults)) -> serde_json::Value {
+    const TCP_DEVICES: [&str; 3] = ["valve", "dust_gw", "shower_gw"];
+    plant.watch_from_now().await;
+    for sim in [&plant.raw, &plant.modbus] {
+        sim.tcp_faults().update(fault);
+    }
+    plant.wait_all(&TCP_DEVICES, "offline").await;
+    plant.watch_from_now().await;
+    for sim in [&plant.raw, &plant.modbus] {
+        sim.tcp_faults().clear();
+    }
+    plant.wait_all(&TCP_DEVICES, "online").await;
+    plant
+        .client
+        .next_on(&plant.stats_topic, ANSWER)
+        .await
+        .json()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_closing_mid_answer_fails_transactions_and_the_line_reconnects() {
+    let mut plant = Plant::start("close").await;
+    let stats =
+        offline_under_and_back(&mut plant, |f| f.close_mid_answer = Occurrence::ALWAYS).await;
+    // Each drop failed its transaction (counted with the truncated answers); the next one
+    // reconnected, so the server kept hearing requests and the devices came back.
+    for line in ["line-raw", "line-modbus"] {
+        assert!(
+            stats["lines"][line]["truncated"].as_u64().unwrap_or(0) > 0,
+            "{stats}"
+        );
+        assert_eq!(stats["lines"][line]["port_open"], true, "{stats}");
+    }
+    plant.assert_no_wrong_value(&[]).await;
+    plant.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_that_accepts_but_never_answers_takes_the_devices_offline() {
+    let mut plant = Plant::start("silent").await;
+    let stats = offline_under_and_back(&mut plant, |f| f.never_answer = Occurrence::ALWAYS).await;
+    for line in ["line-raw", "line-modbus"] {
+        assert!(
+            stats["lines"][line]["timeouts"].as_u64().unwrap_or(0) > 0,
+            "{stats}"
+        );
+    }
+    plant.assert_no_wrong_value(&[]).await;
+    plant.stop().await;
+}
+
+/// Answers split across segments, two answers in one segment (the first held back and so
+/// late), garbage before raw answers: every device stays online and every value stays right.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn split_coalesced_and_garbled_streams_never_publish_a_wrong_value() {
+    let mut plant = Plant::start("stream").await;
+    for sim in [&plant.raw, &plant.modbus] {
+        sim.tcp_faults().update(|f| {
+            f.split_answer = Occurrence::probability(0.5);
+            f.split_gap = Duration::from_millis(30);
+        });
+    }
+    // Garbage on a raw stream is skipped by framing. (On Modbus TCP it would put the stream
+    // out of step: the connection is dropped and reopened, see the close test.)
+    plant.raw.tcp_faults().update(|f| {
+        f.garbage_before = Occurrence::probability(0.3);
+        f.garbage_bytes = 4;
+    });
+    for _ in 0..4 {
+        for sim in [&plant.raw, &plant.modbus] {
+            sim.tcp_faults()
+                .update(|f| f.hold_for_next = Occurrence::next(1));
+        }
+        plant.client.settle(Duration::from_millis(1500)).await;
+    }
+    // The held answers came late, with the next ones: dropped and counted on both kinds; the
+    // garbage on the raw stream was skipped and counted.
+    plant
+        .client
+        .wait_for("plant/gateway/stream-gw/stats", ANSWER, |m| {
+            let count =
+                |line: &str, counter: &str| m.json()["lines"][line][counter].as_u64().unwrap_or(0);
+            count("line-modbus", "late_answers") > 0
+                && count("line-raw", "late_answers") > 0
+                && count("line-raw", "stray_bytes") > 0
+        })
+        .await;
+    plant
+        .assert_no_wrong_value(&["valve", "dust_gw", "shower_gw"])
+        .await;
+    plant.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_server_is_reconnected_with_back_off() {
+    let mut plant = Plant::start("restart").await;
+    let address = plant.raw.local_addr().to_string();
+    plant.watch_from_now().await;
+    plant.raw.stop().await;
+    plant.wait_all(&["valve"], "offline").await;
+    // Down for a while: the line keeps trying without giving up.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    plant.raw = bind(
+        &address,
+        Protocol::RawRtu,
+        Parity::Even,
+        plant.raw_devices.clone(),
+    )
+    .await;
+    plant.wait_all(&["valve"], "online").await;
+    assert!(!plant.raw.journal().requests().is_empty());
+    plant.assert_no_wrong_value(&["dust_gw", "shower_gw"]).await;
+    plant.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pymodbus_server_is_read_over_modbus_tcp() {
+    use std::io::BufRead;
+    let port = free_port();
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/modbus_tcp_server.py"
+    );
+    let mut command = Command::new("python3");
+    command
+        .args([script, "127.0.0.1", &port.to_string()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    // Killed when the test ends.
+    let mut server = child::KillOnDrop::spawn(command).expect("python3 runs");
+    let stdout = server.0.stdout.take().unwrap();
+    let ready = tokio::task::spawn_blocking(move || {
+        let mut line = String::new();
+        std::io::BufReader::new(stdout).read_line(&mut line).ok();
+        line
+    })
+    .await
+    .unwrap();
+    assert_eq!(ready.trim(), "listening", "pymodbus server did not start");
+
+    let broker = Mosquitto::start();
+    let mut client = TestClient::connect(broker.port, "pymodbus-observer").await;
+    client.subscribe("plant/#").await;
+    let text = format!(
+        r#"
+[mqtt]
+url = "{broker}"
+client_id = "pymodbus-gw"
+prefix = "plant"
+
+[[lines]]
+name = "line-gw"
+url = "modbus-tcp://127.0.0.1:{port}"
+response_timeout = "1s"
+
+[[lines.devices]]
+name = "dust_collector"
+profile = "ruiwan-dust-collector"
+address = 1
+"#,
+        broker = broker.url()
+    );
+    let gateway = Gateway::start(fast(&text)).await;
+    for (field, value) in [
+        ("power", "ON"),
+        ("gear", "7"),
+        ("pulse_interval", "12"),
+        ("pulse_duration", "3"),
+        ("fan_speed", "1450"),
+        ("temperature", "31"),
+    ] {
+        let value = value.to_string();
+        client
+            .wait_for(&format!("plant/dust_collector/{field}"), ANSWER, move |m| {
+                m.text() == value
+            })
+            .await;
+    }
+    client
+        .wait_for("plant/dust_collector/availability", ANSWER, |m| {
+            m.text() == "online"
+        })
+        .await;
+    gateway.stop().await;
+    drop(server);
+}
+
+/// Runs `rtu2mqtt args…` and returns its exit success and standard output.
+async fn run_cli(args: &[&str]) -> (bool, String) {
+    let mut command = Command::new(child::BIN);
+    command.args(args);
+    let output = child::output(command, Duration::from_secs(60))
+        .await
+        .expect("rtu2mqtt runs and ends");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_and_read_take_a_url_and_never_write() {
+    let raw = bind(
+        "127.0.0.1:0",
+        Protocol::RawRtu,
+        Parity::None,
+        vec![share(DustCollector::new(1)).1],
+    )
+    .await;
+    let modbus = bind(
+        "127.0.0.1:0",
+        Protocol::ModbusTcp,
+        Parity::None,
+        vec![share(DustCollector::new(1)).1, share(AirShower::new()).1],
+    )
+    .await;
+    let (ok, out) = run_cli(&[
+        "read",
+        "--url",
+        &raw.url(),
+        "--address",
+        "1",
+        "--start",
+        "0x1000",
+        "--count",
+        "6",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    assert!(out.contains("request  01 03 10 00 00 06 C1 08"), "{out}");
+    let (ok, out) = run_cli(&[
+        "scan",
+        "--url",
+        &modbus.url(),
+        "--addresses",
+        "1-3,0x81",
+        "--timeout",
+        "300ms",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    assert!(out.contains("  1 (0x01)"), "{out}");
+    assert!(out.contains("129 (0x81)"), "{out}");
+    assert!(!out.contains("  2 (0x02)"), "{out}");
+    for frames in [raw.journal().frames(), modbus.journal().frames()] {
+        assert!(!frames.is_empty());
+        assert!(
+            frames.iter().all(|f| (1..=4).contains(&f[1])),
+            "a frame other than a read: {frames:?}"
+        );
+    }
+}
