@@ -8,12 +8,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use mio_serial::SerialStream;
-use rtu2mqtt::rtu::clock::sleep_until_precise;
-use rtu2mqtt::rtu::codec::{self, request_frame_len};
-use rtu2mqtt::rtu::master::{Error, Master, MasterOptions, Reply};
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt::rtu::transport::{Port, SerialSettings};
-use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
+use rtu2mqtt_modbus::clock::sleep_until_precise;
+use rtu2mqtt_modbus::codec::{self, request_frame_len};
+use rtu2mqtt_modbus::master::{Error, Master, MasterOptions, Reply};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::transport::{Port, SerialSettings};
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -483,7 +483,7 @@ async fn noise_just_before_the_answer_is_skipped() {
 async fn answer_with_another_function_is_unexpected() {
     let other_function = {
         let mut frame = vec![DEVICE, 0x04, 0x04, 0x00, 0x01, 0x00, 0x01];
-        let crc = rtu2mqtt::rtu::crc::crc16(&frame);
+        let crc = rtu2mqtt_modbus::crc::crc16(&frame);
         frame.extend(crc.to_le_bytes());
         frame
     };
@@ -726,5 +726,98 @@ proptest::proptest! {
             assert_answered(&mut master, 2).await;
             assert_silences(&seen_by(device).await);
         });
+    }
+}
+
+/// Instants at which the master wrote each `tx` line of its frame recording.
+#[derive(Clone, Default)]
+struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
+
+impl Write for TxInstants {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        let line = String::from_utf8_lossy(bytes);
+        if line.split_whitespace().nth(1) == Some("tx") {
+            self.0.lock().unwrap().push(Instant::now());
+        }
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The master never drives the line sooner than t3.5 after the answer's last byte, checked
+/// in the direction that holds on any load: the simulator's hand-over of its answer is the
+/// earliest the master can have seen it, and the master records a request before writing
+/// it, so `recorded tx − hand-over` is at most the true silence. Likewise the simulator's
+/// silence before each request runs from that hand-over to when it read the request,
+/// which can only be later than the master's write.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
+    use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+
+    const TRANSACTIONS: usize = 40;
+    let baud = 38_400;
+    let format = CharFormat {
+        data_bits: 8,
+        parity: Parity::None,
+        stop_bits: 1,
+    };
+    let timing = LineTiming::new(baud, format);
+    let (_shower, device) = share(AirShower::new());
+    let line = VirtualLine::spawn(
+        ServeOptions::new(baud, Parity::None).paced(true),
+        vec![device],
+    )
+    .unwrap();
+    let port = Port::open(&SerialSettings {
+        path: line.path().to_string_lossy().into_owned(),
+        baud,
+        format,
+        rs485: None,
+    })
+    .unwrap();
+    let mut master = Master::new(port, timing, MasterOptions::default());
+    let tx_instants = TxInstants::default();
+    master.record_frames_to(Box::new(tx_instants.clone()));
+    let read = Request::ReadCoils {
+        start: 0,
+        quantity: 22,
+    };
+    for _ in 0..TRANSACTIONS {
+        master
+            .transact(0x81, &read, Duration::from_secs(1))
+            .await
+            .unwrap()
+            .unwrap();
+    }
+    // The simulator journals a request once its answer is handed over, which may be a
+    // moment after the master already has that answer: wait for the last record.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let mut records = line.journal().requests();
+    while records.len() < TRANSACTIONS && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        records = line.journal().requests();
+    }
+    let sent = tx_instants.0.lock().unwrap().clone();
+    assert_eq!(records.len(), TRANSACTIONS);
+    assert_eq!(sent.len(), TRANSACTIONS);
+    for (i, pair) in records.windows(2).enumerate() {
+        let handed_over = pair[0].answer_timing.unwrap().handed_over;
+        let next_tx = sent[i + 1];
+        assert!(
+            next_tx.into_std() >= handed_over + timing.t3_5,
+            "request {} recorded {:?} after the answer's hand-over, t3.5 is {:?}",
+            i + 1,
+            next_tx.into_std().saturating_duration_since(handed_over),
+            timing.t3_5
+        );
+        let silence = pair[1].silence_before.unwrap();
+        assert!(
+            silence >= timing.t3_5,
+            "request {} after {silence:?} of silence",
+            i + 1
+        );
     }
 }

@@ -17,7 +17,7 @@ use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::transaction::{Exchange, Failure};
 use super::{Command, CommandFailure, CommandOutcome, LineEvent};
 use crate::profile::{CommandPlan, Verification};
-use crate::rtu::master::PortFault;
+use rtu2mqtt_modbus::master::PortFault;
 
 /// Pause between two read-backs of a command whose device is still moving.
 pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);

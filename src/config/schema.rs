@@ -9,7 +9,7 @@ use serde::Deserialize;
 
 use super::health::HealthSettings;
 use super::sparkplug::SparkplugSettings;
-use crate::rtu::timing::Parity;
+use rtu2mqtt_modbus::timing::Parity;
 
 /// The whole file.
 #[derive(Debug, Clone, Deserialize)]
