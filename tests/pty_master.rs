@@ -75,6 +75,9 @@ enum Act {
     PauseMidAnswer(usize, Duration),
     /// Sends these bytes and the answer right behind them, as one burst.
     NoiseThenAnswer(Vec<u8>),
+    /// Sends the answer one byte at a time at the wire's character rate, as a UART without a
+    /// deep FIFO hands it over, with a pause of this long after the given byte when set.
+    BytePaced(Option<(usize, Duration)>),
 }
 
 /// What the device saw of one request.
@@ -207,6 +210,23 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
                     let drained = send(&mut port, answer[..split].to_vec()).await;
                     sleep_until_precise(drained + pause).await;
                     Some(send(&mut port, answer[split..].to_vec()).await)
+                }
+                Act::BytePaced(pause) => {
+                    let character = timing().char_time;
+                    let mut drained = Instant::now();
+                    for (index, byte) in answer.iter().enumerate() {
+                        let mut due = drained + character;
+                        if let Some((after, length)) = pause {
+                            if index == after {
+                                due += length;
+                            }
+                        }
+                        if index > 0 {
+                            sleep_until_precise(due).await;
+                        }
+                        drained = send(&mut port, vec![*byte]).await;
+                    }
+                    Some(drained)
                 }
                 Act::Raw(bytes) if bytes.is_empty() => None,
                 Act::Raw(bytes) => Some(send(&mut port, bytes).await),
@@ -554,6 +574,52 @@ async fn gap_inside_an_answer_follows_the_inter_character_limit() {
     );
     assert_answered(&mut master, 1).await;
     assert_silences(&seen_by(device).await);
+}
+
+/// The answer ends when its last byte arrives: on a line that hands the answer over byte by
+/// byte at the wire's rate (with and without pauses inside it), the next request follows the
+/// last byte after t3.5 and not a character time more, so the median silence the device sees
+/// stays within half a character of t3.5, and none is shorter than t3.5.
+#[tokio::test(flavor = "current_thread")]
+async fn a_byte_paced_answer_ends_with_its_last_byte() {
+    const TRANSACTIONS: usize = 15;
+    let t3_5 = timing().t3_5;
+    let half_character = timing().char_time / 2;
+    let six_registers = Request::ReadHoldingRegisters {
+        start: 0x0100,
+        quantity: 6,
+    };
+    for pause in [
+        None,
+        Some((8, Duration::from_millis(5))),
+        Some((8, Duration::from_millis(16))),
+    ] {
+        let script = vec![Act::BytePaced(pause); TRANSACTIONS];
+        let (mut master, device) = connect(script, MasterOptions::default());
+        for sequence in 1..=TRANSACTIONS as u16 {
+            let response = master
+                .transact(DEVICE, &six_registers, TIMEOUT)
+                .await
+                .unwrap()
+                .unwrap();
+            assert_eq!(response, Response::HoldingRegisters(vec![sequence; 6]));
+        }
+        let seen = seen_by(device).await;
+        assert_silences(&seen);
+        let mut silences: Vec<Duration> = seen
+            .iter()
+            .filter_map(|request| request.silence_before)
+            .collect();
+        assert_eq!(silences.len(), TRANSACTIONS - 1, "pause {pause:?}");
+        silences.sort();
+        let median = silences[silences.len() / 2];
+        assert!(
+            median <= t3_5 + half_character,
+            "pause {pause:?}: median silence {median:?} after a byte-paced answer, t3.5 is \
+             {t3_5:?}; all: {silences:?}"
+        );
+        assert_eq!(master.counters().truncated, 0, "pause {pause:?}");
+    }
 }
 
 #[tokio::test(flavor = "current_thread")]

@@ -503,6 +503,8 @@ impl Master {
         let gap_limit = self.inter_char_timeout();
         let mut received: Vec<u8> = Vec::new();
         let mut last_byte_at = drained_at;
+        // The answer's rest has had its one timed wait (see below).
+        let mut rest_waited_for = false;
         let mut chunk = [0u8; MAX_FRAME_LEN];
         loop {
             if self.is_unannounced_echo(request, sent, &received) {
@@ -553,8 +555,13 @@ impl Master {
             };
             // Once the length is known (from the third byte on), the rest cannot be complete
             // before its wire time: it is waited for in one go, not with a wake-up per byte.
+            // Only once: bytes still missing after it come a little after their wire time
+            // (a byte-paced line always lags by some microseconds), and their arrival wakes
+            // the read, so that the answer ends, and t3.5 starts, when its last byte came,
+            // not a character time later.
             if let Framing::NeedMore { needed } = framing {
-                if received.len() >= 3 {
+                if received.len() >= 3 && !rest_waited_for {
+                    rest_waited_for = true;
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
                     if due > Instant::now() {
