@@ -576,49 +576,69 @@ async fn gap_inside_an_answer_follows_the_inter_character_limit() {
     assert_silences(&seen_by(device).await);
 }
 
-/// The answer ends when its last byte arrives: on a line that hands the answer over byte by
-/// byte at the wire's rate (with and without pauses inside it), the next request follows the
-/// last byte after t3.5 and not a character time more, so the median silence the device sees
-/// stays within half a character of t3.5, and none is shorter than t3.5.
-#[tokio::test(flavor = "current_thread")]
-async fn a_byte_paced_answer_ends_with_its_last_byte() {
-    const TRANSACTIONS: usize = 15;
-    let t3_5 = timing().t3_5;
-    let half_character = timing().char_time / 2;
+/// The silences a device saw before each request after the first, in a run of `transactions`
+/// reads of six registers answered byte by byte at the wire's rate (with `pause` inside each
+/// answer), sorted. Also checks every answer and that none was shorter than t3.5.
+async fn silences_after_byte_paced_answers(
+    transactions: usize,
+    pause: Option<(usize, Duration)>,
+) -> Vec<Duration> {
     let six_registers = Request::ReadHoldingRegisters {
         start: 0x0100,
         quantity: 6,
     };
+    let script = vec![Act::BytePaced(pause); transactions];
+    let (mut master, device) = connect(script, MasterOptions::default());
+    for sequence in 1..=transactions as u16 {
+        let response = master
+            .transact(DEVICE, &six_registers, TIMEOUT)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(response, Response::HoldingRegisters(vec![sequence; 6]));
+    }
+    assert_eq!(master.counters().truncated, 0, "pause {pause:?}");
+    let seen = seen_by(device).await;
+    assert_silences(&seen);
+    let mut silences: Vec<Duration> = seen
+        .iter()
+        .filter_map(|request| request.silence_before)
+        .collect();
+    assert_eq!(silences.len(), transactions - 1, "pause {pause:?}");
+    silences.sort();
+    silences
+}
+
+/// The answer ends when its last byte arrives: on a line that hands the answer over byte by
+/// byte at the wire's rate (with and without pauses inside it), the next request follows the
+/// last byte after t3.5 and not a character time more, so the median silence the device sees
+/// stays within half a character of t3.5, and none is shorter than t3.5. A master that counts
+/// t3.5 from a read one character late misses that bound in every run; a run on a loaded
+/// machine may miss it by scheduling delays, so each case gets three runs to meet it once.
+#[tokio::test(flavor = "current_thread")]
+async fn a_byte_paced_answer_ends_with_its_last_byte() {
+    const TRANSACTIONS: usize = 15;
+    const RUNS: usize = 3;
+    let t3_5 = timing().t3_5;
+    let bound = t3_5 + timing().char_time / 2;
     for pause in [
         None,
         Some((8, Duration::from_millis(5))),
         Some((8, Duration::from_millis(16))),
     ] {
-        let script = vec![Act::BytePaced(pause); TRANSACTIONS];
-        let (mut master, device) = connect(script, MasterOptions::default());
-        for sequence in 1..=TRANSACTIONS as u16 {
-            let response = master
-                .transact(DEVICE, &six_registers, TIMEOUT)
-                .await
-                .unwrap()
-                .unwrap();
-            assert_eq!(response, Response::HoldingRegisters(vec![sequence; 6]));
+        let mut medians = Vec::new();
+        for _ in 0..RUNS {
+            let silences = silences_after_byte_paced_answers(TRANSACTIONS, pause).await;
+            medians.push(silences[silences.len() / 2]);
+            if medians.last() <= Some(&bound) {
+                break;
+            }
         }
-        let seen = seen_by(device).await;
-        assert_silences(&seen);
-        let mut silences: Vec<Duration> = seen
-            .iter()
-            .filter_map(|request| request.silence_before)
-            .collect();
-        assert_eq!(silences.len(), TRANSACTIONS - 1, "pause {pause:?}");
-        silences.sort();
-        let median = silences[silences.len() / 2];
         assert!(
-            median <= t3_5 + half_character,
-            "pause {pause:?}: median silence {median:?} after a byte-paced answer, t3.5 is \
-             {t3_5:?}; all: {silences:?}"
+            medians.iter().any(|median| *median <= bound),
+            "pause {pause:?}: median silences {medians:?} after byte-paced answers, t3.5 is \
+             {t3_5:?}"
         );
-        assert_eq!(master.counters().truncated, 0, "pause {pause:?}");
     }
 }
 

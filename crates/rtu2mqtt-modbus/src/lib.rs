@@ -17,6 +17,7 @@ pub mod crc;
 pub mod frame;
 pub mod frame_log;
 pub mod link;
+pub mod link_core;
 pub mod master;
 pub mod mbap;
 pub mod stream_framing;

@@ -19,7 +19,7 @@
 //! late answer, whenever it comes, is counted in `late_answers`.
 
 use std::io::Write;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use tokio::time::Instant;
 use tracing::Instrument;
@@ -28,6 +28,7 @@ use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
 use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
+use super::link_core::{Direction, LinkCore};
 use super::timing::LineTiming;
 use super::transport::Port;
 
@@ -227,7 +228,8 @@ pub struct Master {
     port: Port,
     timing: LineTiming,
     options: MasterOptions,
-    counters: WireCounters,
+    /// Counters, frame recorder and late-answer guard.
+    core: LinkCore,
     /// Last instant a byte was seen on the line in either direction (drain instant for ours).
     last_activity: Instant,
     /// Nothing has been sent since the port was opened: the line's state is unknown, and the
@@ -235,9 +237,6 @@ pub struct Master {
     quiet_start: bool,
     /// The precise timer of every silence and wait of this master.
     timer: PreciseTimer,
-    /// After a timeout: the line is watched for the late answer until then before the next
-    /// request to the same address goes out.
-    late_guard_until: Option<Instant>,
     /// The address whose request timed out last, until a request is sent to it again: its late
     /// answer is told from another device's frame by it.
     timed_out_slave: Option<SlaveId>,
@@ -247,7 +246,6 @@ pub struct Master {
     late_answer_counted: bool,
     /// An unannounced adapter echo has been reported.
     echo_warned: bool,
-    recorder: Option<Box<dyn Write + Send>>,
 }
 
 impl std::fmt::Debug for Master {
@@ -256,46 +254,34 @@ impl std::fmt::Debug for Master {
             .field("port", &self.port)
             .field("timing", &self.timing)
             .field("options", &self.options)
-            .field("counters", &self.counters)
+            .field("core", &self.core)
             .finish_non_exhaustive()
     }
 }
 
-fn unix_time_micros() -> String {
-    let since_epoch = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .unwrap_or_default();
-    format!(
-        "{}.{:06}",
-        since_epoch.as_secs(),
-        since_epoch.subsec_micros()
-    )
-}
-
 impl Master {
     pub fn new(port: Port, timing: LineTiming, options: MasterOptions) -> Self {
+        let core = LinkCore::new(port.path().to_string());
         Master {
             port,
             timing,
             options,
-            counters: WireCounters::default(),
+            core,
             // The line's state before we opened it is unknown: treat it as just used.
             last_activity: Instant::now(),
             quiet_start: true,
             timer: PreciseTimer::default(),
-            late_guard_until: None,
             timed_out_slave: None,
             late_window_open: false,
             late_answer_counted: false,
             echo_warned: false,
-            recorder: None,
         }
     }
 
     /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (for bug
     /// reports). A write error stops the recording with a warning.
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        self.recorder = Some(writer);
+        self.core.record_frames_to(writer);
     }
 
     /// The gap between two bytes of one answer beyond which it is declared truncated.
@@ -326,10 +312,9 @@ impl Master {
             .exchange(slave, request, timeout)
             .instrument(span)
             .await;
-        self.counters.count(&result);
+        let guard = self.options.late_answer_guard.unwrap_or(timeout);
+        self.core.settle(slave, &result, Some(guard));
         if let Err(Error::Timeout(_)) = &result {
-            let guard = self.options.late_answer_guard.unwrap_or(timeout);
-            self.late_guard_until = Some(Instant::now() + guard);
             self.timed_out_slave = Some(slave);
             self.late_window_open = true;
             self.late_answer_counted = false;
@@ -348,11 +333,7 @@ impl Master {
         // Only a request to the address that timed out could take its late answer for its own:
         // the guard applies to it alone; for any other address the late answer is a frame
         // from another address, ignored (and counted late).
-        let guard = if self.timed_out_slave == Some(slave) {
-            self.late_guard_until.take()
-        } else {
-            None
-        };
+        let guard = self.core.take_late_guard(slave);
         self.wait_for_silence(guard, timeout).await?;
         if self.timed_out_slave == Some(slave) {
             self.timed_out_slave = None;
@@ -390,7 +371,16 @@ impl Master {
     }
 
     pub fn counters(&self) -> WireCounters {
-        self.counters
+        self.core.counters()
+    }
+
+    /// Counters, frame recorder and late-answer guard.
+    pub fn core(&self) -> &LinkCore {
+        &self.core
+    }
+
+    pub fn core_mut(&mut self) -> &mut LinkCore {
+        &mut self.core
     }
 
     pub fn timing(&self) -> LineTiming {
@@ -452,16 +442,16 @@ impl Master {
     /// bytes otherwise. Either way they restart the line's silence.
     fn absorb_unsolicited(&mut self, bytes: &[u8], seen: Instant) {
         self.last_activity = self.last_activity.max(seen);
-        self.counters.wire_time += self.timing.frame_time(bytes.len());
-        self.record("rx", bytes);
+        self.core.counters_mut().wire_time += self.timing.frame_time(bytes.len());
+        self.core.record(Direction::Rx, bytes);
         if self.late_window_open {
             if !self.late_answer_counted {
-                self.counters.late_answers += 1;
+                self.core.counters_mut().late_answers += 1;
                 self.late_answer_counted = true;
             }
             tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "late answer discarded");
         } else {
-            self.counters.stray_bytes += bytes.len() as u64;
+            self.core.counters_mut().stray_bytes += bytes.len() as u64;
             tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "stray bytes discarded");
         }
     }
@@ -476,14 +466,14 @@ impl Master {
 
     /// Writes `frame`, waits for the drain and returns its instant.
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
-        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "tx");
-        self.record("tx", frame);
-        self.counters.requests += 1;
+        self.core.record(Direction::Tx, frame);
+        self.core.counters_mut().requests += 1;
         self.late_window_open = false;
         self.quiet_start = false;
         let drained_at = self.port.write_frame(frame).await?;
         self.last_activity = drained_at;
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.core.counters_mut().wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
         Ok(drained_at)
     }
 
@@ -576,7 +566,7 @@ impl Master {
                     && seen.duration_since(last_byte_at)
                         > self.timing.frame_time(count) + self.timing.t1_5
                 {
-                    self.counters.long_gaps += 1;
+                    self.core.counters_mut().long_gaps += 1;
                 }
                 received.extend_from_slice(&chunk[..count]);
                 last_byte_at = seen;
@@ -637,7 +627,7 @@ impl Master {
         if echoed == sent {
             return Ok(());
         }
-        self.record("rx", &echoed);
+        self.core.record(Direction::Rx, &echoed);
         tracing::warn!(port = %self.port.path(), sent = %codec::hex(sent), echoed = %codec::hex(&echoed), "echo differs from the frame sent");
         if echoed.is_empty() {
             return Err(Error::Timeout(timeout));
@@ -720,10 +710,10 @@ impl Master {
             .first()
             .is_some_and(|&address| Some(address) == self.timed_out_slave);
         if from_timed_out_slave && !self.late_answer_counted {
-            self.counters.late_answers += 1;
+            self.core.counters_mut().late_answers += 1;
             self.late_answer_counted = true;
         } else {
-            self.counters.wrong_address += 1;
+            self.core.counters_mut().wrong_address += 1;
         }
         self.took_frame(frame);
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "frame for another address ignored");
@@ -744,9 +734,9 @@ impl Master {
 
     /// Accounts for a received frame (log, recorder, wire time).
     fn took_frame(&mut self, frame: &[u8]) {
-        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "rx");
-        self.record("rx", frame);
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.core.record(Direction::Rx, frame);
+        self.core.counters_mut().wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
     }
 
     fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
@@ -756,24 +746,6 @@ impl Master {
             Err(DecodeError::BadCrc { .. }) => Err(Error::Crc),
             Err(DecodeError::Truncated { needed, got }) => Err(Error::Truncated { needed, got }),
             Err(other) => Err(Error::UnexpectedReply(other)),
-        }
-    }
-
-    fn record(&mut self, direction: &str, bytes: &[u8]) {
-        let Some(writer) = self.recorder.as_mut() else {
-            return;
-        };
-        let line = format!(
-            "{} {direction} {}\n",
-            unix_time_micros(),
-            codec::hex(bytes).replace(' ', "")
-        );
-        if let Err(error) = writer
-            .write_all(line.as_bytes())
-            .and_then(|()| writer.flush())
-        {
-            tracing::warn!(port = %self.port.path(), %error, "frame recording stopped");
-            self.recorder = None;
         }
     }
 }
