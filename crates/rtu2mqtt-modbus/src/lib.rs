@@ -25,4 +25,9 @@ pub mod tcp_link;
 pub mod timing;
 pub mod transport;
 
+// The README's example compiles as a doctest.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;
+
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
