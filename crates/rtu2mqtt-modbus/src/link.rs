@@ -61,17 +61,17 @@ impl Link {
     /// The link's counters, frame recorder and late-answer guard.
     pub fn core(&self) -> &LinkCore {
         match self {
-            Link::Serial(master) => master.core(),
-            Link::RawTcp(master) => master.core(),
-            Link::ModbusTcp(master) => master.core(),
+            Link::Serial(master) => &master.core,
+            Link::RawTcp(master) => &master.connection.core,
+            Link::ModbusTcp(master) => &master.connection.core,
         }
     }
 
     pub fn core_mut(&mut self) -> &mut LinkCore {
         match self {
-            Link::Serial(master) => master.core_mut(),
-            Link::RawTcp(master) => master.core_mut(),
-            Link::ModbusTcp(master) => master.core_mut(),
+            Link::Serial(master) => &mut master.core,
+            Link::RawTcp(master) => &mut master.connection.core,
+            Link::ModbusTcp(master) => &mut master.connection.core,
         }
     }
 

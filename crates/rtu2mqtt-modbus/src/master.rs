@@ -229,7 +229,7 @@ pub struct Master {
     timing: LineTiming,
     options: MasterOptions,
     /// Counters, frame recorder and late-answer guard.
-    core: LinkCore,
+    pub(crate) core: LinkCore,
     /// Last instant a byte was seen on the line in either direction (drain instant for ours).
     last_activity: Instant,
     /// Nothing has been sent since the port was opened: the line's state is unknown, and the
@@ -372,15 +372,6 @@ impl Master {
 
     pub fn counters(&self) -> WireCounters {
         self.core.counters()
-    }
-
-    /// Counters, frame recorder and late-answer guard.
-    pub fn core(&self) -> &LinkCore {
-        &self.core
-    }
-
-    pub fn core_mut(&mut self) -> &mut LinkCore {
-        &mut self.core
     }
 
     pub fn timing(&self) -> LineTiming {

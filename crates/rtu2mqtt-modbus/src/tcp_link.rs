@@ -1,6 +1,6 @@
 //! Modbus transactions over TCP, one at a time: raw RTU frames on the stream of a serial device
 //! server (`tcp://`, [`RawTcpMaster`]) and Modbus TCP to a TCP-to-RTU gateway (`modbus-tcp://`,
-//! [`ModbusTcpMaster`]). Both keep one connection ([`Connection`]: connect timeout, TCP
+//! [`ModbusTcpMaster`]). Both keep one connection (`Connection`: connect timeout, TCP
 //! keepalive, reconnected inside the next transaction after it dropped).
 //!
 //! A connection that drops while an answer is awaited fails that transaction with
@@ -153,14 +153,14 @@ impl Default for TcpOptions {
 
 /// One TCP connection to the server, reopened on demand, with the link's counters, frame
 /// recording and late-answer guard.
-struct Connection {
+pub(crate) struct Connection {
     endpoint: TcpEndpoint,
     options: TcpOptions,
     stream: Option<TcpStream>,
     /// Bytes read and not yet framed.
     buffer: Vec<u8>,
     /// Counters, frame recorder and late-answer guard; labelled with the url.
-    core: LinkCore,
+    pub(crate) core: LinkCore,
 }
 
 impl std::fmt::Debug for Connection {
@@ -298,7 +298,7 @@ fn reply_of(answer: Answer) -> Reply {
 /// counted late).
 #[derive(Debug)]
 pub struct RawTcpMaster {
-    connection: Connection,
+    pub(crate) connection: Connection,
     timing: LineTiming,
     /// The server's serial side may be driven again from this instant.
     next_send_at: Instant,
@@ -319,15 +319,6 @@ impl RawTcpMaster {
             next_send_at: Instant::now(),
             timer: PreciseTimer::default(),
         })
-    }
-
-    /// Counters, frame recorder and late-answer guard.
-    pub fn core(&self) -> &LinkCore {
-        &self.connection.core
-    }
-
-    pub fn core_mut(&mut self) -> &mut LinkCore {
-        &mut self.connection.core
     }
 
     /// Sends `request` to `slave` and waits up to `timeout` (from the instant it was handed to
@@ -492,7 +483,7 @@ impl RawTcpMaster {
 /// own serial side; its busy time (request sent to answer received) is counted as wire time.
 #[derive(Debug)]
 pub struct ModbusTcpMaster {
-    connection: Connection,
+    pub(crate) connection: Connection,
     next_transaction: u16,
 }
 
@@ -503,15 +494,6 @@ impl ModbusTcpMaster {
             // Not 0: some gateways treat id 0 specially.
             next_transaction: 1,
         })
-    }
-
-    /// Counters, frame recorder and late-answer guard.
-    pub fn core(&self) -> &LinkCore {
-        &self.connection.core
-    }
-
-    pub fn core_mut(&mut self) -> &mut LinkCore {
-        &mut self.connection.core
     }
 
     /// Sends `request` to `unit` and waits up to `timeout` for the answer with its id.
