@@ -13,6 +13,7 @@
 // prints with `{:?}`, the 2018 idioms.
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
+mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;

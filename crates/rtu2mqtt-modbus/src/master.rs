@@ -24,9 +24,9 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
+use super::answer_framing::{complete_foreign_frame, framing, noise_before_answer, Framing};
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
-use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 use super::link_core::{Direction, LinkCore};
 use super::timing::LineTiming;
@@ -207,20 +207,6 @@ impl std::ops::Add for WireCounters {
         self += other;
         self
     }
-}
-
-/// How far the bytes received so far go towards an answer.
-enum Framing {
-    /// Not enough bytes to tell; wait for more (or give up at the gap limit).
-    NeedMore { needed: usize },
-    /// An answer of this many bytes is complete at the start of the buffer.
-    Complete(usize),
-    /// A frame for someone else: read it to its end (a gap), then drop it.
-    Foreign,
-    /// The bytes so far repeat our own request: possibly an echo.
-    EchoCandidate,
-    /// A function code that is neither ours nor our exception: read to a gap, then reject.
-    UnknownLength,
 }
 
 /// Runs transactions on one line.
@@ -500,7 +486,7 @@ impl Master {
                 self.absorb_noise(&received, last_byte_at);
                 received = rest;
             }
-            let framing = self.framing(slave, request, sent, &received);
+            let framing = framing(slave, request, sent, &received, self.options.echo);
             if let Framing::Foreign = framing {
                 // Another device's frame whose length and CRC check out ends here; whatever
                 // follows may be our answer.
@@ -638,62 +624,6 @@ impl Master {
         !self.options.echo && !answer_may_equal_request && received.starts_with(sent)
     }
 
-    /// Where the bytes received so far stand.
-    fn framing(&self, slave: SlaveId, request: &Request, sent: &[u8], received: &[u8]) -> Framing {
-        let function = request.function();
-        let (Some(&address), Some(&found_function)) = (received.first(), received.get(1)) else {
-            return match received.first() {
-                Some(&address) if address != slave => Framing::Foreign,
-                _ => Framing::NeedMore {
-                    needed: request.answer_len(),
-                },
-            };
-        };
-        if address != slave {
-            return Framing::Foreign;
-        }
-        // Single writes are answered with a copy of the request: no echo can be told from them.
-        let answer_may_equal_request = matches!(
-            function,
-            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
-        );
-        if !self.options.echo
-            && !answer_may_equal_request
-            && received.len() < sent.len()
-            && sent.starts_with(received)
-        {
-            return Framing::EchoCandidate;
-        }
-        let needed = if found_function == function.value() | 0x80 {
-            codec::EXCEPTION_FRAME_LEN
-        } else if found_function == function.value() {
-            if request.is_read() {
-                match received.get(2) {
-                    // Framed by the byte count the device claims; the decoder checks it.
-                    Some(&count) => 5 + usize::from(count),
-                    None => {
-                        return Framing::NeedMore {
-                            needed: request.answer_len(),
-                        }
-                    }
-                }
-            } else {
-                request.answer_len()
-            }
-        } else {
-            return if received.len() >= MAX_FRAME_LEN {
-                Framing::Complete(MAX_FRAME_LEN)
-            } else {
-                Framing::UnknownLength
-            };
-        };
-        if received.len() >= needed {
-            Framing::Complete(needed)
-        } else {
-            Framing::NeedMore { needed }
-        }
-    }
-
     /// A frame for another address: counted and dropped; listening goes on (serial-line
     /// specification 2.4.1).
     fn ignore_foreign_frame(&mut self, frame: &[u8]) {
@@ -741,54 +671,9 @@ impl Master {
     }
 }
 
-/// The length of the answer frame at the start of `received` when its function code gives the
-/// length, all of it has arrived and its CRC is right (`None` otherwise).
-fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
-    let function = *received.get(1)?;
-    let length = if function & 0x80 != 0 {
-        codec::EXCEPTION_FRAME_LEN
-    } else {
-        match FunctionCode::from_u8(function)? {
-            FunctionCode::ReadCoils
-            | FunctionCode::ReadDiscreteInputs
-            | FunctionCode::ReadHoldingRegisters
-            | FunctionCode::ReadInputRegisters => 5 + usize::from(*received.get(2)?),
-            _ => 8,
-        }
-    };
-    let frame = received.get(..length)?;
-    let (carried, computed) = carried_and_computed(frame)?;
-    (carried == computed).then_some(length)
-}
-
-/// How many bytes at the start of `received` are noise before our answer: the head is neither
-/// our answer's (our address, our function or its exception) nor another device's frame
-/// (a known function code), and our answer's head starts further on. `None`: nothing to skip
-/// (yet).
-fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) -> Option<usize> {
-    let ours = |code: u8| code == function.value() || code == function.value() | 0x80;
-    let known = |code: u8| FunctionCode::from_u8(code & 0x7F).is_some();
-    let head_function = *received.get(1)?;
-    let plausible_head = if received[0] == slave {
-        ours(head_function)
-    } else {
-        known(head_function)
-    };
-    if plausible_head {
-        return None;
-    }
-    (1..received.len()).find(|&start| {
-        received[start] == slave && received.get(start + 1).map_or(true, |&code| ours(code))
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
-        codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
-    }
 
     #[test]
     fn counters_add_field_by_field() {
@@ -823,39 +708,5 @@ mod tests {
             }
         );
         assert_eq!(WireCounters::default() + one, one);
-    }
-
-    #[test]
-    fn noise_is_found_only_before_our_answer_head() {
-        let ours = answer(0x11, &[1, 2]);
-        let read = FunctionCode::ReadHoldingRegisters;
-        assert_eq!(noise_before_answer(0x11, read, &ours), None);
-        let mut noisy = vec![0x00, 0xFF];
-        noisy.extend_from_slice(&ours);
-        assert_eq!(noise_before_answer(0x11, read, &noisy), Some(2));
-        // Another device's frame is not noise: it is read to its end.
-        let foreign = answer(0x22, &[1, 2]);
-        assert_eq!(noise_before_answer(0x11, read, &foreign), None);
-        // Our address with a wrong function and no answer head behind it: not skipped.
-        assert_eq!(
-            noise_before_answer(0x11, read, &[0x11, 0x04, 0x04, 0x00]),
-            None
-        );
-        // Too little to tell.
-        assert_eq!(noise_before_answer(0x11, read, &[0x00]), None);
-    }
-
-    #[test]
-    fn foreign_frame_is_complete_only_with_its_length_and_crc() {
-        let foreign = answer(0x22, &[7, 8]);
-        assert_eq!(complete_foreign_frame(&foreign[..foreign.len() - 1]), None);
-        let mut followed = foreign.clone();
-        followed.extend_from_slice(&answer(0x11, &[1, 2]));
-        assert_eq!(complete_foreign_frame(&followed), Some(foreign.len()));
-        let mut corrupted = foreign.clone();
-        corrupted[3] ^= 0x01;
-        assert_eq!(complete_foreign_frame(&corrupted), None);
-        let exception = codec::encode_exception(0x22, 0x03, ExceptionCode::IllegalDataAddress);
-        assert_eq!(complete_foreign_frame(&exception), Some(5));
     }
 }
