@@ -19,11 +19,13 @@ WORKDIR /src
 # static binary that maps no shared C library; its wire timing's tail is longer:
 # docs/performance.md. This image ships the default build.)
 COPY Cargo.toml Cargo.lock ./
+COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \
  && cargo build --release --locked \
- && rm -rf src benches target/release/rtu2mqtt* target/release/deps/rtu2mqtt-* \
-           target/release/deps/librtu2mqtt-* target/release/.fingerprint/rtu2mqtt-*
+ && rm -rf src benches crates/rtu2mqtt-modbus/src target/release/rtu2mqtt* \
+           target/release/deps/rtu2mqtt-* target/release/deps/librtu2mqtt-* \
+           target/release/deps/librtu2mqtt_modbus-* target/release/.fingerprint/rtu2mqtt-*
 
 COPY . .
 RUN cargo build --release --locked --bin rtu2mqtt \

@@ -20,11 +20,11 @@ use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
 use rtu2mqtt::profile::{DeviceState, Profile};
-use rtu2mqtt::rtu::frame_log::FrameLog;
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt::rtu::transport::SerialSettings;
 use rtu2mqtt::shutdown;
 use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+use rtu2mqtt_modbus::frame_log::FrameLog;
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::transport::SerialSettings;
 
 const AIR_SHOWER_TOML: &str = include_str!("../config/profiles/lixian-air-shower.toml");
 const WARM_UP: Duration = Duration::from_secs(2);

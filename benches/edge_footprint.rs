@@ -29,8 +29,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use rtu2mqtt::profile::Profile;
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt::sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLine};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use support::{Mosquitto, TestClient};
 
 const BAUD: u32 = 9600;

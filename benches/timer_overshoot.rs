@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use rtu2mqtt::rtu::clock::sleep_until_precise;
+use rtu2mqtt_modbus::clock::sleep_until_precise;
 
 const ROUNDS: u64 = 200;
 

@@ -4,11 +4,12 @@
 //! (`tests/it/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
 //!
 //! - [`shutdown`]: the shutdown token every task holds.
-//! - [`rtu`]: Modbus on the wire. Frame types with their arithmetic, CRC, the codec (pure byte
-//!   work), line timing (character time, t1.5, t3.5, response timeout), the serial transport,
-//!   the [`rtu::master`] that runs exactly one RTU transaction on a port with legal timing, and
-//!   the TCP links (raw RTU to a serial device server, Modbus TCP to a gateway) behind one
-//!   [`rtu::link::Link`].
+//! - Modbus on the wire lives in its own crate, [`rtu2mqtt_modbus`] (`crates/rtu2mqtt-modbus`),
+//!   below every module here: frame types with their arithmetic, CRC, the codec (pure byte
+//!   work), line timing (character time, t1.5, t3.5, response timeout), the answer framer, the
+//!   serial transport and master that run exactly one RTU transaction on a port with legal
+//!   timing, and the TCP links (raw RTU to a serial device server, Modbus TCP to a gateway)
+//!   behind one [`rtu2mqtt_modbus::link::Link`]. It knows nothing of MQTT or the configuration.
 //! - [`profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
 //!   and write rules; pure functions decode raw blocks into field values and turn a command into
 //!   the frames of one bus slot. No I/O.
@@ -48,7 +49,6 @@ pub mod config;
 pub mod contract;
 pub mod health;
 pub mod profile;
-pub mod rtu;
 pub mod shutdown;
 pub mod sim;
 pub mod sparkplug;

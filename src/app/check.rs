@@ -11,7 +11,7 @@ use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
 use crate::config::plan::LinePlan;
 use crate::config::{self, Config};
-use crate::rtu::tcp_link::TcpKind;
+use rtu2mqtt_modbus::tcp_link::TcpKind;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {

@@ -23,9 +23,9 @@ use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::{self, Config};
 use crate::health;
-use crate::rtu::frame_log::FrameLog;
 use crate::shutdown::{self, Shutdown};
 use crate::sparkplug::{self, NodeLinks};
+use rtu2mqtt_modbus::frame_log::FrameLog;
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
 const LINE_EVENTS: usize = 1024;

@@ -14,13 +14,13 @@ use anyhow::{bail, Context as _};
 
 use crate::app::simulate::parse_parity;
 use crate::cli::ReadArgs;
-use crate::rtu::codec::{encode_answer, encode_request, hex};
-use crate::rtu::link::Link;
-use crate::rtu::master::{Master, MasterOptions};
-use crate::rtu::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions};
-use crate::rtu::timing::{CharFormat, LineTiming, Parity};
-use crate::rtu::transport::{Port, SerialSettings, TransportError};
-use crate::rtu::{Request, Response, SlaveId};
+use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::transport::{Port, SerialSettings, TransportError};
+use rtu2mqtt_modbus::{Request, Response, SlaveId};
 
 /// The read request for `function` 1–4 (anything else is refused: this tool never writes).
 pub fn read_request(function: u8, start: u16, count: u16) -> anyhow::Result<Request> {

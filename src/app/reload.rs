@@ -18,8 +18,8 @@ use crate::bridge::core::BridgeDevice;
 use crate::bridge::Reconfiguration;
 use crate::bus::{spawn_line, LineEvent, LineHandle, LineSpec, LineStats};
 use crate::config::{self, Config};
-use crate::rtu::frame_log::FrameLog;
 use crate::shutdown::{Shutdown, ShutdownTrigger};
+use rtu2mqtt_modbus::frame_log::FrameLog;
 
 /// Where a reload reads its configuration, and the requests for one.
 #[derive(Debug)]

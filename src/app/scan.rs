@@ -29,10 +29,10 @@ use anyhow::{bail, Context as _};
 use super::read::{read_request, Target};
 use crate::app::simulate::parse_parity;
 use crate::cli::ScanArgs;
-use crate::rtu::link::Link;
-use crate::rtu::master;
-use crate::rtu::timing::{CharFormat, Parity};
-use crate::rtu::{Request, SlaveId};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master;
+use rtu2mqtt_modbus::timing::{CharFormat, Parity};
+use rtu2mqtt_modbus::{Request, SlaveId};
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]

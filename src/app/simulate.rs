@@ -12,9 +12,9 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 
 use crate::cli::SimulateArgs;
-use crate::rtu::timing::Parity;
 use crate::sim::faults::FaultHandle;
 use crate::sim::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
+use rtu2mqtt_modbus::timing::Parity;
 
 /// Parses `none | even | odd`.
 pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
@@ -138,8 +138,8 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                 _ = ticker.tick() => {
                     for record in journal.drain_requests() {
                         tracing::info!(
-                            request = %crate::rtu::codec::hex(&record.frame),
-                            answer = %record.answer.as_deref().map(crate::rtu::codec::hex).unwrap_or_else(|| "-".into()),
+                            request = %rtu2mqtt_modbus::codec::hex(&record.frame),
+                            answer = %record.answer.as_deref().map(rtu2mqtt_modbus::codec::hex).unwrap_or_else(|| "-".into()),
                             crc_ok = record.crc_ok,
                             "frame"
                         );

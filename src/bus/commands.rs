@@ -17,8 +17,8 @@ use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
 use super::{Command, CommandFailure, CommandOutcome};
 use crate::profile::{CommandPlan, Verification};
-use crate::rtu::link::Link;
-use crate::rtu::master::PortFault;
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::PortFault;
 
 /// Pause between two read-backs of a command whose device is still moving.
 pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);

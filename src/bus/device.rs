@@ -5,7 +5,7 @@
 //! frames are run here.
 
 use crate::profile::Value;
-use crate::rtu::Response;
+use rtu2mqtt_modbus::Response;
 
 use super::stats::DeviceStats;
 use super::DeviceSpec;

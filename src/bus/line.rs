@@ -33,11 +33,11 @@ use super::{
     Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats, Transport,
 };
 use crate::profile::Profile;
-use crate::rtu::link::Link;
-use crate::rtu::master::{PortFault, WireCounters};
-use crate::rtu::timing::LineTiming;
-use crate::rtu::transport::TransportError;
 use crate::shutdown::Shutdown;
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::{PortFault, WireCounters};
+use rtu2mqtt_modbus::timing::LineTiming;
+use rtu2mqtt_modbus::transport::TransportError;
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub const COMMAND_QUEUE: usize = 64;
@@ -730,12 +730,12 @@ mod tests {
         let profile = crate::profile::registry::built_in("wuzhou-valve").unwrap();
         let spec = LineSpec {
             name: "line-x".into(),
-            serial: crate::rtu::transport::SerialSettings {
+            serial: rtu2mqtt_modbus::transport::SerialSettings {
                 path: path.display().to_string(),
                 baud: 9600,
-                format: crate::rtu::timing::CharFormat {
+                format: rtu2mqtt_modbus::timing::CharFormat {
                     data_bits: 8,
-                    parity: crate::rtu::timing::Parity::Even,
+                    parity: rtu2mqtt_modbus::timing::Parity::Even,
                     stop_bits: 1,
                 },
                 rs485: None,

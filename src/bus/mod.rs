@@ -1,5 +1,5 @@
 //! One task per line (a serial port or a TCP link). [`spawn_line`] starts it: it owns the port (through
-//! [`crate::rtu::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
+//! [`rtu2mqtt_modbus::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
 //! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll.
@@ -23,9 +23,9 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 
 use crate::profile::{CommandPlan, Profile, Value};
-use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
-use crate::rtu::transport::SerialSettings;
-use crate::rtu::SlaveId;
+use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::transport::SerialSettings;
+use rtu2mqtt_modbus::SlaveId;
 
 pub use outcome::CommandFailure;
 pub use stats::LineStats;
@@ -89,7 +89,7 @@ pub struct LineSpec {
     /// Longest pause inside an answer (None: the master's default).
     pub byte_timeout: Option<Duration>,
     /// Record every frame of the line here (`gateway.frame_log`).
-    pub frame_log: Option<crate::rtu::frame_log::FrameLog>,
+    pub frame_log: Option<rtu2mqtt_modbus::frame_log::FrameLog>,
     pub devices: Vec<DeviceSpec>,
 }
 

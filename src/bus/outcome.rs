@@ -3,8 +3,8 @@
 //! `Display` is the detail the bridge reports; a command's whole outcome reads as words in the
 //! line's log. Nothing here runs frames.
 
-use crate::rtu::master::{Error as MasterError, PortFault};
-use crate::rtu::ExceptionCode;
+use rtu2mqtt_modbus::master::{Error as MasterError, PortFault};
+use rtu2mqtt_modbus::ExceptionCode;
 
 use super::transaction::Failure;
 

@@ -4,9 +4,9 @@
 //! device's health. Decoding and reporting are the line's.
 
 use crate::profile::ReadBlock;
-use crate::rtu::link::Link;
-use crate::rtu::master::Reply;
-use crate::rtu::{ExceptionCode, Response};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::{ExceptionCode, Response};
 
 use super::device::DeviceRuntime;
 use super::scheduler::PollOutcome;

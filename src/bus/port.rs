@@ -13,11 +13,11 @@
 
 use std::time::{Duration, Instant};
 
-use crate::rtu::link::Link;
-use crate::rtu::master::{Master, MasterOptions};
-use crate::rtu::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpKind};
-use crate::rtu::timing::LineTiming;
-use crate::rtu::transport::{Port, TransportError};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpKind};
+use rtu2mqtt_modbus::timing::LineTiming;
+use rtu2mqtt_modbus::transport::{Port, TransportError};
 
 use super::{LineSpec, Transport};
 

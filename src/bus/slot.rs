@@ -13,9 +13,9 @@
 use std::time::Instant;
 
 use crate::profile::{CommandPlan, Verification};
-use crate::rtu::link::Link;
-use crate::rtu::master::{Error as MasterError, PortFault};
-use crate::rtu::{ExceptionCode, Request, Response};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::{Error as MasterError, PortFault};
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 
 use super::outcome::CommandFailure;
 use super::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};

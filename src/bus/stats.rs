@@ -4,7 +4,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use crate::rtu::master::WireCounters;
+use rtu2mqtt_modbus::master::WireCounters;
 
 /// Counters and latencies of one device.
 #[derive(Debug, PartialEq)]

@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 
 use tracing::Instrument;
 
-use crate::rtu::link::Link;
-use crate::rtu::master::{Error as MasterError, PortFault, Reply};
-use crate::rtu::{Request, SlaveId};
+use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::master::{Error as MasterError, PortFault, Reply};
+use rtu2mqtt_modbus::{Request, SlaveId};
 
 use super::stats::DeviceStats;
 use super::DeviceSpec;

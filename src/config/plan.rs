@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::profile::PollClass;
-use crate::rtu::timing::LineTiming;
+use rtu2mqtt_modbus::timing::LineTiming;
 
 /// One device's share of its line.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,7 +86,7 @@ impl LinePlan {
 }
 
 /// Wire time of one transaction: request, answer and the t3.5 silence after each.
-pub fn transaction_wire_time(timing: &LineTiming, request: &crate::rtu::Request) -> Duration {
+pub fn transaction_wire_time(timing: &LineTiming, request: &rtu2mqtt_modbus::Request) -> Duration {
     let request_len = request.frame_len();
     let answer_len = request.answer_len();
     timing.frame_time(request_len) + timing.frame_time(answer_len) + 2 * timing.t3_5

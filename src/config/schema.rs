@@ -10,7 +10,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::health::HealthSettings;
-use crate::rtu::timing::Parity;
+use rtu2mqtt_modbus::timing::Parity;
 
 /// The whole file.
 #[derive(Debug, Clone, Deserialize)]

@@ -16,9 +16,9 @@ use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings
 use crate::bus::{DeviceSpec, LineSpec, Transport};
 use crate::contract::{self, reserved_name_problem, MAX_TOPIC_LEN};
 use crate::profile::Profile;
-use crate::rtu::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
-use crate::rtu::timing::CharFormat;
-use crate::rtu::transport::{Rs485Settings, SerialSettings};
+use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::timing::CharFormat;
+use rtu2mqtt_modbus::transport::{Rs485Settings, SerialSettings};
 
 /// Baud rates a Modbus RTU line may be configured with.
 pub const ALLOWED_BAUDS: &[u32] = &[

@@ -19,8 +19,8 @@ use super::model::{
     Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass, ReadBlock, WriteFrame,
 };
 use super::value::Value;
-use crate::rtu::timing::Parity;
-use crate::rtu::Request;
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_modbus::Request;
 
 /// One problem in a profile, with its place (`file: fields[3] (gear).write.address`).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

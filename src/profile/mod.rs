@@ -25,7 +25,7 @@ pub mod value;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use crate::rtu::{Request, Response};
+use rtu2mqtt_modbus::{Request, Response};
 
 pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Verification};

@@ -12,8 +12,8 @@ use serde::Deserialize;
 use super::codec::FieldCodec;
 use super::field::FieldInfo;
 use super::value::Value;
-use crate::rtu::timing::Parity;
-use crate::rtu::Request;
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_modbus::Request;
 
 /// How often a block is read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -6,7 +6,7 @@
 use super::codec::BlockImage;
 use super::model::Behaviour;
 use super::{FieldKind, Profile, Value};
-use crate::rtu::{Request, Response};
+use rtu2mqtt_modbus::{Request, Response};
 
 impl Profile {
     /// A plausible value for a field: the middle of a number's range, the first option of an

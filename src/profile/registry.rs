@@ -119,8 +119,8 @@ fn describe_kind(kind: &FieldKind) -> String {
     }
 }
 
-fn describe_read(request: &crate::rtu::Request) -> String {
-    use crate::rtu::Request;
+fn describe_read(request: &rtu2mqtt_modbus::Request) -> String {
+    use rtu2mqtt_modbus::Request;
     match request {
         Request::ReadCoils { start, quantity }
         | Request::ReadDiscreteInputs { start, quantity }
@@ -196,7 +196,7 @@ pub fn describe(profile: &Profile) -> String {
     if !profile.description().is_empty() {
         let _ = writeln!(out, "  {}", profile.description());
     }
-    let parity = crate::rtu::timing::CharFormat {
+    let parity = rtu2mqtt_modbus::timing::CharFormat {
         data_bits: 8,
         parity: limits.default_parity,
         stop_bits: 1,

@@ -10,7 +10,7 @@
 use std::time::{Duration, Instant};
 
 use super::{Addressing, Reply, SimDevice};
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// The device's fixed address.
 pub const ADDRESS: SlaveId = 0x81;

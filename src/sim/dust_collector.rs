@@ -14,7 +14,7 @@
 use std::time::{Duration, Instant};
 
 use super::{Reply, SimDevice};
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// First register of the device's table.
 pub const BASE: u16 = 0x1000;

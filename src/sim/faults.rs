@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use rand::Rng;
 
-use crate::rtu::frame::{ExceptionCode, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, SlaveId};
 
 /// When a fault strikes: the next `next` answers, and after those each answer with
 /// `probability` (0 = never, 1 = always).

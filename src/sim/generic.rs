@@ -14,7 +14,7 @@ use std::time::Instant;
 use super::{Reply, SimDevice};
 use crate::profile::codec::RawPatch;
 use crate::profile::{FieldKind, Profile, ReadBlock};
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// The four Modbus tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

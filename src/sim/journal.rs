@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::rtu::frame::SlaveId;
+use rtu2mqtt_modbus::frame::SlaveId;
 
 /// One frame received by the simulated line.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -19,7 +19,7 @@
 //!
 //! ```no_run
 //! # async fn example() -> std::io::Result<()> {
-//! use rtu2mqtt::rtu::timing::Parity;
+//! use rtu2mqtt_modbus::timing::Parity;
 //! use rtu2mqtt::sim::{lock, share, AirShower, DustCollector, Occurrence, ServeOptions, VirtualLine};
 //!
 //! let (dust, dust_shared) = share(DustCollector::new(1));
@@ -50,7 +50,7 @@ pub mod wire;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 pub use air_shower::AirShower;
 pub use dust_collector::DustCollector;

@@ -5,7 +5,7 @@
 use std::sync::{Arc, Mutex};
 
 use super::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
-use crate::rtu::timing::Parity;
+use rtu2mqtt_modbus::timing::Parity;
 
 /// The three seed devices on two served ptys, with typed handles on each device.
 #[derive(Debug)]

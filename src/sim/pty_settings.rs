@@ -52,10 +52,10 @@ mod tests {
 
     #[test]
     fn garbled_answer_fails_its_crc() {
-        let mut answer = crate::rtu::codec::encode_exception(
+        let mut answer = rtu2mqtt_modbus::codec::encode_exception(
             1,
             0x03,
-            crate::rtu::frame::ExceptionCode::IllegalDataAddress,
+            rtu2mqtt_modbus::frame::ExceptionCode::IllegalDataAddress,
         );
         garble(&mut answer);
         assert!(!crate::sim::wire::crc_ok(&answer));

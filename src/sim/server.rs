@@ -19,11 +19,11 @@ use super::faults::{random_bytes, AnswerChunks, FaultHandle};
 use super::journal::{AnswerTiming, Journal, RequestRecord};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
-use crate::rtu::clock::sleep_until_precise;
-use crate::rtu::codec::{encode_answer, encode_exception, hex};
-use crate::rtu::frame::Request;
-use crate::rtu::timing::{CharFormat, LineTiming, Parity};
 use crate::shutdown::Shutdown;
+use rtu2mqtt_modbus::clock::sleep_until_precise;
+use rtu2mqtt_modbus::codec::{encode_answer, encode_exception, hex};
+use rtu2mqtt_modbus::frame::Request;
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 
 /// The longest RTU frame (address, PDU of at most 253 bytes, CRC).
 const MAX_FRAME_LEN: usize = 256;

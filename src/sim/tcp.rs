@@ -22,10 +22,10 @@ use super::journal::Journal;
 use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
 use super::SharedDevice;
-use crate::rtu::codec::{self, MAX_FRAME_LEN};
-use crate::rtu::mbap;
-use crate::rtu::stream_framing::{AnswerFramer, Framed};
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
+use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
+use rtu2mqtt_modbus::mbap;
+use rtu2mqtt_modbus::stream_framing::{AnswerFramer, Framed};
 
 /// Longest wait for the devices' answer to one request. A new request from the client ends
 /// the wait earlier (the master has given up on the previous one).
@@ -518,7 +518,7 @@ mod tests {
         let request = [0x01, 0x03, 0x10, 0x00, 0x00, 0x01, 0x80, 0xCA];
         let answer = codec::encode_answer(
             1,
-            &crate::rtu::frame::Response::HoldingRegisters(vec![0x0102]),
+            &rtu2mqtt_modbus::frame::Response::HoldingRegisters(vec![0x0102]),
         );
         let mut with_garbage = vec![0xFF, 0x00];
         with_garbage.extend_from_slice(&answer);

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use super::{from_bcd, to_bcd, Addressing, Reply, SimDevice};
-use crate::rtu::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 pub const REG_ADDRESS: u16 = 0x00;
 pub const REG_BAUD: u16 = 0x0A;

@@ -1,15 +1,15 @@
 //! How a simulated device frames and decodes what it hears: the length of the request that
 //! starts with some bytes, and its decoding once its CRC is checked. (Answers are encoded with
-//! `crate::rtu::codec`.)
+//! `rtu2mqtt_modbus::codec`.)
 //!
-//! This is not `crate::rtu::codec::decode_request` on purpose. That one refuses what a master
+//! This is not `rtu2mqtt_modbus::codec::decode_request` on purpose. That one refuses what a master
 //! must never send; a device has to hear it and react as the real ones do: a quantity of 0 or
 //! above the specification's limit is a request the device answers with exception 03, a
 //! function code it does not know is a frame that ends at the next silence and gets exception
 //! 01. Keeping the device side apart also keeps it an independent check on the gateway's codec.
 
-use crate::rtu::crc::{append_crc, carried_and_computed};
-use crate::rtu::frame::{Request, SlaveId};
+use rtu2mqtt_modbus::crc::{append_crc, carried_and_computed};
+use rtu2mqtt_modbus::frame::{Request, SlaveId};
 
 /// `body` followed by its CRC, low byte first.
 pub fn with_crc(mut body: Vec<u8>) -> Vec<u8> {

@@ -11,12 +11,12 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::rtu::master::{Master, MasterOptions};
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt::rtu::transport::{Port, SerialSettings};
-use rtu2mqtt::rtu::{codec, Request, Response};
 use rtu2mqtt::sim::faults::AnswerChunks;
 use rtu2mqtt::sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLine};
+use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::transport::{Port, SerialSettings};
+use rtu2mqtt_modbus::{codec, Request, Response};
 
 const BAUD: u32 = 9600;
 const DEVICE: u8 = 1;

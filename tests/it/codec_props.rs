@@ -2,11 +2,11 @@
 //! and no byte string makes any decoder panic.
 
 use proptest::prelude::*;
-use rtu2mqtt::rtu::codec::{
+use rtu2mqtt_modbus::codec::{
     decode_answer, decode_request, encode_answer, encode_exception, encode_request,
     request_frame_len, Answer, DecodeError,
 };
-use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 
 /// Any in-spec request.
 fn request() -> impl Strategy<Value = Request> {
@@ -207,7 +207,7 @@ fn out_of_spec_quantities_are_refused() {
     }
     // Read 126 registers at 0, by hand: the server side refuses it as malformed.
     let mut frame = vec![0x01, 0x03, 0x00, 0x00, 0x00, 126];
-    let crc = rtu2mqtt::rtu::crc::crc16(&frame);
+    let crc = rtu2mqtt_modbus::crc::crc16(&frame);
     frame.extend(crc.to_le_bytes());
     assert!(matches!(
         decode_request(&frame),

@@ -8,8 +8,8 @@ use crate::support::child;
 use std::process::Output;
 use std::time::Duration;
 
-use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::sim::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
+use rtu2mqtt_modbus::timing::Parity;
 
 /// A pty served at `baud` 8N1 with the devices, answering garbled at any other baud rate.
 fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
@@ -181,7 +181,10 @@ async fn read_decodes_the_valve_identity_block_every_way() {
     // The frames, byte for byte.
     assert!(text.contains("request  01 03 00 00 00 0B 04 0D"), "{text}");
     let answer = valve.journal().requests()[0].answer.clone().unwrap();
-    assert!(text.contains(&format!("answer   {}", rtu2mqtt::rtu::codec::hex(&answer))));
+    assert!(text.contains(&format!(
+        "answer   {}",
+        rtu2mqtt_modbus::codec::hex(&answer)
+    )));
     // Identity registers: address 1, serial 0x20 0x23 0x11 0x22 0x00 0x4A 0x5B, software 0x13,
     // hardware 0x02, baud code 6. u16, i16, bits, BCD, characters per register.
     for line in [

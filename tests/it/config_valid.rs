@@ -45,7 +45,7 @@ fn the_example_configuration_is_the_seed_plant() {
     assert_eq!(shower.profile.name(), "lixian-air-shower");
     assert_eq!(
         config.lines[1].serial.format.parity,
-        rtu2mqtt::rtu::timing::Parity::Even
+        rtu2mqtt_modbus::timing::Parity::Even
     );
 }
 

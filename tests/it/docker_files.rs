@@ -150,12 +150,29 @@ fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_man
         "{needed} is copied before the dependency layer runs it: {copied_before:?}"
     );
 
-    // The placeholders, made from the manifest as the image does, satisfy cargo: every
-    // [[bench]] and the binary have a source, so the manifest parses.
+    // The placeholders, made from the files the image copies before them as it does, satisfy
+    // cargo: every [[bench]], the binary and the workspace's member have a source, so the
+    // manifest parses.
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = tempfile::tempdir().expect("temp dir");
-    for file in ["Cargo.toml", "Cargo.lock"] {
-        std::fs::copy(root.join(file), dir.path().join(file)).expect("copy the manifest");
+    let sources = copied_before.iter().flat_map(|copy| {
+        let words: Vec<&str> = copy.split_whitespace().collect();
+        words[..words.len().saturating_sub(1)].to_vec()
+    });
+    for file in sources.filter(|file| *file != needed) {
+        let target = dir.path().join(file);
+        std::fs::create_dir_all(target.parent().expect("a file in a folder")).expect("mkdir");
+        std::fs::copy(root.join(file), target).expect("copy what the image copies");
+    }
+    for manifest in [
+        "Cargo.toml",
+        "Cargo.lock",
+        "crates/rtu2mqtt-modbus/Cargo.toml",
+    ] {
+        assert!(
+            dir.path().join(manifest).exists(),
+            "{manifest} is copied before the dependency layer: {copied_before:?}"
+        );
     }
     let made = std::process::Command::new("sh")
         .arg(root.join("docker/placeholder-sources.sh"))

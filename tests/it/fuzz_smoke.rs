@@ -12,9 +12,9 @@ use std::sync::OnceLock;
 use proptest::prelude::*;
 
 use rtu2mqtt::profile::{DeviceState, Profile, Rejection, Verification};
-use rtu2mqtt::rtu::codec::{decode_answer, decode_request, request_frame_len};
-use rtu2mqtt::rtu::crc::append_crc;
-use rtu2mqtt::rtu::{Request, Response};
+use rtu2mqtt_modbus::codec::{decode_answer, decode_request, request_frame_len};
+use rtu2mqtt_modbus::crc::append_crc;
+use rtu2mqtt_modbus::{Request, Response};
 
 const PROFILE_FILES: [&str; 4] = [
     "ruiwan-dust-collector",

@@ -2,11 +2,11 @@
 //! request and decodes the answer; the server side (simulators) decodes the request and encodes
 //! the answer.
 
-use rtu2mqtt::rtu::codec::{
+use rtu2mqtt_modbus::codec::{
     decode_answer, decode_request, encode_answer, encode_exception, encode_request,
     request_frame_len, Answer,
 };
-use rtu2mqtt::rtu::{ExceptionCode, FunctionCode, Request, Response};
+use rtu2mqtt_modbus::{ExceptionCode, FunctionCode, Request, Response};
 
 /// Master encodes exactly `frame`; the server side frames and decodes it back to `request`.
 fn assert_request_golden(slave: u8, request: &Request, frame: &[u8]) {
@@ -35,7 +35,7 @@ fn assert_answer_golden(slave: u8, request: &Request, response: &Response, frame
 
 /// `body` followed by its CRC, low byte first: for the answers the document does not print.
 fn with_crc(mut body: Vec<u8>) -> Vec<u8> {
-    let crc = rtu2mqtt::rtu::crc::crc16(&body);
+    let crc = rtu2mqtt_modbus::crc::crc16(&body);
     body.extend(crc.to_le_bytes());
     body
 }

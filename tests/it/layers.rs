@@ -1,6 +1,8 @@
 //! The crate's layers point one way: a top-level module of `src/` names only modules below it
 //! (`crate::<module>` in code, test code and comments aside). The order is the crate map of
 //! `lib.rs`; an arrow pointing up, and so any import circle between top-level modules, fails.
+//! The wire crate (`crates/rtu2mqtt-modbus`) lies below all of them: it never names the
+//! daemon, and depends on no MQTT, JSON or configuration crate.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -8,7 +10,6 @@ use std::path::{Path, PathBuf};
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
     "shutdown",
-    "rtu",
     "profile",
     "bus",
     "sim",
@@ -114,4 +115,39 @@ fn the_scan_sees_uses_and_paths_but_not_comments_or_tests() {
                 #[cfg(test)]\nmod tests { use crate::sim; }\n";
     let names: Vec<String> = named_modules(text).into_iter().collect();
     assert_eq!(names, vec!["bridge".to_string(), "bus".to_string()]);
+}
+
+/// The crates the wire crate must never depend on: the daemon, MQTT, JSON and configuration.
+const ABOVE_THE_WIRE: &[&str] = &["rtu2mqtt", "rumqttc", "rumqttd", "serde_json", "config"];
+
+#[test]
+fn the_wire_crate_names_nothing_above_it() {
+    let wire = Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/rtu2mqtt-modbus");
+    let manifest = std::fs::read_to_string(wire.join("Cargo.toml")).unwrap();
+    let dependency_names: Vec<&str> = manifest
+        .lines()
+        .filter_map(|line| line.split(['=', '.', ' ']).next())
+        .filter(|name| !name.is_empty())
+        .collect();
+    for crate_name in ABOVE_THE_WIRE {
+        assert!(
+            !dependency_names.contains(crate_name),
+            "the wire crate depends on {crate_name}"
+        );
+    }
+    let mut files = Vec::new();
+    rust_files(&wire, &mut files);
+    assert!(files.len() > 5, "the wire crate's sources were not found");
+    let naming_the_daemon: Vec<String> = files
+        .iter()
+        .filter(|file| {
+            let text = std::fs::read_to_string(file).unwrap();
+            text.contains("rtu2mqtt::")
+        })
+        .map(|file| file.display().to_string())
+        .collect();
+    assert!(
+        naming_the_daemon.is_empty(),
+        "the wire crate names the daemon in {naming_the_daemon:?}"
+    );
 }

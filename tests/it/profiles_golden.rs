@@ -7,7 +7,7 @@ use rtu2mqtt::profile::registry::built_in;
 use rtu2mqtt::profile::{
     BlockImage, CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
 };
-use rtu2mqtt::rtu::{Request, Response};
+use rtu2mqtt_modbus::{Request, Response};
 
 fn dust() -> Profile {
     built_in("ruiwan-dust-collector").unwrap()
@@ -1061,7 +1061,7 @@ fn apply_write_refuses_addresses_outside_the_write_frames() {
 
 mod bytes {
     use super::*;
-    use rtu2mqtt::rtu::codec::{decode_answer, encode_request, hex, Answer};
+    use rtu2mqtt_modbus::codec::{decode_answer, encode_request, hex, Answer};
 
     fn frames(slave: u8, requests: &[Request]) -> Vec<String> {
         requests
@@ -1287,7 +1287,7 @@ mod bytes {
         );
         for frame in &written {
             let bytes = crate::support::hex::decode(frame);
-            let crc = rtu2mqtt::rtu::crc::crc16(&bytes[..6]);
+            let crc = rtu2mqtt_modbus::crc::crc16(&bytes[..6]);
             assert_eq!(&bytes[6..], &crc.to_le_bytes());
         }
     }

@@ -19,13 +19,13 @@ use rtu2mqtt::bus::{
     LineSpec,
 };
 use rtu2mqtt::profile::{registry, CommandPlan, DeviceState, Profile, Value};
-use rtu2mqtt::rtu::timing::{CharFormat, Parity};
-use rtu2mqtt::rtu::transport::SerialSettings;
 use rtu2mqtt::shutdown::{self, ShutdownTrigger};
 use rtu2mqtt::sim::{
     self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
     SharedDevice, SimDevice, Valve, VirtualLine,
 };
+use rtu2mqtt_modbus::timing::{CharFormat, Parity};
+use rtu2mqtt_modbus::transport::SerialSettings;
 
 const AIR_SHOWER_TOML: &str = include_str!("../../config/profiles/lixian-air-shower.toml");
 
@@ -541,7 +541,7 @@ async fn busy_answers_are_retried_and_never_take_the_device_offline() {
     let streak = BUSY_LIMIT - 1;
     let busy_streak = Faults {
         exception: Occurrence::next(streak),
-        exception_code: Some(rtu2mqtt::rtu::ExceptionCode::ServerDeviceBusy),
+        exception_code: Some(rtu2mqtt_modbus::ExceptionCode::ServerDeviceBusy),
         ..Faults::default()
     };
     line.faults().set(busy_streak.clone());
@@ -772,7 +772,8 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
     );
     let frames = line.journal().frames();
     for (_, block) in merged {
-        let rtu2mqtt::rtu::Request::ReadHoldingRegisters { start, quantity } = block.request else {
+        let rtu2mqtt_modbus::Request::ReadHoldingRegisters { start, quantity } = block.request
+        else {
             continue;
         };
         let head = [
@@ -1014,7 +1015,7 @@ async fn commands_fail_with_the_exception_code_or_after_the_retries() {
         .await;
     line.faults().set(Faults {
         exception: Occurrence::ALWAYS,
-        exception_code: Some(rtu2mqtt::rtu::ExceptionCode::ServerDeviceFailure),
+        exception_code: Some(rtu2mqtt_modbus::ExceptionCode::ServerDeviceFailure),
         ..Faults::default()
     });
     let writes_before = line.journal().writes_to(air_shower::ADDRESS);
@@ -1025,7 +1026,7 @@ async fn commands_fail_with_the_exception_code_or_after_the_retries() {
             // The device's exception stays its own answer, apart from transport failures.
             assert_eq!(
                 cause,
-                CommandFailure::Exception(rtu2mqtt::rtu::ExceptionCode::ServerDeviceFailure)
+                CommandFailure::Exception(rtu2mqtt_modbus::ExceptionCode::ServerDeviceFailure)
             );
         }
         other => panic!("expected a failure, got {other:?}"),
@@ -1039,7 +1040,7 @@ async fn commands_fail_with_the_exception_code_or_after_the_retries() {
             assert!(
                 matches!(
                     cause,
-                    CommandFailure::NoAnswer(rtu2mqtt::rtu::master::Error::Timeout(_))
+                    CommandFailure::NoAnswer(rtu2mqtt_modbus::master::Error::Timeout(_))
                 ),
                 "{cause:?}"
             );

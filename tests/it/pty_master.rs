@@ -8,12 +8,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use mio_serial::SerialStream;
-use rtu2mqtt::rtu::clock::sleep_until_precise;
-use rtu2mqtt::rtu::codec::{self, request_frame_len};
-use rtu2mqtt::rtu::master::{Error, Master, MasterOptions, Reply};
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt::rtu::transport::{Port, SerialSettings};
-use rtu2mqtt::rtu::{ExceptionCode, Request, Response};
+use rtu2mqtt_modbus::clock::sleep_until_precise;
+use rtu2mqtt_modbus::codec::{self, request_frame_len};
+use rtu2mqtt_modbus::master::{Error, Master, MasterOptions, Reply};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::transport::{Port, SerialSettings};
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -75,6 +75,9 @@ enum Act {
     PauseMidAnswer(usize, Duration),
     /// Sends these bytes and the answer right behind them, as one burst.
     NoiseThenAnswer(Vec<u8>),
+    /// Sends the answer one byte at a time at the wire's character rate, as a UART without a
+    /// deep FIFO hands it over, with a pause of this long after the given byte when set.
+    BytePaced(Option<(usize, Duration)>),
 }
 
 /// What the device saw of one request.
@@ -207,6 +210,23 @@ fn spawn_device(mut port: Port, script: Vec<Act>) -> DeviceRun {
                     let drained = send(&mut port, answer[..split].to_vec()).await;
                     sleep_until_precise(drained + pause).await;
                     Some(send(&mut port, answer[split..].to_vec()).await)
+                }
+                Act::BytePaced(pause) => {
+                    let character = timing().char_time;
+                    let mut drained = Instant::now();
+                    for (index, byte) in answer.iter().enumerate() {
+                        let mut due = drained + character;
+                        if let Some((after, length)) = pause {
+                            if index == after {
+                                due += length;
+                            }
+                        }
+                        if index > 0 {
+                            sleep_until_precise(due).await;
+                        }
+                        drained = send(&mut port, vec![*byte]).await;
+                    }
+                    Some(drained)
                 }
                 Act::Raw(bytes) if bytes.is_empty() => None,
                 Act::Raw(bytes) => Some(send(&mut port, bytes).await),
@@ -483,7 +503,7 @@ async fn noise_just_before_the_answer_is_skipped() {
 async fn answer_with_another_function_is_unexpected() {
     let other_function = {
         let mut frame = vec![DEVICE, 0x04, 0x04, 0x00, 0x01, 0x00, 0x01];
-        let crc = rtu2mqtt::rtu::crc::crc16(&frame);
+        let crc = rtu2mqtt_modbus::crc::crc16(&frame);
         frame.extend(crc.to_le_bytes());
         frame
     };
@@ -554,6 +574,72 @@ async fn gap_inside_an_answer_follows_the_inter_character_limit() {
     );
     assert_answered(&mut master, 1).await;
     assert_silences(&seen_by(device).await);
+}
+
+/// The silences a device saw before each request after the first, in a run of `transactions`
+/// reads of six registers answered byte by byte at the wire's rate (with `pause` inside each
+/// answer), sorted. Also checks every answer and that none was shorter than t3.5.
+async fn silences_after_byte_paced_answers(
+    transactions: usize,
+    pause: Option<(usize, Duration)>,
+) -> Vec<Duration> {
+    let six_registers = Request::ReadHoldingRegisters {
+        start: 0x0100,
+        quantity: 6,
+    };
+    let script = vec![Act::BytePaced(pause); transactions];
+    let (mut master, device) = connect(script, MasterOptions::default());
+    for sequence in 1..=transactions as u16 {
+        let response = master
+            .transact(DEVICE, &six_registers, TIMEOUT)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(response, Response::HoldingRegisters(vec![sequence; 6]));
+    }
+    assert_eq!(master.counters().truncated, 0, "pause {pause:?}");
+    let seen = seen_by(device).await;
+    assert_silences(&seen);
+    let mut silences: Vec<Duration> = seen
+        .iter()
+        .filter_map(|request| request.silence_before)
+        .collect();
+    assert_eq!(silences.len(), transactions - 1, "pause {pause:?}");
+    silences.sort();
+    silences
+}
+
+/// The answer ends when its last byte arrives: on a line that hands the answer over byte by
+/// byte at the wire's rate (with and without pauses inside it), the next request follows the
+/// last byte after t3.5 and not a character time more, so the median silence the device sees
+/// stays within half a character of t3.5, and none is shorter than t3.5. A master that counts
+/// t3.5 from a read one character late misses that bound in every run; a run on a loaded
+/// machine may miss it by scheduling delays, so each case gets three runs to meet it once.
+#[tokio::test(flavor = "current_thread")]
+async fn a_byte_paced_answer_ends_with_its_last_byte() {
+    const TRANSACTIONS: usize = 15;
+    const RUNS: usize = 3;
+    let t3_5 = timing().t3_5;
+    let bound = t3_5 + timing().char_time / 2;
+    for pause in [
+        None,
+        Some((8, Duration::from_millis(5))),
+        Some((8, Duration::from_millis(16))),
+    ] {
+        let mut medians = Vec::new();
+        for _ in 0..RUNS {
+            let silences = silences_after_byte_paced_answers(TRANSACTIONS, pause).await;
+            medians.push(silences[silences.len() / 2]);
+            if medians.last() <= Some(&bound) {
+                break;
+            }
+        }
+        assert!(
+            medians.iter().any(|median| *median <= bound),
+            "pause {pause:?}: median silences {medians:?} after byte-paced answers, t3.5 is \
+             {t3_5:?}"
+        );
+    }
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -726,5 +812,98 @@ proptest::proptest! {
             assert_answered(&mut master, 2).await;
             assert_silences(&seen_by(device).await);
         });
+    }
+}
+
+/// Instants at which the master wrote each `tx` line of its frame recording.
+#[derive(Clone, Default)]
+struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
+
+impl Write for TxInstants {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        let line = String::from_utf8_lossy(bytes);
+        if line.split_whitespace().nth(1) == Some("tx") {
+            self.0.lock().unwrap().push(Instant::now());
+        }
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The master never drives the line sooner than t3.5 after the answer's last byte, checked
+/// in the direction that holds on any load: the simulator's hand-over of its answer is the
+/// earliest the master can have seen it, and the master records a request before writing
+/// it, so `recorded tx − hand-over` is at most the true silence. Likewise the simulator's
+/// silence before each request runs from that hand-over to when it read the request,
+/// which can only be later than the master's write.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
+    use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+
+    const TRANSACTIONS: usize = 40;
+    let baud = 38_400;
+    let format = CharFormat {
+        data_bits: 8,
+        parity: Parity::None,
+        stop_bits: 1,
+    };
+    let timing = LineTiming::new(baud, format);
+    let (_shower, device) = share(AirShower::new());
+    let line = VirtualLine::spawn(
+        ServeOptions::new(baud, Parity::None).paced(true),
+        vec![device],
+    )
+    .unwrap();
+    let port = Port::open(&SerialSettings {
+        path: line.path().to_string_lossy().into_owned(),
+        baud,
+        format,
+        rs485: None,
+    })
+    .unwrap();
+    let mut master = Master::new(port, timing, MasterOptions::default());
+    let tx_instants = TxInstants::default();
+    master.record_frames_to(Box::new(tx_instants.clone()));
+    let read = Request::ReadCoils {
+        start: 0,
+        quantity: 22,
+    };
+    for _ in 0..TRANSACTIONS {
+        master
+            .transact(0x81, &read, Duration::from_secs(1))
+            .await
+            .unwrap()
+            .unwrap();
+    }
+    // The simulator journals a request once its answer is handed over, which may be a
+    // moment after the master already has that answer: wait for the last record.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let mut records = line.journal().requests();
+    while records.len() < TRANSACTIONS && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        records = line.journal().requests();
+    }
+    let sent = tx_instants.0.lock().unwrap().clone();
+    assert_eq!(records.len(), TRANSACTIONS);
+    assert_eq!(sent.len(), TRANSACTIONS);
+    for (i, pair) in records.windows(2).enumerate() {
+        let handed_over = pair[0].answer_timing.unwrap().handed_over;
+        let next_tx = sent[i + 1];
+        assert!(
+            next_tx.into_std() >= handed_over + timing.t3_5,
+            "request {} recorded {:?} after the answer's hand-over, t3.5 is {:?}",
+            i + 1,
+            next_tx.into_std().saturating_duration_since(handed_over),
+            timing.t3_5
+        );
+        let silence = pair[1].silence_before.unwrap();
+        assert!(
+            silence >= timing.t3_5,
+            "request {} after {silence:?} of silence",
+            i + 1
+        );
     }
 }

@@ -252,7 +252,7 @@ async fn f1_a_silent_device_goes_offline_and_comes_back_in_bounded_time() {
 fn plant_with_linked_line_a(directory: &std::path::Path) -> SeedPlant {
     let plant = SeedPlant::spawn(false).expect("seed plant");
     let line_a = sim::VirtualLine::with_link(
-        sim::ServeOptions::new(9600, rtu2mqtt::rtu::timing::Parity::None),
+        sim::ServeOptions::new(9600, rtu2mqtt_modbus::timing::Parity::None),
         plant.line_a.devices().to_vec(),
         &directory.join("ttyRS485-A"),
     )

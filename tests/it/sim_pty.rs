@@ -6,12 +6,12 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::rtu::timing::Parity;
-use rtu2mqtt::rtu::ExceptionCode;
 use rtu2mqtt::sim::{
     air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
     VirtualLine,
 };
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_modbus::ExceptionCode;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_serial::SerialStream;
 
@@ -611,10 +611,10 @@ async fn seed_plant_serves_both_lines() {
 // that writes the wrong bits or reads the wrong places shows.
 
 use rtu2mqtt::profile::{DeviceState, Profile, Verification};
-use rtu2mqtt::rtu::master::{Master, MasterOptions};
-use rtu2mqtt::rtu::timing::{CharFormat, LineTiming};
-use rtu2mqtt::rtu::transport::{Port, SerialSettings};
-use rtu2mqtt::rtu::{Request, Response};
+use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming};
+use rtu2mqtt_modbus::transport::{Port, SerialSettings};
+use rtu2mqtt_modbus::{Request, Response};
 
 const MASTER_TIMEOUT: Duration = Duration::from_millis(800);
 

@@ -6,13 +6,13 @@ use crate::support::child;
 
 use std::time::Duration;
 
-use rtu2mqtt::rtu::codec::{decode_answer, encode_request, Answer};
-use rtu2mqtt::rtu::stream_framing::{AnswerFramer, Framed};
-use rtu2mqtt::rtu::timing::Parity;
-use rtu2mqtt::rtu::{mbap, Request, Response};
 use rtu2mqtt::sim::{
     share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
 };
+use rtu2mqtt_modbus::codec::{decode_answer, encode_request, Answer};
+use rtu2mqtt_modbus::stream_framing::{AnswerFramer, Framed};
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_modbus::{mbap, Request, Response};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -279,7 +279,7 @@ async fn pymodbus_client_reads_the_seed_devices() {
     for record in &requests {
         let line = lines.next().unwrap_or_default();
         let answer = record.answer.clone().unwrap_or_default();
-        let (slave, request) = rtu2mqtt::rtu::codec::decode_request(&record.frame).unwrap();
+        let (slave, request) = rtu2mqtt_modbus::codec::decode_request(&record.frame).unwrap();
         let expected = match decode_answer(slave, &request, &answer).unwrap() {
             Answer::Normal(Response::HoldingRegisters(words)) => format!("{words:?}"),
             Answer::Normal(Response::Coils(bits)) => {

@@ -12,11 +12,11 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use rtu2mqtt::config::{self, Config};
-use rtu2mqtt::rtu::timing::Parity;
 use rtu2mqtt::sim::{
     self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
     TcpSimulator, Valve, VirtualLine,
 };
+use rtu2mqtt_modbus::timing::Parity;
 use support::{free_port, Gateway, Mosquitto, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.

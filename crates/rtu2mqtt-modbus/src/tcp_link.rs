@@ -1,6 +1,6 @@
 //! Modbus transactions over TCP, one at a time: raw RTU frames on the stream of a serial device
 //! server (`tcp://`, [`RawTcpMaster`]) and Modbus TCP to a TCP-to-RTU gateway (`modbus-tcp://`,
-//! [`ModbusTcpMaster`]). Both keep one connection ([`Connection`]: connect timeout, TCP
+//! [`ModbusTcpMaster`]). Both keep one connection (`Connection`: connect timeout, TCP
 //! keepalive, reconnected inside the next transaction after it dropped).
 //!
 //! A connection that drops while an answer is awaited fails that transaction with
@@ -11,7 +11,6 @@
 //!
 //! Nothing here knows about devices, polls or the bridge.
 
-use std::io::Write;
 use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -21,7 +20,8 @@ use tokio::time::Instant;
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError};
 use super::frame::{Request, SlaveId};
-use super::master::{Error, PortFault, Reply, WireCounters};
+use super::link_core::{Direction, LinkCore};
+use super::master::{Error, PortFault, Reply};
 use super::mbap::{self, Matched, MbapError};
 use super::stream_framing::{AnswerFramer, Framed};
 use super::timing::LineTiming;
@@ -151,57 +151,39 @@ impl Default for TcpOptions {
     }
 }
 
-/// One TCP connection to the server, reopened on demand, with the link's counters and frame
-/// recording.
-pub struct Connection {
+/// One TCP connection to the server, reopened on demand, with the link's counters, frame
+/// recording and late-answer guard.
+pub(crate) struct Connection {
     endpoint: TcpEndpoint,
-    label: String,
     options: TcpOptions,
     stream: Option<TcpStream>,
     /// Bytes read and not yet framed.
     buffer: Vec<u8>,
-    counters: WireCounters,
-    recorder: Recorder,
+    /// Counters, frame recorder and late-answer guard; labelled with the url.
+    pub(crate) core: LinkCore,
 }
 
 impl std::fmt::Debug for Connection {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Connection")
-            .field("url", &self.label)
-            .field("counters", &self.counters)
+            .field("core", &self.core)
             .finish_non_exhaustive()
     }
 }
 
 impl Connection {
-    /// Writes every frame to `writer` (the frame log).
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        self.recorder.writer = Some(writer);
-    }
-
-    pub fn counters(&self) -> WireCounters {
-        self.counters
-    }
-
-    /// The url, for logs.
-    pub fn label(&self) -> &str {
-        &self.label
-    }
-
-    fn record(&mut self, direction: &str, bytes: &[u8]) {
-        self.recorder.record(&self.label, direction, bytes);
+    fn label(&self) -> &str {
+        self.core.label()
     }
 
     async fn open(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Connection> {
-        let label = endpoint.url();
+        let core = LinkCore::new(endpoint.url());
         let mut connection = Connection {
             endpoint,
-            label,
             options,
             stream: None,
             buffer: Vec::new(),
-            counters: WireCounters::default(),
-            recorder: Recorder::default(),
+            core,
         };
         connection.connect().await?;
         Ok(connection)
@@ -226,7 +208,7 @@ impl Connection {
         socket2::SockRef::from(&stream).set_tcp_keepalive(&keepalive)?;
         self.buffer.clear();
         self.stream = Some(stream);
-        tracing::debug!(url = %self.label, "connected");
+        tracing::debug!(url = %self.label(), "connected");
         Ok(())
     }
 
@@ -234,14 +216,14 @@ impl Connection {
     /// gone (the line backs off).
     async fn ensure(&mut self) -> Result<(), Error> {
         if self.stream.is_none() {
-            tracing::info!(url = %self.label, "reconnecting");
+            tracing::info!(url = %self.label(), "reconnecting");
             self.connect().await.map_err(Error::from)?;
         }
         Ok(())
     }
 
     fn lost(&mut self, error: std::io::Error) -> Error {
-        tracing::warn!(url = %self.label, %error, "connection lost");
+        tracing::warn!(url = %self.label(), %error, "connection lost");
         self.stream = None;
         self.buffer.clear();
         Error::ConnectionLost(PortFault::from(error))
@@ -297,38 +279,7 @@ impl Connection {
     }
 }
 
-/// Writes the frame log's records (`<unix time µs> <tx|rx> <hex>`), as the serial master does.
-#[derive(Default)]
-struct Recorder {
-    writer: Option<Box<dyn Write + Send>>,
-}
-
-impl Recorder {
-    fn record(&mut self, label: &str, direction: &str, bytes: &[u8]) {
-        tracing::debug!(url = %label, frame = %codec::hex(bytes), "{direction}");
-        let Some(writer) = self.writer.as_mut() else {
-            return;
-        };
-        let since_epoch = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .unwrap_or_default();
-        let line = format!(
-            "{}.{:06} {direction} {}\n",
-            since_epoch.as_secs(),
-            since_epoch.subsec_micros(),
-            codec::hex(bytes).replace(' ', "")
-        );
-        if let Err(error) = writer
-            .write_all(line.as_bytes())
-            .and_then(|()| writer.flush())
-        {
-            tracing::warn!(url = %label, %error, "frame recording stopped");
-            self.writer = None;
-        }
-    }
-}
-
-/// Counts a transaction's result into the wire counters, as the serial master does.
+/// A decoded answer as the device's word on the request.
 fn reply_of(answer: Answer) -> Reply {
     match answer {
         Answer::Normal(response) => Ok(response),
@@ -347,15 +298,12 @@ fn reply_of(answer: Answer) -> Reply {
 /// counted late).
 #[derive(Debug)]
 pub struct RawTcpMaster {
-    connection: Connection,
+    pub(crate) connection: Connection,
     timing: LineTiming,
     /// The server's serial side may be driven again from this instant.
     next_send_at: Instant,
     /// The precise timer of the link's own t3.5 spacing.
     timer: PreciseTimer,
-    /// After a timeout: the address that timed out and until when its late answer is awaited
-    /// before the next request to it goes out.
-    late_guard: Option<(SlaveId, Instant)>,
 }
 
 impl RawTcpMaster {
@@ -370,17 +318,7 @@ impl RawTcpMaster {
             timing,
             next_send_at: Instant::now(),
             timer: PreciseTimer::default(),
-            late_guard: None,
         })
-    }
-
-    /// The connection with the link's counters and frame recording.
-    pub fn connection(&self) -> &Connection {
-        &self.connection
-    }
-
-    pub fn connection_mut(&mut self) -> &mut Connection {
-        &mut self.connection
     }
 
     /// Sends `request` to `slave` and waits up to `timeout` (from the instant it was handed to
@@ -392,10 +330,7 @@ impl RawTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(slave, request, timeout).await;
-        self.connection.counters.count(&result);
-        if let Err(Error::Timeout(_)) = result {
-            self.late_guard = Some((slave, Instant::now() + timeout));
-        }
+        self.connection.core.settle(slave, &result, Some(timeout));
         result
     }
 
@@ -418,15 +353,15 @@ impl RawTcpMaster {
                     frame,
                     skipped,
                 } => {
-                    self.connection.counters.stray_bytes += skipped as u64;
+                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
                     let (answer, frame) = self.newest_answer(slave, request, answer, frame);
                     self.took_answer(&frame);
                     return Ok(reply_of(answer));
                 }
                 Framed::OutOfStep { skipped } => {
-                    self.connection.counters.stray_bytes += skipped as u64;
+                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
                     let garbage = std::mem::take(&mut self.connection.buffer);
-                    self.connection.record("rx", &garbage);
+                    self.connection.core.record(Direction::Rx, &garbage);
                     self.next_send_at = Instant::now() + self.timing.t3_5;
                     return Err(Error::UnexpectedReply(DecodeError::Malformed(
                         "no answer among the bytes received",
@@ -439,7 +374,7 @@ impl RawTcpMaster {
                 let got = self.connection.buffer.len();
                 if got > 0 {
                     let partial = std::mem::take(&mut self.connection.buffer);
-                    self.connection.record("rx", &partial);
+                    self.connection.core.record(Direction::Rx, &partial);
                     return Err(Error::Truncated {
                         needed: request.answer_len(),
                         got,
@@ -471,25 +406,20 @@ impl RawTcpMaster {
     /// within the guard, is drained and counted, never taken for this request's. Bytes
     /// already waiting are drained before any request.
     async fn wait_out_late_answer(&mut self, slave: SlaveId) -> Result<(), Error> {
-        if let Some((timed_out, until)) = self.late_guard {
-            if timed_out == slave {
-                self.late_guard = None;
-                // Until the late answer starts to arrive or the guard ends.
-                while self.connection.buffer.is_empty() && self.connection.read_until(until).await?
-                {
-                }
-            }
+        if let Some(until) = self.connection.core.take_late_guard(slave) {
+            // Until the late answer starts to arrive or the guard ends.
+            while self.connection.buffer.is_empty() && self.connection.read_until(until).await? {}
         }
         self.wait_until_quiet().await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
-            self.connection.record("rx", &pending);
+            self.connection.core.record(Direction::Rx, &pending);
             if pending.first() == Some(&slave) {
-                self.connection.counters.late_answers += 1;
+                self.connection.core.counters_mut().late_answers += 1;
             } else {
-                self.connection.counters.stray_bytes += pending.len() as u64;
+                self.connection.core.counters_mut().stray_bytes += pending.len() as u64;
             }
-            tracing::debug!(url = %self.connection.label, bytes = pending.len(), "bytes before the request dropped");
+            tracing::debug!(url = %self.connection.label(), bytes = pending.len(), "bytes before the request dropped");
         }
         Ok(())
     }
@@ -501,10 +431,10 @@ impl RawTcpMaster {
     }
 
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
-        self.connection.record("tx", frame);
+        self.connection.core.record(Direction::Tx, frame);
         let sent_at = self.connection.send(frame).await?;
-        self.connection.counters.requests += 1;
-        self.connection.counters.wire_time +=
+        self.connection.core.counters_mut().requests += 1;
+        self.connection.core.counters_mut().wire_time +=
             self.timing.frame_time(frame.len()) + self.timing.t3_5;
         Ok(sent_at)
     }
@@ -527,8 +457,8 @@ impl RawTcpMaster {
                     frame: newer_frame,
                     ..
                 } => {
-                    self.connection.record("rx", &frame);
-                    self.connection.counters.late_answers += 1;
+                    self.connection.core.record(Direction::Rx, &frame);
+                    self.connection.core.counters_mut().late_answers += 1;
                     answer = newer;
                     frame = newer_frame;
                     self.connection.buffer = rest;
@@ -540,8 +470,8 @@ impl RawTcpMaster {
     }
 
     fn took_answer(&mut self, frame: &[u8]) {
-        self.connection.record("rx", frame);
-        self.connection.counters.wire_time +=
+        self.connection.core.record(Direction::Rx, frame);
+        self.connection.core.counters_mut().wire_time +=
             self.timing.frame_time(frame.len()) + self.timing.t3_5;
         self.next_send_at = Instant::now() + self.timing.t3_5;
     }
@@ -553,7 +483,7 @@ impl RawTcpMaster {
 /// own serial side; its busy time (request sent to answer received) is counted as wire time.
 #[derive(Debug)]
 pub struct ModbusTcpMaster {
-    connection: Connection,
+    pub(crate) connection: Connection,
     next_transaction: u16,
 }
 
@@ -566,15 +496,6 @@ impl ModbusTcpMaster {
         })
     }
 
-    /// The connection with the link's counters and frame recording.
-    pub fn connection(&self) -> &Connection {
-        &self.connection
-    }
-
-    pub fn connection_mut(&mut self) -> &mut Connection {
-        &mut self.connection
-    }
-
     /// Sends `request` to `unit` and waits up to `timeout` for the answer with its id.
     pub async fn transact(
         &mut self,
@@ -583,7 +504,8 @@ impl ModbusTcpMaster {
         timeout: Duration,
     ) -> Result<Reply, Error> {
         let result = self.exchange(unit, request, timeout).await;
-        self.connection.counters.count(&result);
+        // Answers carry their transaction id: a late one is told apart without a guard.
+        self.connection.core.settle(unit, &result, None);
         result
     }
 
@@ -607,15 +529,15 @@ impl ModbusTcpMaster {
         let deadline = sent_at + timeout;
         loop {
             while let Some(answer) = self.next_adu()? {
-                self.connection.record("rx", &answer);
+                self.connection.core.record(Direction::Rx, &answer);
                 match mbap::decode_answer(transaction, unit, request, &answer) {
                     Ok(Matched::Current(answer)) => {
-                        self.connection.counters.wire_time += sent_at.elapsed();
+                        self.connection.core.counters_mut().wire_time += sent_at.elapsed();
                         return Ok(reply_of(answer));
                     }
                     Ok(Matched::Stale { transaction: old }) => {
-                        self.connection.counters.late_answers += 1;
-                        tracing::debug!(url = %self.connection.label, transaction = old, "answer to an earlier request dropped");
+                        self.connection.core.counters_mut().late_answers += 1;
+                        tracing::debug!(url = %self.connection.label(), transaction = old, "answer to an earlier request dropped");
                     }
                     Err(MbapError::WrongUnit { expected, found }) => {
                         return Err(Error::UnexpectedReply(DecodeError::WrongAddress {
@@ -635,7 +557,7 @@ impl ModbusTcpMaster {
                 }
             }
             if !self.connection.read_until(deadline).await? {
-                self.connection.counters.wire_time += timeout;
+                self.connection.core.counters_mut().wire_time += timeout;
                 let got = self.connection.buffer.len();
                 if got > 0 {
                     return Err(Error::Truncated {
@@ -662,9 +584,9 @@ impl ModbusTcpMaster {
     }
 
     async fn send(&mut self, adu: &[u8]) -> Result<Instant, Error> {
-        self.connection.record("tx", adu);
+        self.connection.core.record(Direction::Tx, adu);
         let sent_at = self.connection.send(adu).await?;
-        self.connection.counters.requests += 1;
+        self.connection.core.counters_mut().requests += 1;
         Ok(sent_at)
     }
 
@@ -673,8 +595,8 @@ impl ModbusTcpMaster {
     fn drop_pending(&mut self) -> Result<(), Error> {
         self.connection.buffer = self.connection.take_pending()?;
         while let Some(adu) = self.next_adu()? {
-            self.connection.record("rx", &adu);
-            self.connection.counters.late_answers += 1;
+            self.connection.core.record(Direction::Rx, &adu);
+            self.connection.core.counters_mut().late_answers += 1;
         }
         Ok(())
     }
@@ -688,9 +610,10 @@ impl ModbusTcpMaster {
             }
             Ok(_) => Ok(None),
             Err(error) => {
-                self.connection.counters.stray_bytes += self.connection.buffer.len() as u64;
+                self.connection.core.counters_mut().stray_bytes +=
+                    self.connection.buffer.len() as u64;
                 let garbage = std::mem::take(&mut self.connection.buffer);
-                self.connection.record("rx", &garbage);
+                self.connection.core.record(Direction::Rx, &garbage);
                 Err(self.connection.lost(std::io::Error::new(
                     std::io::ErrorKind::InvalidData,
                     error.to_string(),

@@ -432,9 +432,8 @@ impl Port {
                         return Err(io::Error::new(
                             io::ErrorKind::TimedOut,
                             format!(
-                                "{}: the port took no bytes for {}",
-                                self.path,
-                                humantime::format_duration(WRITE_PATIENCE)
+                                "{}: the port took no bytes for {WRITE_PATIENCE:?}",
+                                self.path
                             ),
                         ));
                     }

@@ -19,15 +19,16 @@
 //! late answer, whenever it comes, is counted in `late_answers`.
 
 use std::io::Write;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use tokio::time::Instant;
 use tracing::Instrument;
 
+use super::answer_framing::{complete_foreign_frame, framing, noise_before_answer, Framing};
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
-use super::crc::carried_and_computed;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
+use super::link_core::{Direction, LinkCore};
 use super::timing::LineTiming;
 use super::transport::Port;
 
@@ -208,26 +209,13 @@ impl std::ops::Add for WireCounters {
     }
 }
 
-/// How far the bytes received so far go towards an answer.
-enum Framing {
-    /// Not enough bytes to tell; wait for more (or give up at the gap limit).
-    NeedMore { needed: usize },
-    /// An answer of this many bytes is complete at the start of the buffer.
-    Complete(usize),
-    /// A frame for someone else: read it to its end (a gap), then drop it.
-    Foreign,
-    /// The bytes so far repeat our own request: possibly an echo.
-    EchoCandidate,
-    /// A function code that is neither ours nor our exception: read to a gap, then reject.
-    UnknownLength,
-}
-
 /// Runs transactions on one line.
 pub struct Master {
     port: Port,
     timing: LineTiming,
     options: MasterOptions,
-    counters: WireCounters,
+    /// Counters, frame recorder and late-answer guard.
+    pub(crate) core: LinkCore,
     /// Last instant a byte was seen on the line in either direction (drain instant for ours).
     last_activity: Instant,
     /// Nothing has been sent since the port was opened: the line's state is unknown, and the
@@ -235,9 +223,6 @@ pub struct Master {
     quiet_start: bool,
     /// The precise timer of every silence and wait of this master.
     timer: PreciseTimer,
-    /// After a timeout: the line is watched for the late answer until then before the next
-    /// request to the same address goes out.
-    late_guard_until: Option<Instant>,
     /// The address whose request timed out last, until a request is sent to it again: its late
     /// answer is told from another device's frame by it.
     timed_out_slave: Option<SlaveId>,
@@ -247,7 +232,6 @@ pub struct Master {
     late_answer_counted: bool,
     /// An unannounced adapter echo has been reported.
     echo_warned: bool,
-    recorder: Option<Box<dyn Write + Send>>,
 }
 
 impl std::fmt::Debug for Master {
@@ -256,46 +240,34 @@ impl std::fmt::Debug for Master {
             .field("port", &self.port)
             .field("timing", &self.timing)
             .field("options", &self.options)
-            .field("counters", &self.counters)
+            .field("core", &self.core)
             .finish_non_exhaustive()
     }
 }
 
-fn unix_time_micros() -> String {
-    let since_epoch = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .unwrap_or_default();
-    format!(
-        "{}.{:06}",
-        since_epoch.as_secs(),
-        since_epoch.subsec_micros()
-    )
-}
-
 impl Master {
     pub fn new(port: Port, timing: LineTiming, options: MasterOptions) -> Self {
+        let core = LinkCore::new(port.path().to_string());
         Master {
             port,
             timing,
             options,
-            counters: WireCounters::default(),
+            core,
             // The line's state before we opened it is unknown: treat it as just used.
             last_activity: Instant::now(),
             quiet_start: true,
             timer: PreciseTimer::default(),
-            late_guard_until: None,
             timed_out_slave: None,
             late_window_open: false,
             late_answer_counted: false,
             echo_warned: false,
-            recorder: None,
         }
     }
 
     /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (for bug
     /// reports). A write error stops the recording with a warning.
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        self.recorder = Some(writer);
+        self.core.record_frames_to(writer);
     }
 
     /// The gap between two bytes of one answer beyond which it is declared truncated.
@@ -326,10 +298,9 @@ impl Master {
             .exchange(slave, request, timeout)
             .instrument(span)
             .await;
-        self.counters.count(&result);
+        let guard = self.options.late_answer_guard.unwrap_or(timeout);
+        self.core.settle(slave, &result, Some(guard));
         if let Err(Error::Timeout(_)) = &result {
-            let guard = self.options.late_answer_guard.unwrap_or(timeout);
-            self.late_guard_until = Some(Instant::now() + guard);
             self.timed_out_slave = Some(slave);
             self.late_window_open = true;
             self.late_answer_counted = false;
@@ -348,11 +319,7 @@ impl Master {
         // Only a request to the address that timed out could take its late answer for its own:
         // the guard applies to it alone; for any other address the late answer is a frame
         // from another address, ignored (and counted late).
-        let guard = if self.timed_out_slave == Some(slave) {
-            self.late_guard_until.take()
-        } else {
-            None
-        };
+        let guard = self.core.take_late_guard(slave);
         self.wait_for_silence(guard, timeout).await?;
         if self.timed_out_slave == Some(slave) {
             self.timed_out_slave = None;
@@ -390,7 +357,7 @@ impl Master {
     }
 
     pub fn counters(&self) -> WireCounters {
-        self.counters
+        self.core.counters()
     }
 
     pub fn timing(&self) -> LineTiming {
@@ -452,16 +419,16 @@ impl Master {
     /// bytes otherwise. Either way they restart the line's silence.
     fn absorb_unsolicited(&mut self, bytes: &[u8], seen: Instant) {
         self.last_activity = self.last_activity.max(seen);
-        self.counters.wire_time += self.timing.frame_time(bytes.len());
-        self.record("rx", bytes);
+        self.core.counters_mut().wire_time += self.timing.frame_time(bytes.len());
+        self.core.record(Direction::Rx, bytes);
         if self.late_window_open {
             if !self.late_answer_counted {
-                self.counters.late_answers += 1;
+                self.core.counters_mut().late_answers += 1;
                 self.late_answer_counted = true;
             }
             tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "late answer discarded");
         } else {
-            self.counters.stray_bytes += bytes.len() as u64;
+            self.core.counters_mut().stray_bytes += bytes.len() as u64;
             tracing::debug!(port = %self.port.path(), frame = %codec::hex(bytes), "stray bytes discarded");
         }
     }
@@ -476,14 +443,14 @@ impl Master {
 
     /// Writes `frame`, waits for the drain and returns its instant.
     async fn send(&mut self, frame: &[u8]) -> Result<Instant, Error> {
-        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "tx");
-        self.record("tx", frame);
-        self.counters.requests += 1;
+        self.core.record(Direction::Tx, frame);
+        self.core.counters_mut().requests += 1;
         self.late_window_open = false;
         self.quiet_start = false;
         let drained_at = self.port.write_frame(frame).await?;
         self.last_activity = drained_at;
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.core.counters_mut().wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
         Ok(drained_at)
     }
 
@@ -503,6 +470,8 @@ impl Master {
         let gap_limit = self.inter_char_timeout();
         let mut received: Vec<u8> = Vec::new();
         let mut last_byte_at = drained_at;
+        // The answer's rest has had its one timed wait (see below).
+        let mut rest_waited_for = false;
         let mut chunk = [0u8; MAX_FRAME_LEN];
         loop {
             if self.is_unannounced_echo(request, sent, &received) {
@@ -517,7 +486,7 @@ impl Master {
                 self.absorb_noise(&received, last_byte_at);
                 received = rest;
             }
-            let framing = self.framing(slave, request, sent, &received);
+            let framing = framing(slave, request, sent, &received, self.options.echo);
             if let Framing::Foreign = framing {
                 // Another device's frame whose length and CRC check out ends here; whatever
                 // follows may be our answer.
@@ -553,8 +522,13 @@ impl Master {
             };
             // Once the length is known (from the third byte on), the rest cannot be complete
             // before its wire time: it is waited for in one go, not with a wake-up per byte.
+            // Only once: bytes still missing after it come a little after their wire time
+            // (a byte-paced line always lags by some microseconds), and their arrival wakes
+            // the read, so that the answer ends, and t3.5 starts, when its last byte came,
+            // not a character time later.
             if let Framing::NeedMore { needed } = framing {
-                if received.len() >= 3 {
+                if received.len() >= 3 && !rest_waited_for {
+                    rest_waited_for = true;
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
                     if due > Instant::now() {
@@ -569,7 +543,7 @@ impl Master {
                     && seen.duration_since(last_byte_at)
                         > self.timing.frame_time(count) + self.timing.t1_5
                 {
-                    self.counters.long_gaps += 1;
+                    self.core.counters_mut().long_gaps += 1;
                 }
                 received.extend_from_slice(&chunk[..count]);
                 last_byte_at = seen;
@@ -630,7 +604,7 @@ impl Master {
         if echoed == sent {
             return Ok(());
         }
-        self.record("rx", &echoed);
+        self.core.record(Direction::Rx, &echoed);
         tracing::warn!(port = %self.port.path(), sent = %codec::hex(sent), echoed = %codec::hex(&echoed), "echo differs from the frame sent");
         if echoed.is_empty() {
             return Err(Error::Timeout(timeout));
@@ -650,62 +624,6 @@ impl Master {
         !self.options.echo && !answer_may_equal_request && received.starts_with(sent)
     }
 
-    /// Where the bytes received so far stand.
-    fn framing(&self, slave: SlaveId, request: &Request, sent: &[u8], received: &[u8]) -> Framing {
-        let function = request.function();
-        let (Some(&address), Some(&found_function)) = (received.first(), received.get(1)) else {
-            return match received.first() {
-                Some(&address) if address != slave => Framing::Foreign,
-                _ => Framing::NeedMore {
-                    needed: request.answer_len(),
-                },
-            };
-        };
-        if address != slave {
-            return Framing::Foreign;
-        }
-        // Single writes are answered with a copy of the request: no echo can be told from them.
-        let answer_may_equal_request = matches!(
-            function,
-            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
-        );
-        if !self.options.echo
-            && !answer_may_equal_request
-            && received.len() < sent.len()
-            && sent.starts_with(received)
-        {
-            return Framing::EchoCandidate;
-        }
-        let needed = if found_function == function.value() | 0x80 {
-            codec::EXCEPTION_FRAME_LEN
-        } else if found_function == function.value() {
-            if request.is_read() {
-                match received.get(2) {
-                    // Framed by the byte count the device claims; the decoder checks it.
-                    Some(&count) => 5 + usize::from(count),
-                    None => {
-                        return Framing::NeedMore {
-                            needed: request.answer_len(),
-                        }
-                    }
-                }
-            } else {
-                request.answer_len()
-            }
-        } else {
-            return if received.len() >= MAX_FRAME_LEN {
-                Framing::Complete(MAX_FRAME_LEN)
-            } else {
-                Framing::UnknownLength
-            };
-        };
-        if received.len() >= needed {
-            Framing::Complete(needed)
-        } else {
-            Framing::NeedMore { needed }
-        }
-    }
-
     /// A frame for another address: counted and dropped; listening goes on (serial-line
     /// specification 2.4.1).
     fn ignore_foreign_frame(&mut self, frame: &[u8]) {
@@ -713,10 +631,10 @@ impl Master {
             .first()
             .is_some_and(|&address| Some(address) == self.timed_out_slave);
         if from_timed_out_slave && !self.late_answer_counted {
-            self.counters.late_answers += 1;
+            self.core.counters_mut().late_answers += 1;
             self.late_answer_counted = true;
         } else {
-            self.counters.wrong_address += 1;
+            self.core.counters_mut().wrong_address += 1;
         }
         self.took_frame(frame);
         tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "frame for another address ignored");
@@ -737,9 +655,9 @@ impl Master {
 
     /// Accounts for a received frame (log, recorder, wire time).
     fn took_frame(&mut self, frame: &[u8]) {
-        tracing::debug!(port = %self.port.path(), frame = %codec::hex(frame), "rx");
-        self.record("rx", frame);
-        self.counters.wire_time += self.timing.frame_time(frame.len()) + self.timing.t3_5;
+        self.core.record(Direction::Rx, frame);
+        self.core.counters_mut().wire_time +=
+            self.timing.frame_time(frame.len()) + self.timing.t3_5;
     }
 
     fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
@@ -751,74 +669,11 @@ impl Master {
             Err(other) => Err(Error::UnexpectedReply(other)),
         }
     }
-
-    fn record(&mut self, direction: &str, bytes: &[u8]) {
-        let Some(writer) = self.recorder.as_mut() else {
-            return;
-        };
-        let line = format!(
-            "{} {direction} {}\n",
-            unix_time_micros(),
-            codec::hex(bytes).replace(' ', "")
-        );
-        if let Err(error) = writer
-            .write_all(line.as_bytes())
-            .and_then(|()| writer.flush())
-        {
-            tracing::warn!(port = %self.port.path(), %error, "frame recording stopped");
-            self.recorder = None;
-        }
-    }
-}
-
-/// The length of the answer frame at the start of `received` when its function code gives the
-/// length, all of it has arrived and its CRC is right (`None` otherwise).
-fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
-    let function = *received.get(1)?;
-    let length = if function & 0x80 != 0 {
-        codec::EXCEPTION_FRAME_LEN
-    } else {
-        match FunctionCode::from_u8(function)? {
-            FunctionCode::ReadCoils
-            | FunctionCode::ReadDiscreteInputs
-            | FunctionCode::ReadHoldingRegisters
-            | FunctionCode::ReadInputRegisters => 5 + usize::from(*received.get(2)?),
-            _ => 8,
-        }
-    };
-    let frame = received.get(..length)?;
-    let (carried, computed) = carried_and_computed(frame)?;
-    (carried == computed).then_some(length)
-}
-
-/// How many bytes at the start of `received` are noise before our answer: the head is neither
-/// our answer's (our address, our function or its exception) nor another device's frame
-/// (a known function code), and our answer's head starts further on. `None`: nothing to skip
-/// (yet).
-fn noise_before_answer(slave: SlaveId, function: FunctionCode, received: &[u8]) -> Option<usize> {
-    let ours = |code: u8| code == function.value() || code == function.value() | 0x80;
-    let known = |code: u8| FunctionCode::from_u8(code & 0x7F).is_some();
-    let head_function = *received.get(1)?;
-    let plausible_head = if received[0] == slave {
-        ours(head_function)
-    } else {
-        known(head_function)
-    };
-    if plausible_head {
-        return None;
-    }
-    (1..received.len()).find(|&start| {
-        received[start] == slave && received.get(start + 1).map_or(true, |&code| ours(code))
-    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn answer(slave: SlaveId, words: &[u16]) -> Vec<u8> {
-        codec::encode_answer(slave, &Response::HoldingRegisters(words.to_vec()))
-    }
 
     #[test]
     fn counters_add_field_by_field() {
@@ -853,133 +708,5 @@ mod tests {
             }
         );
         assert_eq!(WireCounters::default() + one, one);
-    }
-
-    #[test]
-    fn noise_is_found_only_before_our_answer_head() {
-        let ours = answer(0x11, &[1, 2]);
-        let read = FunctionCode::ReadHoldingRegisters;
-        assert_eq!(noise_before_answer(0x11, read, &ours), None);
-        let mut noisy = vec![0x00, 0xFF];
-        noisy.extend_from_slice(&ours);
-        assert_eq!(noise_before_answer(0x11, read, &noisy), Some(2));
-        // Another device's frame is not noise: it is read to its end.
-        let foreign = answer(0x22, &[1, 2]);
-        assert_eq!(noise_before_answer(0x11, read, &foreign), None);
-        // Our address with a wrong function and no answer head behind it: not skipped.
-        assert_eq!(
-            noise_before_answer(0x11, read, &[0x11, 0x04, 0x04, 0x00]),
-            None
-        );
-        // Too little to tell.
-        assert_eq!(noise_before_answer(0x11, read, &[0x00]), None);
-    }
-
-    #[test]
-    fn foreign_frame_is_complete_only_with_its_length_and_crc() {
-        let foreign = answer(0x22, &[7, 8]);
-        assert_eq!(complete_foreign_frame(&foreign[..foreign.len() - 1]), None);
-        let mut followed = foreign.clone();
-        followed.extend_from_slice(&answer(0x11, &[1, 2]));
-        assert_eq!(complete_foreign_frame(&followed), Some(foreign.len()));
-        let mut corrupted = foreign.clone();
-        corrupted[3] ^= 0x01;
-        assert_eq!(complete_foreign_frame(&corrupted), None);
-        let exception = codec::encode_exception(0x22, 0x03, ExceptionCode::IllegalDataAddress);
-        assert_eq!(complete_foreign_frame(&exception), Some(5));
-    }
-    /// Instants at which the master wrote each `tx` line of its frame recording.
-    #[derive(Clone, Default)]
-    struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
-
-    impl Write for TxInstants {
-        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-            let line = String::from_utf8_lossy(bytes);
-            if line.split_whitespace().nth(1) == Some("tx") {
-                self.0.lock().unwrap().push(Instant::now());
-            }
-            Ok(bytes.len())
-        }
-
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-
-    /// The master never drives the line sooner than t3.5 after the answer's last byte, checked
-    /// in the direction that holds on any load: the simulator's hand-over of its answer is the
-    /// earliest the master can have seen it, and the master records a request before writing
-    /// it, so `recorded tx − hand-over` is at most the true silence. Likewise the simulator's
-    /// silence before each request runs from that hand-over to when it read the request,
-    /// which can only be later than the master's write.
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
-        use crate::rtu::timing::{CharFormat, Parity};
-        use crate::rtu::transport::SerialSettings;
-        use crate::sim::{share, AirShower, ServeOptions, VirtualLine};
-
-        const TRANSACTIONS: usize = 40;
-        let baud = 38_400;
-        let format = CharFormat {
-            data_bits: 8,
-            parity: Parity::None,
-            stop_bits: 1,
-        };
-        let timing = LineTiming::new(baud, format);
-        let (_shower, device) = share(AirShower::new());
-        let line = VirtualLine::spawn(
-            ServeOptions::new(baud, Parity::None).paced(true),
-            vec![device],
-        )
-        .unwrap();
-        let port = Port::open(&SerialSettings {
-            path: line.path().to_string_lossy().into_owned(),
-            baud,
-            format,
-            rs485: None,
-        })
-        .unwrap();
-        let mut master = Master::new(port, timing, MasterOptions::default());
-        let tx_instants = TxInstants::default();
-        master.record_frames_to(Box::new(tx_instants.clone()));
-        let read = Request::ReadCoils {
-            start: 0,
-            quantity: 22,
-        };
-        for _ in 0..TRANSACTIONS {
-            master
-                .transact(0x81, &read, Duration::from_secs(1))
-                .await
-                .unwrap()
-                .unwrap();
-        }
-        // The simulator journals a request once its answer is handed over, which may be a
-        // moment after the master already has that answer: wait for the last record.
-        let deadline = Instant::now() + Duration::from_secs(2);
-        let mut records = line.journal().requests();
-        while records.len() < TRANSACTIONS && Instant::now() < deadline {
-            tokio::time::sleep(Duration::from_millis(10)).await;
-            records = line.journal().requests();
-        }
-        let sent = tx_instants.0.lock().unwrap().clone();
-        assert_eq!(records.len(), TRANSACTIONS);
-        assert_eq!(sent.len(), TRANSACTIONS);
-        for (i, pair) in records.windows(2).enumerate() {
-            let handed_over = pair[0].answer_timing.unwrap().handed_over;
-            let next_tx = sent[i + 1];
-            assert!(
-                next_tx.into_std() >= handed_over + timing.t3_5,
-                "request {} recorded {:?} after the answer's hand-over, t3.5 is {:?}",
-                i + 1,
-                next_tx.into_std().saturating_duration_since(handed_over),
-                timing.t3_5
-            );
-            let silence = pair[1].silence_before.unwrap();
-            assert!(
-                silence >= timing.t3_5,
-                "request {} after {silence:?} of silence",
-                i + 1
-            );
-        }
     }
 }

@@ -186,7 +186,7 @@ pub fn decode_answer(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rtu::frame::{ExceptionCode, Response};
+    use crate::frame::{ExceptionCode, Response};
     use proptest::prelude::*;
 
     const READ_DUST: Request = Request::ReadHoldingRegisters {

@@ -151,8 +151,8 @@ impl AnswerFramer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rtu::codec::{encode_answer, encode_exception};
-    use crate::rtu::frame::{ExceptionCode, Response};
+    use crate::codec::{encode_answer, encode_exception};
+    use crate::frame::{ExceptionCode, Response};
     use proptest::prelude::*;
 
     const READ_DUST: Request = Request::ReadHoldingRegisters {
@@ -170,7 +170,7 @@ mod tests {
             0x01, 0x03, 0x0C, 0x00, 0x03, 0x00, 0x05, 0x00, 0x02, 0x00, 0x0A, 0x05, 0xDC, 0x00,
             0x19,
         ];
-        crate::rtu::crc::append_crc(&mut frame);
+        crate::crc::append_crc(&mut frame);
         assert_eq!(
             frame,
             encode_answer(1, &Response::HoldingRegisters(dust_words()))

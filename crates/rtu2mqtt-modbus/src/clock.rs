@@ -5,9 +5,12 @@
 //! deadline and finishes by yielding to the runtime until it has passed. Where no timerfd can
 //! be had it falls back to the tokio timer with a wider yielding window.
 
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd, RawFd};
 use std::time::Duration;
 
+use nix::errno::Errno;
+use nix::sys::time::TimeSpec;
+use nix::sys::timerfd::{ClockId, Expiration, TimerFd, TimerFlags, TimerSetTimeFlags};
 use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::time::Instant;
@@ -48,7 +51,7 @@ pub async fn sleep_until_precise(deadline: Instant) {
 /// the next wait re-arms it, and a stale expiry is read away as `EAGAIN`.
 #[derive(Debug, Default)]
 pub struct PreciseTimer {
-    timer: Option<AsyncFd<OwnedFd>>,
+    timer: Option<AsyncFd<Timer>>,
     /// No timerfd could be had: the tokio timer stands in from then on.
     unavailable: bool,
 }
@@ -74,7 +77,7 @@ impl PreciseTimer {
     }
 
     /// The timerfd, made and registered on first use (within the runtime that runs the owner).
-    fn timer(&mut self) -> std::io::Result<&AsyncFd<OwnedFd>> {
+    fn timer(&mut self) -> std::io::Result<&AsyncFd<Timer>> {
         if self.unavailable {
             return Err(std::io::Error::from(std::io::ErrorKind::Unsupported));
         }
@@ -92,79 +95,59 @@ impl PreciseTimer {
     /// timer).
     async fn timerfd_sleep(&mut self, duration: Duration) -> std::io::Result<()> {
         let timer = self.timer()?;
-        arm(timer.get_ref(), duration)?;
+        timer.get_ref().arm(duration)?;
         loop {
             let mut ready = timer.readable().await?;
-            let mut expirations = [0u8; 8];
-            // SAFETY: reads at most 8 bytes into the 8-byte buffer owned here.
-            let read = unsafe {
-                libc::read(
-                    timer.get_ref().as_raw_fd(),
-                    expirations.as_mut_ptr().cast(),
-                    expirations.len(),
-                )
-            };
-            if read == 8 {
-                // The expiry is consumed: the next wait sleeps on the reactor at once instead
-                // of first reading the drained timer (one system call per wait).
-                ready.clear_ready();
-                return Ok(());
-            }
-            let error = std::io::Error::last_os_error();
-            match error.kind() {
+            match timer.get_ref().0.wait() {
+                Ok(()) => {
+                    // The expiry is consumed: the next wait sleeps on the reactor at once
+                    // instead of first reading the drained timer (one system call per wait).
+                    ready.clear_ready();
+                    return Ok(());
+                }
                 // Not yet expired, or a stale readiness from a wait that was dropped.
-                std::io::ErrorKind::WouldBlock => ready.clear_ready(),
-                std::io::ErrorKind::Interrupted => {}
-                _ => return Err(error),
+                Err(Errno::EAGAIN) => ready.clear_ready(),
+                Err(error) => return Err(error.into()),
             }
         }
     }
 }
 
-/// A non-blocking CLOCK_MONOTONIC timerfd registered with the runtime's reactor.
-fn new_timerfd() -> std::io::Result<AsyncFd<OwnedFd>> {
-    // SAFETY: timerfd_create takes no pointers; a non-negative result is a new descriptor that
-    // is owned from here on.
-    let raw = unsafe {
-        libc::timerfd_create(
-            libc::CLOCK_MONOTONIC,
-            libc::TFD_NONBLOCK | libc::TFD_CLOEXEC,
-        )
-    };
-    if raw < 0 {
-        return Err(std::io::Error::last_os_error());
+/// A non-blocking CLOCK_MONOTONIC timerfd, as the runtime's reactor watches it.
+#[derive(Debug)]
+struct Timer(TimerFd);
+
+impl AsRawFd for Timer {
+    fn as_raw_fd(&self) -> RawFd {
+        self.0.as_fd().as_raw_fd()
     }
-    // SAFETY: `raw` was just created above and nothing else owns it.
-    let timer = unsafe { OwnedFd::from_raw_fd(raw) };
-    // SAFETY: the AsyncFd owns the OwnedFd, so the descriptor stays open and the same until
-    // the AsyncFd is dropped. Needs the runtime's I/O driver, as the serial port does.
-    unsafe { AsyncFd::register_with_interest(timer, Interest::READABLE) }
-        .map_err(std::io::Error::from)
 }
 
-/// Arms `timer` to expire once, `duration` from now. Re-arming also resets the count of
-/// expirations not read yet, so a stale expiry of an earlier wait cannot end this one.
-fn arm(timer: &OwnedFd, duration: Duration) -> std::io::Result<()> {
-    let spec = libc::itimerspec {
-        it_interval: libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        },
-        it_value: libc::timespec {
-            tv_sec: libc::time_t::try_from(duration.as_secs()).unwrap_or(libc::time_t::MAX),
-            // A zero it_value would disarm the timer: at least one nanosecond. Below 10^9, so
-            // it fits a c_long on 32-bit targets too.
-            tv_nsec: duration.subsec_nanos().max(1) as libc::c_long,
-        },
-    };
-    // SAFETY: `spec` is a fully initialised itimerspec that outlives the call; the old value is
-    // not asked for (null).
-    let status =
-        unsafe { libc::timerfd_settime(timer.as_raw_fd(), 0, &spec, std::ptr::null_mut()) };
-    if status != 0 {
-        return Err(std::io::Error::last_os_error());
+impl Timer {
+    /// Arms the timer to expire once, `duration` from now. Re-arming also resets the count of
+    /// expirations not read yet, so a stale expiry of an earlier wait cannot end this one.
+    fn arm(&self, duration: Duration) -> std::io::Result<()> {
+        // A zero expiry would disarm the timer: at least one nanosecond.
+        let duration = duration.max(Duration::from_nanos(1));
+        self.0.set(
+            Expiration::OneShot(TimeSpec::from_duration(duration)),
+            TimerSetTimeFlags::empty(),
+        )?;
+        Ok(())
     }
-    Ok(())
+}
+
+/// A new timerfd registered with the runtime's reactor (needs the runtime's I/O driver, as
+/// the serial port does).
+fn new_timerfd() -> std::io::Result<AsyncFd<Timer>> {
+    let timer = TimerFd::new(
+        ClockId::CLOCK_MONOTONIC,
+        TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
+    )?;
+    // SAFETY: the AsyncFd owns the TimerFd, so its descriptor stays open and the same until
+    // the AsyncFd is dropped.
+    unsafe { AsyncFd::register_with_interest(Timer(timer), Interest::READABLE) }
+        .map_err(std::io::Error::from)
 }
 
 /// [`sleep_until_precise`] for a duration from now.

@@ -6,6 +6,7 @@ use std::io::Write;
 use std::time::Duration;
 
 use super::frame::{Request, SlaveId};
+use super::link_core::LinkCore;
 use super::master::{Error, Master, Reply, WireCounters};
 use super::tcp_link::{ModbusTcpMaster, RawTcpMaster};
 
@@ -57,20 +58,29 @@ impl Link {
         }
     }
 
-    pub fn counters(&self) -> WireCounters {
+    /// The link's counters, frame recorder and late-answer guard.
+    pub fn core(&self) -> &LinkCore {
         match self {
-            Link::Serial(master) => master.counters(),
-            Link::RawTcp(master) => master.connection().counters(),
-            Link::ModbusTcp(master) => master.connection().counters(),
+            Link::Serial(master) => &master.core,
+            Link::RawTcp(master) => &master.connection.core,
+            Link::ModbusTcp(master) => &master.connection.core,
         }
+    }
+
+    pub fn core_mut(&mut self) -> &mut LinkCore {
+        match self {
+            Link::Serial(master) => &mut master.core,
+            Link::RawTcp(master) => &mut master.connection.core,
+            Link::ModbusTcp(master) => &mut master.connection.core,
+        }
+    }
+
+    pub fn counters(&self) -> WireCounters {
+        self.core().counters()
     }
 
     /// Writes every frame to `writer` (the frame log).
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
-        match self {
-            Link::Serial(master) => master.record_frames_to(writer),
-            Link::RawTcp(master) => master.connection_mut().record_frames_to(writer),
-            Link::ModbusTcp(master) => master.connection_mut().record_frames_to(writer),
-        }
+        self.core_mut().record_frames_to(writer);
     }
 }
