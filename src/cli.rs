@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
+use crate::rtu::timing::Parity;
+
 #[derive(Debug, Parser)]
 #[command(
     name = "rtu2mqtt",
@@ -82,6 +84,16 @@ pub fn parse_address(text: &str) -> Result<u8, String> {
         None => text.parse::<u8>(),
     };
     parsed.map_err(|_| format!("`{text}` is not an address 0–255 (decimal or 0x hex)"))
+}
+
+/// Parses `none | even | odd`.
+pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
+    match text.to_ascii_lowercase().as_str() {
+        "none" | "n" => Ok(Parity::None),
+        "even" | "e" => Ok(Parity::Even),
+        "odd" | "o" => Ok(Parity::Odd),
+        other => anyhow::bail!("parity `{other}`: expected none, even or odd"),
+    }
 }
 
 #[derive(Debug, Args)]

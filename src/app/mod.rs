@@ -10,7 +10,6 @@ pub mod read;
 pub mod reload;
 pub mod scan;
 pub mod simulate;
-pub mod startup_pages;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -229,7 +228,6 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .build()
         .context("starting the async runtime")?;
     let health_settings = config.health.clone();
-    let release_startup_code_after = config.gateway.release_startup_code_after;
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
         let signals = tokio::spawn(stop_on_signals(trigger.clone()));
@@ -249,10 +247,6 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         let watchdog_trigger = trigger.clone();
         let supervision = tokio::spawn(async move {
             let running = ready_rx.await.ok()?;
-            tokio::spawn(startup_pages::reclaim_after_settling(
-                release_startup_code_after,
-                running.line_stats.clone(),
-            ));
             let bridge = &running.bridge;
             health::first_connect_attempt(&bridge.connected, health::FIRST_CONNECT_WAIT).await;
             let probe = health::MqttProbe {

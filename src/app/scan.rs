@@ -27,8 +27,7 @@ use std::time::Duration;
 use anyhow::{bail, Context as _};
 
 use super::read::{read_request, Target};
-use crate::app::simulate::parse_parity;
-use crate::cli::ScanArgs;
+use crate::cli::{parse_parity, ScanArgs};
 use crate::rtu::link::Link;
 use crate::rtu::master;
 use crate::rtu::timing::{CharFormat, Parity};

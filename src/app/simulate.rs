@@ -11,20 +11,10 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 
-use crate::cli::SimulateArgs;
+use crate::cli::{parse_parity, SimulateArgs};
 use crate::rtu::timing::Parity;
 use crate::sim::faults::FaultHandle;
 use crate::sim::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
-
-/// Parses `none | even | odd`.
-pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
-    match text.to_ascii_lowercase().as_str() {
-        "none" | "n" => Ok(Parity::None),
-        "even" | "e" => Ok(Parity::Even),
-        "odd" | "o" => Ok(Parity::Odd),
-        other => bail!("parity `{other}`: expected none, even or odd"),
-    }
-}
 
 /// The simulated device for `profile` at `address` (the profile's usual address if None).
 pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {

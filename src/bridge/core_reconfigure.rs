@@ -146,7 +146,6 @@ mod tests {
             frame_log: None,
             allow_raw_writes: false,
             max_payload: 256,
-            release_startup_code_after: crate::config::STARTUP_CODE_SETTLE_TIME,
         };
         let valve = device("valve", "wuzhou-valve", 1);
         let dust = device("dust_collector", "ruiwan-dust-collector", 0);

@@ -21,7 +21,6 @@ fn options() -> GatewayOptions {
         frame_log: None,
         allow_raw_writes: false,
         max_payload: 256,
-        release_startup_code_after: crate::config::STARTUP_CODE_SETTLE_TIME,
     }
 }
 

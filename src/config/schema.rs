@@ -80,13 +80,6 @@ pub struct RawGateway {
     /// Largest accepted command payload in bytes.
     #[serde(default = "default_max_payload")]
     pub max_payload: usize,
-    /// How long after start-up (and after each reload) the pages of code that only start-up
-    /// ran are given back to the kernel.
-    #[serde(
-        default = "default_release_startup_code_after",
-        with = "humantime_serde"
-    )]
-    pub release_startup_code_after: Duration,
 }
 
 impl Default for RawGateway {
@@ -99,7 +92,6 @@ impl Default for RawGateway {
             frame_log: None,
             allow_raw_writes: false,
             max_payload: default_max_payload(),
-            release_startup_code_after: default_release_startup_code_after(),
         }
     }
 }
@@ -289,7 +281,6 @@ pub const GATEWAY_SHAPE: &[Key] = &[
     optional("frame_log", Kind::Text),
     optional("allow_raw_writes", Kind::Bool),
     optional("max_payload", USIZE),
-    optional("release_startup_code_after", Kind::Duration),
 ];
 pub const LINE_SHAPE: &[Key] = &[
     required("name", Kind::Text),
@@ -351,7 +342,6 @@ pub const GATEWAY_KEYS: &[&str] = &[
     "frame_log",
     "allow_raw_writes",
     "max_payload",
-    "release_startup_code_after",
 ];
 pub const LINE_KEYS: &[&str] = &[
     "name",
@@ -393,9 +383,6 @@ fn default_discovery_prefix() -> String {
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)
-}
-fn default_release_startup_code_after() -> Duration {
-    crate::config::STARTUP_CODE_SETTLE_TIME
 }
 fn default_stats_interval() -> Duration {
     Duration::from_secs(60)
