@@ -1,4 +1,5 @@
-//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`.
+//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`
+//! (`demo` and `simulate` with the feature `demo`).
 
 use std::path::PathBuf;
 
@@ -39,6 +40,7 @@ pub enum Command {
         )]
         config: PathBuf,
     },
+    #[cfg(feature = "demo")]
     /// The whole seed plant with no hardware: simulated devices on virtual serial lines, an
     /// embedded MQTT broker and the gateway.
     Demo {
@@ -53,6 +55,7 @@ pub enum Command {
         #[arg(long)]
         log: bool,
     },
+    #[cfg(feature = "demo")]
     /// One simulated device (or a seed plant line) on a serial port, or behind a TCP port as a
     /// serial device server (tcp://) or a Modbus TCP gateway (modbus-tcp://).
     Simulate(SimulateArgs),
@@ -96,6 +99,7 @@ pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
     }
 }
 
+#[cfg(feature = "demo")]
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
     /// Built-in profile name or profile file path.

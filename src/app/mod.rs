@@ -4,11 +4,13 @@
 //! library entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
+#[cfg(feature = "demo")]
 pub mod demo;
 pub mod logging;
 pub mod read;
 pub mod reload;
 pub mod scan;
+#[cfg(feature = "demo")]
 pub mod simulate;
 
 use std::path::Path;

@@ -889,9 +889,11 @@ mod tests {
         assert_eq!(complete_foreign_frame(&exception), Some(5));
     }
     /// Instants at which the master wrote each `tx` line of its frame recording.
+    #[cfg(feature = "demo")]
     #[derive(Clone, Default)]
     struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
 
+    #[cfg(feature = "demo")]
     impl Write for TxInstants {
         fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
             let line = String::from_utf8_lossy(bytes);
@@ -912,6 +914,7 @@ mod tests {
     /// it, so `recorded tx − hand-over` is at most the true silence. Likewise the simulator's
     /// silence before each request runs from that hand-over to when it read the request,
     /// which can only be later than the master's write.
+    #[cfg(feature = "demo")]
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
         use crate::rtu::timing::{CharFormat, Parity};
