@@ -198,3 +198,42 @@ pub fn parse_u16(text: &str) -> Result<u16, String> {
     };
     parsed.map_err(|_| format!("`{text}` is not a number 0–65535 (decimal or 0x hex)"))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn demo_and_simulate_are_commands_exactly_with_the_feature_demo() {
+        let commands: Vec<String> = Cli::command()
+            .get_subcommands()
+            .map(|command| command.get_name().to_string())
+            .collect();
+        for command in ["run", "check", "scan", "read", "profiles", "health"] {
+            assert!(commands.iter().any(|c| c == command), "{commands:?}");
+        }
+        for command in ["demo", "simulate"] {
+            assert_eq!(
+                commands.iter().any(|c| c == command),
+                cfg!(feature = "demo"),
+                "{command} in {commands:?}"
+            );
+        }
+        let help = Cli::command().render_help().to_string();
+        assert_eq!(help.contains("  demo "), cfg!(feature = "demo"), "{help}");
+        assert_eq!(
+            help.contains("  simulate "),
+            cfg!(feature = "demo"),
+            "{help}"
+        );
+    }
+
+    #[test]
+    fn parities_are_read_by_name_or_letter() {
+        assert_eq!(parse_parity("Even").ok(), Some(Parity::Even));
+        assert_eq!(parse_parity("o").ok(), Some(Parity::Odd));
+        assert_eq!(parse_parity("none").ok(), Some(Parity::None));
+        assert!(parse_parity("mark").is_err());
+    }
+}
