@@ -15,20 +15,21 @@ WORKDIR /src
 
 # Dependencies first, in their own layer: a change to the sources does not rebuild them.
 # Placeholder sources stand in for every target of the manifest; the crate's own artefacts are
-# removed afterwards so the real sources are always compiled. (scripts/edge-build makes a
-# static binary that maps no shared C library; its wire timing's tail is longer:
-# docs/performance.md. This image ships the default build.)
+# removed afterwards so the real sources are always compiled. The daemon is built without the
+# feature `demo` (no simulators, demo, embedded broker or `simulate`). (scripts/edge-build
+# makes a static binary that maps no shared C library; its wire timing's tail is longer:
+# docs/performance.md. This image ships the dynamic build.)
 COPY Cargo.toml Cargo.lock ./
 COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \
- && cargo build --release --locked \
- && rm -rf src benches crates/rtu2mqtt-modbus/src target/release/rtu2mqtt* \
+ && cargo build --release --locked --no-default-features \
+ && rm -rf src benches tests crates/rtu2mqtt-modbus/src target/release/rtu2mqtt* \
            target/release/deps/rtu2mqtt-* target/release/deps/librtu2mqtt-* \
            target/release/deps/librtu2mqtt_modbus-* target/release/.fingerprint/rtu2mqtt-*
 
 COPY . .
-RUN cargo build --release --locked --bin rtu2mqtt \
+RUN cargo build --release --locked --no-default-features --bin rtu2mqtt \
  && install -m 0755 target/release/rtu2mqtt /usr/local/bin/rtu2mqtt
 
 # ---- runtime -----------------------------------------------------------------------------

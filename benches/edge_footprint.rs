@@ -14,8 +14,8 @@
 //! bus efficiency = (wire time of every request and answer + the two mandatory t3.5 silences
 //!                   of each transaction) / wall time
 //!
-//! The windows start after the gateway gave its start-up code back (see
-//! `app::startup_pages`), so they measure the running loops; the peak RSS is the start-up's.
+//! The windows start after a warm-up, so they measure the running loops; the peak RSS is the
+//! start-up's.
 //!
 //! Prints figures beside their targets; asserts nothing. Run: `cargo bench --bench
 //! edge_footprint` (about a minute and a half after the build); another build of the gateway
@@ -35,9 +35,6 @@ use support::{Mosquitto, TestClient};
 
 const BAUD: u32 = 9600;
 const WARM_UP: Duration = Duration::from_secs(5);
-/// The gateway gives back its start-up code this long after start-up (30 s by default) and
-/// one second's write-back of its executable, so that the window measures the running loops.
-const RELEASE_STARTUP_CODE_AFTER: &str = "3s";
 const WINDOW: Duration = Duration::from_secs(60);
 const COMMANDS: u32 = 40;
 const MANY_LINES: usize = 8;
@@ -251,8 +248,7 @@ fn config_file(
     devices: u8,
 ) -> anyhow::Result<PathBuf> {
     let mut text = format!(
-        "[mqtt]\nurl = \"{}\"\nclient_id = \"bench-{name}\"\n\n[health]\nstatus_file = \"\"\n\n\
-         [gateway]\nrelease_startup_code_after = \"{RELEASE_STARTUP_CODE_AFTER}\"\n",
+        "[mqtt]\nurl = \"{}\"\nclient_id = \"bench-{name}\"\n\n[health]\nstatus_file = \"\"\n",
         broker.url()
     );
     for (index, line) in lines.iter().enumerate() {

@@ -1,8 +1,11 @@
-//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`.
+//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`
+//! (`demo` and `simulate` with the feature `demo`).
 
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
+
+use rtu2mqtt_modbus::timing::Parity;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -37,6 +40,7 @@ pub enum Command {
         )]
         config: PathBuf,
     },
+    #[cfg(feature = "demo")]
     /// The whole seed plant with no hardware: simulated devices on virtual serial lines, an
     /// embedded MQTT broker and the gateway.
     Demo {
@@ -51,6 +55,7 @@ pub enum Command {
         #[arg(long)]
         log: bool,
     },
+    #[cfg(feature = "demo")]
     /// One simulated device (or a seed plant line) on a serial port, or behind a TCP port as a
     /// serial device server (tcp://) or a Modbus TCP gateway (modbus-tcp://).
     Simulate(SimulateArgs),
@@ -84,6 +89,17 @@ pub fn parse_address(text: &str) -> Result<u8, String> {
     parsed.map_err(|_| format!("`{text}` is not an address 0–255 (decimal or 0x hex)"))
 }
 
+/// Parses `none | even | odd`.
+pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
+    match text.to_ascii_lowercase().as_str() {
+        "none" | "n" => Ok(Parity::None),
+        "even" | "e" => Ok(Parity::Even),
+        "odd" | "o" => Ok(Parity::Odd),
+        other => anyhow::bail!("parity `{other}`: expected none, even or odd"),
+    }
+}
+
+#[cfg(feature = "demo")]
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
     /// Built-in profile name or profile file path.
@@ -181,4 +197,43 @@ pub fn parse_u16(text: &str) -> Result<u16, String> {
         None => text.parse::<u16>(),
     };
     parsed.map_err(|_| format!("`{text}` is not a number 0–65535 (decimal or 0x hex)"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn demo_and_simulate_are_commands_exactly_with_the_feature_demo() {
+        let commands: Vec<String> = Cli::command()
+            .get_subcommands()
+            .map(|command| command.get_name().to_string())
+            .collect();
+        for command in ["run", "check", "scan", "read", "profiles", "health"] {
+            assert!(commands.iter().any(|c| c == command), "{commands:?}");
+        }
+        for command in ["demo", "simulate"] {
+            assert_eq!(
+                commands.iter().any(|c| c == command),
+                cfg!(feature = "demo"),
+                "{command} in {commands:?}"
+            );
+        }
+        let help = Cli::command().render_help().to_string();
+        assert_eq!(help.contains("  demo "), cfg!(feature = "demo"), "{help}");
+        assert_eq!(
+            help.contains("  simulate "),
+            cfg!(feature = "demo"),
+            "{help}"
+        );
+    }
+
+    #[test]
+    fn parities_are_read_by_name_or_letter() {
+        assert_eq!(parse_parity("Even").ok(), Some(Parity::Even));
+        assert_eq!(parse_parity("o").ok(), Some(Parity::Odd));
+        assert_eq!(parse_parity("none").ok(), Some(Parity::None));
+        assert!(parse_parity("mark").is_err());
+    }
 }

@@ -16,8 +16,9 @@
 //! - [`bus`]: one task per line. It owns the link, decides what is due (pure scheduler with the
 //!   clock passed in), runs polls and command slots, tracks device health and line statistics,
 //!   and reports [`bus::LineEvent`]s (a slot's values before its command's end).
-//! - [`sim`]: simulated devices (the three seed devices written from `docs/devices.md`, and a
-//!   generic one built from any profile), on ptys or TCP, for tests, benchmarks and the demo.
+//! - `sim` (feature `demo`): simulated devices (the three seed devices written from
+//!   `docs/devices.md`, and a generic one built from any profile), on ptys or TCP, for tests,
+//!   benchmarks and the demo.
 //! - [`contract`]: the MQTT contract (topic names, Home Assistant ids, payload words, reserved
 //!   names), pure strings shared by the configuration check, discovery and the bridge.
 //! - [`config`]: the gateway configuration (file + environment), validated completely with the
@@ -29,9 +30,12 @@
 //!   driver.
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection; its commands
 //!   enter the bridge core like `…/set` commands.
-//! - [`broker`]: the demo's embedded MQTT broker; [`cli`]: the command line.
-//! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, `demo`,
-//!   `simulate` and the commissioning tools `scan` and `read`.
+//! - `broker` (feature `demo`): the demo's embedded MQTT broker; [`cli`]: the command line.
+//! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, the
+//!   commissioning tools `scan` and `read`, and with the feature `demo`, `demo` and `simulate`.
+//!
+//! The feature `demo` (on by default) brings the simulators, the demo, its embedded broker and
+//! `simulate`; the daemon for an edge box is built without it (`--no-default-features`).
 
 // What the codebase keeps true, checked on every build (`-D warnings` in CI):
 // - `pub` means part of the crate's surface: an item only its module uses is `pub(crate)` or
@@ -42,6 +46,7 @@
 
 pub mod app;
 pub mod bridge;
+#[cfg(feature = "demo")]
 pub mod broker;
 pub mod bus;
 pub mod cli;
@@ -50,5 +55,6 @@ pub mod contract;
 pub mod health;
 pub mod profile;
 pub mod shutdown;
+#[cfg(feature = "demo")]
 pub mod sim;
 pub mod sparkplug;

@@ -32,14 +32,20 @@ impl LogStyle {
     }
 }
 
+/// What is logged unless `RUST_LOG` says otherwise.
+#[cfg(feature = "demo")]
+// rumqttd (the demo's broker) logs every client connection at INFO and ordinary disconnects
+// at ERROR: noise for a demo user. `RUST_LOG=rumqttd=info` brings it back.
+const DEFAULT_FILTER: &str = "info,rumqttd=off";
+#[cfg(not(feature = "demo"))]
+const DEFAULT_FILTER: &str = "info";
+
 pub fn init() {
     let style = LogStyle::decide(std::io::stderr().is_terminal(), |name| {
         std::env::var(name).ok()
     });
-    // rumqttd (the demo's broker) logs every client connection at INFO and ordinary
-    // disconnects at ERROR: noise for a demo user. `RUST_LOG=rumqttd=info` brings it back.
     let filter =
-        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info,rumqttd=off"));
+        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(DEFAULT_FILTER));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_ansi(style.ansi)

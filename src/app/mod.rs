@@ -4,13 +4,14 @@
 //! library entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
+#[cfg(feature = "demo")]
 pub mod demo;
 pub mod logging;
 pub mod read;
 pub mod reload;
 pub mod scan;
+#[cfg(feature = "demo")]
 pub mod simulate;
-pub mod startup_pages;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -229,7 +230,6 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .build()
         .context("starting the async runtime")?;
     let health_settings = config.health.clone();
-    let release_startup_code_after = config.gateway.release_startup_code_after;
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
         let signals = tokio::spawn(stop_on_signals(trigger.clone()));
@@ -249,10 +249,6 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         let watchdog_trigger = trigger.clone();
         let supervision = tokio::spawn(async move {
             let running = ready_rx.await.ok()?;
-            tokio::spawn(startup_pages::reclaim_after_settling(
-                release_startup_code_after,
-                running.line_stats.clone(),
-            ));
             let bridge = &running.bridge;
             health::first_connect_attempt(&bridge.connected, health::FIRST_CONNECT_WAIT).await;
             let probe = health::MqttProbe {

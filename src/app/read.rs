@@ -12,8 +12,8 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context as _};
 
-use crate::app::simulate::parse_parity;
-use crate::cli::ReadArgs;
+use crate::cli::{parse_parity, ReadArgs};
+use crate::profile::bcd;
 use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
@@ -239,7 +239,8 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
         "\nregister     hex      u16     i16  bits                 bcd  chars"
     );
     for (i, &word) in words.iter().enumerate() {
-        let bcd = crate::sim::from_bcd(word).map_or_else(|| "-".to_string(), |v| v.to_string());
+        let bcd =
+            bcd::decode(word, bcd::WORD_DIGITS).map_or_else(|_| "-".to_string(), |v| v.to_string());
         let _ = writeln!(
             out,
             "{:#06x}    {word:#06x}  {word:>7}  {:>6}  {:04b} {:04b} {:04b} {:04b}  {bcd:>4}  \"{}\"",

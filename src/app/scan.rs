@@ -15,7 +15,7 @@
 //!
 //! On a pseudo-terminal the kernel does not enforce the baud rate; the simulators can compare
 //! the rate the master set on the pty with their own and garble their answers
-//! ([`crate::sim::ServeOptions::enforce_baud`]). Parity is not observable on a Linux pty, so a
+//! (`sim::ServeOptions::enforce_baud`). Parity is not observable on a Linux pty, so a
 //! scan over ptys finds a device at every parity tried.
 //!
 //! Progress goes to stderr; Ctrl-C stops the scan and prints the table found so far.
@@ -27,8 +27,7 @@ use std::time::Duration;
 use anyhow::{bail, Context as _};
 
 use super::read::{read_request, Target};
-use crate::app::simulate::parse_parity;
-use crate::cli::ScanArgs;
+use crate::cli::{parse_parity, ScanArgs};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master;
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};

@@ -11,20 +11,12 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 
-use crate::cli::SimulateArgs;
+use crate::cli::{parse_parity, SimulateArgs};
 use crate::sim::faults::FaultHandle;
-use crate::sim::{share, AirShower, DustCollector, Journal, ServeOptions, SharedDevice, Valve};
+use crate::sim::{
+    share, AirShower, AsyncSerial, DustCollector, Journal, ServeOptions, SharedDevice, Valve,
+};
 use rtu2mqtt_modbus::timing::Parity;
-
-/// Parses `none | even | odd`.
-pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
-    match text.to_ascii_lowercase().as_str() {
-        "none" | "n" => Ok(Parity::None),
-        "even" | "e" => Ok(Parity::Even),
-        "odd" | "o" => Ok(Parity::Odd),
-        other => bail!("parity `{other}`: expected none, even or odd"),
-    }
-}
 
 /// The simulated device for `profile` at `address` (the profile's usual address if None).
 pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
@@ -155,24 +147,23 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
 
 /// Opens `port` with the line's settings. A pseudo-terminal that refuses the parity setting is
 /// used anyway with a warning (ptys carry no parity); a real port must accept it.
-fn open_port(port: &Path, baud: u32, parity: Parity) -> anyhow::Result<tokio_serial::SerialStream> {
+fn open_port(port: &Path, baud: u32, parity: Parity) -> anyhow::Result<AsyncSerial> {
     let path = port.to_string_lossy().into_owned();
     let builder = |parity: Parity| {
-        tokio_serial::new(path.clone(), baud)
-            .data_bits(tokio_serial::DataBits::Eight)
-            .stop_bits(tokio_serial::StopBits::One)
+        mio_serial::new(path.clone(), baud)
+            .data_bits(mio_serial::DataBits::Eight)
+            .stop_bits(mio_serial::StopBits::One)
             .parity(match parity {
-                Parity::None => tokio_serial::Parity::None,
-                Parity::Even => tokio_serial::Parity::Even,
-                Parity::Odd => tokio_serial::Parity::Odd,
+                Parity::None => mio_serial::Parity::None,
+                Parity::Even => mio_serial::Parity::Even,
+                Parity::Odd => mio_serial::Parity::Odd,
             })
     };
-    match tokio_serial::SerialStream::open(&builder(parity)) {
+    match AsyncSerial::open(&builder(parity)) {
         Ok(stream) => Ok(stream),
         Err(error) if parity != Parity::None && is_pty(port) => {
             tracing::warn!(%error, "the pseudo-terminal refuses parity; running without (ptys carry none)");
-            tokio_serial::SerialStream::open(&builder(Parity::None))
-                .with_context(|| format!("opening {path}"))
+            AsyncSerial::open(&builder(Parity::None)).with_context(|| format!("opening {path}"))
         }
         Err(error) => Err(error).with_context(|| format!("opening {path}")),
     }

@@ -35,7 +35,6 @@ fn options() -> GatewayOptions {
         frame_log: None,
         allow_raw_writes: false,
         max_payload: 256,
-        release_startup_code_after: crate::config::STARTUP_CODE_SETTLE_TIME,
     }
 }
 
@@ -878,7 +877,6 @@ fn a_removed_device_is_cleared_and_a_kept_ones_waiting_command_stays() {
         frame_log: None,
         allow_raw_writes: false,
         max_payload: 256,
-        release_startup_code_after: crate::config::STARTUP_CODE_SETTLE_TIME,
     };
     let valve = device("valve", "wuzhou-valve", 1);
     let dust = device("dust_collector", "ruiwan-dust-collector", 0);

@@ -30,11 +30,6 @@ pub use schema::SparkplugSettings;
 pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
 pub use tree::keys_of;
 
-/// How long after start-up, and after each reload, the pages of code that only start-up ran
-/// go back to the kernel (`[gateway] release_startup_code_after`): by then every line has
-/// opened its port and polled, and the broker has taken the discovery documents.
-pub const STARTUP_CODE_SETTLE_TIME: Duration = Duration::from_secs(30);
-
 /// A validated gateway configuration.
 #[derive(Debug, Clone)]
 pub struct Config {
@@ -93,9 +88,6 @@ pub struct GatewayOptions {
     pub frame_log: Option<PathBuf>,
     pub allow_raw_writes: bool,
     pub max_payload: usize,
-    /// When the pages of code that only start-up ran go back to the kernel (after start-up
-    /// and after each reload).
-    pub release_startup_code_after: Duration,
 }
 
 /// One problem with its place in the file (`lines[0].devices[1].address`).

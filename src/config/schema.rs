@@ -81,13 +81,6 @@ pub struct RawGateway {
     /// Largest accepted command payload in bytes.
     #[serde(default = "default_max_payload")]
     pub max_payload: usize,
-    /// How long after start-up (and after each reload) the pages of code that only start-up
-    /// ran are given back to the kernel.
-    #[serde(
-        default = "default_release_startup_code_after",
-        with = "humantime_serde"
-    )]
-    pub release_startup_code_after: Duration,
 }
 
 impl Default for RawGateway {
@@ -100,7 +93,6 @@ impl Default for RawGateway {
             frame_log: None,
             allow_raw_writes: false,
             max_payload: default_max_payload(),
-            release_startup_code_after: default_release_startup_code_after(),
         }
     }
 }
@@ -209,9 +201,6 @@ fn default_discovery_prefix() -> String {
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)
-}
-fn default_release_startup_code_after() -> Duration {
-    crate::config::STARTUP_CODE_SETTLE_TIME
 }
 fn default_stats_interval() -> Duration {
     Duration::from_secs(60)

@@ -506,7 +506,6 @@ fn validate_gateway(raw: &RawGateway, problems: &mut Vec<Problem>) -> Option<Gat
         frame_log: raw.frame_log.clone(),
         allow_raw_writes: raw.allow_raw_writes,
         max_payload: raw.max_payload,
-        release_startup_code_after: raw.release_startup_code_after,
     })
 }
 

@@ -8,6 +8,7 @@
 
 use serde::Deserialize;
 
+use super::bcd::{self, BcdError};
 use super::field::{FieldInfo, FieldKind};
 use super::number::{self, DecimalText, ScaleError};
 use super::rejection::Rejection;
@@ -172,29 +173,22 @@ fn raw_of_enum(value: &Value, options: &[String], width: u8) -> Result<u16, Stri
 
 /// Decodes `digits` packed BCD digits of `word`; digits above them must be zero.
 fn bcd_digits(word: u16, digits: u8) -> Result<i64, FieldError> {
-    let mut value = 0i64;
-    for position in (0..4u8).rev() {
-        let nibble = (word >> (4 * position)) & 0xF;
-        if nibble > 9 {
-            return Err(FieldError::InvalidBcd(word));
-        }
-        if position >= digits && nibble != 0 {
-            return Err(FieldError::Invalid(format!(
+    bcd::decode(word, digits)
+        .map(i64::from)
+        .map_err(|error| match error {
+            BcdError::NotDecimal => FieldError::InvalidBcd(word),
+            BcdError::TooManyDigits => FieldError::Invalid(format!(
                 "BCD word {word:#06x} has more than {digits} digits"
-            )));
-        }
-        value = value * 10 + i64::from(nibble);
-    }
-    Ok(value)
+            )),
+        })
 }
 
-fn to_bcd(mut value: i64) -> u16 {
-    let mut word = 0u16;
-    for position in 0..4 {
-        word |= ((value % 10) as u16) << (4 * position);
-        value /= 10;
-    }
-    word
+/// One word of a BCD pair; the caller has already bounded the value to the pair's digits.
+fn to_bcd(value: i64) -> Result<u16, String> {
+    u16::try_from(value)
+        .ok()
+        .and_then(|value| bcd::encode(value, bcd::WORD_DIGITS))
+        .ok_or_else(|| format!("{value} does not fit four BCD digits"))
 }
 
 impl FieldCodec {
@@ -579,8 +573,8 @@ impl FieldCodec {
                 let scaled = fits(scaled, 0, pow10(int_digits + frac_digits) - 1)?;
                 let divisor = pow10(*frac_digits);
                 Ok(vec![
-                    word(0, 0xFFFF, to_bcd(scaled / divisor)),
-                    word(1, 0xFFFF, to_bcd(scaled % divisor)),
+                    word(0, 0xFFFF, to_bcd(scaled / divisor)?),
+                    word(1, 0xFFFF, to_bcd(scaled % divisor)?),
                 ])
             }
             Self::Bytes { .. } => Err("a byte string is read-only".to_string()),

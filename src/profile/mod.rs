@@ -5,11 +5,12 @@
 //! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
 //! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 //!
-//! Inside, a module only uses those before it in this order: [`value`], [`rejection`],
-//! [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
+//! Inside, a module only uses those before it in this order: [`bcd`], [`value`],
+//! [`rejection`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
 //! [`raw`] (planning and patching on the model); this file's [`Profile`] is what the rest of the
 //! crate sees.
 
+pub mod bcd;
 pub mod codec;
 pub mod command;
 pub mod compile;

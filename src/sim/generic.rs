@@ -180,9 +180,9 @@ fn seed(table: Table, address: u16) -> u16 {
     match table {
         Table::Coils | Table::DiscreteInputs => u16::from(address % 3 == 0),
         Table::Holding | Table::Input => {
-            let n = u32::from(address % 90) + 10;
+            let n = address % 90 + 10;
             // n < 100 always fits two BCD digits.
-            super::to_bcd(n, 2).unwrap_or(0x10)
+            crate::profile::bcd::encode(n, 2).unwrap_or(0x10)
         }
     }
 }
@@ -318,7 +318,9 @@ mod tests {
         let Reply::Normal(Response::HoldingRegisters(words)) = reply else {
             panic!("{reply:?}")
         };
-        assert!(words.iter().all(|w| crate::sim::from_bcd(*w).is_some()));
+        assert!(words
+            .iter()
+            .all(|w| crate::profile::bcd::decode(*w, 4).is_ok()));
         assert_eq!(
             device.handle(
                 &Request::ReadHoldingRegisters {

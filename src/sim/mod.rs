@@ -41,6 +41,7 @@ pub mod generic;
 pub mod journal;
 pub mod plant;
 pub mod pty_settings;
+pub mod serial_stream;
 pub mod server;
 pub mod tcp;
 pub mod valve;
@@ -58,6 +59,7 @@ pub use faults::{FaultHandle, Faults, Occurrence};
 pub use generic::GenericDevice;
 pub use journal::{AnswerTiming, Journal, RequestRecord};
 pub use plant::SeedPlant;
+pub use serial_stream::AsyncSerial;
 pub use server::{serve, ServeOptions};
 pub use tcp::{Protocol, TcpFaultHandle, TcpFaults, TcpSimulator};
 pub use valve::Valve;
@@ -135,34 +137,6 @@ pub fn lock<D: ?Sized>(device: &Mutex<D>) -> std::sync::MutexGuard<'_, D> {
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// Packed BCD of `value` in `digits` nibbles (the valve's Float halves); None when it does not
-/// fit.
-pub fn to_bcd(value: u32, digits: u32) -> Option<u16> {
-    if digits > 4 || value >= 10u32.pow(digits) {
-        return None;
-    }
-    let mut out = 0u16;
-    let mut rest = value;
-    for i in 0..digits {
-        out |= ((rest % 10) as u16) << (4 * i);
-        rest /= 10;
-    }
-    Some(out)
-}
-
-/// The number in packed BCD `word`; None when a nibble is above 9.
-pub fn from_bcd(word: u16) -> Option<u32> {
-    let mut value = 0u32;
-    for i in (0..4).rev() {
-        let nibble = u32::from((word >> (4 * i)) & 0xF);
-        if nibble > 9 {
-            return None;
-        }
-        value = value * 10 + nibble;
-    }
-    Some(value)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -229,14 +203,5 @@ mod tests {
             let _ = wire::decode_request(&bytes);
             let _ = wire::crc_ok(&bytes);
         }
-    }
-
-    #[test]
-    fn bcd_round_trips_and_rejects_bad_nibbles() {
-        assert_eq!(to_bcd(1234, 4), Some(0x1234));
-        assert_eq!(to_bcd(34, 2), Some(0x0034));
-        assert_eq!(to_bcd(100, 2), None);
-        assert_eq!(from_bcd(0x0012), Some(12));
-        assert_eq!(from_bcd(0x001A), None);
     }
 }

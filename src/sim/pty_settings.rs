@@ -6,9 +6,7 @@
 //! not observable: the pty driver clears PARENB on every `tcsetattr`, so a parity mismatch
 //! cannot be simulated this way and only the baud rate is checked.
 
-use std::os::fd::{AsRawFd, BorrowedFd};
-
-use super::server::ServeOptions;
+use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
 
 /// The baud rate `fd`'s terminal settings carry (None: not a terminal). Read with TCGETS2:
 /// serial libraries set the rate as a number (BOTHER), which the classic `cfgetospeed` cannot
@@ -25,17 +23,24 @@ pub fn baud_of(fd: BorrowedFd<'_>) -> Option<u32> {
     Some(settings.c_ospeed)
 }
 
-/// The master's baud rate when it differs from the line's (only with
-/// [`ServeOptions::enforce_baud`] on a virtual line).
-pub fn baud_mismatch(options: &ServeOptions) -> Option<u32> {
-    if !options.enforce_baud {
-        return None;
+/// Watches the baud rate the master set on a pty, through a descriptor of the pty's own.
+#[derive(Debug)]
+pub struct BaudWatch {
+    pty: OwnedFd,
+    line_baud: u32,
+}
+
+impl BaudWatch {
+    /// Watches `pty` (either end: both show the one set of settings) for a rate other than
+    /// `line_baud`.
+    pub fn new(pty: OwnedFd, line_baud: u32) -> Self {
+        Self { pty, line_baud }
     }
-    let fd = options.settings_fd?;
-    // SAFETY: the fd belongs to the stream the serving task owns for as long as it runs, and
-    // this is only called from that task.
-    let fd = unsafe { BorrowedFd::borrow_raw(fd) };
-    baud_of(fd).filter(|&peer| peer != options.timing.baud)
+
+    /// The master's baud rate when it differs from the line's.
+    pub fn mismatch(&self) -> Option<u32> {
+        baud_of(self.pty.as_fd()).filter(|&peer| peer != self.line_baud)
+    }
 }
 
 /// Turns an answer into what a UART at another baud rate makes of it: other bytes (the CRC no
@@ -49,6 +54,25 @@ pub fn garble(bytes: &mut [u8]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rate_set_on_the_slave_is_seen_and_compared() {
+        use mio_serial::SerialPort as _;
+        use std::os::unix::fs::OpenOptionsExt as _;
+
+        let (_master, mut slave) = mio_serial::SerialStream::pair().expect("a pty pair");
+        let path = slave.name().expect("the slave's path");
+        let watched = std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NOCTTY)
+            .open(path)
+            .expect("the slave opened again");
+        let watch = BaudWatch::new(watched.into(), 9600);
+        slave.set_baud_rate(9600).expect("9600 set");
+        assert_eq!(watch.mismatch(), None);
+        slave.set_baud_rate(19_200).expect("19200 set");
+        assert_eq!(watch.mismatch(), Some(19_200));
+    }
 
     #[test]
     fn garbled_answer_fails_its_crc() {

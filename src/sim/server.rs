@@ -17,6 +17,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::faults::{random_bytes, AnswerChunks, FaultHandle};
 use super::journal::{AnswerTiming, Journal, RequestRecord};
+use super::pty_settings::{garble, BaudWatch};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
 use crate::shutdown::Shutdown;
@@ -41,8 +42,6 @@ pub struct ServeOptions {
     /// line's: what a device hears at the wrong baud rate. Only a [`super::VirtualLine`] can
     /// look at its pty's settings; elsewhere this does nothing.
     pub enforce_baud: bool,
-    /// The pty end whose settings are looked at (set by the virtual line when `enforce_baud`).
-    pub(crate) settings_fd: Option<std::os::fd::RawFd>,
 }
 
 impl ServeOptions {
@@ -57,7 +56,6 @@ impl ServeOptions {
             timing: LineTiming::new(baud, format),
             pace: false,
             enforce_baud: false,
-            settings_fd: None,
         }
     }
 
@@ -81,6 +79,22 @@ pub async fn serve<S>(
     devices: Vec<SharedDevice>,
     faults: FaultHandle,
     journal: Journal,
+    shutdown: Shutdown,
+) -> std::io::Result<()>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    serve_watching(stream, options, None, devices, faults, journal, shutdown).await
+}
+
+/// [`serve`], garbling the answers while `baud_watch` sees the master at another baud rate.
+pub(crate) async fn serve_watching<S>(
+    stream: S,
+    options: ServeOptions,
+    baud_watch: Option<BaudWatch>,
+    devices: Vec<SharedDevice>,
+    faults: FaultHandle,
+    journal: Journal,
     mut shutdown: Shutdown,
 ) -> std::io::Result<()>
 where
@@ -89,6 +103,7 @@ where
     let mut server = Server {
         stream,
         options,
+        baud_watch,
         devices,
         faults,
         journal,
@@ -145,6 +160,8 @@ async fn sleep_until_opt(deadline: Option<tokio::time::Instant>) {
 struct Server<S> {
     stream: S,
     options: ServeOptions,
+    /// The virtual line's pty settings, when it enforces its baud rate.
+    baud_watch: Option<BaudWatch>,
     devices: Vec<SharedDevice>,
     faults: FaultHandle,
     journal: Journal,
@@ -268,13 +285,13 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             bytes.truncate(bytes.len() - 2);
             bytes = wire::with_crc(bytes);
         }
-        if let Some(peer) = super::pty_settings::baud_mismatch(&self.options) {
+        if let Some(peer) = self.baud_watch.as_ref().and_then(BaudWatch::mismatch) {
             tracing::debug!(
                 peer,
                 own = timing.baud,
                 "answer garbled: the master's baud rate differs"
             );
-            super::pty_settings::garble(&mut bytes);
+            garble(&mut bytes);
         }
         if faults.corrupt_crc {
             if let Some(last) = bytes.last_mut() {

@@ -12,7 +12,8 @@
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-use super::{from_bcd, to_bcd, Addressing, Reply, SimDevice};
+use super::{Addressing, Reply, SimDevice};
+use crate::profile::bcd;
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 pub const REG_ADDRESS: u16 = 0x00;
@@ -73,14 +74,20 @@ fn kind_of(register: u16) -> Option<Kind> {
 /// Encodes `hundredths` (e.g. 12.34 → 1234) as the (integer, fraction) BCD register pair.
 pub fn bcd_pair(hundredths: u32) -> [u16; 2] {
     [
-        to_bcd(hundredths / 100, 4).unwrap_or(0x9999),
-        to_bcd(hundredths % 100, 2).unwrap_or(0),
+        u16::try_from(hundredths / 100)
+            .ok()
+            .and_then(|integer| bcd::encode(integer, 4))
+            .unwrap_or(0x9999),
+        // Below 100: always two digits.
+        bcd::encode((hundredths % 100) as u16, 2).unwrap_or(0),
     ]
 }
 
 /// Decodes a (integer, fraction) BCD register pair into hundredths.
 pub fn from_bcd_pair(pair: [u16; 2]) -> Option<u32> {
-    Some(from_bcd(pair[0])? * 100 + from_bcd(pair[1])?)
+    let integer = bcd::decode(pair[0], bcd::WORD_DIGITS).ok()?;
+    let fraction = bcd::decode(pair[1], bcd::WORD_DIGITS).ok()?;
+    Some(u32::from(integer) * 100 + u32::from(fraction))
 }
 
 /// The simulated valve controller.
@@ -393,8 +400,8 @@ impl Valve {
                 return Reply::Exception(ExceptionCode::IllegalDataAddress)
             }
             Some(Kind::Char(max)) => value <= max,
-            Some(Kind::BcdInteger) => from_bcd(value).is_some(),
-            Some(Kind::BcdFraction) => value <= 0x99 && from_bcd(value).is_some(),
+            Some(Kind::BcdInteger) => bcd::decode(value, bcd::WORD_DIGITS).is_ok(),
+            Some(Kind::BcdFraction) => bcd::decode(value, 2).is_ok(),
         };
         let valid = valid
             && match register {

@@ -7,14 +7,17 @@
 //! the same devices, faults and journal; with [`VirtualLine::with_link`] a symlink keeps one
 //! stable path across replugs, like `/dev/serial/by-id`.
 
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
+use mio_serial::{SerialPort as _, SerialStream};
 use tokio::task::JoinHandle;
-use tokio_serial::{SerialPort, SerialStream};
 
 use super::faults::FaultHandle;
 use super::journal::Journal;
-use super::server::{serve, ServeOptions};
+use super::pty_settings::BaudWatch;
+use super::serial_stream::AsyncSerial;
+use super::server::{serve_watching, ServeOptions};
 use super::SharedDevice;
 use crate::shutdown::{self, ShutdownTrigger};
 
@@ -22,7 +25,7 @@ use crate::shutdown::{self, ShutdownTrigger};
 struct Plugged {
     slave_path: PathBuf,
     /// Held open so the master never sees EIO while the gateway has the port closed.
-    _slave: SerialStream,
+    _slave: File,
     stop: ShutdownTrigger,
     task: JoinHandle<std::io::Result<()>>,
 }
@@ -76,28 +79,29 @@ impl VirtualLine {
     }
 
     fn plug(&mut self) -> std::io::Result<()> {
-        let (master, slave) = SerialStream::pair().map_err(std::io::Error::from)?;
+        let (master, opened_slave) = SerialStream::pair().map_err(std::io::Error::from)?;
         // serialport opens the pair without close-on-exec: a process started later (a broker,
         // a gateway under test) would inherit the master end and keep an unplugged line open.
-        for fd in [
-            std::os::fd::AsRawFd::as_raw_fd(&master),
-            std::os::fd::AsRawFd::as_raw_fd(&slave),
-        ] {
-            close_on_exec(fd)?;
-        }
-        let slave_path = slave
+        close_on_exec(std::os::fd::AsRawFd::as_raw_fd(&master))?;
+        let slave_path = opened_slave
             .name()
             .map(PathBuf::from)
             .ok_or_else(|| std::io::Error::other("pty slave without a path"))?;
+        // The slave is held as a plain file (close-on-exec, and a descriptor of its own for
+        // the baud watch) before the pair's own handle on it goes.
+        let slave = open_slave(&slave_path)?;
+        drop(opened_slave);
+        let baud_watch = if self.options.enforce_baud {
+            let watched = slave.try_clone()?;
+            Some(BaudWatch::new(watched.into(), self.options.timing.baud))
+        } else {
+            None
+        };
         let (stop, token) = shutdown::channel();
-        let mut options = self.options;
-        if options.enforce_baud {
-            // The master end lives as long as the serving task that owns it.
-            options.settings_fd = Some(std::os::fd::AsRawFd::as_raw_fd(&master));
-        }
-        let task = tokio::spawn(serve(
-            master,
-            options,
+        let task = tokio::spawn(serve_watching(
+            AsyncSerial::new(master)?,
+            self.options,
+            baud_watch,
             self.devices.clone(),
             self.faults.clone(),
             self.journal.clone(),
@@ -191,6 +195,18 @@ impl Drop for VirtualLine {
             let _ = std::fs::remove_file(link);
         }
     }
+}
+
+/// Opens a pty slave for reading and writing without making it the process's controlling
+/// terminal.
+pub(crate) fn open_slave(path: &Path) -> std::io::Result<File> {
+    use std::os::unix::fs::OpenOptionsExt;
+
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+        .open(path)
 }
 
 /// Marks `fd` close-on-exec.

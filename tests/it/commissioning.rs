@@ -249,8 +249,8 @@ async fn read_shows_bits_of_a_coil_block() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_port_held_by_rtu2mqtt_is_refused() {
-    let (master, slave) = tokio_serial::SerialStream::pair().unwrap();
-    let path = tokio_serial::SerialPort::name(&slave).unwrap();
+    let (master, slave) = mio_serial::SerialStream::pair().unwrap();
+    let path = mio_serial::SerialPort::name(&slave).unwrap();
     drop(slave);
     // Another rtu2mqtt process holds the port (here a simulator; a gateway holds it the same way).
     let mut command = std::process::Command::new(child::BIN);

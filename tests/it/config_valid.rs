@@ -224,6 +224,17 @@ fn the_base_of_these_checks_is_valid() {
 }
 
 #[test]
+fn the_setting_that_paged_start_up_code_out_is_an_unknown_key() {
+    let text = one_valve("", "") + "\n[gateway]\nrelease_startup_code_after = \"30s\"\n";
+    let (ok, _, stderr) = check_text(&text, &[]);
+    assert!(!ok, "the old key passed silently");
+    assert!(
+        stderr.contains("gateway.release_startup_code_after: unknown key"),
+        "{stderr}"
+    );
+}
+
+#[test]
 fn an_unknown_key_or_a_wrong_type_does_not_hide_the_other_problems() {
     let (ok, _, stderr) = check_text(MANY_MISTAKES, &[]);
     assert!(!ok);

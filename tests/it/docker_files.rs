@@ -6,6 +6,8 @@
 use std::path::Path;
 
 const DOCKERFILE: &str = include_str!("../../Dockerfile");
+const EDGE_BUILD: &str = include_str!("../../scripts/edge-build");
+const DOCKERIGNORE: &str = include_str!("../../.dockerignore");
 const COMPOSE: &str = include_str!("../../docker-compose.yml");
 
 /// Dockerfile instructions with continuation lines joined.
@@ -125,6 +127,19 @@ fn compose_configuration_is_valid() {
 }
 
 #[test]
+fn the_image_and_the_edge_build_leave_the_demo_out() {
+    let builds: Vec<&str> = DOCKERFILE
+        .lines()
+        .chain(EDGE_BUILD.lines())
+        .filter(|line| !line.trim_start().starts_with('#') && line.contains("cargo build"))
+        .collect();
+    assert_eq!(builds.len(), 3, "{builds:?}");
+    for build in builds {
+        assert!(build.contains("--no-default-features"), "{build}");
+    }
+}
+
+#[test]
 fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_manifest() {
     let all = instructions(DOCKERFILE);
     let builder: Vec<&String> = all
@@ -148,6 +163,20 @@ fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_man
     assert!(
         copied_before.iter().any(|copy| copy.starts_with(needed)),
         "{needed} is copied before the dependency layer runs it: {copied_before:?}"
+    );
+    // docker/ stays out of the build context, all but the script the image runs.
+    let ignored: Vec<&str> = DOCKERIGNORE
+        .lines()
+        .filter(|line| !line.starts_with('#'))
+        .collect();
+    let excluded_at = ignored.iter().position(|line| *line == "docker/");
+    let included_at = ignored
+        .iter()
+        .position(|line| *line == format!("!{needed}"));
+    assert!(
+        matches!((excluded_at, included_at), (Some(out), Some(back)) if back > out)
+            || excluded_at.is_none(),
+        ".dockerignore keeps {needed} out of the build context: {ignored:?}"
     );
 
     // The placeholders, made from the files the image copies before them as it does, satisfy

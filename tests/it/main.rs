@@ -38,6 +38,5 @@ mod sparkplug_decode;
 mod sparkplug_e2e;
 mod sparkplug_node;
 mod sparkplug_readme;
-mod startup_pages;
 mod systemd_unit;
 mod tcp_lines;

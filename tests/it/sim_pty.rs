@@ -6,6 +6,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use rtu2mqtt::sim::AsyncSerial;
 use rtu2mqtt::sim::{
     air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
     VirtualLine,
@@ -13,7 +14,6 @@ use rtu2mqtt::sim::{
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::ExceptionCode;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio_serial::SerialStream;
 
 use crate::support::hex;
 
@@ -22,18 +22,18 @@ const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
 /// How long to listen before concluding that nothing is coming.
 const QUIET_WINDOW: Duration = Duration::from_millis(300);
 
-fn open(path: &Path) -> SerialStream {
-    let builder = tokio_serial::new(path.to_string_lossy(), 9600);
-    SerialStream::open(&builder).unwrap()
+fn open(path: &Path) -> AsyncSerial {
+    let builder = mio_serial::new(path.to_string_lossy(), 9600);
+    AsyncSerial::open(&builder).unwrap()
 }
 
 /// Sends `request` and reads exactly `answer_len` bytes.
-async fn exchange(port: &mut SerialStream, request: &[u8], answer_len: usize) -> Vec<u8> {
+async fn exchange(port: &mut AsyncSerial, request: &[u8], answer_len: usize) -> Vec<u8> {
     port.write_all(request).await.unwrap();
     read_exactly(port, answer_len).await
 }
 
-async fn read_exactly(port: &mut SerialStream, len: usize) -> Vec<u8> {
+async fn read_exactly(port: &mut AsyncSerial, len: usize) -> Vec<u8> {
     let mut answer = vec![0u8; len];
     tokio::time::timeout(ANSWER_TIMEOUT, port.read_exact(&mut answer))
         .await
@@ -43,7 +43,7 @@ async fn read_exactly(port: &mut SerialStream, len: usize) -> Vec<u8> {
 }
 
 /// Whatever arrives within the quiet window.
-async fn listen(port: &mut SerialStream) -> Vec<u8> {
+async fn listen(port: &mut AsyncSerial) -> Vec<u8> {
     let mut got = Vec::new();
     let deadline = tokio::time::Instant::now() + QUIET_WINDOW;
     let mut chunk = [0u8; 256];
@@ -57,7 +57,7 @@ async fn listen(port: &mut SerialStream) -> Vec<u8> {
 }
 
 /// Sends `request` and hears nothing within the quiet window.
-async fn assert_unanswered(port: &mut SerialStream, request: &[u8]) {
+async fn assert_unanswered(port: &mut AsyncSerial, request: &[u8]) {
     port.write_all(request).await.unwrap();
     assert_eq!(
         listen(port).await,

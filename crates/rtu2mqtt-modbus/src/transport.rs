@@ -99,7 +99,7 @@ fn io_error(error: mio_serial::Error) -> io::Error {
 }
 
 /// Whether `path`, which could not be opened as a serial port, exists and is something else.
-/// tokio-serial's error has lost the errno (ENOTTY), so the path is looked at again. A missing
+/// The serial crate's error has lost the errno (ENOTTY), so the path is looked at again. A missing
 /// path, or one that cannot be opened at all (busy, permissions not yet set by udev), is not
 /// known to be a non-terminal: it is worth waiting for.
 fn is_not_a_terminal(path: &str) -> bool {
