@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
+use crate::sim::Pace;
+
 #[derive(Debug, Parser)]
 #[command(
     name = "rtu2mqtt",
@@ -111,9 +113,18 @@ pub struct SimulateArgs {
     /// none | even | odd
     #[arg(long, default_value = "none")]
     pub parity: String,
-    /// Pace answers at the wire's character rate.
-    #[arg(long)]
-    pub pace: bool,
+    /// When answers reach the port: `instant` (no wire time), `frame` (whole, after their wire
+    /// time; `--pace` alone), `bytes` (byte by byte at the character rate, like a UART) or
+    /// `usb:Nms` (what is on the wire every N ms, N from 1 to 16, like a USB adapter).
+    #[arg(
+        long,
+        value_name = "PACE",
+        num_args = 0..=1,
+        default_value = "instant",
+        default_missing_value = "frame",
+        value_parser = str::parse::<Pace>
+    )]
+    pub pace: Pace,
 }
 
 #[derive(Debug, Args)]
