@@ -149,7 +149,8 @@ pub struct ScanArgs {
     /// Addresses to probe: `1-247`, `1,2,0x81` or a mix.
     #[arg(long, default_value = "1-247")]
     pub addresses: String,
-    /// Response timeout per probe.
+    /// Response timeout of a full probe. On a serial port a silent address is left after the
+    /// probe's wire time plus 20 ms or so, and probed fully only if it answers late.
     #[arg(long, default_value = "100ms", value_parser = humantime::parse_duration)]
     pub timeout: std::time::Duration,
     /// Read this profile's blocks at every address found and show the decoded fields.

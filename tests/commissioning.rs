@@ -147,11 +147,12 @@ async fn a_full_range_scan_is_quick_and_finds_every_device() {
         ],
     )
     .unwrap();
-    // The air shower (0x81) starts answering 30 ms late: beyond the quick wait, so its answer
-    // comes while the next address is probed, and within the 100 ms timeout.
+    // The air shower (0x81) starts answering 17 ms late, 29 ms after the request: beyond the
+    // quick wait (20 ms), so its answer comes while the next address is probed, and within
+    // the 100 ms timeout.
     plant.faults().update(|f| {
         f.target = Some(0x81);
-        f.delay = Duration::from_millis(30);
+        f.delay = Duration::from_millis(17);
     });
     let path = plant.path().to_string_lossy().into_owned();
     let started = std::time::Instant::now();

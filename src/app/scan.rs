@@ -18,8 +18,8 @@
 //! ([`crate::sim::ServeOptions::enforce_baud`]). Parity is not observable on a Linux pty, so a
 //! scan over ptys finds a device at every parity tried.
 //!
-//! On a serial port a silent address costs little: the probe waits the request's wire time
-//! plus the longest a device may take to start answering ([`quick_wait`]), not the full
+//! On a serial port a silent address costs little: the probe's wire time plus the longest a
+//! device may take to start answering ([`quick_wait`], 20 ms at 9600 baud), not the full
 //! `--timeout` (once an answer has started, the master waits for its end whatever the wait).
 //! A device that starts answering after that is not lost: the master hears its late answer
 //! before or during the next probe, and the address is probed again with the full timeout
@@ -91,23 +91,27 @@ const OPENING_PATIENCE: Duration = Duration::from_secs(2);
 /// Bytes of the probe request (address, function, start, count, CRC).
 const PROBE_REQUEST_LEN: usize = 8;
 /// The least a probe waits for an answer to start: a device may take a few milliseconds to
-/// decide, and a USB adapter hands bytes over in latency-timer batches of up to 16 ms.
+/// decide, and a USB adapter hands bytes over in latency-timer batches.
 const QUICK_WAIT_FLOOR: Duration = Duration::from_millis(20);
 /// A device answers within a few character times of the request's end (plus t3.5).
 const ANSWER_START_CHARS: u32 = 4;
 
 /// How long a probe on a serial port waits for an answer to start before the address counts
-/// as silent: the request's wire time (a pty, unlike a UART, takes it at once) plus the longest
-/// a device may take to start answering.
+/// as silent. A UART's drain takes the request's wire time before the wait begins; a pty's
+/// does not, so the wait covers the request's wire time too, then t3.5 and a few character
+/// times, and never less than the floor.
 pub fn quick_wait(timing: &LineTiming) -> Duration {
-    timing.frame_time(PROBE_REQUEST_LEN)
-        + QUICK_WAIT_FLOOR.max(timing.t3_5 + timing.char_time * ANSWER_START_CHARS)
+    QUICK_WAIT_FLOOR.max(
+        timing.frame_time(PROBE_REQUEST_LEN) + timing.t3_5 + timing.char_time * ANSWER_START_CHARS,
+    )
 }
 
-/// Late answers the master has heard so far (its own attribution: bytes after a timeout, or a
-/// frame from the address that timed out), one of which may belong to a quickly probed address.
-fn late_answers(counters: WireCounters) -> u64 {
-    counters.late_answers
+/// What the master heard that answered none of its probes: late answers (its own
+/// attribution: bytes after a timeout, or a frame from the address that timed out last) and
+/// frames for other addresses (a late answer that came only after a further probe had
+/// timed out, or an answer garbled at another setting).
+fn unclaimed(counters: WireCounters) -> (u64, u64) {
+    (counters.late_answers, counters.wrong_address)
 }
 
 /// How a probe went.
@@ -266,10 +270,11 @@ async fn run_scan(
                 );
                 let last = i + 1 == addresses.len();
                 let first_wait = if last { args.timeout } else { quick };
-                let late_before = late_answers(master.counters());
+                let (late_before, foreign_before) = unclaimed(master.counters());
                 let mut outcome =
                     probe_address(&mut master, address, first_wait, args.timeout).await?;
-                if late_answers(master.counters()) > late_before {
+                let (late_after, foreign_after) = unclaimed(master.counters());
+                if late_after > late_before || foreign_after > foreign_before {
                     // Whoever answered late answered within the full timeout of its request:
                     // every address left silent since then is heard again with the full wait.
                     let since = Instant::now().checked_sub(args.timeout * 2);
@@ -282,12 +287,12 @@ async fn run_scan(
                                 .await?;
                         record(found, garbled, previous, baud, parity, again);
                     }
-                    // This probe's answer may have collided with the late one: an answer
-                    // stands, silence is heard again with the full wait.
-                    if outcome.0.is_empty() && outcome.1.is_none() {
-                        outcome =
-                            probe_address(&mut master, address, args.timeout, args.timeout).await?;
-                    }
+                }
+                if late_after > late_before && outcome.0.is_empty() && outcome.1.is_none() {
+                    // A late answer came while this address was probed and may have collided
+                    // with its answer: it is heard again with the full wait.
+                    outcome =
+                        probe_address(&mut master, address, args.timeout, args.timeout).await?;
                 }
                 if outcome.0.is_empty() && outcome.1.is_none() {
                     silent.push((address, Instant::now()));
