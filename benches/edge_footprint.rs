@@ -545,7 +545,7 @@ fn wire_figures(
         let next = published.get(index + 1).map(|(_, next)| *next);
         if let Some(result) = results
             .iter()
-            .find(|&&r| r >= *at && next.is_none_or(|next| r < next))
+            .find(|&&r| r >= *at && next.map_or(true, |next| r < next))
         {
             to_result.push(result.saturating_duration_since(*at));
             to_result_bound.push(bound + slot);

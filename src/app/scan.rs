@@ -247,10 +247,12 @@ async fn run_scan(
             let mut master = target.open(baud, parity).await?;
             // A freshly opened line is first heard out for longer than a quick probe waits
             // (an answer from before may still be on it).
-            match master.wait_until_quiet(OPENING_PATIENCE).await {
-                Err(master::Error::PortGone(fault)) => return Err(fault).context("serial port"),
-                // A line that never falls silent: the probes report what they hear.
-                Ok(()) | Err(_) => {}
+            // A line that never falls silent is probed all the same: the probes report what
+            // they hear.
+            if let Err(master::Error::PortGone(fault)) =
+                master.wait_until_quiet(OPENING_PATIENCE).await
+            {
+                return Err(fault).context("serial port");
             }
             let quick = if serial {
                 quick_wait(&LineTiming::new(baud, format_name(parity))).min(args.timeout)
@@ -280,7 +282,7 @@ async fn run_scan(
                     let since = Instant::now().checked_sub(args.timeout * 2);
                     for (previous, _) in silent
                         .drain(..)
-                        .filter(|&(_, ended)| since.is_none_or(|since| ended >= since))
+                        .filter(|&(_, ended)| since.map_or(true, |since| ended >= since))
                     {
                         let again =
                             probe_address(&mut master, previous, args.timeout, args.timeout)

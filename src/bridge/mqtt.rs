@@ -307,7 +307,8 @@ mod tests {
             let mut len = std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
             // SAFETY: `name` and `len` are valid for writes of `len` bytes; a fd that is not a
             // socket (or closed meanwhile) only makes the call fail.
-            let named = unsafe { libc::getsockname(fd, (&raw mut name).cast(), &mut len) };
+            let named =
+                unsafe { libc::getsockname(fd, std::ptr::addr_of_mut!(name).cast(), &mut len) };
             if named != 0
                 || i32::from(name.sin_family) != libc::AF_INET
                 || u16::from_be(name.sin_port) != local.port()
@@ -323,7 +324,7 @@ mod tests {
                     fd,
                     libc::IPPROTO_TCP,
                     libc::TCP_NODELAY,
-                    (&raw mut value).cast(),
+                    std::ptr::addr_of_mut!(value).cast(),
                     &mut len,
                 )
             };
