@@ -221,8 +221,8 @@ async fn timed_subscriber(
 }
 
 /// A publisher of commands whose socket sends at once.
-async fn command_client(port: u16) -> AsyncClient {
-    let options = MqttOptions::new("bench-commands", "127.0.0.1", port);
+async fn command_client(port: u16, client_id: &str) -> AsyncClient {
+    let options = MqttOptions::new(client_id, "127.0.0.1", port);
     let (client, mut eventloop) = AsyncClient::new(options, 64);
     let mut network = eventloop.network_options();
     network.set_tcp_nodelay(true);
@@ -255,8 +255,14 @@ async fn one_line(
         1,
     )?;
     let mut gateway = Gateway::start(&config)?;
-    let mut results = timed_subscriber(broker.port, "plant/block-1-1/setpoint/result").await?;
-    let client = command_client(broker.port).await;
+    // Client ids of their own per run: the previous run's clients may still be connected.
+    let mut results = timed_subscriber(
+        broker.port,
+        "plant/block-1-1/setpoint/result",
+        &format!("bench-results-{run}"),
+    )
+    .await?;
+    let client = command_client(broker.port, &format!("bench-commands-{run}")).await;
     tokio::time::sleep(WARM_UP).await;
     while results.try_recv().is_ok() {}
 
