@@ -186,8 +186,9 @@ struct Wire {
 async fn timed_subscriber(
     port: u16,
     topic: &str,
+    client_id: &str,
 ) -> anyhow::Result<mpsc::UnboundedReceiver<Instant>> {
-    let mut options = MqttOptions::new("bench-results", "127.0.0.1", port);
+    let mut options = MqttOptions::new(client_id, "127.0.0.1", port);
     options.set_keep_alive(Duration::from_secs(30));
     let (client, mut eventloop) = AsyncClient::new(options, 16);
     let mut network = eventloop.network_options();
