@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
+#[cfg(feature = "demo")]
+use crate::sim::Pace;
 use rtu2mqtt_modbus::timing::Parity;
 
 #[derive(Debug, Parser)]
@@ -127,9 +129,18 @@ pub struct SimulateArgs {
     /// none | even | odd
     #[arg(long, default_value = "none")]
     pub parity: String,
-    /// Pace answers at the wire's character rate.
-    #[arg(long)]
-    pub pace: bool,
+    /// When answers reach the port: `instant` (no wire time), `frame` (whole, after their wire
+    /// time; `--pace` alone), `bytes` (byte by byte at the character rate, like a UART) or
+    /// `usb:Nms` (what is on the wire every N ms, N from 1 to 16, like a USB adapter).
+    #[arg(
+        long,
+        value_name = "PACE",
+        num_args = 0..=1,
+        default_value = "instant",
+        default_missing_value = "frame",
+        value_parser = str::parse::<Pace>
+    )]
+    pub pace: Pace,
 }
 
 #[derive(Debug, Args)]
@@ -154,7 +165,8 @@ pub struct ScanArgs {
     /// Addresses to probe: `1-247`, `1,2,0x81` or a mix.
     #[arg(long, default_value = "1-247")]
     pub addresses: String,
-    /// Response timeout per probe.
+    /// Response timeout of a full probe. On a serial port a silent address is left after the
+    /// probe's wire time plus 20 ms or so, and probed fully only if it answers late.
     #[arg(long, default_value = "100ms", value_parser = humantime::parse_duration)]
     pub timeout: std::time::Duration,
     /// Read this profile's blocks at every address found and show the decoded fields.

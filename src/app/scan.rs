@@ -18,19 +18,28 @@
 //! (`sim::ServeOptions::enforce_baud`). Parity is not observable on a Linux pty, so a
 //! scan over ptys finds a device at every parity tried.
 //!
-//! Progress goes to stderr; Ctrl-C stops the scan and prints the table found so far.
+//! On a serial port a silent address costs little: the probe's wire time plus the longest a
+//! device may take to start answering ([`quick_wait`], 20 ms at 9600 baud), not the full
+//! `--timeout` (once an answer has started, the master waits for its end whatever the wait).
+//! A device that starts answering after that is not lost: the master hears its late answer
+//! before or during the next probe, and the address is probed again with the full timeout
+//! (the last address of a setting always gets the full timeout, as nothing follows it). Behind
+//! a TCP link the network's delay is unknown, so every probe waits the full timeout there.
+//!
+//! Progress goes to stderr, and at the end how long the scan took; Ctrl-C stops the scan and
+//! prints the table found so far.
 
 use std::fmt::Write as _;
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _};
 
 use super::read::{read_request, Target};
 use crate::cli::{parse_parity, ScanArgs};
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master;
-use rtu2mqtt_modbus::timing::{CharFormat, Parity};
+use rtu2mqtt_modbus::master::{self, WireCounters};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Request, SlaveId};
 
 /// What one address answered at one serial setting.
@@ -76,6 +85,34 @@ fn format_name(parity: Parity) -> CharFormat {
     }
 }
 
+/// How long a freshly opened line may take to fall silent before the first probe.
+const OPENING_PATIENCE: Duration = Duration::from_secs(2);
+/// Bytes of the probe request (address, function, start, count, CRC).
+const PROBE_REQUEST_LEN: usize = 8;
+/// The least a probe waits for an answer to start: a device may take a few milliseconds to
+/// decide, and a USB adapter hands bytes over in latency-timer batches.
+const QUICK_WAIT_FLOOR: Duration = Duration::from_millis(20);
+/// A device answers within a few character times of the request's end (plus t3.5).
+const ANSWER_START_CHARS: u32 = 4;
+
+/// How long a probe on a serial port waits for an answer to start before the address counts
+/// as silent. A UART's drain takes the request's wire time before the wait begins; a pty's
+/// does not, so the wait covers the request's wire time too, then t3.5 and a few character
+/// times, and never less than the floor.
+pub fn quick_wait(timing: &LineTiming) -> Duration {
+    QUICK_WAIT_FLOOR.max(
+        timing.frame_time(PROBE_REQUEST_LEN) + timing.t3_5 + timing.char_time * ANSWER_START_CHARS,
+    )
+}
+
+/// What the master heard that answered none of its probes: late answers (its own
+/// attribution: bytes after a timeout, or a frame from the address that timed out last) and
+/// frames for other addresses (a late answer that came only after a further probe had
+/// timed out, or an answer garbled at another setting).
+fn unclaimed(counters: WireCounters) -> (u64, u64) {
+    (counters.late_answers, counters.wrong_address)
+}
+
 /// How a probe went.
 enum Probe {
     Answered(String),
@@ -99,14 +136,16 @@ async fn probe(
     })
 }
 
-/// Probes `address` on `master`: FC03, and FC04/FC01 when FC03 was refused.
+/// Probes `address` on `master`: FC03 (waiting `first_wait` for the answer to start), and
+/// FC04/FC01 when FC03 was refused.
 async fn probe_address(
     master: &mut Link,
     address: SlaveId,
+    first_wait: Duration,
     timeout: Duration,
 ) -> anyhow::Result<(Vec<String>, Option<String>)> {
     let first = read_request(3, 0, 1)?;
-    match probe(master, address, &first, timeout).await? {
+    match probe(master, address, &first, first_wait).await? {
         Probe::Silent => Ok((Vec::new(), None)),
         Probe::Garbled(why) => Ok((Vec::new(), Some(why))),
         Probe::Answered(answer) => {
@@ -140,6 +179,7 @@ pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
         .enable_all()
         .build()
         .context("starting the runtime")?;
+    let started = Instant::now();
     let (found, garbled, interrupted) = runtime.block_on(async {
         let mut found = Vec::new();
         let mut garbled = Vec::new();
@@ -155,6 +195,12 @@ pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
     if interrupted {
         eprintln!("\nscan interrupted: partial results");
     }
+    eprintln!(
+        "scanned {} addresses at {} setting(s) in {:.1} s",
+        addresses.len(),
+        args.baud.len() * parities.len(),
+        started.elapsed().as_secs_f64()
+    );
     print!("{}", table(&found));
     if !garbled.is_empty() {
         println!("\ngarbled answers (something is there at another setting, or noise):");
@@ -192,11 +238,29 @@ async fn run_scan(
         (&args.baud[..], parities)
     };
     let settings = bauds.len() * parities.len();
+    let serial = matches!(target, Target::Port(_));
     let mut setting_index = 0;
     for &baud in bauds {
         for &parity in parities {
             setting_index += 1;
             let mut master = target.open(baud, parity).await?;
+            // A freshly opened line is first heard out for longer than a quick probe waits
+            // (an answer from before may still be on it).
+            // A line that never falls silent is probed all the same: the probes report what
+            // they hear.
+            if let Err(master::Error::PortGone(fault)) =
+                master.wait_until_quiet(OPENING_PATIENCE).await
+            {
+                return Err(fault).context("serial port");
+            }
+            let quick = if serial {
+                quick_wait(&LineTiming::new(baud, format_name(parity))).min(args.timeout)
+            } else {
+                args.timeout
+            };
+            // Addresses probed quickly and found silent, with when their probe ended: a late
+            // answer heard since is one of theirs.
+            let mut silent: Vec<(SlaveId, Instant)> = Vec::new();
             for (i, &address) in addresses.iter().enumerate() {
                 eprint!(
                     "\rscanning {baud} {} ({setting_index}/{settings}): address {address} ({}/{}), {} found   ",
@@ -205,26 +269,66 @@ async fn run_scan(
                     addresses.len(),
                     found.len()
                 );
-                let (answers, garble) = probe_address(&mut master, address, args.timeout).await?;
-                if let Some(why) = garble {
-                    garbled.push(format!(
-                        "address {address} ({address:#04x}) at {baud} {}: {why}",
-                        format_name(parity)
-                    ));
+                let last = i + 1 == addresses.len();
+                let first_wait = if last { args.timeout } else { quick };
+                let (late_before, foreign_before) = unclaimed(master.counters());
+                let mut outcome =
+                    probe_address(&mut master, address, first_wait, args.timeout).await?;
+                let (late_after, foreign_after) = unclaimed(master.counters());
+                if late_after > late_before || foreign_after > foreign_before {
+                    // Whoever answered late answered within the full timeout of its request:
+                    // every address left silent since then is heard again with the full wait.
+                    let since = Instant::now().checked_sub(args.timeout * 2);
+                    for (previous, _) in silent
+                        .drain(..)
+                        .filter(|&(_, ended)| since.map_or(true, |since| ended >= since))
+                    {
+                        let again =
+                            probe_address(&mut master, previous, args.timeout, args.timeout)
+                                .await?;
+                        record(found, garbled, previous, baud, parity, again);
+                    }
                 }
-                if !answers.is_empty() {
-                    found.push(Found {
-                        address,
-                        baud,
-                        parity,
-                        answers,
-                    });
+                if late_after > late_before && outcome.0.is_empty() && outcome.1.is_none() {
+                    // A late answer came while this address was probed and may have collided
+                    // with its answer: it is heard again with the full wait.
+                    outcome =
+                        probe_address(&mut master, address, args.timeout, args.timeout).await?;
                 }
+                if outcome.0.is_empty() && outcome.1.is_none() {
+                    silent.push((address, Instant::now()));
+                }
+                record(found, garbled, address, baud, parity, outcome);
             }
         }
     }
     eprintln!();
     Ok(())
+}
+
+/// Notes what one address answered (if anything) at one setting.
+fn record(
+    found: &mut Vec<Found>,
+    garbled: &mut Vec<String>,
+    address: SlaveId,
+    baud: u32,
+    parity: Parity,
+    (answers, garble): (Vec<String>, Option<String>),
+) {
+    if let Some(why) = garble {
+        garbled.push(format!(
+            "address {address} ({address:#04x}) at {baud} {}: {why}",
+            format_name(parity)
+        ));
+    }
+    if !answers.is_empty() {
+        found.push(Found {
+            address,
+            baud,
+            parity,
+            answers,
+        });
+    }
 }
 
 /// The table of what answered where.

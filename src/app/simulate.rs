@@ -73,7 +73,7 @@ fn devices_for(args: &SimulateArgs) -> anyhow::Result<Vec<SharedDevice>> {
 pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
     let parity = parse_parity(&args.parity)?;
     let devices = devices_for(args)?;
-    let options = ServeOptions::new(args.baud, parity).paced(args.pace);
+    let options = ServeOptions::new(args.baud, parity).pacing(args.pace);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -106,7 +106,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                 (None, Some(port)) => {
                     let stream = open_port(port, args.baud, parity)?;
                     tracing::info!(
-                        port = %port.display(), baud = args.baud, %parity, pace = args.pace,
+                        port = %port.display(), baud = args.baud, %parity, pace = %args.pace,
                         "simulating"
                     );
                     let journal = Journal::new();

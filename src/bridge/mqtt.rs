@@ -106,7 +106,20 @@ pub fn connect(settings: &MqttSettings) -> anyhow::Result<(AsyncClient, EventLoo
     let topics = settings.topics();
     let mut options = options(settings, &topics)?;
     options.set_request_channel_capacity(BRIDGE_REQUEST_QUEUE);
-    Ok(AsyncClient::new(options, BRIDGE_REQUEST_QUEUE))
+    Ok(client(options, BRIDGE_REQUEST_QUEUE))
+}
+
+/// A client and its event loop whose socket sends at once (`TCP_NODELAY`, plain and TLS alike:
+/// TLS runs over the same socket). With Nagle on, a small publish that follows another one
+/// not yet acknowledged waits for that acknowledgement (delayed by the broker's delayed ACK),
+/// so a command's result would reach subscribers tens of milliseconds after the bus was done.
+pub fn client(options: MqttOptions, request_queue: usize) -> (AsyncClient, EventLoop) {
+    let (client, mut eventloop) = AsyncClient::new(options, request_queue);
+    // Start from the loop's own options so its other defaults (the connect timeout) stay.
+    let mut network = eventloop.network_options();
+    network.set_tcp_nodelay(true);
+    eventloop.set_network_options(network);
+    (client, eventloop)
 }
 
 /// Capped exponential back-off with ±20 % jitter (so a fleet does not reconnect in step).
@@ -277,5 +290,63 @@ mod tests {
         assert!(!watch.connection_ended(young));
         assert!(watch.connection_ended(young));
         assert!(!watch.connection_ended(young));
+    }
+
+    /// `TCP_NODELAY` of this process's own socket whose local address is `local`, read back
+    /// from the kernel (every fd under /proc/self/fd that is a socket is asked its name).
+    fn nodelay_of_own_socket(local: std::net::SocketAddr) -> Option<bool> {
+        use std::os::fd::RawFd;
+        let std::net::SocketAddr::V4(local) = local else {
+            return None;
+        };
+        for entry in std::fs::read_dir("/proc/self/fd").ok()?.flatten() {
+            let Ok(fd) = entry.file_name().to_string_lossy().parse::<RawFd>() else {
+                continue;
+            };
+            let mut name: libc::sockaddr_in = unsafe { std::mem::zeroed() };
+            let mut len = std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
+            // SAFETY: `name` and `len` are valid for writes of `len` bytes; a fd that is not a
+            // socket (or closed meanwhile) only makes the call fail.
+            let named =
+                unsafe { libc::getsockname(fd, std::ptr::addr_of_mut!(name).cast(), &mut len) };
+            if named != 0
+                || i32::from(name.sin_family) != libc::AF_INET
+                || u16::from_be(name.sin_port) != local.port()
+                || u32::from_be(name.sin_addr.s_addr) != u32::from(*local.ip())
+            {
+                continue;
+            }
+            let mut value: libc::c_int = 0;
+            let mut len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
+            // SAFETY: `value` and `len` are valid for writes of `len` bytes.
+            let read = unsafe {
+                libc::getsockopt(
+                    fd,
+                    libc::IPPROTO_TCP,
+                    libc::TCP_NODELAY,
+                    std::ptr::addr_of_mut!(value).cast(),
+                    &mut len,
+                )
+            };
+            return (read == 0).then_some(value != 0);
+        }
+        None
+    }
+
+    #[tokio::test]
+    async fn the_client_socket_sends_without_nagle() {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let (_client, mut eventloop) =
+            client(MqttOptions::new("nodelay-probe", "127.0.0.1", port), 8);
+        // The loop connects and then waits for a CONNACK that never comes; meanwhile the
+        // accepted end names the client's socket (which lives as long as the pending poll).
+        let poll = eventloop.poll();
+        tokio::pin!(poll);
+        let (_server_end, client_socket) = tokio::select! {
+            accepted = listener.accept() => accepted.unwrap(),
+            polled = &mut poll => panic!("the event loop ended first: {polled:?}"),
+        };
+        assert_eq!(nodelay_of_own_socket(client_socket), Some(true));
     }
 }

@@ -1,8 +1,9 @@
 //! Serves simulated devices on one byte stream (a pty end or a real serial port): frames the
 //! requests, hands each to the device it addresses, and answers after the line's t3.5 silence,
 //! optionally paced as a wire would (the request ends one request-wire-time after its first
-//! byte, the answer is complete one answer-wire-time after it starts), with the line's faults
-//! applied and everything written into its journal.
+//! byte; the answer's bytes are handed over as its [`Pace`] says: whole once its wire time is
+//! over, byte by byte, or in USB-adapter chunks), with the line's faults applied and
+//! everything written into its journal.
 //!
 //! While an answer goes out the line is still listened to, so a request sent into it is
 //! journalled as arriving then.
@@ -17,6 +18,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::faults::{random_bytes, AnswerChunks, FaultHandle};
 use super::journal::{AnswerTiming, Journal, RequestRecord};
+use super::pace::Pace;
 use super::pty_settings::{garble, BaudWatch};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
@@ -36,8 +38,8 @@ const FAULT_RECHECK: Duration = Duration::from_millis(50);
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ServeOptions {
     pub timing: LineTiming,
-    /// Pace answers at the wire's character rate (a pty delivers bytes instantly).
-    pub pace: bool,
+    /// When an answer's bytes are handed over (a pty delivers them instantly).
+    pub pace: Pace,
     /// Garble the answers while the pty's baud rate, as the master set it, differs from the
     /// line's: what a device hears at the wrong baud rate. Only a [`super::VirtualLine`] can
     /// look at its pty's settings; elsewhere this does nothing.
@@ -54,12 +56,18 @@ impl ServeOptions {
         };
         Self {
             timing: LineTiming::new(baud, format),
-            pace: false,
+            pace: Pace::Instant,
             enforce_baud: false,
         }
     }
 
-    pub fn paced(mut self, pace: bool) -> Self {
+    /// `true`: each answer whole once its wire time is over ([`Pace::Frame`]); `false`: at once.
+    pub fn paced(self, pace: bool) -> Self {
+        self.pacing(if pace { Pace::Frame } else { Pace::Instant })
+    }
+
+    /// See [`ServeOptions::pace`].
+    pub fn pacing(mut self, pace: Pace) -> Self {
         self.pace = pace;
         self
     }
@@ -112,6 +120,7 @@ where
         last_byte_at: Instant::now(),
         idle_since: None,
         discarding: false,
+        epoch: Instant::now(),
     };
     let mut chunk = [0u8; 512];
     // When idle garbage goes out next (or, without it, when to look at the faults again).
@@ -173,6 +182,8 @@ struct Server<S> {
     idle_since: Option<Instant>,
     /// After a bad CRC a device ignores everything until the next silence.
     discarding: bool,
+    /// Where a USB adapter's polling ticks are counted from.
+    epoch: Instant,
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
@@ -242,7 +253,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             .idle_since
             .map(|idle| arrived.saturating_duration_since(idle));
         // When the request is over on the wire.
-        let ended = if self.options.pace {
+        let ended = if self.options.pace.takes_wire_time() {
             self.last_byte_at
                 .max(arrived + timing.frame_time(frame.len()))
         } else {
@@ -364,10 +375,10 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         answer
     }
 
-    /// Sends `bytes` so that they start at `starts` (and, paced, are complete one wire time
-    /// later), whole, in two halves around `pause`, or in `chunks` with a gap after each. No
-    /// flush follows the writes: on a pty it is a tcdrain system call with nothing to drain,
-    /// and the bytes are readable on the other end as soon as the write returns.
+    /// Sends `bytes` so that they start at `starts`, handed over as the line's [`Pace`] says:
+    /// whole, in two halves around `pause`, or in `chunks` with a gap after each. No flush
+    /// follows the writes: on a pty it is a tcdrain system call with nothing to drain, and the
+    /// bytes are readable on the other end as soon as the write returns.
     ///
     /// The line is listened to all the while: a request that arrives while the answer is
     /// still going out is journalled with its true arrival (and no silence before it), as a
@@ -379,24 +390,26 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
         pause: Option<Duration>,
         chunks: Option<AnswerChunks>,
     ) -> std::io::Result<AnswerTiming> {
-        let timing = self.options.timing;
-        let (size, gap) = match (chunks, pause) {
+        let (burst, gap) = match (chunks, pause) {
             (Some(chunks), _) => (chunks.bytes.max(1), chunks.gap),
             (None, Some(pause)) => ((bytes.len() / 2).max(1), pause),
             (None, None) => (bytes.len().max(1), Duration::ZERO),
         };
+        let parts = self.options.pace.schedule(
+            &self.options.timing,
+            starts,
+            bytes.len(),
+            burst,
+            gap,
+            self.epoch,
+        );
         let mut at = starts;
         let mut handed_over = Instant::now();
-        for (i, part) in bytes.chunks(size).enumerate() {
-            if i > 0 {
-                at += gap;
-            }
-            if self.options.pace {
-                at += timing.frame_time(part.len());
-            }
+        for (ready, range) in parts {
+            at = ready;
             self.listen_until(at).await?;
             handed_over = Instant::now();
-            self.stream.write_all(part).await?;
+            self.stream.write_all(&bytes[range]).await?;
         }
         let write_returned = Instant::now();
         tracing::debug!(answer = %hex(bytes), "answer");

@@ -17,7 +17,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{options, Backoff, REQUEST_QUEUE};
+use crate::bridge::mqtt::{client, options, Backoff, REQUEST_QUEUE};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
@@ -107,7 +107,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 QoS::AtLeastOnce,
                 false,
             ));
-        let (client, mut eventloop) = AsyncClient::new(mqtt_options, REQUEST_QUEUE);
+        let (client, mut eventloop) = client(mqtt_options, REQUEST_QUEUE);
         let mut closing = false;
         let mut connected_since = None;
         // Set when the node ends for good; bounds the wait for the Disconnect to go out.

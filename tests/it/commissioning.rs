@@ -126,6 +126,72 @@ async fn scan_finds_each_seed_device_at_its_address_and_baud_rate() {
     assert_eq!(dust.journal().writes_to(1), 0);
 }
 
+/// The whole address range at one format takes seconds, not the 100 ms timeout per silent
+/// address, and still finds every device: one that answers at once, one that starts answering
+/// only after the quick wait (heard late, probed again with the full timeout), and one at the
+/// last address.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_range_scan_is_quick_and_finds_every_device() {
+    // Paced like a wire: each answer comes whole after its wire time.
+    let options = ServeOptions::new(9600, Parity::None).paced(true);
+    let plant = VirtualLine::spawn(
+        options,
+        vec![
+            share(DustCollector::new(1)).1,
+            share(Valve::new(2)).1,
+            share(AirShower::new()).1,
+            share(Valve::new(247)).1,
+        ],
+    )
+    .unwrap();
+    // The air shower (0x81) starts answering 17 ms late, 29 ms after the request: beyond the
+    // quick wait (20 ms), so its answer comes while the next address is probed, and within
+    // the 100 ms timeout.
+    plant.faults().update(|f| {
+        f.target = Some(0x81);
+        f.delay = Duration::from_millis(17);
+    });
+    let path = plant.path().to_string_lossy().into_owned();
+    let started = std::time::Instant::now();
+    let output = run(&[
+        "scan",
+        "--port",
+        &path,
+        "--baud",
+        "9600",
+        "--parity",
+        "none",
+        "--timeout",
+        "100ms",
+    ])
+    .await;
+    let took = started.elapsed();
+    let text = stdout(&output);
+    let errors = String::from_utf8_lossy(&output.stderr).into_owned();
+    assert!(output.status.success(), "{text}\n{errors}");
+    assert_eq!(
+        rows(&text),
+        [
+            "  1 (0x01)    9600  8N1     FC03 exception 02 (illegal data address); FC04 exception 01 (illegal function); FC01 exception 01 (illegal function)",
+            "  2 (0x02)    9600  8N1     FC03 ok",
+            "129 (0x81)    9600  8N1     FC03 exception 01 (illegal function); FC04 exception 01 (illegal function); FC01 ok",
+            "247 (0xf7)    9600  8N1     FC03 ok",
+        ],
+        "{errors}"
+    );
+    // The figure the scan prints, and the wall time around it (process start included).
+    let seconds: f64 = errors
+        .lines()
+        .find_map(|line| line.strip_prefix("scanned 247 addresses at 1 setting(s) in "))
+        .and_then(|rest| rest.strip_suffix(" s"))
+        .and_then(|figure| figure.parse().ok())
+        .unwrap_or_else(|| panic!("no duration printed: {errors}"));
+    println!("247 addresses at 9600 8N1: {seconds} s (wall {took:?})");
+    assert!(seconds <= 10.0, "{seconds} s");
+    assert!(took <= Duration::from_secs(12), "{took:?}");
+    assert_only_reads(&plant).await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scan_with_a_profile_shows_the_decoded_fields() {
     let valve = line(9600, vec![share(Valve::new(1)).1]);

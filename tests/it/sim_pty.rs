@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use rtu2mqtt::sim::AsyncSerial;
 use rtu2mqtt::sim::{
-    air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, ServeOptions, Valve,
-    VirtualLine,
+    air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, Pace, ServeOptions,
+    Valve, VirtualLine,
 };
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::ExceptionCode;
@@ -507,6 +507,84 @@ async fn pacing_delays_the_answer_by_its_wire_time() {
         println!("paced transaction: {took:?} (wire minimum {minimum:?})");
     }
     drop(dust);
+}
+
+/// Sends `request` and reads `len` bytes, noting after each read how many bytes came and
+/// when (from the request's sending).
+async fn timed_reads(port: &mut AsyncSerial, request: &[u8], len: usize) -> Vec<(Duration, usize)> {
+    port.write_all(request).await.unwrap();
+    let sent = Instant::now();
+    let mut reads = Vec::new();
+    let mut got = 0;
+    let mut chunk = [0u8; 256];
+    while got < len {
+        let n = tokio::time::timeout(ANSWER_TIMEOUT, port.read(&mut chunk[..len - got]))
+            .await
+            .unwrap_or_else(|_| panic!("{got} of {len} answer bytes within {ANSWER_TIMEOUT:?}"))
+            .unwrap();
+        assert!(n > 0, "the line closed");
+        got += n;
+        reads.push((sent.elapsed(), n));
+    }
+    reads
+}
+
+#[tokio::test]
+async fn byte_pacing_spreads_the_answer_over_its_wire_time() {
+    let (_dust, shared) = share(DustCollector::new(1));
+    let options = ServeOptions::new(9600, Parity::None).pacing(Pace::Bytes);
+    let line = VirtualLine::spawn(options, vec![shared]).unwrap();
+    let mut port = open(&line.path());
+    let timing = options.timing;
+    // The 17-byte answer's last byte comes 16 character times after its first.
+    let spread = timing.frame_time(16);
+    let mut best = Vec::new();
+    for _ in 0..3 {
+        let reads = timed_reads(&mut port, &hex::decode(READ_ALL), 17).await;
+        let last = reads.last().unwrap().0;
+        // No byte before it can be on the wire: request, t3.5, one character.
+        let first_possible = timing.frame_time(8) + timing.t3_5 + timing.frame_time(1);
+        assert!(reads[0].0 >= first_possible, "{reads:?}");
+        assert!(
+            last >= first_possible + spread,
+            "last byte after {last:?}: {reads:?}"
+        );
+        if reads.len() > best.len() {
+            best = reads;
+        }
+    }
+    // A reader that kept up saw the bytes come one or two at a time, spread over the answer
+    // (a late reader finds several waiting: the best of three exchanges is judged).
+    let span = best.last().unwrap().0 - best[0].0;
+    assert!(best.len() >= 9, "{best:?}");
+    assert!(span >= spread.mul_f64(0.8), "span {span:?}: {best:?}");
+    assert!(best.iter().all(|&(_, n)| n <= 8), "{best:?}");
+}
+
+#[tokio::test]
+async fn usb_pacing_hands_over_the_answer_in_chunks_at_its_interval() {
+    let (_dust, shared) = share(DustCollector::new(1));
+    let every = Duration::from_millis(4);
+    let options = ServeOptions::new(9600, Parity::None).pacing(Pace::Usb { every });
+    let line = VirtualLine::spawn(options, vec![shared]).unwrap();
+    let mut port = open(&line.path());
+    let timing = options.timing;
+    let mut best: Vec<(Duration, usize)> = Vec::new();
+    for _ in 0..3 {
+        let reads = timed_reads(&mut port, &hex::decode(READ_ALL), 17).await;
+        let last = reads.last().unwrap().0;
+        let minimum = timing.frame_time(8) + timing.t3_5 + timing.frame_time(17);
+        assert!(last >= minimum, "last byte after {last:?}: {reads:?}");
+        if reads.len() > best.len() {
+            best = reads;
+        }
+    }
+    // 17.7 ms of answer: four or five chunks about 4 ms apart (a late reader, or a kernel
+    // that hands a pty write over late, may merge or split one: the best of three is judged),
+    // neither one whole answer nor byte by byte.
+    assert!((3..=6).contains(&best.len()), "{best:?}");
+    let span = best.last().unwrap().0 - best[0].0;
+    assert!(span >= every * 2, "span {span:?}: {best:?}");
 }
 
 #[tokio::test]
