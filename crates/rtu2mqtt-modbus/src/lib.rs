@@ -6,14 +6,14 @@
 //! serial port; `master` runs one transaction at a time on it with the serial-line
 //! specification's timing. `tcp_link` runs them over TCP (a serial device server's raw stream,
 //! or Modbus TCP with `mbap`); `link` is what a line holds, whichever of them it is, and
-//! `link_core` what the three share (counters, frame recorder, late-answer guard). `frame_log`
+//! `answer_framing` the one framer of their answers, `link_core` what the three share (counters, frame recorder, late-answer guard). `frame_log`
 //! writes the frames of every line to one file from a thread of its own.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, the 2018 idioms.
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
-mod answer_framing;
+pub mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;
@@ -23,7 +23,6 @@ pub mod link;
 pub mod link_core;
 pub mod master;
 pub mod mbap;
-pub mod stream_framing;
 pub mod tcp_link;
 pub mod timing;
 pub mod transport;

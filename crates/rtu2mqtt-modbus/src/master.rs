@@ -24,7 +24,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::answer_framing::{complete_foreign_frame, framing, noise_before_answer, Framing};
+use super::answer_framing::{AnswerFramer, Framing};
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
@@ -473,24 +473,29 @@ impl Master {
         // The answer's rest has had its one timed wait (see below).
         let mut rest_waited_for = false;
         let mut chunk = [0u8; MAX_FRAME_LEN];
+        let framer = AnswerFramer::on_serial_line(slave, request, sent, self.options.echo);
         loop {
-            if self.is_unannounced_echo(request, sent, &received) {
-                if !self.echo_warned {
-                    self.echo_warned = true;
-                    tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
+            let framing = framer.frame(&received);
+            match framing {
+                Framing::Echo(length) => {
+                    if !self.echo_warned {
+                        self.echo_warned = true;
+                        tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
+                    }
+                    received.drain(..length);
+                    continue;
                 }
-                received.drain(..sent.len());
-            }
-            if let Some(noise) = noise_before_answer(slave, request.function(), &received) {
-                let rest = received.split_off(noise);
-                self.absorb_noise(&received, last_byte_at);
-                received = rest;
-            }
-            let framing = framing(slave, request, sent, &received, self.options.echo);
-            if let Framing::Foreign = framing {
+                Framing::Noise(length) => {
+                    let rest = received.split_off(length);
+                    self.absorb_noise(&received, last_byte_at);
+                    received = rest;
+                    continue;
+                }
                 // Another device's frame whose length and CRC check out ends here; whatever
                 // follows may be our answer.
-                if let Some(length) = complete_foreign_frame(&received) {
+                Framing::Foreign {
+                    frame_len: Some(length),
+                } => {
                     let rest = received.split_off(length);
                     self.ignore_foreign_frame(&received);
                     received = rest;
@@ -498,7 +503,7 @@ impl Master {
                 }
                 // No frame is longer: a line that babbles without a gap is dropped in pieces,
                 // and the response timeout still ends the wait.
-                if received.len() >= MAX_FRAME_LEN {
+                Framing::Foreign { frame_len: None } if received.len() >= MAX_FRAME_LEN => {
                     self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
@@ -506,14 +511,15 @@ impl Master {
                     }
                     continue;
                 }
-            }
-            if let Framing::Complete(length) = framing {
-                let trailing = received.split_off(length);
-                self.took_frame(&received);
-                if !trailing.is_empty() {
-                    self.absorb_unsolicited(&trailing, last_byte_at);
+                Framing::Complete(length) => {
+                    let trailing = received.split_off(length);
+                    self.took_frame(&received);
+                    if !trailing.is_empty() {
+                        self.absorb_unsolicited(&trailing, last_byte_at);
+                    }
+                    return self.decode(slave, request, &received);
                 }
-                return self.decode(slave, request, &received);
+                _ => {}
             }
             let wait_until = if received.is_empty() {
                 answer_deadline
@@ -555,7 +561,7 @@ impl Master {
                 return Err(Error::Timeout(timeout));
             }
             match framing {
-                Framing::Foreign => {
+                Framing::Foreign { .. } => {
                     self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
@@ -612,16 +618,6 @@ impl Master {
         Err(Error::UnexpectedReply(DecodeError::Malformed(
             "adapter echo differs from the frame sent",
         )))
-    }
-
-    /// Our own complete request at the start of what was received, on a line not configured
-    /// for echo (single writes excepted: their answer is a copy of the request).
-    fn is_unannounced_echo(&self, request: &Request, sent: &[u8], received: &[u8]) -> bool {
-        let answer_may_equal_request = matches!(
-            request.function(),
-            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
-        );
-        !self.options.echo && !answer_may_equal_request && received.starts_with(sent)
     }
 
     /// A frame for another address: counted and dropped; listening goes on (serial-line

@@ -17,13 +17,13 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
+use super::answer_framing::{AnswerFramer, Framed};
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError};
 use super::frame::{Request, SlaveId};
 use super::link_core::{Direction, LinkCore};
 use super::master::{Error, PortFault, Reply};
 use super::mbap::{self, Matched, MbapError};
-use super::stream_framing::{AnswerFramer, Framed};
 use super::timing::LineTiming;
 
 /// What a TCP line's stream carries.
