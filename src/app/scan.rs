@@ -32,7 +32,7 @@ use crate::cli::ScanArgs;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master;
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};
-use rtu2mqtt_modbus::{Request, SlaveId};
+use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]

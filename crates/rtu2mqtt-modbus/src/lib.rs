@@ -23,6 +23,7 @@ pub mod link;
 pub mod link_core;
 pub mod master;
 pub mod mbap;
+pub mod outcome;
 pub mod tcp_link;
 pub mod timing;
 pub mod transport;
@@ -33,3 +34,4 @@ pub mod transport;
 pub struct ReadmeDoctests;
 
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
+pub use link_core::Transact;

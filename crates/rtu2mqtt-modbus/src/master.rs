@@ -26,69 +26,14 @@ use tracing::Instrument;
 
 use super::answer_framing::{AnswerFramer, Framing};
 use super::clock::PreciseTimer;
-use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
-use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
-use super::link_core::{Direction, LinkCore};
+use super::codec::{self, Answer, DecodeError, MAX_FRAME_LEN};
+use super::frame::{FunctionCode, Request, SlaveId};
+use super::link_core::{Ask, Direction, LinkCore, Transact};
+// How a transaction ends: the outcome types every link shares, where callers have always
+// found them.
+pub use super::outcome::{Error, PortFault, Reply, WireCounters};
 use super::timing::LineTiming;
 use super::transport::Port;
-
-/// A device's word on a request: its normal answer, or the exception it answered with. Both
-/// are valid answers (the device is there and has spoken); only [`Error`] means it was not
-/// heard.
-pub type Reply = Result<Response, ExceptionCode>;
-
-/// Why a transaction gave no answer from the device: the transport's failures, each its own
-/// variant for callers to count and match on. A device's exception answer is never one of them
-/// (see [`Reply`]).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum Error {
-    #[error("no answer within {0:?}")]
-    Timeout(Duration),
-    #[error("bad CRC")]
-    Crc,
-    #[error("truncated answer ({got} of {needed} bytes)")]
-    Truncated { needed: usize, got: usize },
-    /// From the wrong address or function, with the wrong byte count, or malformed.
-    #[error("unexpected answer: {0}")]
-    UnexpectedReply(DecodeError),
-    /// The port failed (EOF, EIO, the adapter vanished): it must be closed and reopened.
-    #[error("serial i/o: {0}")]
-    PortGone(PortFault),
-    /// The request cannot be framed (quantity out of the specification's range); nothing sent.
-    #[error("request not sent: {0}")]
-    InvalidRequest(#[from] EncodeError),
-    /// Bytes kept arriving for this long without a t3.5 silence; nothing sent.
-    #[error("line never went silent within {0:?}")]
-    LineBusy(Duration),
-    /// A network link's connection dropped while the answer was awaited (the next
-    /// transaction reconnects).
-    #[error("connection lost: {0}")]
-    ConnectionLost(PortFault),
-}
-
-impl From<std::io::Error> for Error {
-    fn from(error: std::io::Error) -> Self {
-        Error::PortGone(PortFault::from(error))
-    }
-}
-
-/// An I/O failure of the serial port, kept as its kind and the system's words for it (so that
-/// outcomes that carry it can be compared and cloned).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{message}")]
-pub struct PortFault {
-    pub kind: std::io::ErrorKind,
-    message: String,
-}
-
-impl From<std::io::Error> for PortFault {
-    fn from(error: std::io::Error) -> Self {
-        PortFault {
-            kind: error.kind(),
-            message: error.to_string(),
-        }
-    }
-}
 
 /// The default byte timeout: the longest silence inside an answer before it is declared
 /// truncated. USB serial adapters hand received bytes over in bursts (CP210x/CH340 about every
@@ -127,85 +72,6 @@ impl Default for MasterOptions {
             inter_char_timeout: None,
             late_answer_guard: None,
         }
-    }
-}
-
-/// Wire-level counters kept by the master (monotonic).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct WireCounters {
-    pub requests: u64,
-    pub timeouts: u64,
-    pub crc_errors: u64,
-    pub truncated: u64,
-    pub unexpected: u64,
-    pub exceptions: u64,
-    /// Answers (or parts) that arrived after their request's timeout.
-    pub late_answers: u64,
-    /// Bytes found on the line outside any frame: before a request was sent, or as noise just
-    /// before an answer.
-    pub stray_bytes: u64,
-    /// Frames from another address heard while waiting for an answer (ignored, as the
-    /// serial-line specification says).
-    pub wrong_address: u64,
-    /// Silences longer than t1.5 inside an answer, tolerated up to the byte timeout (an
-    /// adapter's latency timer, a device pausing mid-answer).
-    pub long_gaps: u64,
-    /// Wire time of all frames sent and received plus the mandatory silences, for bus load.
-    pub wire_time: Duration,
-}
-
-impl WireCounters {
-    /// Counts how one transaction ended (every link counts the same way).
-    pub fn count(&mut self, result: &Result<Reply, Error>) {
-        match result {
-            Ok(Ok(_)) => {}
-            Ok(Err(_)) => self.exceptions += 1,
-            Err(Error::Timeout(_)) => self.timeouts += 1,
-            Err(Error::Crc) => self.crc_errors += 1,
-            // A connection lost mid-answer is an answer cut short.
-            Err(Error::Truncated { .. } | Error::ConnectionLost(_)) => self.truncated += 1,
-            Err(Error::UnexpectedReply(_)) => self.unexpected += 1,
-            Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
-        }
-    }
-}
-
-impl std::ops::AddAssign for WireCounters {
-    /// Adds another master's counters: a line sums the masters of every port it opened.
-    fn add_assign(&mut self, other: WireCounters) {
-        let WireCounters {
-            requests,
-            timeouts,
-            crc_errors,
-            truncated,
-            unexpected,
-            exceptions,
-            late_answers,
-            stray_bytes,
-            wrong_address,
-            long_gaps,
-            wire_time,
-        } = other;
-        self.requests += requests;
-        self.timeouts += timeouts;
-        self.crc_errors += crc_errors;
-        self.truncated += truncated;
-        self.unexpected += unexpected;
-        self.exceptions += exceptions;
-        self.late_answers += late_answers;
-        self.stray_bytes += stray_bytes;
-        self.wrong_address += wrong_address;
-        self.long_gaps += long_gaps;
-        self.wire_time += wire_time;
-    }
-}
-
-impl std::ops::Add for WireCounters {
-    type Output = WireCounters;
-
-    fn add(mut self, other: WireCounters) -> WireCounters {
-        self += other;
-        self
     }
 }
 
@@ -277,56 +143,19 @@ impl Master {
             .unwrap_or(DEFAULT_BYTE_TIMEOUT.max(self.timing.t3_5))
     }
 
-    /// Sends `request` to `slave` and waits for its answer. `timeout` runs from the instant the
-    /// request left the transmit buffer until the answer's first byte is seen (USB adapters
-    /// may hand that byte over only with the whole frame: see
-    /// [`LineTiming::default_response_timeout`]); once the answer has started, only the
-    /// inter-character gap limit applies.
-    pub async fn transact(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let span = tracing::debug_span!(
-            "transaction",
-            port = %self.port.path(),
-            slave,
-            function = ?request.function()
-        );
-        let result = self
-            .exchange(slave, request, timeout)
-            .instrument(span)
-            .await;
-        let guard = self.options.late_answer_guard.unwrap_or(timeout);
-        self.core.settle(slave, &result, Some(guard));
-        if let Err(Error::Timeout(_)) = &result {
-            self.timed_out_slave = Some(slave);
-            self.late_window_open = true;
-            self.late_answer_counted = false;
-        }
-        result
-    }
-
     /// Silence, request, answer: the transaction without its accounting.
-    async fn exchange(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let frame = codec::encode_request(slave, request)?;
+    async fn silence_request_answer(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let frame = codec::encode_request(ask.slave, ask.request)?;
         // Only a request to the address that timed out could take its late answer for its own:
         // the guard applies to it alone; for any other address the late answer is a frame
         // from another address, ignored (and counted late).
-        let guard = self.core.take_late_guard(slave);
-        self.wait_for_silence(guard, timeout).await?;
-        if self.timed_out_slave == Some(slave) {
+        let guard = self.core.take_late_guard(ask.slave);
+        self.wait_for_silence(guard, ask.timeout).await?;
+        if self.timed_out_slave == Some(ask.slave) {
             self.timed_out_slave = None;
         }
         let drained_at = self.send(&frame).await?;
-        self.receive_answer(slave, request, &frame, drained_at, timeout)
-            .await
+        self.receive_answer(ask, &frame, drained_at).await
     }
 
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
@@ -454,15 +283,18 @@ impl Master {
         Ok(drained_at)
     }
 
-    /// Reads the answer to `request` (sent as `sent` at `drained_at`) and decodes it.
+    /// Reads the answer to the request asked (sent as `sent` at `drained_at`) and decodes it.
     async fn receive_answer(
         &mut self,
-        slave: SlaveId,
-        request: &Request,
+        ask: Ask<'_>,
         sent: &[u8],
         drained_at: Instant,
-        timeout: Duration,
     ) -> Result<Reply, Error> {
+        let Ask {
+            slave,
+            request,
+            timeout,
+        } = ask;
         let answer_deadline = drained_at + timeout;
         if self.options.echo {
             self.strip_echo(sent, answer_deadline, timeout).await?;
@@ -667,42 +499,37 @@ impl Master {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+impl Transact for Master {
+    fn core(&self) -> &LinkCore {
+        &self.core
+    }
 
-    #[test]
-    fn counters_add_field_by_field() {
-        let one = WireCounters {
-            requests: 3,
-            timeouts: 1,
-            crc_errors: 2,
-            truncated: 1,
-            unexpected: 4,
-            exceptions: 1,
-            late_answers: 2,
-            stray_bytes: 7,
-            wrong_address: 1,
-            long_gaps: 3,
-            wire_time: Duration::from_millis(5),
-        };
-        let sum = one + one;
-        assert_eq!(
-            sum,
-            WireCounters {
-                requests: 6,
-                timeouts: 2,
-                crc_errors: 4,
-                truncated: 2,
-                unexpected: 8,
-                exceptions: 2,
-                late_answers: 4,
-                stray_bytes: 14,
-                wrong_address: 2,
-                long_gaps: 6,
-                wire_time: Duration::from_millis(10),
-            }
+    fn core_mut(&mut self) -> &mut LinkCore {
+        &mut self.core
+    }
+
+    fn late_answer_guard(&self, timeout: Duration) -> Option<Duration> {
+        Some(self.options.late_answer_guard.unwrap_or(timeout))
+    }
+
+    /// Sends the request and waits for its answer. `timeout` runs from the instant the
+    /// request left the transmit buffer until the answer's first byte is seen (USB adapters
+    /// may hand that byte over only with the whole frame: see
+    /// [`LineTiming::default_response_timeout`]); once the answer has started, only the
+    /// inter-character gap limit applies.
+    async fn exchange(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let span = tracing::debug_span!(
+            "transaction",
+            port = %self.port.path(),
+            slave = ask.slave,
+            function = ?ask.request.function()
         );
-        assert_eq!(WireCounters::default() + one, one);
+        let result = self.silence_request_answer(ask).instrument(span).await;
+        if let Err(Error::Timeout(_)) = &result {
+            self.timed_out_slave = Some(ask.slave);
+            self.late_window_open = true;
+            self.late_answer_counted = false;
+        }
+        result
     }
 }
