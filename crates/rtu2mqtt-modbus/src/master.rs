@@ -26,9 +26,10 @@ use tracing::Instrument;
 
 use super::answer_framing::{AnswerFramer, Framing};
 use super::clock::PreciseTimer;
-use super::codec::{self, Answer, DecodeError, MAX_FRAME_LEN};
+use super::codec::{self, DecodeError, MAX_FRAME_LEN};
 use super::frame::{FunctionCode, Request, SlaveId};
 use super::link_core::{Ask, Direction, LinkCore, Transact};
+use super::outcome::reply_of;
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
 pub use super::outcome::{Error, PortFault, Reply, WireCounters};
@@ -489,13 +490,9 @@ impl Master {
     }
 
     fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
-        match codec::decode_answer(slave, request, frame) {
-            Ok(Answer::Normal(response)) => Ok(Ok(response)),
-            Ok(Answer::Exception(code)) => Ok(Err(code)),
-            Err(DecodeError::BadCrc { .. }) => Err(Error::Crc),
-            Err(DecodeError::Truncated { needed, got }) => Err(Error::Truncated { needed, got }),
-            Err(other) => Err(Error::UnexpectedReply(other)),
-        }
+        codec::decode_answer(slave, request, frame)
+            .map(reply_of)
+            .map_err(Error::from)
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use crate::codec::{DecodeError, EncodeError};
+use crate::codec::{Answer, DecodeError, EncodeError};
 use crate::frame::{ExceptionCode, Response};
 
 /// A device's word on a request: its normal answer, or the exception it answered with. Both
@@ -43,6 +43,25 @@ pub enum Error {
 impl From<std::io::Error> for Error {
     fn from(error: std::io::Error) -> Self {
         Error::PortGone(PortFault::from(error))
+    }
+}
+
+impl From<DecodeError> for Error {
+    /// Why answer bytes were refused, as the transaction's failure.
+    fn from(error: DecodeError) -> Self {
+        match error {
+            DecodeError::BadCrc { .. } => Error::Crc,
+            DecodeError::Truncated { needed, got } => Error::Truncated { needed, got },
+            other => Error::UnexpectedReply(other),
+        }
+    }
+}
+
+/// A decoded answer as the device's word on the request.
+pub(crate) fn reply_of(answer: Answer) -> Reply {
+    match answer {
+        Answer::Normal(response) => Ok(response),
+        Answer::Exception(code) => Err(code),
     }
 }
 

@@ -23,7 +23,7 @@ use super::codec::{self, Answer, DecodeError};
 use super::frame::{Request, SlaveId};
 use super::link_core::{Ask, Direction, LinkCore, Transact};
 use super::mbap::{self, Matched, MbapError};
-use super::outcome::{Error, PortFault, Reply};
+use super::outcome::{reply_of, Error, PortFault, Reply};
 use super::timing::LineTiming;
 
 /// What a TCP line's stream carries.
@@ -276,14 +276,6 @@ impl Connection {
             }
             Ok(Err(error)) => Err(self.lost(error)),
         }
-    }
-}
-
-/// A decoded answer as the device's word on the request.
-fn reply_of(answer: Answer) -> Reply {
-    match answer {
-        Answer::Normal(response) => Ok(response),
-        Answer::Exception(code) => Err(code),
     }
 }
 
@@ -603,10 +595,7 @@ impl Transact for ModbusTcpMaster {
                             found,
                         }))
                     }
-                    Err(MbapError::Pdu(DecodeError::Truncated { needed, got })) => {
-                        return Err(Error::Truncated { needed, got })
-                    }
-                    Err(MbapError::Pdu(error)) => return Err(Error::UnexpectedReply(error)),
+                    Err(MbapError::Pdu(error)) => return Err(error.into()),
                     Err(_) => {
                         return Err(Error::UnexpectedReply(DecodeError::Malformed(
                             "unusable MBAP header",
