@@ -20,7 +20,7 @@ use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings, TransportError};
-use rtu2mqtt_modbus::{Request, Response, SlaveId};
+use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
 
 /// The read request for `function` 1–4 (anything else is refused: this tool never writes).
 pub fn read_request(function: u8, start: u16, count: u16) -> anyhow::Result<Request> {

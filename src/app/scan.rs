@@ -40,7 +40,7 @@ use crate::cli::{parse_parity, ScanArgs};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{self, WireCounters};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt_modbus::{Request, SlaveId};
+use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]

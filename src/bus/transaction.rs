@@ -10,7 +10,7 @@ use tracing::Instrument;
 
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{Error as MasterError, PortFault, Reply};
-use rtu2mqtt_modbus::{Request, SlaveId};
+use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
 use super::stats::DeviceStats;
 use super::DeviceSpec;

@@ -23,9 +23,9 @@ use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
 use super::SharedDevice;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
+use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
 use rtu2mqtt_modbus::mbap;
-use rtu2mqtt_modbus::stream_framing::{AnswerFramer, Framed};
 
 /// Longest wait for the devices' answer to one request. A new request from the client ends
 /// the wait earlier (the master has given up on the previous one).

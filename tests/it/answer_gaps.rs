@@ -16,7 +16,7 @@ use rtu2mqtt::sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLi
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
-use rtu2mqtt_modbus::{codec, Request, Response};
+use rtu2mqtt_modbus::{codec, Request, Response, Transact};
 
 const BAUD: u32 = 9600;
 const DEVICE: u8 = 1;

@@ -13,7 +13,7 @@ use rtu2mqtt_modbus::codec::{self, request_frame_len};
 use rtu2mqtt_modbus::master::{Error, Master, MasterOptions, Reply};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
-use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response, Transact};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 

@@ -692,7 +692,7 @@ use rtu2mqtt::profile::{DeviceState, Profile, Verification};
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
-use rtu2mqtt_modbus::{Request, Response};
+use rtu2mqtt_modbus::{Request, Response, Transact};
 
 const MASTER_TIMEOUT: Duration = Duration::from_millis(800);
 

@@ -9,8 +9,8 @@ use std::time::Duration;
 use rtu2mqtt::sim::{
     share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
 };
+use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{decode_answer, encode_request, Answer};
-use rtu2mqtt_modbus::stream_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::{mbap, Request, Response};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};

@@ -8,7 +8,7 @@ use std::time::Duration;
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
-use rtu2mqtt_modbus::{Request, Response};
+use rtu2mqtt_modbus::{Request, Response, Transact};
 
 /// A number written in decimal or as `0x…`.
 fn number<T: TryFrom<u32>>(text: &str) -> Result<T, String> {

@@ -5,15 +5,17 @@
 //! sleep the line's silences need. `transport` is the only code in the crate that touches a
 //! serial port; `master` runs one transaction at a time on it with the serial-line
 //! specification's timing. `tcp_link` runs them over TCP (a serial device server's raw stream,
-//! or Modbus TCP with `mbap`); `link` is what a line holds, whichever of them it is, and
-//! `link_core` what the three share (counters, frame recorder, late-answer guard). `frame_log`
-//! writes the frames of every line to one file from a thread of its own.
+//! or Modbus TCP with `mbap`); `link` is what a line holds, whichever of them it is.
+//! `answer_framing` is the one framer of their answers, `outcome` how a transaction ends, and
+//! `link_core` what the three share (the transaction wrapper, counters, frame recorder,
+//! late-answer guard). `frame_log` writes the frames of every line to one file from a thread
+//! of its own.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, the 2018 idioms.
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
-mod answer_framing;
+pub mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;
@@ -23,7 +25,7 @@ pub mod link;
 pub mod link_core;
 pub mod master;
 pub mod mbap;
-pub mod stream_framing;
+pub mod outcome;
 pub mod tcp_link;
 pub mod timing;
 pub mod transport;
@@ -34,3 +36,4 @@ pub mod transport;
 pub struct ReadmeDoctests;
 
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
+pub use link_core::Transact;

@@ -5,9 +5,10 @@
 use std::io::Write;
 use std::time::Duration;
 
-use super::frame::{Request, SlaveId};
-use super::link_core::LinkCore;
-use super::master::{Error, Master, Reply, WireCounters};
+use super::frame::Request;
+use super::link_core::{Ask, LinkCore, Transact};
+use super::master::Master;
+use super::outcome::{Error, Reply, WireCounters};
 use super::tcp_link::{ModbusTcpMaster, RawTcpMaster};
 
 /// One line's open link.
@@ -19,21 +20,6 @@ pub enum Link {
 }
 
 impl Link {
-    /// One transaction: `request` to `slave` (the unit id on Modbus TCP), its answer within
-    /// `timeout`.
-    pub async fn transact(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        match self {
-            Link::Serial(master) => master.transact(slave, request, timeout).await,
-            Link::RawTcp(master) => master.transact(slave, request, timeout).await,
-            Link::ModbusTcp(master) => master.transact(slave, request, timeout).await,
-        }
-    }
-
     /// Sends `request` to every device (address 0) and keeps the line quiet for the
     /// broadcast turnaround.
     pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
@@ -58,23 +44,6 @@ impl Link {
         }
     }
 
-    /// The link's counters, frame recorder and late-answer guard.
-    pub fn core(&self) -> &LinkCore {
-        match self {
-            Link::Serial(master) => &master.core,
-            Link::RawTcp(master) => &master.connection.core,
-            Link::ModbusTcp(master) => &master.connection.core,
-        }
-    }
-
-    pub fn core_mut(&mut self) -> &mut LinkCore {
-        match self {
-            Link::Serial(master) => &mut master.core,
-            Link::RawTcp(master) => &mut master.connection.core,
-            Link::ModbusTcp(master) => &mut master.connection.core,
-        }
-    }
-
     pub fn counters(&self) -> WireCounters {
         self.core().counters()
     }
@@ -82,5 +51,39 @@ impl Link {
     /// Writes every frame to `writer` (the frame log).
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
         self.core_mut().record_frames_to(writer);
+    }
+}
+
+impl Transact for Link {
+    fn core(&self) -> &LinkCore {
+        match self {
+            Link::Serial(master) => master.core(),
+            Link::RawTcp(master) => master.core(),
+            Link::ModbusTcp(master) => master.core(),
+        }
+    }
+
+    fn core_mut(&mut self) -> &mut LinkCore {
+        match self {
+            Link::Serial(master) => master.core_mut(),
+            Link::RawTcp(master) => master.core_mut(),
+            Link::ModbusTcp(master) => master.core_mut(),
+        }
+    }
+
+    fn late_answer_guard(&self, timeout: Duration) -> Option<Duration> {
+        match self {
+            Link::Serial(master) => master.late_answer_guard(timeout),
+            Link::RawTcp(master) => master.late_answer_guard(timeout),
+            Link::ModbusTcp(master) => master.late_answer_guard(timeout),
+        }
+    }
+
+    async fn exchange(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        match self {
+            Link::Serial(master) => master.exchange(ask).await,
+            Link::RawTcp(master) => master.exchange(ask).await,
+            Link::ModbusTcp(master) => master.exchange(ask).await,
+        }
     }
 }

@@ -1,16 +1,18 @@
 //! What every link keeps beside its transport, whichever it is (serial master, raw RTU over
-//! TCP, Modbus TCP): the wire counters, the frame recorder with its record format, and the
-//! late-answer guard a timeout arms. Written once here so that the three links count, record
-//! and guard alike.
+//! TCP, Modbus TCP): the wire counters, the frame recorder with its record format, the
+//! late-answer guard a timeout arms, and [`Transact`], the one transaction wrapper that counts
+//! and guards around each transport's exchange. Written once here so that the three links
+//! count, record and guard alike.
 
+use std::future::Future;
 use std::io::Write;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tokio::time::Instant;
 
 use crate::codec;
-use crate::frame::SlaveId;
-use crate::master::{Error, Reply, WireCounters};
+use crate::frame::{Request, SlaveId};
+use crate::outcome::{Error, Reply, WireCounters};
 
 /// Which way a recorded frame went.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -128,6 +130,55 @@ impl LinkCore {
                 Some(until)
             }
             _ => None,
+        }
+    }
+}
+
+/// One transaction as a link is asked it.
+#[derive(Debug, Clone, Copy)]
+pub struct Ask<'a> {
+    /// The device's address (the unit id on Modbus TCP).
+    pub slave: SlaveId,
+    pub request: &'a Request,
+    /// How long the answer is awaited.
+    pub timeout: Duration,
+}
+
+/// A link that runs transactions: each transport exchanges the frames its own way, and
+/// [`Transact::transact`] counts how every transaction ended and arms the late-answer guard,
+/// the same way for all of them.
+pub trait Transact: Send {
+    /// The link's counters, frame recorder and late-answer guard.
+    fn core(&self) -> &LinkCore;
+
+    fn core_mut(&mut self) -> &mut LinkCore;
+
+    /// After a timeout, how long the next request to the same address waits for the late
+    /// answer (`None`: the link tells late answers apart by itself).
+    fn late_answer_guard(&self, timeout: Duration) -> Option<Duration>;
+
+    /// Request out, answer in: the transaction without its accounting (callers use
+    /// [`Transact::transact`]).
+    fn exchange(&mut self, ask: Ask<'_>) -> impl Future<Output = Result<Reply, Error>> + Send;
+
+    /// One transaction: `request` to `slave` (the unit id on Modbus TCP), its answer within
+    /// `timeout`, counted and guarded.
+    fn transact(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> impl Future<Output = Result<Reply, Error>> + Send {
+        async move {
+            let ask = Ask {
+                slave,
+                request,
+                timeout,
+            };
+            let result = self.exchange(ask).await;
+            let guard = self.late_answer_guard(timeout);
+            self.core_mut().settle(slave, &result, guard);
+            result
         }
     }
 }

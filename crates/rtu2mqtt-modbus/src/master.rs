@@ -24,71 +24,17 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::answer_framing::{complete_foreign_frame, framing, noise_before_answer, Framing};
+use super::answer_framing::{AnswerFramer, Framing};
 use super::clock::PreciseTimer;
-use super::codec::{self, Answer, DecodeError, EncodeError, MAX_FRAME_LEN};
-use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
-use super::link_core::{Direction, LinkCore};
+use super::codec::{self, DecodeError, MAX_FRAME_LEN};
+use super::frame::{FunctionCode, Request, SlaveId};
+use super::link_core::{Ask, Direction, LinkCore, Transact};
+use super::outcome::reply_of;
+// How a transaction ends: the outcome types every link shares, where callers have always
+// found them.
+pub use super::outcome::{Error, PortFault, Reply, WireCounters};
 use super::timing::LineTiming;
 use super::transport::Port;
-
-/// A device's word on a request: its normal answer, or the exception it answered with. Both
-/// are valid answers (the device is there and has spoken); only [`Error`] means it was not
-/// heard.
-pub type Reply = Result<Response, ExceptionCode>;
-
-/// Why a transaction gave no answer from the device: the transport's failures, each its own
-/// variant for callers to count and match on. A device's exception answer is never one of them
-/// (see [`Reply`]).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum Error {
-    #[error("no answer within {0:?}")]
-    Timeout(Duration),
-    #[error("bad CRC")]
-    Crc,
-    #[error("truncated answer ({got} of {needed} bytes)")]
-    Truncated { needed: usize, got: usize },
-    /// From the wrong address or function, with the wrong byte count, or malformed.
-    #[error("unexpected answer: {0}")]
-    UnexpectedReply(DecodeError),
-    /// The port failed (EOF, EIO, the adapter vanished): it must be closed and reopened.
-    #[error("serial i/o: {0}")]
-    PortGone(PortFault),
-    /// The request cannot be framed (quantity out of the specification's range); nothing sent.
-    #[error("request not sent: {0}")]
-    InvalidRequest(#[from] EncodeError),
-    /// Bytes kept arriving for this long without a t3.5 silence; nothing sent.
-    #[error("line never went silent within {0:?}")]
-    LineBusy(Duration),
-    /// A network link's connection dropped while the answer was awaited (the next
-    /// transaction reconnects).
-    #[error("connection lost: {0}")]
-    ConnectionLost(PortFault),
-}
-
-impl From<std::io::Error> for Error {
-    fn from(error: std::io::Error) -> Self {
-        Error::PortGone(PortFault::from(error))
-    }
-}
-
-/// An I/O failure of the serial port, kept as its kind and the system's words for it (so that
-/// outcomes that carry it can be compared and cloned).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{message}")]
-pub struct PortFault {
-    pub kind: std::io::ErrorKind,
-    message: String,
-}
-
-impl From<std::io::Error> for PortFault {
-    fn from(error: std::io::Error) -> Self {
-        PortFault {
-            kind: error.kind(),
-            message: error.to_string(),
-        }
-    }
-}
 
 /// The default byte timeout: the longest silence inside an answer before it is declared
 /// truncated. USB serial adapters hand received bytes over in bursts (CP210x/CH340 about every
@@ -127,85 +73,6 @@ impl Default for MasterOptions {
             inter_char_timeout: None,
             late_answer_guard: None,
         }
-    }
-}
-
-/// Wire-level counters kept by the master (monotonic).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct WireCounters {
-    pub requests: u64,
-    pub timeouts: u64,
-    pub crc_errors: u64,
-    pub truncated: u64,
-    pub unexpected: u64,
-    pub exceptions: u64,
-    /// Answers (or parts) that arrived after their request's timeout.
-    pub late_answers: u64,
-    /// Bytes found on the line outside any frame: before a request was sent, or as noise just
-    /// before an answer.
-    pub stray_bytes: u64,
-    /// Frames from another address heard while waiting for an answer (ignored, as the
-    /// serial-line specification says).
-    pub wrong_address: u64,
-    /// Silences longer than t1.5 inside an answer, tolerated up to the byte timeout (an
-    /// adapter's latency timer, a device pausing mid-answer).
-    pub long_gaps: u64,
-    /// Wire time of all frames sent and received plus the mandatory silences, for bus load.
-    pub wire_time: Duration,
-}
-
-impl WireCounters {
-    /// Counts how one transaction ended (every link counts the same way).
-    pub fn count(&mut self, result: &Result<Reply, Error>) {
-        match result {
-            Ok(Ok(_)) => {}
-            Ok(Err(_)) => self.exceptions += 1,
-            Err(Error::Timeout(_)) => self.timeouts += 1,
-            Err(Error::Crc) => self.crc_errors += 1,
-            // A connection lost mid-answer is an answer cut short.
-            Err(Error::Truncated { .. } | Error::ConnectionLost(_)) => self.truncated += 1,
-            Err(Error::UnexpectedReply(_)) => self.unexpected += 1,
-            Err(Error::PortGone(_) | Error::InvalidRequest(_) | Error::LineBusy(_)) => {}
-        }
-    }
-}
-
-impl std::ops::AddAssign for WireCounters {
-    /// Adds another master's counters: a line sums the masters of every port it opened.
-    fn add_assign(&mut self, other: WireCounters) {
-        let WireCounters {
-            requests,
-            timeouts,
-            crc_errors,
-            truncated,
-            unexpected,
-            exceptions,
-            late_answers,
-            stray_bytes,
-            wrong_address,
-            long_gaps,
-            wire_time,
-        } = other;
-        self.requests += requests;
-        self.timeouts += timeouts;
-        self.crc_errors += crc_errors;
-        self.truncated += truncated;
-        self.unexpected += unexpected;
-        self.exceptions += exceptions;
-        self.late_answers += late_answers;
-        self.stray_bytes += stray_bytes;
-        self.wrong_address += wrong_address;
-        self.long_gaps += long_gaps;
-        self.wire_time += wire_time;
-    }
-}
-
-impl std::ops::Add for WireCounters {
-    type Output = WireCounters;
-
-    fn add(mut self, other: WireCounters) -> WireCounters {
-        self += other;
-        self
     }
 }
 
@@ -277,56 +144,19 @@ impl Master {
             .unwrap_or(DEFAULT_BYTE_TIMEOUT.max(self.timing.t3_5))
     }
 
-    /// Sends `request` to `slave` and waits for its answer. `timeout` runs from the instant the
-    /// request left the transmit buffer until the answer's first byte is seen (USB adapters
-    /// may hand that byte over only with the whole frame: see
-    /// [`LineTiming::default_response_timeout`]); once the answer has started, only the
-    /// inter-character gap limit applies.
-    pub async fn transact(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let span = tracing::debug_span!(
-            "transaction",
-            port = %self.port.path(),
-            slave,
-            function = ?request.function()
-        );
-        let result = self
-            .exchange(slave, request, timeout)
-            .instrument(span)
-            .await;
-        let guard = self.options.late_answer_guard.unwrap_or(timeout);
-        self.core.settle(slave, &result, Some(guard));
-        if let Err(Error::Timeout(_)) = &result {
-            self.timed_out_slave = Some(slave);
-            self.late_window_open = true;
-            self.late_answer_counted = false;
-        }
-        result
-    }
-
     /// Silence, request, answer: the transaction without its accounting.
-    async fn exchange(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let frame = codec::encode_request(slave, request)?;
+    async fn silence_request_answer(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let frame = codec::encode_request(ask.slave, ask.request)?;
         // Only a request to the address that timed out could take its late answer for its own:
         // the guard applies to it alone; for any other address the late answer is a frame
         // from another address, ignored (and counted late).
-        let guard = self.core.take_late_guard(slave);
-        self.wait_for_silence(guard, timeout).await?;
-        if self.timed_out_slave == Some(slave) {
+        let guard = self.core.take_late_guard(ask.slave);
+        self.wait_for_silence(guard, ask.timeout).await?;
+        if self.timed_out_slave == Some(ask.slave) {
             self.timed_out_slave = None;
         }
         let drained_at = self.send(&frame).await?;
-        self.receive_answer(slave, request, &frame, drained_at, timeout)
-            .await
+        self.receive_answer(ask, &frame, drained_at).await
     }
 
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
@@ -454,15 +284,18 @@ impl Master {
         Ok(drained_at)
     }
 
-    /// Reads the answer to `request` (sent as `sent` at `drained_at`) and decodes it.
+    /// Reads the answer to the request asked (sent as `sent` at `drained_at`) and decodes it.
     async fn receive_answer(
         &mut self,
-        slave: SlaveId,
-        request: &Request,
+        ask: Ask<'_>,
         sent: &[u8],
         drained_at: Instant,
-        timeout: Duration,
     ) -> Result<Reply, Error> {
+        let Ask {
+            slave,
+            request,
+            timeout,
+        } = ask;
         let answer_deadline = drained_at + timeout;
         if self.options.echo {
             self.strip_echo(sent, answer_deadline, timeout).await?;
@@ -473,24 +306,29 @@ impl Master {
         // The answer's rest has had its one timed wait (see below).
         let mut rest_waited_for = false;
         let mut chunk = [0u8; MAX_FRAME_LEN];
+        let framer = AnswerFramer::on_serial_line(slave, request, sent, self.options.echo);
         loop {
-            if self.is_unannounced_echo(request, sent, &received) {
-                if !self.echo_warned {
-                    self.echo_warned = true;
-                    tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
+            let framing = framer.frame(&received);
+            match framing {
+                Framing::Echo(length) => {
+                    if !self.echo_warned {
+                        self.echo_warned = true;
+                        tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
+                    }
+                    received.drain(..length);
+                    continue;
                 }
-                received.drain(..sent.len());
-            }
-            if let Some(noise) = noise_before_answer(slave, request.function(), &received) {
-                let rest = received.split_off(noise);
-                self.absorb_noise(&received, last_byte_at);
-                received = rest;
-            }
-            let framing = framing(slave, request, sent, &received, self.options.echo);
-            if let Framing::Foreign = framing {
+                Framing::Noise(length) => {
+                    let rest = received.split_off(length);
+                    self.absorb_noise(&received, last_byte_at);
+                    received = rest;
+                    continue;
+                }
                 // Another device's frame whose length and CRC check out ends here; whatever
                 // follows may be our answer.
-                if let Some(length) = complete_foreign_frame(&received) {
+                Framing::Foreign {
+                    frame_len: Some(length),
+                } => {
                     let rest = received.split_off(length);
                     self.ignore_foreign_frame(&received);
                     received = rest;
@@ -498,7 +336,7 @@ impl Master {
                 }
                 // No frame is longer: a line that babbles without a gap is dropped in pieces,
                 // and the response timeout still ends the wait.
-                if received.len() >= MAX_FRAME_LEN {
+                Framing::Foreign { frame_len: None } if received.len() >= MAX_FRAME_LEN => {
                     self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
@@ -506,14 +344,15 @@ impl Master {
                     }
                     continue;
                 }
-            }
-            if let Framing::Complete(length) = framing {
-                let trailing = received.split_off(length);
-                self.took_frame(&received);
-                if !trailing.is_empty() {
-                    self.absorb_unsolicited(&trailing, last_byte_at);
+                Framing::Complete(length) => {
+                    let trailing = received.split_off(length);
+                    self.took_frame(&received);
+                    if !trailing.is_empty() {
+                        self.absorb_unsolicited(&trailing, last_byte_at);
+                    }
+                    return self.decode(slave, request, &received);
                 }
-                return self.decode(slave, request, &received);
+                _ => {}
             }
             let wait_until = if received.is_empty() {
                 answer_deadline
@@ -555,7 +394,7 @@ impl Master {
                 return Err(Error::Timeout(timeout));
             }
             match framing {
-                Framing::Foreign => {
+                Framing::Foreign { .. } => {
                     self.drop_unframed(&received, last_byte_at);
                     received.clear();
                     if Instant::now() >= answer_deadline {
@@ -614,16 +453,6 @@ impl Master {
         )))
     }
 
-    /// Our own complete request at the start of what was received, on a line not configured
-    /// for echo (single writes excepted: their answer is a copy of the request).
-    fn is_unannounced_echo(&self, request: &Request, sent: &[u8], received: &[u8]) -> bool {
-        let answer_may_equal_request = matches!(
-            request.function(),
-            FunctionCode::WriteSingleCoil | FunctionCode::WriteSingleRegister
-        );
-        !self.options.echo && !answer_may_equal_request && received.starts_with(sent)
-    }
-
     /// A frame for another address: counted and dropped; listening goes on (serial-line
     /// specification 2.4.1).
     fn ignore_foreign_frame(&mut self, frame: &[u8]) {
@@ -661,52 +490,43 @@ impl Master {
     }
 
     fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
-        match codec::decode_answer(slave, request, frame) {
-            Ok(Answer::Normal(response)) => Ok(Ok(response)),
-            Ok(Answer::Exception(code)) => Ok(Err(code)),
-            Err(DecodeError::BadCrc { .. }) => Err(Error::Crc),
-            Err(DecodeError::Truncated { needed, got }) => Err(Error::Truncated { needed, got }),
-            Err(other) => Err(Error::UnexpectedReply(other)),
-        }
+        codec::decode_answer(slave, request, frame)
+            .map(reply_of)
+            .map_err(Error::from)
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+impl Transact for Master {
+    fn core(&self) -> &LinkCore {
+        &self.core
+    }
 
-    #[test]
-    fn counters_add_field_by_field() {
-        let one = WireCounters {
-            requests: 3,
-            timeouts: 1,
-            crc_errors: 2,
-            truncated: 1,
-            unexpected: 4,
-            exceptions: 1,
-            late_answers: 2,
-            stray_bytes: 7,
-            wrong_address: 1,
-            long_gaps: 3,
-            wire_time: Duration::from_millis(5),
-        };
-        let sum = one + one;
-        assert_eq!(
-            sum,
-            WireCounters {
-                requests: 6,
-                timeouts: 2,
-                crc_errors: 4,
-                truncated: 2,
-                unexpected: 8,
-                exceptions: 2,
-                late_answers: 4,
-                stray_bytes: 14,
-                wrong_address: 2,
-                long_gaps: 6,
-                wire_time: Duration::from_millis(10),
-            }
+    fn core_mut(&mut self) -> &mut LinkCore {
+        &mut self.core
+    }
+
+    fn late_answer_guard(&self, timeout: Duration) -> Option<Duration> {
+        Some(self.options.late_answer_guard.unwrap_or(timeout))
+    }
+
+    /// Sends the request and waits for its answer. `timeout` runs from the instant the
+    /// request left the transmit buffer until the answer's first byte is seen (USB adapters
+    /// may hand that byte over only with the whole frame: see
+    /// [`LineTiming::default_response_timeout`]); once the answer has started, only the
+    /// inter-character gap limit applies.
+    async fn exchange(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let span = tracing::debug_span!(
+            "transaction",
+            port = %self.port.path(),
+            slave = ask.slave,
+            function = ?ask.request.function()
         );
-        assert_eq!(WireCounters::default() + one, one);
+        let result = self.silence_request_answer(ask).instrument(span).await;
+        if let Err(Error::Timeout(_)) = &result {
+            self.timed_out_slave = Some(ask.slave);
+            self.late_window_open = true;
+            self.late_answer_counted = false;
+        }
+        result
     }
 }

@@ -17,13 +17,13 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
+use super::answer_framing::{AnswerFramer, Framed};
 use super::clock::PreciseTimer;
 use super::codec::{self, Answer, DecodeError};
 use super::frame::{Request, SlaveId};
-use super::link_core::{Direction, LinkCore};
-use super::master::{Error, PortFault, Reply};
+use super::link_core::{Ask, Direction, LinkCore, Transact};
 use super::mbap::{self, Matched, MbapError};
-use super::stream_framing::{AnswerFramer, Framed};
+use super::outcome::{reply_of, Error, PortFault, Reply};
 use super::timing::LineTiming;
 
 /// What a TCP line's stream carries.
@@ -279,14 +279,6 @@ impl Connection {
     }
 }
 
-/// A decoded answer as the device's word on the request.
-fn reply_of(answer: Answer) -> Reply {
-    match answer {
-        Answer::Normal(response) => Ok(response),
-        Answer::Exception(code) => Err(code),
-    }
-}
-
 /// RTU frames over a raw TCP stream (a serial device server). The stream has no silences, so
 /// answers are framed by expected length and CRC; the server's serial side still needs them,
 /// so requests go out no sooner than t3.5 after the previous answer was received (or after
@@ -319,75 +311,6 @@ impl RawTcpMaster {
             next_send_at: Instant::now(),
             timer: PreciseTimer::default(),
         })
-    }
-
-    /// Sends `request` to `slave` and waits up to `timeout` (from the instant it was handed to
-    /// the network) for its complete answer.
-    pub async fn transact(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let result = self.exchange(slave, request, timeout).await;
-        self.connection.core.settle(slave, &result, Some(timeout));
-        result
-    }
-
-    async fn exchange(
-        &mut self,
-        slave: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let frame = codec::encode_request(slave, request)?;
-        self.connection.ensure().await?;
-        self.wait_out_late_answer(slave).await?;
-        let sent_at = self.send(&frame).await?;
-        let deadline = sent_at + timeout;
-        let mut framer = AnswerFramer::new(slave, request);
-        loop {
-            match framer.poll(&mut self.connection.buffer) {
-                Framed::Answer {
-                    answer,
-                    frame,
-                    skipped,
-                } => {
-                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
-                    let (answer, frame) = self.newest_answer(slave, request, answer, frame);
-                    self.took_answer(&frame);
-                    return Ok(reply_of(answer));
-                }
-                Framed::OutOfStep { skipped } => {
-                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
-                    let garbage = std::mem::take(&mut self.connection.buffer);
-                    self.connection.core.record(Direction::Rx, &garbage);
-                    self.next_send_at = Instant::now() + self.timing.t3_5;
-                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
-                        "no answer among the bytes received",
-                    )));
-                }
-                Framed::NeedMore => {}
-            }
-            if !self.connection.read_until(deadline).await? {
-                self.next_send_at = Instant::now() + self.timing.t3_5;
-                let got = self.connection.buffer.len();
-                if got > 0 {
-                    let partial = std::mem::take(&mut self.connection.buffer);
-                    self.connection.core.record(Direction::Rx, &partial);
-                    return Err(Error::Truncated {
-                        needed: request.answer_len(),
-                        got,
-                    });
-                }
-                if framer.skipped() > 0 {
-                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
-                        "no answer among the bytes received",
-                    )));
-                }
-                return Err(Error::Timeout(timeout));
-            }
-        }
     }
 
     /// Sends `request` to address 0; nothing answers. The line is then kept silent for the
@@ -477,6 +400,78 @@ impl RawTcpMaster {
     }
 }
 
+impl Transact for RawTcpMaster {
+    fn core(&self) -> &LinkCore {
+        &self.connection.core
+    }
+
+    fn core_mut(&mut self) -> &mut LinkCore {
+        &mut self.connection.core
+    }
+
+    fn late_answer_guard(&self, timeout: Duration) -> Option<Duration> {
+        Some(timeout)
+    }
+
+    /// Sends the request and waits up to its timeout (from the instant it was handed to the
+    /// network) for its complete answer.
+    async fn exchange(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let Ask {
+            slave,
+            request,
+            timeout,
+        } = ask;
+        let frame = codec::encode_request(slave, request)?;
+        self.connection.ensure().await?;
+        self.wait_out_late_answer(slave).await?;
+        let sent_at = self.send(&frame).await?;
+        let deadline = sent_at + timeout;
+        let mut framer = AnswerFramer::new(slave, request);
+        loop {
+            match framer.poll(&mut self.connection.buffer) {
+                Framed::Answer {
+                    answer,
+                    frame,
+                    skipped,
+                } => {
+                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
+                    let (answer, frame) = self.newest_answer(slave, request, answer, frame);
+                    self.took_answer(&frame);
+                    return Ok(reply_of(answer));
+                }
+                Framed::OutOfStep { skipped } => {
+                    self.connection.core.counters_mut().stray_bytes += skipped as u64;
+                    let garbage = std::mem::take(&mut self.connection.buffer);
+                    self.connection.core.record(Direction::Rx, &garbage);
+                    self.next_send_at = Instant::now() + self.timing.t3_5;
+                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                        "no answer among the bytes received",
+                    )));
+                }
+                Framed::NeedMore => {}
+            }
+            if !self.connection.read_until(deadline).await? {
+                self.next_send_at = Instant::now() + self.timing.t3_5;
+                let got = self.connection.buffer.len();
+                if got > 0 {
+                    let partial = std::mem::take(&mut self.connection.buffer);
+                    self.connection.core.record(Direction::Rx, &partial);
+                    return Err(Error::Truncated {
+                        needed: request.answer_len(),
+                        got,
+                    });
+                }
+                if framer.skipped() > 0 {
+                    return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                        "no answer among the bytes received",
+                    )));
+                }
+                return Err(Error::Timeout(timeout));
+            }
+        }
+    }
+}
+
 /// Modbus TCP to a TCP-to-RTU gateway: each request carries a new transaction id, answers are
 /// framed by their MBAP length and matched by id; an answer with another id (the late answer of
 /// a request that timed out) is discarded and counted in `late_answers`. The gateway paces its
@@ -496,78 +491,10 @@ impl ModbusTcpMaster {
         })
     }
 
-    /// Sends `request` to `unit` and waits up to `timeout` for the answer with its id.
-    pub async fn transact(
-        &mut self,
-        unit: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let result = self.exchange(unit, request, timeout).await;
-        // Answers carry their transaction id: a late one is told apart without a guard.
-        self.connection.core.settle(unit, &result, None);
-        result
-    }
-
     fn take_transaction(&mut self) -> u16 {
         let transaction = self.next_transaction;
         self.next_transaction = self.next_transaction.wrapping_add(1).max(1);
         transaction
-    }
-
-    async fn exchange(
-        &mut self,
-        unit: SlaveId,
-        request: &Request,
-        timeout: Duration,
-    ) -> Result<Reply, Error> {
-        let transaction = self.take_transaction();
-        let adu = mbap::encode_request(transaction, unit, request)?;
-        self.connection.ensure().await?;
-        self.drop_pending()?;
-        let sent_at = self.send(&adu).await?;
-        let deadline = sent_at + timeout;
-        loop {
-            while let Some(answer) = self.next_adu()? {
-                self.connection.core.record(Direction::Rx, &answer);
-                match mbap::decode_answer(transaction, unit, request, &answer) {
-                    Ok(Matched::Current(answer)) => {
-                        self.connection.core.counters_mut().wire_time += sent_at.elapsed();
-                        return Ok(reply_of(answer));
-                    }
-                    Ok(Matched::Stale { transaction: old }) => {
-                        self.connection.core.counters_mut().late_answers += 1;
-                        tracing::debug!(url = %self.connection.label(), transaction = old, "answer to an earlier request dropped");
-                    }
-                    Err(MbapError::WrongUnit { expected, found }) => {
-                        return Err(Error::UnexpectedReply(DecodeError::WrongAddress {
-                            expected,
-                            found,
-                        }))
-                    }
-                    Err(MbapError::Pdu(DecodeError::Truncated { needed, got })) => {
-                        return Err(Error::Truncated { needed, got })
-                    }
-                    Err(MbapError::Pdu(error)) => return Err(Error::UnexpectedReply(error)),
-                    Err(_) => {
-                        return Err(Error::UnexpectedReply(DecodeError::Malformed(
-                            "unusable MBAP header",
-                        )))
-                    }
-                }
-            }
-            if !self.connection.read_until(deadline).await? {
-                self.connection.core.counters_mut().wire_time += timeout;
-                let got = self.connection.buffer.len();
-                if got > 0 {
-                    return Err(Error::Truncated {
-                        needed: mbap::HEADER_LEN + request.answer_len() - 3,
-                        got,
-                    });
-                }
-                return Err(Error::Timeout(timeout));
-            }
-        }
     }
 
     /// Sends `request` to unit 0 (broadcast) and waits the broadcast turnaround; nothing
@@ -618,6 +545,74 @@ impl ModbusTcpMaster {
                     std::io::ErrorKind::InvalidData,
                     error.to_string(),
                 )))
+            }
+        }
+    }
+}
+
+impl Transact for ModbusTcpMaster {
+    fn core(&self) -> &LinkCore {
+        &self.connection.core
+    }
+
+    fn core_mut(&mut self) -> &mut LinkCore {
+        &mut self.connection.core
+    }
+
+    /// Answers carry their transaction id: a late one is told apart without a guard.
+    fn late_answer_guard(&self, _timeout: Duration) -> Option<Duration> {
+        None
+    }
+
+    /// Sends the request to its unit and waits up to its timeout for the answer with its id.
+    async fn exchange(&mut self, ask: Ask<'_>) -> Result<Reply, Error> {
+        let Ask {
+            slave: unit,
+            request,
+            timeout,
+        } = ask;
+        let transaction = self.take_transaction();
+        let adu = mbap::encode_request(transaction, unit, request)?;
+        self.connection.ensure().await?;
+        self.drop_pending()?;
+        let sent_at = self.send(&adu).await?;
+        let deadline = sent_at + timeout;
+        loop {
+            while let Some(answer) = self.next_adu()? {
+                self.connection.core.record(Direction::Rx, &answer);
+                match mbap::decode_answer(transaction, unit, request, &answer) {
+                    Ok(Matched::Current(answer)) => {
+                        self.connection.core.counters_mut().wire_time += sent_at.elapsed();
+                        return Ok(reply_of(answer));
+                    }
+                    Ok(Matched::Stale { transaction: old }) => {
+                        self.connection.core.counters_mut().late_answers += 1;
+                        tracing::debug!(url = %self.connection.label(), transaction = old, "answer to an earlier request dropped");
+                    }
+                    Err(MbapError::WrongUnit { expected, found }) => {
+                        return Err(Error::UnexpectedReply(DecodeError::WrongAddress {
+                            expected,
+                            found,
+                        }))
+                    }
+                    Err(MbapError::Pdu(error)) => return Err(error.into()),
+                    Err(_) => {
+                        return Err(Error::UnexpectedReply(DecodeError::Malformed(
+                            "unusable MBAP header",
+                        )))
+                    }
+                }
+            }
+            if !self.connection.read_until(deadline).await? {
+                self.connection.core.counters_mut().wire_time += timeout;
+                let got = self.connection.buffer.len();
+                if got > 0 {
+                    return Err(Error::Truncated {
+                        needed: mbap::HEADER_LEN + request.answer_len() - 3,
+                        got,
+                    });
+                }
+                return Err(Error::Timeout(timeout));
             }
         }
     }
