@@ -71,6 +71,16 @@ pub fn report(path: &Path, config: &Config) -> String {
                 .unwrap_or_default()
         );
     }
+    if let Some(history) = &config.history {
+        let _ = writeln!(
+            out,
+            "history: journal in {}, at most {} bytes, records kept {}; stream on {}",
+            history.path.display(),
+            history.max_size,
+            humantime::format_duration(history.max_age),
+            config.mqtt.topics().history_filter(),
+        );
+    }
     for warning in &config.warnings {
         let _ = writeln!(out, "warning: {warning}");
     }
