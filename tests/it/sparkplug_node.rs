@@ -82,6 +82,7 @@ fn dust(gear: i64) -> LineEvent {
             ("power".into(), Value::Bool(true)),
             ("gear".into(), Value::Int(gear)),
         ],
+        read_at: std::time::SystemTime::UNIX_EPOCH,
     }
 }
 
