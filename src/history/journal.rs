@@ -141,6 +141,29 @@ impl Journal {
         self.stats
     }
 
+    /// What the journal in `dir` holds, read without changing anything (for `check`); None
+    /// when there is no such directory yet.
+    pub fn inspect(dir: &Path) -> io::Result<Option<JournalStats>> {
+        if !dir.exists() {
+            return Ok(None);
+        }
+        let mut stats = JournalStats::default();
+        for entry in fs::read_dir(dir)?.flatten() {
+            let path = entry.path();
+            if sequence_of(&path).is_none() {
+                continue;
+            }
+            let bytes = fs::read(&path)?;
+            let decoded = record::decode(&bytes);
+            stats.damaged += decoded.damaged;
+            if !decoded.foreign {
+                stats.bytes += bytes.len() as u64;
+                stats.waiting += decoded.records.len() as u64;
+            }
+        }
+        Ok(Some(stats))
+    }
+
     pub fn is_empty(&self) -> bool {
         self.stats.waiting == 0
     }
@@ -529,6 +552,11 @@ mod tests {
         let foreign = dir.join(format!("{:020}.{SUFFIX}", 99_999));
         fs::write(&foreign, b"#!/bin/sh\necho not a journal\n").unwrap_or_else(|e| panic!("{e}"));
 
+        let inspected = Journal::inspect(&dir).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            inspected.map(|stats| (stats.waiting, stats.damaged)),
+            Some((598, 3))
+        );
         let mut journal = open(&dir, 64 * 1024);
         assert_eq!(journal.stats().damaged, 3);
         let mut replayed = Vec::new();
