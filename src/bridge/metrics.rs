@@ -658,4 +658,48 @@ mod tests {
             "{text}"
         );
     }
+
+    #[test]
+    fn the_history_journal_is_in_both_documents_only_when_kept() {
+        let without = BridgeStats::default();
+        assert!(stats_json(&[], &without)["history"].is_null());
+        assert!(!prometheus_text(&[], &without).contains("rtu2mqtt_history_"));
+        let with = BridgeStats {
+            history: Some(HistoryStats {
+                journal: JournalStats {
+                    bytes: 4096,
+                    waiting: 40,
+                    dropped: 3,
+                    damaged: 1,
+                    write_failures: 2,
+                },
+                replay_backlog: 40,
+            }),
+            ..BridgeStats::default()
+        };
+        assert_eq!(
+            stats_json(&[], &with)["history"],
+            json!({
+                "journal_bytes": 4096,
+                "records_waiting": 40,
+                "replay_backlog": 40,
+                "records_dropped": 3,
+                "damaged": 1,
+                "write_failures": 2,
+            })
+        );
+        let text = prometheus_text(&[], &with);
+        for sample in [
+            "rtu2mqtt_history_journal_bytes 4096",
+            "rtu2mqtt_history_records_waiting 40",
+            "rtu2mqtt_history_replay_backlog 40",
+            "rtu2mqtt_history_records_dropped_total 3",
+            "rtu2mqtt_history_damaged_total 1",
+            "rtu2mqtt_history_write_failures_total 2",
+            "# TYPE rtu2mqtt_history_records_dropped_total counter",
+            "# TYPE rtu2mqtt_history_journal_bytes gauge",
+        ] {
+            assert!(text.lines().any(|line| line == sample), "{sample} missing:\n{text}");
+        }
+    }
 }
