@@ -699,7 +699,10 @@ mod tests {
             "# TYPE rtu2mqtt_history_records_dropped_total counter",
             "# TYPE rtu2mqtt_history_journal_bytes gauge",
         ] {
-            assert!(text.lines().any(|line| line == sample), "{sample} missing:\n{text}");
+            assert!(
+                text.lines().any(|line| line == sample),
+                "{sample} missing:\n{text}"
+            );
         }
     }
 }
