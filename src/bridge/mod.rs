@@ -9,7 +9,8 @@
 //! handed to a writer task that awaits room in the client's short request queue: nothing is
 //! dropped because the client is busy, and when the outbox grows past [`OVERLOAD_HIGH`] the
 //! core sheds incoming commands (each still gets its outcome) until it is back under
-//! [`OVERLOAD_LOW`].
+//! [`OVERLOAD_LOW`]. With `[history]`, [`history`] carries the history stream: published
+//! while the broker is there, journaled while it is away, replayed after.
 
 pub mod action;
 pub mod commands;
@@ -317,8 +318,9 @@ impl Bridge {
     }
 
     /// The journal's turn: synced when due, the next records of the replay handed to the
-    /// outbox while it has room (after the state a connection republishes, before nothing
-    /// live), and its health told to the core.
+    /// outbox while it has room (behind the state a connection republishes; live change sets
+    /// wait in the journal behind the replay, so the stream stays in order), and its health
+    /// told to the core.
     fn history_tick(&mut self, now: Instant) {
         let Some(history) = &mut self.history else {
             return;
