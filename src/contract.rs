@@ -19,14 +19,17 @@ pub const OFFLINE: &str = "offline";
 pub const GATEWAY_DEVICE: &str = "gateway";
 /// The last level of a device's availability topic.
 pub const AVAILABILITY: &str = "availability";
+/// The last level of a device's history stream (`<prefix>/<device>/history`).
+pub const HISTORY: &str = "history";
 
 /// Names a device or a field must not have: every word the contract itself uses as a topic
 /// level next to device and field names. A field `availability` would publish its values on
 /// the device's availability topic; `set` and `result` are the command and outcome levels;
-/// `gateway` holds the gateway's own `status` and `stats`.
+/// `gateway` holds the gateway's own `status` and `stats`; `history` is the history stream.
 pub const RESERVED_NAMES: &[&str] = &[
     "availability",
     GATEWAY_DEVICE,
+    HISTORY,
     "result",
     "set",
     "stats",
@@ -123,6 +126,16 @@ impl Topics {
     /// `<prefix>/<device>/availability`.
     pub fn availability_topic(&self, device: &str) -> String {
         format!("{}/{device}/{AVAILABILITY}", self.prefix)
+    }
+
+    /// `<prefix>/<device>/history`: the device's timestamped change sets (not retained).
+    pub fn history_topic(&self, device: &str) -> String {
+        format!("{}/{device}/{HISTORY}", self.prefix)
+    }
+
+    /// `<prefix>/+/history`: every device's history stream, what a historian subscribes to.
+    pub fn history_filter(&self) -> String {
+        self.history_topic("+")
     }
 
     /// `<prefix>/<device>`: the device's JSON view.

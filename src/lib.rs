@@ -25,6 +25,9 @@
 //!   place of every problem before anything is opened.
 //! - [`health`]: readiness, the watchdog thread and the status file; it knows heartbeats, not
 //!   the bridge.
+//! - [`history`]: the journal of what was measured while the broker was away (append-only,
+//!   checksummed segment files in the `[history]` directory, bounded, crash-safe) and the
+//!   history stream's documents. File I/O only; the bridge decides what goes in and out.
 //! - [`bridge`]: the only plain-MQTT user. State, commands, outcomes, availability, Home
 //!   Assistant discovery and statistics, decided by an I/O-free core and carried out by a thin
 //!   driver.
@@ -53,6 +56,7 @@ pub mod cli;
 pub mod config;
 pub mod contract;
 pub mod health;
+pub mod history;
 pub mod profile;
 pub mod shutdown;
 #[cfg(feature = "demo")]

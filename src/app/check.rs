@@ -71,6 +71,25 @@ pub fn report(path: &Path, config: &Config) -> String {
                 .unwrap_or_default()
         );
     }
+    if let Some(history) = &config.history {
+        let _ = writeln!(
+            out,
+            "history: journal in {}, at most {} bytes, records kept {}; stream on {}",
+            history.path.display(),
+            history.max_size,
+            humantime::format_duration(history.max_age),
+            config.mqtt.topics().history_filter(),
+        );
+        let holds = match crate::history::Journal::inspect(&history.path) {
+            Ok(Some(stats)) => format!(
+                "{} records waiting in {} bytes, {} damaged parts",
+                stats.waiting, stats.bytes, stats.damaged
+            ),
+            Ok(None) => "nothing yet (the directory is made at start)".to_string(),
+            Err(error) => format!("cannot be read: {error}"),
+        };
+        let _ = writeln!(out, "history journal: {holds}");
+    }
     for warning in &config.warnings {
         let _ = writeln!(out, "warning: {warning}");
     }

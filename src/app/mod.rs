@@ -109,6 +109,7 @@ pub async fn run_gateway(
                 session,
                 mqtt: node_mqtt,
                 stats_interval: config.gateway.stats_interval,
+                bd_seq_store: sparkplug::bd_seq::BdSeqStore::for_config(&config),
             };
             let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
             (events_rx, Some(task))
@@ -158,6 +159,7 @@ struct NodeWiring {
     session: sparkplug::Session,
     mqtt: config::MqttSettings,
     stats_interval: Duration,
+    bd_seq_store: Option<sparkplug::bd_seq::BdSeqStore>,
 }
 
 impl NodeWiring {
@@ -193,6 +195,7 @@ impl NodeWiring {
             reports: reports_rx,
             node_values: values_rx,
             shutdown: shutdown.clone(),
+            bd_seq_store: self.bd_seq_store,
         };
         let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
         (bridge_events_rx, task)

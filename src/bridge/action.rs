@@ -1,5 +1,6 @@
 //! What the bridge core asks its driver to do: the [`Action`]s (publish, subscribe, hand a
-//! command to a line, report an external command's end) and the messages they carry.
+//! command to a line, report an external command's end, carry a change set to the history
+//! stream) and the messages they carry.
 
 use rumqttc::QoS;
 
@@ -32,6 +33,21 @@ pub enum Action {
     },
     /// Tell the sender of an external command how it ended.
     Report(CommandReport),
+    /// A change set for the history stream: published (QoS 1, not retained) when the broker
+    /// is there and nothing older waits in the journal, journaled otherwise.
+    History(HistoryEntry),
+}
+
+/// One device's change set on its history topic.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HistoryEntry {
+    pub device: String,
+    /// `<prefix>/<device>/history`.
+    pub topic: String,
+    /// When the answers were read, in milliseconds since the Unix epoch.
+    pub at_ms: u64,
+    /// `{"ts":…,"values":{…}}`.
+    pub document: String,
 }
 
 /// How an external command (a Sparkplug DCMD) ended: `applied` only when the device took the

@@ -21,13 +21,13 @@ use rumqttc::QoS;
 
 use super::desk::{CommandDesk, SetMessage};
 use super::discovery;
-use super::metrics::{self, BridgeStats};
+use super::metrics::{self, BridgeStats, HistoryStats};
 use super::publisher::Publisher;
 use crate::bus::{Command, LineEvent, LineStats};
 use crate::config::{Config, GatewayOptions};
 use crate::contract::{is_ha_online, Topics};
 
-pub use super::action::{Action, CommandReport, Publish};
+pub use super::action::{Action, CommandReport, HistoryEntry, Publish};
 pub use super::device::BridgeDevice;
 
 /// A command that did not come from a plain `…/set` topic (a Sparkplug DCMD): the field and
@@ -72,6 +72,8 @@ pub struct CoreSettings {
     /// Home Assistant discovery is published.
     pub discovery: bool,
     pub options: GatewayOptions,
+    /// Change sets go to the history stream (`[history]`).
+    pub history: bool,
     pub line_names: Vec<String>,
     /// In configuration order.
     pub devices: Vec<BridgeDevice>,
@@ -93,6 +95,7 @@ impl CoreSettings {
             topics: config.mqtt.topics(),
             discovery: config.mqtt.discovery,
             options: config.gateway.clone(),
+            history: config.history.is_some(),
             line_names: config.lines.iter().map(|line| line.name.clone()).collect(),
             devices,
         }
@@ -117,6 +120,8 @@ pub struct Core {
     stats_due: bool,
     /// Picks the re-announcement delay; passed in so the core is deterministic.
     rng: StdRng,
+    /// The history journal's health, as the driver last told it.
+    history: Option<HistoryStats>,
 }
 
 impl Core {
@@ -130,6 +135,7 @@ impl Core {
                 settings.topics,
                 settings.discovery,
                 options.json_view,
+                settings.history,
                 settings.line_names,
                 settings.devices,
             ),
@@ -141,6 +147,7 @@ impl Core {
             stats_due: true,
             stats_interval: options.stats_interval,
             rng,
+            history: None,
         }
     }
 
@@ -169,6 +176,7 @@ impl Core {
             publish_failures: published.publish_failures,
             topics_reasserted: published.topics_reasserted,
             waiting_commands: self.desk.waiting() as u64,
+            history: self.history,
             ..self.desk.counters().clone()
         }
     }
@@ -197,6 +205,11 @@ impl Core {
         self.publisher.on_published(publish, sent);
     }
 
+    /// Tells the core the history journal's health, for the statistics.
+    pub fn set_history_stats(&mut self, stats: HistoryStats) {
+        self.history = Some(stats);
+    }
+
     /// Tells the core whether the driver keeps up with what it is asked to publish.
     pub fn set_overloaded(&mut self, overloaded: bool) {
         self.desk.set_overloaded(overloaded);
@@ -207,7 +220,11 @@ impl Core {
     pub fn on_line_event(&mut self, event: LineEvent, now: Instant) -> Vec<Action> {
         let p = &mut self.publisher;
         match event {
-            LineEvent::Values { device, values } => p.values(&device, values),
+            LineEvent::Values {
+                device,
+                values,
+                read_at,
+            } => p.values(&device, values, read_at),
             LineEvent::Availability { device, online } => {
                 p.availability(&device, online);
                 if online {

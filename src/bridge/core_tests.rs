@@ -9,7 +9,9 @@ use rand::SeedableRng;
 use rumqttc::QoS;
 use serde_json::Value as Json;
 
-use super::core::{Action, BridgeDevice, Core, CoreSettings, ExternalCommand, Incoming};
+use super::core::{
+    Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming,
+};
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
 use crate::config::GatewayOptions;
 use crate::contract::Topics;
@@ -45,6 +47,7 @@ fn core(now: Instant) -> Core {
             topics: Topics::new("edge1", "plant"),
             discovery: true,
             options: options(),
+            history: false,
             line_names: vec!["a".to_string()],
             devices: vec![BridgeDevice {
                 name: "valve".to_string(),
@@ -392,6 +395,7 @@ fn home_assistant_online_brings_discovery_and_state_again() {
     let values = LineEvent::Values {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        read_at: std::time::SystemTime::UNIX_EPOCH,
     };
     core.on_line_event(values, now);
     let start = core.on_tick(now, Vec::new);
@@ -493,6 +497,7 @@ fn state_of_a_slot_is_published_before_its_result() {
         LineEvent::Values {
             device: "valve".to_string(),
             values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
         },
         now,
     );
@@ -631,6 +636,7 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
     let values = LineEvent::Values {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        read_at: std::time::SystemTime::UNIX_EPOCH,
     };
     core.on_line_event(values, now);
     let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
@@ -693,6 +699,7 @@ fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
             topics: Topics::new("edge1", "plant"),
             discovery: false,
             options: options(),
+            history: false,
             line_names: vec!["a".to_string()],
             devices: vec![BridgeDevice {
                 name: "shower".to_string(),
@@ -885,6 +892,7 @@ fn a_removed_device_is_cleared_and_a_kept_ones_waiting_command_stays() {
             topics: Topics::new("edge1", "plant"),
             discovery: true,
             options,
+            history: false,
             line_names: vec!["a".into(), "b".into()],
             devices: vec![dust.clone(), valve.clone()],
         },
@@ -994,4 +1002,77 @@ fn two_cores_with_the_same_seed_decide_the_same() {
         "the script reaches the re-announcement: {first:#?}"
     );
     assert_eq!(first, second);
+}
+
+fn history_core(now: Instant) -> Core {
+    let profile = Arc::new(registry::built_in("wuzhou-valve").unwrap());
+    Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: false,
+            options: options(),
+            history: true,
+            line_names: vec!["a".to_string()],
+            devices: vec![BridgeDevice {
+                name: "valve".to_string(),
+                profile,
+                line: 0,
+            }],
+        },
+        now,
+        seeded(),
+    )
+}
+
+fn history_entries(actions: &[Action]) -> Vec<HistoryEntry> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::History(entry) => Some(entry.clone()),
+            _ => None,
+        })
+        .collect()
+}
+
+fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
+    LineEvent::Values {
+        device: "valve".to_string(),
+        values: vec![("opening".to_string(), crate::profile::Value::Int(opening))],
+        read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
+    }
+}
+
+#[test]
+fn each_change_set_goes_to_the_history_stream_with_its_read_instant_connected_or_not() {
+    let now = Instant::now();
+    let mut core = history_core(now);
+    // Not connected yet: the change set still goes out (to the journal, the driver decides).
+    let first = history_entries(&core.on_line_event(opening_at(40, 1_796_223_601_123), now));
+    assert_eq!(
+        first,
+        vec![HistoryEntry {
+            device: "valve".to_string(),
+            topic: "plant/valve/history".to_string(),
+            at_ms: 1_796_223_601_123,
+            document: r#"{"ts":"2026-12-02T15:00:01.123Z","values":{"opening":40}}"#.to_string(),
+        }]
+    );
+    // The same value again is no change.
+    assert!(
+        history_entries(&core.on_line_event(opening_at(40, 1_796_223_602_000), now)).is_empty()
+    );
+    core.on_connected();
+    let changed = history_entries(&core.on_line_event(opening_at(41, 1_796_223_603_000), now));
+    assert_eq!(changed.len(), 1);
+    assert_eq!(
+        changed[0].document,
+        r#"{"ts":"2026-12-02T15:00:03.000Z","values":{"opening":41}}"#
+    );
+}
+
+#[test]
+fn without_history_no_change_set_is_made() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    assert!(history_entries(&core.on_line_event(opening_at(40, 0), now)).is_empty());
 }

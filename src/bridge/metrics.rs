@@ -13,6 +13,15 @@ use serde_json::{json, Map, Value as Json};
 
 use crate::bus::stats::DeviceStats;
 use crate::bus::LineStats;
+use crate::history::JournalStats;
+
+/// The history journal's health (`[history]`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct HistoryStats {
+    pub journal: JournalStats,
+    /// Journaled records still to be replayed while the broker is there.
+    pub replay_backlog: u64,
+}
 
 /// The bridge's own counters, kept by the bridge and snapshotted for each document.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -50,6 +59,8 @@ pub struct BridgeStats {
     pub commands_superseded: u64,
     /// Fields whose raw data was invalid (bad BCD): not published, counted here.
     pub invalid_values: u64,
+    /// The history journal, with `[history]`.
+    pub history: Option<HistoryStats>,
 }
 
 /// One metric family: its name, type and help, then its samples.
@@ -320,6 +331,9 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
         let mut family = Family::start(&mut out, name, "counter", help);
         family.sample(&[], value as f64);
     }
+    if let Some(history) = &bridge.history {
+        history_families(&mut out, history);
+    }
 
     let mut family = Family::start(
         &mut out,
@@ -544,7 +558,68 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
             "superseded": bridge.commands_superseded,
         },
         "invalid_values": bridge.invalid_values,
+        "history": bridge.history.as_ref().map(history_json),
         "lines": line_documents,
+    })
+}
+
+/// The journal's families: gauges of what it holds, counters of what it lost.
+fn history_families(out: &mut String, history: &HistoryStats) {
+    let journal = &history.journal;
+    let families: [(&str, &str, &str, u64); 6] = [
+        (
+            "rtu2mqtt_history_journal_bytes",
+            "gauge",
+            "Bytes of the history journal on disk.",
+            journal.bytes,
+        ),
+        (
+            "rtu2mqtt_history_records_waiting",
+            "gauge",
+            "Records in the history journal waiting for their replay.",
+            journal.waiting,
+        ),
+        (
+            "rtu2mqtt_history_replay_backlog",
+            "gauge",
+            "Journaled records still to be replayed while the broker is connected.",
+            history.replay_backlog,
+        ),
+        (
+            "rtu2mqtt_history_records_dropped_total",
+            "counter",
+            "History records dropped by max_size or max_age.",
+            journal.dropped,
+        ),
+        (
+            "rtu2mqtt_history_damaged_total",
+            "counter",
+            "Damaged parts of the history journal found and skipped.",
+            journal.damaged,
+        ),
+        (
+            "rtu2mqtt_history_write_failures_total",
+            "counter",
+            "History records that could not be written to the journal.",
+            journal.write_failures,
+        ),
+    ];
+    for (name, kind, help, value) in families {
+        let mut family = Family::start(out, name, kind, help);
+        family.sample(&[], value as f64);
+    }
+}
+
+/// `history` in the statistics document.
+fn history_json(history: &HistoryStats) -> Json {
+    let journal = &history.journal;
+    json!({
+        "journal_bytes": journal.bytes,
+        "records_waiting": journal.waiting,
+        "replay_backlog": history.replay_backlog,
+        "records_dropped": journal.dropped,
+        "damaged": journal.damaged,
+        "write_failures": journal.write_failures,
     })
 }
 
@@ -582,5 +657,52 @@ mod tests {
             text.contains("rtu2mqtt_device_failures_total{line=\"line-b\",device=\"valve\"} 1"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn the_history_journal_is_in_both_documents_only_when_kept() {
+        let without = BridgeStats::default();
+        assert!(stats_json(&[], &without)["history"].is_null());
+        assert!(!prometheus_text(&[], &without).contains("rtu2mqtt_history_"));
+        let with = BridgeStats {
+            history: Some(HistoryStats {
+                journal: JournalStats {
+                    bytes: 4096,
+                    waiting: 40,
+                    dropped: 3,
+                    damaged: 1,
+                    write_failures: 2,
+                },
+                replay_backlog: 40,
+            }),
+            ..BridgeStats::default()
+        };
+        assert_eq!(
+            stats_json(&[], &with)["history"],
+            json!({
+                "journal_bytes": 4096,
+                "records_waiting": 40,
+                "replay_backlog": 40,
+                "records_dropped": 3,
+                "damaged": 1,
+                "write_failures": 2,
+            })
+        );
+        let text = prometheus_text(&[], &with);
+        for sample in [
+            "rtu2mqtt_history_journal_bytes 4096",
+            "rtu2mqtt_history_records_waiting 40",
+            "rtu2mqtt_history_replay_backlog 40",
+            "rtu2mqtt_history_records_dropped_total 3",
+            "rtu2mqtt_history_damaged_total 1",
+            "rtu2mqtt_history_write_failures_total 2",
+            "# TYPE rtu2mqtt_history_records_dropped_total counter",
+            "# TYPE rtu2mqtt_history_journal_bytes gauge",
+        ] {
+            assert!(
+                text.lines().any(|line| line == sample),
+                "{sample} missing:\n{text}"
+            );
+        }
     }
 }

@@ -9,7 +9,8 @@
 //! handed to a writer task that awaits room in the client's short request queue: nothing is
 //! dropped because the client is busy, and when the outbox grows past [`OVERLOAD_HIGH`] the
 //! core sheds incoming commands (each still gets its outcome) until it is back under
-//! [`OVERLOAD_LOW`].
+//! [`OVERLOAD_LOW`]. With `[history]`, [`history`] carries the history stream: published
+//! while the broker is there, journaled while it is away, replayed after.
 
 pub mod action;
 pub mod commands;
@@ -20,6 +21,7 @@ pub mod desk;
 pub mod device;
 pub mod discovery;
 pub mod guard;
+pub mod history;
 pub mod json_view;
 pub mod metrics;
 pub mod mqtt;
@@ -41,6 +43,7 @@ use tokio::sync::{mpsc, watch};
 use self::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
 };
+use self::history::{HistoryLane, REPLAY_ROOM};
 use self::metrics::BridgeStats;
 use self::mqtt::LinkEvent;
 use self::outbox::{Lane, Outbox, Request};
@@ -104,6 +107,8 @@ pub struct Bridge {
     reconfigure_rx: Option<mpsc::Receiver<Reconfiguration>>,
     /// The running lines' statistics for the metrics endpoint (replaced by a reload).
     line_stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
+    /// The history stream's journal and replay (`[history]`).
+    history: Option<HistoryLane>,
 }
 
 impl Bridge {
@@ -144,6 +149,10 @@ impl Bridge {
             external: None,
             reconfigure_rx: None,
             line_stats_tx,
+            history: config
+                .history
+                .as_ref()
+                .map(|history| HistoryLane::open(history, config.mqtt.topics())),
         };
         (
             bridge,
@@ -201,6 +210,7 @@ impl Bridge {
                 },
                 _ = tick.tick() => {
                     let now = Instant::now();
+                    self.history_tick(now);
                     let lines = &self.lines;
                     let actions = self.core.on_tick(now, || line_stats(lines));
                     self.execute(actions);
@@ -284,6 +294,16 @@ impl Bridge {
                         queue.extend(self.core.on_send_failed(command, full, Instant::now()));
                     }
                 }
+                Action::History(entry) => {
+                    let link_up = self.link_up;
+                    let publish = self
+                        .history
+                        .as_mut()
+                        .and_then(|history| history.route(entry, link_up));
+                    if let Some(publish) = publish {
+                        queue.push_front(Action::Publish(publish));
+                    }
+                }
                 Action::Report(report) => {
                     // Never waits: a full queue loses only the re-publication of a true value
                     // that the next births or data carry anyway.
@@ -294,6 +314,32 @@ impl Bridge {
                     }
                 }
             }
+        }
+    }
+
+    /// The journal's turn: synced when due, the next records of the replay handed to the
+    /// outbox while it has room (behind the state a connection republishes; live change sets
+    /// wait in the journal behind the replay, so the stream stays in order), and its health
+    /// told to the core.
+    fn history_tick(&mut self, now: Instant) {
+        let Some(history) = &mut self.history else {
+            return;
+        };
+        history.on_tick(now);
+        if self.link_up {
+            let room = REPLAY_ROOM.saturating_sub(self.outbox.len());
+            for publish in history.replay(room) {
+                if let Some(dropped) = self.outbox.push(publish, Lane::Urgent) {
+                    self.on_dropped(dropped);
+                }
+            }
+        }
+        let stats = self
+            .history
+            .as_ref()
+            .map(|history| history.stats(self.link_up));
+        if let Some(stats) = stats {
+            self.core.set_history_stats(stats);
         }
     }
 
@@ -411,6 +457,9 @@ impl Bridge {
             if closed.is_err() {
                 tracing::warn!("MQTT disconnect did not complete in time");
             }
+        }
+        if let Some(history) = &mut self.history {
+            history.sync();
         }
         self.event_loop.abort();
         self.writer.abort();

@@ -1,21 +1,23 @@
 //! The bridge core's publishing side, without I/O: the state cache and what the gateway
 //! publishes from it (retained state, availability, JSON views, Home Assistant discovery),
-//! results and clears kept while MQTT is down, and the defence of the gateway's own topics.
+//! results and clears kept while MQTT is down, the history stream's change sets, and the
+//! defence of the gateway's own topics.
 //! It collects the [`Action`]s of one event in order; the command desk's sends and reports
 //! go into the same list, so that the driver carries them out in the order they were decided.
 
 use std::collections::{HashMap, VecDeque};
-use std::time::Instant;
+use std::time::{Instant, SystemTime};
 
 use rumqttc::QoS;
 
-use super::action::{Action, Publish};
+use super::action::{Action, HistoryEntry, Publish};
 use super::device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::guard::{TopicGuard, Verdict};
 use super::json_view;
 use super::state::{StateCache, StateUpdate};
 use crate::contract::{availability_word, Topics, OFFLINE, ONLINE};
+use crate::history::document;
 use crate::profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
@@ -45,6 +47,8 @@ pub struct Publisher {
     discovery: bool,
     /// Each device's JSON view is published.
     json_view: bool,
+    /// Each change set goes to the history stream (`[history]`).
+    history: bool,
     line_names: Vec<String>,
     /// The configured devices, by name; their order is the cache's.
     devices: Devices,
@@ -67,6 +71,7 @@ impl Publisher {
         topics: Topics,
         discovery: bool,
         json_view: bool,
+        history: bool,
         line_names: Vec<String>,
         devices: Vec<BridgeDevice>,
     ) -> Self {
@@ -74,6 +79,7 @@ impl Publisher {
             topics,
             discovery,
             json_view,
+            history,
             line_names,
             cache: StateCache::new(devices.iter().map(|d| d.name.as_str())),
             devices: device::by_name(devices),
@@ -275,9 +281,14 @@ impl Publisher {
         }
     }
 
-    /// A line's fresh values of `device`: the state that changed, the discovery document
-    /// when the device's identity changed, and its JSON view.
-    pub fn values(&mut self, device: &str, values: Vec<(String, Value)>) {
+    /// A line's fresh values of `device`, read at `read_at`: the state that changed, the
+    /// discovery document when the device's identity changed, its JSON view, and the values
+    /// that changed on the history stream (connected or not: what is measured while the
+    /// broker is away goes to the journal).
+    pub fn values(&mut self, device: &str, values: Vec<(String, Value)>, read_at: SystemTime) {
+        if self.history {
+            self.history_entry(device, &values, read_at);
+        }
         let updates = self.cache.update(device, values, self.connected);
         if let Some((topic, document)) = self
             .devices
@@ -299,6 +310,29 @@ impl Publisher {
         if self.json_view {
             self.publish_json_view(device);
         }
+    }
+
+    /// The change set of `values` against the device's known state, as a history entry.
+    fn history_entry(&mut self, device: &str, values: &[(String, Value)], read_at: SystemTime) {
+        let known = self.cache.state(device);
+        if known.is_none() && !self.devices.contains_key(device) {
+            return;
+        }
+        let changed: Vec<(&str, &Value)> = values
+            .iter()
+            .filter(|(field, value)| known.and_then(|state| state.get(field)) != Some(value))
+            .map(|(field, value)| (field.as_str(), value))
+            .collect();
+        if changed.is_empty() {
+            return;
+        }
+        let entry = HistoryEntry {
+            device: device.to_string(),
+            topic: self.topics.history_topic(device),
+            at_ms: document::epoch_ms(read_at),
+            document: document::document(read_at, changed),
+        };
+        self.out.push(Action::History(entry));
     }
 
     /// A line's word on `device`'s availability, published when it changed.

@@ -14,7 +14,7 @@
 //! between transactions, so the line is always left with a complete frame exchange on it.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use tokio::sync::{mpsc, watch};
 use tracing::Instrument;
@@ -287,7 +287,8 @@ impl Line {
 
     /// Reports a device's freshly decoded values (nothing when there are none): the one way
     /// values of polls, command slots and settle re-reads reach the bridge.
-    async fn emit_values(&mut self, device: usize, values: Values) {
+    /// `read_at` is the wall-clock instant the answers were read.
+    async fn emit_values(&mut self, device: usize, values: Values, read_at: SystemTime) {
         let Some(runtime) = self.devices.get(device) else {
             return;
         };
@@ -297,6 +298,7 @@ impl Line {
         let event = LineEvent::Values {
             device: runtime.spec.name.clone(),
             values,
+            read_at,
         };
         self.emit(event).await;
     }
@@ -445,12 +447,13 @@ impl Line {
             _ => {}
         }
         let now = Instant::now();
+        let read_at = SystemTime::now();
         let change = self.scheduler.record_poll(device, block, outcome, now);
         runtime.stats.consecutive_failures = self.scheduler.consecutive_failures(device);
         if let Some(change) = change {
             self.availability_changed(device, change).await;
         }
-        self.emit_values(device, values).await;
+        self.emit_values(device, values, read_at).await;
     }
 
     fn publish_stats(&mut self) {
@@ -613,6 +616,7 @@ impl Line {
         let Some(runtime) = self.devices.get_mut(device) else {
             return;
         };
+        let read_at = SystemTime::now();
         let profile = runtime.spec.profile.clone();
         let mut values = Values::new();
         let blocks = profile.read_blocks().len();
@@ -642,7 +646,7 @@ impl Line {
         if let Some(change) = change {
             self.availability_changed(device, change).await;
         }
-        self.emit_values(device, values).await;
+        self.emit_values(device, values, read_at).await;
     }
 
     /// Counts a command's end and reports it on the events channel (after any `Values` of

@@ -100,6 +100,8 @@ pub enum LineEvent {
     Values {
         device: String,
         values: Vec<(String, Value)>,
+        /// When the answers were read (wall clock: the history stream's `ts`).
+        read_at: std::time::SystemTime,
     },
     Availability {
         device: String,

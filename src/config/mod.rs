@@ -3,12 +3,13 @@
 //! problem placed ([`tree`]), and complete validation ([`validate`]) that names the place of
 //! every problem before anything is opened. [`plan`] computes each line's poll plan and bus
 //! load from the wire timing, for validation and `rtu2mqtt check`. [`sparkplug`] holds the
-//! checked `[sparkplug]` section.
+//! checked `[sparkplug]` section, [`history`] the `[history]` table.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
 pub mod health;
+pub mod history;
 pub mod link;
 pub mod load;
 pub mod plan;
@@ -26,6 +27,7 @@ use crate::bus::LineSpec;
 use crate::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
+pub use history::HistoryConfig;
 pub use schema::SparkplugSettings;
 pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
 pub use tree::keys_of;
@@ -39,6 +41,8 @@ pub struct Config {
     pub lines: Vec<LineSpec>,
     /// The Sparkplug B edge node, when `[sparkplug]` is present.
     pub sparkplug: Option<SparkplugConfig>,
+    /// The journal and the history stream, when `[history]` is present.
+    pub history: Option<HistoryConfig>,
     /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
     pub warnings: Vec<Problem>,
 }

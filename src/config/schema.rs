@@ -10,6 +10,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::health::HealthSettings;
+use super::history::RawHistory;
 use rtu2mqtt_modbus::timing::Parity;
 
 /// The whole file.
@@ -27,6 +28,9 @@ pub struct RawConfig {
     /// The Sparkplug B edge node (off when absent).
     #[serde(default)]
     pub sparkplug: Option<SparkplugSettings>,
+    /// The journal of measured values and the history stream (off when absent).
+    #[serde(default)]
+    pub history: Option<RawHistory>,
 }
 
 /// `[mqtt]`.

@@ -59,12 +59,23 @@ pub fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
             &mut problems,
         )
     });
+    let history = raw
+        .history
+        .as_ref()
+        .and_then(|table| match super::history::check(table) {
+            Ok(history) => Some(history),
+            Err(found) => {
+                problems.extend(found);
+                None
+            }
+        });
     if problems.is_empty() {
         if let (Some(mqtt), Some(gateway)) = (mqtt, gateway) {
             return Ok(Config {
                 mqtt,
                 gateway,
                 sparkplug: sparkplug.flatten(),
+                history,
                 health: raw.health.clone(),
                 lines,
                 warnings,

@@ -6,7 +6,9 @@
 //! the node's own MQTT connection (its Last Will is the NDEATH, so it cannot share the plain
 //! connection whose Will is the gateway status), feeds line events to the session, and hands
 //! commands from hosts to the gateway's validated command path. It never touches the bus.
+//! [`bd_seq`] keeps the next bdSeq in the state directory across restarts.
 
+pub mod bd_seq;
 pub mod figures;
 pub mod metrics;
 pub mod payload;
@@ -56,7 +58,8 @@ pub fn session_for(config: &Config) -> Option<(Session, MqttSettings)> {
         version: env!("CARGO_PKG_VERSION").to_string(),
         node_metrics: figures::node_metric_specs(&lines),
     };
-    let session = Session::new(settings, 0).with_birth_wait(BIRTH_WAIT);
+    let first_bd_seq = bd_seq::BdSeqStore::for_config(config).map_or(0, |store| store.load());
+    let session = Session::new(settings, first_bd_seq).with_birth_wait(BIRTH_WAIT);
     Some((session, sparkplug.mqtt.clone()))
 }
 
@@ -82,6 +85,8 @@ pub struct NodeLinks {
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
     pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
     pub shutdown: Shutdown,
+    /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
+    pub bd_seq_store: Option<bd_seq::BdSeqStore>,
 }
 
 /// Runs the edge node until shutdown: connects (a fresh bdSeq and NDEATH Will per connection),
@@ -92,6 +97,12 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
     let mut backoff = Backoff::default();
     loop {
         let will = session.prepare_connect(now_millis());
+        if let Some(store) = &links.bd_seq_store {
+            // Kept before the connection that uses this one, so a restart never repeats it.
+            if let Err(error) = store.store(session.bd_seq().wrapping_add(1)) {
+                tracing::warn!(%error, "Sparkplug bdSeq cannot be kept for the next start");
+            }
+        }
         let mut mqtt_options = match options(&mqtt, &topics) {
             Ok(mqtt_options) => mqtt_options,
             Err(error) => {

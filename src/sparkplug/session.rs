@@ -340,7 +340,7 @@ impl Session {
     pub fn on_line_event(&mut self, now: u64, event: &LineEvent) -> Vec<Action> {
         let mut actions = Vec::new();
         match event {
-            LineEvent::Values { device, values } => {
+            LineEvent::Values { device, values, .. } => {
                 let Some(index) = self.device_index(device) else {
                     return actions;
                 };
@@ -768,6 +768,7 @@ mod tests {
                 ("gear".into(), Value::Int(gear)),
                 ("fan_speed".into(), Value::Int(1450)),
             ],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
         }
     }
 
@@ -1251,6 +1252,7 @@ mod tests {
                 })
                 .filter(|(name, _)| !["power", "gear", "fan_speed"].contains(&name.as_str()))
                 .collect(),
+            read_at: std::time::SystemTime::UNIX_EPOCH,
         };
         let births = dbirths(&session.on_line_event(T + 2, &rest));
         assert_eq!(births.len(), 1);
@@ -1265,6 +1267,7 @@ mod tests {
         let valve = |gear| LineEvent::Values {
             device: "valve".into(),
             values: vec![("opening".into(), Value::Int(gear))],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
         };
         assert!(dbirths(&session.on_line_event(T + 3, &valve(10))).is_empty());
         assert!(dbirths(&session.on_line_event(T + 9_000, &valve(11))).is_empty());

@@ -403,3 +403,37 @@ fn check_shows_the_sparkplug_node() {
         "{stdout}"
     );
 }
+
+#[test]
+fn check_shows_the_history_journal_and_places_its_problems() {
+    let text = one_valve("", "") + "\n[history]\npath = \"{dir}/history\"\nmax_size = \"1MiB\"\n";
+    let (ok, stdout, stderr) = check_text(&text, &[]);
+    assert!(ok, "{stdout}{stderr}");
+    let shown = stdout
+        .lines()
+        .find(|line| line.starts_with("history: journal in "))
+        .unwrap_or_else(|| panic!("no history line:\n{stdout}"));
+    assert!(
+        shown.ends_with(
+            "/history, at most 1048576 bytes, records kept 7days; stream on plant/+/history"
+        ),
+        "{shown}"
+    );
+    assert!(stdout.contains("history journal: nothing yet"), "{stdout}");
+
+    let bad = one_valve("", "")
+        + "\n[history]\npath = \"{dir}/history\"\nmax_size = \"lots\"\nmax_age = \"soon\"\n";
+    let (ok, stdout, stderr) = check_text(&bad, &[]);
+    assert!(!ok, "{stdout}");
+    assert!(
+        stderr.contains("history.max_size: \"lots\" is not a size"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("history.max_age"), "{stderr}");
+    let (ok, _, stderr) = check_text(
+        &(one_valve("", "") + "\n[history]\nmax_size = \"1MiB\"\n"),
+        &[],
+    );
+    assert!(!ok);
+    assert!(stderr.contains("history.path"), "{stderr}");
+}

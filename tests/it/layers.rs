@@ -16,6 +16,7 @@ const LAYERS: &[&str] = &[
     "contract",
     "config",
     "health",
+    "history",
     "bridge",
     "sparkplug",
     "broker",

@@ -20,6 +20,7 @@ mod docker_files;
 mod fuzz_smoke;
 mod gateway_e2e;
 mod golden_frames;
+mod history;
 mod layers;
 mod logs;
 mod number_grammar;

@@ -120,7 +120,7 @@ impl Running {
     fn record(&mut self, event: LineEvent) {
         let now = Instant::now();
         match event {
-            LineEvent::Values { device, values } => {
+            LineEvent::Values { device, values, .. } => {
                 let state = self.latest.entry(device.clone()).or_default();
                 for (field, value) in &values {
                     state.insert(field.clone(), value.clone());

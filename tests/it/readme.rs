@@ -58,9 +58,11 @@ fn quick_start_is_two_commands_and_ci_runs_the_second() {
 
 #[test]
 fn configuration_reference_lists_every_key_and_no_other() {
+    use rtu2mqtt::config::history::RawHistory;
     use rtu2mqtt::config::keys_of;
     use rtu2mqtt::config::schema::{RawDevice, RawGateway, RawLine, RawMqtt, RawRs485};
     use rtu2mqtt::config::HealthSettings;
+    let history_keys = keys_of::<RawHistory>();
     let (mqtt_keys, gateway_keys, health_keys) = (
         keys_of::<RawMqtt>(),
         keys_of::<RawGateway>(),
@@ -80,6 +82,7 @@ fn configuration_reference_lists_every_key_and_no_other() {
         ("### `[mqtt]`", mqtt_keys),
         ("### `[gateway]`", gateway_keys),
         ("### `[health]`", health_keys),
+        ("### `[history]`", history_keys),
         ("### `[[lines]]`", line_keys),
         ("### `[[lines.devices]]`", device_keys),
     ] {

@@ -114,6 +114,7 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
         let event = LineEvent::Values {
             device: device.clone(),
             values,
+            read_at: std::time::SystemTime::UNIX_EPOCH,
         };
         messages.extend(publishes(session.on_line_event(NOW + 1, &event)));
     }
@@ -121,6 +122,7 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
     let change = LineEvent::Values {
         device: "ruiwan-dust-collector".into(),
         values: vec![("gear".into(), Value::Int(8))],
+        read_at: std::time::SystemTime::UNIX_EPOCH,
     };
     messages.extend(publishes(session.on_line_event(NOW + 2, &change)));
 

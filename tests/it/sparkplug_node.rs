@@ -12,6 +12,7 @@ use rtu2mqtt::bus::LineEvent;
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::profile::{registry, Value};
 use rtu2mqtt::shutdown;
+use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
 use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
     run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
@@ -45,6 +46,11 @@ fn settings(port: u16) -> MqttSettings {
 }
 
 fn session(primary_host_id: Option<&str>) -> Session {
+    session_from(primary_host_id, 0)
+}
+
+/// The session of a node whose first connection takes `bd_seq`.
+fn session_from(primary_host_id: Option<&str>, bd_seq: u8) -> Session {
     let dust = registry::built_in("ruiwan-dust-collector").unwrap_or_else(|e| panic!("{e}"));
     Session::new(
         SessionSettings {
@@ -58,7 +64,7 @@ fn session(primary_host_id: Option<&str>) -> Session {
                 datatype: DataType::Float,
             }],
         },
-        0,
+        bd_seq,
     )
 }
 
@@ -82,6 +88,7 @@ fn dust(gear: i64) -> LineEvent {
             ("power".into(), Value::Bool(true)),
             ("gear".into(), Value::Int(gear)),
         ],
+        read_at: std::time::SystemTime::UNIX_EPOCH,
     }
 }
 
@@ -109,6 +116,11 @@ struct Node {
 }
 
 fn start(session: Session, port: u16) -> Node {
+    start_with(session, port, None)
+}
+
+/// Like [`start`], keeping bdSeq in `bd_seq_store`.
+fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> Node {
     let (events, line_events) = broadcast::channel(64);
     let (commands_tx, commands) = mpsc::channel(16);
     let (reports, reports_rx) = mpsc::channel(16);
@@ -120,6 +132,7 @@ fn start(session: Session, port: u16) -> Node {
         reports: reports_rx,
         node_values: node_values_rx,
         shutdown,
+        bd_seq_store,
     };
     let task = tokio::spawn(run(session, settings(port), links));
     Node {
@@ -337,4 +350,27 @@ async fn missed_line_events_bring_a_rebirth() {
     host.next_on(DBIRTH, WAIT).await;
     node.trigger.fire();
     let _ = tokio::time::timeout(WAIT, node.task).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bd_seq_goes_on_counting_across_restarts() {
+    let broker = Mosquitto::start();
+    let state = tempfile::tempdir().expect("state dir");
+    let store = BdSeqStore::in_dir(state.path());
+    let mut host = TestClient::connect(broker.port, "scada-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    for expected in [0, 1, 2] {
+        // A new process: the session starts from what the store kept.
+        let session = session_from(None, store.load());
+        let node = start_with(session, broker.port, Some(store.clone()));
+        let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
+        assert_eq!(
+            value_of(&nbirth, "bdSeq"),
+            Some(MetricValue::Long(expected))
+        );
+        // Killed, not stopped: no orderly NDEATH, the kept number is all that remains.
+        node.task.abort();
+        let _ = node.task.await;
+        host.forget();
+    }
 }

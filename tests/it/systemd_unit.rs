@@ -106,6 +106,15 @@ fn unit_provides_the_status_file_directory() {
     );
 }
 
+#[test]
+fn unit_provides_the_history_directory() {
+    let unit = settings(UNIT);
+    assert_eq!(one(&unit, "StateDirectory"), "rtu2mqtt");
+    // The path docs/configuration.md gives for [history] lies inside it.
+    let configuration = include_str!("../../docs/configuration.md");
+    assert!(configuration.contains("`/var/lib/rtu2mqtt/history`"));
+}
+
 /// The full check (`.ci/systemd-check`): `verify` silent, exposure at most 2.0. Machines
 /// without systemd-analyze (containers, macOS) skip it; CI runs the script itself, which
 /// installs systemd where it can.

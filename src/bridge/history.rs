@@ -1,0 +1,137 @@
+//! The driver's side of the history stream: the journal in the `[history]` directory, where
+//! each change set goes (published at once when the broker is there and nothing older waits,
+//! journaled otherwise, so that the stream stays in order), and the paced replay after the
+//! reconnect. The core decides what a change set is ([`HistoryEntry`]); this only carries it.
+
+use std::time::{Instant, SystemTime};
+
+use rumqttc::QoS;
+
+use super::action::{HistoryEntry, Publish};
+use super::metrics::HistoryStats;
+use crate::config::HistoryConfig;
+use crate::contract::Topics;
+use crate::history::document::epoch_ms;
+use crate::history::{Journal, Record};
+
+/// Records replayed per tick at most (with the bridge's 250 ms tick, 2,000 a second).
+pub const REPLAY_BATCH: usize = 500;
+/// Replay waits while the outbox holds more than this: live values and results go first.
+pub const REPLAY_ROOM: usize = 256;
+
+/// The journal and the replay.
+#[derive(Debug)]
+pub struct HistoryLane {
+    topics: Topics,
+    /// None when the directory could not be opened (said once at start); records that needed
+    /// it are counted as write failures.
+    journal: Option<Journal>,
+    unjournaled: u64,
+}
+
+impl HistoryLane {
+    /// Opens the journal of `config`, with what earlier runs left in it.
+    pub fn open(config: &HistoryConfig, topics: Topics) -> Self {
+        let journal = match Journal::open(config) {
+            Ok(journal) => {
+                let stats = journal.stats();
+                if stats.waiting > 0 {
+                    tracing::info!(
+                        records = stats.waiting,
+                        bytes = stats.bytes,
+                        "history journal holds records of an earlier run: replayed after the connection"
+                    );
+                }
+                Some(journal)
+            }
+            Err(error) => {
+                tracing::error!(
+                    dir = %config.path.display(),
+                    %error,
+                    "history journal cannot be opened: values measured while the broker is away \
+                     are not kept; polling and live publishing go on"
+                );
+                None
+            }
+        };
+        HistoryLane {
+            topics,
+            journal,
+            unjournaled: 0,
+        }
+    }
+
+    /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
+    /// is down, or older records still wait for their replay).
+    pub fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
+        let waiting = self.journal.as_ref().is_some_and(|j| !j.is_empty());
+        if link_up && !waiting {
+            return Some(publish(entry.topic, entry.document));
+        }
+        let record = Record {
+            at_ms: entry.at_ms,
+            device: entry.device,
+            document: entry.document,
+        };
+        match &mut self.journal {
+            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
+            None => self.unjournaled += 1,
+        }
+        None
+    }
+
+    /// The next records of the replay, oldest first, as publishes: `room` is how many the
+    /// outbox can take before live traffic would wait behind them.
+    pub fn replay(&mut self, room: usize) -> Vec<Publish> {
+        let Some(journal) = &mut self.journal else {
+            return Vec::new();
+        };
+        if journal.is_empty() || room == 0 {
+            return Vec::new();
+        }
+        let records = journal.take(room.min(REPLAY_BATCH), epoch_ms(SystemTime::now()));
+        records
+            .into_iter()
+            .map(|record| publish(self.topics.history_topic(&record.device), record.document))
+            .collect()
+    }
+
+    /// Every tick: what was written is synced once it has waited a second.
+    pub fn on_tick(&mut self, now: Instant) {
+        if let Some(journal) = &mut self.journal {
+            journal.sync_due(now);
+        }
+    }
+
+    /// On shutdown: everything written is synced.
+    pub fn sync(&mut self) {
+        if let Some(journal) = &mut self.journal {
+            journal.sync();
+        }
+    }
+
+    /// The journal's health; `link_up` makes what waits a replay backlog.
+    pub fn stats(&self, link_up: bool) -> HistoryStats {
+        let mut journal = self
+            .journal
+            .as_ref()
+            .map(Journal::stats)
+            .unwrap_or_default();
+        journal.write_failures += self.unjournaled;
+        HistoryStats {
+            replay_backlog: if link_up { journal.waiting } else { 0 },
+            journal,
+        }
+    }
+}
+
+/// The history stream's publication: QoS 1, not retained, kept over a short outage.
+fn publish(topic: String, document: String) -> Publish {
+    Publish {
+        topic,
+        payload: document,
+        qos: QoS::AtLeastOnce,
+        retain: false,
+        keep: true,
+    }
+}

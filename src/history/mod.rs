@@ -1,0 +1,11 @@
+//! What the gateway measured, kept while the broker is away: the history stream's documents
+//! ([`document`]: `{"ts":…,"values":{…}}`, pure), their on-disk format ([`record`], pure) and
+//! the journal of segment files in the `[history]` directory ([`journal`], file I/O only).
+//! It knows neither MQTT nor the bridge: the bridge decides what goes in and when it comes out.
+
+pub mod document;
+pub mod journal;
+pub mod record;
+
+pub use journal::{Journal, JournalStats};
+pub use record::Record;

@@ -1,0 +1,200 @@
+//! The history stream against a real mosquitto: values measured while the broker is away are
+//! journaled and come out, in order and with the instant they were read, after it is back;
+//! a gateway killed (SIGKILL) in the middle of an outage replays them after its restart.
+
+use crate::support;
+
+use std::path::Path;
+use std::time::Duration;
+
+use rtu2mqtt::sim::{self, SeedPlant};
+use serde_json::{Map, Value as Json};
+use support::child::{gateway_run, KillOnDrop};
+use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
+
+const ANSWER: Duration = Duration::from_secs(15);
+const DUST_HISTORY: &str = "plant/dust_collector/history";
+/// Each alarm state is held for two polls of the status block (the profile's minimum, 1 s).
+const HOLD: Duration = Duration::from_millis(2200);
+
+fn config_text(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, journal: &Path) -> String {
+    let text = PlantConfig {
+        gateway: "stats_interval = \"1s\"",
+        ..PlantConfig::default()
+    }
+    .text(broker, plant, client_id);
+    format!("{text}\n[history]\npath = \"{}\"\n", journal.display())
+}
+
+/// The alarm bits as the three fields the profile decodes them into, after each history
+/// document of the dust collector (folding the change sets), with repeats collapsed.
+fn alarm_states(messages: &[Message]) -> Vec<(bool, bool, bool)> {
+    let mut state = Map::new();
+    let mut states = Vec::new();
+    for message in messages {
+        let document = message.json();
+        if let Some(values) = document["values"].as_object() {
+            state.extend(values.clone());
+        }
+        let bit = |name: &str| state.get(name).and_then(Json::as_bool).unwrap_or(false);
+        let now = (
+            bit("fan_alarm"),
+            bit("filter_alarm"),
+            bit("temperature_alarm"),
+        );
+        if states.last() != Some(&now) {
+            states.push(now);
+        }
+    }
+    states
+}
+
+fn alarm_triple(alarms: u16) -> (bool, bool, bool) {
+    (alarms & 4 != 0, alarms & 2 != 0, alarms & 1 != 0)
+}
+
+/// Every document of the stream has the contract's shape and the stream's `ts` never goes
+/// backwards.
+fn assert_in_order(messages: &[Message]) {
+    let mut last = String::new();
+    for message in messages {
+        assert!(!message.retain, "history is not retained");
+        let document = message.json();
+        let ts = document["ts"].as_str().unwrap_or_default().to_string();
+        assert!(
+            ts.len() == "2026-12-02T15:00:01.123Z".len() && ts.ends_with('Z'),
+            "{document}"
+        );
+        assert!(document["values"].is_object(), "{document}");
+        assert!(ts >= last, "history out of order: {last} then {ts}");
+        last = ts;
+    }
+}
+
+/// Sets the alarm bits through `sequence`, holding each long enough to be polled.
+async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
+    for &alarms in sequence {
+        sim::lock(&plant.dust_collector).set_alarms(alarms);
+        tokio::time::sleep(HOLD).await;
+    }
+}
+
+/// Collects the dust collector's history until the alarm states `expected` have been seen
+/// one after the other (none missing, none in between), and a little more.
+async fn collect_until(observer: &mut TestClient, expected: &[(bool, bool, bool)]) -> Vec<Message> {
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    loop {
+        observer.settle(Duration::from_millis(500)).await;
+        let seen: Vec<Message> = observer.on(DUST_HISTORY).into_iter().cloned().collect();
+        let states = alarm_states(&seen);
+        if states
+            .windows(expected.len())
+            .any(|window| window == expected)
+        {
+            observer.settle(Duration::from_millis(500)).await;
+            return observer.on(DUST_HISTORY).into_iter().cloned().collect();
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the values measured during the outage are not all in the stream, in order:\n\
+             expected {expected:?}\nin {states:?}\n{:?}",
+            seen.iter().map(Message::text).collect::<Vec<_>>()
+        );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_it_is_back() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let config = support::fast_config(&config_text(&broker, &plant, "hist-gw", journal.path()));
+    let gateway = Gateway::start(config).await;
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let first = observer
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await;
+    assert!(
+        first.json()["values"]["gear"].is_number(),
+        "{}",
+        first.text()
+    );
+    drop(observer);
+
+    broker.kill();
+    // The outage as the gateway sees it: from the moment it knows the broker is gone.
+    let mut connected = gateway.running.bridge.connected.clone();
+    tokio::time::timeout(ANSWER, connected.wait_for(|up| !*up))
+        .await
+        .expect("the gateway never noticed the broker was gone")
+        .expect("bridge gone");
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage).await;
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let seen = collect_until(&mut observer, &expected).await;
+    assert_in_order(&seen);
+    // The replay is done: the journal is empty and says so.
+    let stats = observer_stats(&mut observer).await;
+    assert_eq!(stats["history"]["records_waiting"], 0, "{stats}");
+    gateway.stop().await;
+}
+
+async fn observer_stats(observer: &mut TestClient) -> Json {
+    observer.subscribe("plant/gateway/+/stats").await;
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    loop {
+        let message = observer
+            .wait_for("plant/gateway/hist-gw/stats", ANSWER, |_| true)
+            .await;
+        let document = message.json();
+        if document["history"]["records_waiting"] == 0 || tokio::time::Instant::now() > deadline {
+            return document;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gateway_killed_in_the_middle_of_an_outage_replays_after_its_restart() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let files = tempfile::tempdir().expect("config dir");
+    let config = files.path().join("rtu2mqtt.toml");
+    let text = config_text(&broker, &plant, "hist-kill", journal.path());
+    std::fs::write(&config, &text).expect("write config");
+    sim::lock(&plant.dust_collector).set_alarms(0);
+
+    let mut gateway = KillOnDrop::spawn(gateway_run(&config)).expect("start gateway");
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    observer
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await;
+    drop(observer);
+
+    broker.kill();
+    // Records handed to the MQTT client just before the broker went are not journaled: the
+    // outage starts once the gateway has noticed (its socket closed with the broker).
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let outage = [5, 6, 7];
+    walk_alarms(&plant, &outage).await;
+    // More than a second after the last change: it is synced. SIGKILL, no goodbye.
+    nix::sys::signal::kill(gateway.pid(), nix::sys::signal::Signal::SIGKILL).expect("kill");
+    let _ = gateway.0.wait();
+    assert!(!gateway.is_running());
+    sim::lock(&plant.dust_collector).set_alarms(0);
+
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    let _gateway = KillOnDrop::spawn(gateway_run(&config)).expect("restart gateway");
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let seen = collect_until(&mut observer, &expected).await;
+    assert_in_order(&seen);
+}
