@@ -76,6 +76,7 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
         broadcast_turnaround: Duration::from_millis(100),
         byte_timeout: None,
         frame_log: None,
+        serve: None,
         devices,
     }
 }
