@@ -3,7 +3,7 @@
 //! `profile` access) turn it into the profile's command plan, validated on the device's last
 //! known state exactly like an MQTT command.
 
-use rtu2mqtt_modbus::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId};
 
 use super::Access;
 use crate::bus::DeviceSpec;
@@ -47,42 +47,6 @@ pub fn judge(access: Access, devices: &[DeviceSpec], unit: SlaveId, request: &Re
     }
 }
 
-/// The read that covers exactly what `write` writes, and the answer it would get once the write
-/// is applied: the image the profile decodes the written fields from.
-fn written_image(write: &Request) -> Option<(Request, Response)> {
-    Some(match write {
-        Request::WriteSingleRegister { address, value } => (
-            Request::ReadHoldingRegisters {
-                start: *address,
-                quantity: 1,
-            },
-            Response::HoldingRegisters(vec![*value]),
-        ),
-        Request::WriteMultipleRegisters { start, values } => (
-            Request::ReadHoldingRegisters {
-                start: *start,
-                quantity: u16::try_from(values.len()).ok()?,
-            },
-            Response::HoldingRegisters(values.clone()),
-        ),
-        Request::WriteSingleCoil { address, value } => (
-            Request::ReadCoils {
-                start: *address,
-                quantity: 1,
-            },
-            Response::Coils(vec![*value]),
-        ),
-        Request::WriteMultipleCoils { start, values } => (
-            Request::ReadCoils {
-                start: *start,
-                quantity: u16::try_from(values.len()).ok()?,
-            },
-            Response::Coils(values.clone()),
-        ),
-        _ => return None,
-    })
-}
-
 /// Plans a client's `write` through `profile` on the device's last known `state`: the fields it
 /// writes are decoded as the device would hold them, and the command is validated and planned
 /// like one from MQTT (range, read-only, forbidden combinations, read-modify-write of shared
@@ -93,8 +57,9 @@ pub fn plan_write(
     write: &Request,
     state: &DeviceState,
 ) -> Result<CommandPlan, ExceptionCode> {
-    let (read, image) = written_image(write).ok_or(ExceptionCode::IllegalFunction)?;
-    let readings = profile.decode_read(&read, &image);
+    let readings = profile
+        .decode_write(write)
+        .ok_or(ExceptionCode::IllegalDataAddress)?;
     if readings.is_empty() {
         return Err(ExceptionCode::IllegalDataAddress);
     }
@@ -124,4 +89,97 @@ pub fn plan_write(
         .into_iter()
         .find_map(|frame| profile.plan_group(frame, &values, state).ok())
         .ok_or(ExceptionCode::IllegalDataValue)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::profile::registry::built_in;
+    use crate::profile::Value;
+
+    fn dust_collector() -> DeviceSpec {
+        DeviceSpec {
+            name: "dust_collector".into(),
+            address: 1,
+            profile: Arc::new(built_in("ruiwan-dust-collector").unwrap()),
+            poll_interval: Duration::from_secs(1),
+        }
+    }
+
+    fn gear(value: u16) -> Request {
+        Request::WriteSingleRegister {
+            address: 0x1002,
+            value,
+        }
+    }
+
+    #[test]
+    fn units_reads_and_writes_are_judged_by_access() {
+        let devices = [dust_collector()];
+        let block = Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6,
+        };
+        let part = Request::ReadHoldingRegisters {
+            start: 0x1001,
+            quantity: 2,
+        };
+        let outside = Request::ReadHoldingRegisters {
+            start: 0x2000,
+            quantity: 1,
+        };
+        let refuse = Verdict::Refuse;
+        for access in [Access::Profile, Access::ReadOnly] {
+            assert_eq!(judge(access, &devices, 1, &block), Verdict::Forward);
+            assert_eq!(judge(access, &devices, 1, &part), Verdict::Forward);
+            assert_eq!(
+                judge(access, &devices, 1, &outside),
+                refuse(ExceptionCode::IllegalDataAddress)
+            );
+            assert_eq!(
+                judge(access, &devices, 9, &block),
+                refuse(ExceptionCode::GatewayPathUnavailable)
+            );
+        }
+        assert_eq!(
+            judge(Access::ReadOnly, &devices, 1, &gear(8)),
+            refuse(ExceptionCode::IllegalFunction)
+        );
+        assert_eq!(
+            judge(Access::Profile, &devices, 1, &gear(8)),
+            Verdict::ProfileWrite
+        );
+        for request in [&outside, &gear(8)] {
+            assert_eq!(judge(Access::Raw, &devices, 9, request), Verdict::Forward);
+        }
+    }
+
+    #[test]
+    fn a_profile_write_is_planned_like_an_mqtt_command() {
+        let device = dust_collector();
+        let state = DeviceState::new();
+        let plan = plan_write(&device.profile, &gear(8), &state).unwrap();
+        assert_eq!(plan.field(), "gear");
+        assert_eq!(plan.target(), &Value::Int(8));
+        assert_eq!(
+            plan.writes(&[]).unwrap(),
+            vec![gear(8)],
+            "the frame the profile writes is the client's"
+        );
+        assert_eq!(
+            plan_write(&device.profile, &gear(11), &state).unwrap_err(),
+            ExceptionCode::IllegalDataValue
+        );
+        let fan_speed = Request::WriteSingleRegister {
+            address: 0x1008,
+            value: 100,
+        };
+        assert_eq!(
+            plan_write(&device.profile, &fan_speed, &state).unwrap_err(),
+            ExceptionCode::IllegalDataAddress
+        );
+    }
 }
