@@ -21,6 +21,7 @@ mod fuzz_smoke;
 mod gateway_e2e;
 mod golden_frames;
 mod layers;
+mod line_server;
 mod logs;
 mod number_grammar;
 mod profiles_cli;

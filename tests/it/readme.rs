@@ -59,9 +59,7 @@ fn quick_start_is_two_commands_and_ci_runs_the_second() {
 #[test]
 fn configuration_reference_lists_every_key_and_no_other() {
     use rtu2mqtt::config::keys_of;
-    use rtu2mqtt::config::schema::{
-        RawDevice, RawGateway, RawLine, RawMqtt, RawRs485, RawServe,
-    };
+    use rtu2mqtt::config::schema::{RawDevice, RawGateway, RawLine, RawMqtt, RawRs485, RawServe};
     use rtu2mqtt::config::HealthSettings;
     let (mqtt_keys, gateway_keys, health_keys) = (
         keys_of::<RawMqtt>(),
