@@ -527,6 +527,7 @@ fn validate_lines(
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();
     let mut links: HashMap<String, usize> = HashMap::new();
+    let mut listens: HashMap<String, usize> = HashMap::new();
     let mut device_names: HashMap<String, String> = HashMap::new();
     let mut profiles: HashMap<String, Arc<Profile>> = HashMap::new();
     let mut lines = Vec::new();
@@ -630,6 +631,14 @@ fn validate_lines(
             .serve
             .as_ref()
             .and_then(|serve| validate_serve(serve, &place, problems, warnings));
+        if let Some(serve) = &serve {
+            if let Some(first) = listens.insert(serve.listen.clone(), index) {
+                problems.push(Problem::new(
+                    format!("{place}.serve.listen"),
+                    format!("{} is already where lines[{first}] is served", serve.listen),
+                ));
+            }
+        }
         let Some((path, transport)) = transport else {
             continue;
         };
@@ -1129,6 +1138,44 @@ mod tests {
 
     fn has(findings: &[String], words: &str) -> bool {
         findings.iter().any(|finding| finding.contains(words))
+    }
+
+    #[test]
+    fn a_served_line_is_checked_with_places_and_raw_access_warns() {
+        let serve = |table: &str| format!("port = \"/dev/ttyS1\"\n[lines.serve]\n{table}");
+        let (problems, warnings) = link_findings(&[&serve(
+            "listen = \"modbus-tcp://0.0.0.0:5020\"\naccess = \"raw\"\ncache = \"1s\"",
+        )]);
+        assert!(problems.is_empty(), "{problems:?}");
+        assert!(
+            has(&warnings, "lines[0].serve.access: raw: clients may"),
+            "{warnings:?}"
+        );
+        for (table, place) in [
+            ("listen = \"http://h:1\"", "lines[0].serve.listen"),
+            ("listen = \"modbus-tcp://5020\"", "lines[0].serve.listen"),
+            (
+                "listen = \"tcp://h:1\"\naccess = \"write\"",
+                "lines[0].serve.access",
+            ),
+            (
+                "listen = \"tcp://h:1\"\nmax_clients = 0",
+                "lines[0].serve.max_clients",
+            ),
+        ] {
+            let (problems, _) = link_findings(&[&serve(table)]);
+            assert!(has(&problems, place), "{table}: {problems:?}");
+        }
+        let (problems, _) = link_findings(&[
+            &serve("listen = \"modbus-tcp://0.0.0.0:5020\""),
+            &format!(
+                "port = \"/dev/ttyS2\"\n[lines.serve]\nlisten = \"modbus-tcp://0.0.0.0:5020\""
+            ),
+        ]);
+        assert!(
+            has(&problems, "lines[1].serve.listen: 0.0.0.0:5020 is already"),
+            "{problems:?}"
+        );
     }
 
     #[test]
