@@ -1168,9 +1168,7 @@ mod tests {
         }
         let (problems, _) = link_findings(&[
             &serve("listen = \"modbus-tcp://0.0.0.0:5020\""),
-            &format!(
-                "port = \"/dev/ttyS2\"\n[lines.serve]\nlisten = \"modbus-tcp://0.0.0.0:5020\""
-            ),
+            "port = \"/dev/ttyS2\"\n[lines.serve]\nlisten = \"modbus-tcp://0.0.0.0:5020\"",
         ]);
         assert!(
             has(&problems, "lines[1].serve.listen: 0.0.0.0:5020 is already"),
