@@ -354,3 +354,82 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     );
     h.gateway.stop().await;
 }
+
+/// Reads until the server closes the connection (Ok) or `limit` passes (Err).
+async fn closed_within(stream: &mut tokio::net::TcpStream, limit: Duration) -> Result<(), String> {
+    use tokio::io::AsyncReadExt;
+    let mut buf = [0u8; 64];
+    let deadline = tokio::time::Instant::now() + limit;
+    loop {
+        match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
+            Ok(Ok(0)) | Ok(Err(_)) => return Ok(()),
+            Ok(Ok(n)) => return Err(format!("answered {}", hex::encode(&buf[..n]))),
+            Err(_) => return Err(format!("still open after {limit:?}")),
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+    let h = Harness::start("serve-bad", "max_clients = 3").await;
+    let address = format!("127.0.0.1:{}", h.port);
+    let connect = || TcpStream::connect(address.clone());
+
+    // An unknown function code: exception 01 for that transaction, the connection stays.
+    let mut stream = connect().await.unwrap();
+    stream
+        .write_all(&hex::decode("00 07 00 00 00 02 01 2B"))
+        .await
+        .unwrap();
+    let mut answer = [0u8; 9];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer")
+        .unwrap();
+    assert_eq!(hex::encode(&answer), "00 07 00 00 00 03 01 AB 01");
+
+    // A protocol id that is not Modbus and a length no PDU has: closed at once.
+    for header in [
+        "00 01 00 05 00 06 01 03 10 00 00 06",
+        "00 01 00 00 01 2C 01 03",
+    ] {
+        let mut stream = connect().await.unwrap();
+        stream.write_all(&hex::decode(header)).await.unwrap();
+        assert_eq!(
+            closed_within(&mut stream, Duration::from_secs(2)).await,
+            Ok(()),
+            "{header}"
+        );
+    }
+    // A torn header, and a length that promises more than comes: closed after the patience.
+    for torn in ["00 01 00", "00 01 00 00 00 0A 01 03 10 00 00 06"] {
+        let mut stream = connect().await.unwrap();
+        stream.write_all(&hex::decode(torn)).await.unwrap();
+        assert_eq!(
+            closed_within(&mut stream, Duration::from_secs(5)).await,
+            Ok(()),
+            "{torn}"
+        );
+    }
+
+    // More connections than max_clients: the extra one is closed at once.
+    let _kept: Vec<TcpStream> = vec![connect().await.unwrap(), connect().await.unwrap()];
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut extra = connect().await.unwrap();
+    assert_eq!(
+        closed_within(&mut extra, Duration::from_secs(2)).await,
+        Ok(())
+    );
+    drop(_kept);
+    drop(stream);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    // Nothing of it reached the line, and the next client is served.
+    let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
+    assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
+    let garbage = h.plant.line_a.journal().discarded_bytes();
+    assert_eq!(garbage, 0);
+    h.gateway.stop().await;
+}
