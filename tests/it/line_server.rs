@@ -359,13 +359,10 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
 async fn closed_within(stream: &mut tokio::net::TcpStream, limit: Duration) -> Result<(), String> {
     use tokio::io::AsyncReadExt;
     let mut buf = [0u8; 64];
-    let deadline = tokio::time::Instant::now() + limit;
-    loop {
-        match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
-            Ok(Ok(0)) | Ok(Err(_)) => return Ok(()),
-            Ok(Ok(n)) => return Err(format!("answered {}", hex::encode(&buf[..n]))),
-            Err(_) => return Err(format!("still open after {limit:?}")),
-        }
+    match tokio::time::timeout(limit, stream.read(&mut buf)).await {
+        Ok(Ok(0)) | Ok(Err(_)) => Ok(()),
+        Ok(Ok(n)) => Err(format!("answered {}", hex::encode(&buf[..n]))),
+        Err(_) => Err(format!("still open after {limit:?}")),
     }
 }
 
