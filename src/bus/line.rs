@@ -151,6 +151,18 @@ struct Line {
     cache: BlockCache,
     serve_counters: Option<Arc<ServeCounters>>,
     next_client_command: u64,
+    /// Clients' writes still settling on their device, by command id: their end is published
+    /// when the read-back settles.
+    settling_client_writes: std::collections::HashMap<u64, ClientWrite>,
+}
+
+/// A client's write as its outcome is published.
+#[derive(Debug)]
+struct ClientWrite {
+    device: String,
+    field: String,
+    value: String,
+    client: String,
 }
 
 impl Line {
@@ -213,6 +225,7 @@ impl Line {
             cache,
             serve_counters: None,
             next_client_command: CLIENT_COMMAND_IDS,
+            settling_client_writes: std::collections::HashMap::new(),
             spec,
         }
     }
@@ -731,7 +744,9 @@ impl Line {
         } = finished;
         if id >= CLIENT_COMMAND_IDS {
             // A client's write whose device settled after its client was answered.
-            tracing::info!(%outcome, "client write settled");
+            if let Some(write) = self.settling_client_writes.remove(&id) {
+                self.client_write_finished(write, outcome).await;
+            }
             return;
         }
         let latency = arrived.elapsed();
@@ -854,6 +869,17 @@ impl Line {
             }
         };
         let field = plan.field().to_string();
+        let write_record = ClientWrite {
+            device: name.clone(),
+            field: field.clone(),
+            value: plan
+                .targets()
+                .iter()
+                .map(|(_, value)| value.to_text())
+                .collect::<Vec<_>>()
+                .join(","),
+            client: client.to_string(),
+        };
         let id = self.next_client_command;
         self.next_client_command += 1;
         let pending = Pending {
@@ -877,7 +903,8 @@ impl Line {
             attempts,
         };
         let mut report = self.commands.run(link, device, pending).await;
-        let answer = match report.finished.take() {
+        let finished = report.finished.take();
+        let answer = match &finished {
             Some(finished) => {
                 tracing::info!(%client, device = %name, %field, outcome = %finished.outcome, "client write");
                 client_answer(&finished.outcome, write)
@@ -890,7 +917,34 @@ impl Line {
             None => Err(ExceptionCode::GatewayTargetFailedToRespond),
         };
         self.carry_out(report).await;
+        match finished {
+            Some(finished) => {
+                self.client_write_finished(write_record, finished.outcome)
+                    .await;
+            }
+            None => {
+                self.settling_client_writes.insert(id, write_record);
+            }
+        }
         answer
+    }
+
+    /// Reports a client's write's end to the bridge (after the values of its reads).
+    async fn client_write_finished(&mut self, write: ClientWrite, outcome: CommandOutcome) {
+        let ClientWrite {
+            device,
+            field,
+            value,
+            client,
+        } = write;
+        self.emit(LineEvent::ClientWriteFinished {
+            device,
+            field,
+            value,
+            client,
+            outcome,
+        })
+        .await;
     }
 }
 

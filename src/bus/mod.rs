@@ -118,6 +118,19 @@ pub enum LineEvent {
         device: String,
         outcome: CommandOutcome,
     },
+    /// A write from a client of the line's server ran as a command slot (sent after the
+    /// `Values` of its reads): its outcome is published like a command's, though no MQTT
+    /// command asked for it.
+    ClientWriteFinished {
+        device: String,
+        /// The field (or the profile's shared write frame) written.
+        field: String,
+        /// The value written, as a command would carry it.
+        value: String,
+        /// Who wrote (the client's address).
+        client: String,
+        outcome: CommandOutcome,
+    },
 }
 
 /// How a command ended on the bus.

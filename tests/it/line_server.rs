@@ -175,6 +175,13 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
     h.mqtt
         .wait_for("plant/dust_collector/gear", ANSWER, |m| m.text() == "8")
         .await;
+    let result = h
+        .mqtt
+        .next_on("plant/dust_collector/gear/result", ANSWER)
+        .await
+        .json();
+    assert_eq!(result["outcome"], "applied", "{result}");
+    assert_eq!(result["value"], "8", "{result}");
 
     // Gear 11, the read-only fan speed, a read outside the blocks and an unknown unit are
     // refused with no frame on the line.

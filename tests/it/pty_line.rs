@@ -134,6 +134,8 @@ impl Running {
             LineEvent::CommandFinished { id, outcome, .. } => {
                 self.finished.insert(id, outcome);
             }
+            // These lines are not served: no client writes.
+            LineEvent::ClientWriteFinished { .. } => {}
         }
     }
 
