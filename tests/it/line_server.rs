@@ -121,6 +121,35 @@ impl Harness {
     }
 }
 
+/// Latencies of `count` reads of the dust collector's block over a plain Modbus TCP socket.
+async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    stream.set_nodelay(true).unwrap();
+    let mut latencies = Vec::new();
+    for transaction in 0..count {
+        let mut request = transaction.to_be_bytes().to_vec();
+        request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
+        let sent = Instant::now();
+        stream.write_all(&request).await.unwrap();
+        let mut answer = [0u8; 21];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+            .await
+            .expect("an answer in time")
+            .unwrap();
+        latencies.push(sent.elapsed());
+        assert_eq!(answer[..2], transaction.to_be_bytes(), "{answer:?}");
+        assert_eq!(answer[7..9], [0x03, 12], "{answer:?}");
+    }
+    latencies
+}
+
+fn mean(latencies: &[Duration]) -> Duration {
+    latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
+}
+
 fn exception(code: u8) -> Json {
     json!({ "exception": code })
 }
@@ -244,7 +273,9 @@ async fn read_only_access_refuses_every_write_with_exception_01() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside_t3_5() {
     let mut h = Harness::start("serve-three", "access = \"profile\"").await;
+    let idle = timed_reads(h.port, 20).await;
     h.plant.line_a.journal().clear();
+    let started = Instant::now();
     let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 15]);
     let commands = async {
         for gear in [4, 5, 6] {
@@ -254,12 +285,14 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
             tokio::time::sleep(Duration::from_millis(200)).await;
         }
     };
-    let (first, second, third, ()) = tokio::join!(
+    let (first, second, third, busy, ()) = tokio::join!(
         h.client(reads.clone()),
         h.client(reads.clone()),
         h.client(reads.clone()),
+        timed_reads(h.port, 20),
         commands
     );
+    let elapsed = started.elapsed();
     for answers in [&first, &second, &third] {
         assert_eq!(answers.len(), 15);
         for answer in answers {
@@ -299,9 +332,27 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
         );
     }
     let stats = h
-        .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 45)
+        .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 65)
         .await;
     assert_eq!(stats["client_refusals"], 0, "{stats}");
+    let wire: Duration = records
+        .iter()
+        .filter_map(|r| {
+            let answered = r.answer_timing?.handed_over;
+            Some(answered.saturating_duration_since(r.arrived))
+        })
+        .sum();
+    eprintln!(
+        "figure: client read latency idle {:?} (worst {:?}), busy with three clients and MQTT \
+         commands {:?} (worst {:?}); {} requests on the line in {elapsed:?}, requests to \
+         answers {:.0} % of it",
+        mean(&idle),
+        idle.iter().max().copied().unwrap_or_default(),
+        mean(&busy),
+        busy.iter().max().copied().unwrap_or_default(),
+        records.len(),
+        wire.as_secs_f64() / elapsed.as_secs_f64() * 100.0
+    );
     h.gateway.stop().await;
 }
 
@@ -355,6 +406,11 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     let stats = h
         .line_stats(|line| line["cache_hits"].as_u64().unwrap_or(0) >= 25)
         .await;
+    eprintln!(
+        "figure: cache {} hits of {} client requests; {polls_meanwhile} block reads on the \
+         line meanwhile",
+        stats["cache_hits"], stats["client_requests"]
+    );
     assert!(
         stats["client_requests"].as_u64().unwrap_or(0) >= 30,
         "{stats}"
