@@ -59,7 +59,11 @@ impl Harness {
         mqtt.subscribe("plant/#").await;
         let port = free_port();
         let client_id = format!("{name}-gw");
-        let serve = format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}");
+        let serve = if serve.contains("listen") {
+            serve.replace("{port}", &port.to_string())
+        } else {
+            format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
+        };
         let text = served_config(&broker, &plant, &client_id, &serve);
         let gateway = Gateway::start(support::fast_config(&text)).await;
         for device in ["dust_collector", "air_shower"] {
@@ -491,5 +495,51 @@ async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
     assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
     let garbage = h.plant.line_a.journal().discarded_bytes();
     assert_eq!(garbage, 0);
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_over_tcp_with_raw_access_passes_any_unit_to_the_line() {
+    use rtu2mqtt_modbus::{codec, Request};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let serve = "listen = \"tcp://127.0.0.1:{port}\"\naccess = \"raw\"";
+    let h = Harness::start("serve-rtu", serve).await;
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+        .await
+        .unwrap();
+    let block = Request::ReadHoldingRegisters {
+        start: 0x1000,
+        quantity: 6,
+    };
+
+    // The dust collector's block, in RTU frames with their CRC.
+    let frame = codec::encode_request(DUST, &block).unwrap();
+    stream.write_all(&frame).await.unwrap();
+    let mut answer = [0u8; 17];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    let decoded = codec::decode_answer(DUST, &block, &answer).expect("a valid RTU answer");
+    assert!(
+        matches!(decoded, codec::Answer::Normal(ref r) if r.registers().map(<[u16]>::len) == Some(6)),
+        "{decoded:?}"
+    );
+
+    // A unit not on the line goes to the line as asked, and gets 0x0B when nothing answers.
+    h.plant.line_a.journal().clear();
+    let frame = codec::encode_request(5, &block).unwrap();
+    stream.write_all(&frame).await.unwrap();
+    let mut answer = [0u8; 5];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    assert_eq!(answer[..3], [5, 0x83, 0x0B], "{}", hex::encode(&answer));
+    assert!(
+        h.plant.line_a.journal().frames().contains(&frame),
+        "{:?}",
+        h.frames()
+    );
     h.gateway.stop().await;
 }
