@@ -243,6 +243,7 @@ impl Line {
                     self.open_link(now).await;
                 } else {
                     self.fail_queued(&CommandFailure::PortReopening).await;
+                    self.fail_client_requests();
                     self.wait(Some(self.reopen.at())).await;
                 }
                 continue;
@@ -672,6 +673,8 @@ impl Line {
             port_gone,
         } = report;
         let now = Instant::now();
+        // The command can have changed what a poll read: clients read the device again.
+        self.cache.forget(device);
         if contact {
             if let Some(change) = self.scheduler.record_contact(device, now) {
                 self.availability_changed(device, change).await;
@@ -846,6 +849,16 @@ impl Line {
                 let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
                 self.port_failed(error).await;
             }
+        }
+    }
+
+    /// The port is closed: waiting clients are told the device cannot be reached rather than
+    /// left to time out.
+    fn fail_client_requests(&mut self) {
+        while let Some(request) = self.clients.try_take() {
+            let _ = request
+                .reply
+                .send(Err(ExceptionCode::GatewayTargetFailedToRespond));
         }
     }
 
