@@ -200,6 +200,7 @@ async fn measure(
         broadcast_turnaround: Duration::from_millis(100),
         byte_timeout: None,
         frame_log: frame_log.map(FrameLog::create).transpose()?,
+        serve: None,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),
             address: 0x81,

@@ -1,6 +1,6 @@
 //! `rtu2mqtt check`: validates the configuration and its profiles without touching a port or a
 //! broker, and prints each line's poll plan (devices, blocks, frames and wire time per cycle,
-//! bus load) and what each line talks through, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
+//! bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -130,6 +130,20 @@ pub fn report(path: &Path, config: &Config) -> String {
                 ),
             },
         };
+        if let Some(serve) = &line.serve {
+            let _ = writeln!(
+                out,
+                "  served on {} to at most {} clients, access {}, cache {}",
+                serve.url(),
+                serve.max_clients,
+                serve.access.word(),
+                if serve.cache.is_zero() {
+                    "off (every read goes to the line)".to_string()
+                } else {
+                    humantime::format_duration(serve.cache).to_string()
+                }
+            );
+        }
         let _ = writeln!(
             out,
             "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>7}",

@@ -234,6 +234,15 @@ impl Core {
             LineEvent::CommandFinished { id, outcome, .. } => {
                 self.desk.on_finished(p, id, outcome, now)
             }
+            LineEvent::ClientWriteFinished {
+                device,
+                field,
+                value,
+                client,
+                outcome,
+            } => self
+                .desk
+                .on_client_write(p, &device, &field, &value, &client, outcome),
         }
         p.take()
     }

@@ -72,6 +72,17 @@ fn log_received(device: &str, field: &str, value: &str, origin: Origin) {
 /// The one line of a command's end, its outcome and detail as words. INFO, except for the
 /// outcomes that mean a valid command was not carried out (`failed`, `expired`): the device
 /// or its line needs a look, so they are warnings.
+/// The result word and detail of a command's end on the bus, and whether it may have written.
+fn outcome_word(outcome: CommandOutcome) -> (Outcome, String, bool) {
+    match outcome {
+        CommandOutcome::Applied { detail } => (Outcome::Applied, detail, true),
+        CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail, true),
+        CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail, false),
+        // A failed write may have reached the device: count it for the write interval.
+        CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string(), true),
+    }
+}
+
 fn log_outcome(device: &str, field: &str, value: &str, outcome: Outcome, detail: &str) {
     let word = outcome.word();
     if matches!(outcome, Outcome::Failed | Outcome::Expired) {
@@ -460,13 +471,7 @@ impl CommandDesk {
             tracing::warn!(id, "outcome of a command the bridge did not send");
             return;
         };
-        let (word, detail, wrote) = match outcome {
-            CommandOutcome::Applied { detail } => (Outcome::Applied, detail, true),
-            CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail, true),
-            CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail, false),
-            // A failed write may have reached the device: count it for the write interval.
-            CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string(), true),
-        };
+        let (word, detail, wrote) = outcome_word(outcome);
         match word {
             Outcome::Applied => self.counters.commands_applied += 1,
             Outcome::NotApplied => self.counters.commands_not_applied += 1,
@@ -488,6 +493,24 @@ impl CommandDesk {
         let result = CommandResult::new(&command.value, word, detail);
         self.finish_with(p, &command.device, &command.field, result);
         self.dispatch_ready(p, now);
+    }
+
+    /// A write from a client of a line's server ran on the line: its outcome goes out on the
+    /// field's result topic like a command's (no `…/set` was involved, so none is cleared).
+    pub fn on_client_write(
+        &mut self,
+        p: &mut Publisher,
+        device: &str,
+        field: &str,
+        value: &str,
+        client: &str,
+        outcome: CommandOutcome,
+    ) {
+        let (word, detail, _) = outcome_word(outcome);
+        tracing::info!(%device, %field, ?value, %client, outcome = %word.word(), ?detail, "client write finished");
+        let result = CommandResult::new(value, word, detail);
+        let topic = p.topics().result_topic(device, field);
+        p.publish_or_keep(topic, result.to_json(), false);
     }
 
     /// Commands whose device stayed offline for their time to live end `expired`; then

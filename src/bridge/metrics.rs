@@ -180,6 +180,21 @@ const LINE_COUNTERS: &[LineCounter] = &[
     ("commands_total", "Commands carried out on the line.", |s| {
         s.commands
     }),
+    (
+        "client_requests_total",
+        "Requests from the line's Modbus TCP server's clients.",
+        |s| s.client_requests,
+    ),
+    (
+        "cache_hits_total",
+        "Client reads answered from a recent poll without the bus.",
+        |s| s.cache_hits,
+    ),
+    (
+        "client_refusals_total",
+        "Client requests refused before the line (access, unknown unit, malformed).",
+        |s| s.client_refusals,
+    ),
 ];
 
 /// A device counter: (metric suffix, help, accessor).
@@ -514,6 +529,9 @@ fn line_json(line: &LineStats) -> Json {
         "commands": line.commands,
         "command_latency_ms": millis(line.last_command_latency),
         "worst_command_latency_ms": millis(line.worst_command_latency),
+        "client_requests": line.client_requests,
+        "cache_hits": line.cache_hits,
+        "client_refusals": line.client_refusals,
         "devices": devices,
     })
 }

@@ -4,7 +4,7 @@
 //! publishes (field data that does not decode is counted and logged, never published). No
 //! frames are run here.
 
-use crate::profile::Value;
+use crate::profile::{DeviceState, Value};
 use rtu2mqtt_modbus::Response;
 
 use super::stats::DeviceStats;
@@ -41,6 +41,21 @@ impl DeviceRuntime {
     /// sends its values again (the bridge republishes them then).
     pub fn answer_unchanged(&self, block: usize, answer: &Response) -> bool {
         self.stats.online && self.last_answers.get(block).and_then(Option::as_ref) == Some(answer)
+    }
+
+    /// The values of the device's last remembered answers: the state a client's write is
+    /// validated on.
+    pub fn known_state(&self) -> DeviceState {
+        let mut state = DeviceState::new();
+        for (block, answer) in self.last_answers.iter().enumerate() {
+            let Some(answer) = answer else { continue };
+            for reading in self.spec.profile.decode_block(block, answer) {
+                if let Ok(value) = reading.value {
+                    state.insert(reading.field, value);
+                }
+            }
+        }
+        state
     }
 
     /// The device went offline: its next answers are sent whatever they hold.

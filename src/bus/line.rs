@@ -6,6 +6,10 @@
 //! device's runtime ([`super::device`]) and reports [`LineEvent`]s. It publishes [`LineStats`]
 //! after every transaction and at least once a second.
 //!
+//! A served line ([`super::serve`]) takes its clients' requests when no command waits, one
+//! client slot at a time and a due poll between two of them; reads a young poll answered
+//! exactly come from its cache.
+//!
 //! A port path that is no serial port fails the line without ending the daemon: its devices
 //! are offline, every attempt logs an ERROR naming the path, and the gateway's other lines
 //! keep serving their devices.
@@ -26,6 +30,10 @@ use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::scheduler::{Due, PollOutcome, Scheduler};
+use super::serve::policy;
+use super::serve::queue::{BlockCache, ClientQueue, CLIENT_QUEUE};
+use super::serve::server::{self, ServeCounters};
+use super::serve::{Access, ClientRequest};
 use super::slot::SeenReads;
 use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
@@ -35,9 +43,10 @@ use super::{
 use crate::profile::Profile;
 use crate::shutdown::Shutdown;
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{PortFault, WireCounters};
+use rtu2mqtt_modbus::master::{PortFault, Reply, WireCounters};
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::transport::TransportError;
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub const COMMAND_QUEUE: usize = 64;
@@ -48,6 +57,9 @@ pub const DEVICE_MARGIN: Duration = Duration::from_millis(80);
 pub const HEARTBEAT: Duration = Duration::from_secs(1);
 /// Bus load is measured over this sliding window.
 pub const LOAD_WINDOW: Duration = Duration::from_secs(10);
+/// Ids of the commands a client's write becomes start here, far above any the bridge uses:
+/// their ends answer the client and never reach the bridge.
+const CLIENT_COMMAND_IDS: u64 = 1 << 63;
 
 /// Starts the task that owns `spec`'s port.
 pub fn spawn_line(
@@ -65,7 +77,25 @@ pub fn spawn_line(
         stats_rx,
     };
     let span = tracing::info_span!("line", line = %spec.name);
-    let line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
+    let (clients, counters) = match &spec.serve {
+        Some(serve) => {
+            let (client_tx, client_rx) = mpsc::channel(CLIENT_QUEUE);
+            let counters = Arc::new(ServeCounters::default());
+            let server = server::run(
+                serve.clone(),
+                spec.devices.clone(),
+                client_tx,
+                Arc::clone(&counters),
+                shutdown.clone(),
+            );
+            tokio::spawn(server.instrument(span.clone()));
+            (Some(client_rx), Some(counters))
+        }
+        None => (None, None),
+    };
+    let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
+    line.clients = ClientQueue::new(clients);
+    line.serve_counters = counters;
     let task = tokio::spawn(line.run().instrument(span));
     (handle, task)
 }
@@ -113,6 +143,26 @@ struct Line {
     turnaround: Turnaround,
     last_published: Instant,
     shutdown: Shutdown,
+    /// Requests from the line's server (none when the line is not served).
+    clients: ClientQueue,
+    /// The last slot was a client's: a due poll goes before the next one.
+    client_went_last: bool,
+    /// Polled blocks that clients' reads are answered from.
+    cache: BlockCache,
+    serve_counters: Option<Arc<ServeCounters>>,
+    next_client_command: u64,
+    /// Clients' writes still settling on their device, by command id: their end is published
+    /// when the read-back settles.
+    settling_client_writes: std::collections::HashMap<u64, ClientWrite>,
+}
+
+/// A client's write as its outcome is published.
+#[derive(Debug)]
+struct ClientWrite {
+    device: String,
+    field: String,
+    value: String,
+    client: String,
 }
 
 impl Line {
@@ -139,6 +189,14 @@ impl Line {
             .map(DeviceRuntime::new)
             .collect();
         let stats = stats_tx.borrow().clone();
+        let cache_age = spec
+            .serve
+            .as_ref()
+            .map_or(Duration::ZERO, |serve| serve.cache);
+        let cache = BlockCache::new(
+            cache_age,
+            devices.iter().map(|d| d.spec.profile.read_blocks().len()),
+        );
         tracing::info!(
             link = %spec.transport.describe(&spec.serial),
             baud = spec.serial.baud,
@@ -162,6 +220,12 @@ impl Line {
             turnaround: Turnaround::default(),
             last_published: now,
             shutdown,
+            clients: ClientQueue::new(None),
+            client_went_last: false,
+            cache,
+            serve_counters: None,
+            next_client_command: CLIENT_COMMAND_IDS,
+            settling_client_writes: std::collections::HashMap::new(),
             spec,
         }
     }
@@ -179,6 +243,7 @@ impl Line {
                     self.open_link(now).await;
                 } else {
                     self.fail_queued(&CommandFailure::PortReopening).await;
+                    self.fail_client_requests();
                     self.wait(Some(self.reopen.at())).await;
                 }
                 continue;
@@ -193,6 +258,16 @@ impl Line {
                 self.publish_stats();
                 continue;
             }
+            // Clients after commands, before polls; a due poll between two client slots.
+            if self.scheduler.queued_commands() == 0 && !self.client_went_last {
+                if let Some(request) = self.clients.try_take() {
+                    self.client_went_last = true;
+                    self.run_client(request).await;
+                    self.publish_stats();
+                    continue;
+                }
+            }
+            self.client_went_last = false;
             let next_settle = self.commands.next_settle();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
@@ -209,6 +284,7 @@ impl Line {
                     self.run_poll(device, block, 1).await;
                     self.publish_stats();
                 }
+                Due::Wait(_) | Due::Idle if self.clients.is_waiting() => {}
                 Due::Wait(until) => {
                     let until = next_settle.map_or(until, |s| s.min(until));
                     self.wait(Some(until)).await;
@@ -265,6 +341,7 @@ impl Line {
             received = self.commands.next(), if commands_open => {
                 self.take_received(received).await;
             }
+            () = self.clients.arrival() => {}
             () = self.shutdown.fired() => {}
         }
         if self.last_published.elapsed() >= HEARTBEAT {
@@ -389,6 +466,7 @@ impl Line {
         runtime.stats.online = online;
         if !online {
             runtime.forget_answers();
+            self.cache.forget(device);
         }
         if online {
             tracing::info!(device = %runtime.spec.name, "device online");
@@ -425,6 +503,12 @@ impl Line {
         let outcome = match result {
             Ok(reply) => {
                 if let Ok(answer) = &reply {
+                    let whole = !runtime.read_by_parts.get(block).copied().unwrap_or(false);
+                    if whole {
+                        // Only what the device itself answered may answer a client.
+                        self.cache
+                            .store(device, block, &read.request, answer, Instant::now());
+                    }
                     unchanged = runtime.answer_unchanged(block, answer);
                     if !unchanged {
                         runtime.decode_into(block, answer, &mut values);
@@ -473,6 +557,12 @@ impl Line {
             stats.turnaround_worst = Some(worst);
         }
         stats.set_devices(self.devices.iter().map(|d| &d.stats));
+        if let Some(counters) = &self.serve_counters {
+            use std::sync::atomic::Ordering::Relaxed;
+            stats.client_requests = counters.requests.load(Relaxed);
+            stats.cache_hits = counters.cache_hits.load(Relaxed);
+            stats.client_refusals = counters.refusals.load(Relaxed);
+        }
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.
         self.stats_tx
@@ -586,6 +676,8 @@ impl Line {
             port_gone,
         } = report;
         let now = Instant::now();
+        // The command can have changed what a poll read: clients read the device again.
+        self.cache.forget(device);
         if contact {
             if let Some(change) = self.scheduler.record_contact(device, now) {
                 self.availability_changed(device, change).await;
@@ -657,6 +749,13 @@ impl Line {
             arrived,
             outcome,
         } = finished;
+        if id >= CLIENT_COMMAND_IDS {
+            // A client's write whose device settled after its client was answered.
+            if let Some(write) = self.settling_client_writes.remove(&id) {
+                self.client_write_finished(write, outcome).await;
+            }
+            return;
+        }
         let latency = arrived.elapsed();
         self.stats.commands += 1;
         self.stats.last_command_latency = Some(latency);
@@ -691,6 +790,216 @@ impl Line {
             self.reply(device, finished).await;
         }
     }
+}
+
+/// Client requests: the cache, the profile's write planning, and the exchange on the line.
+impl Line {
+    async fn run_client(&mut self, slot: ClientRequest) {
+        let ClientRequest {
+            client,
+            unit,
+            request,
+            reply,
+        } = slot;
+        let device = self.devices.iter().position(|d| d.spec.address == unit);
+        let access = self.spec.serve.as_ref().map_or(Access::Raw, |s| s.access);
+        if let Some(device) = device {
+            if let Some(answer) = self.cache.lookup(device, &request, Instant::now()) {
+                if let Some(counters) = &self.serve_counters {
+                    counters
+                        .cache_hits
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                let _ = reply.send(Ok(answer));
+                return;
+            }
+            if !request.is_read() {
+                self.cache.forget(device);
+                if access == Access::Profile {
+                    let answer = self.run_client_write(device, &client, &request).await;
+                    let _ = reply.send(answer);
+                    return;
+                }
+            }
+        }
+        let attempts = self.attempts();
+        let Some(master) = self.master.as_mut() else {
+            let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+            return;
+        };
+        let mut passer_by = super::stats::DeviceStats::new(&format!("unit {unit}"));
+        let unknown = format!("unit {unit}");
+        let (name, stats) = match device.and_then(|d| self.devices.get_mut(d)) {
+            Some(runtime) => (runtime.spec.name.as_str(), &mut runtime.stats),
+            None => (unknown.as_str(), &mut passer_by),
+        };
+        let exchange = Exchange {
+            line: &self.spec.name,
+            device: name,
+            slave: unit,
+            timeout: self.timeout,
+            turnaround: &self.turnaround,
+        };
+        let result = exchange.run(master, stats, &request, attempts).await;
+        tracing::debug!(%client, unit, ?request, ?result, "client request on the line");
+        match result {
+            Ok(answer) => {
+                let _ = reply.send(answer);
+            }
+            Err(Failure::NoAnswer(_)) => {
+                let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+            }
+            Err(Failure::PortGone(error)) => {
+                let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+                self.port_failed(error).await;
+            }
+        }
+    }
+
+    /// The port is closed: waiting clients are told the device cannot be reached rather than
+    /// left to time out.
+    fn fail_client_requests(&mut self) {
+        while let Some(request) = self.clients.try_take() {
+            let _ = request
+                .reply
+                .send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+        }
+    }
+
+    /// A client's write under `profile` access: planned by the device's profile on its known
+    /// state (a refusal sends nothing), then run as a command slot whose reads are published.
+    async fn run_client_write(&mut self, device: usize, client: &str, write: &Request) -> Reply {
+        let Some(runtime) = self.devices.get(device) else {
+            return Err(ExceptionCode::GatewayPathUnavailable);
+        };
+        let name = runtime.spec.name.clone();
+        let plan = match policy::plan_write(&runtime.spec.profile, write, &runtime.known_state()) {
+            Ok(plan) => plan,
+            Err(code) => {
+                tracing::info!(%client, device = %name, ?write, "client write refused: {code}");
+                if let Some(counters) = &self.serve_counters {
+                    counters
+                        .refusals
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                return Err(code);
+            }
+        };
+        let field = plan.field().to_string();
+        let write_record = ClientWrite {
+            device: name.clone(),
+            field: field.clone(),
+            value: plan
+                .targets()
+                .iter()
+                .map(|(_, value)| value.to_text())
+                .collect::<Vec<_>>()
+                .join(","),
+            client: client.to_string(),
+        };
+        let id = self.next_client_command;
+        self.next_client_command += 1;
+        let pending = Pending {
+            command: Command {
+                id,
+                device: name.clone(),
+                plan,
+            },
+            arrived: Instant::now(),
+        };
+        let attempts = self.attempts();
+        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
+            (self.devices.get_mut(device), self.master.as_mut())
+        else {
+            return Err(ExceptionCode::GatewayTargetFailedToRespond);
+        };
+        let link = SlotLink {
+            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
+            master,
+            stats,
+            attempts,
+        };
+        let mut report = self.commands.run(link, device, pending).await;
+        let finished = report.finished.take();
+        let answer = match &finished {
+            Some(finished) => {
+                tracing::info!(%client, device = %name, %field, outcome = %finished.outcome, "client write");
+                client_answer(&finished.outcome, write)
+            }
+            // Written; the device is still moving toward the value.
+            None if report.port_gone.is_none() => {
+                tracing::info!(%client, device = %name, %field, "client write applied, settling");
+                echo(write).ok_or(ExceptionCode::IllegalFunction)
+            }
+            None => Err(ExceptionCode::GatewayTargetFailedToRespond),
+        };
+        self.carry_out(report).await;
+        match finished {
+            Some(finished) => {
+                self.client_write_finished(write_record, finished.outcome)
+                    .await;
+            }
+            None => {
+                self.settling_client_writes.insert(id, write_record);
+            }
+        }
+        answer
+    }
+
+    /// Reports a client's write's end to the bridge (after the values of its reads).
+    async fn client_write_finished(&mut self, write: ClientWrite, outcome: CommandOutcome) {
+        let ClientWrite {
+            device,
+            field,
+            value,
+            client,
+        } = write;
+        self.emit(LineEvent::ClientWriteFinished {
+            device,
+            field,
+            value,
+            client,
+            outcome,
+        })
+        .await;
+    }
+}
+
+/// What the client of a write is answered for its command's outcome.
+fn client_answer(outcome: &CommandOutcome, write: &Request) -> Reply {
+    match outcome {
+        CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. } => {
+            echo(write).ok_or(ExceptionCode::IllegalFunction)
+        }
+        CommandOutcome::Rejected { .. } => Err(ExceptionCode::IllegalDataValue),
+        CommandOutcome::Failed {
+            cause: CommandFailure::Exception(code),
+        } => Err(*code),
+        CommandOutcome::Failed { .. } => Err(ExceptionCode::GatewayTargetFailedToRespond),
+    }
+}
+
+/// The normal answer to a write: the device echoes what it was asked.
+fn echo(write: &Request) -> Option<Response> {
+    Some(match write {
+        Request::WriteSingleRegister { address, value } => Response::WriteSingleRegister {
+            address: *address,
+            value: *value,
+        },
+        Request::WriteSingleCoil { address, value } => Response::WriteSingleCoil {
+            address: *address,
+            value: *value,
+        },
+        Request::WriteMultipleRegisters { start, values } => Response::WriteMultipleRegisters {
+            start: *start,
+            quantity: u16::try_from(values.len()).ok()?,
+        },
+        Request::WriteMultipleCoils { start, values } => Response::WriteMultipleCoils {
+            start: *start,
+            quantity: u16::try_from(values.len()).ok()?,
+        },
+        _ => return None,
+    })
 }
 
 #[cfg(test)]
@@ -752,6 +1061,7 @@ mod tests {
             broadcast_turnaround: Duration::from_millis(200),
             byte_timeout: None,
             frame_log: None,
+            serve: None,
             devices: vec![super::super::DeviceSpec {
                 name: "valve".into(),
                 address: 1,

@@ -3,6 +3,8 @@
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
 //! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll.
+//! A line with a [`serve::ServeSpec`] also serves other Modbus masters through [`serve`]: their
+//! requests are slots of the same scheduler, after commands and before polls.
 
 mod commands;
 pub mod device;
@@ -13,6 +15,7 @@ pub mod plan;
 pub mod poll;
 pub mod port;
 pub mod scheduler;
+pub mod serve;
 pub mod slot;
 pub mod stats;
 pub mod transaction;
@@ -91,6 +94,8 @@ pub struct LineSpec {
     /// Record every frame of the line here (`gateway.frame_log`).
     pub frame_log: Option<rtu2mqtt_modbus::frame_log::FrameLog>,
     pub devices: Vec<DeviceSpec>,
+    /// The line served to other Modbus masters (`[lines.serve]`; none: not served).
+    pub serve: Option<serve::ServeSpec>,
 }
 
 /// What a line reports to the bridge.
@@ -113,6 +118,19 @@ pub enum LineEvent {
         /// The [`Command::id`] it answers.
         id: u64,
         device: String,
+        outcome: CommandOutcome,
+    },
+    /// A write from a client of the line's server ran as a command slot (sent after the
+    /// `Values` of its reads): its outcome is published like a command's, though no MQTT
+    /// command asked for it.
+    ClientWriteFinished {
+        device: String,
+        /// The field (or the profile's shared write frame) written.
+        field: String,
+        /// The value written, as a command would carry it.
+        value: String,
+        /// Who wrote (the client's address).
+        client: String,
         outcome: CommandOutcome,
     },
 }

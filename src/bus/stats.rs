@@ -142,6 +142,12 @@ pub struct LineStats {
     /// Time from a command's arrival on the line to its outcome.
     pub last_command_latency: Option<Duration>,
     pub worst_command_latency: Option<Duration>,
+    /// Requests from the line's server's clients (`[lines.serve]`), refused ones included.
+    pub client_requests: u64,
+    /// Client reads answered from a poll younger than the server's `cache`.
+    pub cache_hits: u64,
+    /// Client requests refused before the line (access, unknown unit, malformed).
+    pub client_refusals: u64,
     pub devices: Vec<DeviceStats>,
 }
 
@@ -195,6 +201,9 @@ impl LineStats {
             commands: 0,
             last_command_latency: None,
             worst_command_latency: None,
+            client_requests: 0,
+            cache_hits: 0,
+            client_refusals: 0,
             devices: devices.iter().map(|name| DeviceStats::new(name)).collect(),
         }
     }

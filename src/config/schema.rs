@@ -143,6 +143,8 @@ pub struct RawLine {
     pub byte_timeout: Option<Duration>,
     /// Kernel RS485 mode for UARTs that drive the transceiver themselves.
     pub rs485: Option<RawRs485>,
+    /// A Modbus TCP server sharing the line with other masters (off when absent).
+    pub serve: Option<RawServe>,
     #[serde(default)]
     pub devices: Vec<RawDevice>,
 }
@@ -174,6 +176,22 @@ pub struct RawRs485 {
     pub delay_after_send: Duration,
 }
 
+/// `[lines.serve]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawServe {
+    /// `modbus-tcp://host:port` (Modbus TCP) or `tcp://host:port` (RTU frames over TCP).
+    pub listen: String,
+    /// `profile` | `read-only` | `raw`.
+    #[serde(default = "default_serve_access")]
+    pub access: String,
+    /// Reads of a block polled younger than this come from the poll; `"0s"`: always the bus.
+    #[serde(default, with = "humantime_serde")]
+    pub cache: Duration,
+    #[serde(default = "default_max_clients")]
+    pub max_clients: usize,
+}
+
 /// `[[lines.devices]]`.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -188,6 +206,12 @@ pub struct RawDevice {
     pub poll_interval: Option<Duration>,
 }
 
+fn default_serve_access() -> String {
+    crate::bus::serve::Access::Profile.word().to_string()
+}
+fn default_max_clients() -> usize {
+    crate::bus::serve::DEFAULT_MAX_CLIENTS
+}
 fn default_prefix() -> String {
     "plant".to_string()
 }

@@ -10,9 +10,12 @@ use std::time::Duration;
 
 use super::link::{self, shown};
 use super::plan::LinePlan;
-use super::schema::{RawConfig, RawDevice, RawGateway, RawLine, RawMqtt, SparkplugSettings};
+use super::schema::{
+    RawConfig, RawDevice, RawGateway, RawLine, RawMqtt, RawServe, SparkplugSettings,
+};
 use super::sparkplug::{check_identity, shared_broker, SparkplugConfig};
 use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings};
+use crate::bus::serve::{Access, ServeFraming, ServeSpec};
 use crate::bus::{DeviceSpec, LineSpec, Transport};
 use crate::contract::{self, reserved_name_problem, MAX_TOPIC_LEN};
 use crate::profile::Profile;
@@ -534,6 +537,7 @@ fn validate_lines(
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();
     let mut links: HashMap<String, usize> = HashMap::new();
+    let mut listens: HashMap<String, usize> = HashMap::new();
     let mut device_names: HashMap<String, String> = HashMap::new();
     let mut profiles: HashMap<String, Arc<Profile>> = HashMap::new();
     let mut lines = Vec::new();
@@ -633,6 +637,18 @@ fn validate_lines(
                 devices.push(spec);
             }
         }
+        let serve = raw
+            .serve
+            .as_ref()
+            .and_then(|serve| validate_serve(serve, &place, problems, warnings));
+        if let Some(serve) = &serve {
+            if let Some(first) = listens.insert(serve.listen.clone(), index) {
+                problems.push(Problem::new(
+                    format!("{place}.serve.listen"),
+                    format!("{} is already where lines[{first}] is served", serve.listen),
+                ));
+            }
+        }
         let Some((path, transport)) = transport else {
             continue;
         };
@@ -688,6 +704,7 @@ fn validate_lines(
             // Opened by the daemon, not by validation.
             frame_log: None,
             devices,
+            serve,
         };
         let plan = LinePlan::of(&spec);
         // Continuous polls take what is left: only the periodic ones can overload a line.
@@ -704,6 +721,77 @@ fn validate_lines(
         lines.push(spec);
     }
     lines
+}
+
+/// `[lines.serve]`: where to listen, how clients frame, what they may do.
+fn validate_serve(
+    raw: &RawServe,
+    line_place: &str,
+    problems: &mut Vec<Problem>,
+    warnings: &mut Vec<Problem>,
+) -> Option<ServeSpec> {
+    let place = format!("{line_place}.serve");
+    let before = problems.len();
+    let (framing, address) = if let Some(rest) = raw.listen.strip_prefix("modbus-tcp://") {
+        (ServeFraming::ModbusTcp, rest)
+    } else if let Some(rest) = raw.listen.strip_prefix("tcp://") {
+        (ServeFraming::RawRtu, rest)
+    } else {
+        problems.push(Problem::new(
+            format!("{place}.listen"),
+            format!(
+                "{:?} must be modbus-tcp://HOST:PORT (Modbus TCP) or tcp://HOST:PORT (RTU \
+                 frames over TCP)",
+                raw.listen
+            ),
+        ));
+        (ServeFraming::ModbusTcp, "")
+    };
+    if problems.len() == before && address.parse::<std::net::SocketAddr>().is_err() {
+        let port_ok = address
+            .rsplit_once(':')
+            .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+        if !port_ok {
+            problems.push(Problem::new(
+                format!("{place}.listen"),
+                format!("{:?} needs HOST:PORT after the scheme", raw.listen),
+            ));
+        }
+    }
+    let access = Access::from_word(&raw.access);
+    if access.is_none() {
+        problems.push(Problem::new(
+            format!("{place}.access"),
+            format!("{:?} is not one of profile, read-only, raw", raw.access),
+        ));
+    }
+    if raw.max_clients == 0 || raw.max_clients > 64 {
+        problems.push(Problem::new(
+            format!("{place}.max_clients"),
+            format!("{} must be 1–64", raw.max_clients),
+        ));
+    }
+    if raw.cache > Duration::from_secs(3600) {
+        problems.push(Problem::new(
+            format!("{place}.cache"),
+            "must be at most 1h".to_string(),
+        ));
+    }
+    let access = access?;
+    if access == Access::Raw {
+        warnings.push(Problem::new(
+            format!("{place}.access"),
+            "raw: clients may read and write any register of any unit on the line, past the \
+             profiles' rules; use it for commissioning only",
+        ));
+    }
+    (problems.len() == before).then(|| ServeSpec {
+        listen: address.to_string(),
+        framing,
+        access,
+        cache: raw.cache,
+        max_clients: raw.max_clients,
+    })
 }
 
 fn validate_device(
@@ -1060,6 +1148,42 @@ mod tests {
 
     fn has(findings: &[String], words: &str) -> bool {
         findings.iter().any(|finding| finding.contains(words))
+    }
+
+    #[test]
+    fn a_served_line_is_checked_with_places_and_raw_access_warns() {
+        let serve = |table: &str| format!("port = \"/dev/ttyS1\"\n[lines.serve]\n{table}");
+        let (problems, warnings) = link_findings(&[&serve(
+            "listen = \"modbus-tcp://0.0.0.0:5020\"\naccess = \"raw\"\ncache = \"1s\"",
+        )]);
+        assert!(problems.is_empty(), "{problems:?}");
+        assert!(
+            has(&warnings, "lines[0].serve.access: raw: clients may"),
+            "{warnings:?}"
+        );
+        for (table, place) in [
+            ("listen = \"http://h:1\"", "lines[0].serve.listen"),
+            ("listen = \"modbus-tcp://5020\"", "lines[0].serve.listen"),
+            (
+                "listen = \"tcp://h:1\"\naccess = \"write\"",
+                "lines[0].serve.access",
+            ),
+            (
+                "listen = \"tcp://h:1\"\nmax_clients = 0",
+                "lines[0].serve.max_clients",
+            ),
+        ] {
+            let (problems, _) = link_findings(&[&serve(table)]);
+            assert!(has(&problems, place), "{table}: {problems:?}");
+        }
+        let (problems, _) = link_findings(&[
+            &serve("listen = \"modbus-tcp://0.0.0.0:5020\""),
+            "port = \"/dev/ttyS2\"\n[lines.serve]\nlisten = \"modbus-tcp://0.0.0.0:5020\"",
+        ]);
+        assert!(
+            has(&problems, "lines[1].serve.listen: 0.0.0.0:5020 is already"),
+            "{problems:?}"
+        );
     }
 
     #[test]

@@ -182,6 +182,51 @@ impl Profile {
             .collect()
     }
 
+    /// The fields a foreign master's `write` sets, with the values it gives them, found
+    /// through the profile's write frames (a write lands at a frame's write address, which need
+    /// not be its place in the read block). `None` when no write frame of the profile holds
+    /// every register or coil the write touches; the values of fields the write covers whole.
+    pub fn decode_write(&self, write: &Request) -> Option<Vec<FieldReading>> {
+        let (start, image, registers) = match write {
+            Request::WriteSingleRegister { address, value } => {
+                (*address, Response::HoldingRegisters(vec![*value]), true)
+            }
+            Request::WriteMultipleRegisters { start, values } => {
+                (*start, Response::HoldingRegisters(values.clone()), true)
+            }
+            Request::WriteSingleCoil { address, value } => {
+                (*address, Response::Coils(vec![*value]), false)
+            }
+            Request::WriteMultipleCoils { start, values } => {
+                (*start, Response::Coils(values.clone()), false)
+            }
+            _ => return None,
+        };
+        let quantity = match &image {
+            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
+            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
+            _ => return None,
+        };
+        let inner = &self.inner;
+        let frames = inner
+            .defs
+            .iter()
+            .filter_map(|def| def.write.as_ref())
+            .chain(inner.named_frames.iter().map(|(_, frame)| frame));
+        let frame = frames
+            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == registers)
+            .find(|frame| {
+                start >= frame.address
+                    && u32::from(start) + u32::from(quantity)
+                        <= u32::from(frame.address) + u32::from(frame.count)
+            })?;
+        let block = inner.blocks.get(frame.block)?;
+        let read = block
+            .request
+            .sub_read(frame.offset + (start - frame.address), quantity)?;
+        Some(self.decode_read(&read, &image))
+    }
+
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
     /// last known state, and plans the bus slot that carries it out.
     pub fn plan_command(

@@ -437,3 +437,28 @@ fn check_shows_the_history_journal_and_places_its_problems() {
     assert!(!ok);
     assert!(stderr.contains("history.path"), "{stderr}");
 }
+
+#[test]
+fn check_shows_a_served_line_and_warns_about_raw_access() {
+    let served = ONE_VALVE
+        .replace("{mqtt}", "")
+        .replace("{device}", "")
+        .replace(
+            "port = \"/dev/ttyS2\"\n",
+            "port = \"/dev/ttyS2\"\n[lines.serve]\nlisten = \"modbus-tcp://0.0.0.0:5020\"\n\
+             access = \"raw\"\ncache = \"1s\"\n",
+        );
+    let (ok, stdout, stderr) = check_text(&served, &[]);
+    assert!(ok, "{stdout}{stderr}");
+    assert!(
+        stdout.lines().any(|line| line
+            == "  served on modbus-tcp://0.0.0.0:5020 to at most 8 clients, access raw, cache 1s"),
+        "{stdout}"
+    );
+    assert!(
+        stdout
+            .lines()
+            .any(|line| line.starts_with("warning: lines[0].serve.access: raw:")),
+        "{stdout}"
+    );
+}

@@ -76,6 +76,7 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
         broadcast_turnaround: Duration::from_millis(100),
         byte_timeout: None,
         frame_log: None,
+        serve: None,
         devices,
     }
 }
@@ -133,6 +134,8 @@ impl Running {
             LineEvent::CommandFinished { id, outcome, .. } => {
                 self.finished.insert(id, outcome);
             }
+            // These lines are not served: no client writes.
+            LineEvent::ClientWriteFinished { .. } => {}
         }
     }
 

@@ -60,7 +60,7 @@ fn quick_start_is_two_commands_and_ci_runs_the_second() {
 fn configuration_reference_lists_every_key_and_no_other() {
     use rtu2mqtt::config::history::RawHistory;
     use rtu2mqtt::config::keys_of;
-    use rtu2mqtt::config::schema::{RawDevice, RawGateway, RawLine, RawMqtt, RawRs485};
+    use rtu2mqtt::config::schema::{RawDevice, RawGateway, RawLine, RawMqtt, RawRs485, RawServe};
     use rtu2mqtt::config::HealthSettings;
     let history_keys = keys_of::<RawHistory>();
     let (mqtt_keys, gateway_keys, health_keys) = (
@@ -85,6 +85,7 @@ fn configuration_reference_lists_every_key_and_no_other() {
         ("### `[history]`", history_keys),
         ("### `[[lines]]`", line_keys),
         ("### `[[lines.devices]]`", device_keys),
+        ("### `[lines.serve]`", keys_of::<RawServe>()),
     ] {
         let start = reference
             .find(table)

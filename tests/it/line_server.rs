@@ -1,0 +1,545 @@
+//! A served line (`[lines.serve]`) end to end: pymodbus clients (an implementation not written
+//! here, `tests/interop/modbus_share_client.py`) against the gateway's Modbus TCP server while
+//! the gateway polls the simulated seed plant on ptys and takes MQTT commands from mosquitto.
+//! Frames are checked byte for byte in the simulator's journal.
+
+use crate::support;
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value as Json};
+
+use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use support::{free_port, hex, Gateway, Mosquitto, PlantConfig, TestClient};
+
+/// Generous bounds for a busy 2-core machine: they only fail when something is broken.
+const ANSWER: Duration = Duration::from_secs(15);
+const CLIENT: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/interop/modbus_share_client.py"
+);
+const DUST: u8 = 1;
+const SHOWER: u8 = 0x81;
+
+/// The seed plant's configuration with line-a served on `port`.
+fn served_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, serve: &str) -> String {
+    let text = PlantConfig {
+        gateway: "stats_interval = \"1s\"",
+        explicit_serial: true,
+        line_keys: "retries = 1\noffline_after = 2",
+        ..PlantConfig::default()
+    }
+    .text(broker, plant, client_id);
+    let first_device = "[[lines.devices]]\nname = \"dust_collector\"";
+    assert!(text.contains(first_device));
+    text.replacen(
+        first_device,
+        &format!("[lines.serve]\n{serve}\n\n{first_device}"),
+        1,
+    )
+}
+
+struct Harness {
+    _broker: Mosquitto,
+    plant: SeedPlant,
+    mqtt: TestClient,
+    gateway: Gateway,
+    port: u16,
+    client_id: String,
+}
+
+impl Harness {
+    async fn start(name: &str, serve: &str) -> Harness {
+        let broker = Mosquitto::start();
+        let plant = SeedPlant::spawn(false).unwrap();
+        sim::lock(&plant.dust_collector).set_power(true);
+        let mut mqtt = TestClient::connect(broker.port, &format!("{name}-observer")).await;
+        mqtt.subscribe("plant/#").await;
+        let port = free_port();
+        let client_id = format!("{name}-gw");
+        let serve = if serve.contains("listen") {
+            serve.replace("{port}", &port.to_string())
+        } else {
+            format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
+        };
+        let text = served_config(&broker, &plant, &client_id, &serve);
+        let gateway = Gateway::start(support::fast_config(&text)).await;
+        for device in ["dust_collector", "air_shower"] {
+            let topic = format!("plant/{device}/availability");
+            mqtt.wait_for(&topic, ANSWER, |m| m.text() == "online")
+                .await;
+        }
+        Harness {
+            _broker: broker,
+            plant,
+            mqtt,
+            gateway,
+            port,
+            client_id,
+        }
+    }
+
+    /// Runs `ops` in one pymodbus client; one JSON answer per op.
+    async fn client(&self, ops: Json) -> Vec<Json> {
+        let mut command = Command::new("python3");
+        command
+            .arg(CLIENT)
+            .arg("127.0.0.1")
+            .arg(self.port.to_string())
+            .arg(ops.to_string());
+        let output = support::child::output(command, Duration::from_secs(60))
+            .await
+            .expect("pymodbus client ran");
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        assert!(
+            output.status.success(),
+            "pymodbus client failed: {}\n{stdout}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        stdout
+            .lines()
+            .map(|line| serde_json::from_str(line).expect("one JSON answer per line"))
+            .collect()
+    }
+
+    fn frames(&self) -> Vec<String> {
+        self.plant
+            .line_a
+            .journal()
+            .frames()
+            .iter()
+            .map(|frame| hex::encode(frame))
+            .collect()
+    }
+
+    /// The next statistics document whose line-a figures satisfy `accept`.
+    async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
+        let topic = format!("plant/gateway/{}/stats", self.client_id);
+        self.mqtt
+            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"]["line-a"]))
+            .await
+            .json()["lines"]["line-a"]
+            .clone()
+    }
+}
+
+/// Latencies of `count` reads of the dust collector's block over a plain Modbus TCP socket.
+async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    stream.set_nodelay(true).unwrap();
+    let mut latencies = Vec::new();
+    for transaction in 0..count {
+        let mut request = transaction.to_be_bytes().to_vec();
+        request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
+        let sent = Instant::now();
+        stream.write_all(&request).await.unwrap();
+        let mut answer = [0u8; 21];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+            .await
+            .expect("an answer in time")
+            .unwrap();
+        latencies.push(sent.elapsed());
+        assert_eq!(answer[..2], transaction.to_be_bytes(), "{answer:?}");
+        assert_eq!(answer[7..9], [0x03, 12], "{answer:?}");
+    }
+    latencies
+}
+
+fn mean(latencies: &[Duration]) -> Duration {
+    latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
+}
+
+fn exception(code: u8) -> Json {
+    json!({ "exception": code })
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allows() {
+    let mut h = Harness::start("serve-profile", "access = \"profile\"").await;
+
+    // Reads equal the device's registers: the words the device put on the wire for that
+    // read (the fan spins up, so the table moves between reads).
+    h.plant.line_a.journal().clear();
+    let answers = h
+        .client(json!([
+            ["read", DUST, 0x1000, 6],
+            ["read", DUST, 0x1001, 1]
+        ]))
+        .await;
+    let answered: Vec<Json> = h
+        .plant
+        .line_a
+        .journal()
+        .requests()
+        .iter()
+        .filter(|r| r.frame.starts_with(&[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]))
+        .filter_map(|r| r.answer.as_ref())
+        .map(|answer| {
+            let words: Vec<u16> = answer[3..15]
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            json!({ "registers": words })
+        })
+        .collect();
+    assert!(
+        answered.contains(&answers[0]),
+        "{answers:?} not in {answered:?}"
+    );
+    let gear = sim::lock(&h.plant.dust_collector).gear();
+    assert_eq!(answers[0]["registers"][1], gear, "{answers:?}");
+    assert_eq!(answers[1], json!({ "registers": [gear] }), "{answers:?}");
+
+    // A gear write lands on the line byte for byte and on MQTT.
+    h.plant.line_a.journal().clear();
+    let answers = h.client(json!([["write", DUST, 0x1002, 8]])).await;
+    assert_eq!(answers, vec![json!({ "written": true })]);
+    assert!(
+        h.frames().contains(&"01 06 10 02 00 08 2D 0C".to_string()),
+        "{:?}",
+        h.frames()
+    );
+    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
+    h.mqtt
+        .wait_for("plant/dust_collector/gear", ANSWER, |m| m.text() == "8")
+        .await;
+    let result = h
+        .mqtt
+        .next_on("plant/dust_collector/gear/result", ANSWER)
+        .await
+        .json();
+    assert_eq!(result["outcome"], "applied", "{result}");
+    assert_eq!(result["value"], "8", "{result}");
+
+    // Gear 11, the read-only fan speed, a read outside the blocks and an unknown unit are
+    // refused with no frame on the line.
+    h.plant.line_a.journal().clear();
+    let answers = h
+        .client(json!([
+            ["write", DUST, 0x1002, 11],
+            ["write", DUST, 0x1008, 100],
+            ["read", DUST, 0x2000, 1],
+            ["read", 5, 0x1000, 6],
+        ]))
+        .await;
+    assert_eq!(
+        answers,
+        vec![exception(3), exception(2), exception(2), exception(0x0A)]
+    );
+    let writes: Vec<String> = h
+        .frames()
+        .into_iter()
+        .filter(|frame| !frame.starts_with("01 03") && !frame.starts_with("81 01"))
+        .collect();
+    assert!(writes.is_empty(), "frames besides polls: {writes:?}");
+    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
+
+    // A configured device that does not answer: 0x0B after the timeout and retries.
+    h.plant.line_a.faults().silence(SHOWER, true);
+    let answers = h.client(json!([["coils", SHOWER, 0, 3]])).await;
+    assert_eq!(answers, vec![exception(0x0B)]);
+
+    let stats = h
+        .line_stats(|line| line["client_refusals"].as_u64().unwrap_or(0) >= 4)
+        .await;
+    assert!(
+        stats["client_requests"].as_u64().unwrap_or(0) >= 8,
+        "{stats}"
+    );
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_only_access_refuses_every_write_with_exception_01() {
+    let h = Harness::start("serve-ro", "access = \"read-only\"").await;
+    h.plant.line_a.journal().clear();
+    let answers = h
+        .client(json!([
+            ["write", DUST, 0x1002, 8],
+            ["read", DUST, 0x1000, 6]
+        ]))
+        .await;
+    assert_eq!(answers[0], exception(1));
+    assert!(answers[1]["registers"].is_array(), "{answers:?}");
+    assert!(
+        h.frames().iter().all(|frame| !frame.starts_with("01 06")),
+        "{:?}",
+        h.frames()
+    );
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside_t3_5() {
+    let mut h = Harness::start("serve-three", "access = \"profile\"").await;
+    let idle = timed_reads(h.port, 20).await;
+    h.plant.line_a.journal().clear();
+    let started = Instant::now();
+    let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 15]);
+    let commands = async {
+        for gear in [4, 5, 6] {
+            h.mqtt
+                .publish("plant/dust_collector/gear/set", gear.to_string(), false)
+                .await;
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+    };
+    let (first, second, third, busy, ()) = tokio::join!(
+        h.client(reads.clone()),
+        h.client(reads.clone()),
+        h.client(reads.clone()),
+        timed_reads(h.port, 20),
+        commands
+    );
+    let elapsed = started.elapsed();
+    for answers in [&first, &second, &third] {
+        assert_eq!(answers.len(), 15);
+        for answer in answers {
+            assert_eq!(
+                answer["registers"].as_array().map(Vec::len),
+                Some(6),
+                "{answer}"
+            );
+        }
+    }
+    // The last command wins on the device, and polls went on between the clients' reads.
+    let deadline = Instant::now() + ANSWER;
+    while sim::lock(&h.plant.dust_collector).gear() != 6 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 6);
+    let records = h.plant.line_a.journal().requests();
+    assert!(
+        records.iter().any(|r| r.frame.starts_with(&[SHOWER, 0x01])),
+        "the air shower was never polled while the clients read"
+    );
+    let t3_5 = LineTiming::new(
+        9600,
+        CharFormat {
+            data_bits: 8,
+            parity: Parity::None,
+            stop_bits: 1,
+        },
+    )
+    .t3_5;
+    for (i, record) in records.iter().enumerate().skip(1) {
+        let silence = record.silence_before.unwrap_or_default();
+        assert!(
+            silence >= t3_5,
+            "request {i} ({}) after {silence:?} of silence (t3.5 is {t3_5:?})",
+            hex::encode(&record.frame)
+        );
+    }
+    let stats = h
+        .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 65)
+        .await;
+    assert_eq!(stats["client_refusals"], 0, "{stats}");
+    let wire: Duration = records
+        .iter()
+        .filter_map(|r| {
+            let answered = r.answer_timing?.handed_over;
+            Some(answered.saturating_duration_since(r.arrived))
+        })
+        .sum();
+    eprintln!(
+        "figure: client read latency idle {:?} (worst {:?}), busy with three clients and MQTT \
+         commands {:?} (worst {:?}); {} requests on the line in {elapsed:?}, requests to \
+         answers {:.0} % of it",
+        mean(&idle),
+        idle.iter().max().copied().unwrap_or_default(),
+        mean(&busy),
+        busy.iter().max().copied().unwrap_or_default(),
+        records.len(),
+        wire.as_secs_f64() / elapsed.as_secs_f64() * 100.0
+    );
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
+    let mut h = Harness::start("serve-cache", "cache = \"5s\"").await;
+    // A first poll of the block is in the cache once the device is online.
+    let block = [DUST, 0x03, 0x10, 0x00, 0x00, 0x06];
+    let on_line = |h: &Harness| {
+        h.plant
+            .line_a
+            .journal()
+            .frames()
+            .iter()
+            .filter(|frame| frame.starts_with(&block))
+            .count()
+    };
+    let before = on_line(&h);
+    let started = Instant::now();
+    let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 30]);
+    let answers = h.client(reads).await;
+    let polls_meanwhile = on_line(&h) - before;
+    // Every answer is one the device itself gave a poll, word for word.
+    let polled: Vec<Json> = h
+        .plant
+        .line_a
+        .journal()
+        .requests()
+        .iter()
+        .filter(|r| r.frame.starts_with(&block))
+        .filter_map(|r| r.answer.as_ref())
+        .map(|answer| {
+            let words: Vec<u16> = answer[3..15]
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            json!({ "registers": words })
+        })
+        .collect();
+    for answer in &answers {
+        assert!(polled.contains(answer), "{answer} was never polled");
+    }
+    // Polls run every 300 ms: whatever reached the line in that time was polls, not the
+    // thirty reads.
+    let polls_due = started.elapsed().as_millis() / 300 + 2;
+    assert!(
+        (polls_meanwhile as u128) <= polls_due,
+        "{polls_meanwhile} block reads on the line in {:?} for 30 client reads",
+        started.elapsed()
+    );
+    let stats = h
+        .line_stats(|line| line["cache_hits"].as_u64().unwrap_or(0) >= 25)
+        .await;
+    eprintln!(
+        "figure: cache {} hits of {} client requests; {polls_meanwhile} block reads on the \
+         line meanwhile",
+        stats["cache_hits"], stats["client_requests"]
+    );
+    assert!(
+        stats["client_requests"].as_u64().unwrap_or(0) >= 30,
+        "{stats}"
+    );
+    h.gateway.stop().await;
+}
+
+/// Reads until the server closes the connection (Ok) or `limit` passes (Err).
+async fn closed_within(stream: &mut tokio::net::TcpStream, limit: Duration) -> Result<(), String> {
+    use tokio::io::AsyncReadExt;
+    let mut buf = [0u8; 64];
+    match tokio::time::timeout(limit, stream.read(&mut buf)).await {
+        Ok(Ok(0)) | Ok(Err(_)) => Ok(()),
+        Ok(Ok(n)) => Err(format!("answered {}", hex::encode(&buf[..n]))),
+        Err(_) => Err(format!("still open after {limit:?}")),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+    let h = Harness::start("serve-bad", "max_clients = 3").await;
+    let address = format!("127.0.0.1:{}", h.port);
+    let connect = || TcpStream::connect(address.clone());
+
+    // An unknown function code: exception 01 for that transaction, the connection stays.
+    let mut stream = connect().await.unwrap();
+    stream
+        .write_all(&hex::decode("00 07 00 00 00 02 01 2B"))
+        .await
+        .unwrap();
+    let mut answer = [0u8; 9];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer")
+        .unwrap();
+    assert_eq!(hex::encode(&answer), "00 07 00 00 00 03 01 AB 01");
+
+    // A protocol id that is not Modbus and a length no PDU has: closed at once.
+    for header in [
+        "00 01 00 05 00 06 01 03 10 00 00 06",
+        "00 01 00 00 01 2C 01 03",
+    ] {
+        let mut stream = connect().await.unwrap();
+        stream.write_all(&hex::decode(header)).await.unwrap();
+        assert_eq!(
+            closed_within(&mut stream, Duration::from_secs(2)).await,
+            Ok(()),
+            "{header}"
+        );
+    }
+    // A torn header, and a length that promises more than comes: closed after the patience.
+    for torn in ["00 01 00", "00 01 00 00 00 0A 01 03 10 00 00 06"] {
+        let mut stream = connect().await.unwrap();
+        stream.write_all(&hex::decode(torn)).await.unwrap();
+        assert_eq!(
+            closed_within(&mut stream, Duration::from_secs(5)).await,
+            Ok(()),
+            "{torn}"
+        );
+    }
+
+    // More connections than max_clients: the extra one is closed at once.
+    let _kept: Vec<TcpStream> = vec![connect().await.unwrap(), connect().await.unwrap()];
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut extra = connect().await.unwrap();
+    assert_eq!(
+        closed_within(&mut extra, Duration::from_secs(2)).await,
+        Ok(())
+    );
+    drop(_kept);
+    drop(stream);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    // Nothing of it reached the line, and the next client is served.
+    let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
+    assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
+    let garbage = h.plant.line_a.journal().discarded_bytes();
+    assert_eq!(garbage, 0);
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_over_tcp_with_raw_access_passes_any_unit_to_the_line() {
+    use rtu2mqtt_modbus::{codec, Request};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let serve = "listen = \"tcp://127.0.0.1:{port}\"\naccess = \"raw\"";
+    let h = Harness::start("serve-rtu", serve).await;
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+        .await
+        .unwrap();
+    let block = Request::ReadHoldingRegisters {
+        start: 0x1000,
+        quantity: 6,
+    };
+
+    // The dust collector's block, in RTU frames with their CRC.
+    let frame = codec::encode_request(DUST, &block).unwrap();
+    stream.write_all(&frame).await.unwrap();
+    let mut answer = [0u8; 17];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    let decoded = codec::decode_answer(DUST, &block, &answer).expect("a valid RTU answer");
+    assert!(
+        matches!(decoded, codec::Answer::Normal(ref r) if r.registers().map(<[u16]>::len) == Some(6)),
+        "{decoded:?}"
+    );
+
+    // A unit not on the line goes to the line as asked, and gets 0x0B when nothing answers.
+    h.plant.line_a.journal().clear();
+    let frame = codec::encode_request(5, &block).unwrap();
+    stream.write_all(&frame).await.unwrap();
+    let mut answer = [0u8; 5];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    assert_eq!(answer[..3], [5, 0x83, 0x0B], "{}", hex::encode(&answer));
+    assert!(
+        h.plant.line_a.journal().frames().contains(&frame),
+        "{:?}",
+        h.frames()
+    );
+    h.gateway.stop().await;
+}
