@@ -23,24 +23,12 @@ use rtu2mqtt_modbus::transport::{Port, SerialSettings, TransportError};
 use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
 
 /// The read request for `function` 1–4 (anything else is refused: this tool never writes).
-pub fn read_request(function: u8, start: u16, count: u16) -> anyhow::Result<Request> {
+pub fn read_request(function: u8, start: u16, quantity: u16) -> anyhow::Result<Request> {
     Ok(match function {
-        1 => Request::ReadCoils {
-            start,
-            quantity: count,
-        },
-        2 => Request::ReadDiscreteInputs {
-            start,
-            quantity: count,
-        },
-        3 => Request::ReadHoldingRegisters {
-            start,
-            quantity: count,
-        },
-        4 => Request::ReadInputRegisters {
-            start,
-            quantity: count,
-        },
+        1 => Request::ReadCoils { start, quantity },
+        2 => Request::ReadDiscreteInputs { start, quantity },
+        3 => Request::ReadHoldingRegisters { start, quantity },
+        4 => Request::ReadInputRegisters { start, quantity },
         other => bail!("function {other}: only the read functions 1, 2, 3 and 4 are allowed"),
     })
 }

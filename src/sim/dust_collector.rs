@@ -336,14 +336,7 @@ impl SimDevice for DustCollector {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn read(dust: &mut DustCollector, start: u16, quantity: u16, now: Instant) -> Reply {
-        dust.handle(&Request::ReadHoldingRegisters { start, quantity }, now)
-    }
-
-    fn write(dust: &mut DustCollector, address: u16, value: u16, now: Instant) -> Reply {
-        dust.handle(&Request::WriteSingleRegister { address, value }, now)
-    }
+    use crate::sim::drive::{assert_refuses_coils, read, words, write};
 
     /// An FC10 write of `values` from the table's first register.
     fn write_registers(dust: &mut DustCollector, values: Vec<u16>, now: Instant) -> Reply {
@@ -357,10 +350,7 @@ mod tests {
     }
 
     fn read_all(dust: &mut DustCollector, now: Instant) -> Vec<u16> {
-        match read(dust, BASE, 6, now) {
-            Reply::Normal(Response::HoldingRegisters(words)) => words,
-            other => panic!("unexpected {other:?}"),
-        }
+        words(read(dust, BASE, 6, now))
     }
 
     #[test]
@@ -398,16 +388,7 @@ mod tests {
                 "read of {quantity} from {start:#06X}"
             );
         }
-        assert_eq!(
-            dust.handle(
-                &Request::ReadCoils {
-                    start: 0,
-                    quantity: 1
-                },
-                now
-            ),
-            Reply::Exception(ExceptionCode::IllegalFunction)
-        );
+        assert_refuses_coils(&mut dust, now);
     }
 
     #[test]

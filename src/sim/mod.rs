@@ -35,6 +35,8 @@
 //! ```
 
 pub mod air_shower;
+#[cfg(test)]
+mod drive;
 pub mod dust_collector;
 pub mod faults;
 pub mod generic;

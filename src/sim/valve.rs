@@ -476,21 +476,7 @@ pub fn travel_time(from: u16, to: u16, speed: f64) -> Duration {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn read(valve: &mut Valve, start: u16, quantity: u16, now: Instant) -> Reply {
-        valve.handle(&Request::ReadHoldingRegisters { start, quantity }, now)
-    }
-
-    fn write(valve: &mut Valve, address: u16, value: u16, now: Instant) -> Reply {
-        valve.handle(&Request::WriteSingleRegister { address, value }, now)
-    }
-
-    fn words(reply: Reply) -> Vec<u16> {
-        match reply {
-            Reply::Normal(Response::HoldingRegisters(words)) => words,
-            other => panic!("unexpected {other:?}"),
-        }
-    }
+    use crate::sim::drive::{assert_refuses_coils, read, words, write};
 
     #[test]
     fn identity_registers_read_as_chars() {
@@ -650,16 +636,7 @@ mod tests {
         assert!(valve.mode_auto());
         assert_eq!(write(&mut valve, REG_BAUD, 7, now), Reply::Silent);
         assert_eq!(valve.baud_switches(), &[7]);
-        assert_eq!(
-            valve.handle(
-                &Request::ReadCoils {
-                    start: 0,
-                    quantity: 1
-                },
-                now
-            ),
-            Reply::Exception(ExceptionCode::IllegalFunction)
-        );
+        assert_refuses_coils(&mut valve, now);
     }
 
     #[test]

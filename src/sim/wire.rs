@@ -78,46 +78,36 @@ pub fn decode_request(frame: &[u8]) -> Result<(SlaveId, Request), RequestError> 
             Err(RequestError::Malformed)
         }
     };
+    // FC01..FC06 carry exactly two words: a start and a quantity, or an address and a value.
+    let two_words = || -> Result<(u16, u16), RequestError> {
+        fixed(4)?;
+        Ok((
+            word(0).ok_or(RequestError::Malformed)?,
+            word(2).ok_or(RequestError::Malformed)?,
+        ))
+    };
     let request = match function {
-        0x01..=0x06 => {
-            fixed(4)?;
-            let (a, b) = (
-                word(0).ok_or(RequestError::Malformed)?,
-                word(2).ok_or(RequestError::Malformed)?,
-            );
+        0x01..=0x04 => {
+            let (start, quantity) = two_words()?;
             match function {
-                0x01 => Request::ReadCoils {
-                    start: a,
-                    quantity: b,
-                },
-                0x02 => Request::ReadDiscreteInputs {
-                    start: a,
-                    quantity: b,
-                },
-                0x03 => Request::ReadHoldingRegisters {
-                    start: a,
-                    quantity: b,
-                },
-                0x04 => Request::ReadInputRegisters {
-                    start: a,
-                    quantity: b,
-                },
-                0x05 => match b {
-                    0xFF00 => Request::WriteSingleCoil {
-                        address: a,
-                        value: true,
-                    },
-                    0x0000 => Request::WriteSingleCoil {
-                        address: a,
-                        value: false,
-                    },
-                    _ => return Err(RequestError::Malformed),
-                },
-                _ => Request::WriteSingleRegister {
-                    address: a,
-                    value: b,
-                },
+                0x01 => Request::ReadCoils { start, quantity },
+                0x02 => Request::ReadDiscreteInputs { start, quantity },
+                0x03 => Request::ReadHoldingRegisters { start, quantity },
+                _ => Request::ReadInputRegisters { start, quantity },
             }
+        }
+        0x05 => {
+            let (address, value) = two_words()?;
+            let value = match value {
+                0xFF00 => true,
+                0x0000 => false,
+                _ => return Err(RequestError::Malformed),
+            };
+            Request::WriteSingleCoil { address, value }
+        }
+        0x06 => {
+            let (address, value) = two_words()?;
+            Request::WriteSingleRegister { address, value }
         }
         0x0F | 0x10 => {
             let start = word(0).ok_or(RequestError::Malformed)?;

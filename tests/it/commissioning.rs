@@ -25,6 +25,35 @@ async fn run(args: &[&str]) -> Output {
         .expect("command finished")
 }
 
+/// `subcommand` run on `line`'s port with the further `args`.
+async fn run_on(line: &VirtualLine, subcommand: &str, args: &[&str]) -> Output {
+    let path = line.path().to_string_lossy().into_owned();
+    let mut all = vec![subcommand, "--port", &path];
+    all.extend_from_slice(args);
+    run(&all).await
+}
+
+/// `read` of `count` items from `start` with `function` at `address` on `line`'s port.
+async fn read_block(
+    line: &VirtualLine,
+    address: &str,
+    function: &str,
+    start: &str,
+    count: &str,
+) -> Output {
+    let args = [
+        "--address",
+        address,
+        "--function",
+        function,
+        "--start",
+        start,
+        "--count",
+        count,
+    ];
+    run_on(line, "read", &args).await
+}
+
 fn stdout(output: &Output) -> String {
     String::from_utf8_lossy(&output.stdout).into_owned()
 }
@@ -60,24 +89,18 @@ async fn scan_finds_each_seed_device_at_its_address_and_baud_rate() {
     let dust = line(9600, vec![share(DustCollector::new(1)).1]);
     let shower = line(19200, vec![share(AirShower::new()).1]);
     let valve = line(4800, vec![share(Valve::new(2)).1]);
-    let scan = |line: &VirtualLine| {
-        let path = line.path().to_string_lossy().into_owned();
-        async move {
-            run(&[
-                "scan",
-                "--port",
-                &path,
-                "--baud",
-                "4800,9600,19200",
-                "--parity",
-                "none",
-                "--addresses",
-                "1,2,0x81",
-                "--timeout",
-                "150ms",
-            ])
-            .await
-        }
+    let scan = |line| {
+        let args = [
+            "--baud",
+            "4800,9600,19200",
+            "--parity",
+            "none",
+            "--addresses",
+            "1,2,0x81",
+            "--timeout",
+            "150ms",
+        ];
+        async move { run_on(line, "scan", &args).await }
     };
     let (dust_out, shower_out, valve_out) = tokio::join!(scan(&dust), scan(&shower), scan(&valve));
     for output in [&dust_out, &shower_out, &valve_out] {
@@ -151,19 +174,12 @@ async fn a_full_range_scan_is_quick_and_finds_every_device() {
         f.target = Some(0x81);
         f.delay = Duration::from_millis(17);
     });
-    let path = plant.path().to_string_lossy().into_owned();
     let started = std::time::Instant::now();
-    let output = run(&[
+    let output = run_on(
+        &plant,
         "scan",
-        "--port",
-        &path,
-        "--baud",
-        "9600",
-        "--parity",
-        "none",
-        "--timeout",
-        "100ms",
-    ])
+        &["--baud", "9600", "--parity", "none", "--timeout", "100ms"],
+    )
     .await;
     let took = started.elapsed();
     let text = stdout(&output);
@@ -195,20 +211,20 @@ async fn a_full_range_scan_is_quick_and_finds_every_device() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scan_with_a_profile_shows_the_decoded_fields() {
     let valve = line(9600, vec![share(Valve::new(1)).1]);
-    let path = valve.path().to_string_lossy().into_owned();
-    let output = run(&[
+    let output = run_on(
+        &valve,
         "scan",
-        "--port",
-        &path,
-        "--baud",
-        "9600",
-        "--parity",
-        "none",
-        "--addresses",
-        "1",
-        "--profile",
-        "wuzhou-valve",
-    ])
+        &[
+            "--baud",
+            "9600",
+            "--parity",
+            "none",
+            "--addresses",
+            "1",
+            "--profile",
+            "wuzhou-valve",
+        ],
+    )
     .await;
     let text = stdout(&output);
     assert!(output.status.success(), "{text}");
@@ -223,21 +239,7 @@ async fn scan_with_a_profile_shows_the_decoded_fields() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn read_decodes_the_valve_identity_block_every_way() {
     let valve = line(9600, vec![share(Valve::new(1)).1]);
-    let path = valve.path().to_string_lossy().into_owned();
-    let output = run(&[
-        "read",
-        "--port",
-        &path,
-        "--address",
-        "1",
-        "--function",
-        "3",
-        "--start",
-        "0x0000",
-        "--count",
-        "11",
-    ])
-    .await;
+    let output = read_block(&valve, "1", "3", "0x0000", "11").await;
     let text = stdout(&output);
     assert!(
         output.status.success(),
@@ -289,21 +291,7 @@ async fn read_decodes_the_valve_identity_block_every_way() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn read_shows_bits_of_a_coil_block() {
     let shower = line(9600, vec![share(AirShower::new()).1]);
-    let path = shower.path().to_string_lossy().into_owned();
-    let output = run(&[
-        "read",
-        "--port",
-        &path,
-        "--address",
-        "0x81",
-        "--function",
-        "1",
-        "--start",
-        "0",
-        "--count",
-        "22",
-    ])
-    .await;
+    let output = read_block(&shower, "0x81", "1", "0", "22").await;
     let text = stdout(&output);
     assert!(output.status.success(), "{text}");
     assert!(text.contains("request  81 01 00 00 00 16"), "{text}");

@@ -116,16 +116,12 @@ address = 1
 
 #[test]
 fn every_problem_is_listed_with_its_place() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("config.toml");
     // Unknown keys are reported first (with the other problems after them).
-    std::fs::write(&path, MANY_MISTAKES).unwrap();
-    let (ok, _, stderr) = check(&path);
+    let (ok, _, stderr) = check_text(MANY_MISTAKES, &[]);
     assert!(!ok);
     assert!(stderr.contains("mqtt.colour: unknown key"), "{stderr}");
 
-    std::fs::write(&path, MANY_MISTAKES.replace("colour = \"blue\"\n", "")).unwrap();
-    let (ok, stdout, stderr) = check(&path);
+    let (ok, stdout, stderr) = check_text(&MANY_MISTAKES.replace("colour = \"blue\"\n", ""), &[]);
     assert!(!ok, "accepted: {stdout}");
     for place in [
         "mqtt.prefix:",
@@ -389,12 +385,9 @@ fn secrets_never_appear_in_a_message() {
 
 #[test]
 fn check_shows_the_sparkplug_node() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let path = dir.path().join("with-sparkplug.toml");
     let text = std::fs::read_to_string(example()).expect("example configuration")
         + "\n[sparkplug]\ngroup_id = \"plant\"\nprimary_host_id = \"scada\"\n";
-    std::fs::write(&path, text).expect("write config");
-    let (valid, stdout, stderr) = check(&path);
+    let (valid, stdout, stderr) = check_text(&text, &[]);
     assert!(valid, "{stderr}");
     assert!(
         stdout.lines().any(|line| line

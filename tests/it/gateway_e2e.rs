@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use rtu2mqtt::config::Config;
 use rtu2mqtt::sim::{self, SeedPlant};
-use support::{hex, Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use support::hex::{self, writes};
+use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -133,15 +134,6 @@ fn assert_sent(frames: &[Vec<u8>], golden: &str) {
         seen.iter().any(|f| f == golden),
         "frame {golden} not sent; sent: {seen:#?}"
     );
-}
-
-/// Write frames (any function other than the reads 01–04) sent to `address`.
-fn writes(frames: &[Vec<u8>], address: u8) -> Vec<String> {
-    frames
-        .iter()
-        .filter(|f| f.len() > 2 && f[0] == address && !(1..=4).contains(&f[1]))
-        .map(|f| hex::encode(f))
-        .collect()
 }
 
 fn outcome(result: &serde_json::Value) -> &str {

@@ -8,6 +8,8 @@ use std::path::Path;
 use rtu2mqtt::profile::registry::{built_in, load_file};
 use rtu2mqtt::profile::{DeviceState, Profile, Rejection, Value};
 
+use crate::support::command::refused;
+
 fn dust() -> Profile {
     built_in("ruiwan-dust-collector").expect("built-in dust collector")
 }
@@ -25,13 +27,6 @@ fn accepted(profile: &Profile, field: &str, text: &str) -> Value {
             .parse_value(field, text)
             .unwrap_or_else(|Rejection(why)| panic!("{field}={text:?}: {why}")),
         Err(Rejection(why)) => panic!("{field}={text:?} refused: {why}"),
-    }
-}
-
-fn refused(profile: &Profile, field: &str, text: &str) -> String {
-    match profile.plan_command(field, text, &DeviceState::new()) {
-        Err(Rejection(reason)) => reason,
-        Ok(plan) => panic!("{field}={text:?} accepted: {plan:?}"),
     }
 }
 

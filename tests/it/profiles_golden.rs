@@ -9,6 +9,8 @@ use rtu2mqtt::profile::{
 };
 use rtu2mqtt_modbus::{Request, Response};
 
+use crate::support::command::refused;
+
 fn dust() -> Profile {
     built_in("ruiwan-dust-collector").unwrap()
 }
@@ -30,13 +32,6 @@ fn plan(profile: &Profile, field: &str, text: &str) -> CommandPlan {
     profile
         .plan_command(field, text, &DeviceState::new())
         .unwrap_or_else(|r| panic!("{field}={text} rejected: {r}"))
-}
-
-fn rejection(profile: &Profile, field: &str, text: &str) -> String {
-    match profile.plan_command(field, text, &DeviceState::new()) {
-        Err(Rejection(reason)) => reason,
-        Ok(plan) => panic!("{field}={text} accepted: {plan:?}"),
-    }
 }
 
 /// Coils 0..22 of the air shower with the given coils set.
@@ -209,15 +204,15 @@ fn dust_decodes_every_field() {
 fn dust_gear_refusals_name_the_field_and_range() {
     let profile = dust();
     assert_eq!(
-        rejection(&profile, "gear", "11"),
+        refused(&profile, "gear", "11"),
         "gear must be an integer 1–10, got 11"
     );
     assert_eq!(
-        rejection(&profile, "gear", "abc"),
+        refused(&profile, "gear", "abc"),
         "gear must be an integer 1–10, got \"abc\""
     );
     assert_eq!(
-        rejection(&profile, "gear", "8.5"),
+        refused(&profile, "gear", "8.5"),
         "gear must be an integer 1–10, got 8.5"
     );
     for bad in [
@@ -230,15 +225,15 @@ fn dust_gear_refusals_name_the_field_and_range() {
         "1e3",
         "99999999999999999999",
     ] {
-        let reason = rejection(&profile, "gear", bad);
+        let reason = refused(&profile, "gear", bad);
         assert!(
             reason.starts_with("gear must be an integer 1–10"),
             "{reason}"
         );
     }
-    assert!(rejection(&profile, "fan_speed", "5").contains("read-only"));
-    assert!(rejection(&profile, "nonexistent", "5").contains("unknown field"));
-    assert!(rejection(&profile, "power", "maybe").starts_with("power must be ON or OFF"));
+    assert!(refused(&profile, "fan_speed", "5").contains("read-only"));
+    assert!(refused(&profile, "nonexistent", "5").contains("unknown field"));
+    assert!(refused(&profile, "power", "maybe").starts_with("power must be ON or OFF"));
     // Accepted spellings.
     assert_eq!(plan(&profile, "gear", " 8 ").target(), &Value::Int(8));
     assert_eq!(plan(&profile, "gear", "8.0").target(), &Value::Int(8));
@@ -306,12 +301,12 @@ fn valve_setpoint_is_two_fc06_integer_then_fraction() {
 #[test]
 fn valve_setpoint_refusals() {
     let profile = valve();
-    let reason = rejection(&profile, "setpoint", "45.678");
+    let reason = refused(&profile, "setpoint", "45.678");
     assert!(reason.contains("at most 2 decimals"), "{reason}");
-    let reason = rejection(&profile, "setpoint", "10000");
+    let reason = refused(&profile, "setpoint", "10000");
     assert!(reason.contains("0.00–9999.99"), "{reason}");
     for bad in ["-1", "NaN", "inf", "-inf", "abc", ""] {
-        let reason = rejection(&profile, "setpoint", bad);
+        let reason = refused(&profile, "setpoint", bad);
         assert!(reason.starts_with("setpoint must be"), "{bad}: {reason}");
     }
 }
@@ -398,7 +393,7 @@ fn valve_opening_settles_within_a_window() {
         plan.verify(&[status(stopped)]),
         Verification::NotApplied(_)
     ));
-    assert!(rejection(&valve(), "opening", "101").contains("0–100"));
+    assert!(refused(&valve(), "opening", "101").contains("0–100"));
     // Alarm openings: 0–100 %, or 255 to disable the alarm.
     let disable = self::plan(&valve(), "low_alarm_opening_1", "255");
     assert_eq!(
@@ -409,10 +404,10 @@ fn valve_opening_settles_within_a_window() {
         }]
     );
     assert_eq!(
-        rejection(&valve(), "low_alarm_opening_1", "150"),
+        refused(&valve(), "low_alarm_opening_1", "150"),
         "low_alarm_opening_1 must be an integer 0–100 or 255, got 150"
     );
-    assert!(rejection(&valve(), "low_alarm_opening_1", "x").ends_with("or 255, got \"x\""));
+    assert!(refused(&valve(), "low_alarm_opening_1", "x").ends_with("or 255, got \"x\""));
 }
 
 #[test]
@@ -433,7 +428,7 @@ fn valve_mode_keeps_reserved_bits() {
             value: 0x00A5
         }]
     );
-    assert!(rejection(&valve(), "mode", "pid").contains("manual, auto"));
+    assert!(refused(&valve(), "mode", "pid").contains("manual, auto"));
     assert_eq!(
         self::plan(&valve(), "mode", "MANUAL").target(),
         &Value::Enum("manual".into())
@@ -759,7 +754,7 @@ fn shower_voice_buttons_are_momentary() {
         );
         assert_eq!(plan.verify(&[coils(&[])]), Verification::Applied);
     }
-    assert!(rejection(&profile, "voice_start", "OFF").contains("PRESS"));
+    assert!(refused(&profile, "voice_start", "OFF").contains("PRESS"));
 }
 
 #[test]
@@ -810,7 +805,7 @@ fn shower_wind_select_sets_both_coils() {
         plan.writes(&[coils(&[3, 1])]).unwrap(),
         vec![coil_frame(0x02, 0)]
     );
-    assert!(rejection(&profile, "wind", "hurricane").contains("off, strong, breeze"));
+    assert!(refused(&profile, "wind", "hurricane").contains("off, strong, breeze"));
     // Both coils on is not a wind mode: an error, not a guess.
     let readings = profile.decode_block(0, &coils(&[3, 4]));
     let wind = readings.iter().find(|r| r.field == "wind").unwrap();
@@ -901,8 +896,8 @@ fn th_sensor_settings_are_written_without_code() {
             value: (-15i16) as u16
         }]
     );
-    assert!(rejection(&profile, "temperature_offset", "10.5").contains("-10.0–10.0"));
-    assert!(rejection(&profile, "temperature", "20").contains("read-only"));
+    assert!(refused(&profile, "temperature_offset", "10.5").contains("-10.0–10.0"));
+    assert!(refused(&profile, "temperature", "20").contains("read-only"));
     // A scaled word: one raw count is 5 s.
     let plan = self::plan(&profile, "report_interval", "60");
     assert_eq!(
@@ -912,7 +907,7 @@ fn th_sensor_settings_are_written_without_code() {
             value: 12
         }]
     );
-    assert!(rejection(&profile, "report_interval", "62").contains("multiple of the step 5"));
+    assert!(refused(&profile, "report_interval", "62").contains("multiple of the step 5"));
     // The step the command checks is the step the field declares (Home Assistant's `step`).
     let step_of = |name: &str| {
         profile
@@ -930,7 +925,7 @@ fn th_sensor_settings_are_written_without_code() {
         })
     );
     assert_eq!(step_of("alarm_enabled"), None);
-    assert!(rejection(&profile, "report_interval", "0").contains("5–3600"));
+    assert!(refused(&profile, "report_interval", "0").contains("5–3600"));
     let settings = Response::HoldingRegisters(vec![0xFFF6, 0x8001, 12]);
     let texts: Vec<String> = profile
         .decode_block(1, &settings)

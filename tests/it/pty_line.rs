@@ -293,6 +293,42 @@ fn start_on_new_line(
     (line, running)
 }
 
+/// A lone valve at address 1, polled every second on a new 9600 8E1 line, once its first
+/// values are in.
+async fn valve_with_values(name: &str, valve: SharedDevice) -> (VirtualLine, Running) {
+    let (line, mut running) = start_on_new_line(
+        name,
+        Parity::Even,
+        vec![valve],
+        vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
+    );
+    running
+        .wait_for_values("valve", Duration::from_secs(15))
+        .await;
+    (line, running)
+}
+
+/// The dust collector at address 1 and `others` on line-a (9600 8N1), all polled every second,
+/// once the dust collector's first values are in.
+async fn dust_collector_with_values(
+    dust: SharedDevice,
+    others: Vec<DeviceSpec>,
+) -> (VirtualLine, Running) {
+    let devices = std::iter::once(device(
+        "dust_collector",
+        built_in("ruiwan-dust-collector"),
+        1,
+        1000,
+    ))
+    .chain(others)
+    .collect();
+    let (line, mut running) = start_on_new_line("line-a", Parity::None, vec![dust], devices);
+    running
+        .wait_for_values("dust_collector", Duration::from_secs(15))
+        .await;
+    (line, running)
+}
+
 fn has_all_fields(running: &Running, device: &str, profile: &Profile) -> bool {
     running
         .latest
@@ -707,20 +743,7 @@ async fn read_modify_write_keeps_the_dust_collectors_internal_bits() {
     sim::lock(&dust).set_internal_bits(0x2040);
     sim::lock(&dust).set_alarms(0x0002);
     let internal_and_alarms = sim::lock(&dust).status_word() & !0x0300;
-    let (_line, mut running) = start_on_new_line(
-        "line-a",
-        Parity::None,
-        vec![dust_shared],
-        vec![device(
-            "dust_collector",
-            built_in("ruiwan-dust-collector"),
-            1,
-            1000,
-        )],
-    );
-    running
-        .wait_for_values("dust_collector", Duration::from_secs(15))
-        .await;
+    let (_line, mut running) = dust_collector_with_values(dust_shared, vec![]).await;
     let outcome = running.command("dust_collector", "power", "ON").await;
     assert!(
         matches!(outcome, CommandOutcome::Applied { .. }),
@@ -802,15 +825,7 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
 async fn a_valve_opening_command_settles_before_it_is_applied() {
     let (valve, valve_shared) = share(Valve::new(1));
     sim::lock(&valve).set_speed(20.0);
-    let (_line, mut running) = start_on_new_line(
-        "line-b",
-        Parity::Even,
-        vec![valve_shared],
-        vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
-    );
-    running
-        .wait_for_values("valve", Duration::from_secs(15))
-        .await;
+    let (_line, mut running) = valve_with_values("line-b", valve_shared).await;
     let started = Instant::now();
     let outcome = running.command("valve", "opening", "60").await;
     assert!(
@@ -827,15 +842,7 @@ async fn a_valve_opening_command_settles_before_it_is_applied() {
 async fn a_jammed_valve_is_not_applied_as_soon_as_its_motor_reports_stopped() {
     let (valve, valve_shared) = share(Valve::new(1));
     sim::lock(&valve).set_jammed(true);
-    let (_line, mut running) = start_on_new_line(
-        "line-jam",
-        Parity::Even,
-        vec![valve_shared],
-        vec![device("valve", built_in("wuzhou-valve"), 1, 1000)],
-    );
-    running
-        .wait_for_values("valve", Duration::from_secs(15))
-        .await;
+    let (_line, mut running) = valve_with_values("line-jam", valve_shared).await;
     let reached = sim::lock(&valve).opening();
     let started = Instant::now();
     let outcome = running.command("valve", "opening", "90").await;
@@ -956,19 +963,13 @@ async fn statistics_heartbeat_keeps_coming_while_idle() {
 async fn a_broadcast_command_is_sent_without_waiting_for_an_answer_and_keeps_the_turnaround() {
     let (dust, dust_shared) = share(DustCollector::new(1));
     sim::lock(&dust).set_power(true);
-    let profile = built_in("ruiwan-dust-collector");
-    let (line, mut running) = start_on_new_line(
-        "line-a",
-        Parity::None,
-        vec![dust_shared],
-        vec![
-            device("dust_collector", profile.clone(), 1, 1000),
-            device("every_dust_collector", profile, 0, 1000),
-        ],
+    let broadcast = device(
+        "every_dust_collector",
+        built_in("ruiwan-dust-collector"),
+        0,
+        1000,
     );
-    running
-        .wait_for_values("dust_collector", Duration::from_secs(15))
-        .await;
+    let (line, mut running) = dust_collector_with_values(dust_shared, vec![broadcast]).await;
     let before = line.journal().request_count();
     let wanted = if sim::lock(&dust).gear() == 7 {
         "8"

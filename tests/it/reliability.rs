@@ -97,6 +97,23 @@ impl Bench {
         bench
     }
 
+    /// A bench with `faults` on the dust collector's answers (line A), set once the still
+    /// fields' truth and line A's statistics from before them are taken (both returned with
+    /// the bench).
+    async fn with_dust_collector_fault(
+        name: &str,
+        faults: Faults,
+    ) -> (Bench, BTreeMap<String, String>, LineStats) {
+        let mut bench = Bench::start(name, "").await;
+        let truth = bench.still_truth().await;
+        let before = bench.line_stats(0);
+        bench.plant.line_a.faults().set(Faults {
+            target: Some(DUST),
+            ..faults
+        });
+        (bench, truth, before)
+    }
+
     async fn start_gateway(&mut self) {
         let text = PlantConfig {
             gateway: &self.gateway_keys,
@@ -436,15 +453,15 @@ async fn f3_f4_f5_broken_answers_never_publish_a_wrong_value() {
 /// and no wrong value reaches the broker.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f6_a_rogue_answer_from_another_address_is_never_stored() {
-    let mut bench = Bench::start("rel-f6", "").await;
-    let truth = bench.still_truth().await;
-    let before = bench.line_stats(0);
-    bench.plant.line_a.faults().set(Faults {
-        target: Some(DUST),
-        wrong_address: Occurrence::probability(0.5),
-        wrong_address_value: SHOWER,
-        ..Faults::default()
-    });
+    let (mut bench, truth, before) = Bench::with_dust_collector_fault(
+        "rel-f6",
+        Faults {
+            wrong_address: Occurrence::probability(0.5),
+            wrong_address_value: SHOWER,
+            ..Faults::default()
+        },
+    )
+    .await;
     tokio::time::sleep(Duration::from_secs(8)).await;
     bench.plant.line_a.faults().clear();
     bench.observer.settle(Duration::from_millis(500)).await;
@@ -475,14 +492,14 @@ async fn f6_a_rogue_answer_from_another_address_is_never_stored() {
 /// keeps its values right; on time again, the device is back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f2_a_late_answer_is_never_taken_for_the_next_one() {
-    let mut bench = Bench::start("rel-f2", "").await;
-    let truth = bench.still_truth().await;
-    let before = bench.line_stats(0);
-    bench.plant.line_a.faults().set(Faults {
-        target: Some(DUST),
-        delay: Duration::from_millis(150).mul_f64(1.3),
-        ..Faults::default()
-    });
+    let (mut bench, truth, before) = Bench::with_dust_collector_fault(
+        "rel-f2",
+        Faults {
+            delay: Duration::from_millis(150).mul_f64(1.3),
+            ..Faults::default()
+        },
+    )
+    .await;
     let offline = bench
         .time_until_availability("dust_collector", "offline")
         .await;

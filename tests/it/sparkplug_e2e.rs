@@ -24,7 +24,8 @@ use rtu2mqtt::sparkplug::metrics::datatype_for;
 use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
 use serde_json::{json, Value as Json};
 use support::child::{self, KillOnDrop};
-use support::{hex, Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use support::hex::writes;
+use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(20);
@@ -68,15 +69,6 @@ fn fast(text: &str) -> Config {
         }
     }
     config
-}
-
-/// Write frames (any function other than the reads 01–04) sent to `address`.
-fn writes(frames: &[Vec<u8>], address: u8) -> Vec<String> {
-    frames
-        .iter()
-        .filter(|f| f.len() > 2 && f[0] == address && !(1..=4).contains(&f[1]))
-        .map(|f| hex::encode(f))
-        .collect()
 }
 
 // ----- the Sparkplug side -----

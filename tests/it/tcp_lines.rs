@@ -11,7 +11,6 @@ use crate::support::child;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use rtu2mqtt::config::{self, Config};
 use rtu2mqtt::sim::{
     self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
     TcpSimulator, Valve, VirtualLine,
@@ -103,7 +102,7 @@ impl Plant {
             gateway: None,
             stats_topic: format!("plant/gateway/{name}-gw/stats"),
         };
-        let config = fast(&plant.config_text(&format!("{name}-gw")));
+        let config = support::fast_config(&plant.config_text(&format!("{name}-gw")));
         plant.gateway = Some(Gateway::start(config).await);
         for device in [
             "dust_collector",
@@ -273,17 +272,6 @@ address = 0x81
     }
 }
 
-/// Validated as a user's file would be, then polled faster than the profiles' minimums.
-fn fast(text: &str) -> Config {
-    let mut config = config::from_str(text, std::path::Path::new(".")).unwrap();
-    for line in &mut config.lines {
-        for device in &mut line.devices {
-            device.poll_interval = Duration::from_millis(300);
-        }
-    }
-    config
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_field_is_published_and_commands_apply_on_every_transport() {
     let mut plant = Plant::start("mixed").await;
@@ -291,7 +279,7 @@ async fn every_field_is_published_and_commands_apply_on_every_transport() {
         .wait_text("plant/dust_gw/gear", &GW_GEAR.to_string())
         .await;
     plant.auditor.settle(Duration::from_secs(2)).await;
-    let config = fast(&plant.config_text("x"));
+    let config = support::fast_config(&plant.config_text("x"));
     for line in &config.lines {
         for device in &line.devices {
             for field in device.profile.fields() {
@@ -523,7 +511,7 @@ address = 1
 "#,
         broker = broker.url()
     );
-    let gateway = Gateway::start(fast(&text)).await;
+    let gateway = Gateway::start(support::fast_config(&text)).await;
     for (field, value) in [
         ("power", "ON"),
         ("gear", "7"),

@@ -98,6 +98,15 @@ mod tests {
     use crate::app::demo::endpoint::{Placement, SHARED_BROKER_PREFIX};
     use crate::app::demo::plant::{demo_config, DEMO_CLIENT_ID};
 
+    /// A broker on this host at `port`, chosen the way `origin` says.
+    fn local_endpoint(port: u16, origin: &'static str) -> BrokerEndpoint {
+        BrokerEndpoint {
+            host: "127.0.0.1".to_string(),
+            port,
+            origin,
+        }
+    }
+
     /// The demo's configuration with the simulated lines at two made-up pty paths.
     fn seed_config(endpoint: &BrokerEndpoint, placement: Placement) -> Config {
         let (line_a, line_b) = (Path::new("/dev/pts/98"), Path::new("/dev/pts/99"));
@@ -106,11 +115,7 @@ mod tests {
 
     #[test]
     fn the_example_configuration_is_the_seed_plant() {
-        let endpoint = BrokerEndpoint {
-            host: "127.0.0.1".to_string(),
-            port: 18830,
-            origin: "test",
-        };
+        let endpoint = local_endpoint(18830, "test");
         let config = seed_config(
             &endpoint,
             Placement {
@@ -141,11 +146,7 @@ mod tests {
 
     #[test]
     fn a_moved_demo_publishes_under_its_own_prefix_without_discovery() {
-        let endpoint = BrokerEndpoint {
-            host: "127.0.0.1".to_string(),
-            port: 1883,
-            origin: "--broker",
-        };
+        let endpoint = local_endpoint(1883, "--broker");
         let config = seed_config(
             &endpoint,
             Placement {

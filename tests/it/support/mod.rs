@@ -1,12 +1,13 @@
 //! Test support shared by every integration test: a real mosquitto on a free loopback port
 //! (temporary config, killed on drop, restartable on the same port), a small rumqttc client
 //! that records what it receives, and the gateway over the simulated seed plant (its
-//! configuration, started and stopped by a test); child processes, frames as hex text and the
-//! pysparkplug peer in their own modules.
+//! configuration, started and stopped by a test); child processes, command refusals, frames as
+//! hex text and the pysparkplug peer in their own modules.
 
 #![allow(dead_code)]
 
 pub mod child;
+pub mod command;
 pub mod hex;
 pub mod pysparkplug;
 
