@@ -619,9 +619,15 @@ impl Line {
 
     async fn run_command(&mut self, device: usize, pending: Pending) {
         let attempts = self.attempts();
-        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
-            (self.devices.get_mut(device), self.master.as_mut())
-        else {
+        let Some(link) = slot_link(
+            &mut self.devices,
+            self.master.as_mut(),
+            &self.spec.name,
+            self.timeout,
+            &self.turnaround,
+            device,
+            attempts,
+        ) else {
             let finished = Finished {
                 id: pending.command.id,
                 arrived: pending.arrived,
@@ -632,12 +638,6 @@ impl Line {
             self.reply(device, finished).await;
             return;
         };
-        let link = SlotLink {
-            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
-            master,
-            stats,
-            attempts,
-        };
         let report = self.commands.run(link, device, pending).await;
         self.carry_out(report).await;
     }
@@ -645,20 +645,20 @@ impl Line {
     async fn run_settle(&mut self, settle: Settle) {
         let attempts = self.attempts();
         let device = settle.device();
-        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
-            (self.devices.get_mut(device), self.master.as_mut())
-        else {
+        let Some(link) = slot_link(
+            &mut self.devices,
+            self.master.as_mut(),
+            &self.spec.name,
+            self.timeout,
+            &self.turnaround,
+            device,
+            attempts,
+        ) else {
             let finished = settle.finish(CommandOutcome::Failed {
                 cause: CommandFailure::PortNotOpen,
             });
             self.reply(device, finished).await;
             return;
-        };
-        let link = SlotLink {
-            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
-            master,
-            stats,
-            attempts,
         };
         let report = self.commands.reread(link, settle).await;
         self.carry_out(report).await;
@@ -999,6 +999,26 @@ fn echo(write: &Request) -> Option<Response> {
             quantity: u16::try_from(values.len()).ok()?,
         },
         _ => return None,
+    })
+}
+
+/// What a command slot or a settle re-read of `device` talks through; `None` while the port is
+/// closed (or the device is unknown).
+fn slot_link<'a>(
+    devices: &'a mut [DeviceRuntime],
+    master: Option<&'a mut Link>,
+    line: &'a str,
+    timeout: Duration,
+    turnaround: &'a Turnaround,
+    device: usize,
+    attempts: u32,
+) -> Option<SlotLink<'a>> {
+    let DeviceRuntime { spec, stats, .. } = devices.get_mut(device)?;
+    Some(SlotLink {
+        exchange: Exchange::for_device(line, spec, timeout, turnaround),
+        master: master?,
+        stats,
+        attempts,
     })
 }
 
