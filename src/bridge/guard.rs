@@ -57,6 +57,11 @@ impl TopicGuard {
         if let Some(queue) = self.in_flight.get_mut(topic) {
             if let Some(position) = queue.iter().position(|sent| sent == payload) {
                 queue.drain(..=position);
+                // Nothing left to await on this topic: keeping its entry would hold a topic
+                // string and a queue for every topic the gateway ever published on.
+                if queue.is_empty() {
+                    self.in_flight.remove(topic);
+                }
                 return Verdict::Fine;
             }
         }

@@ -238,19 +238,24 @@ impl Publisher {
         if !self.discovery {
             return;
         }
-        let mut documents = vec![discovery::gateway_config(&self.topics, &self.line_names)];
+        // Each document is serialized as soon as it is built: a JSON tree is several times
+        // the size of its text, and a gateway with hundreds of devices would otherwise hold
+        // all of their trees at once.
+        let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
+        let mut payloads = vec![(topic, document.to_string())];
         for device in self.cache.devices() {
             if let Some(entry) = self.devices.get(device) {
-                documents.push(discovery::device_config_with_state(
+                let (topic, document) = discovery::device_config_with_state(
                     &self.topics,
                     device,
                     &entry.profile,
                     self.cache.state(device),
-                ));
+                );
+                payloads.push((topic, document.to_string()));
             }
         }
-        for (topic, document) in documents {
-            self.publish(topic, document.to_string(), true);
+        for (topic, payload) in payloads {
+            self.publish(topic, payload, true);
         }
     }
 
