@@ -154,6 +154,24 @@ fn mean(latencies: &[Duration]) -> Duration {
     latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
 }
 
+/// The answers the device gave on `line` to reads of six registers starting with `request`,
+/// as a client's read result (`{"registers": [...]}`), in the order they were given.
+fn six_register_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
+    line.journal()
+        .requests()
+        .iter()
+        .filter(|r| r.frame.starts_with(request))
+        .filter_map(|r| r.answer.as_ref())
+        .map(|answer| {
+            let words: Vec<u16> = answer[3..15]
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            json!({ "registers": words })
+        })
+        .collect()
+}
+
 fn exception(code: u8) -> Json {
     json!({ "exception": code })
 }
@@ -171,22 +189,8 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
             ["read", DUST, 0x1001, 1]
         ]))
         .await;
-    let answered: Vec<Json> = h
-        .plant
-        .line_a
-        .journal()
-        .requests()
-        .iter()
-        .filter(|r| r.frame.starts_with(&[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]))
-        .filter_map(|r| r.answer.as_ref())
-        .map(|answer| {
-            let words: Vec<u16> = answer[3..15]
-                .chunks(2)
-                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-                .collect();
-            json!({ "registers": words })
-        })
-        .collect();
+    let answered: Vec<Json> =
+        six_register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
     assert!(
         answered.contains(&answers[0]),
         "{answers:?} not in {answered:?}"
@@ -380,22 +384,7 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     let answers = h.client(reads).await;
     let polls_meanwhile = on_line(&h) - before;
     // Every answer is one the device itself gave a poll, word for word.
-    let polled: Vec<Json> = h
-        .plant
-        .line_a
-        .journal()
-        .requests()
-        .iter()
-        .filter(|r| r.frame.starts_with(&block))
-        .filter_map(|r| r.answer.as_ref())
-        .map(|answer| {
-            let words: Vec<u16> = answer[3..15]
-                .chunks(2)
-                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-                .collect();
-            json!({ "registers": words })
-        })
-        .collect();
+    let polled: Vec<Json> = six_register_answers(&h.plant.line_a, &block);
     for answer in &answers {
         assert!(polled.contains(answer), "{answer} was never polled");
     }
