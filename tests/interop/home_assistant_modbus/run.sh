@@ -250,9 +250,9 @@ if [[ $result == *'"applied"'* ]]; then pass "outcome applied on …/gear/result
 say "(c) Home Assistant writes gear 11 (the profile's range is 1–10)"
 writes_before=$(line_writes)
 write_gear 11
-exception_logged() { grep -q 'address: 4098 -> Exception Response(134, 6, IllegalValue)' "$work/home-assistant.out"; }
+exception_logged() { grep -q 'address: 4098 -> Exception Response(134, 6, IllegalValue)' "$config/home-assistant.log"; }
 if wait_for 10 exception_logged; then
-    pass "Home Assistant logs: $(grep -o 'Pymodbus: line_a: Error: device: 1 address: 4098 -> Exception.*' "$work/home-assistant.out" | tail -1)"
+    pass "Home Assistant logs: $(grep -o 'Pymodbus: line_a: Error: device: 1 address: 4098 -> Exception.*' "$config/home-assistant.log" | tail -1)"
 else
     fail "Home Assistant logged no exception 03 for gear 11"
 fi
