@@ -75,8 +75,9 @@ fi
 py=$HA_VENV/bin/python
 # The pymodbus release that Home Assistant's modbus integration pins, from its manifest.
 modbus_requirements=$("$py" -c '
-import json, pathlib, homeassistant.components.modbus as m
-print(" ".join(json.loads((pathlib.Path(m.__file__).parent / "manifest.json").read_text())["requirements"]))')
+import json, pathlib, homeassistant
+manifest = pathlib.Path(homeassistant.__file__).parent / "components/modbus/manifest.json"
+print(" ".join(json.loads(manifest.read_text())["requirements"]))')
 "$HA_VENV/bin/pip" install --quiet $modbus_requirements
 ha_version=$("$py" -c 'from homeassistant.const import __version__; print(__version__)')
 pymodbus_version=$("$py" -c 'import pymodbus; print(pymodbus.__version__)')
