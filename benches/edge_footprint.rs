@@ -5,18 +5,20 @@
 //! and by what /proc says about its CPU time and memory.
 //!
 //! 1. One line, one device, one 6-register block polled continuously (`poll_interval = "0s"`),
-//!    40 commands during a 30 s window, twice: answers released byte by byte at the character
-//!    rate (a UART without a deep FIFO), then in USB-adapter chunks (what is on the wire every
-//!    4 ms). For each: transactions/s, bus efficiency, the idle gap before each request
-//!    against t3.5, early requests (sooner than t3.5; must be 0), CPU of the gateway and of the
-//!    simulator (this process) and their ratio, anonymous memory and PSS, and for each command
-//!    the time from its publish to the write frame at the device and to its `…/result` at a
-//!    subscriber, each beside its physical bound (below).
+//!    40 commands during a 30 s window, five times: answers released byte by byte at the
+//!    character rate (a UART without a deep FIFO), the same with a 5 ms and with a 16 ms pause
+//!    inside every answer, then in USB-adapter chunks (what is on the wire every 4 ms, then
+//!    every 16 ms). For each: transactions/s, bus efficiency, the idle gap before each request
+//!    against t3.5, early requests (sooner than t3.5; must be 0), requests onto an answer
+//!    (must be 0), CPU of the gateway and of the simulator (this process) and their ratio,
+//!    anonymous memory and PSS, and for each command the time from its publish to the write
+//!    frame at the device and to its `…/result` at a subscriber, each beside its physical bound (below), and where a result's time beyond
+//!    its bound goes (the silence before the read-back; the read-back's answer to the result).
 //! 2. 8 lines × 32 such devices, byte-paced, every device polled continuously: the same
 //!    footprint figures.
 //!
-//! bus efficiency = (wire time of every request and answer + the two mandatory t3.5 silences
-//!                   of each transaction) / wall time
+//! bus efficiency = (wire time of every request and answer, pauses inside answers included,
+//!                   + the two mandatory t3.5 silences of each transaction) / wall time
 //!
 //! The bounds, from frame lengths and the baud rate alone: a command published while a poll is
 //! on the wire can reach the wire no sooner than that transaction's end plus t3.5; its result
@@ -27,9 +29,11 @@
 //! /proc/<pid>/status, Private_Dirty from /proc/<pid>/smaps_rollup) and PSS (the shared pages
 //! divided among their users), not VmRSS, whose clean file pages the kernel drops by itself.
 //!
-//! Prints figures beside their targets; asserts nothing. Run: `cargo bench --bench
-//! edge_footprint` (about two minutes after the build); another build of the gateway is
-//! measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
+//! Every run is repeated (three rounds, or `EDGE_FOOTPRINT_ROUNDS`) and each figure printed as
+//! its median over the rounds with the range beside it, so that one disturbed run shows as
+//! such. Prints figures beside their targets; asserts nothing. Run: `cargo bench --bench
+//! edge_footprint` (about eleven minutes after the build for three rounds); another build of the
+//! gateway is measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
 
 #[path = "../tests/it/support/mod.rs"]
 mod support;
@@ -52,16 +56,38 @@ const COMMANDS: u32 = 40;
 const MANY_LINES: usize = 8;
 const DEVICES_PER_LINE: u8 = 32;
 const MANY_WINDOW: Duration = Duration::from_secs(15);
-/// The one-line runs: how the simulator releases answers, and what that stands for.
-const PACES: [(Pace, &str); 2] = [
-    (Pace::Bytes, "byte by byte at the character rate"),
+/// The one-line runs: how the simulator releases answers, a pause inside every answer (a
+/// device that stalls mid-frame), and what that stands for.
+const RUNS: [(Pace, Option<Duration>, &str); 5] = [
+    (Pace::Bytes, None, "byte by byte at the character rate"),
+    (
+        Pace::Bytes,
+        Some(Duration::from_millis(5)),
+        "byte by byte, with a 5 ms pause inside every answer",
+    ),
+    (
+        Pace::Bytes,
+        Some(Duration::from_millis(16)),
+        "byte by byte, with a 16 ms pause inside every answer",
+    ),
     (
         Pace::Usb {
             every: Duration::from_millis(4),
         },
+        None,
         "in USB-adapter chunks, one every 4 ms",
     ),
+    (
+        Pace::Usb {
+            every: Duration::from_millis(16),
+        },
+        None,
+        "in USB-adapter chunks, one every 16 ms",
+    ),
 ];
+/// Rounds of every run; figures are printed as the median and the range over the rounds.
+/// `EDGE_FOOTPRINT_ROUNDS` sets another number.
+const DEFAULT_ROUNDS: usize = 3;
 /// Frame lengths of the bench's command slot: the FC06 write and its echo, the read-back of
 /// the 6-register block and its answer.
 const WRITE_LEN: usize = 8;
@@ -137,19 +163,35 @@ fn main() -> anyhow::Result<()> {
     std::fs::write(&profile_path, &profile_text)?;
     let profile = Profile::from_toml(&profile_text, "edge-block")
         .map_err(|e| anyhow::anyhow!("bench profile: {e:?}"))?;
-    let mut runs = Vec::new();
-    for (index, (pace, label)) in PACES.into_iter().enumerate() {
-        let run = runtime.block_on(one_line(
+    let rounds = std::env::var("EDGE_FOOTPRINT_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .filter(|n| *n > 0)
+        .unwrap_or(DEFAULT_ROUNDS);
+    let mut runs: Vec<Vec<OneLine>> = RUNS.iter().map(|_| Vec::new()).collect();
+    let mut many = Vec::new();
+    for round in 0..rounds {
+        eprintln!("round {} of {rounds}", round + 1);
+        for (index, (pace, pause, _)) in RUNS.into_iter().enumerate() {
+            let run = runtime.block_on(one_line(
+                &broker,
+                dir.path(),
+                &profile_path,
+                &profile,
+                pace,
+                pause,
+                round * RUNS.len() + index,
+            ))?;
+            runs[index].push(run);
+        }
+        many.push(runtime.block_on(many_lines(
             &broker,
             dir.path(),
             &profile_path,
             &profile,
-            pace,
-            index,
-        ))?;
-        runs.push((label, run));
+            round,
+        ))?);
     }
-    let many = runtime.block_on(many_lines(&broker, dir.path(), &profile_path, &profile))?;
     report(&runs, &many);
     Ok(())
 }
@@ -174,12 +216,26 @@ struct Wire {
     gap_p50: Duration,
     gap_p95: Duration,
     early: usize,
+    /// Requests that reached the device while its answer was still going out.
+    onto_answer: usize,
     /// Publish → the write frame at the device, and its bound, per command seen.
     to_wire: Vec<Duration>,
     to_wire_bound: Vec<Duration>,
     /// Publish → `…/result` at the subscriber, and its bound, per result seen.
     to_result: Vec<Duration>,
     to_result_bound: Vec<Duration>,
+    /// Per result seen: how much later than its own bound it came.
+    result_over_bound: Vec<Duration>,
+    /// Per result seen: how much later than the bound as the answers were delivered, i.e.
+    /// with each answer ending when its last byte reached the gateway's port rather than when
+    /// it was on the wire (a USB adapter hands bytes over only at its next chunk): the
+    /// gateway's own share of the latency.
+    result_over_delivered: Vec<Duration>,
+    /// Where a result's time goes beyond the wire's: the write's echo end → the read-back
+    /// request at the device (t3.5 at best), and the read-back's answer end → the result at
+    /// the subscriber (nothing at best).
+    echo_to_read_back: Vec<Duration>,
+    read_back_to_result: Vec<Duration>,
 }
 
 /// A subscriber that notes when each message on its topic arrived.
@@ -244,9 +300,11 @@ async fn one_line(
     profile_path: &Path,
     profile: &Profile,
     pace: Pace,
+    pause: Option<Duration>,
     run: usize,
 ) -> anyhow::Result<OneLine> {
     let line = spawn_line(profile, 1, pace)?;
+    line.faults().update(|f| f.pause_mid_answer = pause);
     let config = config_file(
         dir,
         &format!("one-{run}"),
@@ -273,7 +331,7 @@ async fn one_line(
     let mut published = Vec::new();
     let every = WINDOW / COMMANDS;
     for i in 0..COMMANDS {
-        let value = 1000 + 100 * run as u16 + i as u16;
+        let value = 1000 + 100 * (run % 500) as u16 + i as u16;
         tokio::time::sleep_until((start + every * i + every / 2).into()).await;
         published.push((value, Instant::now()));
         client
@@ -309,7 +367,7 @@ async fn one_line(
             memory,
         },
         simulator_cpu_percent: 100.0 * simulator_cpu.as_secs_f64() / wall.as_secs_f64(),
-        wire: wire_figures(&records, wall, &published, &arrivals),
+        wire: wire_figures(&records, wall, pause, &published, &arrivals),
     })
 }
 
@@ -318,12 +376,20 @@ async fn many_lines(
     dir: &Path,
     profile_path: &Path,
     profile: &Profile,
+    round: usize,
 ) -> anyhow::Result<Footprint> {
     let lines = (0..MANY_LINES)
         .map(|_| spawn_line(profile, DEVICES_PER_LINE, Pace::Bytes))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let refs: Vec<&VirtualLine> = lines.iter().collect();
-    let config = config_file(dir, "many", broker, profile_path, &refs, DEVICES_PER_LINE)?;
+    let config = config_file(
+        dir,
+        &format!("many-{round}"),
+        broker,
+        profile_path,
+        &refs,
+        DEVICES_PER_LINE,
+    )?;
     let mut gateway = Gateway::start(&config)?;
     tokio::time::sleep(WARM_UP).await;
     let counted = |lines: &[VirtualLine]| -> usize {
@@ -502,6 +568,7 @@ impl Drop for Gateway {
 fn wire_figures(
     records: &[RequestRecord],
     wall: Duration,
+    pause: Option<Duration>,
     published: &[(u16, Instant)],
     results: &[Instant],
 ) -> Wire {
@@ -509,9 +576,12 @@ fn wire_figures(
     let busy: Duration = records
         .iter()
         .map(|r| {
-            timing.frame_time(r.frame.len())
-                + timing.frame_time(r.answer.as_ref().map_or(0, Vec::len))
-                + 2 * timing.t3_5
+            let answer = r.answer.as_ref().map_or(0, Vec::len);
+            // A pause inside an answer keeps the line as busy as the answer's bytes do; the
+            // simulator pauses after every half of the answer that has more bytes after it.
+            let pauses = answer.saturating_sub(1) / (answer / 2).max(1);
+            let paused = pause.unwrap_or_default() * pauses as u32;
+            timing.frame_time(r.frame.len()) + timing.frame_time(answer) + paused + 2 * timing.t3_5
         })
         .sum();
     let mut gaps: Vec<Duration> = records.iter().filter_map(|r| r.silence_before).collect();
@@ -524,58 +594,101 @@ fn wire_figures(
         + timing.frame_time(READ_REQUEST_LEN)
         + timing.t3_5
         + timing.frame_time(READ_ANSWER_LEN);
-    let (mut to_wire, mut to_wire_bound) = (Vec::new(), Vec::new());
-    let (mut to_result, mut to_result_bound) = (Vec::new(), Vec::new());
-    for (index, (value, at)) in published.iter().enumerate() {
-        // The transaction on the wire when the command was published: the line is free for
-        // the write t3.5 after its last byte.
-        let free_at = records
-            .iter()
-            .rev()
-            .find(|r| r.arrived <= *at)
-            .map(|r| {
-                let end = r.answer_timing.as_ref().map_or_else(
-                    || r.arrived + timing.frame_time(r.frame.len()),
-                    |answer| answer.due,
-                );
-                end + timing.t3_5
-            })
-            .map_or(*at, |free| free.max(*at));
-        let bound = free_at - *at;
-        if let Some(write) = records.iter().find(|r| {
-            r.frame.get(1) == Some(&0x06) && r.frame.get(4..6) == Some(&value.to_be_bytes()[..])
-        }) {
-            to_wire.push(write.arrived.saturating_duration_since(*at));
-            to_wire_bound.push(bound);
-        }
-        // Commands are far apart: the first result after a publish, before the next, is its.
-        let next = published.get(index + 1).map(|(_, next)| *next);
-        if let Some(result) = results
-            .iter()
-            .find(|&&r| r >= *at && next.map_or(true, |next| r < next))
-        {
-            to_result.push(result.saturating_duration_since(*at));
-            to_result_bound.push(bound + slot);
-        }
-    }
-    for list in [
-        &mut to_wire,
-        &mut to_wire_bound,
-        &mut to_result,
-        &mut to_result_bound,
-    ] {
-        list.sort();
-    }
-    Wire {
+    let mut wire = Wire {
         efficiency: busy.as_secs_f64() / wall.as_secs_f64(),
         gap_p50: percentile(&gaps, 50),
         gap_p95: percentile(&gaps, 95),
         early,
-        to_wire,
-        to_wire_bound,
-        to_result,
-        to_result_bound,
+        // Only the simulator's first request ever has no silence before it; the window starts
+        // well after it.
+        onto_answer: records
+            .iter()
+            .filter(|r| r.silence_before.is_none())
+            .count(),
+        to_wire: Vec::new(),
+        to_wire_bound: Vec::new(),
+        to_result: Vec::new(),
+        to_result_bound: Vec::new(),
+        result_over_bound: Vec::new(),
+        result_over_delivered: Vec::new(),
+        echo_to_read_back: Vec::new(),
+        read_back_to_result: Vec::new(),
+    };
+    for (index, (value, at)) in published.iter().enumerate() {
+        // The transaction on the wire when the command was published: the line is free for
+        // the write t3.5 after its last byte (on the wire, or as delivered to the gateway).
+        let in_flight = records.iter().rev().find(|r| r.arrived <= *at);
+        let free_after = |delivered: bool| {
+            in_flight
+                .map(|r| {
+                    let end = r.answer_timing.as_ref().map_or_else(
+                        || r.arrived + timing.frame_time(r.frame.len()),
+                        |answer| {
+                            if delivered {
+                                answer.handed_over
+                            } else {
+                                answer.due
+                            }
+                        },
+                    );
+                    end + timing.t3_5
+                })
+                .map_or(*at, |free| free.max(*at))
+        };
+        let bound = free_after(false) - *at;
+        let write = records.iter().position(|r| {
+            r.frame.get(1) == Some(&0x06) && r.frame.get(4..6) == Some(&value.to_be_bytes()[..])
+        });
+        if let Some(write) = write.and_then(|w| records.get(w)) {
+            wire.to_wire
+                .push(write.arrived.saturating_duration_since(*at));
+            wire.to_wire_bound.push(bound);
+        }
+        // Commands are far apart: the first result after a publish, before the next, is its.
+        let next = published.get(index + 1).map(|(_, next)| *next);
+        let Some(result) = results
+            .iter()
+            .find(|&&r| r >= *at && next.map_or(true, |next| r < next))
+        else {
+            continue;
+        };
+        let taken = result.saturating_duration_since(*at);
+        wire.to_result.push(taken);
+        wire.to_result_bound.push(bound + slot);
+        wire.result_over_bound
+            .push(taken.saturating_sub(bound + slot));
+        // The read-back is the request right after the write.
+        let pair = write.and_then(|w| Some((records.get(w)?, records.get(w + 1)?)));
+        if let Some((write, read_back)) = pair {
+            if let (Some(echo), Some(answer)) = (&write.answer_timing, &read_back.answer_timing) {
+                wire.echo_to_read_back
+                    .push(read_back.arrived.saturating_duration_since(echo.due));
+                wire.read_back_to_result
+                    .push(result.saturating_duration_since(answer.due));
+                let delivered = free_after(true).saturating_duration_since(*at)
+                    + echo.handed_over.saturating_duration_since(write.arrived)
+                    + timing.t3_5
+                    + answer
+                        .handed_over
+                        .saturating_duration_since(read_back.arrived);
+                wire.result_over_delivered
+                    .push(taken.saturating_sub(delivered));
+            }
+        }
     }
+    for list in [
+        &mut wire.to_wire,
+        &mut wire.to_wire_bound,
+        &mut wire.to_result,
+        &mut wire.to_result_bound,
+        &mut wire.result_over_bound,
+        &mut wire.result_over_delivered,
+        &mut wire.echo_to_read_back,
+        &mut wire.read_back_to_result,
+    ] {
+        list.sort();
+    }
+    wire
 }
 
 /// One read of the block on the wire: request (8 bytes), answer (17) and both t3.5 silences.
@@ -601,46 +714,99 @@ fn mib(kib: u64) -> String {
 }
 
 fn row(figure: &str, value: String, target: &str) {
-    println!("{figure:<44} {value:>26}   {target}");
+    println!("{figure:<48} {value:>30}   {target}");
 }
 
-/// `p50 / p95` of a sorted list, `-` when empty.
-fn p50_p95(sorted: &[Duration]) -> String {
-    if sorted.is_empty() {
+/// The median of one figure over the rounds, with its range when there are several.
+fn over_rounds(values: impl IntoIterator<Item = f64>, show: impl Fn(f64) -> String) -> String {
+    let mut values: Vec<f64> = values.into_iter().filter(|v| v.is_finite()).collect();
+    if values.is_empty() {
         return "-".into();
     }
-    format!(
-        "{} / {}",
-        ms(percentile(sorted, 50)),
-        ms(percentile(sorted, 95))
+    values.sort_by(f64::total_cmp);
+    let median = values[(values.len() - 1) / 2];
+    match (values.first(), values.last()) {
+        (Some(low), Some(high)) if values.len() > 1 => {
+            format!("{} ({}–{})", show(median), show(*low), show(*high))
+        }
+        _ => show(median),
+    }
+}
+
+fn ms_f(value: f64) -> String {
+    format!("{value:.2} ms")
+}
+
+fn millis(duration: Duration) -> f64 {
+    duration.as_secs_f64() * 1000.0
+}
+
+/// The p-th percentile of one latency list of each run, in ms, over the rounds.
+fn latency(runs: &[OneLine], list: impl Fn(&Wire) -> &Vec<Duration>, p: usize) -> String {
+    over_rounds(
+        runs.iter()
+            .filter(|run| !list(&run.wire).is_empty())
+            .map(|run| millis(percentile(list(&run.wire), p))),
+        ms_f,
     )
 }
 
-/// The gateway process's CPU and memory against their targets.
-fn footprint_rows(footprint: &Footprint, cpu_target: &str, anon_target: &str) {
+/// `p50 / p95` of one latency list, each over the rounds.
+fn latency_pair(runs: &[OneLine], list: impl Fn(&Wire) -> &Vec<Duration> + Copy) -> String {
+    format!("{} / {}", latency(runs, list, 50), latency(runs, list, 95))
+}
+
+/// The gateway process's CPU and memory against their targets, over the rounds.
+fn footprint_rows<'a>(
+    footprints: impl Iterator<Item = &'a Footprint> + Clone,
+    cpu_target: &str,
+    anon_target: &str,
+) {
     row(
         "gateway CPU (one core)",
-        format!("{:.2} %", footprint.cpu_percent),
+        over_rounds(footprints.clone().map(|f| f.cpu_percent), |v| {
+            format!("{v:.2} %")
+        }),
         cpu_target,
     );
-    let memory = &footprint.memory;
+    let in_mib = |kib: u64| kib as f64 / 1024.0;
+    let show_mib = |v: f64| format!("{v:.2} MiB");
     row(
-        "anonymous memory: RssAnon / Private_Dirty",
-        format!(
-            "{} / {}",
-            mib(memory.rss_anon_kib),
-            mib(memory.private_dirty_kib)
+        "anonymous memory: RssAnon",
+        over_rounds(
+            footprints.clone().map(|f| in_mib(f.memory.rss_anon_kib)),
+            show_mib,
         ),
         anon_target,
     );
     row(
-        "PSS; threads",
-        format!("{}; {}", mib(memory.pss_kib), memory.threads),
+        "anonymous memory: Private_Dirty",
+        over_rounds(
+            footprints
+                .clone()
+                .map(|f| in_mib(f.memory.private_dirty_kib)),
+            show_mib,
+        ),
+        "",
+    );
+    row(
+        "PSS",
+        over_rounds(
+            footprints.clone().map(|f| in_mib(f.memory.pss_kib)),
+            show_mib,
+        ),
+        "",
+    );
+    row(
+        "threads",
+        over_rounds(footprints.map(|f| f.memory.threads as f64), |v| {
+            format!("{v:.0}")
+        }),
         "",
     );
 }
 
-fn report(runs: &[(&str, OneLine)], many: &Footprint) {
+fn report(runs: &[Vec<OneLine>], many: &[Footprint]) {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
     let t3_5 = timing.t3_5;
     let binary = gateway_binary();
@@ -649,8 +815,11 @@ fn report(runs: &[(&str, OneLine)], many: &Footprint) {
     if let Ok(metadata) = std::fs::metadata(&binary) {
         println!("binary size: {}", mib(metadata.len() / 1024));
     }
-    for (label, run) in runs {
-        let wire = &run.wire;
+    println!(
+        "rounds: {}; each figure is the median over the rounds, (lowest–highest) beside it",
+        many.len()
+    );
+    for ((_, _, label), runs) in RUNS.iter().zip(runs) {
         println!();
         println!(
             "one line, 9600 8N1, answers released {label}; one 6-register block polled \
@@ -661,57 +830,105 @@ fn report(runs: &[(&str, OneLine)], many: &Footprint) {
         let wire_limit = 1.0 / transaction_wire_time().as_secs_f64();
         row(
             "transactions/s",
-            format!("{:.1}", run.footprint.transactions_per_second),
+            over_rounds(
+                runs.iter().map(|r| r.footprint.transactions_per_second),
+                |v| format!("{v:.1}"),
+            ),
             &format!("wire limit {wire_limit:.1}"),
         );
         row(
             "bus efficiency",
-            format!("{:.3}", wire.efficiency),
+            over_rounds(runs.iter().map(|r| r.wire.efficiency), |v| {
+                format!("{v:.3}")
+            }),
             "≥ 0.985",
         );
         row(
-            "idle gap before a request p50 / p95",
-            format!("{} / {}", ms(wire.gap_p50), ms(wire.gap_p95)),
+            "idle gap before a request p50",
+            over_rounds(runs.iter().map(|r| millis(r.wire.gap_p50)), ms_f),
             &format!(
-                "p50 ≤ t3.5 + 0.25 ms = {}",
+                "≤ t3.5 + 0.25 ms = {}",
                 ms(t3_5 + Duration::from_micros(250))
             ),
         );
         row(
-            "early requests (sooner than t3.5)",
-            wire.early.to_string(),
+            "idle gap before a request p95",
+            over_rounds(runs.iter().map(|r| millis(r.wire.gap_p95)), ms_f),
+            "",
+        );
+        row(
+            "early requests (sooner than t3.5), all rounds",
+            runs.iter().map(|r| r.wire.early).sum::<usize>().to_string(),
             "0",
         );
         row(
+            "requests onto an answer, all rounds",
+            runs.iter()
+                .map(|r| r.wire.onto_answer)
+                .sum::<usize>()
+                .to_string(),
+            "0",
+        );
+        let seen = |list: fn(&Wire) -> &Vec<Duration>| {
+            runs.iter().map(|r| list(&r.wire).len()).sum::<usize>()
+        };
+        let asked = COMMANDS as usize * runs.len();
+        row(
             "command → write frame on the wire p50 / p95",
-            p50_p95(&wire.to_wire),
-            &format!(
-                "bound {} ({} of {COMMANDS} seen)",
-                p50_p95(&wire.to_wire_bound),
-                wire.to_wire.len()
-            ),
+            latency_pair(runs, |w| &w.to_wire),
+            &format!("({} of {asked} seen)", seen(|w| &w.to_wire)),
+        );
+        row(
+            "  its physical bound p50 / p95",
+            latency_pair(runs, |w| &w.to_wire_bound),
+            "",
         );
         row(
             "command → …/result on MQTT p50 / p95",
-            p50_p95(&wire.to_result),
-            &format!(
-                "bound {} ({} of {COMMANDS} seen)",
-                p50_p95(&wire.to_result_bound),
-                wire.to_result.len()
-            ),
+            latency_pair(runs, |w| &w.to_result),
+            &format!("({} of {asked} seen)", seen(|w| &w.to_result)),
         );
-        footprint_rows(&run.footprint, "", "≤ 1 MiB");
-        let ratio = if run.simulator_cpu_percent > 0.0 {
-            format!(
-                "{:.2}",
-                run.footprint.cpu_percent / run.simulator_cpu_percent
-            )
-        } else {
-            "-".into()
-        };
         row(
-            "simulator CPU (this process); gateway/simulator",
-            format!("{:.2} %; {ratio}", run.simulator_cpu_percent),
+            "  its physical bound p50 / p95",
+            latency_pair(runs, |w| &w.to_result_bound),
+            "",
+        );
+        row(
+            "  result later than its bound p50 / p95",
+            latency_pair(runs, |w| &w.result_over_bound),
+            "≤ 4 ms / ≤ 5 ms",
+        );
+        row(
+            "  later than the bound as answers were delivered",
+            latency_pair(runs, |w| &w.result_over_delivered),
+            "(the gateway's own share)",
+        );
+        row(
+            "  write echo end → read-back at device p50",
+            latency(runs, |w| &w.echo_to_read_back, 50),
+            &format!("t3.5 = {}", ms(t3_5)),
+        );
+        row(
+            "  read-back answer end → result p50",
+            latency(runs, |w| &w.read_back_to_result, 50),
+            "0",
+        );
+        footprint_rows(runs.iter().map(|r| &r.footprint), "", "≤ 1 MiB");
+        row(
+            "simulator CPU (this process)",
+            over_rounds(runs.iter().map(|r| r.simulator_cpu_percent), |v| {
+                format!("{v:.2} %")
+            }),
+            "",
+        );
+        row(
+            "gateway CPU / simulator CPU",
+            over_rounds(
+                runs.iter()
+                    .filter(|r| r.simulator_cpu_percent > 0.0)
+                    .map(|r| r.footprint.cpu_percent / r.simulator_cpu_percent),
+                |v| format!("{v:.2}"),
+            ),
             "",
         );
     }
@@ -723,10 +940,12 @@ fn report(runs: &[(&str, OneLine)], many: &Footprint) {
     );
     row(
         "transactions/s (all lines)",
-        format!("{:.1}", many.transactions_per_second),
+        over_rounds(many.iter().map(|f| f.transactions_per_second), |v| {
+            format!("{v:.1}")
+        }),
         "",
     );
-    footprint_rows(many, "", "≤ 4 MiB");
+    footprint_rows(many.iter(), "", "≤ 4 MiB");
     println!(
         "\nt3.5 at {BAUD} baud: {}; CPU from /proc/<pid>/stat (utime + stime); memory from \
          /proc/<pid>/status (RssAnon) and /proc/<pid>/smaps_rollup (Private_Dirty, Pss)",
