@@ -2,10 +2,13 @@
 //! each change set goes (published at once when the broker is there and nothing older waits,
 //! journaled otherwise, so that the stream stays in order), and the paced replay after the
 //! reconnect. The core decides what a change set is ([`HistoryEntry`]); this only carries it.
+//! What is replayed is also handed on (to the Sparkplug node's store and forward), never
+//! faster than it is taken.
 
 use std::time::{Instant, SystemTime};
 
 use rumqttc::QoS;
+use tokio::sync::mpsc;
 
 use super::action::{HistoryEntry, Publish};
 use super::metrics::HistoryStats;
@@ -27,6 +30,8 @@ pub struct HistoryLane {
     /// it are counted as write failures.
     journal: Option<Journal>,
     unjournaled: u64,
+    /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
+    forward: Option<mpsc::Sender<Record>>,
 }
 
 impl HistoryLane {
@@ -58,7 +63,13 @@ impl HistoryLane {
             topics,
             journal,
             unjournaled: 0,
+            forward: None,
         }
+    }
+
+    /// Hands every replayed record to `forward` as well; the replay waits while it is full.
+    pub fn forward_replays(&mut self, forward: mpsc::Sender<Record>) {
+        self.forward = Some(forward);
     }
 
     /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
@@ -86,13 +97,26 @@ impl HistoryLane {
         let Some(journal) = &mut self.journal else {
             return Vec::new();
         };
+        if self.forward.as_ref().is_some_and(mpsc::Sender::is_closed) {
+            self.forward = None;
+        }
+        let room = match &self.forward {
+            Some(forward) => room.min(forward.capacity()),
+            None => room,
+        };
         if journal.is_empty() || room == 0 {
             return Vec::new();
         }
         let records = journal.take(room.min(REPLAY_BATCH), epoch_ms(SystemTime::now()));
         records
             .into_iter()
-            .map(|record| publish(self.topics.history_topic(&record.device), record.document))
+            .map(|record| {
+                if let Some(forward) = &self.forward {
+                    // Room was made above: only a receiver gone meanwhile refuses it.
+                    let _ = forward.try_send(record.clone());
+                }
+                publish(self.topics.history_topic(&record.device), record.document)
+            })
             .collect()
     }
 

@@ -221,6 +221,14 @@ impl Bridge {
         self.stop(events_rx).await;
     }
 
+    /// Hands every record replayed from the history journal to `replayed` as well (the
+    /// Sparkplug node's store and forward); nothing without `[history]`.
+    pub fn forward_replays(&mut self, replayed: mpsc::Sender<crate::history::Record>) {
+        if let Some(history) = &mut self.history {
+            history.forward_replays(replayed);
+        }
+    }
+
     /// Where a configuration reload tells this bridge its new devices and lines.
     pub fn reconfigurations(&mut self) -> mpsc::Sender<Reconfiguration> {
         let (tx, rx) = mpsc::channel(1);
