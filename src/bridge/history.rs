@@ -3,7 +3,9 @@
 //! journaled otherwise, so that the stream stays in order), and the paced replay after the
 //! reconnect. The core decides what a change set is ([`HistoryEntry`]); this only carries it.
 //! What is replayed is also handed on (to the Sparkplug node's store and forward), never
-//! faster than it is taken.
+//! faster than it is taken. When a connection is lost, what was handed towards the broker and
+//! not acknowledged comes back here and is journaled first; change sets queued behind it are
+//! held until all of it is back, so that the journal stays in the order values were read.
 
 use std::time::{Instant, SystemTime};
 
@@ -13,8 +15,8 @@ use tokio::sync::mpsc;
 use super::action::{HistoryEntry, Publish};
 use super::metrics::HistoryStats;
 use crate::config::HistoryConfig;
-use crate::contract::Topics;
-use crate::history::document::epoch_ms;
+use crate::contract::{Topics, HISTORY};
+use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};
 
 /// Records replayed per tick at most (with the bridge's 250 ms tick, 2,000 a second).
@@ -32,6 +34,18 @@ pub struct HistoryLane {
     unjournaled: u64,
     /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
     forward: Option<mpsc::Sender<Record>>,
+    /// Change sets newer than some still coming back from the writer after a lost
+    /// connection: journaled once those are ([`HistoryLane::release_held`]).
+    held: Option<Vec<Record>>,
+}
+
+/// A publish of the history stream (`<prefix>/<device>/history`, never retained; `history`
+/// is no field name, so no state topic looks like it).
+pub fn is_history(topic: &str, retain: bool) -> bool {
+    !retain
+        && topic
+            .strip_suffix(HISTORY)
+            .is_some_and(|rest| rest.ends_with('/'))
 }
 
 impl HistoryLane {
@@ -64,6 +78,59 @@ impl HistoryLane {
             journal,
             unjournaled: 0,
             forward: None,
+            held: None,
+        }
+    }
+
+    /// A history publish that went towards the broker and was not acknowledged, or was not
+    /// handed over at all: journaled (in the order they come back).
+    pub fn take_back(&mut self, topic: &str, document: &[u8]) {
+        let document = String::from_utf8_lossy(document).into_owned();
+        match self.record_of(topic, document) {
+            Some(record) => self.journal(record),
+            None => {
+                tracing::warn!(%topic, "a history publish taken back is not one of this gateway's")
+            }
+        }
+    }
+
+    /// The record a history publish was made from.
+    fn record_of(&self, topic: &str, document: String) -> Option<Record> {
+        let device = topic
+            .strip_prefix(&format!("{}/", self.topics.prefix))?
+            .strip_suffix(&format!("/{HISTORY}"))?;
+        Some(Record {
+            at_ms: read_at_of(&document)?,
+            device: device.to_string(),
+            document,
+        })
+    }
+
+    /// From now on change sets wait in memory, behind `queued` (those the outbox held), until
+    /// [`HistoryLane::release_held`].
+    pub fn hold(&mut self, queued: Vec<Publish>) {
+        let records: Vec<Record> = queued
+            .into_iter()
+            .filter_map(|publish| self.record_of(&publish.topic, publish.payload))
+            .collect();
+        self.held.get_or_insert_with(Vec::new).extend(records);
+    }
+
+    /// Everything taken back is in the journal: what was held follows it there.
+    pub fn release_held(&mut self) {
+        for record in self.held.take().unwrap_or_default() {
+            self.journal(record);
+        }
+    }
+
+    pub fn is_holding(&self) -> bool {
+        self.held.is_some()
+    }
+
+    fn journal(&mut self, record: Record) {
+        match &mut self.journal {
+            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
+            None => self.unjournaled += 1,
         }
     }
 
@@ -76,7 +143,7 @@ impl HistoryLane {
     /// is down, or older records still wait for their replay).
     pub fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
         let waiting = self.journal.as_ref().is_some_and(|j| !j.is_empty());
-        if link_up && !waiting {
+        if link_up && !waiting && self.held.is_none() {
             return Some(publish(entry.topic, entry.document));
         }
         let record = Record {
@@ -84,9 +151,9 @@ impl HistoryLane {
             device: entry.device,
             document: entry.document,
         };
-        match &mut self.journal {
-            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
-            None => self.unjournaled += 1,
+        match &mut self.held {
+            Some(held) => held.push(record),
+            None => self.journal(record),
         }
         None
     }
@@ -157,5 +224,19 @@ fn publish(topic: String, document: String) -> Publish {
         qos: QoS::AtLeastOnce,
         retain: false,
         keep: true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_the_history_stream_is_history() {
+        assert!(is_history("plant/dust_collector/history", false));
+        assert!(!is_history("plant/dust_collector/history", true));
+        assert!(!is_history("plant/dust_collector/gear", false));
+        assert!(!is_history("plant/dust_collector/prehistory", false));
+        assert!(!is_history("history", false));
     }
 }

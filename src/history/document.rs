@@ -37,6 +37,13 @@ pub fn values_of(document: &str) -> Option<Vec<(String, Json)>> {
     }
 }
 
+/// The read instant (`ts`) of a history document, in milliseconds since the epoch.
+pub fn read_at_of(document: &str) -> Option<u64> {
+    let parsed: Json = serde_json::from_str(document).ok()?;
+    let at = humantime::parse_rfc3339(parsed.get("ts")?.as_str()?).ok()?;
+    Some(epoch_ms(at))
+}
+
 /// RFC 3339 in UTC with milliseconds (`2026-12-02T15:00:01.123Z`).
 pub fn timestamp(at: SystemTime) -> String {
     humantime::format_rfc3339_millis(at).to_string()
@@ -75,6 +82,9 @@ mod tests {
             r#"{"ts":"2026-12-02T15:00:01.123Z","values":{"alarm":false,"fan_speed":1234,"mode":"auto","pressure":12.34}}"#
         );
         assert_eq!(epoch_ms(at), 1_796_223_601_123);
+        let text = document(at, values.iter().map(|(f, v)| (f.as_str(), v)));
+        assert_eq!(read_at_of(&text), Some(1_796_223_601_123));
+        assert_eq!(read_at_of("{}"), None);
     }
 
     #[test]
