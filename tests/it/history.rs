@@ -75,6 +75,15 @@ fn assert_in_order(messages: &[Message]) {
     }
 }
 
+/// Waits until the gateway's plain MQTT link is `up` (or down).
+async fn link_is(gateway: &Gateway, up: bool) {
+    let mut connected = gateway.running.bridge.connected.clone();
+    tokio::time::timeout(ANSWER, connected.wait_for(|now| *now == up))
+        .await
+        .unwrap_or_else(|_| panic!("the gateway's link never became up = {up}"))
+        .expect("bridge gone");
+}
+
 /// Sets the alarm bits through `sequence`, holding each long enough to be polled.
 async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
     for &alarms in sequence {
@@ -129,11 +138,7 @@ async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_i
 
     broker.kill();
     // The outage as the gateway sees it: from the moment it knows the broker is gone.
-    let mut connected = gateway.running.bridge.connected.clone();
-    tokio::time::timeout(ANSWER, connected.wait_for(|up| !*up))
-        .await
-        .expect("the gateway never noticed the broker was gone")
-        .expect("bridge gone");
+    link_is(&gateway, false).await;
     let outage = [1, 2, 4, 7, 0];
     walk_alarms(&plant, &outage).await;
     broker.restart();
@@ -224,11 +229,7 @@ async fn what_the_broker_never_acknowledged_is_journaled_and_follows_in_order() 
     broker.signal(nix::sys::signal::Signal::SIGSTOP);
     let outage = [3, 1, 6, 2, 5, 4, 0];
     walk_alarms(&plant, &outage).await;
-    let mut connected = gateway.running.bridge.connected.clone();
-    tokio::time::timeout(ANSWER, connected.wait_for(|up| !*up))
-        .await
-        .expect("the gateway never noticed the broker had stopped")
-        .expect("bridge gone");
+    link_is(&gateway, false).await;
     // A new broker on the same port: nothing of the old one's session survives.
     broker.restart();
     let mut observer = TestClient::connect(broker.port, "historian").await;
@@ -306,21 +307,14 @@ async fn with_sparkplug_the_outage_is_forwarded_as_historical_ddata_after_the_re
     // history too.
     let outage_from = epoch_ms(SystemTime::now()) - 1_000;
     broker.kill();
-    let mut connected = gateway.running.bridge.connected.clone();
-    tokio::time::timeout(ANSWER, connected.wait_for(|up| !*up))
-        .await
-        .expect("the gateway never noticed the broker was gone")
-        .expect("bridge gone");
+    link_is(&gateway, false).await;
     let outage = [1, 2, 4, 7, 0];
     walk_alarms(&plant, &outage).await;
     broker.restart();
     let mut observer = TestClient::connect(broker.port, "sp-historian").await;
     observer.subscribe("spBv1.0/#").await;
     // The outage ends when the gateway is connected again: what it read until then is history.
-    tokio::time::timeout(ANSWER, connected.wait_for(|up| *up))
-        .await
-        .expect("the gateway did not reconnect")
-        .expect("bridge gone");
+    link_is(&gateway, true).await;
     let reconnect_at = epoch_ms(SystemTime::now());
 
     let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
