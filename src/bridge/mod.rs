@@ -114,6 +114,9 @@ pub struct Bridge {
     history: Option<HistoryLane>,
     /// Requests handed to the writer that it has not finished with.
     in_writer: Arc<AtomicUsize>,
+    /// Asks the event loop task to give back what rumqttc holds and end (a stop whose
+    /// Disconnect does not complete).
+    give_back: watch::Sender<bool>,
 }
 
 impl Bridge {
@@ -129,8 +132,14 @@ impl Bridge {
         let link: LinkFlag = Arc::new(AtomicBool::new(false));
         let in_writer = Arc::new(AtomicUsize::new(0));
         let writer_link = (Arc::clone(&link), link_tx.clone(), Arc::clone(&in_writer));
-        let event_loop =
-            mqtt::spawn_event_loop(eventloop, link_tx, config.mqtt.client_id.clone(), link);
+        let (give_back, give_back_rx) = watch::channel(false);
+        let event_loop = mqtt::spawn_event_loop(
+            eventloop,
+            link_tx,
+            config.mqtt.client_id.clone(),
+            link,
+            give_back_rx,
+        );
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
@@ -163,6 +172,7 @@ impl Bridge {
                 .as_ref()
                 .map(|history| HistoryLane::open(history, config.mqtt.topics())),
             in_writer,
+            give_back,
         };
         (
             bridge,
@@ -497,22 +507,13 @@ impl Bridge {
             self.outbox.push_control(Request::Disconnect);
             self.flush(until).await;
             // Its own bound: the event loop waits up to its close grace for the broker.
-            let mut seen = Vec::new();
-            let closed = tokio::time::timeout(STOP_GRACE, async {
-                while let Some(event) = self.link_rx.recv().await {
-                    let last = matches!(event, LinkEvent::Closed { .. });
-                    seen.push(event);
-                    if last {
-                        break;
-                    }
-                }
-            })
-            .await;
-            if closed.is_err() {
+            if !self.until_closed(STOP_GRACE).await {
                 tracing::warn!("MQTT disconnect did not complete in time");
-            }
-            for event in seen {
-                self.keep_history_of(event);
+                // What the client holds is taken back from it all the same.
+                self.give_back.send_replace(true);
+                if !self.until_closed(STOP_GRACE).await {
+                    tracing::warn!("the MQTT client did not give back what it holds in time");
+                }
             }
         }
         if let Some(history) = &mut self.history {
@@ -529,6 +530,27 @@ impl Bridge {
         self.event_loop.abort();
         self.writer.abort();
         tracing::info!("bridge stopped");
+    }
+
+    /// Reads link events until the event loop task has ended (true) or `within` has passed,
+    /// keeping what they say about history publishes.
+    async fn until_closed(&mut self, within: Duration) -> bool {
+        let mut seen = Vec::new();
+        let link_rx = &mut self.link_rx;
+        let closed = tokio::time::timeout(within, async {
+            while let Some(event) = link_rx.recv().await {
+                let last = matches!(event, LinkEvent::Closed { .. });
+                seen.push(event);
+                if last {
+                    return;
+                }
+            }
+        })
+        .await;
+        for event in seen {
+            self.keep_history_of(event);
+        }
+        closed.is_ok()
     }
 
     /// While stopping, only what a link event says about history publishes still matters.

@@ -18,7 +18,7 @@ use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet,
     Publish, QoS, TlsConfiguration, Transport,
 };
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use super::history::is_history;
 use crate::config::MqttSettings;
@@ -186,6 +186,7 @@ pub fn spawn_event_loop(
     events_tx: mpsc::Sender<LinkEvent>,
     client_id: String,
     link: LinkFlag,
+    mut give_back: watch::Receiver<bool>,
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut backoff = Backoff::default();
@@ -195,7 +196,19 @@ pub fn spawn_event_loop(
         // Failed attempts since the link went down, for the log.
         let mut failed_attempts: u32 = 0;
         loop {
-            let event = match eventloop.poll().await {
+            let polled = tokio::select! {
+                polled = eventloop.poll() => polled,
+                // A stop whose Disconnect cannot get out (a broker that stopped reading): what
+                // rumqttc holds is given back before the task is ended.
+                () = asked(&mut give_back) => {
+                    link.store(false, Ordering::SeqCst);
+                    eventloop.clean();
+                    let unacknowledged = take_history(&mut eventloop);
+                    let _ = events_tx.send(LinkEvent::Closed { unacknowledged }).await;
+                    return;
+                }
+            };
+            let event = match polled {
                 Ok(Event::Incoming(Packet::ConnAck(connack))) => {
                     connected_since = Some(Instant::now());
                     reported_down = false;
@@ -263,6 +276,13 @@ pub fn spawn_event_loop(
             }
         }
     })
+}
+
+/// Ready once `flag` is set; never when its sender is gone without setting it.
+async fn asked(flag: &mut watch::Receiver<bool>) {
+    if flag.wait_for(|set| *set).await.is_err() {
+        std::future::pending::<()>().await;
+    }
 }
 
 /// Counts connections that die young in a row; says once when that looks like a client-id

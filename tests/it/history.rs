@@ -241,6 +241,45 @@ async fn what_the_broker_never_acknowledged_is_journaled_and_follows_in_order() 
     gateway.stop().await;
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_the_broker_never_acknowledged_before_a_stop_follows_after_the_next_start() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let text = config_text(&broker, &plant, "hist-stop", journal.path());
+    // A keep-alive long enough that the gateway still trusts the stalled broker at its stop.
+    let config = || {
+        let mut config = support::fast_config(&text);
+        config.mqtt.keep_alive = Duration::from_secs(60);
+        config
+    };
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config()).await;
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    observer
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await;
+    drop(observer);
+
+    broker.signal(nix::sys::signal::Signal::SIGSTOP);
+    let outage = [5, 3, 6];
+    walk_alarms(&plant, &outage).await;
+    assert!(
+        *gateway.running.bridge.connected.borrow(),
+        "the gateway should still be connected: the test is about an orderly stop"
+    );
+    gateway.stop().await;
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    let gateway = Gateway::start(config()).await;
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let seen = collect_until(&mut observer, &expected).await;
+    assert_in_order(&seen);
+    gateway.stop().await;
+}
+
 /// The node's messages in `log`, decoded by pysparkplug in publishing order.
 fn decoded_node_messages(log: &[Message]) -> Vec<Json> {
     let node: Vec<&Message> = log
