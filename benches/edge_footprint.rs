@@ -35,13 +35,14 @@
 //! edge_footprint` (about eleven minutes after the build for three rounds); another build of the
 //! gateway is measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
 
+mod gateway_process;
 #[path = "../tests/it/support/mod.rs"]
 mod support;
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use gateway_process::{cpu_time_of, proc_field, GatewayProcess};
 use rtu2mqtt::profile::Profile;
 use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
@@ -466,36 +467,6 @@ struct Memory {
     threads: u64,
 }
 
-/// `name:` in a /proc file of `key: value kB` lines, in KiB (0 when absent).
-fn proc_field(text: &str, name: &str) -> u64 {
-    text.lines()
-        .find(|l| l.starts_with(name))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse::<u64>().ok())
-        .unwrap_or(0)
-}
-
-/// User and system CPU time so far of `/proc/<pid>` (`self` for this process).
-fn cpu_time_of(pid: &str) -> anyhow::Result<Duration> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
-    // The command name may hold spaces: the fields after it start behind the last ')'.
-    let after_name = stat
-        .rsplit_once(')')
-        .map(|(_, rest)| rest)
-        .ok_or_else(|| anyhow::anyhow!("unreadable /proc stat"))?;
-    let fields: Vec<&str> = after_name.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
-    let ticks: u64 = fields
-        .get(11..13)
-        .ok_or_else(|| anyhow::anyhow!("short /proc stat"))?
-        .iter()
-        .map(|f| f.parse::<u64>().unwrap_or(0))
-        .sum();
-    // SAFETY: sysconf takes no pointers.
-    let per_second = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as u64;
-    Ok(Duration::from_secs_f64(ticks as f64 / per_second as f64))
-}
-
 /// The gateway binary measured: `EDGE_FOOTPRINT_GATEWAY`, else this build's `rtu2mqtt`.
 fn gateway_binary() -> PathBuf {
     std::env::var_os("EDGE_FOOTPRINT_GATEWAY").map_or_else(
@@ -505,35 +476,27 @@ fn gateway_binary() -> PathBuf {
 }
 
 /// The gateway as its own process.
-struct Gateway {
-    child: Child,
-}
+struct Gateway(GatewayProcess);
 
 impl Gateway {
     fn start(config: &Path) -> anyhow::Result<Gateway> {
         // Another build of the gateway can be measured in its place (a static build, one with
         // symbols for a profiler): EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt.
-        let child = Command::new(gateway_binary())
-            .arg("run")
-            .arg("--config")
-            .arg(config)
-            .env("RUST_LOG", "warn")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::inherit())
-            .spawn()?;
-        Ok(Gateway { child })
+        Ok(Gateway(GatewayProcess::start(
+            &gateway_binary(),
+            config,
+            "warn",
+        )?))
     }
 
     /// User and system CPU time so far (/proc/<pid>/stat, utime + stime).
     fn cpu_time(&self) -> anyhow::Result<Duration> {
-        cpu_time_of(&self.child.id().to_string())
+        self.0.cpu_time()
     }
 
     fn memory(&self) -> anyhow::Result<Memory> {
-        let pid = self.child.id();
-        let status = std::fs::read_to_string(format!("/proc/{pid}/status"))?;
-        let rollup = std::fs::read_to_string(format!("/proc/{pid}/smaps_rollup"))?;
+        let status = self.0.proc("status")?;
+        let rollup = self.0.proc("smaps_rollup")?;
         Ok(Memory {
             rss_anon_kib: proc_field(&status, "RssAnon:"),
             private_dirty_kib: proc_field(&rollup, "Private_Dirty:"),
@@ -543,25 +506,7 @@ impl Gateway {
     }
 
     fn stop(&mut self) {
-        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Gateway {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            self.stop();
-        }
+        self.0.stop();
     }
 }
 

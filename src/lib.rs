@@ -33,7 +33,8 @@
 //!   Assistant discovery and statistics, decided by an I/O-free core and carried out by a thin
 //!   driver.
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection; its commands
-//!   enter the bridge core like `…/set` commands.
+//!   enter the bridge core like `…/set` commands, and the history the bridge replays goes out
+//!   as historical DDATA.
 //! - `broker` (feature `demo`): the demo's embedded MQTT broker; [`cli`]: the command line.
 //! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, the
 //!   commissioning tools `scan` and `read`, and with the feature `demo`, `demo` and `simulate`.

@@ -37,6 +37,8 @@ const BRIDGE_MAX_QUIET: Duration = bridge::TICK.saturating_mul(4);
 const SPARKPLUG_EVENTS: usize = 1024;
 /// Commands from Sparkplug hosts, and their reports, in flight between the node and the bridge.
 const SPARKPLUG_COMMANDS: usize = 64;
+/// Replayed history records on their way to the Sparkplug node (the replay waits when full).
+const SPARKPLUG_REPLAYED: usize = 1024;
 /// How long the Sparkplug node gets to publish its NDEATH after the bridge has stopped.
 const SPARKPLUG_STOP_GRACE: Duration = Duration::from_secs(5);
 /// How long the lines get to finish their transaction after the bridge has stopped.
@@ -110,6 +112,7 @@ pub async fn run_gateway(
                 mqtt: node_mqtt,
                 stats_interval: config.gateway.stats_interval,
                 bd_seq_store: sparkplug::bd_seq::BdSeqStore::for_config(&config),
+                history: config.history.is_some(),
             };
             let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
             (events_rx, Some(task))
@@ -160,6 +163,8 @@ struct NodeWiring {
     mqtt: config::MqttSettings,
     stats_interval: Duration,
     bd_seq_store: Option<sparkplug::bd_seq::BdSeqStore>,
+    /// `[history]` is configured: replayed records also go out as historical DDATA.
+    history: bool,
 }
 
 impl NodeWiring {
@@ -189,6 +194,11 @@ impl NodeWiring {
             self.stats_interval,
             shutdown.clone(),
         ));
+        let replayed = self.history.then(|| {
+            let (replayed_tx, replayed_rx) = mpsc::channel(SPARKPLUG_REPLAYED);
+            bridge.forward_replays(replayed_tx);
+            replayed_rx
+        });
         let links = NodeLinks {
             line_events: node_events_rx,
             commands: commands_tx,
@@ -196,6 +206,7 @@ impl NodeWiring {
             node_values: values_rx,
             shutdown: shutdown.clone(),
             bd_seq_store: self.bd_seq_store,
+            replayed,
         };
         let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
         (bridge_events_rx, task)

@@ -2,16 +2,21 @@
 //! each change set goes (published at once when the broker is there and nothing older waits,
 //! journaled otherwise, so that the stream stays in order), and the paced replay after the
 //! reconnect. The core decides what a change set is ([`HistoryEntry`]); this only carries it.
+//! What is replayed is also handed on (to the Sparkplug node's store and forward), never
+//! faster than it is taken. When a connection is lost, what was handed towards the broker and
+//! not acknowledged comes back here and is journaled first; change sets queued behind it are
+//! held until all of it is back, so that the journal stays in the order values were read.
 
 use std::time::{Instant, SystemTime};
 
 use rumqttc::QoS;
+use tokio::sync::mpsc;
 
 use super::action::{HistoryEntry, Publish};
 use super::metrics::HistoryStats;
 use crate::config::HistoryConfig;
-use crate::contract::Topics;
-use crate::history::document::epoch_ms;
+use crate::contract::{Topics, HISTORY};
+use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};
 
 /// Records replayed per tick at most (with the bridge's 250 ms tick, 2,000 a second).
@@ -27,6 +32,20 @@ pub struct HistoryLane {
     /// it are counted as write failures.
     journal: Option<Journal>,
     unjournaled: u64,
+    /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
+    forward: Option<mpsc::Sender<Record>>,
+    /// Change sets newer than some still coming back from the writer after a lost
+    /// connection: journaled once those are ([`HistoryLane::release_held`]).
+    held: Option<Vec<Record>>,
+}
+
+/// A publish of the history stream (`<prefix>/<device>/history`, never retained; `history`
+/// is no field name, so no state topic looks like it).
+pub fn is_history(topic: &str, retain: bool) -> bool {
+    !retain
+        && topic
+            .strip_suffix(HISTORY)
+            .is_some_and(|rest| rest.ends_with('/'))
 }
 
 impl HistoryLane {
@@ -58,14 +77,73 @@ impl HistoryLane {
             topics,
             journal,
             unjournaled: 0,
+            forward: None,
+            held: None,
         }
+    }
+
+    /// A history publish that went towards the broker and was not acknowledged, or was not
+    /// handed over at all: journaled (in the order they come back).
+    pub fn take_back(&mut self, topic: &str, document: &[u8]) {
+        let document = String::from_utf8_lossy(document).into_owned();
+        match self.record_of(topic, document) {
+            Some(record) => self.journal(record),
+            None => {
+                tracing::warn!(%topic, "a history publish taken back is not one of this gateway's")
+            }
+        }
+    }
+
+    /// The record a history publish was made from.
+    fn record_of(&self, topic: &str, document: String) -> Option<Record> {
+        let device = topic
+            .strip_prefix(&format!("{}/", self.topics.prefix))?
+            .strip_suffix(&format!("/{HISTORY}"))?;
+        Some(Record {
+            at_ms: read_at_of(&document)?,
+            device: device.to_string(),
+            document,
+        })
+    }
+
+    /// From now on change sets wait in memory, behind `queued` (those the outbox held), until
+    /// [`HistoryLane::release_held`].
+    pub fn hold(&mut self, queued: Vec<Publish>) {
+        let records: Vec<Record> = queued
+            .into_iter()
+            .filter_map(|publish| self.record_of(&publish.topic, publish.payload))
+            .collect();
+        self.held.get_or_insert_with(Vec::new).extend(records);
+    }
+
+    /// Everything taken back is in the journal: what was held follows it there.
+    pub fn release_held(&mut self) {
+        for record in self.held.take().unwrap_or_default() {
+            self.journal(record);
+        }
+    }
+
+    pub fn is_holding(&self) -> bool {
+        self.held.is_some()
+    }
+
+    fn journal(&mut self, record: Record) {
+        match &mut self.journal {
+            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
+            None => self.unjournaled += 1,
+        }
+    }
+
+    /// Hands every replayed record to `forward` as well; the replay waits while it is full.
+    pub fn forward_replays(&mut self, forward: mpsc::Sender<Record>) {
+        self.forward = Some(forward);
     }
 
     /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
     /// is down, or older records still wait for their replay).
     pub fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
         let waiting = self.journal.as_ref().is_some_and(|j| !j.is_empty());
-        if link_up && !waiting {
+        if link_up && !waiting && self.held.is_none() {
             return Some(publish(entry.topic, entry.document));
         }
         let record = Record {
@@ -73,9 +151,9 @@ impl HistoryLane {
             device: entry.device,
             document: entry.document,
         };
-        match &mut self.journal {
-            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
-            None => self.unjournaled += 1,
+        match &mut self.held {
+            Some(held) => held.push(record),
+            None => self.journal(record),
         }
         None
     }
@@ -86,13 +164,26 @@ impl HistoryLane {
         let Some(journal) = &mut self.journal else {
             return Vec::new();
         };
+        if self.forward.as_ref().is_some_and(mpsc::Sender::is_closed) {
+            self.forward = None;
+        }
+        let room = match &self.forward {
+            Some(forward) => room.min(forward.capacity()),
+            None => room,
+        };
         if journal.is_empty() || room == 0 {
             return Vec::new();
         }
         let records = journal.take(room.min(REPLAY_BATCH), epoch_ms(SystemTime::now()));
         records
             .into_iter()
-            .map(|record| publish(self.topics.history_topic(&record.device), record.document))
+            .map(|record| {
+                if let Some(forward) = &self.forward {
+                    // Room was made above: only a receiver gone meanwhile refuses it.
+                    let _ = forward.try_send(record.clone());
+                }
+                publish(self.topics.history_topic(&record.device), record.document)
+            })
             .collect()
     }
 
@@ -133,5 +224,86 @@ fn publish(topic: String, document: String) -> Publish {
         qos: QoS::AtLeastOnce,
         retain: false,
         keep: true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, UNIX_EPOCH};
+
+    use super::*;
+    use crate::history::document::document;
+    use crate::profile::Value;
+
+    fn lane(dir: &std::path::Path) -> HistoryLane {
+        let config = HistoryConfig {
+            path: dir.to_path_buf(),
+            max_size: 1 << 20,
+            max_age: Duration::from_secs(7 * 24 * 3600),
+        };
+        HistoryLane::open(&config, Topics::new("gw", "plant"))
+    }
+
+    /// The change set of `gear` read at second `n` (recent, so that `max_age` keeps it).
+    fn entry(n: u64) -> HistoryEntry {
+        let at_ms = epoch_ms(SystemTime::now()) - 100_000 + n * 1000;
+        let gear = Value::Int(n as i64);
+        HistoryEntry {
+            device: "dust".to_string(),
+            topic: "plant/dust/history".to_string(),
+            at_ms,
+            document: document(UNIX_EPOCH + Duration::from_millis(at_ms), [("gear", &gear)]),
+        }
+    }
+
+    fn replayed_gears(lane: &mut HistoryLane) -> Vec<String> {
+        lane.replay(100)
+            .into_iter()
+            .map(|publish| {
+                let values = crate::history::document::values_of(&publish.payload);
+                values.map_or(String::new(), |v| v[0].1.to_string())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn what_comes_back_is_journaled_before_what_was_queued_behind_it() {
+        let dir = tempfile::tempdir().expect("dir");
+        let mut lane = lane(dir.path());
+        // 1 and 2 went to the client, 3 was still in the outbox, when the link went down.
+        let handed: Vec<Publish> = [1, 2]
+            .iter()
+            .filter_map(|&n| lane.route(entry(n), true))
+            .collect();
+        let queued = lane.route(entry(3), true).into_iter().collect();
+        // The client gives back 1; the outbox's 3 is held; 4 is read meanwhile.
+        lane.take_back(&handed[0].topic, handed[0].payload.as_bytes());
+        lane.hold(queued);
+        assert_eq!(lane.route(entry(4), false), None);
+        // The writer gives back 2 later.
+        lane.take_back(&handed[1].topic, handed[1].payload.as_bytes());
+        lane.release_held();
+        assert_eq!(replayed_gears(&mut lane), ["1", "2", "3", "4"]);
+    }
+
+    #[test]
+    fn what_is_not_a_history_publish_of_this_gateway_is_not_journaled() {
+        let dir = tempfile::tempdir().expect("dir");
+        let mut lane = lane(dir.path());
+        lane.take_back(
+            "other/dust/history",
+            b"{\"ts\":\"2026-12-02T15:00:01.123Z\",\"values\":{}}",
+        );
+        lane.take_back("plant/dust/history", b"not a document");
+        assert!(lane.replay(100).is_empty());
+    }
+
+    #[test]
+    fn only_the_history_stream_is_history() {
+        assert!(is_history("plant/dust_collector/history", false));
+        assert!(!is_history("plant/dust_collector/history", true));
+        assert!(!is_history("plant/dust_collector/gear", false));
+        assert!(!is_history("plant/dust_collector/prehistory", false));
+        assert!(!is_history("history", false));
     }
 }

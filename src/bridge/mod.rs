@@ -32,6 +32,7 @@ pub mod publisher;
 pub mod state;
 
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -43,9 +44,9 @@ use tokio::sync::{mpsc, watch};
 use self::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
 };
-use self::history::{HistoryLane, REPLAY_ROOM};
+use self::history::{is_history, HistoryLane, REPLAY_ROOM};
 use self::metrics::BridgeStats;
-use self::mqtt::LinkEvent;
+use self::mqtt::{LinkEvent, LinkFlag};
 use self::outbox::{Lane, Outbox, Request};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
@@ -62,6 +63,8 @@ const WRITER_QUEUE: usize = 32;
 pub const OVERLOAD_HIGH: usize = 5_000;
 /// Outbox entries below which commands are taken again.
 pub const OVERLOAD_LOW: usize = 1_000;
+/// How long the writer waits before offering a history publish to a full client queue again.
+const HANDOVER_RETRY: Duration = Duration::from_millis(10);
 /// Shortest time between two log lines about publishes the outbox had to drop.
 const DROP_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
@@ -109,6 +112,11 @@ pub struct Bridge {
     line_stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
     /// The history stream's journal and replay (`[history]`).
     history: Option<HistoryLane>,
+    /// Requests handed to the writer that it has not finished with.
+    in_writer: Arc<AtomicUsize>,
+    /// Asks the event loop task to give back what rumqttc holds and end (a stop whose
+    /// Disconnect does not complete).
+    give_back: watch::Sender<bool>,
 }
 
 impl Bridge {
@@ -121,7 +129,17 @@ impl Bridge {
         (client, eventloop): (AsyncClient, rumqttc::EventLoop),
     ) -> (Bridge, BridgeHealth) {
         let (link_tx, link_rx) = mpsc::channel(256);
-        let event_loop = mqtt::spawn_event_loop(eventloop, link_tx, config.mqtt.client_id.clone());
+        let link: LinkFlag = Arc::new(AtomicBool::new(false));
+        let in_writer = Arc::new(AtomicUsize::new(0));
+        let writer_link = (Arc::clone(&link), link_tx.clone(), Arc::clone(&in_writer));
+        let (give_back, give_back_rx) = watch::channel(false);
+        let event_loop = mqtt::spawn_event_loop(
+            eventloop,
+            link_tx,
+            config.mqtt.client_id.clone(),
+            link,
+            give_back_rx,
+        );
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
@@ -135,7 +153,7 @@ impl Bridge {
             ),
             outbox: Outbox::default(),
             writer_tx,
-            writer: spawn_writer(client, writer_rx),
+            writer: spawn_writer(client, writer_rx, writer_link),
             link_up: false,
             overloaded: false,
             dropped_unlogged: 0,
@@ -153,6 +171,8 @@ impl Bridge {
                 .history
                 .as_ref()
                 .map(|history| HistoryLane::open(history, config.mqtt.topics())),
+            in_writer,
+            give_back,
         };
         (
             bridge,
@@ -221,6 +241,14 @@ impl Bridge {
         self.stop(events_rx).await;
     }
 
+    /// Hands every record replayed from the history journal to `replayed` as well (the
+    /// Sparkplug node's store and forward); nothing without `[history]`.
+    pub fn forward_replays(&mut self, replayed: mpsc::Sender<crate::history::Record>) {
+        if let Some(history) = &mut self.history {
+            history.forward_replays(replayed);
+        }
+    }
+
     /// Where a configuration reload tells this bridge its new devices and lines.
     pub fn reconfigurations(&mut self) -> mpsc::Sender<Reconfiguration> {
         let (tx, rx) = mpsc::channel(1);
@@ -243,12 +271,25 @@ impl Bridge {
         match event {
             LinkEvent::Connected { .. } => {
                 self.link_up = true;
+                if let Some(history) = &mut self.history {
+                    history.release_held();
+                }
                 let actions = self.core.on_connected();
                 self.connected_tx.send_replace(true);
                 self.execute(actions);
             }
-            LinkEvent::Disconnected { .. } => {
+            LinkEvent::Disconnected { unacknowledged, .. } => {
                 self.link_up = false;
+                if let Some(history) = &mut self.history {
+                    for publish in &unacknowledged {
+                        history.take_back(&publish.topic, &publish.payload);
+                    }
+                    // Newer than what the writer still gives back: held until it has.
+                    history.hold(
+                        self.outbox
+                            .take_where(|publish| is_history(&publish.topic, publish.retain)),
+                    );
+                }
                 let dropped = self.outbox.on_disconnect();
                 tracing::debug!(
                     dropped,
@@ -261,7 +302,18 @@ impl Bridge {
                 let actions = self.core.on_message(Incoming::of(&publish), Instant::now());
                 self.execute(actions);
             }
-            LinkEvent::Closed => {}
+            LinkEvent::Unsent(publish) => {
+                if let Some(history) = &mut self.history {
+                    history.take_back(&publish.topic, publish.payload.as_bytes());
+                }
+            }
+            LinkEvent::Closed { unacknowledged } => {
+                if let Some(history) = &mut self.history {
+                    for publish in &unacknowledged {
+                        history.take_back(&publish.topic, &publish.payload);
+                    }
+                }
+            }
         }
     }
 
@@ -326,6 +378,13 @@ impl Bridge {
             return;
         };
         history.on_tick(now);
+        // Everything the writer had is back (and journaled): what was held follows.
+        if history.is_holding()
+            && self.in_writer.load(Ordering::SeqCst) == 0
+            && self.link_rx.is_empty()
+        {
+            history.release_held();
+        }
         if self.link_up {
             let room = REPLAY_ROOM.saturating_sub(self.outbox.len());
             for publish in history.replay(room) {
@@ -366,6 +425,7 @@ impl Bridge {
             let Some(request) = self.outbox.pop() else {
                 break;
             };
+            self.in_writer.fetch_add(1, Ordering::SeqCst);
             if let Request::Publish(publish) = &request {
                 self.core.on_published(publish.clone(), true);
             }
@@ -385,6 +445,7 @@ impl Bridge {
     }
 
     fn note_handed(&mut self, request: &Request) {
+        self.in_writer.fetch_add(1, Ordering::SeqCst);
         if let Request::Publish(publish) = request {
             self.core.on_published(publish.clone(), true);
         }
@@ -446,24 +507,61 @@ impl Bridge {
             self.outbox.push_control(Request::Disconnect);
             self.flush(until).await;
             // Its own bound: the event loop waits up to its close grace for the broker.
-            let closed = tokio::time::timeout(STOP_GRACE, async {
-                while let Some(event) = self.link_rx.recv().await {
-                    if matches!(event, LinkEvent::Closed) {
-                        break;
-                    }
-                }
-            })
-            .await;
-            if closed.is_err() {
+            if !self.until_closed(STOP_GRACE).await {
                 tracing::warn!("MQTT disconnect did not complete in time");
+                // What the client holds is taken back from it all the same.
+                self.give_back.send_replace(true);
+                if !self.until_closed(STOP_GRACE).await {
+                    tracing::warn!("the MQTT client did not give back what it holds in time");
+                }
             }
         }
         if let Some(history) = &mut self.history {
+            // What never reached the client, then what is held behind it: for the next start.
+            for publish in self
+                .outbox
+                .take_where(|publish| is_history(&publish.topic, publish.retain))
+            {
+                history.take_back(&publish.topic, publish.payload.as_bytes());
+            }
+            history.release_held();
             history.sync();
         }
         self.event_loop.abort();
         self.writer.abort();
         tracing::info!("bridge stopped");
+    }
+
+    /// Reads link events until the event loop task has ended (true) or `within` has passed,
+    /// keeping what they say about history publishes.
+    async fn until_closed(&mut self, within: Duration) -> bool {
+        let mut seen = Vec::new();
+        let link_rx = &mut self.link_rx;
+        let closed = tokio::time::timeout(within, async {
+            while let Some(event) = link_rx.recv().await {
+                let last = matches!(event, LinkEvent::Closed { .. });
+                seen.push(event);
+                if last {
+                    return;
+                }
+            }
+        })
+        .await;
+        for event in seen {
+            self.keep_history_of(event);
+        }
+        closed.is_ok()
+    }
+
+    /// While stopping, only what a link event says about history publishes still matters.
+    fn keep_history_of(&mut self, event: LinkEvent) {
+        if matches!(
+            event,
+            LinkEvent::Disconnected { .. } | LinkEvent::Unsent(_) | LinkEvent::Closed { .. }
+        ) {
+            self.link_up = false;
+            self.on_link(event);
+        }
     }
 
     /// Hands the whole outbox to the writer, reading link events meanwhile so the event loop
@@ -472,17 +570,20 @@ impl Bridge {
         while let Some(request) = self.outbox.pop() {
             let writer_tx = self.writer_tx.clone();
             let link_rx = &mut self.link_rx;
+            let mut seen = Vec::new();
             let handed = tokio::time::timeout_at(until, async {
                 let mut reserve = std::pin::pin!(writer_tx.reserve_owned());
                 loop {
                     tokio::select! {
                         permit = &mut reserve => return permit.ok(),
-                        // Link events while stopping only keep the event loop turning.
-                        event = link_rx.recv() => { event?; }
+                        event = link_rx.recv() => seen.push(event?),
                     }
                 }
             })
             .await;
+            for event in seen {
+                self.keep_history_of(event);
+            }
             match handed {
                 Ok(Some(permit)) => {
                     self.note_handed(&request);
@@ -500,14 +601,20 @@ impl Bridge {
     }
 }
 
-/// The writer task: hands each request to the client, waiting for room in its queue.
+/// The writer task: hands each request to the client, waiting for room in its queue. A history
+/// publish is handed only while the link is up; otherwise it goes back to the bridge
+/// ([`LinkEvent::Unsent`]) to be journaled.
 fn spawn_writer(
     client: AsyncClient,
     mut requests: mpsc::Receiver<Request>,
+    (link, link_tx, in_writer): (LinkFlag, mpsc::Sender<LinkEvent>, Arc<AtomicUsize>),
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         while let Some(request) = requests.recv().await {
             let result = match request {
+                Request::Publish(publish) if is_history(&publish.topic, publish.retain) => {
+                    hand_history(&client, publish, &link, &link_tx).await
+                }
                 Request::Publish(publish) => {
                     client
                         .publish(publish.topic, publish.qos, publish.retain, publish.payload)
@@ -516,6 +623,7 @@ fn spawn_writer(
                 Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
                 Request::Disconnect => client.disconnect().await,
             };
+            in_writer.fetch_sub(1, Ordering::SeqCst);
             if let Err(error) = result {
                 // Only when the event loop has ended (shutdown).
                 tracing::debug!(%error, "MQTT client gone");
@@ -523,6 +631,35 @@ fn spawn_writer(
             }
         }
     })
+}
+
+/// One history publish to the client: offered while the link is up (never waiting inside the
+/// client's queue, where a lost connection would leave it to be sent ahead of older journaled
+/// records), given back once it is down.
+async fn hand_history(
+    client: &AsyncClient,
+    publish: Publish,
+    link: &LinkFlag,
+    link_tx: &mpsc::Sender<LinkEvent>,
+) -> Result<(), rumqttc::ClientError> {
+    loop {
+        if !link.load(Ordering::SeqCst) {
+            // Refused only when the bridge is gone (shutdown).
+            let _ = link_tx.send(LinkEvent::Unsent(publish)).await;
+            return Ok(());
+        }
+        let offered = client.try_publish(
+            publish.topic.clone(),
+            publish.qos,
+            publish.retain,
+            publish.payload.clone(),
+        );
+        match offered {
+            Ok(()) => return Ok(()),
+            Err(_) if !link_tx.is_closed() => tokio::time::sleep(HANDOVER_RETRY).await,
+            Err(error) => return Err(error),
+        }
+    }
 }
 
 /// The next reload, or never when nobody can send one.

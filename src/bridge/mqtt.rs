@@ -5,7 +5,12 @@
 //! connection that dies young (a client-id takeover, an auth refusal) keeps the back-off
 //! growing instead of resetting it. Connections the broker keeps closing right after they
 //! are made are what a second client with the same client id causes: said once, plainly.
+//! History publishes rumqttc still holds when a connection ends (sent but not acknowledged, or
+//! still queued) are taken back from it and handed to the bridge, which journals them: rumqttc
+//! would otherwise drop them (a new session) or send them ahead of older journaled records.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -13,8 +18,9 @@ use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet,
     Publish, QoS, TlsConfiguration, Transport,
 };
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
+use super::history::is_history;
 use crate::config::MqttSettings;
 use crate::contract::{Topics, OFFLINE};
 
@@ -54,12 +60,36 @@ const CLOSE_GRACE: Duration = Duration::from_secs(2);
 pub enum LinkEvent {
     /// A ConnAck: (re)subscribe, announce, republish.
     Connected { session_present: bool },
-    /// The connection is gone (the task backs off and retries).
-    Disconnected { reason: String },
+    /// The connection is gone (the task backs off and retries); `unacknowledged` are the
+    /// history publishes rumqttc held without a PUBACK, oldest first.
+    Disconnected {
+        reason: String,
+        unacknowledged: Vec<Publish>,
+    },
     /// An incoming publish.
     Message(Publish),
-    /// Our Disconnect went out: the task ends.
-    Closed,
+    /// Our Disconnect went out: the task ends, handing back the history publishes not
+    /// acknowledged.
+    Closed { unacknowledged: Vec<Publish> },
+    /// A history publish the writer did not hand to the client because the link was down.
+    Unsent(super::core::Publish),
+}
+
+/// Whether the link is up, as the event loop task knows it first; the bridge's writer reads
+/// it so that no history publish is handed to rumqttc while a connection is being lost.
+pub type LinkFlag = Arc<AtomicBool>;
+
+/// Takes every history publish out of rumqttc's list of what it would send again, in order.
+fn take_history(eventloop: &mut EventLoop) -> Vec<Publish> {
+    let mut taken = Vec::new();
+    eventloop.pending.retain(|request| match request {
+        rumqttc::Request::Publish(publish) if is_history(&publish.topic, publish.retain) => {
+            taken.push(publish.clone());
+            false
+        }
+        _ => true,
+    });
+    taken
 }
 
 /// The client's options: Last Will `offline` (retained) on the gateway status topic.
@@ -155,6 +185,8 @@ pub fn spawn_event_loop(
     mut eventloop: EventLoop,
     events_tx: mpsc::Sender<LinkEvent>,
     client_id: String,
+    link: LinkFlag,
+    mut give_back: watch::Receiver<bool>,
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut backoff = Backoff::default();
@@ -164,12 +196,25 @@ pub fn spawn_event_loop(
         // Failed attempts since the link went down, for the log.
         let mut failed_attempts: u32 = 0;
         loop {
-            let event = match eventloop.poll().await {
+            let polled = tokio::select! {
+                polled = eventloop.poll() => polled,
+                // A stop whose Disconnect cannot get out (a broker that stopped reading): what
+                // rumqttc holds is given back before the task is ended.
+                () = asked(&mut give_back) => {
+                    link.store(false, Ordering::SeqCst);
+                    eventloop.clean();
+                    let unacknowledged = take_history(&mut eventloop);
+                    let _ = events_tx.send(LinkEvent::Closed { unacknowledged }).await;
+                    return;
+                }
+            };
+            let event = match polled {
                 Ok(Event::Incoming(Packet::ConnAck(connack))) => {
                     connected_since = Some(Instant::now());
                     reported_down = false;
                     failed_attempts = 0;
                     tracing::info!(session_present = connack.session_present, "MQTT connected");
+                    link.store(true, Ordering::SeqCst);
                     LinkEvent::Connected {
                         session_present: connack.session_present,
                     }
@@ -181,7 +226,10 @@ pub fn spawn_event_loop(
                     // announcements) and makes the broker publish our Will.
                     let drain = async { while eventloop.poll().await.is_ok() {} };
                     let _ = tokio::time::timeout(CLOSE_GRACE, drain).await;
-                    let _ = events_tx.send(LinkEvent::Closed).await;
+                    link.store(false, Ordering::SeqCst);
+                    eventloop.clean();
+                    let unacknowledged = take_history(&mut eventloop);
+                    let _ = events_tx.send(LinkEvent::Closed { unacknowledged }).await;
                     return;
                 }
                 Ok(_) => continue,
@@ -202,15 +250,20 @@ pub fn spawn_event_loop(
                     let wait = backoff.next_wait();
                     log_connection_error(&error, wait, failed_attempts);
                     failed_attempts = failed_attempts.saturating_add(1);
-                    if !reported_down {
+                    let unacknowledged = take_history(&mut eventloop);
+                    if !reported_down || !unacknowledged.is_empty() {
                         reported_down = true;
                         let down = LinkEvent::Disconnected {
                             reason: error.to_string(),
+                            unacknowledged,
                         };
                         if events_tx.send(down).await.is_err() {
                             return;
                         }
                     }
+                    // Only now: what the writer holds back from here on is journaled after
+                    // what was taken back above.
+                    link.store(false, Ordering::SeqCst);
                     tokio::time::sleep(wait).await;
                     if events_tx.is_closed() {
                         return;
@@ -223,6 +276,13 @@ pub fn spawn_event_loop(
             }
         }
     })
+}
+
+/// Ready once `flag` is set; never when its sender is gone without setting it.
+async fn asked(flag: &mut watch::Receiver<bool>) {
+    if flag.wait_for(|set| *set).await.is_err() {
+        std::future::pending::<()>().await;
+    }
 }
 
 /// Counts connections that die young in a row; says once when that looks like a client-id

@@ -105,6 +105,19 @@ impl Outbox {
         }
     }
 
+    /// Takes out the waiting publishes `wanted` picks (never retained ones), in their order.
+    pub fn take_where(&mut self, wanted: impl Fn(&Publish) -> bool) -> Vec<Publish> {
+        let mut taken = Vec::new();
+        self.urgent.retain(|entry| match entry {
+            Entry::Once(publish) if wanted(publish) => {
+                taken.push(publish.clone());
+                false
+            }
+            _ => true,
+        });
+        taken
+    }
+
     /// The next request in priority order.
     pub fn pop(&mut self) -> Option<Request> {
         if let Some(control) = self.control.pop_front() {
@@ -210,5 +223,25 @@ mod tests {
             topics_in_order(&mut outbox),
             ["p/a/gear/result=r1", "p/a/gear/set="]
         );
+    }
+
+    #[test]
+    fn taken_publishes_leave_in_order_and_the_rest_stays() {
+        let mut outbox = Outbox::default();
+        let once = |topic: &str| Publish {
+            topic: topic.to_string(),
+            payload: String::new(),
+            qos: QoS::AtLeastOnce,
+            retain: false,
+            keep: true,
+        };
+        for topic in ["a/history", "a/result", "b/history"] {
+            outbox.push(once(topic), Lane::Urgent);
+        }
+        let taken = outbox.take_where(|publish| publish.topic.ends_with("history"));
+        let topics: Vec<&str> = taken.iter().map(|p| p.topic.as_str()).collect();
+        assert_eq!(topics, ["a/history", "b/history"]);
+        assert_eq!(outbox.pop(), Some(Request::Publish(once("a/result"))));
+        assert_eq!(outbox.pop(), None);
     }
 }

@@ -26,6 +26,24 @@ where
     Json::Object(document).to_string()
 }
 
+/// The values of a history document, in its order; None when it is not one.
+pub fn values_of(document: &str) -> Option<Vec<(String, Json)>> {
+    match serde_json::from_str::<Json>(document).ok()? {
+        Json::Object(mut fields) => match fields.remove("values")? {
+            Json::Object(values) => Some(values.into_iter().collect()),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+/// The read instant (`ts`) of a history document, in milliseconds since the epoch.
+pub fn read_at_of(document: &str) -> Option<u64> {
+    let parsed: Json = serde_json::from_str(document).ok()?;
+    let at = humantime::parse_rfc3339(parsed.get("ts")?.as_str()?).ok()?;
+    Some(epoch_ms(at))
+}
+
 /// RFC 3339 in UTC with milliseconds (`2026-12-02T15:00:01.123Z`).
 pub fn timestamp(at: SystemTime) -> String {
     humantime::format_rfc3339_millis(at).to_string()
@@ -64,5 +82,27 @@ mod tests {
             r#"{"ts":"2026-12-02T15:00:01.123Z","values":{"alarm":false,"fan_speed":1234,"mode":"auto","pressure":12.34}}"#
         );
         assert_eq!(epoch_ms(at), 1_796_223_601_123);
+        let text = document(at, values.iter().map(|(f, v)| (f.as_str(), v)));
+        assert_eq!(read_at_of(&text), Some(1_796_223_601_123));
+        assert_eq!(read_at_of("{}"), None);
+    }
+
+    #[test]
+    fn the_values_come_back_out_of_a_document() {
+        let at = UNIX_EPOCH + Duration::from_millis(1_796_223_601_123);
+        let values = [
+            ("gear".to_string(), Value::Int(8)),
+            ("alarm".to_string(), Value::Bool(true)),
+        ];
+        let text = document(at, values.iter().map(|(f, v)| (f.as_str(), v)));
+        assert_eq!(
+            values_of(&text),
+            Some(vec![
+                ("alarm".to_string(), Json::Bool(true)),
+                ("gear".to_string(), Json::from(8)),
+            ])
+        );
+        assert_eq!(values_of("{\"ts\":\"x\"}"), None);
+        assert_eq!(values_of("not json"), None);
     }
 }

@@ -7,6 +7,8 @@
 
 use std::sync::Arc;
 
+use serde_json::Value as Json;
+
 use super::payload::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
 use crate::profile::{FieldInfo, FieldKind, Profile, Value};
 
@@ -100,6 +102,21 @@ impl DeviceMetrics {
     /// The DDATA form: alias only (the name is known from the birth), datatype and value.
     pub fn data_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
         value_metric(def, value, timestamp)
+    }
+
+    /// The historical DDATA form of a value from a history document (typed as the JSON view
+    /// types it): alias, datatype, the instant it was read and `is_historical`.
+    pub fn historical_metric(def: &MetricDef, value: &Json, read_at: u64) -> Metric {
+        let value = json_metric_value(def.datatype, value);
+        Metric {
+            alias: Some(def.alias),
+            timestamp: Some(read_at),
+            datatype: Some(def.datatype.number()),
+            is_historical: Some(true),
+            is_null: value.is_none().then_some(true),
+            value,
+            ..Default::default()
+        }
     }
 
     /// The metric a DCMD names ([`Self::named_by`]) and the command
@@ -294,6 +311,23 @@ pub fn metric_value(datatype: DataType, value: &Value) -> Option<MetricValue> {
     }
 }
 
+/// A value of a history document in the metric's datatype, as [`metric_value`] makes it from
+/// the field value the document was written from; None when it does not fit.
+pub fn json_metric_value(datatype: DataType, value: &Json) -> Option<MetricValue> {
+    match (datatype, value) {
+        (DataType::Boolean, Json::Bool(on)) => Some(MetricValue::Boolean(*on)),
+        (DataType::String | DataType::Text, Json::String(text)) => {
+            Some(MetricValue::String(text.clone()))
+        }
+        (DataType::Float, Json::Number(number)) => number
+            .as_f64()
+            .map(|number| MetricValue::Float(number as f32)),
+        (DataType::Double, Json::Number(number)) => number.as_f64().map(MetricValue::Double),
+        (datatype, Json::Number(number)) => integer_to_wire(datatype, number.as_i64()?),
+        _ => None,
+    }
+}
+
 /// An integer in its Sparkplug wire form: 8-, 16- and 32-bit types in `int_value`, 64-bit ones
 /// in `long_value`, negatives as two's complement in the type's width.
 fn integer_to_wire(datatype: DataType, number: i64) -> Option<MetricValue> {
@@ -354,6 +388,39 @@ mod tests {
         assert_eq!(integer_type(-1, 128), DataType::Int16);
         assert_eq!(integer_type(-40_000, 0), DataType::Int32);
         assert_eq!(integer_type(i64::MIN, 0), DataType::Int64);
+    }
+
+    #[test]
+    fn a_history_document_value_becomes_the_metric_value_of_the_live_path() {
+        let cases = [
+            (
+                DataType::Float,
+                Value::Decimal {
+                    scaled: 1234,
+                    precision: 2,
+                },
+            ),
+            (
+                DataType::Double,
+                Value::Decimal {
+                    scaled: -5,
+                    precision: 1,
+                },
+            ),
+            (DataType::Int8, Value::Int(-1)),
+            (DataType::UInt16, Value::Int(1500)),
+            (DataType::Boolean, Value::Bool(true)),
+            (DataType::String, Value::Enum("opening".into())),
+        ];
+        for (datatype, value) in cases {
+            assert_eq!(
+                json_metric_value(datatype, &value.to_json()),
+                metric_value(datatype, &value),
+                "{datatype:?} {value:?}"
+            );
+        }
+        assert_eq!(json_metric_value(DataType::UInt8, &Json::from(300)), None);
+        assert_eq!(json_metric_value(DataType::Boolean, &Json::from(1)), None);
     }
 
     #[test]

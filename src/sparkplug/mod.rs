@@ -6,7 +6,9 @@
 //! the node's own MQTT connection (its Last Will is the NDEATH, so it cannot share the plain
 //! connection whose Will is the gateway status), feeds line events to the session, and hands
 //! commands from hosts to the gateway's validated command path. It never touches the bus.
-//! [`bd_seq`] keeps the next bdSeq in the state directory across restarts.
+//! [`bd_seq`] keeps the next bdSeq in the state directory across restarts. With `[history]`,
+//! the records the bridge replays from the journal reach the node too, and go out as
+//! historical DDATA once their device is born in the session.
 
 pub mod bd_seq;
 pub mod figures;
@@ -23,13 +25,17 @@ use crate::bridge::mqtt::{client, options, Backoff, REQUEST_QUEUE};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
+use crate::history::document::values_of;
+use crate::history::Record;
 use crate::shutdown::Shutdown;
 
 pub use crate::config::sparkplug::{
     shared_broker, SparkplugConfig, SparkplugIdentity, CLIENT_ID_SUFFIX,
 };
 pub use crate::config::SparkplugSettings;
-pub use session::{Action, NodeMetricSpec, Session, SessionSettings, SparkplugCommand};
+pub use session::{
+    Action, HistoricalValues, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+};
 
 /// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
 /// at a slower interval, a block that failed once); then it is born with those null.
@@ -38,6 +44,10 @@ const BIRTH_WAIT: Duration = Duration::from_secs(10);
 const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// A connection that lived this long resets the reconnect back-off.
 const STABLE_CONNECTION: Duration = Duration::from_secs(10);
+/// How often replayed history is looked at, and how many historical DDATA go out each time
+/// (well inside the client's request queue, beside live traffic).
+const HISTORY_TICK: Duration = Duration::from_millis(250);
+const HISTORY_BATCH: usize = 250;
 
 /// The session for `config`'s devices, identity and lines (None without `[sparkplug]`),
 /// with the broker settings of its own connection.
@@ -87,6 +97,8 @@ pub struct NodeLinks {
     pub shutdown: Shutdown,
     /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,
+    /// The records the bridge replays from the history journal (with `[history]`).
+    pub replayed: Option<mpsc::Receiver<Record>>,
 }
 
 /// Runs the edge node until shutdown: connects (a fresh bdSeq and NDEATH Will per connection),
@@ -95,6 +107,8 @@ pub struct NodeLinks {
 pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks) {
     let topics = mqtt.topics();
     let mut backoff = Backoff::default();
+    let mut history_tick = tokio::time::interval(HISTORY_TICK);
+    history_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         let will = session.prepare_connect(now_millis());
         if let Some(store) = &links.bd_seq_store {
@@ -186,6 +200,13 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     let actions = session.on_node_values(now_millis(), &values);
                     closing |= carry_out(&client, &links.commands, actions).await;
                 }
+                record = next_replayed(&mut links.replayed), if !closing => {
+                    queue_replayed(&mut session, record);
+                }
+                _ = history_tick.tick(), if !closing && session.history_waiting() > 0 => {
+                    let actions = session.history_batch(HISTORY_BATCH);
+                    closing |= carry_out(&client, &links.commands, actions).await;
+                }
                 () = links.shutdown.fired(), if !closing => {
                     closing = true;
                     stop_by = Some(tokio::time::Instant::now() + CLOSE_GRACE);
@@ -211,11 +232,38 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 Some(values) = links.node_values.recv() => {
                     session.on_node_values(now_millis(), &values);
                 }
+                record = next_replayed(&mut links.replayed) => queue_replayed(&mut session, record),
                 // Outcomes of commands from before the connection was lost: the births
                 // carry the true values.
                 Some(_) = links.reports.recv() => {}
                 () = links.shutdown.fired() => return,
             }
+        }
+    }
+}
+
+/// The next record the bridge replayed; never ready once nothing more can come.
+async fn next_replayed(replayed: &mut Option<mpsc::Receiver<Record>>) -> Record {
+    if let Some(receiver) = replayed {
+        if let Some(record) = receiver.recv().await {
+            return record;
+        }
+        *replayed = None;
+    }
+    std::future::pending().await
+}
+
+/// Keeps a replayed record for historical DDATA (a record whose document cannot be read is
+/// left to the history topic alone).
+fn queue_replayed(session: &mut Session, record: Record) {
+    match values_of(&record.document) {
+        Some(values) => session.queue_history(HistoricalValues {
+            device: record.device,
+            read_at: record.at_ms,
+            values,
+        }),
+        None => {
+            tracing::warn!(device = %record.device, "Sparkplug: a replayed history record is unreadable")
         }
     }
 }

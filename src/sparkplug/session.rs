@@ -5,10 +5,14 @@
 //! NBIRTH carry the same number), `seq` 0–255 across every message of the node, births and
 //! deaths of devices as they come and go, DDATA with only what changed, rebirth on request,
 //! waiting for the primary host's STATE, and refusing every command that is not a known
-//! writable metric. No I/O, no clock, no tokio.
+//! writable metric. Change sets replayed from the history journal wait here until their device
+//! is born in the current session and then go out as historical DDATA (store and forward).
+//! No I/O, no clock, no tokio.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
+
+use serde_json::Value as Json;
 
 use super::metrics::{DeviceMetrics, Refusal};
 use super::payload::{DataType, Metric, MetricValue, Payload};
@@ -61,6 +65,19 @@ pub enum Action {
         field: Option<String>,
         reason: String,
     },
+}
+
+/// Replayed change sets kept while their devices are not born; beyond this the oldest go.
+pub const HISTORY_QUEUE: usize = 50_000;
+
+/// A device's change set read while the broker was away, replayed from the history journal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HistoricalValues {
+    pub device: String,
+    /// When the answer was read, in milliseconds since the Unix epoch.
+    pub read_at: u64,
+    /// Field name and value as the history document types it.
+    pub values: Vec<(String, Json)>,
 }
 
 /// The Will the next MQTT connection must carry.
@@ -139,6 +156,10 @@ pub struct Session {
     node_metrics: Vec<NodeMetric>,
     /// How long a device's birth may wait for its missing fields, in milliseconds.
     birth_wait: u64,
+    /// Replayed change sets waiting for their device's birth, oldest first.
+    history: VecDeque<HistoricalValues>,
+    /// Replayed change sets dropped by [`HISTORY_QUEUE`].
+    history_dropped: u64,
 }
 
 /// A gateway figure published as a node metric (line statistics, bus load). Declared when the
@@ -237,6 +258,8 @@ impl Session {
             host_state_timestamp: None,
             node_metrics,
             birth_wait: 0,
+            history: VecDeque::new(),
+            history_dropped: 0,
         }
     }
 
@@ -433,6 +456,55 @@ impl Session {
         self.node_data(now)
     }
 
+    /// Keeps a replayed change set for historical DDATA ([`Session::history_batch`]); those of
+    /// unknown devices are ignored, and past [`HISTORY_QUEUE`] the oldest is dropped.
+    pub fn queue_history(&mut self, record: HistoricalValues) {
+        if self.device_index(&record.device).is_none() {
+            return;
+        }
+        if self.history.len() >= HISTORY_QUEUE {
+            self.history.pop_front();
+            self.history_dropped += 1;
+            if self.history_dropped.is_power_of_two() {
+                tracing::warn!(
+                    dropped = self.history_dropped,
+                    "Sparkplug: replayed history waits for births that do not come; the oldest is dropped"
+                );
+            }
+        }
+        self.history.push_back(record);
+    }
+
+    /// Replayed change sets waiting for their device's birth.
+    pub fn history_waiting(&self) -> usize {
+        self.history.len()
+    }
+
+    /// Historical DDATA for at most `most` waiting change sets whose device is born in this
+    /// session, oldest first: each metric carries `is_historical` and the instant it was read,
+    /// as does the payload. The others keep waiting.
+    pub fn history_batch(&mut self, most: usize) -> Vec<Action> {
+        if !self.connected || !self.node_born {
+            return Vec::new();
+        }
+        let mut actions = Vec::new();
+        let mut unborn = VecDeque::new();
+        while let Some(record) = self.history.pop_front() {
+            match self.device_index(&record.device) {
+                Some(index) if self.devices[index].born => {
+                    actions.extend(self.historical_ddata(index, &record));
+                    if actions.len() >= most {
+                        break;
+                    }
+                }
+                _ => unborn.push_back(record),
+            }
+        }
+        unborn.append(&mut self.history);
+        self.history = unborn;
+        actions
+    }
+
     // ---- host STATE and commands ----
 
     fn on_host_state(&mut self, now: u64, payload: &[u8]) -> Vec<Action> {
@@ -612,6 +684,24 @@ impl Session {
         }
         let topic = self.device_topic("DDATA", &self.devices[index].metrics.device);
         let payload = self.sequenced(now, metrics);
+        vec![self.publish(topic, payload)]
+    }
+
+    /// DDATA of one replayed change set; the host's view of current values is not touched.
+    fn historical_ddata(&mut self, index: usize, record: &HistoricalValues) -> Vec<Action> {
+        let metrics: Vec<Metric> = record
+            .values
+            .iter()
+            .filter_map(|(field, value)| {
+                let def = self.devices[index].metrics.by_name(field)?;
+                Some(DeviceMetrics::historical_metric(def, value, record.read_at))
+            })
+            .collect();
+        if metrics.is_empty() {
+            return Vec::new();
+        }
+        let topic = self.device_topic("DDATA", &record.device);
+        let payload = self.sequenced(record.read_at, metrics);
         vec![self.publish(topic, payload)]
     }
 
@@ -1295,5 +1385,95 @@ mod tests {
         let topics = topics(&session.rebirth(T + 1));
         assert_eq!(topics[0], "spBv1.0/plant/NBIRTH/gw1");
         assert!(topics.contains(&"spBv1.0/plant/DBIRTH/gw1/dust".to_string()));
+    }
+
+    fn replayed(device: &str, read_at: u64, gear: i64) -> HistoricalValues {
+        HistoricalValues {
+            device: device.into(),
+            read_at,
+            values: vec![
+                ("gear".into(), Json::from(gear)),
+                ("power".into(), Json::Bool(true)),
+            ],
+        }
+    }
+
+    #[test]
+    fn replayed_history_waits_for_the_births_then_goes_out_as_historical_ddata() {
+        let mut session = Session::new(settings(None), 0);
+        session.queue_history(replayed("dust", T - 5_000, 2));
+        session.queue_history(replayed("dust", T - 4_000, 5));
+        session.queue_history(replayed("boiler", T - 3_000, 1));
+        assert_eq!(
+            session.history_waiting(),
+            2,
+            "an unknown device's are not kept"
+        );
+        assert!(session.history_batch(10).is_empty(), "not connected");
+        session.prepare_connect(T);
+        session.on_connected(T);
+        assert!(session.history_batch(10).is_empty(), "dust is not born yet");
+        let birth = published(&session.on_line_event(T + 1, &dust_values(3)));
+        let dbirth = &birth[0].1;
+        let messages = published(&session.history_batch(10));
+        assert_eq!(messages.len(), 2);
+        for ((topic, payload), (read_at, gear)) in
+            messages.iter().zip([(T - 5_000, 2), (T - 4_000, 5)])
+        {
+            assert_eq!(topic, "spBv1.0/plant/DDATA/gw1/dust");
+            assert_eq!(payload.timestamp, Some(read_at));
+            for metric in &payload.metrics {
+                assert_eq!(metric.is_historical, Some(true));
+                assert_eq!(metric.timestamp, Some(read_at));
+                assert_eq!(metric.name, None, "by alias, as the DBIRTH declared");
+                let declared = dbirth.metrics.iter().find(|m| m.alias == metric.alias);
+                assert_eq!(declared.and_then(|m| m.datatype), metric.datatype);
+            }
+            let gear_alias = session.devices[0].metrics.by_name("gear").map(|d| d.alias);
+            let gear_metric = payload.metrics.iter().find(|m| m.alias == gear_alias);
+            assert_eq!(
+                gear_metric.and_then(|m| m.value.clone()),
+                Some(MetricValue::Int(gear as u32))
+            );
+        }
+        assert_eq!(messages[0].1.seq.map(|seq| seq + 1), messages[1].1.seq);
+        assert_eq!(session.history_waiting(), 0);
+        // The live view is untouched: the current gear is still the one published.
+        let live = published(&session.on_line_event(T + 2, &dust_values(3)));
+        assert!(
+            live.iter().all(|(topic, _)| !topic.contains("DDATA")),
+            "{live:?}"
+        );
+    }
+
+    #[test]
+    fn replayed_history_goes_out_in_batches_and_waits_again_after_a_lost_connection() {
+        let mut session = connected();
+        session.on_line_event(T, &dust_values(3));
+        for n in 0..5 {
+            session.queue_history(replayed("dust", T - 100 + n, n as i64));
+        }
+        assert_eq!(published(&session.history_batch(2)).len(), 2);
+        session.on_disconnected();
+        assert!(session.history_batch(10).is_empty());
+        session.prepare_connect(T + 10);
+        let births = topics(&session.on_connected(T + 10));
+        assert!(
+            births.contains(&"spBv1.0/plant/DBIRTH/gw1/dust".to_string()),
+            "{births:?}"
+        );
+        let rest = published(&session.history_batch(10));
+        let stamps: Vec<_> = rest.iter().map(|(_, p)| p.timestamp).collect();
+        assert_eq!(stamps, [Some(T - 98), Some(T - 97), Some(T - 96)]);
+    }
+
+    #[test]
+    fn replayed_history_past_its_bound_drops_the_oldest() {
+        let mut session = Session::new(settings(None), 0);
+        for n in 0..=HISTORY_QUEUE as u64 {
+            session.queue_history(replayed("dust", n, 1));
+        }
+        assert_eq!(session.history_waiting(), HISTORY_QUEUE);
+        assert_eq!(session.history.front().map(|r| r.read_at), Some(1));
     }
 }

@@ -2,9 +2,9 @@
 
 Reads a JSON list of {"topic": ..., "hex": ...} on stdin, in publishing order, and prints a
 JSON list with what pysparkplug makes of each: the parsed topic, seq, timestamp and every
-metric's name, alias, datatype number, value, null flag and String/number properties. Data
-messages are decoded against the last birth of the same node or device, as a host does, so
-alias-only metrics come back with their names.
+metric's name, alias, datatype number, value, null flag, timestamp, historical flag and
+String/number properties. Data messages are decoded against the last birth of the same node
+or device, as a host does, so alias-only metrics come back with their names.
 """
 
 import json
@@ -55,6 +55,8 @@ def metric_json(metric, properties):
         "datatype": int(metric.datatype),
         "value": metric.value,
         "is_null": bool(metric.is_null),
+        "timestamp": metric.timestamp,
+        "is_historical": bool(metric.is_historical),
         "properties": properties.get(metric.name, {}),
     }
 

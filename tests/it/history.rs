@@ -1,15 +1,19 @@
 //! The history stream against a real mosquitto: values measured while the broker is away are
 //! journaled and come out, in order and with the instant they were read, after it is back;
-//! a gateway killed (SIGKILL) in the middle of an outage replays them after its restart.
+//! a gateway killed (SIGKILL) in the middle of an outage replays them after its restart; with
+//! `[sparkplug]` they also come as historical DDATA (decoded by pysparkplug) after the rebirth.
 
 use crate::support;
 
+use std::collections::BTreeMap;
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, SystemTime};
 
+use rtu2mqtt::history::document::epoch_ms;
 use rtu2mqtt::sim::{self, SeedPlant};
 use serde_json::{Map, Value as Json};
 use support::child::{gateway_run, KillOnDrop};
+use support::pysparkplug::decode_with_pysparkplug;
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
 const ANSWER: Duration = Duration::from_secs(15);
@@ -71,6 +75,15 @@ fn assert_in_order(messages: &[Message]) {
     }
 }
 
+/// Waits until the gateway's plain MQTT link is `up` (or down).
+async fn link_is(gateway: &Gateway, up: bool) {
+    let mut connected = gateway.running.bridge.connected.clone();
+    tokio::time::timeout(ANSWER, connected.wait_for(|now| *now == up))
+        .await
+        .unwrap_or_else(|_| panic!("the gateway's link never became up = {up}"))
+        .expect("bridge gone");
+}
+
 /// Sets the alarm bits through `sequence`, holding each long enough to be polled.
 async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
     for &alarms in sequence {
@@ -125,11 +138,7 @@ async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_i
 
     broker.kill();
     // The outage as the gateway sees it: from the moment it knows the broker is gone.
-    let mut connected = gateway.running.bridge.connected.clone();
-    tokio::time::timeout(ANSWER, connected.wait_for(|up| !*up))
-        .await
-        .expect("the gateway never noticed the broker was gone")
-        .expect("bridge gone");
+    link_is(&gateway, false).await;
     let outage = [1, 2, 4, 7, 0];
     walk_alarms(&plant, &outage).await;
     broker.restart();
@@ -179,8 +188,7 @@ async fn a_gateway_killed_in_the_middle_of_an_outage_replays_after_its_restart()
     drop(observer);
 
     broker.kill();
-    // Records handed to the MQTT client just before the broker went are not journaled: the
-    // outage starts once the gateway has noticed (its socket closed with the broker).
+    // The gateway notices at once (its socket closed with the broker).
     tokio::time::sleep(Duration::from_secs(1)).await;
     let outage = [5, 6, 7];
     walk_alarms(&plant, &outage).await;
@@ -197,4 +205,237 @@ async fn a_gateway_killed_in_the_middle_of_an_outage_replays_after_its_restart()
     let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
     let seen = collect_until(&mut observer, &expected).await;
     assert_in_order(&seen);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_the_broker_never_acknowledged_is_journaled_and_follows_in_order() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let mut config =
+        support::fast_config(&config_text(&broker, &plant, "hist-ack", journal.path()));
+    // The stalled broker is noticed after two keep-alive periods without a PINGRESP.
+    config.mqtt.keep_alive = Duration::from_secs(2);
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config).await;
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    observer
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await;
+    drop(observer);
+
+    // The broker stops answering: its socket takes the publishes, no PUBACK comes back.
+    broker.signal(nix::sys::signal::Signal::SIGSTOP);
+    let outage = [3, 1, 6, 2, 5, 4, 0];
+    walk_alarms(&plant, &outage).await;
+    link_is(&gateway, false).await;
+    // A new broker on the same port: nothing of the old one's session survives.
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let seen = collect_until(&mut observer, &expected).await;
+    assert_in_order(&seen);
+    gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_the_broker_never_acknowledged_before_a_stop_follows_after_the_next_start() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let text = config_text(&broker, &plant, "hist-stop", journal.path());
+    // A keep-alive long enough that the gateway still trusts the stalled broker at its stop.
+    let config = || {
+        let mut config = support::fast_config(&text);
+        config.mqtt.keep_alive = Duration::from_secs(60);
+        config
+    };
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config()).await;
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    observer
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await;
+    drop(observer);
+
+    broker.signal(nix::sys::signal::Signal::SIGSTOP);
+    let outage = [5, 3, 6];
+    walk_alarms(&plant, &outage).await;
+    assert!(
+        *gateway.running.bridge.connected.borrow(),
+        "the gateway should still be connected: the test is about an orderly stop"
+    );
+    gateway.stop().await;
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    let gateway = Gateway::start(config()).await;
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let seen = collect_until(&mut observer, &expected).await;
+    assert_in_order(&seen);
+    gateway.stop().await;
+}
+
+/// The node's messages in `log`, decoded by pysparkplug in publishing order.
+fn decoded_node_messages(log: &[Message]) -> Vec<Json> {
+    let node: Vec<&Message> = log
+        .iter()
+        .filter(|m| m.topic.starts_with("spBv1.0/plant/") && !m.topic.contains("CMD"))
+        .collect();
+    decode_with_pysparkplug(
+        node.iter()
+            .map(|m| (m.topic.as_str(), m.payload.as_slice())),
+    )
+}
+
+fn is_kind(message: &Json, kind: &str, device: Option<&str>) -> bool {
+    message["type"] == kind && message["device"].as_str() == device
+}
+
+/// The alarm states the dust collector's historical DDATA walk through, folded as a host
+/// folds them, with the read instant of each change set.
+fn historical_alarm_states(messages: &[Json]) -> Vec<((bool, bool, bool), u64)> {
+    let mut state = Map::new();
+    let mut states: Vec<((bool, bool, bool), u64)> = Vec::new();
+    for message in messages {
+        let metrics = message["metrics"].as_array().cloned().unwrap_or_default();
+        let read_at = message["timestamp"].as_u64().unwrap_or_default();
+        for metric in metrics {
+            if let Some(name) = metric["name"].as_str() {
+                state.insert(name.to_string(), metric["value"].clone());
+            }
+        }
+        let bit = |name: &str| state.get(name).and_then(Json::as_bool).unwrap_or(false);
+        let now = (
+            bit("fan_alarm"),
+            bit("filter_alarm"),
+            bit("temperature_alarm"),
+        );
+        if states.last().map(|(last, _)| last) != Some(&now) {
+            states.push((now, read_at));
+        }
+    }
+    states
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_sparkplug_the_outage_is_forwarded_as_historical_ddata_after_the_rebirth() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    let text = config_text(&broker, &plant, "hist-sp", journal.path());
+    let config = support::fast_config(&format!("{text}\n[sparkplug]\ngroup_id = \"plant\"\n"));
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config).await;
+    let mut observer = TestClient::connect(broker.port, "sp-historian").await;
+    observer.subscribe("spBv1.0/#").await;
+    observer
+        .wait_for(
+            "spBv1.0/plant/DBIRTH/hist-sp/dust_collector",
+            ANSWER,
+            |_| true,
+        )
+        .await;
+    drop(observer);
+
+    // What was read within a round trip before the kill can still lack its PUBACK: it is
+    // history too.
+    let outage_from = epoch_ms(SystemTime::now()) - 1_000;
+    broker.kill();
+    link_is(&gateway, false).await;
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage).await;
+    broker.restart();
+    let mut observer = TestClient::connect(broker.port, "sp-historian").await;
+    observer.subscribe("spBv1.0/#").await;
+    // The outage ends when the gateway is connected again: what it read until then is history.
+    link_is(&gateway, true).await;
+    let reconnect_at = epoch_ms(SystemTime::now());
+
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    let (decoded, states) = loop {
+        observer.settle(Duration::from_millis(500)).await;
+        let decoded = decoded_node_messages(&observer.received);
+        let historical: Vec<Json> = decoded
+            .iter()
+            .filter(|m| is_kind(m, "DDATA", Some("dust_collector")))
+            .filter(|m| {
+                m["metrics"].as_array().is_some_and(|metrics| {
+                    metrics.iter().any(|metric| metric["is_historical"] == true)
+                })
+            })
+            .cloned()
+            .collect();
+        let states = historical_alarm_states(&historical);
+        let walked: Vec<_> = states.iter().map(|(state, _)| *state).collect();
+        if walked
+            .windows(expected.len())
+            .any(|window| window == expected)
+        {
+            break (decoded, states);
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the outage did not come as historical DDATA:\nexpected {expected:?}\nin {walked:?}\n{decoded:#?}"
+        );
+    };
+
+    // The rebirth first: NBIRTH, then the dust collector's DBIRTH, then its history.
+    let nbirth = decoded
+        .iter()
+        .position(|m| is_kind(m, "NBIRTH", None))
+        .expect("no NBIRTH after the reconnect");
+    let dbirth = decoded
+        .iter()
+        .position(|m| is_kind(m, "DBIRTH", Some("dust_collector")))
+        .expect("no DBIRTH after the reconnect");
+    assert!(nbirth < dbirth, "{decoded:#?}");
+    let mut last_read: BTreeMap<String, u64> = BTreeMap::new();
+    for (index, message) in decoded.iter().enumerate() {
+        let metrics = message["metrics"].as_array().cloned().unwrap_or_default();
+        let historical = metrics
+            .iter()
+            .filter(|m| m["is_historical"] == true)
+            .count();
+        if historical == 0 {
+            continue;
+        }
+        assert!(
+            index > dbirth,
+            "historical data before the births: {message}"
+        );
+        assert_eq!(message["type"], "DDATA", "{message}");
+        assert_eq!(
+            historical,
+            metrics.len(),
+            "live and historical mixed: {message}"
+        );
+        let read_at = message["timestamp"].as_u64().expect("payload timestamp");
+        for metric in &metrics {
+            assert_eq!(metric["timestamp"].as_u64(), Some(read_at), "{message}");
+            assert!(
+                metric["name"].is_string(),
+                "not declared by the DBIRTH: {message}"
+            );
+        }
+        assert!(
+            (outage_from..reconnect_at).contains(&read_at),
+            "read at {read_at}, outage {outage_from}..{reconnect_at}: {message}"
+        );
+        let device = message["device"].as_str().unwrap_or_default().to_string();
+        let before = last_read.insert(device, read_at).unwrap_or(0);
+        assert!(read_at >= before, "history out of order: {message}");
+    }
+    // Each state was read while the device held it, in the order it took them.
+    let stamps: Vec<u64> = states.iter().map(|(_, at)| *at).collect();
+    assert!(
+        stamps.windows(2).all(|pair| pair[0] < pair[1]),
+        "{states:?}"
+    );
+    gateway.stop().await;
 }

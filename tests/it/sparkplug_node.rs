@@ -133,6 +133,7 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         node_values: node_values_rx,
         shutdown,
         bd_seq_store,
+        replayed: None,
     };
     let task = tokio::spawn(run(session, settings(port), links));
     Node {

@@ -216,6 +216,14 @@ impl Mosquitto {
         self.child = None;
     }
 
+    /// Stops (SIGSTOP) or continues (SIGCONT) the broker process: a broker that stops
+    /// answering while its sockets stay open.
+    pub fn signal(&self, signal: nix::sys::signal::Signal) {
+        if let Some(child) = &self.child {
+            nix::sys::signal::kill(child.pid(), signal).expect("signal mosquitto");
+        }
+    }
+
     /// Starts again on the same port.
     pub fn restart(&mut self) {
         self.kill();
