@@ -23,8 +23,14 @@ const CLIENT: &str = concat!(
 const DUST: u8 = 1;
 const SHOWER: u8 = 0x81;
 
-/// The seed plant's configuration with line-a served on `port`.
-fn served_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, serve: &str) -> String {
+/// The seed plant's configuration with the line of `device` served as `serve` says.
+fn served_config(
+    broker: &Mosquitto,
+    plant: &SeedPlant,
+    client_id: &str,
+    serve: &str,
+    device: &str,
+) -> String {
     let text = PlantConfig {
         gateway: "stats_interval = \"1s\"",
         explicit_serial: true,
@@ -32,10 +38,10 @@ fn served_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, serve: 
         ..PlantConfig::default()
     }
     .text(broker, plant, client_id);
-    let first_device = "[[lines.devices]]\nname = \"dust_collector\"";
-    assert!(text.contains(first_device));
+    let first_device = format!("[[lines.devices]]\nname = \"{device}\"");
+    assert!(text.contains(&first_device));
     text.replacen(
-        first_device,
+        &first_device,
         &format!("[lines.serve]\n{serve}\n\n{first_device}"),
         1,
     )
@@ -48,10 +54,18 @@ struct Harness {
     gateway: Gateway,
     port: u16,
     client_id: String,
+    /// The served line.
+    line: &'static str,
 }
 
 impl Harness {
+    /// The seed plant with line-a (dust collector, air shower) served.
     async fn start(name: &str, serve: &str) -> Harness {
+        Harness::start_serving(name, serve, "dust_collector").await
+    }
+
+    /// The seed plant with the line of `device` served.
+    async fn start_serving(name: &str, serve: &str, device: &str) -> Harness {
         let broker = Mosquitto::start();
         let plant = SeedPlant::spawn(false).unwrap();
         sim::lock(&plant.dust_collector).set_power(true);
@@ -64,9 +78,9 @@ impl Harness {
         } else {
             format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
         };
-        let text = served_config(&broker, &plant, &client_id, &serve);
+        let text = served_config(&broker, &plant, &client_id, &serve, device);
         let gateway = Gateway::start(support::fast_config(&text)).await;
-        for device in ["dust_collector", "air_shower"] {
+        for device in ["dust_collector", "air_shower", "valve"] {
             let topic = format!("plant/{device}/availability");
             mqtt.wait_for(&topic, ANSWER, |m| m.text() == "online")
                 .await;
@@ -78,6 +92,11 @@ impl Harness {
             gateway,
             port,
             client_id,
+            line: if device == "valve" {
+                "line-b"
+            } else {
+                "line-a"
+            },
         }
     }
 
@@ -114,13 +133,14 @@ impl Harness {
             .collect()
     }
 
-    /// The next statistics document whose line-a figures satisfy `accept`.
+    /// The next statistics document whose figures of the served line satisfy `accept`.
     async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
         let topic = format!("plant/gateway/{}/stats", self.client_id);
+        let line = self.line;
         self.mqtt
-            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"]["line-a"]))
+            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"][line]))
             .await
-            .json()["lines"]["line-a"]
+            .json()["lines"][line]
             .clone()
     }
 }
@@ -154,24 +174,6 @@ fn mean(latencies: &[Duration]) -> Duration {
     latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
 }
 
-/// The answers the device gave on `line` to reads of six registers starting with `request`,
-/// as a client's read result (`{"registers": [...]}`), in the order they were given.
-fn six_register_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
-    line.journal()
-        .requests()
-        .iter()
-        .filter(|r| r.frame.starts_with(request))
-        .filter_map(|r| r.answer.as_ref())
-        .map(|answer| {
-            let words: Vec<u16> = answer[3..15]
-                .chunks(2)
-                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-                .collect();
-            json!({ "registers": words })
-        })
-        .collect()
-}
-
 fn exception(code: u8) -> Json {
     json!({ "exception": code })
 }
@@ -190,7 +192,7 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         ]))
         .await;
     let answered: Vec<Json> =
-        six_register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
+        register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
     assert!(
         answered.contains(&answers[0]),
         "{answers:?} not in {answered:?}"
@@ -384,7 +386,7 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     let answers = h.client(reads).await;
     let polls_meanwhile = on_line(&h) - before;
     // Every answer is one the device itself gave a poll, word for word.
-    let polled: Vec<Json> = six_register_answers(&h.plant.line_a, &block);
+    let polled: Vec<Json> = register_answers(&h.plant.line_a, &block);
     for answer in &answers {
         assert!(polled.contains(answer), "{answer} was never polled");
     }
@@ -408,6 +410,131 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
         stats["client_requests"].as_u64().unwrap_or(0) >= 30,
         "{stats}"
     );
+    h.gateway.stop().await;
+}
+
+/// The register words of the device's answers on `line` to requests that start with
+/// `request`, as a client's read result (`{"registers": [...]}`), in the order given.
+fn register_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
+    line.journal()
+        .requests()
+        .iter()
+        .filter(|r| r.frame.starts_with(request))
+        .filter_map(|r| r.answer.as_ref())
+        .filter(|answer| answer.get(1) == Some(&0x03))
+        .map(|answer| {
+            let count = usize::from(answer[2]);
+            let words: Vec<u16> = answer[3..3 + count]
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            json!({ "registers": words })
+        })
+        .collect()
+}
+
+/// The device's answers on `line` to a poll that starts with `request`, once there is one.
+async fn polled_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
+    let deadline = Instant::now() + ANSWER;
+    loop {
+        let answers = register_answers(line, request);
+        if !answers.is_empty() {
+            return answers;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{} was never polled",
+            hex::encode(request)
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
+    const VALVE: u8 = 1;
+    let mut h = Harness::start_serving("serve-linear", "cache = \"1h\"", "valve").await;
+    // The identity block (0x00–0x0A, every register mapped) is polled whole once at start.
+    let identity = [VALVE, 0x03, 0x00, 0x00, 0x00, 0x0B];
+    let polled = polled_answers(&h.plant.line_b, &identity).await;
+    let words = polled[0]["registers"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(words.len(), 11, "{polled:?}");
+
+    // Two parts of it (serial number; versions and baud code) come from the poll: no frame.
+    h.plant.line_b.journal().clear();
+    let parts = json!([["read", VALVE, 0x01, 7], ["read", VALVE, 0x08, 3]]);
+    let cached = h.client(parts.clone()).await;
+    assert_eq!(cached[0], json!({ "registers": words[1..8] }), "{cached:?}");
+    assert_eq!(
+        cached[1],
+        json!({ "registers": words[8..11] }),
+        "{cached:?}"
+    );
+    let on_the_line = |h: &Harness| -> Vec<String> {
+        h.plant
+            .line_b
+            .journal()
+            .frames()
+            .iter()
+            .filter(|frame| frame.starts_with(&[VALVE, 0x03, 0x00]) && frame[3] < 0x0B)
+            .filter(|frame| !frame.starts_with(&identity))
+            .map(|frame| hex::encode(frame))
+            .collect()
+    };
+    assert!(on_the_line(&h).is_empty(), "{:?}", on_the_line(&h));
+    let stats = h
+        .line_stats(|line| line["cache_hits"].as_u64().unwrap_or(0) >= 2)
+        .await;
+    assert_eq!(stats["cache_hits"], 2, "{stats}");
+
+    // A command slot makes the cache forget the valve: the same parts now go to the device,
+    // whose answers on the wire are the words the cache gave.
+    h.mqtt
+        .publish("plant/valve/mode/set", "manual".to_string(), false)
+        .await;
+    h.mqtt.next_on("plant/valve/mode/result", ANSWER).await;
+    h.plant.line_b.journal().clear();
+    let read = h.client(parts).await;
+    assert_eq!(read, cached);
+    assert_eq!(
+        on_the_line(&h),
+        ["01 03 00 01 00 07 55 C8", "01 03 00 08 00 03 84 09"]
+    );
+    let wire: Vec<Json> = [
+        [VALVE, 0x03, 0x00, 0x01, 0x00, 0x07],
+        [VALVE, 0x03, 0x00, 0x08, 0x00, 0x03],
+    ]
+    .iter()
+    .flat_map(|request| register_answers(&h.plant.line_b, request))
+    .collect();
+    assert_eq!(wire, cached);
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_part_of_the_dust_collectors_block_always_goes_to_the_device() {
+    let mut h = Harness::start("serve-offset", "cache = \"1h\"").await;
+    let block = [DUST, 0x03, 0x10, 0x00, 0x00, 0x06];
+    polled_answers(&h.plant.line_a, &block).await;
+    h.plant.line_a.journal().clear();
+    let answers = h
+        .client(json!([
+            ["read", DUST, 0x1000, 6],
+            ["read", DUST, 0x1001, 2]
+        ]))
+        .await;
+    // The whole block from the cache, its part from the device: its frame is on the line
+    // and the client got the device's own answer to it.
+    let part = [DUST, 0x03, 0x10, 0x01, 0x00, 0x02];
+    let from_device = register_answers(&h.plant.line_a, &part);
+    assert_eq!(from_device, [answers[1].clone()], "{answers:?}");
+    let stats = h
+        .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 2)
+        .await;
+    assert_eq!(stats["cache_hits"], 1, "{stats}");
     h.gateway.stop().await;
 }
 
