@@ -565,6 +565,7 @@ impl Line {
             stats.client_requests = counters.requests.load(Relaxed);
             stats.cache_hits = counters.cache_hits.load(Relaxed);
             stats.client_refusals = counters.refusals.load(Relaxed);
+            stats.client_busy = counters.busy.load(Relaxed);
         }
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.

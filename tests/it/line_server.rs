@@ -147,17 +147,27 @@ impl Harness {
 
 /// Latencies of `count` reads of the dust collector's block over a plain Modbus TCP socket.
 async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port))
         .await
         .unwrap();
     stream.set_nodelay(true).unwrap();
+    timed_reads_on(&mut stream, count).await
+}
+
+/// A read of the dust collector's block in Modbus TCP, transaction `transaction`.
+fn block_read(transaction: u16) -> Vec<u8> {
+    let mut request = transaction.to_be_bytes().to_vec();
+    request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
+    request
+}
+
+/// Latencies of `count` reads of the dust collector's block on `stream`, one at a time.
+async fn timed_reads_on(stream: &mut tokio::net::TcpStream, count: u16) -> Vec<Duration> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut latencies = Vec::new();
     for transaction in 0..count {
-        let mut request = transaction.to_be_bytes().to_vec();
-        request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
         let sent = Instant::now();
-        stream.write_all(&request).await.unwrap();
+        stream.write_all(&block_read(transaction)).await.unwrap();
         let mut answer = [0u8; 21];
         tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
             .await
@@ -168,6 +178,27 @@ async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
         assert_eq!(answer[7..9], [0x03, 12], "{answer:?}");
     }
     latencies
+}
+
+/// Asserts that every request after the first on a 9600 8N1 line came after t3.5 of silence.
+fn assert_t3_5_kept(records: &[sim::RequestRecord]) {
+    let t3_5 = LineTiming::new(
+        9600,
+        CharFormat {
+            data_bits: 8,
+            parity: Parity::None,
+            stop_bits: 1,
+        },
+    )
+    .t3_5;
+    for (i, record) in records.iter().enumerate().skip(1) {
+        let silence = record.silence_before.unwrap_or_default();
+        assert!(
+            silence >= t3_5,
+            "request {i} ({}) after {silence:?} of silence (t3.5 is {t3_5:?})",
+            hex::encode(&record.frame)
+        );
+    }
 }
 
 fn mean(latencies: &[Duration]) -> Duration {
@@ -324,23 +355,7 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
         records.iter().any(|r| r.frame.starts_with(&[SHOWER, 0x01])),
         "the air shower was never polled while the clients read"
     );
-    let t3_5 = LineTiming::new(
-        9600,
-        CharFormat {
-            data_bits: 8,
-            parity: Parity::None,
-            stop_bits: 1,
-        },
-    )
-    .t3_5;
-    for (i, record) in records.iter().enumerate().skip(1) {
-        let silence = record.silence_before.unwrap_or_default();
-        assert!(
-            silence >= t3_5,
-            "request {i} ({}) after {silence:?} of silence (t3.5 is {t3_5:?})",
-            hex::encode(&record.frame)
-        );
-    }
+    assert_t3_5_kept(&records);
     let stats = h
         .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 65)
         .await;
@@ -611,6 +626,211 @@ async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
     assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
     let garbage = h.plant.line_a.journal().discarded_bytes();
     assert_eq!(garbage, 0);
+    h.gateway.stop().await;
+}
+
+/// Requests the flooding client writes without waiting for an answer.
+const FLOOD: u16 = 1000;
+
+/// The answers to `count` Modbus TCP requests on `stream`: (transaction, PDU).
+async fn mbap_answers(
+    stream: &mut (impl tokio::io::AsyncRead + Unpin),
+    count: u16,
+) -> Vec<(u16, Vec<u8>)> {
+    use tokio::io::AsyncReadExt;
+    let mut answers = Vec::new();
+    for _ in 0..count {
+        let mut header = [0u8; 7];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut header))
+            .await
+            .expect("an answer in time")
+            .unwrap();
+        let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
+        let mut pdu = vec![0u8; length.saturating_sub(1)];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut pdu))
+            .await
+            .expect("the rest of an answer in time")
+            .unwrap();
+        answers.push((u16::from_be_bytes([header[0], header[1]]), pdu));
+    }
+    answers
+}
+
+/// The longest time between two polls of the air shower in `records`.
+fn longest_shower_gap(records: &[sim::RequestRecord]) -> Duration {
+    let polls: Vec<Instant> = records
+        .iter()
+        .filter(|r| r.frame.starts_with(&[SHOWER, 0x01]))
+        .map(|r| r.arrived)
+        .collect();
+    polls
+        .windows(2)
+        .map(|pair| pair[1].saturating_duration_since(pair[0]))
+        .max()
+        .unwrap_or(Duration::MAX)
+}
+
+/// Asserts that a polite client's reads (`latencies`) and the air shower's polls in `records`
+/// kept their service beside a bad client, t3.5 kept: the worst read and the longest poll gap.
+fn assert_others_kept_their_service(
+    latencies: &[Duration],
+    records: &[sim::RequestRecord],
+) -> (Duration, Duration) {
+    let worst = latencies.iter().max().copied().unwrap_or_default();
+    assert!(worst < Duration::from_secs(2), "a read took {worst:?}");
+    let gap = longest_shower_gap(records);
+    assert!(
+        gap < Duration::from_secs(2),
+        "the air shower went {gap:?} unpolled"
+    );
+    assert_t3_5_kept(records);
+    (worst, gap)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flooding_client_gets_busy_answers_while_others_and_the_polls_keep_their_turns() {
+    use tokio::io::AsyncWriteExt;
+    let mut h = Harness::start("serve-flood", "cache = \"0s\"").await;
+    h.plant.line_a.journal().clear();
+    let started = Instant::now();
+    let flood = async {
+        let stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+            .await
+            .unwrap();
+        let (mut reading, mut writing) = stream.into_split();
+        let requests: Vec<u8> = (0..FLOOD).flat_map(block_read).collect();
+        let write = async { writing.write_all(&requests).await.unwrap() };
+        let ((), answers) = tokio::join!(write, mbap_answers(&mut reading, FLOOD));
+        answers
+    };
+    let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 10]);
+    let (flooded, polite, timed) = tokio::join!(flood, h.client(reads), timed_reads(h.port, 20));
+    let elapsed = started.elapsed();
+    let records = h.plant.line_a.journal().requests();
+
+    // Every request of the flood is answered, in order: the device's block or 06 (busy).
+    let transactions: Vec<u16> = flooded.iter().map(|(t, _)| *t).collect();
+    assert_eq!(transactions, (0..FLOOD).collect::<Vec<_>>());
+    let busy = flooded
+        .iter()
+        .filter(|(_, pdu)| pdu == &[0x83, 0x06])
+        .count();
+    let read = flooded
+        .iter()
+        .filter(|(_, pdu)| pdu.len() == 14 && pdu[..2] == [0x03, 12])
+        .count();
+    assert_eq!(busy + read, usize::from(FLOOD), "{flooded:?}");
+    assert!(busy > 0 && read > 0, "{read} read, {busy} busy");
+
+    // The others were served beside it, with bounded latency; the polls kept their cadence.
+    assert_eq!(polite.len(), 10);
+    for answer in &polite {
+        assert_eq!(
+            answer["registers"].as_array().map(Vec::len),
+            Some(6),
+            "{answer}"
+        );
+    }
+    let (worst, gap) = assert_others_kept_their_service(&timed, &records);
+    let stats = h
+        .line_stats(|line| line["client_busy"].as_u64().unwrap_or(0) >= busy as u64)
+        .await;
+    eprintln!(
+        "figure: flood of {FLOOD} pipelined reads: {read} read on the line, {busy} answered busy \
+         (06), in {elapsed:?}; a polite client's read meanwhile {:?} on average (worst \
+         {worst:?}); the air shower's longest poll gap {gap:?}; stats {stats}",
+        mean(&timed)
+    );
+    h.gateway.stop().await;
+}
+
+/// Anonymous memory of this process (the gateway runs in it), in KiB.
+fn rss_anon_kib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|line| line.strip_prefix("RssAnon:"))
+        .and_then(|rest| rest.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// Writes reads of the dust collector's block on `stream` as fast as it takes them and never
+/// reads an answer, until a write fails (the server closed the connection) or `limit`
+/// passes: the bytes written and the time until the failure.
+async fn write_without_reading(
+    stream: &mut tokio::net::TcpStream,
+    limit: Duration,
+) -> Result<(usize, Duration), String> {
+    use tokio::io::AsyncWriteExt;
+    // Whole requests, written from where the last write stopped: frames stay whole.
+    let requests: Vec<u8> = (0..64).flat_map(block_read).collect();
+    let started = Instant::now();
+    let mut written = 0usize;
+    while started.elapsed() < limit {
+        let offset = written % requests.len();
+        let write = stream.write(&requests[offset..]);
+        match tokio::time::timeout(Duration::from_millis(200), write).await {
+            Ok(Ok(0)) | Ok(Err(_)) => return Ok((written, started.elapsed())),
+            Ok(Ok(n)) => written += n,
+            Err(_) => {}
+        }
+    }
+    Err(format!(
+        "still open after {limit:?}, {written} bytes written"
+    ))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_reads_is_closed_and_its_place_freed_while_others_are_served() {
+    use tokio::net::TcpStream;
+    let h = Harness::start("serve-deaf", "cache = \"0s\"\nmax_clients = 2").await;
+    let memory_before = rss_anon_kib();
+    let mut polite = TcpStream::connect(("127.0.0.1", h.port)).await.unwrap();
+    polite.set_nodelay(true).unwrap();
+    // A small receive buffer: it fills in seconds (a default one takes minutes of answers,
+    // and costs the line no more than any client's turn meanwhile).
+    let deaf_socket = tokio::net::TcpSocket::new_v4().unwrap();
+    deaf_socket.set_recv_buffer_size(4096).unwrap();
+    let mut deaf = deaf_socket
+        .connect(([127, 0, 0, 1], h.port).into())
+        .await
+        .unwrap();
+    // Both places are taken: a third client is turned away.
+    let mut third = TcpStream::connect(("127.0.0.1", h.port)).await.unwrap();
+    assert_eq!(
+        closed_within(&mut third, Duration::from_secs(2)).await,
+        Ok(())
+    );
+    h.plant.line_a.journal().clear();
+    let deafness = async {
+        let outcome = write_without_reading(&mut deaf, Duration::from_secs(90)).await;
+        (outcome, rss_anon_kib())
+    };
+    let (((written, closed_after), memory_during), latencies) = {
+        let ((outcome, memory), latencies) =
+            tokio::join!(deafness, timed_reads_on(&mut polite, 40));
+        (
+            (outcome.expect("the server closed the deaf client"), memory),
+            latencies,
+        )
+    };
+    let records = h.plant.line_a.journal().requests();
+    let (worst, gap) = assert_others_kept_their_service(&latencies, &records);
+    // Its place is free again: a new client is served while the polite one stays connected.
+    let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
+    assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
+    let grown = memory_during.saturating_sub(memory_before);
+    eprintln!(
+        "figure: a client that never reads: closed after {closed_after:?} having written \
+         {written} bytes; this process's anonymous memory grew {grown} KiB meanwhile; a polite \
+         client's read {:?} on average (worst {worst:?}); the air shower's longest poll gap {gap:?}",
+        mean(&latencies)
+    );
+    assert!(
+        written < 64 << 20,
+        "{written} bytes taken from a client that never reads"
+    );
+    assert!(grown < 64 << 10, "memory grew {grown} KiB");
     h.gateway.stop().await;
 }
 
