@@ -38,6 +38,7 @@
 mod gateway_process;
 #[path = "../tests/it/support/mod.rs"]
 mod support;
+mod wire_bench;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -45,10 +46,11 @@ use std::time::{Duration, Instant};
 use gateway_process::{cpu_time_of, proc_field, GatewayProcess};
 use rtu2mqtt::profile::Profile;
 use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
-use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::timing::{LineTiming, Parity};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use support::Mosquitto;
 use tokio::sync::mpsc;
+use wire_bench::{command_client, percentile, wire_load, WireLoad, EIGHT_N_ONE};
 
 const BAUD: u32 = 9600;
 const WARM_UP: Duration = Duration::from_secs(5);
@@ -145,18 +147,9 @@ fn profile_text() -> String {
     text
 }
 
-const EIGHT_N_ONE: CharFormat = CharFormat {
-    data_bits: 8,
-    parity: Parity::None,
-    stop_bits: 1,
-};
-
 fn main() -> anyhow::Result<()> {
     // The simulated devices and the MQTT client; the gateway is another process.
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
+    let runtime = wire_bench::runtime()?;
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir()?;
     let profile_path = dir.path().join("edge-block.toml");
@@ -276,23 +269,6 @@ async fn timed_subscriber(
     });
     tokio::time::timeout(Duration::from_secs(10), subscribed_rx).await??;
     Ok(rx)
-}
-
-/// A publisher of commands whose socket sends at once.
-async fn command_client(port: u16, client_id: &str) -> AsyncClient {
-    let options = MqttOptions::new(client_id, "127.0.0.1", port);
-    let (client, mut eventloop) = AsyncClient::new(options, 64);
-    let mut network = eventloop.network_options();
-    network.set_tcp_nodelay(true);
-    eventloop.set_network_options(network);
-    tokio::spawn(async move {
-        loop {
-            if eventloop.poll().await.is_err() {
-                tokio::time::sleep(Duration::from_millis(100)).await;
-            }
-        }
-    });
-    client
 }
 
 async fn one_line(
@@ -518,20 +494,7 @@ fn wire_figures(
     results: &[Instant],
 ) -> Wire {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
-    let busy: Duration = records
-        .iter()
-        .map(|r| {
-            let answer = r.answer.as_ref().map_or(0, Vec::len);
-            // A pause inside an answer keeps the line as busy as the answer's bytes do; the
-            // simulator pauses after every half of the answer that has more bytes after it.
-            let pauses = answer.saturating_sub(1) / (answer / 2).max(1);
-            let paused = pause.unwrap_or_default() * pauses as u32;
-            timing.frame_time(r.frame.len()) + timing.frame_time(answer) + paused + 2 * timing.t3_5
-        })
-        .sum();
-    let mut gaps: Vec<Duration> = records.iter().filter_map(|r| r.silence_before).collect();
-    gaps.sort();
-    let early = gaps.iter().filter(|gap| **gap < timing.t3_5).count();
+    let WireLoad { busy, gaps, early } = wire_load(records, &timing, pause);
     let slot = timing.frame_time(WRITE_LEN)
         + timing.t3_5
         + timing.frame_time(WRITE_LEN)
@@ -640,14 +603,6 @@ fn wire_figures(
 fn transaction_wire_time() -> Duration {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
     timing.frame_time(READ_REQUEST_LEN) + timing.frame_time(READ_ANSWER_LEN) + 2 * timing.t3_5
-}
-
-fn percentile(sorted: &[Duration], p: usize) -> Duration {
-    if sorted.is_empty() {
-        return Duration::ZERO;
-    }
-    let index = (sorted.len() * p).div_ceil(100).saturating_sub(1);
-    sorted[index.min(sorted.len() - 1)]
 }
 
 fn ms(duration: Duration) -> String {

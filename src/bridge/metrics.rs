@@ -195,6 +195,11 @@ const LINE_COUNTERS: &[LineCounter] = &[
         "Client requests refused before the line (access, unknown unit, malformed).",
         |s| s.client_refusals,
     ),
+    (
+        "client_busy_total",
+        "Client requests answered busy (06): their client pipelined too many.",
+        |s| s.client_busy,
+    ),
 ];
 
 /// A device counter: (metric suffix, help, accessor).
@@ -532,6 +537,7 @@ fn line_json(line: &LineStats) -> Json {
         "client_requests": line.client_requests,
         "cache_hits": line.cache_hits,
         "client_refusals": line.client_refusals,
+        "client_busy": line.client_busy,
         "devices": devices,
     })
 }

@@ -8,7 +8,7 @@
 //!
 //! A served line ([`super::serve`]) takes its clients' requests when no command waits, one
 //! client slot at a time and a due poll between two of them; reads a young poll answered
-//! exactly come from its cache.
+//! exactly (or, of a block the device reads linearly, in part) come from its cache.
 //!
 //! A port path that is no serial port fails the line without ending the daemon: its devices
 //! are offline, every attempt logs an ERROR naming the path, and the gateway's other lines
@@ -195,7 +195,10 @@ impl Line {
             .map_or(Duration::ZERO, |serve| serve.cache);
         let cache = BlockCache::new(
             cache_age,
-            devices.iter().map(|d| d.spec.profile.read_blocks().len()),
+            devices.iter().map(|d| {
+                let blocks = d.spec.profile.read_blocks().iter();
+                blocks.map(|block| block.reads_linearly).collect()
+            }),
         );
         tracing::info!(
             link = %spec.transport.describe(&spec.serial),
@@ -562,6 +565,7 @@ impl Line {
             stats.client_requests = counters.requests.load(Relaxed);
             stats.cache_hits = counters.cache_hits.load(Relaxed);
             stats.client_refusals = counters.refusals.load(Relaxed);
+            stats.client_busy = counters.busy.load(Relaxed);
         }
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.

@@ -148,6 +148,8 @@ pub struct LineStats {
     pub cache_hits: u64,
     /// Client requests refused before the line (access, unknown unit, malformed).
     pub client_refusals: u64,
+    /// Client requests answered 06 (server device busy): their client pipelined too many.
+    pub client_busy: u64,
     pub devices: Vec<DeviceStats>,
 }
 
@@ -204,6 +206,7 @@ impl LineStats {
             client_requests: 0,
             cache_hits: 0,
             client_refusals: 0,
+            client_busy: 0,
             devices: devices.iter().map(|name| DeviceStats::new(name)).collect(),
         }
     }

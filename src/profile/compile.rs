@@ -398,6 +398,7 @@ fn build_blocks(
             request,
             class,
             used_runs: Vec::new(),
+            reads_linearly: section.reads_linearly,
         });
         kinds.push(kind);
     }

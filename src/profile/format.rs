@@ -105,6 +105,10 @@ pub(super) struct BlockSection {
     /// split into the runs its fields use: gaps are readable on this device.
     #[serde(default)]
     pub(super) read_whole: bool,
+    /// Any part of the block read on its own answers the same items as the whole block holds
+    /// at those addresses (the device reads by address, not by offset from the start asked).
+    #[serde(default)]
+    pub(super) reads_linearly: bool,
 }
 
 pub(super) fn default_poll() -> String {

@@ -35,6 +35,9 @@ pub struct ReadBlock {
     /// device refuses the merged block (exception 02), the line reads these runs one by one and
     /// assembles a block answer with zeros in the unused places.
     pub used_runs: Vec<(u16, u16)>,
+    /// The device answers a read of any part of this block with the items the whole block
+    /// holds at those addresses, so a part may be cut from an answer to the whole.
+    pub reads_linearly: bool,
 }
 
 /// Line defaults and device limits from the profile.

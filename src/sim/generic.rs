@@ -267,6 +267,7 @@ mod tests {
             request,
             class: PollClass::Fast,
             used_runs: vec![],
+            reads_linearly: true,
         }
     }
 

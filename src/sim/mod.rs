@@ -185,6 +185,7 @@ mod tests {
                         request: Request::ReadHoldingRegisters { start: 0xFFF0, quantity: 16 },
                         class: crate::profile::PollClass::Fast,
                         used_runs: vec![(0, 16)],
+                        reads_linearly: true,
                     }],
                     1,
                 )),

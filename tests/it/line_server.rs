@@ -23,8 +23,14 @@ const CLIENT: &str = concat!(
 const DUST: u8 = 1;
 const SHOWER: u8 = 0x81;
 
-/// The seed plant's configuration with line-a served on `port`.
-fn served_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, serve: &str) -> String {
+/// The seed plant's configuration with the line of `device` served as `serve` says.
+fn served_config(
+    broker: &Mosquitto,
+    plant: &SeedPlant,
+    client_id: &str,
+    serve: &str,
+    device: &str,
+) -> String {
     let text = PlantConfig {
         gateway: "stats_interval = \"1s\"",
         explicit_serial: true,
@@ -32,10 +38,10 @@ fn served_config(broker: &Mosquitto, plant: &SeedPlant, client_id: &str, serve: 
         ..PlantConfig::default()
     }
     .text(broker, plant, client_id);
-    let first_device = "[[lines.devices]]\nname = \"dust_collector\"";
-    assert!(text.contains(first_device));
+    let first_device = format!("[[lines.devices]]\nname = \"{device}\"");
+    assert!(text.contains(&first_device));
     text.replacen(
-        first_device,
+        &first_device,
         &format!("[lines.serve]\n{serve}\n\n{first_device}"),
         1,
     )
@@ -48,10 +54,18 @@ struct Harness {
     gateway: Gateway,
     port: u16,
     client_id: String,
+    /// The served line.
+    line: &'static str,
 }
 
 impl Harness {
+    /// The seed plant with line-a (dust collector, air shower) served.
     async fn start(name: &str, serve: &str) -> Harness {
+        Harness::start_serving(name, serve, "dust_collector").await
+    }
+
+    /// The seed plant with the line of `device` served.
+    async fn start_serving(name: &str, serve: &str, device: &str) -> Harness {
         let broker = Mosquitto::start();
         let plant = SeedPlant::spawn(false).unwrap();
         sim::lock(&plant.dust_collector).set_power(true);
@@ -64,9 +78,9 @@ impl Harness {
         } else {
             format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
         };
-        let text = served_config(&broker, &plant, &client_id, &serve);
+        let text = served_config(&broker, &plant, &client_id, &serve, device);
         let gateway = Gateway::start(support::fast_config(&text)).await;
-        for device in ["dust_collector", "air_shower"] {
+        for device in ["dust_collector", "air_shower", "valve"] {
             let topic = format!("plant/{device}/availability");
             mqtt.wait_for(&topic, ANSWER, |m| m.text() == "online")
                 .await;
@@ -78,6 +92,11 @@ impl Harness {
             gateway,
             port,
             client_id,
+            line: if device == "valve" {
+                "line-b"
+            } else {
+                "line-a"
+            },
         }
     }
 
@@ -114,30 +133,41 @@ impl Harness {
             .collect()
     }
 
-    /// The next statistics document whose line-a figures satisfy `accept`.
+    /// The next statistics document whose figures of the served line satisfy `accept`.
     async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
         let topic = format!("plant/gateway/{}/stats", self.client_id);
+        let line = self.line;
         self.mqtt
-            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"]["line-a"]))
+            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"][line]))
             .await
-            .json()["lines"]["line-a"]
+            .json()["lines"][line]
             .clone()
     }
 }
 
 /// Latencies of `count` reads of the dust collector's block over a plain Modbus TCP socket.
 async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port))
         .await
         .unwrap();
     stream.set_nodelay(true).unwrap();
+    timed_reads_on(&mut stream, count).await
+}
+
+/// A read of the dust collector's block in Modbus TCP, transaction `transaction`.
+fn block_read(transaction: u16) -> Vec<u8> {
+    let mut request = transaction.to_be_bytes().to_vec();
+    request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
+    request
+}
+
+/// Latencies of `count` reads of the dust collector's block on `stream`, one at a time.
+async fn timed_reads_on(stream: &mut tokio::net::TcpStream, count: u16) -> Vec<Duration> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut latencies = Vec::new();
     for transaction in 0..count {
-        let mut request = transaction.to_be_bytes().to_vec();
-        request.extend(hex::decode("00 00 00 06 01 03 10 00 00 06"));
         let sent = Instant::now();
-        stream.write_all(&request).await.unwrap();
+        stream.write_all(&block_read(transaction)).await.unwrap();
         let mut answer = [0u8; 21];
         tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
             .await
@@ -150,26 +180,29 @@ async fn timed_reads(port: u16, count: u16) -> Vec<Duration> {
     latencies
 }
 
-fn mean(latencies: &[Duration]) -> Duration {
-    latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
+/// Asserts that every request after the first on a 9600 8N1 line came after t3.5 of silence.
+fn assert_t3_5_kept(records: &[sim::RequestRecord]) {
+    let t3_5 = LineTiming::new(
+        9600,
+        CharFormat {
+            data_bits: 8,
+            parity: Parity::None,
+            stop_bits: 1,
+        },
+    )
+    .t3_5;
+    for (i, record) in records.iter().enumerate().skip(1) {
+        let silence = record.silence_before.unwrap_or_default();
+        assert!(
+            silence >= t3_5,
+            "request {i} ({}) after {silence:?} of silence (t3.5 is {t3_5:?})",
+            hex::encode(&record.frame)
+        );
+    }
 }
 
-/// The answers the device gave on `line` to reads of six registers starting with `request`,
-/// as a client's read result (`{"registers": [...]}`), in the order they were given.
-fn six_register_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
-    line.journal()
-        .requests()
-        .iter()
-        .filter(|r| r.frame.starts_with(request))
-        .filter_map(|r| r.answer.as_ref())
-        .map(|answer| {
-            let words: Vec<u16> = answer[3..15]
-                .chunks(2)
-                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-                .collect();
-            json!({ "registers": words })
-        })
-        .collect()
+fn mean(latencies: &[Duration]) -> Duration {
+    latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32
 }
 
 fn exception(code: u8) -> Json {
@@ -190,7 +223,7 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         ]))
         .await;
     let answered: Vec<Json> =
-        six_register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
+        register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
     assert!(
         answered.contains(&answers[0]),
         "{answers:?} not in {answered:?}"
@@ -322,23 +355,7 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
         records.iter().any(|r| r.frame.starts_with(&[SHOWER, 0x01])),
         "the air shower was never polled while the clients read"
     );
-    let t3_5 = LineTiming::new(
-        9600,
-        CharFormat {
-            data_bits: 8,
-            parity: Parity::None,
-            stop_bits: 1,
-        },
-    )
-    .t3_5;
-    for (i, record) in records.iter().enumerate().skip(1) {
-        let silence = record.silence_before.unwrap_or_default();
-        assert!(
-            silence >= t3_5,
-            "request {i} ({}) after {silence:?} of silence (t3.5 is {t3_5:?})",
-            hex::encode(&record.frame)
-        );
-    }
+    assert_t3_5_kept(&records);
     let stats = h
         .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 65)
         .await;
@@ -384,7 +401,7 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     let answers = h.client(reads).await;
     let polls_meanwhile = on_line(&h) - before;
     // Every answer is one the device itself gave a poll, word for word.
-    let polled: Vec<Json> = six_register_answers(&h.plant.line_a, &block);
+    let polled: Vec<Json> = register_answers(&h.plant.line_a, &block);
     for answer in &answers {
         assert!(polled.contains(answer), "{answer} was never polled");
     }
@@ -408,6 +425,131 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
         stats["client_requests"].as_u64().unwrap_or(0) >= 30,
         "{stats}"
     );
+    h.gateway.stop().await;
+}
+
+/// The register words of the device's answers on `line` to requests that start with
+/// `request`, as a client's read result (`{"registers": [...]}`), in the order given.
+fn register_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
+    line.journal()
+        .requests()
+        .iter()
+        .filter(|r| r.frame.starts_with(request))
+        .filter_map(|r| r.answer.as_ref())
+        .filter(|answer| answer.get(1) == Some(&0x03))
+        .map(|answer| {
+            let count = usize::from(answer[2]);
+            let words: Vec<u16> = answer[3..3 + count]
+                .chunks(2)
+                .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+                .collect();
+            json!({ "registers": words })
+        })
+        .collect()
+}
+
+/// The device's answers on `line` to a poll that starts with `request`, once there is one.
+async fn polled_answers(line: &sim::VirtualLine, request: &[u8]) -> Vec<Json> {
+    let deadline = Instant::now() + ANSWER;
+    loop {
+        let answers = register_answers(line, request);
+        if !answers.is_empty() {
+            return answers;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{} was never polled",
+            hex::encode(request)
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
+    const VALVE: u8 = 1;
+    let mut h = Harness::start_serving("serve-linear", "cache = \"1h\"", "valve").await;
+    // The identity block (0x00–0x0A, every register mapped) is polled whole once at start.
+    let identity = [VALVE, 0x03, 0x00, 0x00, 0x00, 0x0B];
+    let polled = polled_answers(&h.plant.line_b, &identity).await;
+    let words = polled[0]["registers"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(words.len(), 11, "{polled:?}");
+
+    // Two parts of it (serial number; versions and baud code) come from the poll: no frame.
+    h.plant.line_b.journal().clear();
+    let parts = json!([["read", VALVE, 0x01, 7], ["read", VALVE, 0x08, 3]]);
+    let cached = h.client(parts.clone()).await;
+    assert_eq!(cached[0], json!({ "registers": words[1..8] }), "{cached:?}");
+    assert_eq!(
+        cached[1],
+        json!({ "registers": words[8..11] }),
+        "{cached:?}"
+    );
+    let on_the_line = |h: &Harness| -> Vec<String> {
+        h.plant
+            .line_b
+            .journal()
+            .frames()
+            .iter()
+            .filter(|frame| frame.starts_with(&[VALVE, 0x03, 0x00]) && frame[3] < 0x0B)
+            .filter(|frame| !frame.starts_with(&identity))
+            .map(|frame| hex::encode(frame))
+            .collect()
+    };
+    assert!(on_the_line(&h).is_empty(), "{:?}", on_the_line(&h));
+    let stats = h
+        .line_stats(|line| line["cache_hits"].as_u64().unwrap_or(0) >= 2)
+        .await;
+    assert_eq!(stats["cache_hits"], 2, "{stats}");
+
+    // A command slot makes the cache forget the valve: the same parts now go to the device,
+    // whose answers on the wire are the words the cache gave.
+    h.mqtt
+        .publish("plant/valve/mode/set", "manual".to_string(), false)
+        .await;
+    h.mqtt.next_on("plant/valve/mode/result", ANSWER).await;
+    h.plant.line_b.journal().clear();
+    let read = h.client(parts).await;
+    assert_eq!(read, cached);
+    assert_eq!(
+        on_the_line(&h),
+        ["01 03 00 01 00 07 55 C8", "01 03 00 08 00 03 84 09"]
+    );
+    let wire: Vec<Json> = [
+        [VALVE, 0x03, 0x00, 0x01, 0x00, 0x07],
+        [VALVE, 0x03, 0x00, 0x08, 0x00, 0x03],
+    ]
+    .iter()
+    .flat_map(|request| register_answers(&h.plant.line_b, request))
+    .collect();
+    assert_eq!(wire, cached);
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_part_of_the_dust_collectors_block_always_goes_to_the_device() {
+    let mut h = Harness::start("serve-offset", "cache = \"1h\"").await;
+    let block = [DUST, 0x03, 0x10, 0x00, 0x00, 0x06];
+    polled_answers(&h.plant.line_a, &block).await;
+    h.plant.line_a.journal().clear();
+    let answers = h
+        .client(json!([
+            ["read", DUST, 0x1000, 6],
+            ["read", DUST, 0x1001, 2]
+        ]))
+        .await;
+    // The whole block from the cache, its part from the device: its frame is on the line
+    // and the client got the device's own answer to it.
+    let part = [DUST, 0x03, 0x10, 0x01, 0x00, 0x02];
+    let from_device = register_answers(&h.plant.line_a, &part);
+    assert_eq!(from_device, [answers[1].clone()], "{answers:?}");
+    let stats = h
+        .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 2)
+        .await;
+    assert_eq!(stats["cache_hits"], 1, "{stats}");
     h.gateway.stop().await;
 }
 
@@ -484,6 +626,211 @@ async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
     assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
     let garbage = h.plant.line_a.journal().discarded_bytes();
     assert_eq!(garbage, 0);
+    h.gateway.stop().await;
+}
+
+/// Requests the flooding client writes without waiting for an answer.
+const FLOOD: u16 = 1000;
+
+/// The answers to `count` Modbus TCP requests on `stream`: (transaction, PDU).
+async fn mbap_answers(
+    stream: &mut (impl tokio::io::AsyncRead + Unpin),
+    count: u16,
+) -> Vec<(u16, Vec<u8>)> {
+    use tokio::io::AsyncReadExt;
+    let mut answers = Vec::new();
+    for _ in 0..count {
+        let mut header = [0u8; 7];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut header))
+            .await
+            .expect("an answer in time")
+            .unwrap();
+        let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
+        let mut pdu = vec![0u8; length.saturating_sub(1)];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut pdu))
+            .await
+            .expect("the rest of an answer in time")
+            .unwrap();
+        answers.push((u16::from_be_bytes([header[0], header[1]]), pdu));
+    }
+    answers
+}
+
+/// The longest time between two polls of the air shower in `records`.
+fn longest_shower_gap(records: &[sim::RequestRecord]) -> Duration {
+    let polls: Vec<Instant> = records
+        .iter()
+        .filter(|r| r.frame.starts_with(&[SHOWER, 0x01]))
+        .map(|r| r.arrived)
+        .collect();
+    polls
+        .windows(2)
+        .map(|pair| pair[1].saturating_duration_since(pair[0]))
+        .max()
+        .unwrap_or(Duration::MAX)
+}
+
+/// Asserts that a polite client's reads (`latencies`) and the air shower's polls in `records`
+/// kept their service beside a bad client, t3.5 kept: the worst read and the longest poll gap.
+fn assert_others_kept_their_service(
+    latencies: &[Duration],
+    records: &[sim::RequestRecord],
+) -> (Duration, Duration) {
+    let worst = latencies.iter().max().copied().unwrap_or_default();
+    assert!(worst < Duration::from_secs(2), "a read took {worst:?}");
+    let gap = longest_shower_gap(records);
+    assert!(
+        gap < Duration::from_secs(2),
+        "the air shower went {gap:?} unpolled"
+    );
+    assert_t3_5_kept(records);
+    (worst, gap)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flooding_client_gets_busy_answers_while_others_and_the_polls_keep_their_turns() {
+    use tokio::io::AsyncWriteExt;
+    let mut h = Harness::start("serve-flood", "cache = \"0s\"").await;
+    h.plant.line_a.journal().clear();
+    let started = Instant::now();
+    let flood = async {
+        let stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+            .await
+            .unwrap();
+        let (mut reading, mut writing) = stream.into_split();
+        let requests: Vec<u8> = (0..FLOOD).flat_map(block_read).collect();
+        let write = async { writing.write_all(&requests).await.unwrap() };
+        let ((), answers) = tokio::join!(write, mbap_answers(&mut reading, FLOOD));
+        answers
+    };
+    let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 10]);
+    let (flooded, polite, timed) = tokio::join!(flood, h.client(reads), timed_reads(h.port, 20));
+    let elapsed = started.elapsed();
+    let records = h.plant.line_a.journal().requests();
+
+    // Every request of the flood is answered, in order: the device's block or 06 (busy).
+    let transactions: Vec<u16> = flooded.iter().map(|(t, _)| *t).collect();
+    assert_eq!(transactions, (0..FLOOD).collect::<Vec<_>>());
+    let busy = flooded
+        .iter()
+        .filter(|(_, pdu)| pdu == &[0x83, 0x06])
+        .count();
+    let read = flooded
+        .iter()
+        .filter(|(_, pdu)| pdu.len() == 14 && pdu[..2] == [0x03, 12])
+        .count();
+    assert_eq!(busy + read, usize::from(FLOOD), "{flooded:?}");
+    assert!(busy > 0 && read > 0, "{read} read, {busy} busy");
+
+    // The others were served beside it, with bounded latency; the polls kept their cadence.
+    assert_eq!(polite.len(), 10);
+    for answer in &polite {
+        assert_eq!(
+            answer["registers"].as_array().map(Vec::len),
+            Some(6),
+            "{answer}"
+        );
+    }
+    let (worst, gap) = assert_others_kept_their_service(&timed, &records);
+    let stats = h
+        .line_stats(|line| line["client_busy"].as_u64().unwrap_or(0) >= busy as u64)
+        .await;
+    eprintln!(
+        "figure: flood of {FLOOD} pipelined reads: {read} read on the line, {busy} answered busy \
+         (06), in {elapsed:?}; a polite client's read meanwhile {:?} on average (worst \
+         {worst:?}); the air shower's longest poll gap {gap:?}; stats {stats}",
+        mean(&timed)
+    );
+    h.gateway.stop().await;
+}
+
+/// Anonymous memory of this process (the gateway runs in it), in KiB.
+fn rss_anon_kib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|line| line.strip_prefix("RssAnon:"))
+        .and_then(|rest| rest.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// Writes reads of the dust collector's block on `stream` as fast as it takes them and never
+/// reads an answer, until a write fails (the server closed the connection) or `limit`
+/// passes: the bytes written and the time until the failure.
+async fn write_without_reading(
+    stream: &mut tokio::net::TcpStream,
+    limit: Duration,
+) -> Result<(usize, Duration), String> {
+    use tokio::io::AsyncWriteExt;
+    // Whole requests, written from where the last write stopped: frames stay whole.
+    let requests: Vec<u8> = (0..64).flat_map(block_read).collect();
+    let started = Instant::now();
+    let mut written = 0usize;
+    while started.elapsed() < limit {
+        let offset = written % requests.len();
+        let write = stream.write(&requests[offset..]);
+        match tokio::time::timeout(Duration::from_millis(200), write).await {
+            Ok(Ok(0)) | Ok(Err(_)) => return Ok((written, started.elapsed())),
+            Ok(Ok(n)) => written += n,
+            Err(_) => {}
+        }
+    }
+    Err(format!(
+        "still open after {limit:?}, {written} bytes written"
+    ))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_reads_is_closed_and_its_place_freed_while_others_are_served() {
+    use tokio::net::TcpStream;
+    let h = Harness::start("serve-deaf", "cache = \"0s\"\nmax_clients = 2").await;
+    let memory_before = rss_anon_kib();
+    let mut polite = TcpStream::connect(("127.0.0.1", h.port)).await.unwrap();
+    polite.set_nodelay(true).unwrap();
+    // A small receive buffer: it fills in seconds (a default one takes minutes of answers,
+    // and costs the line no more than any client's turn meanwhile).
+    let deaf_socket = tokio::net::TcpSocket::new_v4().unwrap();
+    deaf_socket.set_recv_buffer_size(4096).unwrap();
+    let mut deaf = deaf_socket
+        .connect(([127, 0, 0, 1], h.port).into())
+        .await
+        .unwrap();
+    // Both places are taken: a third client is turned away.
+    let mut third = TcpStream::connect(("127.0.0.1", h.port)).await.unwrap();
+    assert_eq!(
+        closed_within(&mut third, Duration::from_secs(2)).await,
+        Ok(())
+    );
+    h.plant.line_a.journal().clear();
+    let deafness = async {
+        let outcome = write_without_reading(&mut deaf, Duration::from_secs(90)).await;
+        (outcome, rss_anon_kib())
+    };
+    let (((written, closed_after), memory_during), latencies) = {
+        let ((outcome, memory), latencies) =
+            tokio::join!(deafness, timed_reads_on(&mut polite, 40));
+        (
+            (outcome.expect("the server closed the deaf client"), memory),
+            latencies,
+        )
+    };
+    let records = h.plant.line_a.journal().requests();
+    let (worst, gap) = assert_others_kept_their_service(&latencies, &records);
+    // Its place is free again: a new client is served while the polite one stays connected.
+    let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
+    assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
+    let grown = memory_during.saturating_sub(memory_before);
+    eprintln!(
+        "figure: a client that never reads: closed after {closed_after:?} having written \
+         {written} bytes; this process's anonymous memory grew {grown} KiB meanwhile; a polite \
+         client's read {:?} on average (worst {worst:?}); the air shower's longest poll gap {gap:?}",
+        mean(&latencies)
+    );
+    assert!(
+        written < 64 << 20,
+        "{written} bytes taken from a client that never reads"
+    );
+    assert!(grown < 64 << 10, "memory grew {grown} KiB");
     h.gateway.stop().await;
 }
 

@@ -349,6 +349,34 @@ fn other_mistakes_are_refused_with_their_place() {
 }
 
 #[test]
+fn reads_linearly_is_a_block_flag_the_valve_has_and_the_dust_collector_not() {
+    let profile = Profile::from_toml(BASE, "test.toml").unwrap();
+    assert!(profile.read_blocks().iter().all(|b| !b.reads_linearly));
+    let text = BASE.replacen("count = 4\n", "count = 4\nreads_linearly = true\n", 1);
+    let profile = Profile::from_toml(&text, "test.toml").unwrap();
+    let linear: Vec<bool> = profile
+        .read_blocks()
+        .iter()
+        .map(|b| b.reads_linearly)
+        .collect();
+    assert_eq!(linear, [true, false]);
+    let text = BASE.replacen("count = 4\n", "count = 4\nreads_linearly = \"yes\"\n", 1);
+    let message = errors(&text).to_string();
+    assert!(message.contains("test.toml"), "{message}");
+    assert!(message.contains("bool"), "{message}");
+
+    let valve = built_in("wuzhou-valve").unwrap();
+    assert!(valve.read_blocks().iter().all(|b| b.reads_linearly));
+    for name in ["ruiwan-dust-collector", "lixian-air-shower"] {
+        let profile = built_in(name).unwrap();
+        assert!(
+            profile.read_blocks().iter().all(|b| !b.reads_linearly),
+            "{name}"
+        );
+    }
+}
+
+#[test]
 fn unknown_keys_are_refused() {
     let text = BASE.replace("[line]\n", "[line]\nbaudrate = 9600\n");
     let message = errors(&text).to_string();

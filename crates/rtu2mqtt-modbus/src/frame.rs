@@ -250,6 +250,20 @@ impl Response {
         }
     }
 
+    /// The items of this read answer from `offset` on, `quantity` of them, as the answer to a
+    /// read of just those items; `None` for a write's answer or a span past this answer's end.
+    pub fn part(&self, offset: u16, quantity: u16) -> Option<Response> {
+        let from = usize::from(offset);
+        let to = from.checked_add(usize::from(quantity))?;
+        Some(match self {
+            Self::Coils(bits) => Self::Coils(bits.get(from..to)?.to_vec()),
+            Self::DiscreteInputs(bits) => Self::DiscreteInputs(bits.get(from..to)?.to_vec()),
+            Self::HoldingRegisters(words) => Self::HoldingRegisters(words.get(from..to)?.to_vec()),
+            Self::InputRegisters(words) => Self::InputRegisters(words.get(from..to)?.to_vec()),
+            _ => return None,
+        })
+    }
+
     /// Copies the items of `part` (an answer to a part of this read) into this answer from
     /// `offset` on; anything beyond this answer's end, or of another kind, is ignored.
     pub fn place(&mut self, offset: u16, part: &Response) {
@@ -277,6 +291,25 @@ impl Response {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_part_of_an_answer_is_the_answer_to_a_read_of_that_part() {
+        let words = Response::HoldingRegisters(vec![10, 11, 12, 13]);
+        assert_eq!(
+            words.part(1, 2),
+            Some(Response::HoldingRegisters(vec![11, 12]))
+        );
+        assert_eq!(words.part(0, 4), Some(words.clone()));
+        assert_eq!(words.part(3, 2), None);
+        assert_eq!(words.part(u16::MAX, u16::MAX), None);
+        let bits = Response::Coils(vec![true, false, true]);
+        assert_eq!(bits.part(2, 1), Some(Response::Coils(vec![true])));
+        let echo = Response::WriteSingleRegister {
+            address: 1,
+            value: 2,
+        };
+        assert_eq!(echo.part(0, 1), None);
+    }
 
     #[test]
     fn a_read_covers_the_reads_of_its_own_table_inside_its_span() {

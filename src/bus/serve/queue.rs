@@ -68,16 +68,32 @@ impl ClientQueue {
 pub(crate) struct BlockCache {
     max_age: Duration,
     /// Per device, per read block.
-    answers: Vec<Vec<Option<(Instant, Request, Response)>>>,
+    answers: Vec<Vec<Option<CachedPoll>>>,
+    /// Per device, per read block: the device answers a part of the block as the whole block
+    /// holds it, so a part may be cut from a whole answer.
+    linear: Vec<Vec<bool>>,
+}
+
+/// One whole answer a device gave a poll.
+#[derive(Debug, Clone)]
+struct CachedPoll {
+    at: Instant,
+    request: Request,
+    answer: Response,
 }
 
 impl BlockCache {
-    /// A cache keeping answers for `max_age` (zero: keeps nothing) of devices with `blocks`
-    /// read blocks each.
-    pub(crate) fn new(max_age: Duration, blocks: impl Iterator<Item = usize>) -> Self {
+    /// A cache keeping answers for `max_age` (zero: keeps nothing) of devices with the given
+    /// read blocks, each block flagged when the device reads it linearly.
+    pub(crate) fn new(max_age: Duration, devices: impl Iterator<Item = Vec<bool>>) -> Self {
+        let linear: Vec<Vec<bool>> = devices.collect();
         BlockCache {
             max_age,
-            answers: blocks.map(|count| vec![None; count]).collect(),
+            answers: linear
+                .iter()
+                .map(|blocks| vec![None; blocks.len()])
+                .collect(),
+            linear,
         }
     }
 
@@ -94,7 +110,11 @@ impl BlockCache {
             return;
         }
         if let Some(slot) = self.answers.get_mut(device).and_then(|d| d.get_mut(block)) {
-            *slot = Some((at, request.clone(), answer.clone()));
+            *slot = Some(CachedPoll {
+                at,
+                request: request.clone(),
+                answer: answer.clone(),
+            });
         }
     }
 
@@ -105,22 +125,37 @@ impl BlockCache {
         }
     }
 
-    /// The answer to `request` from a poll younger than the cache's age that read exactly
-    /// what it asks.
+    /// The answer to `request` from a poll younger than the cache's age: one that read exactly
+    /// what it asks, or, from a block the device reads linearly, the part of a poll's answer
+    /// that `request` asks for.
     pub(crate) fn lookup(
         &self,
         device: usize,
         request: &Request,
         now: Instant,
     ) -> Option<Response> {
-        self.answers
-            .get(device)?
+        let answers = self.answers.get(device)?;
+        let linear = self.linear.get(device);
+        let young = |poll: &&CachedPoll| now.saturating_duration_since(poll.at) < self.max_age;
+        let exact = answers
             .iter()
             .flatten()
-            .find(|(at, polled, _)| {
-                polled == request && now.saturating_duration_since(*at) < self.max_age
+            .filter(young)
+            .find(|poll| poll.request == *request);
+        if let Some(poll) = exact {
+            return Some(poll.answer.clone());
+        }
+        answers
+            .iter()
+            .enumerate()
+            .filter(|(block, _)| linear.and_then(|l| l.get(*block)).copied() == Some(true))
+            .filter_map(|(_, poll)| poll.as_ref())
+            .filter(young)
+            .find_map(|poll| {
+                let offset = poll.request.offset_of(request)?;
+                let (_, quantity) = request.read_span()?;
+                poll.answer.part(offset, quantity)
             })
-            .map(|(_, _, answer)| answer.clone())
     }
 }
 
@@ -136,7 +171,7 @@ mod tests {
             quantity: 4,
         };
         let answer = Response::HoldingRegisters(vec![1, 2, 3, 4]);
-        let mut cache = BlockCache::new(Duration::from_secs(1), [1].into_iter());
+        let mut cache = BlockCache::new(Duration::from_secs(1), [vec![false]].into_iter());
         cache.store(0, 0, &block, &answer, start);
         assert_eq!(cache.lookup(0, &block, start), Some(answer));
         let part = Request::ReadHoldingRegisters {
@@ -151,8 +186,47 @@ mod tests {
         cache.forget(0);
         assert_eq!(cache.lookup(0, &block, start), None);
 
-        let mut off = BlockCache::new(Duration::ZERO, [1].into_iter());
+        let mut off = BlockCache::new(Duration::ZERO, [vec![true]].into_iter());
         off.store(0, 0, &block, &Response::HoldingRegisters(vec![0; 4]), start);
         assert_eq!(off.lookup(0, &block, start), None);
+    }
+
+    #[test]
+    fn a_part_of_a_linearly_read_block_is_cut_from_a_young_poll() {
+        let start = Instant::now();
+        let block = Request::ReadHoldingRegisters {
+            start: 0x00,
+            quantity: 11,
+        };
+        let answer = Response::HoldingRegisters((100..111).collect());
+        // Device 0 reads its block linearly, device 1 by offset.
+        let mut cache = BlockCache::new(
+            Duration::from_secs(1),
+            [vec![true], vec![false]].into_iter(),
+        );
+        cache.store(0, 0, &block, &answer, start);
+        cache.store(1, 0, &block, &answer, start);
+        let part = Request::ReadHoldingRegisters {
+            start: 0x01,
+            quantity: 7,
+        };
+        assert_eq!(
+            cache.lookup(0, &part, start),
+            Some(Response::HoldingRegisters((101..108).collect()))
+        );
+        assert_eq!(cache.lookup(1, &part, start), None);
+        assert_eq!(cache.lookup(0, &block, start), Some(answer));
+        let past_the_end = Request::ReadHoldingRegisters {
+            start: 0x08,
+            quantity: 4,
+        };
+        let other_table = Request::ReadInputRegisters {
+            start: 0x01,
+            quantity: 2,
+        };
+        for request in [&past_the_end, &other_table] {
+            assert_eq!(cache.lookup(0, request, start), None, "{request:?}");
+        }
+        assert_eq!(cache.lookup(0, &part, start + Duration::from_secs(1)), None);
     }
 }

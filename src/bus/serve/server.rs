@@ -1,15 +1,21 @@
 //! The listening side of a served line: accepts up to `max_clients` connections, frames each
 //! client's requests (Modbus TCP or RTU over TCP), answers what the [`policy`] refuses at once,
-//! and hands the rest to the line task, one request per client at a time (a client's further
-//! requests wait in its own socket, so clients take turns and none can fill the line's queue).
+//! and hands the rest to the line task, one request per client at a time, so clients take turns
+//! and none can fill the line's queue. Answers go back in the order the requests came. A client
+//! may have [`PIPELINE`] requests waiting for the line; one that pipelines more gets exception
+//! 06 (server device busy) for them, and while [`HELD`] of its requests are unanswered its
+//! socket is not read, so a flood waits in the client's own buffers, not in the daemon.
 //! Bad input closes the client's connection or gets an exception; the line never sees it.
 
+use std::collections::VecDeque;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+use tokio::net::{TcpListener, TcpSocket, TcpStream};
 use tokio::sync::{mpsc, oneshot, Semaphore};
 
 use rtu2mqtt_modbus::codec::{self, DecodeError};
@@ -27,6 +33,15 @@ use crate::shutdown::Shutdown;
 pub const FRAME_PATIENCE: Duration = Duration::from_secs(2);
 /// A client that does not take its answer within this time is disconnected.
 pub const WRITE_PATIENCE: Duration = Duration::from_secs(5);
+/// Requests of one client that may wait for the line at once; more are answered 06.
+pub const PIPELINE: usize = 8;
+/// Requests of one client read and not yet answered (busy answers included); with this many
+/// the client's socket is not read until answers have gone out.
+pub const HELD: usize = 64;
+/// The kernel's buffers of each client's socket, each way. Requests and answers are small: a
+/// client that does not take its answers is found out once this much waits, and one whose
+/// requests are not being read holds no more than this in the daemon's kernel.
+const SOCKET_BUFFER: u32 = 8 * 1024;
 
 /// What the server counts for the line's statistics.
 #[derive(Debug, Default)]
@@ -37,6 +52,8 @@ pub struct ServeCounters {
     pub refusals: AtomicU64,
     /// Reads answered from the poll cache.
     pub cache_hits: AtomicU64,
+    /// Requests answered 06 (server device busy): their client had [`PIPELINE`] waiting.
+    pub busy: AtomicU64,
 }
 
 /// What a connection needs of its server.
@@ -57,7 +74,7 @@ pub async fn run(
     counters: Arc<ServeCounters>,
     mut shutdown: Shutdown,
 ) {
-    let listener = match TcpListener::bind(&spec.listen).await {
+    let listener = match listen(&spec.listen).await {
         Ok(listener) => listener,
         Err(error) => {
             tracing::error!(listen = %spec.url(), "cannot serve the line: {error}");
@@ -134,51 +151,169 @@ struct Framed {
     decoded: Result<Request, DecodeError>,
 }
 
-async fn serve_client(mut socket: TcpStream, client: &str, context: &Context) -> End {
+/// A client's request read and not yet answered.
+struct Held {
+    transaction: Option<u16>,
+    unit: SlaveId,
+    function: u8,
+    state: HeldState,
+}
+
+enum HeldState {
+    /// The answer, to be written when every earlier request has been answered.
+    Answered(Reply),
+    /// To go to the line when every earlier request has been answered.
+    ForTheLine(Request),
+    /// On the line; its answer comes on the connection's `on_line` receiver.
+    OnTheLine,
+}
+
+/// What a connection waited for.
+enum Event {
+    Read(Option<Result<Framed, End>>),
+    LineAnswered(Option<Reply>),
+}
+
+/// Ends the task that reads a connection's requests when the connection's task ends.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+async fn serve_client(socket: TcpStream, client: &str, context: &Context) -> End {
+    let (read_half, mut write_half) = socket.into_split();
+    let (framed_tx, mut framed_rx) = mpsc::channel(1);
+    let _reader = AbortOnDrop(tokio::spawn(read_requests(
+        read_half,
+        context.framing,
+        framed_tx,
+    )));
+    let mut held: VecDeque<Held> = VecDeque::with_capacity(HELD);
+    let mut on_line: Option<oneshot::Receiver<Reply>> = None;
+    // Why reading stopped: the requests read before it are still answered.
+    let mut ended: Option<End> = None;
     loop {
-        let framed = match read_request(&mut socket, context.framing).await {
-            Ok(framed) => framed,
-            Err(end) => return end,
+        while let Some(Held {
+            state: HeldState::Answered(_),
+            ..
+        }) = held.front()
+        {
+            let Some(answered) = held.pop_front() else {
+                break;
+            };
+            if let Err(end) = write_answer(&mut write_half, answered).await {
+                return end;
+            }
+        }
+        if let Some(front) = held.front_mut() {
+            if matches!(front.state, HeldState::ForTheLine(_)) {
+                let state = std::mem::replace(&mut front.state, HeldState::OnTheLine);
+                if let HeldState::ForTheLine(request) = state {
+                    match to_the_line(front.unit, request, client, context).await {
+                        Some(receiver) => on_line = Some(receiver),
+                        None => return End::LineGone,
+                    }
+                }
+            }
+        }
+        if held.is_empty() {
+            if let Some(end) = ended {
+                return end;
+            }
+        }
+        let reading = ended.is_none() && held.len() < HELD;
+        let event = tokio::select! {
+            framed = framed_rx.recv(), if reading => Event::Read(framed),
+            reply = line_answer(&mut on_line) => Event::LineAnswered(reply),
         };
-        context.counters.requests.fetch_add(1, Ordering::Relaxed);
-        let reply = answer(
-            framed.unit,
-            framed.function,
-            framed.decoded,
-            client,
-            context,
-        )
-        .await;
-        let Some(reply) = reply else {
-            return End::LineGone;
-        };
-        let rtu = match &reply {
-            Ok(response) => codec::encode_answer(framed.unit, response),
-            Err(code) => codec::encode_exception(framed.unit, framed.function, *code),
-        };
-        let bytes = match framed.transaction {
-            Some(transaction) => match mbap::rtu_to_adu(transaction, &rtu) {
-                Ok(adu) => adu,
-                Err(error) => return End::Garbage(error.to_string()),
-            },
-            None => rtu,
-        };
-        match tokio::time::timeout(WRITE_PATIENCE, socket.write_all(&bytes)).await {
-            Ok(Ok(())) => {}
-            Ok(Err(error)) => return End::Io(error),
-            Err(_) => return End::NotReading,
+        match event {
+            Event::Read(Some(Ok(framed))) => {
+                let waiting = held
+                    .iter()
+                    .filter(|h| !matches!(h.state, HeldState::Answered(_)))
+                    .count();
+                held.push_back(judge(framed, waiting, client, context));
+            }
+            Event::Read(Some(Err(end))) => ended = Some(end),
+            Event::Read(None) => ended = Some(End::Closed),
+            Event::LineAnswered(reply) => {
+                on_line = None;
+                let Some(reply) = reply else {
+                    return End::LineGone;
+                };
+                if let Some(front) = held.front_mut() {
+                    front.state = HeldState::Answered(reply);
+                }
+            }
         }
     }
 }
 
-/// The reply to one framed request: refused here, or run by the line (`None`: the line is gone).
-async fn answer(
-    unit: SlaveId,
-    function: u8,
-    decoded: Result<Request, DecodeError>,
-    client: &str,
-    context: &Context,
-) -> Option<Reply> {
+/// The answer of the request on the line; never ready while none is.
+async fn line_answer(on_line: &mut Option<oneshot::Receiver<Reply>>) -> Option<Reply> {
+    match on_line.as_mut() {
+        Some(receiver) => receiver.await.ok(),
+        None => std::future::pending().await,
+    }
+}
+
+/// Reads a connection's requests and hands them over one by one, until the first that ends
+/// the connection (handed over too) or until nobody takes them.
+async fn read_requests(
+    mut socket: OwnedReadHalf,
+    framing: ServeFraming,
+    framed_tx: mpsc::Sender<Result<Framed, End>>,
+) {
+    loop {
+        let framed = read_request(&mut socket, framing).await;
+        let last = framed.is_err();
+        if framed_tx.send(framed).await.is_err() || last {
+            return;
+        }
+    }
+}
+
+/// Writes one answer in the client's framing within [`WRITE_PATIENCE`].
+async fn write_answer(socket: &mut OwnedWriteHalf, answered: Held) -> Result<(), End> {
+    let HeldState::Answered(reply) = answered.state else {
+        return Ok(());
+    };
+    let rtu = match &reply {
+        Ok(response) => codec::encode_answer(answered.unit, response),
+        Err(code) => codec::encode_exception(answered.unit, answered.function, *code),
+    };
+    let bytes = match answered.transaction {
+        Some(transaction) => {
+            mbap::rtu_to_adu(transaction, &rtu).map_err(|error| End::Garbage(error.to_string()))?
+        }
+        None => rtu,
+    };
+    match tokio::time::timeout(WRITE_PATIENCE, socket.write_all(&bytes)).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(error)) => Err(End::Io(error)),
+        Err(_) => Err(End::NotReading),
+    }
+}
+
+/// What becomes of one framed request: refused here (the policy, or busy with `waiting`
+/// requests of its client before it), or held for the line.
+fn judge(framed: Framed, waiting: usize, client: &str, context: &Context) -> Held {
+    let Framed {
+        transaction,
+        unit,
+        function,
+        decoded,
+    } = framed;
+    context.counters.requests.fetch_add(1, Ordering::Relaxed);
+    let held = |state| Held {
+        transaction,
+        unit,
+        function,
+        state,
+    };
     let request = match decoded {
         Ok(request) => request,
         Err(error) => {
@@ -189,17 +324,31 @@ async fn answer(
             };
             tracing::debug!(%client, unit, function, "request refused: {error}");
             context.counters.refusals.fetch_add(1, Ordering::Relaxed);
-            return Some(Err(code));
+            return held(HeldState::Answered(Err(code)));
         }
     };
     match policy::judge(context.access, &context.devices, unit, &request) {
         Verdict::Refuse(code) => {
             tracing::debug!(%client, unit, ?request, "request refused: {code}");
             context.counters.refusals.fetch_add(1, Ordering::Relaxed);
-            return Some(Err(code));
+            held(HeldState::Answered(Err(code)))
         }
-        Verdict::Forward | Verdict::ProfileWrite => {}
+        Verdict::Forward | Verdict::ProfileWrite if waiting >= PIPELINE => {
+            tracing::debug!(%client, unit, ?request, waiting, "request refused: busy");
+            context.counters.busy.fetch_add(1, Ordering::Relaxed);
+            held(HeldState::Answered(Err(ExceptionCode::ServerDeviceBusy)))
+        }
+        Verdict::Forward | Verdict::ProfileWrite => held(HeldState::ForTheLine(request)),
     }
+}
+
+/// Hands a request to the line task; `None`: the line is gone.
+async fn to_the_line(
+    unit: SlaveId,
+    request: Request,
+    client: &str,
+    context: &Context,
+) -> Option<oneshot::Receiver<Reply>> {
     let (reply_tx, reply_rx) = oneshot::channel();
     let slot = ClientRequest {
         client: client.to_string(),
@@ -208,12 +357,34 @@ async fn answer(
         reply: reply_tx,
     };
     context.line.send(slot).await.ok()?;
-    reply_rx.await.ok()
+    Some(reply_rx)
+}
+
+/// A listening socket on `listen` whose connections get small buffers ([`SOCKET_BUFFER`]).
+async fn listen(listen: &str) -> std::io::Result<TcpListener> {
+    let address: SocketAddr = tokio::net::lookup_host(listen)
+        .await?
+        .next()
+        .ok_or_else(|| std::io::Error::other(format!("{listen} names no address")))?;
+    let socket = if address.is_ipv4() {
+        TcpSocket::new_v4()?
+    } else {
+        TcpSocket::new_v6()?
+    };
+    socket.set_reuseaddr(true)?;
+    // Connections accepted on this socket inherit its buffer sizes.
+    socket.set_send_buffer_size(SOCKET_BUFFER)?;
+    socket.set_recv_buffer_size(SOCKET_BUFFER)?;
+    socket.bind(address)?;
+    socket.listen(1024)
 }
 
 /// Reads the first byte without a deadline (a client may stay idle), the rest within
 /// [`FRAME_PATIENCE`].
-async fn read_request(socket: &mut TcpStream, framing: ServeFraming) -> Result<Framed, End> {
+async fn read_request(
+    socket: &mut (impl AsyncRead + Unpin),
+    framing: ServeFraming,
+) -> Result<Framed, End> {
     let mut first = [0u8; 1];
     match socket.read(&mut first).await {
         Ok(0) => return Err(End::Closed),
@@ -241,7 +412,7 @@ async fn read_exact(socket: &mut (impl AsyncRead + Unpin), buf: &mut [u8]) -> Re
 
 /// A Modbus TCP ADU. A header that cannot be right (protocol, length) leaves the stream out of
 /// step: the connection closes.
-async fn read_adu(socket: &mut TcpStream, first: u8) -> Result<Framed, End> {
+async fn read_adu(socket: &mut (impl AsyncRead + Unpin), first: u8) -> Result<Framed, End> {
     let mut adu = vec![0u8; mbap::HEADER_LEN];
     adu[0] = first;
     read_exact(socket, &mut adu[1..]).await?;
@@ -261,7 +432,7 @@ async fn read_adu(socket: &mut TcpStream, first: u8) -> Result<Framed, End> {
 
 /// An RTU frame over TCP: its length follows from its function code; a frame this codec
 /// cannot delimit or whose CRC is wrong leaves the stream out of step.
-async fn read_rtu(socket: &mut TcpStream, first: u8) -> Result<Framed, End> {
+async fn read_rtu(socket: &mut (impl AsyncRead + Unpin), first: u8) -> Result<Framed, End> {
     let mut frame = vec![first];
     let len = loop {
         match codec::request_frame_len(&frame) {
