@@ -516,6 +516,7 @@ impl Bridge {
                 }
             }
         }
+        self.drain_writer(STOP_GRACE).await;
         if let Some(history) = &mut self.history {
             // What never reached the client, then what is held behind it: for the next start.
             for publish in self
@@ -551,6 +552,35 @@ impl Bridge {
             self.keep_history_of(event);
         }
         closed.is_ok()
+    }
+
+    /// Lets the writer finish what it was handed: its queue is closed, and with the link down
+    /// every history publish in it comes back as [`LinkEvent::Unsent`] (a broker that stopped
+    /// reading can leave many behind a stuck Disconnect), to be journaled with the rest.
+    async fn drain_writer(&mut self, within: Duration) {
+        let (closed, _) = mpsc::channel(1);
+        drop(std::mem::replace(&mut self.writer_tx, closed));
+        let writer = &mut self.writer;
+        let link_rx = &mut self.link_rx;
+        let mut seen = Vec::new();
+        let drained = tokio::time::timeout(within, async {
+            loop {
+                tokio::select! {
+                    _ = &mut *writer => return,
+                    Some(event) = link_rx.recv() => seen.push(event),
+                }
+            }
+        })
+        .await;
+        if drained.is_err() {
+            tracing::warn!("the MQTT writer did not finish in time");
+        }
+        while let Ok(event) = self.link_rx.try_recv() {
+            seen.push(event);
+        }
+        for event in seen {
+            self.keep_history_of(event);
+        }
     }
 
     /// While stopping, only what a link event says about history publishes still matters.
@@ -610,8 +640,18 @@ fn spawn_writer(
     (link, link_tx, in_writer): (LinkFlag, mpsc::Sender<LinkEvent>, Arc<AtomicUsize>),
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
+        let mut client_gone = false;
         while let Some(request) = requests.recv().await {
             let result = match request {
+                // The client has ended (a stop): history publishes still go back for the
+                // journal, the rest has nowhere to go.
+                Request::Publish(publish)
+                    if client_gone && is_history(&publish.topic, publish.retain) =>
+                {
+                    let _ = link_tx.send(LinkEvent::Unsent(publish)).await;
+                    Ok(())
+                }
+                _ if client_gone => Ok(()),
                 Request::Publish(publish) if is_history(&publish.topic, publish.retain) => {
                     hand_history(&client, publish, &link, &link_tx).await
                 }
@@ -627,7 +667,7 @@ fn spawn_writer(
             if let Err(error) = result {
                 // Only when the event loop has ended (shutdown).
                 tracing::debug!(%error, "MQTT client gone");
-                return;
+                client_gone = true;
             }
         }
     })

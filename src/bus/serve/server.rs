@@ -360,12 +360,21 @@ async fn to_the_line(
     Some(reply_rx)
 }
 
-/// A listening socket on `listen` whose connections get small buffers ([`SOCKET_BUFFER`]).
+/// A listening socket on `listen` whose connections get small buffers ([`SOCKET_BUFFER`]):
+/// the first of the addresses the name resolves to that can be bound, as `TcpListener::bind`
+/// does (`localhost` may name `::1` first on a host without IPv6).
 async fn listen(listen: &str) -> std::io::Result<TcpListener> {
-    let address: SocketAddr = tokio::net::lookup_host(listen)
-        .await?
-        .next()
-        .ok_or_else(|| std::io::Error::other(format!("{listen} names no address")))?;
+    let mut last_error = None;
+    for address in tokio::net::lookup_host(listen).await? {
+        match listen_on(address) {
+            Ok(listener) => return Ok(listener),
+            Err(error) => last_error = Some(error),
+        }
+    }
+    Err(last_error.unwrap_or_else(|| std::io::Error::other(format!("{listen} names no address"))))
+}
+
+fn listen_on(address: SocketAddr) -> std::io::Result<TcpListener> {
     let socket = if address.is_ipv4() {
         TcpSocket::new_v4()?
     } else {
