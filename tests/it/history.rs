@@ -92,9 +92,26 @@ async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
     }
 }
 
-/// Collects the dust collector's history until the alarm states `expected` have been seen
-/// one after the other (none missing, none in between), and a little more.
-async fn collect_until(observer: &mut TestClient, expected: &[(bool, bool, bool)]) -> Vec<Message> {
+/// A subscriber to every device's history stream.
+async fn historian(port: u16) -> TestClient {
+    let mut observer = TestClient::connect(port, "historian").await;
+    observer.subscribe("plant/+/history").await;
+    observer
+}
+
+/// The dust collector's first history document: the gateway is connected and journaling.
+async fn first_history(port: u16) -> Message {
+    historian(port)
+        .await
+        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
+        .await
+}
+
+/// Waits until the dust collector's history holds the alarm states the device took during
+/// `outage` one after the other (none missing, none in between), then, a little later, checks
+/// that the whole stream is in read order.
+async fn assert_outage_follows_in_order(observer: &mut TestClient, outage: &[u16]) {
+    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
     let deadline = tokio::time::Instant::now() + ANSWER;
     loop {
         observer.settle(Duration::from_millis(500)).await;
@@ -105,7 +122,9 @@ async fn collect_until(observer: &mut TestClient, expected: &[(bool, bool, bool)
             .any(|window| window == expected)
         {
             observer.settle(Duration::from_millis(500)).await;
-            return observer.on(DUST_HISTORY).into_iter().cloned().collect();
+            let seen: Vec<Message> = observer.on(DUST_HISTORY).into_iter().cloned().collect();
+            assert_in_order(&seen);
+            return;
         }
         assert!(
             tokio::time::Instant::now() < deadline,
@@ -123,18 +142,13 @@ async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_i
     let journal = tempfile::tempdir().expect("journal dir");
     let config = support::fast_config(&config_text(&broker, &plant, "hist-gw", journal.path()));
     let gateway = Gateway::start(config).await;
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
     sim::lock(&plant.dust_collector).set_alarms(0);
-    let first = observer
-        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
-        .await;
+    let first = first_history(broker.port).await;
     assert!(
         first.json()["values"]["gear"].is_number(),
         "{}",
         first.text()
     );
-    drop(observer);
 
     broker.kill();
     // The outage as the gateway sees it: from the moment it knows the broker is gone.
@@ -142,12 +156,9 @@ async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_i
     let outage = [1, 2, 4, 7, 0];
     walk_alarms(&plant, &outage).await;
     broker.restart();
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
+    let mut observer = historian(broker.port).await;
 
-    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
-    let seen = collect_until(&mut observer, &expected).await;
-    assert_in_order(&seen);
+    assert_outage_follows_in_order(&mut observer, &outage).await;
     // The replay is done: the journal is empty and says so.
     let stats = observer_stats(&mut observer).await;
     assert_eq!(stats["history"]["records_waiting"], 0, "{stats}");
@@ -180,12 +191,7 @@ async fn a_gateway_killed_in_the_middle_of_an_outage_replays_after_its_restart()
     sim::lock(&plant.dust_collector).set_alarms(0);
 
     let mut gateway = KillOnDrop::spawn(gateway_run(&config)).expect("start gateway");
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
-    observer
-        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
-        .await;
-    drop(observer);
+    first_history(broker.port).await;
 
     broker.kill();
     // The gateway notices at once (its socket closed with the broker).
@@ -199,12 +205,9 @@ async fn a_gateway_killed_in_the_middle_of_an_outage_replays_after_its_restart()
     sim::lock(&plant.dust_collector).set_alarms(0);
 
     broker.restart();
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
+    let mut observer = historian(broker.port).await;
     let _gateway = KillOnDrop::spawn(gateway_run(&config)).expect("restart gateway");
-    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
-    let seen = collect_until(&mut observer, &expected).await;
-    assert_in_order(&seen);
+    assert_outage_follows_in_order(&mut observer, &outage).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -218,12 +221,7 @@ async fn what_the_broker_never_acknowledged_is_journaled_and_follows_in_order() 
     config.mqtt.keep_alive = Duration::from_secs(2);
     sim::lock(&plant.dust_collector).set_alarms(0);
     let gateway = Gateway::start(config).await;
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
-    observer
-        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
-        .await;
-    drop(observer);
+    first_history(broker.port).await;
 
     // The broker stops answering: its socket takes the publishes, no PUBACK comes back.
     broker.signal(nix::sys::signal::Signal::SIGSTOP);
@@ -232,12 +230,9 @@ async fn what_the_broker_never_acknowledged_is_journaled_and_follows_in_order() 
     link_is(&gateway, false).await;
     // A new broker on the same port: nothing of the old one's session survives.
     broker.restart();
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
+    let mut observer = historian(broker.port).await;
 
-    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
-    let seen = collect_until(&mut observer, &expected).await;
-    assert_in_order(&seen);
+    assert_outage_follows_in_order(&mut observer, &outage).await;
     gateway.stop().await;
 }
 
@@ -255,12 +250,7 @@ async fn what_the_broker_never_acknowledged_before_a_stop_follows_after_the_next
     };
     sim::lock(&plant.dust_collector).set_alarms(0);
     let gateway = Gateway::start(config()).await;
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
-    observer
-        .wait_for(DUST_HISTORY, ANSWER, |m| m.json()["ts"].is_string())
-        .await;
-    drop(observer);
+    first_history(broker.port).await;
 
     broker.signal(nix::sys::signal::Signal::SIGSTOP);
     let outage = [5, 3, 6];
@@ -271,12 +261,9 @@ async fn what_the_broker_never_acknowledged_before_a_stop_follows_after_the_next
     );
     gateway.stop().await;
     broker.restart();
-    let mut observer = TestClient::connect(broker.port, "historian").await;
-    observer.subscribe("plant/+/history").await;
+    let mut observer = historian(broker.port).await;
     let gateway = Gateway::start(config()).await;
-    let expected: Vec<_> = outage.iter().map(|&a| alarm_triple(a)).collect();
-    let seen = collect_until(&mut observer, &expected).await;
-    assert_in_order(&seen);
+    assert_outage_follows_in_order(&mut observer, &outage).await;
     gateway.stop().await;
 }
 
