@@ -107,15 +107,9 @@ impl DeviceMetrics {
     /// The historical DDATA form of a value from a history document (typed as the JSON view
     /// types it): alias, datatype, the instant it was read and `is_historical`.
     pub fn historical_metric(def: &MetricDef, value: &Json, read_at: u64) -> Metric {
-        let value = json_metric_value(def.datatype, value);
         Metric {
-            alias: Some(def.alias),
-            timestamp: Some(read_at),
-            datatype: Some(def.datatype.number()),
             is_historical: Some(true),
-            is_null: value.is_none().then_some(true),
-            value,
-            ..Default::default()
+            ..metric_of(def, json_metric_value(def.datatype, value), read_at)
         }
     }
 
@@ -272,6 +266,11 @@ fn properties_for(info: &FieldInfo) -> PropertySet {
 /// Alias, datatype, timestamp and value (or the null flag).
 fn value_metric(def: &MetricDef, value: Option<&Value>, timestamp: u64) -> Metric {
     let value = value.and_then(|value| metric_value(def.datatype, value));
+    metric_of(def, value, timestamp)
+}
+
+/// The metric `def` names carrying `value` (null when there is none) read at `timestamp`.
+fn metric_of(def: &MetricDef, value: Option<MetricValue>, timestamp: u64) -> Metric {
     Metric {
         alias: Some(def.alias),
         timestamp: Some(timestamp),
