@@ -43,14 +43,13 @@ mod wire_bench;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use gateway_process::{cpu_time_of, proc_field, GatewayProcess};
+use gateway_process::{cpu_time_of, GatewayProcess, Memory};
 use rtu2mqtt::profile::Profile;
 use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use rumqttc::QoS;
 use support::Mosquitto;
-use tokio::sync::mpsc;
-use wire_bench::{command_client, percentile, wire_load, WireLoad, EIGHT_N_ONE};
+use wire_bench::{command_client, percentile, timed_subscriber, wire_load, WireLoad, EIGHT_N_ONE};
 
 const BAUD: u32 = 9600;
 const WARM_UP: Duration = Duration::from_secs(5);
@@ -232,45 +231,6 @@ struct Wire {
     read_back_to_result: Vec<Duration>,
 }
 
-/// A subscriber that notes when each message on its topic arrived.
-async fn timed_subscriber(
-    port: u16,
-    topic: &str,
-    client_id: &str,
-) -> anyhow::Result<mpsc::UnboundedReceiver<Instant>> {
-    let mut options = MqttOptions::new(client_id, "127.0.0.1", port);
-    options.set_keep_alive(Duration::from_secs(30));
-    let (client, mut eventloop) = AsyncClient::new(options, 16);
-    let mut network = eventloop.network_options();
-    network.set_tcp_nodelay(true);
-    eventloop.set_network_options(network);
-    client.subscribe(topic, QoS::AtMostOnce).await?;
-    let (tx, rx) = mpsc::unbounded_channel();
-    let (subscribed_tx, subscribed_rx) = tokio::sync::oneshot::channel();
-    tokio::spawn(async move {
-        let _client = client;
-        let mut subscribed_tx = Some(subscribed_tx);
-        loop {
-            match eventloop.poll().await {
-                Ok(Event::Incoming(Packet::Publish(_))) => {
-                    if tx.send(Instant::now()).is_err() {
-                        return;
-                    }
-                }
-                Ok(Event::Incoming(Packet::SubAck(_))) => {
-                    if let Some(subscribed) = subscribed_tx.take() {
-                        let _ = subscribed.send(());
-                    }
-                }
-                Ok(_) => {}
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-            }
-        }
-    });
-    tokio::time::timeout(Duration::from_secs(10), subscribed_rx).await??;
-    Ok(rx)
-}
-
 async fn one_line(
     broker: &Mosquitto,
     dir: &Path,
@@ -290,12 +250,13 @@ async fn one_line(
         &[&line],
         1,
     )?;
-    let mut gateway = Gateway::start(&config)?;
+    let mut gateway = start_gateway(&config)?;
     // Client ids of their own per run: the previous run's clients may still be connected.
     let mut results = timed_subscriber(
         broker.port,
         "plant/block-1-1/setpoint/result",
         &format!("bench-results-{run}"),
+        QoS::AtMostOnce,
     )
     .await?;
     let client = command_client(broker.port, &format!("bench-commands-{run}")).await;
@@ -367,7 +328,7 @@ async fn many_lines(
         &refs,
         DEVICES_PER_LINE,
     )?;
-    let mut gateway = Gateway::start(&config)?;
+    let mut gateway = start_gateway(&config)?;
     tokio::time::sleep(WARM_UP).await;
     let counted = |lines: &[VirtualLine]| -> usize {
         lines.iter().map(|l| l.journal().request_count()).sum()
@@ -432,17 +393,6 @@ fn config_file(
     Ok(path)
 }
 
-/// What the gateway's memory costs: anonymous memory two ways, and PSS.
-struct Memory {
-    /// RssAnon from /proc/<pid>/status: heap and stacks resident.
-    rss_anon_kib: u64,
-    /// Private_Dirty from /proc/<pid>/smaps_rollup: pages only this process has written.
-    private_dirty_kib: u64,
-    /// Pss from /proc/<pid>/smaps_rollup: resident pages, shared ones divided among users.
-    pss_kib: u64,
-    threads: u64,
-}
-
 /// The gateway binary measured: `EDGE_FOOTPRINT_GATEWAY`, else this build's `rtu2mqtt`.
 fn gateway_binary() -> PathBuf {
     std::env::var_os("EDGE_FOOTPRINT_GATEWAY").map_or_else(
@@ -451,39 +401,10 @@ fn gateway_binary() -> PathBuf {
     )
 }
 
-/// The gateway as its own process.
-struct Gateway(GatewayProcess);
-
-impl Gateway {
-    fn start(config: &Path) -> anyhow::Result<Gateway> {
-        // Another build of the gateway can be measured in its place (a static build, one with
-        // symbols for a profiler): EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt.
-        Ok(Gateway(GatewayProcess::start(
-            &gateway_binary(),
-            config,
-            "warn",
-        )?))
-    }
-
-    /// User and system CPU time so far (/proc/<pid>/stat, utime + stime).
-    fn cpu_time(&self) -> anyhow::Result<Duration> {
-        self.0.cpu_time()
-    }
-
-    fn memory(&self) -> anyhow::Result<Memory> {
-        let status = self.0.proc("status")?;
-        let rollup = self.0.proc("smaps_rollup")?;
-        Ok(Memory {
-            rss_anon_kib: proc_field(&status, "RssAnon:"),
-            private_dirty_kib: proc_field(&rollup, "Private_Dirty:"),
-            pss_kib: proc_field(&rollup, "Pss:"),
-            threads: proc_field(&status, "Threads:"),
-        })
-    }
-
-    fn stop(&mut self) {
-        self.0.stop();
-    }
+/// The gateway measured, as its own process. Another build can be measured in its place (a
+/// static build, one with symbols for a profiler): EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt.
+fn start_gateway(config: &Path) -> anyhow::Result<GatewayProcess> {
+    GatewayProcess::start(&gateway_binary(), config, "warn")
 }
 
 fn wire_figures(

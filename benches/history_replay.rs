@@ -23,20 +23,20 @@
 mod gateway_process;
 #[path = "../tests/it/support/mod.rs"]
 mod support;
+mod wire_bench;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
-use gateway_process::{proc_field, GatewayProcess};
+use gateway_process::{GatewayProcess, Memory};
 use rtu2mqtt::config::HistoryConfig;
 use rtu2mqtt::history::document::{epoch_ms, values_of};
 use rtu2mqtt::history::record::decode;
 use rtu2mqtt::history::{Journal, Record};
 use rtu2mqtt::sim::SeedPlant;
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use rumqttc::QoS;
 use support::{Mosquitto, PlantConfig};
+use wire_bench::timed_subscriber;
 
 /// The seed plant settles (first reads, births) before the outage.
 const WARM_UP: Duration = Duration::from_secs(10);
@@ -47,11 +47,7 @@ const REPLAY_BOUND: Duration = Duration::from_secs(180);
 const SAMPLE: Duration = Duration::from_millis(100);
 
 fn main() -> anyhow::Result<()> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
-    runtime.block_on(run())
+    wire_bench::runtime()?.block_on(run())
 }
 
 async fn run() -> anyhow::Result<()> {
@@ -67,7 +63,7 @@ async fn run() -> anyhow::Result<()> {
     )?;
 
     // 1. A real outage.
-    let mut gateway = Gateway::start(&config_path)?;
+    let mut gateway = start_gateway(&config_path)?;
     tokio::time::sleep(WARM_UP).await;
     broker.kill();
     let written_before = gateway.write_bytes()?;
@@ -84,16 +80,24 @@ async fn run() -> anyhow::Result<()> {
     let hour_records = (per_second * HOUR.as_secs_f64()).round() as u64;
     let hour_bytes = write_hour(&journal_dir, &outage.records, hour_records)?;
     broker.restart();
-    let counted = Arc::new(AtomicU64::new(0));
-    history_counter(broker.port, Arc::clone(&counted)).await?;
-    let mut gateway = Gateway::start(&config_path)?;
+    let mut arrivals = timed_subscriber(
+        broker.port,
+        "plant/+/history",
+        "history-bench-historian",
+        QoS::AtLeastOnce,
+    )
+    .await?;
+    let mut seen = 0u64;
+    let mut gateway = start_gateway(&config_path)?;
     let started = Instant::now();
     let mut first: Option<(Instant, Duration)> = None;
     let mut last: Option<(Instant, Duration)> = None;
     let mut peak = Memory::default();
     while started.elapsed() < REPLAY_BOUND {
         tokio::time::sleep(SAMPLE).await;
-        let seen = counted.load(Ordering::SeqCst);
+        while arrivals.try_recv().is_ok() {
+            seen += 1;
+        }
         if seen > 0 && first.is_none() {
             first = Some((Instant::now(), gateway.cpu_time()?));
         }
@@ -169,7 +173,7 @@ async fn run() -> anyhow::Result<()> {
             format!(
                 "not complete within {} s: {} of {hour_records} records seen",
                 REPLAY_BOUND.as_secs(),
-                counted.load(Ordering::SeqCst)
+                seen
             ),
         ),
     }
@@ -250,80 +254,7 @@ fn write_hour(dir: &Path, sample: &[Record], count: u64) -> anyhow::Result<u64> 
     Ok(journal.stats().bytes)
 }
 
-/// Counts every message on the history topics (QoS 1, as a historian subscribes).
-async fn history_counter(port: u16, counted: Arc<AtomicU64>) -> anyhow::Result<()> {
-    let mut options = MqttOptions::new("history-bench-historian", "127.0.0.1", port);
-    options.set_keep_alive(Duration::from_secs(30));
-    let (client, mut eventloop) = AsyncClient::new(options, 16);
-    client
-        .subscribe("plant/+/history", QoS::AtLeastOnce)
-        .await?;
-    let (subscribed_tx, subscribed_rx) = tokio::sync::oneshot::channel();
-    tokio::spawn(async move {
-        let _client = client;
-        let mut subscribed_tx = Some(subscribed_tx);
-        loop {
-            match eventloop.poll().await {
-                Ok(Event::Incoming(Packet::Publish(_))) => {
-                    counted.fetch_add(1, Ordering::SeqCst);
-                }
-                Ok(Event::Incoming(Packet::SubAck(_))) => {
-                    if let Some(subscribed) = subscribed_tx.take() {
-                        let _ = subscribed.send(());
-                    }
-                }
-                Ok(_) => {}
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-            }
-        }
-    });
-    tokio::time::timeout(Duration::from_secs(10), subscribed_rx).await??;
-    Ok(())
-}
-
-#[derive(Debug, Default, Clone, Copy)]
-struct Memory {
-    rss_anon_kib: u64,
-    pss_kib: u64,
-}
-
-impl Memory {
-    fn max(self, other: Memory) -> Memory {
-        Memory {
-            rss_anon_kib: self.rss_anon_kib.max(other.rss_anon_kib),
-            pss_kib: self.pss_kib.max(other.pss_kib),
-        }
-    }
-}
-
-/// The gateway as its own process.
-struct Gateway(GatewayProcess);
-
-impl Gateway {
-    fn start(config: &Path) -> anyhow::Result<Gateway> {
-        let binary = Path::new(env!("CARGO_BIN_EXE_rtu2mqtt"));
-        Ok(Gateway(GatewayProcess::start(binary, config, "error")?))
-    }
-
-    /// Bytes this process caused to be written to the block layer.
-    fn write_bytes(&self) -> anyhow::Result<u64> {
-        Ok(proc_field(&self.0.proc("io")?, "write_bytes:"))
-    }
-
-    fn cpu_time(&self) -> anyhow::Result<Duration> {
-        self.0.cpu_time()
-    }
-
-    fn memory(&self) -> anyhow::Result<Memory> {
-        let status = self.0.proc("status")?;
-        let rollup = self.0.proc("smaps_rollup")?;
-        Ok(Memory {
-            rss_anon_kib: proc_field(&status, "RssAnon:"),
-            pss_kib: proc_field(&rollup, "Pss:"),
-        })
-    }
-
-    fn stop(&mut self) {
-        self.0.stop();
-    }
+/// This build's gateway as its own process.
+fn start_gateway(config: &Path) -> anyhow::Result<GatewayProcess> {
+    GatewayProcess::start(Path::new(env!("CARGO_BIN_EXE_rtu2mqtt")), config, "error")
 }

@@ -21,8 +21,6 @@
 //! Prints figures; asserts nothing. Run: `cargo bench --bench line_sharing` (about two minutes
 //! after the build).
 
-// Shared by the benches; this one starts the process and reads nothing from /proc.
-#[allow(dead_code)]
 mod gateway_process;
 #[path = "../tests/it/support/mod.rs"]
 mod support;

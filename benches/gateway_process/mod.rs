@@ -1,6 +1,9 @@
 //! The gateway binary as a process of its own for the benches, and what /proc says about it:
 //! CPU time, memory, bytes written to disk.
 
+// Each bench compiles this module as its own and uses a part of it.
+#![allow(dead_code)]
+
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -35,6 +38,30 @@ pub fn cpu_time_of(pid: &str) -> anyhow::Result<Duration> {
     Ok(Duration::from_secs_f64(ticks as f64 / per_second as f64))
 }
 
+/// What the gateway's memory costs the box: anonymous memory two ways, and PSS.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Memory {
+    /// RssAnon from /proc/<pid>/status: heap and stacks resident.
+    pub rss_anon_kib: u64,
+    /// Private_Dirty from /proc/<pid>/smaps_rollup: pages only this process has written.
+    pub private_dirty_kib: u64,
+    /// Pss from /proc/<pid>/smaps_rollup: resident pages, shared ones divided among users.
+    pub pss_kib: u64,
+    pub threads: u64,
+}
+
+impl Memory {
+    /// The higher of each figure.
+    pub fn max(self, other: Memory) -> Memory {
+        Memory {
+            rss_anon_kib: self.rss_anon_kib.max(other.rss_anon_kib),
+            private_dirty_kib: self.private_dirty_kib.max(other.private_dirty_kib),
+            pss_kib: self.pss_kib.max(other.pss_kib),
+            threads: self.threads.max(other.threads),
+        }
+    }
+}
+
 /// `rtu2mqtt run --config <config>` as its own process, stopped (SIGTERM, then SIGKILL after
 /// 5 s) when dropped.
 pub struct GatewayProcess {
@@ -66,6 +93,22 @@ impl GatewayProcess {
     /// User and system CPU time so far (/proc/<pid>/stat, utime + stime).
     pub fn cpu_time(&self) -> anyhow::Result<Duration> {
         cpu_time_of(&self.child.id().to_string())
+    }
+
+    pub fn memory(&self) -> anyhow::Result<Memory> {
+        let status = self.proc("status")?;
+        let rollup = self.proc("smaps_rollup")?;
+        Ok(Memory {
+            rss_anon_kib: proc_field(&status, "RssAnon:"),
+            private_dirty_kib: proc_field(&rollup, "Private_Dirty:"),
+            pss_kib: proc_field(&rollup, "Pss:"),
+            threads: proc_field(&status, "Threads:"),
+        })
+    }
+
+    /// Bytes this process caused to be written to the block layer (/proc/<pid>/io).
+    pub fn write_bytes(&self) -> anyhow::Result<u64> {
+        Ok(proc_field(&self.proc("io")?, "write_bytes:"))
     }
 
     pub fn stop(&mut self) {
