@@ -1,6 +1,6 @@
 //! The MQTT contract in one place: every topic name the gateway publishes or subscribes to
-//! (state, `…/set`, `…/result`, availability, the gateway's status and statistics, the JSON
-//! view, Home Assistant discovery), the strict parse of an incoming command topic, Home
+//! (state, `…/set`, `…/result`, availability, a device's refresh request, the gateway's status
+//! and statistics, the JSON view, Home Assistant discovery), the strict parse of an incoming command topic, Home
 //! Assistant identifiers, the payload words `online`/`offline`, and the names reserved for the
 //! gateway itself.
 //!
@@ -21,15 +21,19 @@ pub const GATEWAY_DEVICE: &str = "gateway";
 pub const AVAILABILITY: &str = "availability";
 /// The last level of a device's history stream (`<prefix>/<device>/history`).
 pub const HISTORY: &str = "history";
+/// The last level of a device's refresh request (`<prefix>/<device>/refresh`).
+pub const REFRESH: &str = "refresh";
 
 /// Names a device or a field must not have: every word the contract itself uses as a topic
 /// level next to device and field names. A field `availability` would publish its values on
 /// the device's availability topic; `set` and `result` are the command and outcome levels;
-/// `gateway` holds the gateway's own `status` and `stats`; `history` is the history stream.
+/// `gateway` holds the gateway's own `status` and `stats`; `history` is the history stream;
+/// `refresh` asks for a device's every block to be read.
 pub const RESERVED_NAMES: &[&str] = &[
     "availability",
     GATEWAY_DEVICE,
     HISTORY,
+    REFRESH,
     "result",
     "set",
     "stats",
@@ -133,6 +137,20 @@ impl Topics {
         format!("{}/{device}/{HISTORY}", self.prefix)
     }
 
+    /// `<prefix>/<device>/refresh`: a message there (not retained) has every block of the
+    /// device read at once. It arrives on [`Topics::device_topics_filter`].
+    pub fn refresh_topic(&self, device: &str) -> String {
+        format!("{}/{device}/{REFRESH}", self.prefix)
+    }
+
+    /// `device` of `<prefix>/<device>/refresh`.
+    pub fn device_of_refresh_topic<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        match self.parse_device_topic(topic)? {
+            (device, REFRESH) => Some(device),
+            _ => None,
+        }
+    }
+
     /// `<prefix>/+/history`: every device's history stream, what a historian subscribes to.
     pub fn history_filter(&self) -> String {
         self.history_topic("+")
@@ -173,7 +191,7 @@ impl Topics {
     }
 
     /// The subscription that carries every device's state and availability, ours and other
-    /// gateways': `<prefix>/+/+`.
+    /// gateways', and the refresh requests: `<prefix>/+/+`.
     pub fn device_topics_filter(&self) -> String {
         format!("{}/+/+", self.prefix)
     }
@@ -311,6 +329,20 @@ mod tests {
             "plant/gateway/rtu2mqtt-edge1/stats"
         );
         assert_eq!(topics.command_filter(), "plant/+/+/set");
+        assert_eq!(topics.refresh_topic("valve"), "plant/valve/refresh");
+        assert_eq!(
+            topics.device_of_refresh_topic("plant/valve/refresh"),
+            Some("valve")
+        );
+        for other in [
+            "plant/valve/availability",
+            "plant/valve/refresh/set",
+            "plant//refresh",
+            "other/valve/refresh",
+        ] {
+            assert_eq!(topics.device_of_refresh_topic(other), None, "{other}");
+        }
+        assert!(reserved_name_problem(REFRESH).is_some());
         assert_eq!(topics.json_view_topic("valve"), "plant/valve");
     }
 

@@ -1,6 +1,6 @@
 //! `rtu2mqtt check`: validates the configuration and its profiles without touching a port or a
-//! broker, and prints each line's poll plan (devices, blocks, frames and wire time per cycle,
-//! bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
+//! broker, and prints each line's poll plan (devices, each block with its cadence, wire time
+//! and share of the line, frames and wire time per cycle, bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -9,9 +9,11 @@ use std::time::Duration;
 
 use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
-use crate::config::plan::LinePlan;
+use crate::config::plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
+use crate::profile::PollClass;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
+use rtu2mqtt_modbus::Request;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {
@@ -146,13 +148,13 @@ pub fn report(path: &Path, config: &Config) -> String {
         }
         let _ = writeln!(
             out,
-            "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>7}",
-            "device", "profile", "addr", "poll", "blocks f/s", "wire fast", "wire slow", "load"
+            "  {:<20} {:<24} {:>4} {:>10} {:>6} {:>7}",
+            "device", "profile", "addr", "poll", "blocks", "load"
         );
         for device in &plan.devices {
             let _ = writeln!(
                 out,
-                "  {:<20} {:<24} {:>4} {:>7} {:>11} {:>11} {:>17} {:>6.1}%",
+                "  {:<20} {:<24} {:>4} {:>10} {:>6} {:>6.1}%",
                 device.name,
                 device.profile,
                 device.address,
@@ -161,14 +163,38 @@ pub fn report(path: &Path, config: &Config) -> String {
                 } else {
                     humantime::format_duration(device.poll_interval).to_string()
                 },
-                format!("{}/{}", device.fast_blocks, device.slow_blocks),
-                millis(device.fast_wire_time),
-                format!(
-                    "{} /{}",
-                    millis(device.slow_wire_time),
-                    humantime::format_duration(device.slow_interval)
-                ),
+                device.blocks.len(),
                 device.bus_load * 100.0
+            );
+            for block in &device.blocks {
+                let _ = writeln!(
+                    out,
+                    "    {:<18} {:<20} {:<21} {:>10} {:>6}",
+                    block.name,
+                    describe_read(&block.request),
+                    cadence(block, device.continuous),
+                    millis(block.wire_time),
+                    if block.period.is_some() {
+                        format!("{:.1}%", block.load * 100.0)
+                    } else {
+                        "-".to_string()
+                    }
+                );
+            }
+        }
+        let once: Vec<&BlockLoad> = plan
+            .devices
+            .iter()
+            .flat_map(|device| &device.blocks)
+            .filter(|block| block.period.is_none())
+            .collect();
+        if !once.is_empty() {
+            let _ = writeln!(
+                out,
+                "  once: {} blocks, {} on the wire at start, after a write into them and on \
+                 refresh; no load in steady state",
+                once.len(),
+                millis(once.iter().map(|block| block.wire_time).sum()),
             );
         }
         let _ = writeln!(
@@ -188,6 +214,35 @@ pub fn report(path: &Path, config: &Config) -> String {
         );
     }
     out
+}
+
+/// How often a block is read: `fast every 1s`, `slow every 1m`, `every 15s`, `once`.
+fn cadence(block: &BlockLoad, continuous: bool) -> String {
+    let period = block
+        .period
+        .map(|period| humantime::format_duration(period).to_string())
+        .unwrap_or_default();
+    match block.class {
+        PollClass::Fast if continuous => "fast, continuously".to_string(),
+        PollClass::Fast => format!("fast every {period}"),
+        PollClass::Slow => format!("slow every {period}"),
+        PollClass::Every(_) => format!("every {period}"),
+        PollClass::Once => "once".to_string(),
+    }
+}
+
+/// `FC03 0x0000 ×11`.
+fn describe_read(request: &Request) -> String {
+    match request {
+        Request::ReadCoils { start, quantity }
+        | Request::ReadDiscreteInputs { start, quantity }
+        | Request::ReadHoldingRegisters { start, quantity }
+        | Request::ReadInputRegisters { start, quantity } => format!(
+            "FC{:02} 0x{start:04X} ×{quantity}",
+            request.function().value()
+        ),
+        other => format!("{other:?}"),
+    }
 }
 
 fn millis(duration: Duration) -> String {

@@ -1,5 +1,5 @@
 //! What the bridge core asks its driver to do: the [`Action`]s (publish, subscribe, hand a
-//! command to a line, report an external command's end, carry a change set to the history
+//! command or a refresh request to a line, report an external command's end, carry a change set to the history
 //! stream) and the messages they carry.
 
 use rumqttc::QoS;
@@ -30,6 +30,12 @@ pub enum Action {
     Send {
         line: usize,
         command: Command,
+    },
+    /// Ask line number `line` to read every block of `device` in its next slots
+    /// (`<prefix>/<device>/refresh`); nothing comes back.
+    Refresh {
+        line: usize,
+        device: String,
     },
     /// Tell the sender of an external command how it ended.
     Report(CommandReport),

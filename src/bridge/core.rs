@@ -65,6 +65,31 @@ impl<'m> Incoming<'m> {
     }
 }
 
+/// A message on `<prefix>/<device>/refresh`. A live one (any payload but the empty clearing)
+/// sends the device's line a refresh request; one from the broker's retained store is stale,
+/// so it is ignored and cleared, like a retained command nobody should run again. Devices that
+/// are not ours are left alone.
+fn on_refresh(p: &mut Publisher, device: &str, message: Incoming<'_>) {
+    let Some(line) = p.devices().get(device).map(|entry| entry.line) else {
+        tracing::debug!(%device, "refresh for a device that is not ours");
+        return;
+    };
+    if message.payload.is_empty() {
+        return;
+    }
+    if message.retain {
+        tracing::info!(%device, "a retained refresh request is ignored and cleared");
+        let topic = p.topics().refresh_topic(device);
+        p.publish_or_keep(topic, String::new(), true);
+        return;
+    }
+    tracing::info!(%device, "refresh requested");
+    p.push(Action::Refresh {
+        line,
+        device: device.to_string(),
+    });
+}
+
 /// What the core is built from.
 #[derive(Debug, Clone)]
 pub struct CoreSettings {
@@ -283,6 +308,10 @@ impl Core {
             if !p.devices().contains_key(device) && !message.payload.is_empty() {
                 self.desk.note_foreign(device);
             }
+            return;
+        }
+        if let Some(device) = p.topics().device_of_refresh_topic(topic) {
+            on_refresh(p, device, message);
             return;
         }
         let Some((device, field)) = p.topics().parse_command(topic) else {

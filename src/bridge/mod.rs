@@ -346,6 +346,16 @@ impl Bridge {
                         queue.extend(self.core.on_send_failed(command, full, Instant::now()));
                     }
                 }
+                Action::Refresh { line, device } => {
+                    let sent = self
+                        .lines
+                        .get(line)
+                        .map(|handle| handle.refresh_tx.try_send(device.clone()));
+                    if let Some(Err(error)) = sent {
+                        // Full: refreshes already wait there; closed: the line has stopped.
+                        tracing::info!(%device, %error, "refresh request not handed to the line");
+                    }
+                }
                 Action::History(entry) => {
                     let link_up = self.link_up;
                     let publish = self

@@ -50,6 +50,9 @@ use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub const COMMAND_QUEUE: usize = 64;
+/// Refresh requests that may wait to be taken by the line; more are dropped (a device's
+/// refresh already waiting covers them).
+pub const REFRESH_QUEUE: usize = 16;
 /// Time a device takes to start answering on top of the answer's own wire time; with the
 /// timing's host allowance the default timeout leaves 100 ms beyond the wire.
 pub const DEVICE_MARGIN: Duration = Duration::from_millis(80);
@@ -70,10 +73,12 @@ pub fn spawn_line(
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
     let now = Instant::now();
     let (command_tx, command_rx) = mpsc::channel(COMMAND_QUEUE);
+    let (refresh_tx, refresh_rx) = mpsc::channel(REFRESH_QUEUE);
     let (stats_tx, stats_rx) = watch::channel(LineStats::new(&spec.name, &names, now));
     let handle = LineHandle {
         name: spec.name.clone(),
         command_tx,
+        refresh_tx,
         stats_rx,
     };
     let span = tracing::info_span!("line", line = %spec.name);
@@ -94,6 +99,7 @@ pub fn spawn_line(
         None => (None, None),
     };
     let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
+    line.refreshes = Some(refresh_rx);
     line.clients = ClientQueue::new(clients);
     line.serve_counters = counters;
     let task = tokio::spawn(line.run().instrument(span));
@@ -133,6 +139,8 @@ struct Line {
     reopen: Reopen,
     /// The command queue and the commands whose device is still settling.
     commands: CommandSlots,
+    /// Refresh requests by device name (None once their sender is gone).
+    refreshes: Option<mpsc::Receiver<String>>,
     events_tx: mpsc::Sender<LineEvent>,
     stats_tx: watch::Sender<LineStats>,
     /// The line's own figures; the devices' are in `devices` until published.
@@ -215,6 +223,7 @@ impl Line {
             reopen: Reopen::new(now),
             devices,
             commands: CommandSlots::new(command_rx),
+            refreshes: None,
             events_tx,
             stats_tx,
             stats,
@@ -271,6 +280,7 @@ impl Line {
                 }
             }
             self.client_went_last = false;
+            self.accept_refreshes();
             let next_settle = self.commands.next_settle();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
@@ -339,11 +349,20 @@ impl Line {
         let wake = until.map_or(heartbeat, |u| u.min(heartbeat));
         let sleep = tokio::time::sleep_until(tokio::time::Instant::from_std(wake));
         let commands_open = self.commands.is_open();
+        let refreshes = self.refreshes.as_mut();
+        let refreshes_open = refreshes.is_some();
+        let refresh = async move {
+            match refreshes {
+                Some(refreshes) => refreshes.recv().await,
+                None => std::future::pending().await,
+            }
+        };
         tokio::select! {
             () = sleep => {}
             received = self.commands.next(), if commands_open => {
                 self.take_received(received).await;
             }
+            asked = refresh, if refreshes_open => self.refresh(asked),
             () = self.clients.arrival() => {}
             () = self.shutdown.fired() => {}
         }
@@ -617,6 +636,33 @@ impl Line {
         }
     }
 
+    /// Takes every refresh request already waiting, without waiting.
+    fn accept_refreshes(&mut self) {
+        while let Some(refreshes) = self.refreshes.as_mut() {
+            match refreshes.try_recv() {
+                Ok(device) => self.refresh(Some(device)),
+                Err(mpsc::error::TryRecvError::Empty) => return,
+                Err(mpsc::error::TryRecvError::Disconnected) => self.refresh(None),
+            }
+        }
+    }
+
+    /// A refresh request for `device` (None: their sender is gone, the line stops listening).
+    fn refresh(&mut self, device: Option<String>) {
+        let Some(name) = device else {
+            self.refreshes = None;
+            return;
+        };
+        let refreshed = self
+            .device_index(&name)
+            .is_some_and(|device| self.scheduler.request_refresh(device));
+        if refreshed {
+            tracing::debug!(device = %name, "refresh: every block is read next");
+        } else {
+            tracing::info!(device = %name, "refresh not done: the device is offline or not on this line");
+        }
+    }
+
     fn device_index(&self, name: &str) -> Option<usize> {
         self.devices.iter().position(|d| d.spec.name == name)
     }
@@ -848,6 +894,9 @@ impl Line {
         tracing::debug!(%client, unit, ?request, ?result, "client request on the line");
         match result {
             Ok(answer) => {
+                if let (Some(device), Ok(_)) = (device, &answer) {
+                    self.after_raw_write(device, &request);
+                }
                 let _ = reply.send(answer);
             }
             Err(Failure::NoAnswer(_)) => {
@@ -857,6 +906,28 @@ impl Line {
                 let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
                 self.port_failed(error).await;
             }
+        }
+    }
+
+    /// A client's write went to `device` as it was sent (`raw` access): the device's blocks
+    /// of the table it wrote, at the addresses it wrote, are read again at once (a `once`
+    /// block included), like after a command.
+    fn after_raw_write(&mut self, device: usize, write: &Request) {
+        let Some(runtime) = self.devices.get(device) else {
+            return;
+        };
+        let written = written_span(write);
+        let changed: Vec<bool> = runtime
+            .spec
+            .profile
+            .read_blocks()
+            .iter()
+            .map(|block| written.is_some_and(|span| block_overlaps(&block.request, span)))
+            .collect();
+        if changed.iter().any(|&changed| changed) {
+            let none = vec![false; changed.len()];
+            self.scheduler
+                .after_command(device, &changed, &none, Instant::now());
         }
     }
 
@@ -981,6 +1052,37 @@ fn client_answer(outcome: &CommandOutcome, write: &Request) -> Reply {
         } => Err(*code),
         CommandOutcome::Failed { .. } => Err(ExceptionCode::GatewayTargetFailedToRespond),
     }
+}
+
+/// Where a write lands: (holding registers rather than coils, first address, count).
+fn written_span(write: &Request) -> Option<(bool, u16, u16)> {
+    let count = |len: usize| u16::try_from(len).ok();
+    match write {
+        Request::WriteSingleCoil { address, .. } => Some((false, *address, 1)),
+        Request::WriteSingleRegister { address, .. } => Some((true, *address, 1)),
+        Request::WriteMultipleCoils { start, values } => {
+            Some((false, *start, count(values.len())?))
+        }
+        Request::WriteMultipleRegisters { start, values } => {
+            Some((true, *start, count(values.len())?))
+        }
+        _ => None,
+    }
+}
+
+/// Whether the read `block` reads any item of `(registers, start, count)`.
+fn block_overlaps(block: &Request, (registers, start, count): (bool, u16, u16)) -> bool {
+    let same_table = match block {
+        Request::ReadHoldingRegisters { .. } => registers,
+        Request::ReadCoils { .. } => !registers,
+        _ => false,
+    };
+    let Some((first, len)) = block.read_span() else {
+        return false;
+    };
+    let (first, end) = (u32::from(first), u32::from(first) + u32::from(len));
+    let (start, stop) = (u32::from(start), u32::from(start) + u32::from(count));
+    same_table && start < end && first < stop
 }
 
 /// The normal answer to a write: the device echoes what it was asked.

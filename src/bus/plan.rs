@@ -1,6 +1,7 @@
 //! The poll plan of one device, derived from its [`DeviceSpec`] and profile: which blocks, how
-//! often (the device's poll interval, never below the profile's minimum; slow blocks on the
-//! profile's slow interval), how long to stay quiet after start-up, and which block is the
+//! often (fast blocks on the device's poll interval, never below the profile's minimum; slow
+//! blocks on the profile's slow interval; a block with its own period on that period; `once`
+//! blocks on no period at all), how long to stay quiet after start-up, and which block is the
 //! cheapest probe of an offline device. Pure data; the [`super::scheduler`] runs it.
 
 use std::time::Duration;
@@ -64,11 +65,19 @@ impl DevicePlan {
             .map(|(index, _)| index)
     }
 
-    /// Interval of `block`.
+    /// Interval of `block`: its period, or for a `once` block how soon a read that failed is
+    /// tried again (the poll interval).
     pub fn interval_of(&self, block: usize) -> Duration {
+        self.period_of(block).unwrap_or(self.poll_interval)
+    }
+
+    /// The period `block` is polled on; None for a `once` block, which has none.
+    pub fn period_of(&self, block: usize) -> Option<Duration> {
         match self.blocks.get(block).map(|b| b.class) {
-            Some(PollClass::Slow) => self.slow_interval,
-            _ => self.poll_interval,
+            Some(PollClass::Slow) => Some(self.slow_interval),
+            Some(PollClass::Every(period)) => Some(period),
+            Some(PollClass::Once) => None,
+            Some(PollClass::Fast) | None => Some(self.poll_interval),
         }
     }
 }

@@ -5,18 +5,25 @@
 //! 1. Queued commands run before any poll, first come first served, as soon as their device's
 //!    start-up delay has passed (a command for a device still starting up does not hold back
 //!    commands for the others).
-//! 2. Polls are served earliest due first. Every block has its own due instant (fast blocks on
-//!    the device's poll interval, slow blocks on the slow interval); after a poll the block is
+//! 2. A refresh of a device (`<prefix>/<device>/refresh`) reads each of its blocks once, after
+//!    the queued commands and ahead of every poll. Its reads move no block's cadence; a
+//!    refresh of an offline device is dropped (every block is read when it comes back).
+//! 3. Polls are served earliest due first. Every block has its own due instant (fast blocks on
+//!    the device's poll interval, slow blocks on the slow interval, a block with a period of
+//!    its own on that period); after a poll the block is
 //!    due again one interval after it was *due* (no drift); when the line fell behind that,
 //!    one interval after the poll started, so missed periods are skipped and never caught up
 //!    in a burst. Ties go to the
 //!    device served least recently, which makes back-to-back polling (interval 0) round-robin.
-//! 3. An offline device has no polls, only a probe (its cheapest block) on the back-off
+//!    A `once` block has no period: once read it is due only when the device comes back from
+//!    offline, after a write that can have changed it, or on a refresh (a read of it that
+//!    fails is tried again one poll interval later).
+//! 4. An offline device has no polls, only a probe (its cheapest block) on the back-off
 //!    schedule of [`super::health`]. That bounds what a dead device costs the line and it can
 //!    never starve the others: its failing polls push its own due instants, not theirs.
-//! 4. Exception 06 (busy) re-schedules the block a short while later without counting as a
+//! 5. Exception 06 (busy) re-schedules the block a short while later without counting as a
 //!    failure; other devices use the line meanwhile.
-//! 5. A command slot moves no block's cadence: the blocks it read whole and the blocks its
+//! 6. A command slot moves no block's cadence: the blocks it read whole and the blocks its
 //!    write cannot have changed stay due when they were; a block the write can have changed
 //!    and the slot did not read is due at once.
 
@@ -63,7 +70,12 @@ pub enum PollOutcome {
 struct DeviceSlot {
     plan: DevicePlan,
     ready_at: Instant,
-    block_due: Vec<Instant>,
+    /// When each block is due; None for a `once` block that has been read.
+    block_due: Vec<Option<Instant>>,
+    /// Blocks a refresh asked for that have not been handed out yet.
+    refresh: Vec<bool>,
+    /// Refresh reads handed out whose end has not been recorded yet.
+    refreshing: Vec<bool>,
     /// Consecutive busy answers per block.
     busy_count: Vec<u32>,
     /// When each block's last poll was handed out.
@@ -91,6 +103,8 @@ fn next_due_after(due: Instant, interval: Duration, started: Instant, now: Insta
 pub struct Scheduler<C> {
     devices: Vec<DeviceSlot>,
     commands: VecDeque<(usize, C)>,
+    /// Devices with a refresh waiting, first asked first served.
+    refreshes: VecDeque<usize>,
     serial: u64,
 }
 
@@ -102,7 +116,9 @@ impl<C> Scheduler<C> {
             .map(|plan| {
                 let ready_at = start + plan.startup_delay;
                 DeviceSlot {
-                    block_due: vec![ready_at; plan.blocks.len()],
+                    block_due: vec![Some(ready_at); plan.blocks.len()],
+                    refresh: vec![false; plan.blocks.len()],
+                    refreshing: vec![false; plan.blocks.len()],
                     busy_count: vec![0; plan.blocks.len()],
                     started: vec![ready_at; plan.blocks.len()],
                     plan,
@@ -115,8 +131,68 @@ impl<C> Scheduler<C> {
         Scheduler {
             devices,
             commands: VecDeque::new(),
+            refreshes: VecDeque::new(),
             serial: 0,
         }
+    }
+
+    /// Asks for every block of `device` to be read in its next slots (after the queued
+    /// commands, before any poll). False when it is not done: the device is unknown, has no
+    /// blocks, or is offline (it is read whole when it comes back).
+    pub fn request_refresh(&mut self, device: usize) -> bool {
+        let Some(slot) = self.devices.get_mut(device) else {
+            return false;
+        };
+        if slot.health.is_offline() || slot.refresh.is_empty() {
+            return false;
+        }
+        slot.refresh.iter_mut().for_each(|asked| *asked = true);
+        if !self.refreshes.contains(&device) {
+            self.refreshes.push_back(device);
+        }
+        true
+    }
+
+    /// The next refresh read that may run at `now`, taken out of its request. A device still
+    /// starting up keeps its request and notes in `earliest` when it can run; an offline
+    /// device's request is dropped.
+    fn take_refresh(
+        &mut self,
+        now: Instant,
+        earliest: &mut Option<Instant>,
+    ) -> Option<(usize, usize)> {
+        let mut position = 0;
+        while let Some(&device) = self.refreshes.get(position) {
+            let Some(slot) = self.devices.get_mut(device) else {
+                self.refreshes.remove(position);
+                continue;
+            };
+            if slot.health.is_offline() {
+                slot.refresh.iter_mut().for_each(|asked| *asked = false);
+                self.refreshes.remove(position);
+                continue;
+            }
+            if slot.ready_at > now {
+                *earliest = Some(earliest.map_or(slot.ready_at, |e| e.min(slot.ready_at)));
+                position += 1;
+                continue;
+            }
+            let Some(block) = slot.refresh.iter().position(|&asked| asked) else {
+                self.refreshes.remove(position);
+                continue;
+            };
+            if let Some(asked) = slot.refresh.get_mut(block) {
+                *asked = false;
+            }
+            if let Some(reading) = slot.refreshing.get_mut(block) {
+                *reading = true;
+            }
+            if !slot.refresh.iter().any(|&asked| asked) {
+                self.refreshes.remove(position);
+            }
+            return Some((device, block));
+        }
+        None
     }
 
     /// Queues a command for `device`; it runs before the next poll.
@@ -153,6 +229,10 @@ impl<C> Scheduler<C> {
                 earliest = Some(earliest.map_or(slot.ready_at, |e| e.min(slot.ready_at)));
             }
         }
+        if let Some((device, block)) = self.take_refresh(now, &mut earliest) {
+            self.serve(device);
+            return Due::Poll { device, block };
+        }
 
         // (due, last_served, device, block, probe)
         let mut best: Option<(Instant, u64, usize, usize, bool)> = None;
@@ -166,8 +246,9 @@ impl<C> Scheduler<C> {
                 slot.block_due
                     .iter()
                     .enumerate()
-                    .min_by_key(|(_, due)| **due)
-                    .map(|(block, due)| (*due, block, false))
+                    .filter_map(|(block, due)| due.map(|due| (due, block)))
+                    .min_by_key(|(due, _)| *due)
+                    .map(|(due, block)| (due, block, false))
             };
             if let Some((due, block, probe)) = candidate {
                 let key = (due, slot.last_served, index, block, probe);
@@ -209,14 +290,18 @@ impl<C> Scheduler<C> {
     ) -> Option<HealthChange> {
         let slot = self.devices.get_mut(device)?;
         let interval = slot.plan.interval_of(block);
+        let period = slot.plan.period_of(block);
+        let refresh_read = slot.refreshing.get_mut(block).is_some_and(std::mem::take);
         let was_offline = slot.health.is_offline();
         let outcome = match outcome {
+            // A refresh read the device is too busy for: the block's own polls read it.
+            PollOutcome::Busy if refresh_read => return None,
             PollOutcome::Busy => {
                 let count = slot.busy_count.get_mut(block)?;
                 *count += 1;
                 if *count < BUSY_LIMIT {
                     if let Some(due) = slot.block_due.get_mut(block) {
-                        *due = now + BUSY_RETRY_DELAY;
+                        *due = Some(now + BUSY_RETRY_DELAY);
                     }
                     return None;
                 }
@@ -228,15 +313,23 @@ impl<C> Scheduler<C> {
             *count = 0;
         }
         let started = slot.started.get(block).copied().unwrap_or(now);
-        if let Some(due) = slot.block_due.get_mut(block) {
-            *due = next_due_after(*due, interval, started, now);
+        // A refresh read moves no cadence: the block stays due when it was.
+        if let Some(due) = slot.block_due.get_mut(block).filter(|_| !refresh_read) {
+            *due = match (period, outcome) {
+                (Some(period), _) => {
+                    Some(next_due_after(due.unwrap_or(started), period, started, now))
+                }
+                // A `once` block is read: nothing more until something asks for it.
+                (None, PollOutcome::Answered) => None,
+                (None, _) => Some(now + interval),
+            };
         }
         match outcome {
             PollOutcome::Answered => {
                 let change = slot.health.record_success();
                 if was_offline {
                     // Back from the dead: read everything at once so every value is re-sent.
-                    slot.block_due.iter_mut().for_each(|due| *due = now);
+                    slot.block_due.iter_mut().for_each(|due| *due = Some(now));
                 }
                 change
             }
@@ -250,7 +343,7 @@ impl<C> Scheduler<C> {
         let was_offline = slot.health.is_offline();
         let change = slot.health.record_success();
         if was_offline {
-            slot.block_due.iter_mut().for_each(|due| *due = now);
+            slot.block_due.iter_mut().for_each(|due| *due = Some(now));
         }
         change
     }
@@ -272,7 +365,7 @@ impl<C> Scheduler<C> {
         let marked = |marks: &[bool], block: usize| marks.get(block).copied().unwrap_or(false);
         for (block, due) in slot.block_due.iter_mut().enumerate() {
             if marked(changed, block) && !marked(read, block) {
-                *due = (*due).min(at);
+                *due = Some(due.map_or(at, |due| due.min(at)));
             }
         }
         if !read.iter().any(|&whole| whole) {
@@ -281,7 +374,7 @@ impl<C> Scheduler<C> {
         let was_offline = slot.health.is_offline();
         let change = slot.health.record_success();
         if was_offline {
-            slot.block_due.iter_mut().for_each(|due| *due = now);
+            slot.block_due.iter_mut().for_each(|due| *due = Some(now));
         }
         change
     }

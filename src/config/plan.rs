@@ -1,7 +1,9 @@
 //! A line's poll plan computed from its devices' read blocks and the wire timing: blocks and
 //! frames per cycle, wire time per cycle (request + answer + 2 × t3.5 per block) and the bus
-//! load at the configured intervals. Pure arithmetic, used by validation (a plan over 100 % is
-//! an error) and printed by `rtu2mqtt check`.
+//! load at the configured intervals, each block on its own cadence (fast, slow, a period of
+//! its own; a `once` block is read at start, after a write and on refresh, and takes no share
+//! in steady state). Pure arithmetic, used by validation (a plan over 100 % is an error) and
+//! printed by `rtu2mqtt check`.
 //!
 //! A device polled continuously (`poll_interval = "0s"`) takes whatever time the line has left,
 //! as often as its profile's minimum allows: it never makes a plan over 100 %, and a line with
@@ -12,6 +14,21 @@ use std::time::Duration;
 use crate::bus::{DeviceSpec, LineSpec};
 use crate::profile::PollClass;
 use rtu2mqtt_modbus::timing::LineTiming;
+
+/// One block's share of its line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockLoad {
+    pub name: String,
+    /// The read request, as `check` shows it (`FC03 0x0000 ×11`).
+    pub request: rtu2mqtt_modbus::Request,
+    pub class: PollClass,
+    /// How often it is read in steady state; None for a `once` block.
+    pub period: Option<Duration>,
+    /// Wire time of one read.
+    pub wire_time: Duration,
+    /// Share of the line's time it takes (zero for a `once` block).
+    pub load: f64,
+}
 
 /// One device's share of its line.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,6 +46,10 @@ pub struct DevicePlan {
     pub fast_wire_time: Duration,
     /// Wire time of the slow blocks (every slow interval).
     pub slow_wire_time: Duration,
+    /// Share of the line taken by the blocks with a period of their own.
+    pub timed_load: f64,
+    /// Every block with its cadence, in the profile's order.
+    pub blocks: Vec<BlockLoad>,
     /// Share of the line's time this device takes (0.0–1.0 and beyond); for a continuous
     /// device, what it takes on a line of its own.
     pub bus_load: f64,
@@ -65,7 +86,7 @@ impl LinePlan {
             .iter()
             .map(|d| {
                 if d.continuous {
-                    share(d.slow_wire_time, d.slow_interval)
+                    share(d.slow_wire_time, d.slow_interval) + d.timed_load
                 } else {
                     d.bus_load
                 }
@@ -105,10 +126,17 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
         slow_blocks: 0,
         fast_wire_time: Duration::ZERO,
         slow_wire_time: Duration::ZERO,
+        timed_load: 0.0,
+        blocks: Vec::new(),
         bus_load: 0.0,
     };
-    for block in device.profile.read_blocks() {
-        let wire = transaction_wire_time(timing, &block.request);
+    let wires: Vec<Duration> = device
+        .profile
+        .read_blocks()
+        .iter()
+        .map(|block| transaction_wire_time(timing, &block.request))
+        .collect();
+    for (block, &wire) in device.profile.read_blocks().iter().zip(&wires) {
         match block.class {
             PollClass::Fast => {
                 plan.fast_blocks += 1;
@@ -118,6 +146,8 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
                 plan.slow_blocks += 1;
                 plan.slow_wire_time += wire;
             }
+            PollClass::Every(period) => plan.timed_load += share(wire, period),
+            PollClass::Once => {}
         }
     }
     // Continuously: one fast cycle after the other, or the profile's minimum between polls.
@@ -126,8 +156,31 @@ fn device_plan(device: &DeviceSpec, timing: &LineTiming) -> DevicePlan {
     } else {
         plan.poll_interval
     };
-    plan.bus_load =
-        share(plan.fast_wire_time, fast_period) + share(plan.slow_wire_time, plan.slow_interval);
+    plan.bus_load = share(plan.fast_wire_time, fast_period)
+        + share(plan.slow_wire_time, plan.slow_interval)
+        + plan.timed_load;
+    plan.blocks = device
+        .profile
+        .read_blocks()
+        .iter()
+        .zip(wires)
+        .map(|(block, wire_time)| {
+            let period = match block.class {
+                PollClass::Fast => Some(fast_period),
+                PollClass::Slow => Some(plan.slow_interval),
+                PollClass::Every(period) => Some(period),
+                PollClass::Once => None,
+            };
+            BlockLoad {
+                name: block.name.clone(),
+                request: block.request.clone(),
+                class: block.class,
+                period,
+                wire_time,
+                load: period.map_or(0.0, |period| share(wire_time, period)),
+            }
+        })
+        .collect();
     plan
 }
 

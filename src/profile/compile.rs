@@ -8,6 +8,7 @@
 //! consistent, so decoding and command planning never have to re-check the profile.
 
 use std::collections::HashMap;
+use std::time::Duration;
 
 use super::codec::{FieldCodec, NumberType};
 use super::field::{FieldInfo, FieldKind, HaHints, Identity};
@@ -382,17 +383,10 @@ fn build_blocks(
                 "the block runs past address 0xFFFF",
             );
         }
-        let class = match section.poll.as_str() {
-            "fast" => PollClass::Fast,
-            "slow" => PollClass::Slow,
-            other => {
-                problems.add(
-                    format!("{place}.poll"),
-                    format!("`{other}` is not one of fast, slow"),
-                );
-                PollClass::Fast
-            }
-        };
+        let class = poll_class(&section.poll, limits).unwrap_or_else(|reason| {
+            problems.add(format!("{place}.poll"), reason);
+            PollClass::Fast
+        });
         blocks.push(ReadBlock {
             name: section.name.clone(),
             request,
@@ -403,6 +397,37 @@ fn build_blocks(
         kinds.push(kind);
     }
     (blocks, kinds)
+}
+
+/// Longest period a block may be polled on: a value read less often is better read `once`.
+const LONGEST_POLL_PERIOD: Duration = Duration::from_secs(24 * 3600);
+
+/// A block's `poll` key: `fast`, `slow`, `once` or a period (`250ms`, `15s`, `1h`) no shorter
+/// than the profile's `min_poll_interval`, which the device would not take (refused rather
+/// than raised, so that what the profile says is what the line does).
+fn poll_class(text: &str, limits: &Limits) -> Result<PollClass, String> {
+    match text {
+        "fast" => return Ok(PollClass::Fast),
+        "slow" => return Ok(PollClass::Slow),
+        "once" => return Ok(PollClass::Once),
+        _ => {}
+    }
+    let period = humantime::parse_duration(text).map_err(|_| {
+        format!(
+            "`{text}` is not fast, slow, once or a duration (such as \"250ms\", \"15s\" or \"1h\")"
+        )
+    })?;
+    if period < limits.min_poll_interval {
+        return Err(format!(
+            "{} is under the profile's min_poll_interval {}",
+            humantime::format_duration(period),
+            humantime::format_duration(limits.min_poll_interval)
+        ));
+    }
+    if period > LONGEST_POLL_PERIOD {
+        return Err("must be at most 24h (use \"once\" for data that does not change)".into());
+    }
+    Ok(PollClass::Every(period))
 }
 
 fn check_write_function(

@@ -15,13 +15,30 @@ use super::value::Value;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
 
-/// How often a block is read.
+/// How often a block is read (its `poll` key).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PollClass {
     /// Every poll cycle (the device's poll interval).
     Fast,
     /// Every [`Limits::slow_interval`].
     Slow,
+    /// On its own period, never shorter than [`Limits::min_poll_interval`].
+    Every(Duration),
+    /// At start, when the device comes back from offline, after a write into the block and on
+    /// a refresh request; never in steady state.
+    Once,
+}
+
+/// `fast`, `slow`, `once` or the period (`250ms`, `15s`), as the profile writes it.
+impl std::fmt::Display for PollClass {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PollClass::Fast => f.write_str("fast"),
+            PollClass::Slow => f.write_str("slow"),
+            PollClass::Every(period) => write!(f, "{}", humantime::format_duration(*period)),
+            PollClass::Once => f.write_str("once"),
+        }
+    }
 }
 
 /// One read request the device is polled with.

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use super::codec;
 use super::model::Behaviour;
-use super::{FieldInfo, FieldKind, PollClass, Profile, ProfileErrors};
+use super::{FieldInfo, FieldKind, Profile, ProfileErrors};
 
 /// (name, TOML text) of every built-in profile.
 const BUILT_IN: &[(&str, &str)] = &[
@@ -218,10 +218,7 @@ pub fn describe(profile: &Profile) -> String {
         humantime::format_duration(limits.startup_delay),
     );
     for block in profile.read_blocks() {
-        let class = match block.class {
-            PollClass::Fast => "fast",
-            PollClass::Slow => "slow",
-        };
+        let class = block.class.to_string();
         let _ = writeln!(
             out,
             "  block {:<14} {:<20} {class}",
