@@ -495,3 +495,81 @@ fn several_problems_are_all_listed() {
         .replace("name = \"input\"", "name = \"level\"");
     assert!(errors(&text).0.len() >= 2);
 }
+
+#[test]
+fn poll_takes_fast_slow_once_or_a_period_and_refuses_anything_else_with_its_place() {
+    use rtu2mqtt::profile::PollClass;
+    use std::time::Duration;
+    let with_poll = |main: &str, inputs: &str| {
+        BASE.replacen("count = 4\n", &format!("count = 4\npoll = {main}\n"), 1)
+            .replacen("count = 2\n", &format!("count = 2\npoll = {inputs}\n"), 1)
+    };
+    for (main, inputs, classes) in [
+        ("\"fast\"", "\"slow\"", [PollClass::Fast, PollClass::Slow]),
+        (
+            "\"250ms\"",
+            "\"once\"",
+            [
+                PollClass::Every(Duration::from_millis(250)),
+                PollClass::Once,
+            ],
+        ),
+        (
+            "\"15s\"",
+            "\"1h\"",
+            [
+                PollClass::Every(Duration::from_secs(15)),
+                PollClass::Every(Duration::from_secs(3600)),
+            ],
+        ),
+    ] {
+        let profile = Profile::from_toml(&with_poll(main, inputs), "test.toml").unwrap();
+        let found: Vec<PollClass> = profile.read_blocks().iter().map(|b| b.class).collect();
+        assert_eq!(found, classes, "{main} {inputs}");
+    }
+    // The default is fast.
+    let profile = Profile::from_toml(BASE, "test.toml").unwrap();
+    assert_eq!(profile.read_blocks()[1].class, PollClass::Fast);
+
+    refused(
+        &with_poll("\"sometimes\"", "\"slow\""),
+        &[
+            "blocks[0] (main).poll",
+            "`sometimes` is not fast, slow, once or a duration",
+        ],
+    );
+    // Under the profile's min_poll_interval (100 ms unless it says otherwise): refused, not
+    // raised.
+    refused(
+        &with_poll("\"fast\"", "\"50ms\""),
+        &[
+            "blocks[1] (inputs).poll",
+            "50ms is under the profile's min_poll_interval 100ms",
+        ],
+    );
+    let stricter = with_poll("\"fast\"", "\"1s\"").replacen(
+        "[line]\n",
+        "[line]\nmin_poll_interval = \"2s\"\n",
+        1,
+    );
+    refused(
+        &stricter,
+        &[
+            "blocks[1] (inputs).poll",
+            "under the profile's min_poll_interval 2s",
+        ],
+    );
+    refused(
+        &with_poll("\"0s\"", "\"slow\""),
+        &["blocks[0] (main).poll", "under"],
+    );
+    refused(
+        &with_poll("\"2days\"", "\"slow\""),
+        &["blocks[0] (main).poll", "at most 24h"],
+    );
+    // Not a string at all: serde's error, with its line.
+    refused(
+        &with_poll("15", "\"slow\""),
+        &["test.toml:15:", "expected a string"],
+    );
+}
