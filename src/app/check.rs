@@ -191,9 +191,10 @@ pub fn report(path: &Path, config: &Config) -> String {
         if !once.is_empty() {
             let _ = writeln!(
                 out,
-                "  once: {} blocks, {} on the wire at start, after a write into them and on \
+                "  once: {} block{}, {} on the wire at start, after a write into them and on \
                  refresh; no load in steady state",
                 once.len(),
+                if once.len() == 1 { "" } else { "s" },
                 millis(once.iter().map(|block| block.wire_time).sum()),
             );
         }

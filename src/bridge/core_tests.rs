@@ -1076,3 +1076,45 @@ fn without_history_no_change_set_is_made() {
     let mut core = online_core(now);
     assert!(history_entries(&core.on_line_event(opening_at(40, 0), now)).is_empty());
 }
+
+/// The refresh requests among `actions`, as (line, device).
+fn refreshes(actions: &[Action]) -> Vec<(usize, String)> {
+    actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::Refresh { line, device } => Some((*line, device.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_live_refresh_goes_to_the_line_and_a_retained_one_is_cleared_instead() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let actions = core.on_message(message("plant/valve/refresh", b"1", 1, false), now);
+    assert_eq!(refreshes(&actions), vec![(0, "valve".to_string())]);
+    assert!(publishes(&actions).is_empty(), "{actions:?}");
+
+    // From the broker's retained store: stale, so cleared and not done.
+    let retained = Incoming {
+        retain: true,
+        ..message("plant/valve/refresh", b"1", 2, false)
+    };
+    let actions = core.on_message(retained, now);
+    assert!(refreshes(&actions).is_empty(), "{actions:?}");
+    assert_eq!(
+        publishes(&actions),
+        vec![("plant/valve/refresh".to_string(), String::new(), true)]
+    );
+
+    // Our own clearing coming back, and refreshes of devices that are not ours: nothing.
+    for (topic, payload) in [
+        ("plant/valve/refresh", &b""[..]),
+        ("plant/pump/refresh", &b"1"[..]),
+    ] {
+        let actions = core.on_message(message(topic, payload, 3, false), now);
+        assert!(refreshes(&actions).is_empty(), "{topic}: {actions:?}");
+        assert!(publishes(&actions).is_empty(), "{topic}: {actions:?}");
+    }
+}

@@ -6,6 +6,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::Duration;
 
 use rtu2mqtt::config;
 
@@ -454,4 +455,158 @@ fn check_shows_a_served_line_and_warns_about_raw_access() {
             .any(|line| line.starts_with("warning: lines[0].serve.access: raw:")),
         "{stdout}"
     );
+}
+
+/// A meter with a block of each cadence, next to the seed valve.
+const MIXED_PROFILE: &str = r#"
+[device]
+name = "mixed-meter"
+manufacturer = "Test"
+model = "M1"
+
+[line]
+min_poll_interval = "200ms"
+
+[[blocks]]
+name = "power"
+function = 4
+start = 0x0000
+count = 10
+
+[[blocks]]
+name = "voltage"
+function = 4
+start = 0x0010
+count = 2
+poll = "250ms"
+
+[[blocks]]
+name = "energy"
+function = 4
+start = 0x0100
+count = 4
+poll = "15s"
+
+[[blocks]]
+name = "setup"
+function = 3
+start = 0x0300
+count = 2
+poll = "slow"
+
+[[blocks]]
+name = "nameplate"
+function = 3
+start = 0x1000
+count = 16
+poll = "once"
+
+[[fields]]
+name = "power"
+block = "power"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "voltage"
+block = "voltage"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "energy"
+block = "energy"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "ct_ratio"
+block = "setup"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "serial"
+block = "nameplate"
+offset = 0
+codec = { type = "u16" }
+"#;
+
+const MIXED_CONFIG: &str = r#"
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+client_id = "edge1"
+
+[[lines]]
+name = "line-m"
+port = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A10KXYZ-if00-port0"
+baud = 9600
+
+[[lines.devices]]
+name = "meter"
+profile = "{dir}/mixed-meter.toml"
+address = 3
+poll_interval = "1s"
+
+[[lines.devices]]
+name = "valve"
+profile = "wuzhou-valve"
+address = 1
+"#;
+
+#[test]
+fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
+    let (ok, stdout, stderr) = check_text(MIXED_CONFIG, &[("mixed-meter.toml", MIXED_PROFILE)]);
+    assert!(ok, "check failed: {stderr}");
+    for expected in [
+        "FC04 0x0000 ×10      fast every 1s",
+        "FC04 0x0010 ×2       every 250ms",
+        "FC04 0x0100 ×4       every 15s",
+        "FC03 0x0300 ×2       slow every 1m",
+        "FC03 0x1000 ×16      once",
+        "once: 1 block, 54.17 ms on the wire",
+        "no load in steady state",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "{expected:?} missing in:\n{stdout}"
+        );
+    }
+
+    // The load: each block's wire time over its own period, a once block nothing.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("mixed-meter.toml"), MIXED_PROFILE).unwrap();
+    let text = MIXED_CONFIG.replace("{dir}", &dir.path().to_string_lossy());
+    let config = config::from_str(&text, dir.path()).unwrap();
+    let plan = rtu2mqtt::config::plan::LinePlan::of(&config.lines[0]);
+    let meter = &plan.devices[0];
+    let periods: Vec<Option<Duration>> = meter.blocks.iter().map(|b| b.period).collect();
+    let ms = Duration::from_millis;
+    assert_eq!(
+        periods,
+        [
+            Some(ms(1000)),
+            Some(ms(250)),
+            Some(ms(15_000)),
+            Some(ms(60_000)),
+            None
+        ]
+    );
+    for block in &meter.blocks {
+        let expected = block.period.map_or(0.0, |period| {
+            block.wire_time.as_secs_f64() / period.as_secs_f64()
+        });
+        assert!((block.load - expected).abs() < 1e-12, "{block:?}");
+    }
+    let sum: f64 = meter.blocks.iter().map(|b| b.load).sum();
+    assert!(
+        (meter.bus_load - sum).abs() < 1e-9,
+        "{} vs {sum}",
+        meter.bus_load
+    );
+    // The 250 ms block weighs four times its wire time per second on the line.
+    let voltage = &meter.blocks[1];
+    assert!(voltage.load > 3.9 * voltage.wire_time.as_secs_f64());
+    let line_sum: f64 = plan.devices.iter().map(|d| d.bus_load).sum();
+    assert!((plan.bus_load - line_sum).abs() < 1e-9);
 }
