@@ -67,8 +67,10 @@ impl<'m> Incoming<'m> {
 
 /// A message on `<prefix>/<device>/refresh`. A live one (any payload but the empty clearing)
 /// sends the device's line a refresh request; one from the broker's retained store is stale,
-/// so it is ignored and cleared, like a retained command nobody should run again. Devices that
-/// are not ours are left alone.
+/// so it is ignored. Either is then cleared (an empty retained message), like a command: MQTT
+/// 3.1.1 does not say whether a live message was retained, and a retained copy left behind
+/// would be a stale request at the next subscription. Devices that are not ours are left
+/// alone.
 fn on_refresh(p: &mut Publisher, device: &str, message: Incoming<'_>) {
     let Some(line) = p.devices().get(device).map(|entry| entry.line) else {
         tracing::debug!(%device, "refresh for a device that is not ours");
@@ -79,15 +81,15 @@ fn on_refresh(p: &mut Publisher, device: &str, message: Incoming<'_>) {
     }
     if message.retain {
         tracing::info!(%device, "a retained refresh request is ignored and cleared");
-        let topic = p.topics().refresh_topic(device);
-        p.publish_or_keep(topic, String::new(), true);
-        return;
+    } else {
+        tracing::info!(%device, "refresh requested");
+        p.push(Action::Refresh {
+            line,
+            device: device.to_string(),
+        });
     }
-    tracing::info!(%device, "refresh requested");
-    p.push(Action::Refresh {
-        line,
-        device: device.to_string(),
-    });
+    let topic = p.topics().refresh_topic(device);
+    p.publish_or_keep(topic, String::new(), true);
 }
 
 /// What the core is built from.
