@@ -1,8 +1,10 @@
 //! Per-block cadence end to end: the gateway (`run_gateway`) polls a simulated device built
 //! from a profile with fast, slow, own-period and `once` blocks on a pty, behind a real
 //! mosquitto. The simulator's journal counts every read frame: a `once` block is read exactly
-//! once at start, again after a command writing into it, and `<prefix>/<device>/refresh`
-//! reads every block once; a retained refresh is cleared and reads nothing.
+//! once at start, again after a command writing into it (from MQTT, or from a Modbus TCP client
+//! of the served line, under `profile` and `raw` access alike), and
+//! `<prefix>/<device>/refresh` reads every block once; a retained refresh is cleared and reads
+//! nothing.
 
 use crate::support;
 
@@ -95,7 +97,13 @@ const ENERGY: (u8, u16) = (4, 0x0100);
 const SETUP: (u8, u16) = (3, 0x0300);
 const NAMEPLATE: (u8, u16) = (3, 0x0200);
 
-fn config(broker: &Mosquitto, line: &VirtualLine, profile: &Path) -> String {
+/// The meter's configuration; `serve`: the body of a `[lines.serve]` table, or empty.
+fn config(broker: &Mosquitto, line: &VirtualLine, profile: &Path, serve: &str) -> String {
+    let serve = if serve.is_empty() {
+        String::new()
+    } else {
+        format!("[lines.serve]\n{serve}\n")
+    };
     format!(
         r#"
 [mqtt]
@@ -110,7 +118,7 @@ baud = 9600
 parity = "none"
 response_timeout = "150ms"
 retries = 1
-
+{serve}
 [[lines.devices]]
 name = "meter"
 profile = "{profile}"
@@ -172,7 +180,7 @@ async fn once_blocks_are_read_at_start_after_a_write_and_on_refresh_and_a_retain
     let mut observer = TestClient::connect(broker.port, "cadence-observer").await;
     observer.subscribe("plant/#").await;
 
-    let text = config(&broker, &line, &profile_path);
+    let text = config(&broker, &line, &profile_path, "");
     let config = rtu2mqtt::config::from_str(&text, dir.path()).expect("valid configuration");
     let gateway = Gateway::start(config).await;
     observer
@@ -245,4 +253,69 @@ async fn once_blocks_are_read_at_start_after_a_write_and_on_refresh_and_a_retain
     assert_eq!(sim::lock(&meter).holding(0x0201), Some(17));
 
     gateway.stop().await;
+}
+
+/// A Modbus TCP client (pymodbus, `tests/interop/modbus_share_client.py`) writes into the
+/// `once` block through the served line: the block is read again and the new value published.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_served_clients_write_into_a_once_block_has_it_read_again() {
+    for access in ["profile", "raw"] {
+        let dir = tempfile::tempdir().unwrap();
+        let profile_path = dir.path().join("cadence-meter.toml");
+        std::fs::write(&profile_path, PROFILE).unwrap();
+        let profile = Profile::from_toml(PROFILE, "cadence-meter.toml").unwrap();
+        let (meter, shared) = share(GenericDevice::from_profile(&profile, ADDRESS));
+        let line = VirtualLine::spawn(ServeOptions::new(9600, Parity::None), vec![shared]).unwrap();
+        let broker = Mosquitto::start();
+        let mut observer = TestClient::connect(broker.port, "cadence-served-observer").await;
+        observer.subscribe("plant/#").await;
+        let port = support::free_port();
+        let serve = format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\naccess = \"{access}\"");
+        let text = config(&broker, &line, &profile_path, &serve);
+        let config = rtu2mqtt::config::from_str(&text, dir.path()).expect("valid configuration");
+        let gateway = Gateway::start(config).await;
+        observer
+            .wait_for("plant/meter/availability", ANSWER, |m| m.text() == "online")
+            .await;
+        let started = wait_reads(&line, |[power, ..]| power >= 4).await;
+        assert_eq!(started[1..], [1, 1, 1], "{access}: {started:?}");
+
+        let answers = modbus_client(port, &format!("[[\"write\", {ADDRESS}, 513, 23]]")).await;
+        assert_eq!(answers.trim(), r#"{"written": true}"#, "{access}");
+        observer
+            .wait_for("plant/meter/modbus_address", ANSWER, |m| m.text() == "23")
+            .await;
+        let written = wait_reads(&line, |seen| seen[3] >= 2).await;
+        let calm = wait_reads(&line, |[power, ..]| power >= written[0] + 4).await;
+        assert_eq!(
+            calm[1..3],
+            [1, 1],
+            "{access}: other blocks untouched: {calm:?}"
+        );
+        assert_eq!(calm[3], written[3], "{access}: then no more: {calm:?}");
+        assert_eq!(sim::lock(&meter).holding(0x0201), Some(23));
+        gateway.stop().await;
+    }
+}
+
+/// Runs `ops` in one pymodbus client against the served line on `port`; its output.
+async fn modbus_client(port: u16, ops: &str) -> String {
+    let mut command = std::process::Command::new("python3");
+    command
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/interop/modbus_share_client.py"
+        ))
+        .arg("127.0.0.1")
+        .arg(port.to_string())
+        .arg(ops);
+    let output = support::child::output(command, Duration::from_secs(60))
+        .await
+        .expect("pymodbus client ran");
+    assert!(
+        output.status.success(),
+        "pymodbus client failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8_lossy(&output.stdout).into_owned()
 }
