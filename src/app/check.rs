@@ -11,9 +11,9 @@ use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
 use crate::config::plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
+use crate::profile::registry::describe_read;
 use crate::profile::PollClass;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
-use rtu2mqtt_modbus::Request;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {
@@ -229,20 +229,6 @@ fn cadence(block: &BlockLoad, continuous: bool) -> String {
         PollClass::Slow => format!("slow every {period}"),
         PollClass::Every(_) => format!("every {period}"),
         PollClass::Once => "once".to_string(),
-    }
-}
-
-/// `FC03 0x0000 ×11`.
-fn describe_read(request: &Request) -> String {
-    match request {
-        Request::ReadCoils { start, quantity }
-        | Request::ReadDiscreteInputs { start, quantity }
-        | Request::ReadHoldingRegisters { start, quantity }
-        | Request::ReadInputRegisters { start, quantity } => format!(
-            "FC{:02} 0x{start:04X} ×{quantity}",
-            request.function().value()
-        ),
-        other => format!("{other:?}"),
     }
 }
 

@@ -119,7 +119,8 @@ fn describe_kind(kind: &FieldKind) -> String {
     }
 }
 
-fn describe_read(request: &rtu2mqtt_modbus::Request) -> String {
+/// A read request as `profiles` and `check` show it: `FC03 0x0000 ×11`.
+pub fn describe_read(request: &rtu2mqtt_modbus::Request) -> String {
     use rtu2mqtt_modbus::Request;
     match request {
         Request::ReadCoils { start, quantity }

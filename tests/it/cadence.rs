@@ -20,9 +20,9 @@ use support::{Gateway, Mosquitto, TestClient};
 const ANSWER: Duration = Duration::from_secs(15);
 const ADDRESS: u8 = 5;
 
-/// A meter with one block of each cadence. Its `nameplate` block is read once; its
-/// `modbus_address` is a setting written into that block.
-const PROFILE: &str = r#"
+/// A meter with one block of each cadence (`check`'s test shows its plan). Its `nameplate`
+/// block is read once; its `modbus_address` is a setting written into that block.
+pub const PROFILE: &str = r#"
 [device]
 name = "cadence-meter"
 manufacturer = "Test"
@@ -36,6 +36,13 @@ name = "power"
 function = 4
 start = 0x0000
 count = 2
+
+[[blocks]]
+name = "voltage"
+function = 4
+start = 0x0010
+count = 2
+poll = "250ms"
 
 [[blocks]]
 name = "energy"
@@ -61,6 +68,12 @@ poll = "once"
 [[fields]]
 name = "power"
 block = "power"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "voltage"
+block = "voltage"
 offset = 0
 codec = { type = "u16" }
 
@@ -131,7 +144,8 @@ poll_interval = "300ms"
     )
 }
 
-/// Reads of each block the simulator saw: power, energy, setup, nameplate.
+/// Reads of each block the simulator saw: power, energy, setup, nameplate (the 250 ms
+/// voltage block only keeps the line busy).
 fn reads(line: &VirtualLine) -> [usize; 4] {
     let frames = line.journal().frames();
     [POWER, ENERGY, SETUP, NAMEPLATE].map(|(function, start)| {

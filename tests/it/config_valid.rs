@@ -457,81 +457,7 @@ fn check_shows_a_served_line_and_warns_about_raw_access() {
     );
 }
 
-/// A meter with a block of each cadence, next to the seed valve.
-const MIXED_PROFILE: &str = r#"
-[device]
-name = "mixed-meter"
-manufacturer = "Test"
-model = "M1"
-
-[line]
-min_poll_interval = "200ms"
-
-[[blocks]]
-name = "power"
-function = 4
-start = 0x0000
-count = 10
-
-[[blocks]]
-name = "voltage"
-function = 4
-start = 0x0010
-count = 2
-poll = "250ms"
-
-[[blocks]]
-name = "energy"
-function = 4
-start = 0x0100
-count = 4
-poll = "15s"
-
-[[blocks]]
-name = "setup"
-function = 3
-start = 0x0300
-count = 2
-poll = "slow"
-
-[[blocks]]
-name = "nameplate"
-function = 3
-start = 0x1000
-count = 16
-poll = "once"
-
-[[fields]]
-name = "power"
-block = "power"
-offset = 0
-codec = { type = "u16" }
-
-[[fields]]
-name = "voltage"
-block = "voltage"
-offset = 0
-codec = { type = "u16" }
-
-[[fields]]
-name = "energy"
-block = "energy"
-offset = 0
-codec = { type = "u16" }
-
-[[fields]]
-name = "ct_ratio"
-block = "setup"
-offset = 0
-codec = { type = "u16" }
-
-[[fields]]
-name = "serial"
-block = "nameplate"
-offset = 0
-codec = { type = "u16" }
-"#;
-
+/// The cadence meter (one block of each cadence) next to the seed valve.
 const MIXED_CONFIG: &str = r#"
 [mqtt]
 url = "mqtt://127.0.0.1:1883"
@@ -544,7 +470,7 @@ baud = 9600
 
 [[lines.devices]]
 name = "meter"
-profile = "{dir}/mixed-meter.toml"
+profile = "{dir}/cadence-meter.toml"
 address = 3
 poll_interval = "1s"
 
@@ -556,15 +482,18 @@ address = 1
 
 #[test]
 fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
-    let (ok, stdout, stderr) = check_text(MIXED_CONFIG, &[("mixed-meter.toml", MIXED_PROFILE)]);
+    let (ok, stdout, stderr) = check_text(
+        MIXED_CONFIG,
+        &[("cadence-meter.toml", crate::cadence::PROFILE)],
+    );
     assert!(ok, "check failed: {stderr}");
     for expected in [
-        "FC04 0x0000 ×10      fast every 1s",
+        "FC04 0x0000 ×2       fast every 1s",
         "FC04 0x0010 ×2       every 250ms",
-        "FC04 0x0100 ×4       every 15s",
-        "FC03 0x0300 ×2       slow every 1m",
-        "FC03 0x1000 ×16      once",
-        "once: 1 block, 54.17 ms on the wire",
+        "FC04 0x0100 ×2       every 15s",
+        "FC03 0x0300 ×1       slow every 1m",
+        "FC03 0x0200 ×2       once",
+        "once: 1 block, 25.00 ms on the wire",
         "no load in steady state",
     ] {
         assert!(
@@ -575,7 +504,11 @@ fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
 
     // The load: each block's wire time over its own period, a once block nothing.
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("mixed-meter.toml"), MIXED_PROFILE).unwrap();
+    std::fs::write(
+        dir.path().join("cadence-meter.toml"),
+        crate::cadence::PROFILE,
+    )
+    .unwrap();
     let text = MIXED_CONFIG.replace("{dir}", &dir.path().to_string_lossy());
     let config = config::from_str(&text, dir.path()).unwrap();
     let plan = rtu2mqtt::config::plan::LinePlan::of(&config.lines[0]);
