@@ -380,11 +380,19 @@ impl<C> Scheduler<C> {
     }
 
     /// The port is gone: every device is offline. Returns the devices that changed.
+    /// A refresh read cut short by it is not recorded: it is forgotten with the refreshes.
     pub fn port_lost(&mut self, now: Instant) -> Vec<usize> {
+        self.refreshes.clear();
         self.devices
             .iter_mut()
             .enumerate()
-            .filter_map(|(index, slot)| slot.health.force_offline(now).map(|_| index))
+            .filter_map(|(index, slot)| {
+                slot.refresh.iter_mut().for_each(|asked| *asked = false);
+                slot.refreshing
+                    .iter_mut()
+                    .for_each(|reading| *reading = false);
+                slot.health.force_offline(now).map(|_| index)
+            })
             .collect()
     }
 
