@@ -42,3 +42,4 @@ mod sparkplug_node;
 mod sparkplug_readme;
 mod systemd_unit;
 mod tcp_lines;
+mod trust_store;
