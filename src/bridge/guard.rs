@@ -1,10 +1,13 @@
 //! The gateway's claim on its own topics: its status, its devices' availability and state.
 //! It remembers what it published on each (in flight until the broker echoes it back) so that
-//! an echo of its own message is never mistaken for someone else's; any other message that
-//! contradicts the truth (a retained `offline` by another client, a stale Will, a fake state
-//! value) is answered by publishing the truth again, at most once per topic per
-//! [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed. Pure: it decides,
-//! the core publishes; the clock is passed in.
+//! an echo of its own message is never mistaken for someone else's, nor is a message the broker
+//! took before it (the broker delivers one topic's messages in the order it took them, so that
+//! one arrives ahead of the echo, and ours replaces it: the gateway's own `offline` from before a
+//! restart, handed over with the persistent session or the retained message, is one). Any
+//! other message that contradicts the truth (a retained `offline` by another client, a stale
+//! Will, a fake state value) is answered by publishing the truth again, at most once per topic
+//! per [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed. Pure: it
+//! decides, the core publishes; the clock is passed in.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -52,7 +55,9 @@ impl TopicGuard {
     }
 
     /// `payload` arrived on `topic`, whose truth is `truth`. The broker delivers one topic's
-    /// messages in order, so our echo is the oldest of our in-flight payloads that matches.
+    /// messages in order, so our echo is the oldest of our in-flight payloads that matches, and
+    /// anything else that arrives while one of ours is in flight was taken before ours, which
+    /// replaces it.
     pub fn judge(&mut self, topic: &str, payload: &str, truth: &str, now: Instant) -> Verdict {
         if let Some(queue) = self.in_flight.get_mut(topic) {
             if let Some(position) = queue.iter().position(|sent| sent == payload) {
@@ -64,6 +69,8 @@ impl TopicGuard {
                 }
                 return Verdict::Fine;
             }
+            tracing::debug!(%topic, seen = ?payload, "a message from before ours, which replaces it");
+            return Verdict::Fine;
         }
         if payload == truth {
             return Verdict::Fine;
@@ -113,6 +120,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn what_arrives_ahead_of_our_echo_is_older_than_ours_and_no_contradiction() {
+        let now = Instant::now();
+        let mut guard = TopicGuard::default();
+        let status = "plant/gateway/gw1/status";
+        // Connected again: `online` sent; the broker first hands over what it took before
+        // (the last run's `offline`, queued for the session and kept as the retained
+        // message), then echoes ours.
+        guard.sent(status, "online");
+        for earlier in ["offline", "offline"] {
+            assert_eq!(guard.judge(status, earlier, "online", now), Verdict::Fine);
+        }
+        assert_eq!(guard.judge(status, "online", "online", now), Verdict::Fine);
+        // Once ours is there, a contradiction is someone else's.
+        assert_eq!(
+            guard.judge(status, "offline", "online", now),
+            Verdict::Reassert
+        );
+    }
+
+    #[test]
     fn own_echoes_pass_and_a_foreign_contradiction_is_answered_once_per_interval() {
         let now = Instant::now();
         let mut guard = TopicGuard::default();
@@ -126,6 +153,7 @@ mod tests {
             Verdict::Reassert
         );
         guard.sent("plant/a/gear", "4");
+        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), Verdict::Fine);
         assert_eq!(
             guard.judge("plant/a/gear", "98", "4", now + Duration::from_millis(10)),
             Verdict::Hold
