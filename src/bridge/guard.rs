@@ -6,8 +6,9 @@
 //! restart, handed over with the persistent session or the retained message, is one). Any
 //! other message that contradicts the truth (a retained `offline` by another client, a stale
 //! Will, a fake state value) is answered by publishing the truth again, at most once per topic
-//! per [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed. Pure: it
-//! decides, the core publishes; the clock is passed in.
+//! per [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed; the log blames
+//! another client only when the message is not the gateway's own Will. Pure: it decides, the
+//! core publishes; the clock is passed in.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -37,9 +38,22 @@ pub struct TopicGuard {
     reported: HashSet<String>,
     /// Contradicted topics waiting for their interval to pass.
     held: HashSet<String>,
+    /// The topic and payload of the gateway's own Last Will.
+    own_will: Option<(String, String)>,
 }
 
 impl TopicGuard {
+    /// A guard that knows the gateway's Last Will: when the broker publishes it (one of the
+    /// gateway's own connections ended: the broker stopping, a late Will of an earlier
+    /// connection), the truth goes back all the same, but the log does not blame another
+    /// client.
+    pub fn with_own_will(topic: &str, payload: &str) -> Self {
+        TopicGuard {
+            own_will: Some((topic.to_string(), payload.to_string())),
+            ..TopicGuard::default()
+        }
+    }
+
     /// We publish `payload` on `topic`.
     pub fn sent(&mut self, topic: &str, payload: &str) {
         let queue = self.in_flight.entry(topic.to_string()).or_default();
@@ -85,7 +99,15 @@ impl TopicGuard {
         }
         self.held.remove(topic);
         self.last_reassert.insert(topic.to_string(), now);
-        if self.reported.insert(topic.to_string()) {
+        let own_will = self
+            .own_will
+            .as_ref()
+            .is_some_and(|(will_topic, will)| will_topic == topic && will == payload);
+        if own_will {
+            tracing::info!(%topic, seen = ?payload, truth = %truth,
+                "the broker published this gateway's own Will (one of its connections ended): \
+                 publishing the truth again");
+        } else if self.reported.insert(topic.to_string()) {
             tracing::warn!(%topic, seen = ?payload, truth = %truth,
                 "another client overwrote one of this gateway's topics: publishing the truth again");
         } else {
@@ -137,6 +159,23 @@ mod tests {
             guard.judge(status, "offline", "online", now),
             Verdict::Reassert
         );
+    }
+
+    #[test]
+    fn the_gateways_own_will_is_set_right_like_any_contradiction() {
+        let now = Instant::now();
+        let status = "plant/gateway/gw1/status";
+        let mut guard = TopicGuard::with_own_will(status, "offline");
+        assert_eq!(
+            guard.judge(status, "offline", "online", now),
+            Verdict::Reassert
+        );
+        assert!(guard.reported.is_empty(), "not reported as another client");
+        assert_eq!(
+            guard.judge(status, "gone", "online", now + REASSERT_INTERVAL),
+            Verdict::Reassert
+        );
+        assert!(guard.reported.contains(status));
     }
 
     #[test]
