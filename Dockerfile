@@ -1,13 +1,21 @@
-# rtu2mqtt container image: the Rust binary (built against bookworm's glibc) on
-# debian:bookworm-slim, run as an unprivileged user in group dialout (gid 20), configured from
-# /etc/rtu2mqtt.
+# rtu2mqtt container image: the static edge build (scripts/edge-build: one executable with the C
+# library linked in, no dynamic loader) on an empty base. The image holds the binary, the
+# example configuration, a CA bundle for mqtts:// brokers, a passwd/group pair naming its user,
+# and the directories the daemon writes; no shell, no package manager. It runs as uid 10001 in
+# group dialout (gid 20 on Debian, the owner group of serial devices), configured from
+# /etc/rtu2mqtt, its state (history journal, Sparkplug bdSeq) in the volume /var/lib/rtu2mqtt.
 #
 #   docker build -t rtu2mqtt .
 #   docker run -d --name rtu2mqtt --read-only --cap-drop ALL --security-opt no-new-privileges \
 #     --tmpfs /run/rtu2mqtt:uid=10001,gid=20,mode=0770,size=64k \
+#     -v rtu2mqtt-state:/var/lib/rtu2mqtt \
 #     --device /dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A1B2C3-if00-port0:/dev/ttyRS485A \
 #     -v /etc/rtu2mqtt:/etc/rtu2mqtt:ro rtu2mqtt
 #   docker run --rm -v /etc/rtu2mqtt:/etc/rtu2mqtt:ro rtu2mqtt check
+#
+# Podman: `podman build --format docker` (its OCI default drops the HEALTHCHECK) and
+# `--tmpfs /run/rtu2mqtt:mode=0770,size=64k,U` (it refuses uid=/gid=); docs/operations.md.
+# scripts/container-check builds this image and runs it so, end to end.
 
 # ---- build -------------------------------------------------------------------------------
 FROM rust:1-bookworm AS builder
@@ -15,43 +23,50 @@ WORKDIR /src
 
 # Dependencies first, in their own layer: a change to the sources does not rebuild them.
 # Placeholder sources stand in for every target of the manifest; the crate's own artefacts are
-# removed afterwards so the real sources are always compiled. The daemon is built without the
-# feature `demo` (no simulators, demo, embedded broker or `simulate`). (scripts/edge-build
-# makes a static binary that maps no shared C library; its wire timing's tail is longer:
-# docs/performance.md. This image ships the dynamic build.)
+# removed afterwards so the real sources are always compiled. Built as scripts/edge-build
+# builds (static, for this machine's target, without the feature `demo`: no simulators, demo,
+# embedded broker or `simulate`), so that its build reuses this layer.
 COPY Cargo.toml Cargo.lock ./
 COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \
- && cargo build --release --locked --no-default-features \
- && rm -rf src benches tests crates/rtu2mqtt-modbus/src target/release/rtu2mqtt* \
-           target/release/deps/rtu2mqtt-* target/release/deps/librtu2mqtt-* \
-           target/release/deps/librtu2mqtt_modbus-* target/release/.fingerprint/rtu2mqtt-*
+ && target=$(rustc -vV | sed -n 's/^host: //p') \
+ && RUSTFLAGS="-C target-feature=+crt-static" \
+    cargo build --release --locked --no-default-features --target "$target" \
+ && rm -rf src benches tests crates/rtu2mqtt-modbus/src "target/$target/release/rtu2mqtt"* \
+           "target/$target/release/deps/rtu2mqtt-"* "target/$target/release/deps/librtu2mqtt-"* \
+           "target/$target/release/deps/librtu2mqtt_modbus-"* \
+           "target/$target/release/.fingerprint/rtu2mqtt-"*
 
 COPY . .
-RUN cargo build --release --locked --no-default-features --bin rtu2mqtt \
- && install -m 0755 target/release/rtu2mqtt /usr/local/bin/rtu2mqtt
+# The image's whole file system, assembled here: the empty base has no tools to do it.
+# The CA bundle is Debian's Mozilla set (ca-certificates, in the build image; not what the
+# build machine may have added to its own store): the daemon verifies
+# mqtts:// brokers without ca_file against it (SSL_CERT_FILE below; mount another over it, or
+# set SSL_CERT_FILE, to trust other CAs). The state and status directories belong to the
+# daemon's user; a named volume mounted on /var/lib/rtu2mqtt starts as a copy of it.
+RUN scripts/edge-build >/dev/null \
+ && install -D -m 0755 target/edge/rtu2mqtt /rootfs/usr/local/bin/rtu2mqtt \
+ && install -D -m 0644 config/rtu2mqtt.toml /rootfs/etc/rtu2mqtt/config.toml \
+ && mkdir -p /rootfs/etc/ssl/certs \
+ && cat /usr/share/ca-certificates/mozilla/*.crt > /rootfs/etc/ssl/certs/ca-certificates.crt \
+ && printf 'root:x:0:0:root:/:/nonexistent\nrtu2mqtt:x:10001:20::/nonexistent:/nonexistent\n' \
+      > /rootfs/etc/passwd \
+ && printf 'root:x:0:\ndialout:x:20:\n' > /rootfs/etc/group \
+ && install -d -m 0770 -o 10001 -g 20 /rootfs/run/rtu2mqtt /rootfs/var/lib/rtu2mqtt
 
 # ---- runtime -----------------------------------------------------------------------------
-FROM debian:bookworm-slim
+FROM scratch
+COPY --from=builder /rootfs/ /
 
-# CA certificates for mqtts:// brokers; nothing else.
-RUN apt-get update \
- && apt-get install -y --no-install-recommends ca-certificates \
- && rm -rf /var/lib/apt/lists/*
-
-# Unprivileged user whose primary group is dialout (gid 20 on Debian), the owner group of
-# serial devices, so that ports passed with --device open without any capability.
-RUN useradd --system --uid 10001 --gid dialout --no-create-home --home-dir /nonexistent \
-      --shell /usr/sbin/nologin rtu2mqtt \
- && install -d -m 0755 /etc/rtu2mqtt \
- && install -d -m 0770 -o rtu2mqtt -g dialout /run/rtu2mqtt
-
-COPY --from=builder /usr/local/bin/rtu2mqtt /usr/local/bin/rtu2mqtt
-# The example plant; mount your own configuration over /etc/rtu2mqtt.
-COPY config/rtu2mqtt.toml /etc/rtu2mqtt/config.toml
-
-USER rtu2mqtt:dialout
+USER 10001:20
+ENV PATH=/usr/local/bin \
+    SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt \
+    STATE_DIRECTORY=/var/lib/rtu2mqtt
+# The history journal ([history] path = "/var/lib/rtu2mqtt/history") and the Sparkplug bdSeq
+# (kept in the [history] path, else in STATE_DIRECTORY) live here: mount a named volume (or a
+# host directory owned by uid 10001) so that they survive the container.
+VOLUME /var/lib/rtu2mqtt
 # /run/rtu2mqtt holds the status file the daemon refreshes every few seconds; with
 # --read-only, mount a tmpfs there (see above), or the health check reports "cannot read".
 
@@ -59,9 +74,9 @@ USER rtu2mqtt:dialout
 # the broker is connected (or was lost less than 30 s ago). A stuck daemon also ends itself
 # (exit 70) after its stall limit, since Docker does not restart unhealthy containers.
 HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
-  CMD ["rtu2mqtt", "health", "--status-file", "/run/rtu2mqtt/health", "--max-age", "30s"]
+  CMD ["/usr/local/bin/rtu2mqtt", "health", "--status-file", "/run/rtu2mqtt/health", "--max-age", "30s"]
 
 # SIGTERM: publish offline, finish the transaction on the bus, disconnect, exit 0.
 STOPSIGNAL SIGTERM
-ENTRYPOINT ["rtu2mqtt"]
+ENTRYPOINT ["/usr/local/bin/rtu2mqtt"]
 CMD ["run", "--config", "/etc/rtu2mqtt/config.toml"]

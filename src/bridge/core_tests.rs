@@ -646,6 +646,12 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
         publishes(&fake),
         [("plant/valve/opening".to_string(), "40".to_string(), true)]
     );
+    // Our `online` comes back first; an `offline` ahead of it would be older than ours.
+    let echo = core.on_message(
+        message("plant/gateway/edge1/status", b"online", 0, false),
+        now,
+    );
+    assert!(echo.is_empty());
     let will = core.on_message(
         message("plant/gateway/edge1/status", b"offline", 0, false),
         now,

@@ -1,10 +1,14 @@
 //! The gateway's claim on its own topics: its status, its devices' availability and state.
 //! It remembers what it published on each (in flight until the broker echoes it back) so that
-//! an echo of its own message is never mistaken for someone else's; any other message that
-//! contradicts the truth (a retained `offline` by another client, a stale Will, a fake state
-//! value) is answered by publishing the truth again, at most once per topic per
-//! [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed. Pure: it decides,
-//! the core publishes; the clock is passed in.
+//! an echo of its own message is never mistaken for someone else's, nor is a message the broker
+//! took before it (the broker delivers one topic's messages in the order it took them, so that
+//! one arrives ahead of the echo, and ours replaces it: the gateway's own `offline` from before a
+//! restart, handed over with the persistent session or the retained message, is one). Any
+//! other message that contradicts the truth (a retained `offline` by another client, a stale
+//! Will, a fake state value) is answered by publishing the truth again, at most once per topic
+//! per [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed; the log blames
+//! another client only when the message is not the gateway's own Will. Pure: it decides, the
+//! core publishes; the clock is passed in.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -34,9 +38,22 @@ pub struct TopicGuard {
     reported: HashSet<String>,
     /// Contradicted topics waiting for their interval to pass.
     held: HashSet<String>,
+    /// The topic and payload of the gateway's own Last Will.
+    own_will: Option<(String, String)>,
 }
 
 impl TopicGuard {
+    /// A guard that knows the gateway's Last Will: when the broker publishes it (one of the
+    /// gateway's own connections ended: the broker stopping, a late Will of an earlier
+    /// connection), the truth goes back all the same, but the log does not blame another
+    /// client.
+    pub fn with_own_will(topic: &str, payload: &str) -> Self {
+        TopicGuard {
+            own_will: Some((topic.to_string(), payload.to_string())),
+            ..TopicGuard::default()
+        }
+    }
+
     /// We publish `payload` on `topic`.
     pub fn sent(&mut self, topic: &str, payload: &str) {
         let queue = self.in_flight.entry(topic.to_string()).or_default();
@@ -52,7 +69,9 @@ impl TopicGuard {
     }
 
     /// `payload` arrived on `topic`, whose truth is `truth`. The broker delivers one topic's
-    /// messages in order, so our echo is the oldest of our in-flight payloads that matches.
+    /// messages in order, so our echo is the oldest of our in-flight payloads that matches, and
+    /// anything else that arrives while one of ours is in flight was taken before ours, which
+    /// replaces it.
     pub fn judge(&mut self, topic: &str, payload: &str, truth: &str, now: Instant) -> Verdict {
         if let Some(queue) = self.in_flight.get_mut(topic) {
             if let Some(position) = queue.iter().position(|sent| sent == payload) {
@@ -64,6 +83,8 @@ impl TopicGuard {
                 }
                 return Verdict::Fine;
             }
+            tracing::debug!(%topic, seen = ?payload, "a message from before ours, which replaces it");
+            return Verdict::Fine;
         }
         if payload == truth {
             return Verdict::Fine;
@@ -78,7 +99,15 @@ impl TopicGuard {
         }
         self.held.remove(topic);
         self.last_reassert.insert(topic.to_string(), now);
-        if self.reported.insert(topic.to_string()) {
+        let own_will = self
+            .own_will
+            .as_ref()
+            .is_some_and(|(will_topic, will)| will_topic == topic && will == payload);
+        if own_will {
+            tracing::info!(%topic, seen = ?payload, truth = %truth,
+                "the broker published this gateway's own Will (one of its connections ended): \
+                 publishing the truth again");
+        } else if self.reported.insert(topic.to_string()) {
             tracing::warn!(%topic, seen = ?payload, truth = %truth,
                 "another client overwrote one of this gateway's topics: publishing the truth again");
         } else {
@@ -113,6 +142,43 @@ mod tests {
     use super::*;
 
     #[test]
+    fn what_arrives_ahead_of_our_echo_is_older_than_ours_and_no_contradiction() {
+        let now = Instant::now();
+        let mut guard = TopicGuard::default();
+        let status = "plant/gateway/gw1/status";
+        // Connected again: `online` sent; the broker first hands over what it took before
+        // (the last run's `offline`, queued for the session and kept as the retained
+        // message), then echoes ours.
+        guard.sent(status, "online");
+        for earlier in ["offline", "offline"] {
+            assert_eq!(guard.judge(status, earlier, "online", now), Verdict::Fine);
+        }
+        assert_eq!(guard.judge(status, "online", "online", now), Verdict::Fine);
+        // Once ours is there, a contradiction is someone else's.
+        assert_eq!(
+            guard.judge(status, "offline", "online", now),
+            Verdict::Reassert
+        );
+    }
+
+    #[test]
+    fn the_gateways_own_will_is_set_right_like_any_contradiction() {
+        let now = Instant::now();
+        let status = "plant/gateway/gw1/status";
+        let mut guard = TopicGuard::with_own_will(status, "offline");
+        assert_eq!(
+            guard.judge(status, "offline", "online", now),
+            Verdict::Reassert
+        );
+        assert!(guard.reported.is_empty(), "not reported as another client");
+        assert_eq!(
+            guard.judge(status, "gone", "online", now + REASSERT_INTERVAL),
+            Verdict::Reassert
+        );
+        assert!(guard.reported.contains(status));
+    }
+
+    #[test]
     fn own_echoes_pass_and_a_foreign_contradiction_is_answered_once_per_interval() {
         let now = Instant::now();
         let mut guard = TopicGuard::default();
@@ -126,6 +192,7 @@ mod tests {
             Verdict::Reassert
         );
         guard.sent("plant/a/gear", "4");
+        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), Verdict::Fine);
         assert_eq!(
             guard.judge("plant/a/gear", "98", "4", now + Duration::from_millis(10)),
             Verdict::Hold

@@ -30,6 +30,7 @@ pub mod payload;
 pub mod prometheus;
 pub mod publisher;
 pub mod state;
+pub mod tls;
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

@@ -13,7 +13,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::Context as _;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet,
     Publish, QoS, TlsConfiguration, Transport,
@@ -111,22 +110,10 @@ pub fn options(settings: &MqttSettings, topics: &Topics) -> anyhow::Result<MqttO
         options.set_credentials(username, settings.password.clone().unwrap_or_default());
     }
     if let Some(tls) = &settings.tls {
-        let ca = std::fs::read(&tls.ca_file)
-            .with_context(|| format!("reading ca_file {}", tls.ca_file.display()))?;
-        let client_auth = match &tls.client_auth {
-            Some((cert, key)) => Some((
-                std::fs::read(cert)
-                    .with_context(|| format!("reading cert_file {}", cert.display()))?,
-                std::fs::read(key)
-                    .with_context(|| format!("reading key_file {}", key.display()))?,
-            )),
-            None => None,
-        };
-        options.set_transport(Transport::tls_with_config(TlsConfiguration::Simple {
-            ca,
-            alpn: None,
-            client_auth,
-        }));
+        let config = super::tls::client_config(tls)?;
+        options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(
+            Arc::new(config),
+        )));
     }
     Ok(options)
 }
@@ -150,6 +137,39 @@ pub fn client(options: MqttOptions, request_queue: usize) -> (AsyncClient, Event
     network.set_tcp_nodelay(true);
     eventloop.set_network_options(network);
     (client, eventloop)
+}
+
+/// Whether a failed connection attempt got as far as sending its CONNECT packet. An attempt
+/// ends before it when the broker's name cannot be resolved, its TCP connection is refused or
+/// cannot be routed, or the TLS handshake fails (TLS comes before CONNECT). What cannot be
+/// told apart (rumqttc's time limit on the whole attempt, a connection closed once it was
+/// up) counts as sent: a bdSeq must never be used twice, while one skipped is harmless.
+pub fn connect_went_out(error: &ConnectionError) -> bool {
+    use std::io::ErrorKind;
+    match error {
+        ConnectionError::Tls(_) => false,
+        ConnectionError::Io(error) => {
+            let before_connect = matches!(
+                error.kind(),
+                ErrorKind::ConnectionRefused
+                    | ErrorKind::HostUnreachable
+                    | ErrorKind::NetworkUnreachable
+                    | ErrorKind::AddrNotAvailable
+                    | ErrorKind::InvalidInput
+            ) || is_name_lookup_failure(error);
+            !before_connect
+        }
+        _ => true,
+    }
+}
+
+/// A failed name lookup: std reports getaddrinfo's errors with no OS error code and a kind
+/// that cannot be matched on, only by this message.
+fn is_name_lookup_failure(error: &std::io::Error) -> bool {
+    error.raw_os_error().is_none()
+        && error
+            .to_string()
+            .starts_with("failed to lookup address information")
 }
 
 /// Capped exponential back-off with ±20 % jitter (so a fleet does not reconnect in step).
@@ -324,6 +344,35 @@ fn log_connection_error(error: &ConnectionError, wait: Duration, failed_attempts
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_attempts_that_reached_the_broker_count_as_a_connect_sent() {
+        use std::io::{Error, ErrorKind};
+        let io = |kind| ConnectionError::Io(Error::from(kind));
+        for unsent in [
+            io(ErrorKind::ConnectionRefused),
+            io(ErrorKind::HostUnreachable),
+            io(ErrorKind::NetworkUnreachable),
+            ConnectionError::Tls(rumqttc::TlsError::NoValidCertInChain),
+        ] {
+            assert!(!connect_went_out(&unsent), "{unsent}");
+        }
+        // A real failed lookup, as std reports it.
+        let lookup = std::net::ToSocketAddrs::to_socket_addrs("no-such-host.invalid:1883")
+            .err()
+            .map(ConnectionError::Io);
+        if let Some(lookup) = lookup {
+            assert!(!connect_went_out(&lookup), "{lookup}");
+        }
+        for sent in [
+            io(ErrorKind::UnexpectedEof),
+            io(ErrorKind::ConnectionReset),
+            ConnectionError::NetworkTimeout,
+            ConnectionError::ConnectionRefused(rumqttc::ConnectReturnCode::NotAuthorized),
+        ] {
+            assert!(connect_went_out(&sent), "{sent}");
+        }
+    }
 
     #[test]
     fn backoff_grows_to_its_cap_and_resets() {

@@ -75,6 +75,8 @@ impl Publisher {
         line_names: Vec<String>,
         devices: Vec<BridgeDevice>,
     ) -> Self {
+        // The Last Will the MQTT connection registers (crate::bridge::mqtt::options).
+        let guard = TopicGuard::with_own_will(&topics.gateway_status_topic(), OFFLINE);
         Publisher {
             topics,
             discovery,
@@ -86,7 +88,7 @@ impl Publisher {
             connected: false,
             deferred: VecDeque::new(),
             json_views: HashMap::new(),
-            guard: TopicGuard::default(),
+            guard,
             counters: PublishCounters::default(),
             out: Vec::new(),
         }

@@ -77,7 +77,9 @@ impl MqttSettings {
 /// TLS files (checked to exist; read when connecting).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TlsSettings {
-    pub ca_file: PathBuf,
+    /// The CA bundle the broker's certificate is verified against; None: the system's trust
+    /// store.
+    pub ca_file: Option<PathBuf>,
     /// Client certificate and key.
     pub client_auth: Option<(PathBuf, PathBuf)>,
 }

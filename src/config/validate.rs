@@ -291,12 +291,6 @@ fn validate_mqtt_section(
     }
     let any_tls_file = raw.ca_file.is_some() || raw.cert_file.is_some() || raw.key_file.is_some();
     match &endpoint {
-        Ok(endpoint) if endpoint.tls && raw.ca_file.is_none() => fail(
-            "ca_file",
-            "mqtts:// needs ca_file (the CA that signed the broker's certificate; \
-             /etc/ssl/certs/ca-certificates.crt for a public one)"
-                .into(),
-        ),
         Ok(endpoint) if !endpoint.tls && any_tls_file => fail(
             "url",
             "TLS files are configured but the url is mqtt:// (use mqtts://)".into(),
@@ -310,7 +304,7 @@ fn validate_mqtt_section(
     let endpoint = endpoint.ok()?;
     let tls = if endpoint.tls {
         Some(TlsSettings {
-            ca_file: ca?,
+            ca_file: ca,
             client_auth: cert.zip(key),
         })
     } else {
@@ -1299,12 +1293,13 @@ mod tests {
             mqtt_problems("url = \"mqtts://broker:8883\"\nca_file = \"ca.crt\"", base),
             Vec::<String>::new()
         );
+        // Without ca_file, the system's trust store.
+        assert_eq!(
+            mqtt_problems("url = \"mqtts://broker:8883\"", base),
+            Vec::<String>::new()
+        );
         // Each broken setting, and how its first problem begins.
         let broken = [
-            (
-                "url = \"mqtts://broker\"",
-                "mqtt.ca_file: mqtts:// needs ca_file",
-            ),
             (
                 "url = \"mqtt://broker\"\nca_file = \"ca.crt\"",
                 "mqtt.url: TLS files",

@@ -38,6 +38,11 @@ impl BdSeqStore {
         (!first.as_os_str().is_empty()).then(|| Self::in_dir(&first))
     }
 
+    /// Where the number is kept.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// The bdSeq the next connection takes: 0 when nothing was kept yet; a file that does not
     /// hold a number is said and counts as nothing.
     pub fn load(&self) -> u8 {
@@ -63,6 +68,61 @@ impl BdSeqStore {
     }
 }
 
+/// How the fix reads in a warning: the directories where the number can be kept.
+const FIX: &str = "give the daemon's user a writable state directory: the [history] path, \
+                   or STATE_DIRECTORY (systemd's StateDirectory=; the container image's \
+                   /var/lib/rtu2mqtt volume)";
+
+/// Keeps the next bdSeq for the edge node's driver, which keeps it before every connection
+/// attempt. That it cannot be kept is said once per run, at start (the first attempt is made
+/// at start), naming the fix; later failures of the same run are only debug lines, so an
+/// outage's reconnect attempts do not repeat it.
+#[derive(Debug)]
+pub struct Keeper {
+    store: Option<BdSeqStore>,
+    warned: bool,
+}
+
+impl Keeper {
+    /// The keeper of `store`; without one, says at once that bdSeq restarts at 0.
+    pub fn new(store: Option<BdSeqStore>) -> Self {
+        if store.is_none() {
+            tracing::warn!(
+                "Sparkplug bdSeq is not kept across restarts (it starts at 0 on every start, \
+                 which hosts may take for a stale NDEATH): {FIX}"
+            );
+        }
+        Keeper {
+            store,
+            warned: false,
+        }
+    }
+
+    /// Keeps `next`; true when it is kept.
+    pub fn keep(&mut self, next: u8) -> bool {
+        let Some(store) = &self.store else {
+            return false;
+        };
+        match store.store(next) {
+            Ok(()) => true,
+            Err(error) if !self.warned => {
+                self.warned = true;
+                tracing::warn!(
+                    path = %store.path.display(),
+                    %error,
+                    "Sparkplug bdSeq cannot be kept for the next start (it will start at 0 \
+                     again): {FIX}"
+                );
+                false
+            }
+            Err(error) => {
+                tracing::debug!(path = %store.path.display(), %error, "Sparkplug bdSeq not kept");
+                false
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -82,5 +142,21 @@ mod tests {
         fs::write(dir.join(FILE), "garbage").unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(store.load(), 0);
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_keeper_reports_whether_the_number_was_kept() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let mut keeper = Keeper::new(Some(BdSeqStore::in_dir(dir.path())));
+        assert!(keeper.keep(9));
+        assert_eq!(BdSeqStore::in_dir(dir.path()).load(), 9);
+        // A state "directory" that is a file cannot hold it, however often it is tried.
+        let blocked = dir.path().join("not-a-dir");
+        fs::write(&blocked, "").unwrap_or_else(|e| panic!("{e}"));
+        let mut keeper = Keeper::new(Some(BdSeqStore::in_dir(&blocked)));
+        for _ in 0..3 {
+            assert!(!keeper.keep(9));
+        }
+        assert!(!Keeper::new(None).keep(9));
     }
 }

@@ -21,7 +21,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{client, options, Backoff, REQUEST_QUEUE};
+use crate::bridge::mqtt::{client, connect_went_out, options, Backoff, REQUEST_QUEUE};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
@@ -109,14 +109,11 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
     let mut backoff = Backoff::default();
     let mut history_tick = tokio::time::interval(HISTORY_TICK);
     history_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut kept_bd_seq = bd_seq::Keeper::new(links.bd_seq_store.take());
     loop {
         let will = session.prepare_connect(now_millis());
-        if let Some(store) = &links.bd_seq_store {
-            // Kept before the connection that uses this one, so a restart never repeats it.
-            if let Err(error) = store.store(session.bd_seq().wrapping_add(1)) {
-                tracing::warn!(%error, "Sparkplug bdSeq cannot be kept for the next start");
-            }
-        }
+        // Kept before the CONNECT that uses this one goes out, so a restart never repeats it.
+        kept_bd_seq.keep(session.next_bd_seq());
         let mut mqtt_options = match options(&mqtt, &topics) {
             Ok(mqtt_options) => mqtt_options,
             Err(error) => {
@@ -168,6 +165,12 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                         // keeps the back-off growing.
                         if connected_since.is_some_and(|since| since.elapsed() >= STABLE_CONNECTION) {
                             backoff.reset();
+                        }
+                        // Sparkplug counts CONNECT packets: an attempt that sent none (the
+                        // broker refused the TCP connection) gives its bdSeq back.
+                        if connected_since.is_none() && !connect_went_out(&error) {
+                            session.connect_not_sent();
+                            kept_bd_seq.keep(session.next_bd_seq());
                         }
                         tracing::warn!(%error, "Sparkplug connection lost");
                         session.on_disconnected();

@@ -296,12 +296,24 @@ impl Session {
         self.bd_seq
     }
 
+    /// The bdSeq the next connection takes (what a restart must start from).
+    pub fn next_bd_seq(&self) -> u8 {
+        self.next_bd_seq
+    }
+
     /// Called before every MQTT CONNECT: takes the connection's bdSeq (one more than the
     /// previous connection's, 255 wrapping to 0) and returns the NDEATH to set as its Will.
     pub fn prepare_connect(&mut self, now: u64) -> Will {
         self.bd_seq = self.next_bd_seq;
         self.next_bd_seq = self.bd_seq.wrapping_add(1);
         self.death(now)
+    }
+
+    /// The attempt [`prepare_connect`](Self::prepare_connect) was for ended before its CONNECT
+    /// packet went out (no TCP connection, a failed TLS handshake): Sparkplug counts CONNECT
+    /// packets, so the next attempt takes the same bdSeq again.
+    pub fn connect_not_sent(&mut self) {
+        self.next_bd_seq = self.bd_seq;
     }
 
     /// The NDEATH of the current connection, for the node's own orderly end.
@@ -1035,6 +1047,31 @@ mod tests {
             session.on_line_event(T, &dust_values(expected as i64 % 10 + 1));
             session.on_disconnected();
         }
+    }
+
+    #[test]
+    fn an_attempt_that_sent_no_connect_leaves_bd_seq_where_it_was() {
+        let mut session = Session::new(settings(None), 6);
+        session.prepare_connect(T);
+        session.on_connected(T);
+        session.on_disconnected();
+        assert_eq!(session.next_bd_seq(), 7);
+        // Refused TCP connections during an outage: each takes 7 and gives it back.
+        for _ in 0..5 {
+            let will = session.prepare_connect(T);
+            assert_eq!(session.next_bd_seq(), 8, "kept before the attempt");
+            let will = match Payload::decode_bytes(&will.payload) {
+                Ok(will) => will,
+                Err(error) => panic!("{error}"),
+            };
+            assert_eq!(bd_seq_of(&will), Some(MetricValue::Long(7)));
+            session.connect_not_sent();
+            assert_eq!(session.next_bd_seq(), 7);
+        }
+        session.prepare_connect(T);
+        let births = published(&session.on_connected(T));
+        assert_eq!(bd_seq_of(&births[0].1), Some(MetricValue::Long(7)));
+        assert_eq!(session.next_bd_seq(), 8);
     }
 
     #[test]

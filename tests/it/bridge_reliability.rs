@@ -9,6 +9,7 @@ use crate::support;
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
+use nix::sys::signal::{kill, Signal};
 use rtu2mqtt::sim::{self, SeedPlant};
 use rumqttc::QoS;
 use support::child::{self, KillOnDrop};
@@ -373,5 +374,46 @@ async fn two_gateways_with_one_client_id_say_so_once() {
     assert!(
         logs.iter().any(|log| log.contains("twin-gw")),
         "names the client id"
+    );
+}
+
+/// After a clean stop the broker keeps the gateway's own retained `offline`; the next start
+/// receives it when it subscribes, just before its `online` replaces it. That is the
+/// gateway's earlier word, not another client's, and is not reported as one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_does_not_take_its_own_earlier_offline_for_another_client() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plant = SeedPlant::spawn(false).unwrap();
+    let text = PlantConfig::default().text(&broker, &plant, "again-gw");
+    let status = "plant/gateway/again-gw/status";
+    let mut observer = TestClient::connect(broker.port, "again-observer").await;
+    observer.subscribe(status).await;
+    for run in ["first", "second"] {
+        let mut daemon = spawn_daemon(dir.path(), run, &text);
+        observer
+            .wait_for(status, ANSWER, |m| m.text() == "online")
+            .await;
+        // Long enough for the stored message, the echo and any re-assertion.
+        observer.settle(Duration::from_secs(2)).await;
+        kill(daemon.pid(), Signal::SIGTERM).expect("SIGTERM");
+        let deadline = Instant::now() + Duration::from_secs(15);
+        while daemon.is_running() {
+            assert!(Instant::now() < deadline, "{run} run did not stop");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        observer
+            .wait_for(status, ANSWER, |m| m.text() == "offline")
+            .await;
+        observer.forget();
+    }
+    assert_eq!(
+        retained(broker.port, "again-late", status).await.as_deref(),
+        Some("offline")
+    );
+    let second = std::fs::read_to_string(dir.path().join("second.log")).unwrap_or_default();
+    assert!(
+        !second.contains("another client overwrote"),
+        "a false alarm:\n{second}"
     );
 }

@@ -44,3 +44,4 @@ mod sparkplug_node;
 mod sparkplug_readme;
 mod systemd_unit;
 mod tcp_lines;
+mod trust_store;

@@ -551,3 +551,71 @@ async fn plain_topics_and_discovery_are_the_same_with_and_without_sparkplug() {
         "only without [sparkplug]: {only_without:#?}\nonly with: {only_with:#?}"
     );
 }
+
+/// A bdSeq that cannot be kept is said once, at start, naming the fix, however many reconnect
+/// attempts an outage brings; the node connects all the same. Without a state directory at
+/// all, that is said once too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bd_seq_that_cannot_be_kept_is_a_single_warning_at_start() {
+    let mut broker = Mosquitto::not_started();
+    let dir = tempfile::tempdir().expect("temp dir");
+    // A "state directory" under a plain file can never be made, whoever runs the test.
+    let blocker = dir.path().join("not-a-directory");
+    std::fs::write(&blocker, "").expect("write");
+    let config = format!(
+        "[mqtt]\nurl = \"{}\"\nclient_id = \"kept-gw\"\nprefix = \"plant\"\n\n\
+         [health]\nstatus_file = \"\"\n\n[sparkplug]\ngroup_id = \"{GROUP}\"\n\n\
+         [[lines]]\nname = \"line-b\"\nurl = \"tcp://127.0.0.1:{}\"\n\n\
+         [[lines.devices]]\nname = \"valve\"\nprofile = \"wuzhou-valve\"\naddress = 1\n",
+        broker.url(),
+        support::free_port()
+    );
+    let config_path = dir.path().join("config.toml");
+    std::fs::write(&config_path, config).expect("write config");
+    let start = |state: Option<&Path>, log: &Path| {
+        let mut command = child::gateway_run(&config_path);
+        command
+            .env("RUST_LOG", "warn")
+            .stderr(std::fs::File::create(log).expect("log file"));
+        match state {
+            Some(state) => command.env("STATE_DIRECTORY", state),
+            None => command.env_remove("STATE_DIRECTORY"),
+        };
+        KillOnDrop::spawn(command).expect("rtu2mqtt run starts")
+    };
+
+    let unwritable_log = dir.path().join("unwritable.log");
+    let gateway = start(Some(&blocker.join("state")), &unwritable_log);
+    // Refused attempts meanwhile: the back-off starts at 250 ms.
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    broker.restart();
+    let mut host = TestClient::connect(broker.port, "kept-host").await;
+    host.subscribe("spBv1.0/#").await;
+    host.wait_for(&format!("spBv1.0/{GROUP}/NBIRTH/kept-gw"), ANSWER, |_| true)
+        .await;
+    drop(gateway);
+    let said = std::fs::read_to_string(&unwritable_log).unwrap_or_default();
+    let warnings: Vec<&str> = said
+        .lines()
+        .filter(|line| line.contains("Sparkplug bdSeq"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{said}");
+    assert!(warnings[0].contains("cannot be kept"), "{said}");
+    assert!(
+        warnings[0].contains("STATE_DIRECTORY"),
+        "names the fix: {said}"
+    );
+
+    let nowhere_log = dir.path().join("nowhere.log");
+    let gateway = start(None, &nowhere_log);
+    host.wait_for(&format!("spBv1.0/{GROUP}/NBIRTH/kept-gw"), ANSWER, |_| true)
+        .await;
+    drop(gateway);
+    let said = std::fs::read_to_string(&nowhere_log).unwrap_or_default();
+    let warnings: Vec<&str> = said
+        .lines()
+        .filter(|line| line.contains("Sparkplug bdSeq"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{said}");
+    assert!(warnings[0].contains("not kept across restarts"), "{said}");
+}

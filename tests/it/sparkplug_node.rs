@@ -321,7 +321,8 @@ async fn a_new_connection_gets_the_next_bd_seq_and_its_will_carries_it() {
     let Some(MetricValue::Long(bd_seq)) = value_of(&second, "bdSeq") else {
         panic!("no bdSeq in {second:?}");
     };
-    assert!(bd_seq >= 1, "bdSeq {bd_seq} after a reconnect");
+    // One CONNECT since the first: the attempts the dead broker refused sent none.
+    assert_eq!(bd_seq, 1, "bdSeq after a reconnect");
     assert_eq!(second.seq, Some(0));
 
     node.task.abort();
@@ -374,4 +375,40 @@ async fn bd_seq_goes_on_counting_across_restarts() {
         let _ = node.task.await;
         host.forget();
     }
+}
+
+/// A node killed during a broker outage, after many refused reconnect attempts, starts again
+/// with the bdSeq after the last one it connected with: Sparkplug counts CONNECT packets, and
+/// a refused TCP connection sends none.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_during_an_outage_takes_the_bd_seq_after_the_last_connection() {
+    let mut broker = Mosquitto::start();
+    let state = tempfile::tempdir().expect("state dir");
+    let store = BdSeqStore::in_dir(state.path());
+    let mut host = TestClient::connect(broker.port, "outage-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start_with(session_from(None, 6), broker.port, Some(store.clone()));
+    let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(value_of(&nbirth, "bdSeq"), Some(MetricValue::Long(6)));
+
+    broker.kill();
+    // The back-off starts at 250 ms: several refused attempts in this time.
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    assert_eq!(store.load(), 7, "the next start's bdSeq during the outage");
+    node.task.abort();
+    let _ = node.task.await;
+
+    broker.restart();
+    let mut host = TestClient::connect(broker.port, "outage-host-2").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start_with(
+        session_from(None, store.load()),
+        broker.port,
+        Some(store.clone()),
+    );
+    let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
+    assert_eq!(value_of(&nbirth, "bdSeq"), Some(MetricValue::Long(7)));
+    assert_eq!(store.load(), 8);
+    node.trigger.fire();
+    let _ = tokio::time::timeout(WAIT, node.task).await;
 }
