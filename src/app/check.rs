@@ -1,6 +1,8 @@
 //! `rtu2mqtt check`: validates the configuration and its profiles without touching a port or a
 //! broker, and prints each line's poll plan (devices, blocks, frames and wire time per cycle,
-//! bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
+//! bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid
+//! or when the history journal's directory cannot be written by the user running it (`run`
+//! would serve live values and report itself unhealthy).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -11,13 +13,22 @@ use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
 use crate::config::plan::LinePlan;
 use crate::config::{self, Config};
+use crate::history::Journal;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {
         Ok(config) => {
             print!("{}", report(path, &config));
-            Ok(ExitCode::SUCCESS)
+            let journal_unusable = config
+                .history
+                .as_ref()
+                .is_some_and(|history| Journal::unusable(&history.path).is_some());
+            Ok(if journal_unusable {
+                ExitCode::FAILURE
+            } else {
+                ExitCode::SUCCESS
+            })
         }
         Err(problems) => {
             eprintln!("{}: {problems}", path.display());
@@ -80,7 +91,15 @@ pub fn report(path: &Path, config: &Config) -> String {
             humantime::format_duration(history.max_age),
             config.mqtt.topics().history_filter(),
         );
-        let holds = match crate::history::Journal::inspect(&history.path) {
+        if let Some(problem) = Journal::unusable(&history.path) {
+            let _ = writeln!(
+                out,
+                "history.path: cannot be written (as uid {}): {problem}; `run` would serve live \
+                 values and report itself unhealthy until it can",
+                running_uid()
+            );
+        }
+        let holds = match Journal::inspect(&history.path) {
             Ok(Some(stats)) => format!(
                 "{} records waiting in {} bytes, {} damaged parts",
                 stats.waiting, stats.bytes, stats.damaged
@@ -188,6 +207,12 @@ pub fn report(path: &Path, config: &Config) -> String {
         );
     }
     out
+}
+
+/// The user `check` runs as, by number ("?" where /proc is not there).
+fn running_uid() -> String {
+    use std::os::unix::fs::MetadataExt as _;
+    std::fs::metadata("/proc/self").map_or_else(|_| "?".to_string(), |meta| meta.uid().to_string())
 }
 
 fn millis(duration: Duration) -> String {

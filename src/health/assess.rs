@@ -205,7 +205,7 @@ pub fn judge_status(text: &str, now_ms: u64, max_age: Duration) -> Result<Status
         ));
     }
     if !report.healthy {
-        return Err(format!("unhealthy: {}", report.problems.join("; ")));
+        return Err(report.problems.join("; "));
     }
     if !report.mqtt.connected && report.mqtt.state_age_ms > millis(max_age) {
         return Err(format!(

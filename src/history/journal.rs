@@ -172,7 +172,12 @@ impl Journal {
             Ok(_) => access(dir, writable)
                 .err()
                 .map(|errno| format!("{}: {}", dir.display(), io::Error::from(errno))),
-            Err(error) if error.kind() == io::ErrorKind::NotFound => {
+            Err(error)
+                if matches!(
+                    error.kind(),
+                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
+                ) =>
+            {
                 let parent = dir.ancestors().skip(1).find(|p| p.exists())?;
                 let cannot = match fs::metadata(parent) {
                     Ok(meta) if !meta.is_dir() => "is not a directory".to_string(),
@@ -1011,6 +1016,33 @@ mod tests {
         assert_eq!(
             take_all(&mut journal, NOW),
             (0..6).map(record).collect::<Vec<_>>()
+        );
+        let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn after_a_replay_new_records_go_past_what_holds_the_next_names() {
+        let dir = scratch("past-names");
+        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        write_segment(&dir, "00000000000000000001.journal", 0..31);
+        nix::unistd::mkfifo(
+            &dir.join("00000000000000000002.journal"),
+            nix::sys::stat::Mode::S_IRWXU,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        fs::write(dir.join("18446744073709551615.journal"), b"stray").unwrap_or_default();
+        let mut journal = open(&dir, 1 << 20);
+        assert_eq!(
+            take_all(&mut journal, NOW),
+            (0..31).map(record).collect::<Vec<_>>()
+        );
+        for n in 31..36 {
+            journal.append(&record(n), NOW);
+        }
+        assert_eq!(journal.problem(), None);
+        assert_eq!(
+            take_all(&mut journal, NOW),
+            (31..36).map(record).collect::<Vec<_>>()
         );
         let _ = fs::remove_dir_all(&dir);
     }
