@@ -173,10 +173,8 @@ impl Journal {
                 .err()
                 .map(|errno| format!("{}: {}", dir.display(), io::Error::from(errno))),
             Err(error)
-                if matches!(
-                    error.kind(),
-                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
-                ) =>
+                if error.kind() == io::ErrorKind::NotFound
+                    || error.raw_os_error() == Some(libc::ENOTDIR) =>
             {
                 let parent = dir.ancestors().skip(1).find(|p| p.exists())?;
                 let cannot = match fs::metadata(parent) {
@@ -225,7 +223,7 @@ impl Journal {
     /// Every tick: tries a journal that could not be written again (once a
     /// [`RETRY_INTERVAL`]), and syncs what was written once it has waited [`SYNC_INTERVAL`].
     pub fn on_tick(&mut self, now: Instant) {
-        if self.problem.is_some() && self.retry_at.is_none_or(|at| now >= at) {
+        if self.problem.is_some() && !matches!(self.retry_at, Some(at) if now < at) {
             self.recover(now);
             self.refresh_stats();
         }
