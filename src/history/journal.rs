@@ -1131,6 +1131,216 @@ mod tests {
         let _ = fs::remove_file(&dir);
     }
 
+    /// Replays what `dir` holds in a fresh journal: the records that come out.
+    fn replay_of(dir: &Path, max_size: u64) -> (Vec<Record>, JournalStats) {
+        let mut journal = open(dir, max_size);
+        let stats = journal.stats();
+        (take_all(&mut journal, NOW), stats)
+    }
+
+    /// How many of `expected` are missing from `replayed`.
+    fn lost(expected: impl IntoIterator<Item = u64>, replayed: &[Record]) -> usize {
+        expected
+            .into_iter()
+            .filter(|&n| !replayed.contains(&record(n)))
+            .count()
+    }
+
+    /// Every kind of damage of the journal's known failure table, reproduced one after the
+    /// other, with the records it costs printed (`--nocapture`) and asserted.
+    #[test]
+    fn the_damage_table_row_by_row() {
+        let mut rows: Vec<(&str, String)> = Vec::new();
+        let spans = {
+            let mut at = MAGIC.len();
+            (0..31u64)
+                .map(|n| {
+                    let start = at;
+                    at += record(n).encode().map_or(0, |b| b.len());
+                    start
+                })
+                .collect::<Vec<_>>()
+        };
+        let damaged_segment = |name: &str, damage: &dyn Fn(&mut Vec<u8>)| {
+            let dir = scratch(name);
+            fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+            let path = write_segment(&dir, "00000000000000000001.journal", 0..31);
+            let mut bytes = fs::read(&path).unwrap_or_default();
+            damage(&mut bytes);
+            fs::write(&path, bytes).unwrap_or_else(|e| panic!("{e}"));
+            let (replayed, _) = replay_of(&dir, 1 << 20);
+            let _ = fs::remove_dir_all(&dir);
+            lost(0..31, &replayed)
+        };
+        let first_low = damaged_segment("row-first-low", &|b| b[spans[0]] ^= 0x01);
+        let first_high = damaged_segment("row-first-high", &|b| b[spans[0] + 3] ^= 0x80);
+        assert_eq!((first_low, first_high), (1, 1));
+        rows.push((
+            "one bit flipped in the first record's length field (low, high byte)",
+            format!("{first_low}, {first_high} of 31"),
+        ));
+        let middle = damaged_segment("row-middle", &|b| b[spans[15] + 1] ^= 0x04);
+        let huge = damaged_segment("row-huge", &|b| {
+            b[spans[15]..spans[15] + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        });
+        assert_eq!((middle, huge), (1, 1));
+        rows.push((
+            "one bit flipped in the middle record's length field; a length of 0xFFFFFFF0",
+            format!("{middle}; {huge} of 31"),
+        ));
+        let magic = damaged_segment("row-magic", &|b| b[4] ^= 0x20);
+        assert_eq!(magic, 0);
+        rows.push((
+            "one bit flipped in the MAGIC header",
+            format!("{magic} of 31"),
+        ));
+
+        // The largest number, as a stray file and as a real segment.
+        for (name, content) in [
+            ("row-largest-stray", b"stray".to_vec()),
+            ("row-largest-segment", Vec::new()),
+        ] {
+            let dir = scratch(name);
+            fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+            if content.is_empty() {
+                write_segment(&dir, "18446744073709551615.journal", 100..102);
+            } else {
+                fs::write(dir.join("18446744073709551615.journal"), content).unwrap_or_default();
+            }
+            let mut journal = open(&dir, 1 << 20);
+            for n in 0..5 {
+                journal.append(&record(n), NOW);
+            }
+            let failures = journal.stats().write_failures;
+            drop(journal);
+            let (replayed, _) = replay_of(&dir, 1 << 20);
+            let lost = lost(0..5, &replayed);
+            assert_eq!((lost, failures), (0, 0));
+            rows.push((
+                if name.ends_with("stray") {
+                    "a stray 18446744073709551615.journal"
+                } else {
+                    "a real segment named 18446744073709551615.journal"
+                },
+                format!("{lost} of 5 in the next outage, {failures} write failures"),
+            ));
+            let _ = fs::remove_dir_all(&dir);
+        }
+
+        // A FIFO named like a segment: the start does not wait for it.
+        let dir = scratch("row-fifo");
+        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        write_segment(&dir, "00000000000000000001.journal", 0..5);
+        nix::unistd::mkfifo(
+            &dir.join("00000000000000000000.journal"),
+            nix::sys::stat::Mode::S_IRWXU,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
+        let fifo_dir = dir.clone();
+        std::thread::spawn(move || {
+            let _ = done_tx.send(replay_of(&fifo_dir, 1 << 20));
+        });
+        let (replayed, _) = done_rx
+            .recv_timeout(Duration::from_secs(10))
+            .unwrap_or_else(|_| panic!("the journal's start waited for a FIFO"));
+        let fifo_lost = lost(0..5, &replayed);
+        assert_eq!(fifo_lost, 0);
+        rows.push((
+            "a FIFO named like a segment",
+            format!("starts at once, {fifo_lost} of 5 lost"),
+        ));
+        let _ = fs::remove_dir_all(&dir);
+
+        // An empty segment: no damage, removed.
+        let dir = scratch("row-empty");
+        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        fs::write(dir.join("00000000000000000001.journal"), b"").unwrap_or_default();
+        let first = open(&dir, 1 << 20).stats().damaged;
+        let second = open(&dir, 1 << 20).stats().damaged;
+        assert_eq!((first, second), (0, 0));
+        rows.push((
+            "an empty segment",
+            format!("damaged {first} at the first start, {second} at the next"),
+        ));
+        let _ = fs::remove_dir_all(&dir);
+
+        // max_size reached by older records, then an outage of about 6 KB of new records.
+        let dir = scratch("row-bound");
+        let max_size = 64 * 1024;
+        let mut journal = open(&dir, max_size);
+        let mut older = 0;
+        while journal.stats().bytes + 200 < max_size {
+            journal.append(&record(older), NOW);
+            older += 1;
+        }
+        drop(journal);
+        let mut journal = open(&dir, max_size);
+        let newer = 1_000_000..1_000_000 + 6 * 1024 / 50;
+        for n in newer.clone() {
+            journal.append(&record(n), NOW);
+        }
+        let dropped = journal.stats().dropped;
+        let replayed = take_all(&mut journal, NOW);
+        let older_dropped = lost(0..older, &replayed);
+        let newer_lost = lost(newer.clone(), &replayed);
+        assert_eq!((older_dropped as u64, newer_lost), (dropped, 0));
+        rows.push((
+            "max_size = 64KiB reached by older records, then about 6 KB of new records",
+            format!(
+                "{dropped} dropped: {older_dropped} of {older} older, {newer_lost} of {} new",
+                newer.end - newer.start
+            ),
+        ));
+        let _ = fs::remove_dir_all(&dir);
+
+        // A path that is a regular file: the records wait in memory, nothing is lost.
+        let dir = scratch("row-file");
+        fs::write(&dir, b"a file").unwrap_or_else(|e| panic!("{e}"));
+        let mut journal = open(&dir, 1 << 20);
+        for n in 0..5 {
+            journal.append(&record(n), NOW);
+        }
+        let unusable = journal.problem().is_some();
+        let file_lost = lost(0..5, &take_all(&mut journal, NOW));
+        assert!(unusable);
+        assert_eq!(file_lost, 0);
+        rows.push((
+            "path names a regular file",
+            format!("unhealthy, {file_lost} of 5 lost"),
+        ));
+        let _ = fs::remove_file(&dir);
+
+        // The disk full, then room again.
+        if let Some(disk) = SmallDisk::mount("row-full", "128k") {
+            let dir = disk.0.join("history");
+            let mut journal = open(&dir, 1 << 20);
+            let filler = disk.fill();
+            for n in 0..5 {
+                journal.append(&record(n), NOW);
+            }
+            fs::remove_file(filler).unwrap_or_else(|e| panic!("{e}"));
+            journal.on_tick(Instant::now() + RETRY_INTERVAL);
+            let resumed = journal.problem().is_none();
+            for n in 5..10 {
+                journal.append(&record(n), NOW);
+            }
+            drop(journal);
+            let (replayed, _) = replay_of(&dir, 1 << 20);
+            let full_lost = lost(0..5, &replayed);
+            let next_lost = lost(5..10, &replayed);
+            assert!(resumed);
+            assert_eq!((full_lost, next_lost), (0, 0));
+            rows.push((
+                "the disk full, then room again",
+                format!("resumed; {full_lost} of 5 lost while full, {next_lost} of 5 in the next outage"),
+            ));
+        }
+        for (damage, lost) in rows {
+            println!("| {damage} | {lost} |");
+        }
+    }
+
     /// A tmpfs of `size` mounted on a fresh directory, unmounted when dropped (needs root).
     struct SmallDisk(PathBuf);
 
