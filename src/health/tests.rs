@@ -199,9 +199,7 @@ fn a_journal_that_cannot_be_written_is_unhealthy_until_it_can_and_keeps_systemd_
     let verdict = judge_status(&text, 1_000, Duration::from_secs(30));
     assert_eq!(
         verdict.err(),
-        Some(format!(
-            "unhealthy: history journal cannot be written: {cause}"
-        ))
+        Some(format!("history journal cannot be written: {cause}"))
     );
 
     let well = judged(None);

@@ -145,9 +145,14 @@ impl Journal {
         }
         let mut stats = JournalStats::default();
         for (path, _) in segment_names(dir)? {
-            let Ok(bytes) = read_segment_file(&path) else {
-                stats.damaged += 1;
-                continue;
+            let bytes = match read_segment_file(&path) {
+                Ok(bytes) => bytes,
+                // Not a regular file: no segment, and no damage either.
+                Err(error) if error.kind() == io::ErrorKind::Unsupported => continue,
+                Err(_) => {
+                    stats.damaged += 1;
+                    continue;
+                }
             };
             let decoded = record::decode(&bytes);
             stats.damaged += decoded.damaged;
