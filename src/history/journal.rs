@@ -712,6 +712,17 @@ mod tests {
         dir
     }
 
+    /// `scratch(name)`, made.
+    fn made(name: &str) -> PathBuf {
+        let dir = scratch(name);
+        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        dir
+    }
+
+    fn fifo(path: &Path) {
+        nix::unistd::mkfifo(path, nix::sys::stat::Mode::S_IRWXU).unwrap_or_else(|e| panic!("{e}"));
+    }
+
     fn segment_files(dir: &Path) -> Vec<PathBuf> {
         let mut files: Vec<PathBuf> = fs::read_dir(dir)
             .map(|entries| entries.flatten().map(|e| e.path()).collect())
@@ -926,14 +937,9 @@ mod tests {
 
     #[test]
     fn only_regular_files_are_segments_and_nothing_blocks_the_start() {
-        let dir = scratch("kinds");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("kinds");
         write_segment(&dir, "00000000000000000001.journal", 0..3);
-        nix::unistd::mkfifo(
-            &dir.join("00000000000000000002.journal"),
-            nix::sys::stat::Mode::S_IRWXU,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        fifo(&dir.join("00000000000000000002.journal"));
         let _socket = std::os::unix::net::UnixListener::bind(dir.join("3.journal"))
             .unwrap_or_else(|e| panic!("{e}"));
         fs::create_dir(dir.join("00000000000000000004.journal")).unwrap_or_else(|e| panic!("{e}"));
@@ -985,8 +991,7 @@ mod tests {
     #[test]
     fn the_largest_sequence_number_does_not_stop_the_journal() {
         // A foreign file of the largest number: it sets nothing.
-        let dir = scratch("largest-foreign");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("largest-foreign");
         fs::write(dir.join("18446744073709551615.journal"), b"stray").unwrap_or_default();
         let mut journal = open(&dir, 1 << 20);
         for n in 0..5 {
@@ -1002,8 +1007,7 @@ mod tests {
 
         // A real segment of the largest number: the segments are numbered from 0 again, in
         // order.
-        let dir = scratch("largest-segment");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("largest-segment");
         write_segment(&dir, "00000000000000000007.journal", 0..2);
         write_segment(&dir, "18446744073709551615.journal", 2..4);
         let mut journal = open(&dir, 1 << 20);
@@ -1025,14 +1029,9 @@ mod tests {
 
     #[test]
     fn after_a_replay_new_records_go_past_what_holds_the_next_names() {
-        let dir = scratch("past-names");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("past-names");
         write_segment(&dir, "00000000000000000001.journal", 0..31);
-        nix::unistd::mkfifo(
-            &dir.join("00000000000000000002.journal"),
-            nix::sys::stat::Mode::S_IRWXU,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        fifo(&dir.join("00000000000000000002.journal"));
         fs::write(dir.join("18446744073709551615.journal"), b"stray").unwrap_or_default();
         let mut journal = open(&dir, 1 << 20);
         assert_eq!(
@@ -1052,8 +1051,7 @@ mod tests {
 
     #[test]
     fn empty_segments_are_removed_and_are_no_damage() {
-        let dir = scratch("empty");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("empty");
         fs::write(dir.join("00000000000000000001.journal"), b"").unwrap_or_default();
         fs::write(dir.join("00000000000000000002.journal"), &MAGIC[..7]).unwrap_or_default();
         write_segment(&dir, "00000000000000000003.journal", 0..0);
@@ -1167,8 +1165,7 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let damaged_segment = |name: &str, damage: &dyn Fn(&mut Vec<u8>)| {
-            let dir = scratch(name);
-            fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+            let dir = made(name);
             let path = write_segment(&dir, "00000000000000000001.journal", 0..31);
             let mut bytes = fs::read(&path).unwrap_or_default();
             damage(&mut bytes);
@@ -1205,8 +1202,7 @@ mod tests {
             ("row-largest-stray", b"stray".to_vec()),
             ("row-largest-segment", Vec::new()),
         ] {
-            let dir = scratch(name);
-            fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+            let dir = made(name);
             if content.is_empty() {
                 write_segment(&dir, "18446744073709551615.journal", 100..102);
             } else {
@@ -1233,14 +1229,9 @@ mod tests {
         }
 
         // A FIFO named like a segment: the start does not wait for it.
-        let dir = scratch("row-fifo");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("row-fifo");
         write_segment(&dir, "00000000000000000001.journal", 0..5);
-        nix::unistd::mkfifo(
-            &dir.join("00000000000000000000.journal"),
-            nix::sys::stat::Mode::S_IRWXU,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        fifo(&dir.join("00000000000000000000.journal"));
         let (done_tx, done_rx) = std::sync::mpsc::channel();
         let fifo_dir = dir.clone();
         std::thread::spawn(move || {
@@ -1258,8 +1249,7 @@ mod tests {
         let _ = fs::remove_dir_all(&dir);
 
         // An empty segment: no damage, removed.
-        let dir = scratch("row-empty");
-        fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let dir = made("row-empty");
         fs::write(dir.join("00000000000000000001.journal"), b"").unwrap_or_default();
         let first = open(&dir, 1 << 20).stats().damaged;
         let second = open(&dir, 1 << 20).stats().damaged;
