@@ -341,7 +341,11 @@ impl Journal {
 
     /// Makes the directory and reads the segments earlier runs left in it.
     fn load(&mut self) -> Result<(), String> {
-        let place = |error: io::Error| format!("{}: {error}", self.dir.display());
+        // The clearest cause the directory's state gives, else the error itself.
+        let place = |error: io::Error| {
+            Journal::unusable(&self.dir)
+                .unwrap_or_else(|| format!("{}: {error}", self.dir.display()))
+        };
         if fs::metadata(&self.dir).is_ok_and(|meta| !meta.is_dir()) {
             return Err(format!(
                 "{}: is not a directory (the journal needs one)",
@@ -1092,6 +1096,43 @@ mod tests {
             (0..4).map(record).collect::<Vec<_>>()
         );
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_path_that_loops_or_is_read_only_is_a_problem_with_its_cause() {
+        let dir = made("loop");
+        std::os::unix::fs::symlink(dir.join("b"), dir.join("a")).unwrap_or_else(|e| panic!("{e}"));
+        std::os::unix::fs::symlink(dir.join("a"), dir.join("b")).unwrap_or_else(|e| panic!("{e}"));
+        let mut journal = open(&dir.join("a"), 1 << 20);
+        assert_eq!(
+            journal.problem(),
+            Some(
+                format!(
+                    "{}: Too many levels of symbolic links (os error 40)",
+                    dir.join("a").display()
+                )
+                .as_str()
+            )
+        );
+        journal.append(&record(0), NOW);
+        assert_eq!(journal.take(10, NOW), vec![record(0)]);
+        let _ = fs::remove_dir_all(&dir);
+
+        let Some(disk) = SmallDisk::mount("read-only", "64k") else {
+            eprintln!("a read-only journal is tested on a tmpfs: mounting one needs root");
+            return;
+        };
+        let remounted = Command::new("mount")
+            .args(["-o", "remount,ro"])
+            .arg(&disk.0)
+            .status()
+            .is_ok_and(|status| status.success());
+        assert!(remounted);
+        let journal = open(&disk.0, 1 << 20);
+        assert_eq!(
+            journal.problem(),
+            Some(format!("{}: Read-only file system (os error 30)", disk.0.display()).as_str())
+        );
     }
 
     #[test]
