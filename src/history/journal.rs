@@ -321,6 +321,7 @@ impl Journal {
             self.fail_with(problem);
             return;
         }
+        let mut written = false;
         while let Some(record) = self.pending.front() {
             let Some(bytes) = record.encode() else {
                 self.pending.pop_front();
@@ -331,8 +332,17 @@ impl Journal {
                 self.fail(&error);
                 return;
             }
+            written = true;
             self.pending_bytes = self.pending_bytes.saturating_sub(bytes.len() as u64);
             self.pending.pop_front();
+        }
+        // Nothing waited (the replay took it from memory): a full disk shows only when
+        // something is written, so the next segment is begun to find out.
+        if self.problem.is_some() && !written {
+            if let Err(error) = self.start_segment() {
+                self.fail(&error);
+                return;
+            }
         }
         if self.problem.take().is_some() {
             tracing::info!(dir = %self.dir.display(), "history journal writable again: what waited in memory is written");
@@ -1424,7 +1434,7 @@ mod tests {
         for n in 0..10 {
             journal.append(&record(n), NOW);
         }
-        let filler = disk.fill();
+        disk.fill();
         for n in 10..500 {
             journal.append(&record(n), NOW);
         }
@@ -1434,8 +1444,26 @@ mod tests {
         // Still full: tried again, still a pause.
         journal.on_tick(Instant::now() + RETRY_INTERVAL);
         assert!(journal.problem().is_some());
-        fs::remove_file(filler).unwrap_or_else(|e| panic!("{e}"));
+        // The broker comes back first: what waited in memory is replayed from there, and the
+        // disk, still full, is still said to be.
+        let early = journal.take(100, NOW);
+        assert_eq!(early, (0..100).map(record).collect::<Vec<_>>());
+        let memory: Vec<Record> = std::iter::from_fn(|| {
+            let batch = journal.take(100, NOW);
+            (!batch.is_empty()).then_some(batch)
+        })
+        .flatten()
+        .collect();
+        assert_eq!(memory, (100..500).map(record).collect::<Vec<_>>());
+        // (The replayed segment's deletion made room: taken again.)
+        let filler = disk.fill();
         journal.on_tick(Instant::now() + 2 * RETRY_INTERVAL);
+        assert!(journal.problem().is_some(), "the disk is still full");
+        for n in 0..500 {
+            journal.append(&record(n), NOW);
+        }
+        fs::remove_file(filler).unwrap_or_else(|e| panic!("{e}"));
+        journal.on_tick(Instant::now() + 3 * RETRY_INTERVAL);
         assert_eq!(journal.problem(), None);
         for n in 500..510 {
             journal.append(&record(n), NOW);
