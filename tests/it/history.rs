@@ -657,3 +657,80 @@ async fn a_history_path_that_cannot_be_written_makes_the_gateway_unhealthy_never
     );
     assert!(gateway.is_running());
 }
+
+/// A tmpfs of 256 KiB mounted on a fresh directory, unmounted when dropped; None where
+/// mounting needs a root this test does not have.
+struct SmallDisk(tempfile::TempDir);
+
+impl SmallDisk {
+    fn mount() -> Option<SmallDisk> {
+        let dir = tempfile::tempdir().ok()?;
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=256k", "tmpfs"])
+            .arg(dir.path())
+            .status()
+            .is_ok_and(|status| status.success());
+        mounted.then_some(SmallDisk(dir))
+    }
+
+    /// Takes all the room left.
+    fn fill(&self) -> std::path::PathBuf {
+        use std::io::Write;
+        let path = self.0.path().join("filler");
+        let mut file = std::fs::File::create(&path).expect("filler");
+        while file.write_all(&[0xAA; 4096]).is_ok() {}
+        while file.write_all(&[0xAA; 1]).is_ok() {}
+        path
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg(self.0.path())
+            .status();
+    }
+}
+
+/// Waits until the gateway's journal is said writable (`problem` None) or not.
+async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> {
+    let mut problem = gateway.running.bridge.history_problem.clone();
+    let said = tokio::time::timeout(ANSWER, problem.wait_for(|now| now.is_some() == failing))
+        .await
+        .unwrap_or_else(|_| panic!("the journal never became failing = {failing}"))
+        .expect("bridge gone")
+        .clone();
+    said
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
+    let Some(disk) = SmallDisk::mount() else {
+        eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+        return;
+    };
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = disk.0.path().join("history");
+    let config = support::fast_config(&config_text(&broker, &plant, "hist-full", &journal));
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config).await;
+    first_history(broker.port).await;
+
+    let filler = disk.fill();
+    broker.kill();
+    link_is(&gateway, false).await;
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage[..3]).await;
+    let problem = journal_problem_is(&gateway, true).await.unwrap_or_default();
+    assert!(problem.contains("No space left on device"), "{problem}");
+    // Room again: the journal resumes by itself, the outage goes on.
+    std::fs::remove_file(filler).expect("remove the filler");
+    journal_problem_is(&gateway, false).await;
+    walk_alarms(&plant, &outage[3..]).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    assert_outage_follows_in_order(&mut observer, &outage).await;
+    gateway.stop().await;
+    drop(disk);
+}
