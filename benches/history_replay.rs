@@ -235,7 +235,10 @@ fn write_hour(dir: &Path, sample: &[Record], count: u64) -> anyhow::Result<u64> 
         max_size: 1 << 30,
         max_age: Duration::from_secs(7 * 24 * 3600),
     };
-    let mut journal = Journal::open(&config)?;
+    let mut journal = Journal::open(&config);
+    if let Some(problem) = journal.problem() {
+        anyhow::bail!("the journal cannot be written: {problem}");
+    }
     let now = epoch_ms(SystemTime::now());
     let start = now.saturating_sub(HOUR.as_millis() as u64);
     let step = HOUR.as_millis() as u64 / count.max(1);

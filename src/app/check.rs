@@ -1,6 +1,9 @@
 //! `rtu2mqtt check`: validates the configuration and its profiles without touching a port or a
 //! broker, and prints each line's poll plan (devices, each block with its cadence, wire time
-//! and share of the line, frames and wire time per cycle, bus load), what each line talks through and where it is served, in a form that can be pasted into a bug report. Exit 0 valid, 1 invalid.
+//! and share of the line, frames and wire time per cycle, bus load), what each line talks
+//! through and where it is served, in a form that can be pasted into a bug report. Exit 0
+//! valid, 1 invalid or when the history journal's directory cannot be written by the user
+//! running it (`run` would serve live values and report itself unhealthy).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -11,6 +14,7 @@ use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
 use crate::config::plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
+use crate::history::Journal;
 use crate::profile::registry::describe_read;
 use crate::profile::PollClass;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
@@ -19,7 +23,15 @@ pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {
         Ok(config) => {
             print!("{}", report(path, &config));
-            Ok(ExitCode::SUCCESS)
+            let journal_unusable = config
+                .history
+                .as_ref()
+                .is_some_and(|history| Journal::unusable(&history.path).is_some());
+            Ok(if journal_unusable {
+                ExitCode::FAILURE
+            } else {
+                ExitCode::SUCCESS
+            })
         }
         Err(problems) => {
             eprintln!("{}: {problems}", path.display());
@@ -82,7 +94,15 @@ pub fn report(path: &Path, config: &Config) -> String {
             humantime::format_duration(history.max_age),
             config.mqtt.topics().history_filter(),
         );
-        let holds = match crate::history::Journal::inspect(&history.path) {
+        if let Some(problem) = Journal::unusable(&history.path) {
+            let _ = writeln!(
+                out,
+                "history.path: cannot be written (as uid {}): {problem}; `run` would serve live \
+                 values and report itself unhealthy until it can",
+                running_uid()
+            );
+        }
+        let holds = match Journal::inspect(&history.path) {
             Ok(Some(stats)) => format!(
                 "{} records waiting in {} bytes, {} damaged parts",
                 stats.waiting, stats.bytes, stats.damaged
@@ -230,6 +250,12 @@ fn cadence(block: &BlockLoad, continuous: bool) -> String {
         PollClass::Every(_) => format!("every {period}"),
         PollClass::Once => "once".to_string(),
     }
+}
+
+/// The user `check` runs as, by number ("?" where /proc is not there).
+fn running_uid() -> String {
+    use std::os::unix::fs::MetadataExt as _;
+    std::fs::metadata("/proc/self").map_or_else(|_| "?".to_string(), |meta| meta.uid().to_string())
 }
 
 fn millis(duration: Duration) -> String {

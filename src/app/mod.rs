@@ -244,6 +244,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         .build()
         .context("starting the async runtime")?;
     let health_settings = config.health.clone();
+    let keeps_history = config.history.is_some();
     runtime.block_on(async move {
         let (trigger, shutdown) = shutdown::channel();
         let signals = tokio::spawn(stop_on_signals(trigger.clone()));
@@ -270,7 +271,14 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
                 connected: bridge.connected.clone(),
                 max_quiet: BRIDGE_MAX_QUIET,
             };
-            health::supervise(health_settings, running.line_stats, probe, watchdog_trigger)
+            let history_problem = keeps_history.then(|| bridge.history_problem.clone());
+            health::supervise(
+                health_settings,
+                running.line_stats,
+                probe,
+                history_problem,
+                watchdog_trigger,
+            )
         });
         let mut stopping = shutdown.clone();
         let announce_stop = tokio::spawn(async move {

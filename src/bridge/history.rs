@@ -28,10 +28,7 @@ pub const REPLAY_ROOM: usize = 256;
 #[derive(Debug)]
 pub struct HistoryLane {
     topics: Topics,
-    /// None when the directory could not be opened (said once at start); records that needed
-    /// it are counted as write failures.
-    journal: Option<Journal>,
-    unjournaled: u64,
+    journal: Journal,
     /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
     forward: Option<mpsc::Sender<Record>>,
     /// Change sets newer than some still coming back from the writer after a lost
@@ -49,37 +46,31 @@ pub fn is_history(topic: &str, retain: bool) -> bool {
 }
 
 impl HistoryLane {
-    /// Opens the journal of `config`, with what earlier runs left in it.
+    /// Opens the journal of `config`, with what earlier runs left in it. A journal that
+    /// cannot be written is no reason not to run: it says why once, keeps the newest records
+    /// in memory and is tried again until it can ([`HistoryLane::problem`]).
     pub fn open(config: &HistoryConfig, topics: Topics) -> Self {
-        let journal = match Journal::open(config) {
-            Ok(journal) => {
-                let stats = journal.stats();
-                if stats.waiting > 0 {
-                    tracing::info!(
-                        records = stats.waiting,
-                        bytes = stats.bytes,
-                        "history journal holds records of an earlier run: replayed after the connection"
-                    );
-                }
-                Some(journal)
-            }
-            Err(error) => {
-                tracing::error!(
-                    dir = %config.path.display(),
-                    %error,
-                    "history journal cannot be opened: values measured while the broker is away \
-                     are not kept; polling and live publishing go on"
-                );
-                None
-            }
-        };
+        let journal = Journal::open(config);
+        let stats = journal.stats();
+        if stats.waiting > 0 {
+            tracing::info!(
+                records = stats.waiting,
+                bytes = stats.bytes,
+                "history journal holds records of an earlier run: replayed after the connection"
+            );
+        }
         HistoryLane {
             topics,
             journal,
-            unjournaled: 0,
             forward: None,
             held: None,
         }
+    }
+
+    /// Why the journal cannot be written now (the gateway is unhealthy meanwhile); None
+    /// while it can.
+    pub fn problem(&self) -> Option<&str> {
+        self.journal.problem()
     }
 
     /// A history publish that went towards the broker and was not acknowledged, or was not
@@ -128,10 +119,7 @@ impl HistoryLane {
     }
 
     fn journal(&mut self, record: Record) {
-        match &mut self.journal {
-            Some(journal) => journal.append(&record, epoch_ms(SystemTime::now())),
-            None => self.unjournaled += 1,
-        }
+        self.journal.append(&record, epoch_ms(SystemTime::now()));
     }
 
     /// Hands every replayed record to `forward` as well; the replay waits while it is full.
@@ -142,7 +130,7 @@ impl HistoryLane {
     /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
     /// is down, or older records still wait for their replay).
     pub fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
-        let waiting = self.journal.as_ref().is_some_and(|j| !j.is_empty());
+        let waiting = !self.journal.is_empty();
         if link_up && !waiting && self.held.is_none() {
             return Some(publish(entry.topic, entry.document));
         }
@@ -161,9 +149,6 @@ impl HistoryLane {
     /// The next records of the replay, oldest first, as publishes: `room` is how many the
     /// outbox can take before live traffic would wait behind them.
     pub fn replay(&mut self, room: usize) -> Vec<Publish> {
-        let Some(journal) = &mut self.journal else {
-            return Vec::new();
-        };
         if self.forward.as_ref().is_some_and(mpsc::Sender::is_closed) {
             self.forward = None;
         }
@@ -171,10 +156,12 @@ impl HistoryLane {
             Some(forward) => room.min(forward.capacity()),
             None => room,
         };
-        if journal.is_empty() || room == 0 {
+        if self.journal.is_empty() || room == 0 {
             return Vec::new();
         }
-        let records = journal.take(room.min(REPLAY_BATCH), epoch_ms(SystemTime::now()));
+        let records = self
+            .journal
+            .take(room.min(REPLAY_BATCH), epoch_ms(SystemTime::now()));
         records
             .into_iter()
             .map(|record| {
@@ -187,31 +174,24 @@ impl HistoryLane {
             .collect()
     }
 
-    /// Every tick: what was written is synced once it has waited a second.
+    /// Every tick: what was written is synced once it has waited a second, and a journal
+    /// that could not be written is tried again.
     pub fn on_tick(&mut self, now: Instant) {
-        if let Some(journal) = &mut self.journal {
-            journal.sync_due(now);
-        }
+        self.journal.on_tick(now);
     }
 
     /// On shutdown: everything written is synced.
     pub fn sync(&mut self) {
-        if let Some(journal) = &mut self.journal {
-            journal.sync();
-        }
+        self.journal.sync();
     }
 
     /// The journal's health; `link_up` makes what waits a replay backlog.
     pub fn stats(&self, link_up: bool) -> HistoryStats {
-        let mut journal = self
-            .journal
-            .as_ref()
-            .map(Journal::stats)
-            .unwrap_or_default();
-        journal.write_failures += self.unjournaled;
+        let journal = self.journal.stats();
         HistoryStats {
             replay_backlog: if link_up { journal.waiting } else { 0 },
             journal,
+            writable: self.journal.problem().is_none(),
         }
     }
 }

@@ -21,6 +21,8 @@ pub struct HistoryStats {
     pub journal: JournalStats,
     /// Journaled records still to be replayed while the broker is there.
     pub replay_backlog: u64,
+    /// The journal can be written (otherwise the gateway is unhealthy).
+    pub writable: bool,
 }
 
 /// The bridge's own counters, kept by the bridge and snapshotted for each document.
@@ -632,6 +634,13 @@ fn history_families(out: &mut String, history: &HistoryStats) {
         let mut family = Family::start(out, name, kind, help);
         family.sample(&[], value as f64);
     }
+    let mut family = Family::start(
+        out,
+        "rtu2mqtt_history_writable",
+        "gauge",
+        "1 while the history journal can be written; 0 makes the gateway unhealthy.",
+    );
+    family.sample(&[], if history.writable { 1.0 } else { 0.0 });
 }
 
 /// `history` in the statistics document.
@@ -644,6 +653,7 @@ fn history_json(history: &HistoryStats) -> Json {
         "records_dropped": journal.dropped,
         "damaged": journal.damaged,
         "write_failures": journal.write_failures,
+        "writable": history.writable,
     })
 }
 
@@ -698,6 +708,7 @@ mod tests {
                     write_failures: 2,
                 },
                 replay_backlog: 40,
+                writable: false,
             }),
             ..BridgeStats::default()
         };
@@ -710,6 +721,7 @@ mod tests {
                 "records_dropped": 3,
                 "damaged": 1,
                 "write_failures": 2,
+                "writable": false,
             })
         );
         let text = prometheus_text(&[], &with);
@@ -720,6 +732,7 @@ mod tests {
             "rtu2mqtt_history_records_dropped_total 3",
             "rtu2mqtt_history_damaged_total 1",
             "rtu2mqtt_history_write_failures_total 2",
+            "rtu2mqtt_history_writable 0",
             "# TYPE rtu2mqtt_history_records_dropped_total counter",
             "# TYPE rtu2mqtt_history_journal_bytes gauge",
         ] {

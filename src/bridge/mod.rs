@@ -75,6 +75,9 @@ pub struct BridgeHealth {
     /// Refreshed on every turn of the bridge loop (at least every [`TICK`]).
     pub heartbeat: watch::Receiver<Instant>,
     pub connected: watch::Receiver<bool>,
+    /// Why the history journal cannot be written, while it cannot (the gateway is then
+    /// unhealthy); always None without `[history]`.
+    pub history_problem: watch::Receiver<Option<String>>,
 }
 
 /// A configuration reload, as the bridge learns it: the devices (in configuration order, each
@@ -105,6 +108,7 @@ pub struct Bridge {
     counters_tx: watch::Sender<BridgeStats>,
     heartbeat_tx: watch::Sender<Instant>,
     connected_tx: watch::Sender<bool>,
+    history_problem_tx: watch::Sender<Option<String>>,
     /// Commands from outside the plain topics, and where their ends are reported.
     external: Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
     /// Reloads, once [`Bridge::reconfigurations`] has been asked for.
@@ -144,6 +148,7 @@ impl Bridge {
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);
         let (connected_tx, connected) = watch::channel(false);
+        let (history_problem_tx, history_problem) = watch::channel(None);
         let (writer_tx, writer_rx) = mpsc::channel(WRITER_QUEUE);
         let line_stats_tx = watch::channel(stats_receivers(&lines)).0;
         let bridge = Bridge {
@@ -165,6 +170,7 @@ impl Bridge {
             counters_tx: watch::channel(BridgeStats::default()).0,
             heartbeat_tx,
             connected_tx,
+            history_problem_tx,
             external: None,
             reconfigure_rx: None,
             line_stats_tx,
@@ -180,6 +186,7 @@ impl Bridge {
             BridgeHealth {
                 heartbeat,
                 connected,
+                history_problem,
             },
         )
     }
@@ -389,6 +396,14 @@ impl Bridge {
             return;
         };
         history.on_tick(now);
+        let problem = history.problem();
+        self.history_problem_tx.send_if_modified(|told| {
+            let changed = told.as_deref() != problem;
+            if changed {
+                *told = problem.map(str::to_string);
+            }
+            changed
+        });
         // Everything the writer had is back (and journaled): what was held follows.
         if history.is_holding()
             && self.in_writer.load(Ordering::SeqCst) == 0

@@ -38,15 +38,10 @@ pub const MIN_SIZE: u64 = 64 * 1024;
 pub fn check(raw: &RawHistory) -> Result<HistoryConfig, Vec<Problem>> {
     let mut problems = Vec::new();
     if raw.path.as_os_str().is_empty() {
+        // Whether the directory can be used is the journal's to find out, at start and
+        // while it runs (`check` says it too): a path that cannot be used makes the
+        // gateway unhealthy, never stops it.
         problems.push(Problem::new("history.path", "is required (a directory)"));
-    } else if raw.path.is_file() {
-        problems.push(Problem::new(
-            "history.path",
-            format!(
-                "{} is a file; the journal needs a directory",
-                raw.path.display()
-            ),
-        ));
     }
     let max_size = match parse_size(&raw.max_size) {
         Some(size) if size >= MIN_SIZE => Some(size),

@@ -1,5 +1,6 @@
-//! The pure judgement of the loops' liveness ([`assess`]) and of a status file's text
-//! ([`judge_status`]), and the report both speak. Clocks are passed in; no I/O.
+//! The pure judgement of the loops' liveness ([`assess`]), of the history journal
+//! ([`Assessment::with_history`]) and of a status file's text ([`judge_status`]), and the
+//! report they speak. Clocks are passed in; no I/O.
 
 use std::time::{Duration, Instant};
 
@@ -23,10 +24,13 @@ pub struct StatusReport {
     /// Wall-clock time of the assessment, milliseconds since the Unix epoch.
     pub timestamp_ms: u64,
     pub pid: u32,
-    /// Every loop alive.
+    /// Every loop alive, and the history journal (when kept) writable.
     pub healthy: bool,
     pub mqtt: MqttStatus,
     pub lines: Vec<LineStatus>,
+    /// The history journal, with `[history]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub history: Option<HistoryStatus>,
     /// Human-readable reasons when not healthy or degraded.
     pub problems: Vec<String>,
 }
@@ -38,6 +42,15 @@ pub struct MqttStatus {
     pub beat_age_ms: u64,
     /// How long the connection has been in its current state.
     pub state_age_ms: u64,
+}
+
+/// The history journal's part of the report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HistoryStatus {
+    pub writable: bool,
+    /// Why it cannot be written, with the place.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub problem: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,8 +70,29 @@ pub struct LineStatus {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Assessment {
     pub report: StatusReport,
+    /// Every loop alive: the systemd watchdog is pinged (a journal that cannot be written
+    /// makes the gateway unhealthy, but is no reason to restart it).
+    pub loops_alive: bool,
     /// Loops stuck longer than the stall limit: the process must end.
     pub stuck: Vec<String>,
+}
+
+impl Assessment {
+    /// Adds the history journal's state: one that cannot be written (`problem`, the cause
+    /// with its place) makes the gateway unhealthy until it can.
+    pub fn with_history(mut self, problem: Option<&str>) -> Assessment {
+        if let Some(problem) = problem {
+            self.report.healthy = false;
+            self.report
+                .problems
+                .push(format!("history journal cannot be written: {problem}"));
+        }
+        self.report.history = Some(HistoryStatus {
+            writable: problem.is_none(),
+            problem: problem.map(str::to_string),
+        });
+        self
+    }
 }
 
 pub(crate) fn millis(duration: Duration) -> u64 {
@@ -146,8 +180,10 @@ pub fn assess(
                 state_age_ms: millis(state_age),
             },
             lines: line_statuses,
+            history: None,
             problems,
         },
+        loops_alive: healthy,
         stuck,
     }
 }
@@ -169,7 +205,7 @@ pub fn judge_status(text: &str, now_ms: u64, max_age: Duration) -> Result<Status
         ));
     }
     if !report.healthy {
-        return Err(format!("unhealthy: {}", report.problems.join("; ")));
+        return Err(report.problems.join("; "));
     }
     if !report.mqtt.connected && report.mqtt.state_age_ms > millis(max_age) {
         return Err(format!(
@@ -184,8 +220,12 @@ pub fn judge_status(text: &str, now_ms: u64, max_age: Duration) -> Result<Status
 pub fn status_line(report: &StatusReport) -> String {
     let online: usize = report.lines.iter().map(|l| l.devices_online).sum();
     let devices: usize = report.lines.iter().map(|l| l.devices).sum();
+    let journal = match &report.history {
+        Some(history) if !history.writable => "; history journal not writable",
+        _ => "",
+    };
     format!(
-        "{online}/{devices} devices online on {} line(s); MQTT {}",
+        "{online}/{devices} devices online on {} line(s); MQTT {}{journal}",
         report.lines.len(),
         if report.mqtt.connected {
             "connected"

@@ -2,8 +2,10 @@
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
 //! What enters: each line's [`LineStats`](crate::bus::LineStats) (its `heartbeat` is refreshed
-//! on every turn of the line task) and the MQTT loop's heartbeat and connection state (watch
-//! channels, handed over as an [`MqttProbe`]).
+//! on every turn of the line task), the MQTT loop's heartbeat and connection state (watch
+//! channels, handed over as an [`MqttProbe`]) and, with `[history]`, why the journal cannot be
+//! written while it cannot (a watch channel: the gateway is unhealthy meanwhile, but the
+//! systemd watchdog is still pinged, since a restart would not help).
 //! What leaves: `READY=1` / `WATCHDOG=1` / `STOPPING=1` / `STATUS=` to systemd, a JSON
 //! [`StatusReport`] written atomically every few seconds, and, when a loop has been stuck
 //! longer than [`HealthSettings::stall_limit`], a shutdown followed by a non-zero exit
@@ -33,8 +35,8 @@ use crate::shutdown::ShutdownTrigger;
 
 pub use crate::config::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use assess::{
-    assess, judge_status, status_line, Assessment, LineStatus, LoopSnapshot, MqttStatus,
-    StatusReport,
+    assess, judge_status, status_line, Assessment, HistoryStatus, LineStatus, LoopSnapshot,
+    MqttStatus, StatusReport,
 };
 pub use status_file::{check_status_file, wall_clock_ms, write_status_file};
 pub use systemd::{notify_ready, notify_stopping, systemd_watchdog_period, watchdog_period_from};
@@ -60,15 +62,20 @@ pub async fn first_connect_attempt(connected: &watch::Receiver<bool>, limit: Dur
 }
 
 /// Supervision of a started gateway: tells systemd it is ready, then starts the [`Watchdog`]
-/// over its lines and its bridge loop. None (logged) if the watchdog thread cannot start.
+/// over its lines, its bridge loop and (with `[history]`) its journal. None (logged) if the
+/// watchdog thread cannot start.
 pub fn supervise(
     settings: HealthSettings,
     lines: watch::Receiver<Vec<watch::Receiver<LineStats>>>,
     mqtt: MqttProbe,
+    history_problem: Option<watch::Receiver<Option<String>>>,
     shutdown: ShutdownTrigger,
 ) -> Option<WatchdogHandle> {
     let connected = *mqtt.connected.borrow();
     let mut watchdog = Watchdog::new(settings, mqtt);
+    if let Some(problem) = history_problem {
+        watchdog.watch_history(problem);
+    }
     let (count, devices) = {
         let lines = lines.borrow();
         let devices: usize = lines.iter().map(|l| l.borrow().devices.len()).sum();

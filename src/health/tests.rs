@@ -161,6 +161,7 @@ fn report_text(timestamp_ms: u64, healthy: bool, connected: bool, state_age_ms: 
             state_age_ms,
         },
         lines: vec![],
+        history: None,
         problems: if healthy {
             vec![]
         } else {
@@ -168,6 +169,49 @@ fn report_text(timestamp_ms: u64, healthy: bool, connected: bool, state_age_ms: 
         },
     };
     serde_json::to_string(&report).unwrap()
+}
+
+#[test]
+fn a_journal_that_cannot_be_written_is_unhealthy_until_it_can_and_keeps_systemd_pinged() {
+    let now = Instant::now();
+    let lines = [line("a", now)];
+    let judged = |problem: Option<&str>| {
+        assess(now, 1_000, 2, &lines, &mqtt(now, true), &settings()).with_history(problem)
+    };
+    let cause = "/var/lib/rtu2mqtt/history: Read-only file system (os error 30)";
+    let sick = judged(Some(cause));
+    assert!(!sick.report.healthy);
+    assert!(
+        sick.loops_alive,
+        "the watchdog is still pinged: a restart would not help"
+    );
+    assert_eq!(
+        sick.report.problems,
+        [format!("history journal cannot be written: {cause}")]
+    );
+    let text = serde_json::to_string(&sick.report).unwrap_or_default();
+    assert!(
+        text.contains(
+            r#""history":{"writable":false,"problem":"/var/lib/rtu2mqtt/history: Read-only"#
+        ),
+        "{text}"
+    );
+    let verdict = judge_status(&text, 1_000, Duration::from_secs(30));
+    assert_eq!(
+        verdict.err(),
+        Some(format!("history journal cannot be written: {cause}"))
+    );
+
+    let well = judged(None);
+    assert!(well.report.healthy);
+    let text = serde_json::to_string(&well.report).unwrap_or_default();
+    assert!(text.contains(r#""history":{"writable":true}"#), "{text}");
+    assert!(judge_status(&text, 1_000, Duration::from_secs(30)).is_ok());
+    // Without `[history]` the report says nothing of it.
+    let without = assess(now, 1_000, 2, &lines, &mqtt(now, true), &settings());
+    assert!(!serde_json::to_string(&without.report)
+        .unwrap_or_default()
+        .contains("history"));
 }
 
 #[test]

@@ -28,6 +28,8 @@ pub struct Watchdog {
     /// The running lines after a configuration reload replaces the watched ones.
     line_set: Option<watch::Receiver<Vec<watch::Receiver<LineStats>>>>,
     mqtt: MqttProbe,
+    /// Why the history journal cannot be written, with `[history]`.
+    history: Option<watch::Receiver<Option<String>>>,
 }
 
 /// Where the watchdog reads the MQTT loop's life.
@@ -54,7 +56,14 @@ impl Watchdog {
             lines: Vec::new(),
             line_set: None,
             mqtt,
+            history: None,
         }
+    }
+
+    /// Judges the history journal too: while `problem` holds a cause the gateway is
+    /// unhealthy (the bridge's [`crate::bridge::BridgeHealth::history_problem`]).
+    pub fn watch_history(&mut self, problem: watch::Receiver<Option<String>>) {
+        self.history = Some(problem);
     }
 
     /// Watches one more line (its [`crate::bus::LineHandle::stats_rx`]).
@@ -122,7 +131,10 @@ impl Watchdog {
                 max_quiet: self.mqtt.max_quiet,
             };
             let lines: Vec<LineStats> = self.lines.iter().map(|rx| rx.borrow().clone()).collect();
-            let assessment = assess(now, wall_clock_ms(), pid, &lines, &mqtt, &self.settings);
+            let mut assessment = assess(now, wall_clock_ms(), pid, &lines, &mqtt, &self.settings);
+            if let Some(history) = &self.history {
+                assessment = assessment.with_history(history.borrow().as_deref());
+            }
             let report = &assessment.report;
             if let Some(path) = &self.settings.status_file {
                 match write_status_file(path, report) {
@@ -143,7 +155,7 @@ impl Watchdog {
                     Err(_) => {}
                 }
             }
-            if report.healthy {
+            if assessment.loops_alive {
                 if systemd_period.is_some() {
                     let status = status_line(report);
                     let _ = sd_notify::notify(
@@ -160,7 +172,7 @@ impl Watchdog {
             } else if was_healthy {
                 tracing::error!(problems = %report.problems.join("; "), "a loop is not alive: systemd watchdog pings withheld");
             }
-            was_healthy = report.healthy;
+            was_healthy = assessment.loops_alive;
 
             if !assessment.stuck.is_empty() {
                 tracing::error!(

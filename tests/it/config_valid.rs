@@ -433,6 +433,49 @@ fn check_shows_the_history_journal_and_places_its_problems() {
 }
 
 #[test]
+fn check_says_where_the_history_journal_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("a-file"), "not a directory").unwrap();
+    std::os::unix::fs::symlink(dir.path().join("loop-b"), dir.path().join("loop-a")).unwrap();
+    std::os::unix::fs::symlink(dir.path().join("loop-a"), dir.path().join("loop-b")).unwrap();
+    let root = dir.path().display().to_string();
+    for (path, cause) in [
+        (
+            format!("{root}/a-file"),
+            format!("{root}/a-file: is not a directory"),
+        ),
+        (
+            format!("{root}/a-file/history"),
+            format!("{root}/a-file: is not a directory, so {root}/a-file/history cannot be made"),
+        ),
+        (
+            format!("{root}/loop-a"),
+            format!("{root}/loop-a: Too many levels of symbolic links"),
+        ),
+    ] {
+        let text = one_valve("", "") + &format!("\n[history]\npath = \"{path}\"\n");
+        let (ok, stdout, stderr) = check_text(&text, &[]);
+        assert!(!ok, "{stdout}{stderr}");
+        let shown = stdout
+            .lines()
+            .find(|line| line.starts_with("history.path: cannot be written (as uid "))
+            .unwrap_or_else(|| panic!("{path}: not said:\n{stdout}"));
+        assert!(shown.contains(&cause), "{shown}");
+        assert!(
+            shown.ends_with("report itself unhealthy until it can"),
+            "{shown}"
+        );
+    }
+    let text = one_valve("", "") + &format!("\n[history]\npath = \"{root}/fresh/history\"\n");
+    let (ok, stdout, stderr) = check_text(&text, &[]);
+    assert!(
+        ok,
+        "a directory still to be made under a writable one: {stdout}{stderr}"
+    );
+    assert!(!stdout.contains("cannot be written"), "{stdout}");
+}
+
+#[test]
 fn check_shows_a_served_line_and_warns_about_raw_access() {
     let served = ONE_VALVE
         .replace("{mqtt}", "")

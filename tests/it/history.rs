@@ -160,17 +160,19 @@ async fn every_value_measured_while_the_broker_was_away_follows_in_order_after_i
 
     assert_outage_follows_in_order(&mut observer, &outage).await;
     // The replay is done: the journal is empty and says so.
-    let stats = observer_stats(&mut observer).await;
+    let stats = observer_stats(&mut observer, "hist-gw").await;
     assert_eq!(stats["history"]["records_waiting"], 0, "{stats}");
     gateway.stop().await;
 }
 
-async fn observer_stats(observer: &mut TestClient) -> Json {
+async fn observer_stats(observer: &mut TestClient, client_id: &str) -> Json {
     observer.subscribe("plant/gateway/+/stats").await;
     let deadline = tokio::time::Instant::now() + ANSWER;
     loop {
         let message = observer
-            .wait_for("plant/gateway/hist-gw/stats", ANSWER, |_| true)
+            .wait_for(&format!("plant/gateway/{client_id}/stats"), ANSWER, |_| {
+                true
+            })
             .await;
         let document = message.json();
         if document["history"]["records_waiting"] == 0 || tokio::time::Instant::now() > deadline {
@@ -428,4 +430,307 @@ async fn with_sparkplug_the_outage_is_forwarded_as_historical_ddata_after_the_re
         "{states:?}"
     );
     gateway.stop().await;
+}
+
+/// A segment of an earlier run holding `count` dust collector documents whose `marker` is
+/// their number, read `age` ago; the length field of record `flipped` has one bit flipped.
+fn earlier_segment(count: u64, flipped: u64) -> Vec<u8> {
+    use rtu2mqtt::history::record::MAGIC;
+    use rtu2mqtt::history::Record;
+    let read_at = epoch_ms(SystemTime::now()) - 600_000;
+    let mut bytes = MAGIC.to_vec();
+    for n in 0..count {
+        let at_ms = read_at + n * 1000;
+        let ts =
+            humantime::format_rfc3339_millis(SystemTime::UNIX_EPOCH + Duration::from_millis(at_ms));
+        let record = Record {
+            at_ms,
+            device: "dust_collector".to_string(),
+            document: format!("{{\"ts\":\"{ts}\",\"values\":{{\"marker\":{n}}}}}"),
+        };
+        let mut encoded = record.encode().expect("encodable");
+        if n == flipped {
+            encoded[1] ^= 0x02;
+        }
+        bytes.extend(encoded);
+    }
+    bytes
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn damage_a_fifo_and_a_stray_largest_number_in_the_journal_cost_only_the_damaged_record() {
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = tempfile::tempdir().expect("journal dir");
+    // What an earlier run left, with one length byte flipped in its middle record; a FIFO
+    // named like a segment (opening it for reading would block until a writer comes); a stray
+    // file of the largest sequence number.
+    std::fs::write(
+        journal.path().join("00000000000000000001.journal"),
+        earlier_segment(31, 15),
+    )
+    .expect("segment");
+    nix::unistd::mkfifo(
+        &journal.path().join("00000000000000000002.journal"),
+        nix::sys::stat::Mode::S_IRWXU,
+    )
+    .expect("fifo");
+    std::fs::write(
+        journal.path().join("18446744073709551615.journal"),
+        "left here by someone else\n",
+    )
+    .expect("stray file");
+    let mut observer = historian(broker.port).await;
+    let config = support::fast_config(&config_text(&broker, &plant, "hist-damage", journal.path()));
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config).await;
+
+    // The earlier run's records come out, all but the damaged one, and then the first
+    // values this run read.
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    let markers = loop {
+        observer.settle(Duration::from_millis(500)).await;
+        let seen = observer.on(DUST_HISTORY);
+        let markers: Vec<u64> = seen
+            .iter()
+            .filter_map(|m| m.json()["values"]["marker"].as_u64())
+            .collect();
+        let live = seen.iter().any(|m| m.json()["values"]["gear"].is_number());
+        if live || tokio::time::Instant::now() > deadline {
+            break markers;
+        }
+    };
+    let expected: Vec<u64> = (0..31).filter(|&n| n != 15).collect();
+    assert_eq!(markers, expected, "the damaged record alone is lost");
+    // The next historian takes its client id.
+    drop(observer);
+
+    // An outage: every change read during it comes out, in order, after it.
+    broker.kill();
+    link_is(&gateway, false).await;
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    assert_outage_follows_in_order(&mut observer, &outage).await;
+    let stats = observer_stats(&mut observer, "hist-damage").await;
+    let history = &stats["history"];
+    // The damaged record and the stray file (a regular file that is no segment); the FIFO is
+    // no damage, only skipped.
+    assert_eq!(history["damaged"], 2, "{stats}");
+    assert_eq!(history["write_failures"], 0, "{stats}");
+    assert_eq!(history["writable"], true, "{stats}");
+    for name in [
+        "00000000000000000002.journal",
+        "18446744073709551615.journal",
+    ] {
+        assert!(
+            std::fs::symlink_metadata(journal.path().join(name)).is_ok(),
+            "{name} is not ours: left alone"
+        );
+    }
+    gateway.stop().await;
+}
+
+/// `rtu2mqtt health` on `status_file`: (healthy, what it printed).
+fn health(status_file: &Path) -> (bool, String) {
+    let output = std::process::Command::new(support::child::BIN)
+        .args(["health", "--status-file"])
+        .arg(status_file)
+        .args(["--max-age", "10s"])
+        .output()
+        .expect("rtu2mqtt health runs");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+    )
+}
+
+/// The Prometheus exposition of the endpoint on `port`.
+fn scrape(port: u16) -> String {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).expect("metrics endpoint");
+    stream
+        .write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+        .expect("request");
+    let mut text = String::new();
+    let _ = stream.read_to_string(&mut text);
+    text
+}
+
+/// Waits until `rtu2mqtt health`, the stats topic and Prometheus all say the journal is
+/// `writable` (and the gateway healthy when it is); returns what `health` printed.
+async fn wait_for_journal(
+    observer: &mut TestClient,
+    status_file: &Path,
+    metrics_port: u16,
+    writable: bool,
+) -> String {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        let (healthy, said) = health(status_file);
+        let stats = observer
+            .wait_for_new("plant/gateway/hist-path/stats", ANSWER, |_| true)
+            .await
+            .json();
+        let exposition = scrape(metrics_port);
+        let sample = format!("rtu2mqtt_history_writable {}", u8::from(writable));
+        if healthy == writable
+            && stats["history"]["writable"] == writable
+            && exposition.lines().any(|line| line == sample)
+        {
+            return said;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the journal never became writable = {writable}: {said}\n{stats}\n{exposition}"
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_history_path_that_cannot_be_written_makes_the_gateway_unhealthy_never_stops_it() {
+    let broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("history");
+    std::fs::write(&path, "a file where the journal's directory should be").expect("file");
+    let metrics_port = support::free_port();
+    let gateway_keys =
+        format!("stats_interval = \"1s\"\nmetrics_listen = \"127.0.0.1:{metrics_port}\"");
+    let text = PlantConfig {
+        gateway: &gateway_keys,
+        ..PlantConfig::default()
+    }
+    .text(&broker, &plant, "hist-path");
+    let config = dir.path().join("rtu2mqtt.toml");
+    std::fs::write(
+        &config,
+        format!("{text}\n[history]\npath = \"{}\"\n", path.display()),
+    )
+    .expect("config");
+    let status_file = dir.path().join("status");
+    let log = dir.path().join("log");
+    let mut command = gateway_run(&config);
+    command
+        .env("RTU2MQTT__HEALTH__STATUS_FILE", &status_file)
+        .env("RTU2MQTT__HEALTH__INTERVAL", "1s")
+        .env("RUST_LOG", "info")
+        .stderr(std::fs::File::create(&log).expect("log file"));
+    let mut gateway = KillOnDrop::spawn(command).expect("start gateway");
+
+    // Live values are served.
+    let mut observer = TestClient::connect(broker.port, "path-observer").await;
+    observer.subscribe("plant/dust_collector/gear").await;
+    observer.subscribe("plant/gateway/+/stats").await;
+    observer
+        .wait_for("plant/dust_collector/gear", ANSWER, |_| true)
+        .await;
+    // And the gateway says it is unhealthy, everywhere, with the place.
+    let said = wait_for_journal(&mut observer, &status_file, metrics_port, false).await;
+    assert_eq!(
+        said.trim(),
+        format!(
+            "unhealthy: history journal cannot be written: {}: is not a directory (the journal \
+             needs one)",
+            path.display()
+        )
+    );
+    assert!(gateway.is_running(), "it never exits for it");
+
+    // The path becomes a directory: healthy again, by itself.
+    std::fs::remove_file(&path).expect("remove the file");
+    let said = wait_for_journal(&mut observer, &status_file, metrics_port, true).await;
+    assert!(said.starts_with("healthy: 2 line(s) alive"), "{said}");
+    assert!(path.is_dir());
+    let logged = std::fs::read_to_string(&log).unwrap_or_default();
+    assert_eq!(
+        logged.matches("history journal cannot be written").count(),
+        1,
+        "the cause is logged once:\n{logged}"
+    );
+    assert_eq!(
+        logged.matches("history journal writable again").count(),
+        1,
+        "{logged}"
+    );
+    assert!(gateway.is_running());
+}
+
+/// A tmpfs of 256 KiB mounted on a fresh directory, unmounted when dropped; None where
+/// mounting needs a root this test does not have.
+struct SmallDisk(tempfile::TempDir);
+
+impl SmallDisk {
+    fn mount() -> Option<SmallDisk> {
+        let dir = tempfile::tempdir().ok()?;
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=256k", "tmpfs"])
+            .arg(dir.path())
+            .status()
+            .is_ok_and(|status| status.success());
+        mounted.then_some(SmallDisk(dir))
+    }
+
+    /// Takes all the room left.
+    fn fill(&self) -> std::path::PathBuf {
+        use std::io::Write;
+        let path = self.0.path().join("filler");
+        let mut file = std::fs::File::create(&path).expect("filler");
+        while file.write_all(&[0xAA; 4096]).is_ok() {}
+        while file.write_all(&[0xAA; 1]).is_ok() {}
+        path
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg(self.0.path())
+            .status();
+    }
+}
+
+/// Waits until the gateway's journal is said writable (`problem` None) or not.
+async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> {
+    let mut problem = gateway.running.bridge.history_problem.clone();
+    let said = tokio::time::timeout(ANSWER, problem.wait_for(|now| now.is_some() == failing))
+        .await
+        .unwrap_or_else(|_| panic!("the journal never became failing = {failing}"))
+        .expect("bridge gone")
+        .clone();
+    said
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
+    let Some(disk) = SmallDisk::mount() else {
+        eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+        return;
+    };
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = disk.0.path().join("history");
+    let config = support::fast_config(&config_text(&broker, &plant, "hist-full", &journal));
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    let gateway = Gateway::start(config).await;
+    first_history(broker.port).await;
+
+    let filler = disk.fill();
+    broker.kill();
+    link_is(&gateway, false).await;
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage[..3]).await;
+    let problem = journal_problem_is(&gateway, true).await.unwrap_or_default();
+    assert!(problem.contains("No space left on device"), "{problem}");
+    // Room again: the journal resumes by itself, the outage goes on.
+    std::fs::remove_file(filler).expect("remove the filler");
+    journal_problem_is(&gateway, false).await;
+    walk_alarms(&plant, &outage[3..]).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    assert_outage_follows_in_order(&mut observer, &outage).await;
+    gateway.stop().await;
+    drop(disk);
 }
