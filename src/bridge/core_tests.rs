@@ -477,11 +477,11 @@ fn a_full_line_queue_retries_and_a_stopped_line_fails_the_command() {
     let now = Instant::now();
     let mut core = online_core(now);
     let command_sent = take_sent(command(&mut core, "opening", "50", 1, now));
-    let retry = core.on_send_failed(command_sent.into_iter().next().unwrap(), true, now);
+    let retry = core.on_send_failed(command_sent.into_iter().next().unwrap(), true);
     assert!(retry.is_empty());
     let again = take_sent(core.on_tick(now, Vec::new));
     assert_eq!(again.len(), 1, "tried again on the next tick");
-    let actions = core.on_send_failed(again.into_iter().next().unwrap(), false, now);
+    let actions = core.on_send_failed(again.into_iter().next().unwrap(), false);
     let results = results(&actions);
     assert_eq!(results[0].1, "failed");
     assert_eq!(results[0].2, "the line has stopped");

@@ -343,7 +343,7 @@ impl Bridge {
                         None => Some((command, false)),
                     };
                     if let Some((command, full)) = refused {
-                        queue.extend(self.core.on_send_failed(command, full, Instant::now()));
+                        queue.extend(self.core.on_send_failed(command, full));
                     }
                 }
                 Action::History(entry) => {
