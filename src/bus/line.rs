@@ -587,6 +587,7 @@ impl Line {
             stats.cache_hits = counters.cache_hits.load(Relaxed);
             stats.client_refusals = counters.refusals.load(Relaxed);
             stats.client_busy = counters.busy.load(Relaxed);
+            stats.client_evicted = counters.evicted.load(Relaxed);
         }
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.
