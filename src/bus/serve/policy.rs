@@ -61,8 +61,9 @@ pub struct PlannedWrite {
 /// Plans a client's `write` through `profile` on the device's last known `state`, reading the
 /// frame as the device does: the fields it covers are decoded; a button at 0 is not pressed
 /// and at 1 pressed; a toggle at 0 is left alone and at 1 toggled (the state opposite to the
-/// one last read, so a fresh read that already shows it writes nothing); a read-only field
-/// inside the frame must carry what the device holds (it is written back as read). The
+/// one last read, so a fresh read that already shows it writes nothing); read-only fields and
+/// reserved bits inside the frame are written back as the device holds them, whatever the
+/// client put there (the vendor's own example frames carry zeros there). The
 /// command is validated and planned like one from MQTT (range, forbidden combinations judged
 /// on the resulting state, read-modify-write of shared registers): one field as that field
 /// (the dust collector's gear written at 0x1001, its place in the settings frame, goes out as
@@ -92,13 +93,11 @@ pub fn plan_write(
             // A view over bits the frame also gives their own fields.
             continue;
         }
-        let value = reading.value.map_err(|_| ExceptionCode::IllegalDataValue)?;
         if !info.writable {
-            if state.get(&field) == Some(&value) {
-                continue;
-            }
-            return Err(ExceptionCode::IllegalDataValue);
+            // Nobody writes it: the frame carries it back as the device holds it.
+            continue;
         }
+        let value = reading.value.map_err(|_| ExceptionCode::IllegalDataValue)?;
         let text = match (behaviour, &value) {
             (Behaviour::Momentary | Behaviour::Toggle, Value::Bool(false)) => continue,
             (Behaviour::Toggle, Value::Bool(true)) => match state.get(&field) {
@@ -354,14 +353,20 @@ mod tests {
         let planned = plan_write(profile, &at_frame_place, &state).unwrap();
         assert_eq!(planned.covered, ["gear"]);
         assert_eq!(planned.plan.unwrap().writes(&[]).unwrap(), vec![gear(6)]);
-        // An alarm bit the device does not show must not be written: 03.
+        // Alarm and internal bits are written back as the device holds them, whatever the
+        // client sent there.
         let alarm = Request::WriteMultipleRegisters {
             start: 0x1000,
             values: vec![0x0304, 5, 2, 10],
         };
+        let planned = plan_write(profile, &alarm, &state).unwrap();
+        let held = Response::HoldingRegisters(vec![0x2041, 3, 0, 0, 0, 0]);
         assert_eq!(
-            plan_write(profile, &alarm, &state).unwrap_err(),
-            ExceptionCode::IllegalDataValue
+            on_the_wire(&planned, held),
+            vec![Request::WriteMultipleRegisters {
+                start: 0x1000,
+                values: vec![0x2341, 5, 2, 10],
+            }]
         );
     }
 }
