@@ -991,9 +991,7 @@ impl Line {
                 return Err(code);
             }
         };
-        if let Err(code) = self.client_write_allowed(device, client, &planned.covered) {
-            return Err(code);
-        }
+        self.client_write_allowed(device, client, &planned.covered)?;
         let Some(plan) = planned.plan else {
             // Only zeros on buttons and toggles: the device itself would do nothing.
             tracing::debug!(%client, device = %name, ?write, "client write leaves the device as it is");
