@@ -57,6 +57,8 @@ struct Harness {
     client_id: String,
     /// The served line.
     line: &'static str,
+    /// Asks for a reload of the configuration file (when started reloadable).
+    reload: Option<(tokio::sync::mpsc::Sender<()>, tempfile::TempDir)>,
 }
 
 impl Harness {
@@ -67,6 +69,12 @@ impl Harness {
 
     /// The seed plant with the line of `device` served.
     async fn start_serving(name: &str, serve: &str, device: &str) -> Harness {
+        Harness::start_with(name, serve, device, false).await
+    }
+
+    /// The seed plant with the line of `device` served; its configuration read from a file
+    /// that [`Harness::reload`] reloads when `reloadable`.
+    async fn start_with(name: &str, serve: &str, device: &str, reloadable: bool) -> Harness {
         let broker = Mosquitto::start();
         let plant = SeedPlant::spawn(false).unwrap();
         sim::lock(&plant.dust_collector).set_power(true);
@@ -80,7 +88,16 @@ impl Harness {
             format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
         };
         let text = served_config(&broker, &plant, &client_id, &serve, device);
-        let gateway = Gateway::start(support::fast_config(&text)).await;
+        let (gateway, reload) = if reloadable {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("rtu2mqtt.toml");
+            std::fs::write(&path, &text).unwrap();
+            let (gateway, reload) =
+                Gateway::start_reloadable(support::fast_config(&text), path).await;
+            (gateway, Some((reload, dir)))
+        } else {
+            (Gateway::start(support::fast_config(&text)).await, None)
+        };
         for device in ["dust_collector", "air_shower", "valve"] {
             let topic = format!("plant/{device}/availability");
             mqtt.wait_for(&topic, ANSWER, |m| m.text() == "online")
@@ -98,6 +115,7 @@ impl Harness {
             } else {
                 "line-a"
             },
+            reload,
         }
     }
 
@@ -1293,5 +1311,60 @@ async fn seven_slow_connections_do_not_keep_a_fresh_client_out() {
     );
     assert_eq!(served, fresh);
     assert!(fresh >= 8, "{fresh}");
+    h.gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_write_interval_survives_a_reload_that_restarts_the_line() {
+    let h = Harness::start_with(
+        "serve-reload-interval",
+        "access = \"profile\"",
+        "valve",
+        true,
+    )
+    .await;
+    h.plant.line_b.journal().clear();
+    let answers = h
+        .client(json!([[
+            "write_registers",
+            VALVE,
+            0xB2,
+            setpoint_registers(44)
+        ]]))
+        .await;
+    assert_eq!(answers, vec![json!({ "written": true })]);
+    let written = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    assert_eq!(written.len(), 1, "{written:?}");
+    // The file polls every second where the running configuration polled every 300 ms: the
+    // reload restarts both lines, and line-b's new task polls at the new cadence.
+    let Some((reload, _dir)) = &h.reload else {
+        panic!("started reloadable")
+    };
+    reload.send(()).await.unwrap();
+    let opening = [VALVE, 0x03, 0x00, 0x74];
+    let deadline = Instant::now() + ANSWER;
+    loop {
+        let polls = frames_starting(&h.plant.line_b, &opening);
+        let slow = gaps(&polls[polls.len().saturating_sub(3)..])
+            .iter()
+            .all(|gap| *gap >= Duration::from_millis(900));
+        if polls.len() >= 3 && slow {
+            break;
+        }
+        assert!(Instant::now() < deadline, "line-b not restarted: {polls:?}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // The new line task keeps the interval the old one started.
+    assert!(written[0].0.elapsed() < Duration::from_secs(9));
+    let answers = h
+        .client(json!([[
+            "write_registers",
+            VALVE,
+            0xB2,
+            setpoint_registers(45)
+        ]]))
+        .await;
+    assert_eq!(answers, vec![exception(6)]);
+    assert_eq!(frames_starting(&h.plant.line_b, &SETPOINT_WRITE).len(), 1);
     h.gateway.stop().await;
 }

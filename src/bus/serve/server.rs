@@ -80,11 +80,19 @@ pub async fn run(
     counters: Arc<ServeCounters>,
     mut shutdown: Shutdown,
 ) {
-    let listener = match listen(&spec.listen).await {
-        Ok(listener) => listener,
-        Err(error) => {
-            tracing::error!(listen = %spec.url(), "cannot serve the line: {error}");
-            return;
+    // A line restarted by a reload binds again while its old server may still be closing.
+    let mut attempts = 0;
+    let listener = loop {
+        match listen(&spec.listen).await {
+            Ok(listener) => break listener,
+            Err(error) if error.kind() == std::io::ErrorKind::AddrInUse && attempts < 20 => {
+                attempts += 1;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            Err(error) => {
+                tracing::error!(listen = %spec.url(), "cannot serve the line: {error}");
+                return;
+            }
         }
     };
     tracing::info!(listen = %spec.url(), access = spec.access.word(), "serving the line");
