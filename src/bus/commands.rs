@@ -32,6 +32,17 @@ pub(super) struct Pending {
     pub(super) arrived: Instant,
 }
 
+impl Pending {
+    /// This command's end without a slot: it failed for `cause`.
+    pub(super) fn failed(&self, cause: CommandFailure) -> Finished {
+        Finished {
+            id: self.command.id,
+            arrived: self.arrived,
+            outcome: CommandOutcome::Failed { cause },
+        }
+    }
+}
+
 /// A command whose writes are done and whose device is still moving toward the value.
 #[derive(Debug)]
 pub(super) struct Settle {

@@ -599,13 +599,7 @@ impl Line {
     async fn finish(&mut self) {
         self.fail_queued(&CommandFailure::ShuttingDown).await;
         for (device, pending) in self.commands.drain_held() {
-            let finished = Finished {
-                id: pending.command.id,
-                arrived: pending.arrived,
-                outcome: CommandOutcome::Failed {
-                    cause: CommandFailure::ShuttingDown,
-                },
-            };
+            let finished = pending.failed(CommandFailure::ShuttingDown);
             self.reply(device, finished).await;
         }
         for (device, finished) in self.commands.abandon_settling() {
@@ -687,13 +681,7 @@ impl Line {
             device,
             attempts,
         ) else {
-            let finished = Finished {
-                id: pending.command.id,
-                arrived: pending.arrived,
-                outcome: CommandOutcome::Failed {
-                    cause: CommandFailure::PortNotOpen,
-                },
-            };
+            let finished = pending.failed(CommandFailure::PortNotOpen);
             self.reply(device, finished).await;
             return;
         };
@@ -865,11 +853,7 @@ impl Line {
             return;
         }
         for (device, pending) in self.scheduler.drain_commands() {
-            let finished = Finished {
-                id: pending.command.id,
-                arrived: pending.arrived,
-                outcome: CommandOutcome::Failed { cause: why.clone() },
-            };
+            let finished = pending.failed(why.clone());
             self.reply(device, finished).await;
         }
     }
