@@ -1076,3 +1076,31 @@ fn without_history_no_change_set_is_made() {
     let mut core = online_core(now);
     assert!(history_entries(&core.on_line_event(opening_at(40, 0), now)).is_empty());
 }
+
+#[test]
+fn a_write_the_line_reports_holds_commands_and_dcmds_for_the_fields_interval() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    // A client of the served line wrote the setpoint (interval 10 s): the line says so.
+    let written = LineEvent::Written {
+        device: "valve".to_string(),
+        fields: vec!["setpoint".to_string()],
+        at: now,
+    };
+    assert!(take_sent(core.on_line_event(written, now)).is_empty());
+    let second = Duration::from_secs(1);
+    assert!(take_sent(command(&mut core, "setpoint", "50", 1, now + second)).is_empty());
+    // A Sparkplug DCMD for the same field a second later waits too, and the newest wins.
+    let actions = core.on_external_command(external("setpoint", "60"), now + second * 2);
+    assert!(take_sent(actions).is_empty());
+    assert!(take_sent(core.on_tick(now + second * 9, Vec::new)).is_empty());
+    let sent = take_sent(core.on_tick(now + second * 10, Vec::new));
+    assert_eq!(sent.len(), 1);
+    assert_eq!(sent[0].plan.field(), "setpoint");
+    assert_eq!(sent[0].plan.target().to_text(), "60.00");
+    // Another field is not held.
+    assert_eq!(
+        take_sent(command(&mut core, "opening", "40", 2, now + second)).len(),
+        1
+    );
+}

@@ -341,3 +341,46 @@ impl Settle {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::registry::built_in;
+    use crate::profile::DeviceState;
+
+    #[test]
+    fn a_held_command_is_due_when_its_write_interval_ends() {
+        let (_commands, queue) = mpsc::channel(1);
+        let mut slots = CommandSlots::new(queue);
+        let profile = built_in("ruiwan-dust-collector").unwrap();
+        let plan = profile
+            .plan_command("gear", "8", &DeviceState::new())
+            .unwrap();
+        let now = Instant::now();
+        let until = now + Duration::from_secs(1);
+        let command = Command {
+            id: 7,
+            device: "dust".into(),
+            plan,
+        };
+        slots.hold(
+            0,
+            Pending {
+                command,
+                arrived: now,
+            },
+            until,
+        );
+        assert_eq!(slots.next_due(), Some(until));
+        assert!(slots.take_due_held(now).is_none());
+        let (device, pending) = slots.take_due_held(until).unwrap();
+        assert_eq!((device, pending.command.id), (0, 7));
+        assert_eq!(slots.next_due(), None);
+        // Held commands fail when the line stops, with their id.
+        slots.hold(0, pending, until);
+        let held = slots.drain_held();
+        let finished = held[0].1.failed(CommandFailure::ShuttingDown);
+        assert_eq!(finished.id, 7);
+        assert!(slots.drain_held().is_empty());
+    }
+}
