@@ -57,6 +57,20 @@ pub(crate) enum NoPlace {
     TimedOut,
 }
 
+/// A connection's ticket in the queue of those waiting for a place, taken out when it stops
+/// waiting however that happens.
+struct InQueue<'a> {
+    places: &'a Places,
+    ticket: u64,
+}
+
+impl Drop for InQueue<'_> {
+    fn drop(&mut self) {
+        let ticket = self.ticket;
+        self.places.state().queue.retain(|t| *t != ticket);
+    }
+}
+
 /// A place held by a connection; given up when dropped.
 #[derive(Debug)]
 pub(crate) struct Place {
@@ -96,6 +110,11 @@ impl Places {
             state.next_id += 1;
             state.queue.push_back(ticket);
             ticket
+        };
+        // A connection that stops waiting (shutdown) leaves the queue.
+        let _in_queue = InQueue {
+            places: self,
+            ticket,
         };
         let deadline = Instant::now() + self.wait;
         loop {
