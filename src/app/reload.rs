@@ -4,7 +4,8 @@
 //! refused with every problem logged and the running one kept. A valid one is applied per
 //! line: a line whose settings and devices are unchanged keeps its task (its polling never
 //! pauses); a changed line is stopped (its port released) before its new task starts; removed
-//! lines stop, new ones start. The bridge then learns the new device set
+//! lines stop, new ones start. Write intervals outlive the lines: every line, old or new, notes
+//! its writes on the one [`WriteClock`]. The bridge then learns the new device set
 //! ([`Reconfiguration`]): it clears what removed devices left retained and keeps the waiting
 //! commands of devices that stay. `[mqtt]`, `[gateway]` and `[health]` are read at start only:
 //! a change there is logged as needing a restart and not applied.
@@ -16,7 +17,7 @@ use tokio::sync::{mpsc, watch};
 use super::LINE_STOP_GRACE;
 use crate::bridge::core::BridgeDevice;
 use crate::bridge::Reconfiguration;
-use crate::bus::{spawn_line, LineEvent, LineHandle, LineSpec, LineStats};
+use crate::bus::{spawn_line_with_clock, LineEvent, LineHandle, LineSpec, LineStats, WriteClock};
 use crate::config::{self, Config};
 use crate::shutdown::{Shutdown, ShutdownTrigger};
 use rtu2mqtt_modbus::frame_log::FrameLog;
@@ -44,6 +45,9 @@ pub(super) struct LineSet {
     frame_log: Option<FrameLog>,
     /// Every running line's statistics, for the watchdog.
     stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
+    /// The last writes of the fields with a write interval: a line a reload rebuilds keeps
+    /// the intervals that were running.
+    writes: WriteClock,
 }
 
 impl LineSet {
@@ -60,6 +64,7 @@ impl LineSet {
             shutdown,
             frame_log,
             stats_tx: watch::channel(Vec::new()).0,
+            writes: WriteClock::new(),
         };
         for spec in specs {
             let line = set.spawn(spec.clone());
@@ -91,7 +96,9 @@ impl LineSet {
         spec.frame_log = self.frame_log.clone();
         tracing::info!(line = %spec.name, port = %spec.serial.path, devices = spec.devices.len(), "starting line");
         let (stop, token) = self.shutdown.child();
-        let (handle, task) = spawn_line(spec.clone(), self.events_tx.clone(), token);
+        let events_tx = self.events_tx.clone();
+        let (handle, task) =
+            spawn_line_with_clock(spec.clone(), events_tx, token, self.writes.clone());
         RunningLine {
             spec,
             handle,

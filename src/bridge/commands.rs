@@ -1,7 +1,8 @@
 //! The command book: which commands wait and which are on the bus. Newest per field wins (an
 //! older waiting command is superseded), a command waits while its device is offline, while a
 //! command for the same field is still on the bus, or while the field's minimum write interval
-//! runs. Only waiting for an offline device is bounded by the time to live: a command waiting
+//! runs. That interval runs from the last write that reached the device from any source (a
+//! command or a client of a served line), as the line reports it ([`CommandBook::note_write`]). Only waiting for an offline device is bounded by the time to live: a command waiting
 //! behind one on the bus (a valve still settling) or behind the write interval waits for a
 //! device that answers, and runs when its turn comes. QoS 1 redeliveries (DUP) are recognised so a write
 //! never runs twice because of one. Pure: the clock is passed in.
@@ -207,14 +208,19 @@ impl CommandBook {
         taken
     }
 
-    /// A command left the bus (any outcome). `wrote`: frames were written (starts the field's
-    /// write interval).
-    pub fn finish(&mut self, device: &str, field: &str, wrote: bool, now: Instant) {
-        let key = (device.to_string(), field.to_string());
-        self.on_bus.remove(&key);
-        if wrote {
-            self.last_write.insert(key, now);
-        }
+    /// A command left the bus (any outcome).
+    pub fn finish(&mut self, device: &str, field: &str) {
+        self.on_bus.remove(&(device.to_string(), field.to_string()));
+    }
+
+    /// A write of `field` reached `device` at `at` (the line says so, whoever wrote): the
+    /// field's write interval runs from there.
+    pub fn note_write(&mut self, device: &str, field: &str, at: Instant) {
+        let last = self
+            .last_write
+            .entry((device.to_string(), field.to_string()))
+            .or_insert(at);
+        *last = (*last).max(at);
     }
 
     /// Puts a command that could not be handed to the bus back to waiting. When a newer one
@@ -353,7 +359,7 @@ mod tests {
         book.submit("dust", "gear", "4", "4", None, start);
         assert!(book.take_ready(start, |_| true).is_empty());
         assert!(book.has_waiting("dust", "gear"));
-        book.finish("dust", "gear", true, start);
+        book.finish("dust", "gear");
         assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
     }
 
@@ -366,7 +372,7 @@ mod tests {
         book.submit("dust", "gear", "4", "4", None, start);
         assert_eq!(book.requeue(taken).map(|c| c.text), Some("3".to_string()));
         assert_eq!(book.take_ready(start, |_| true)[0].text, "4");
-        book.finish("dust", "gear", false, start);
+        book.finish("dust", "gear");
         // Without a newer one it waits again.
         book.submit("dust", "gear", "5", "5", None, start);
         let five = book.take_ready(start, |_| true).remove(0);
@@ -397,7 +403,7 @@ mod tests {
         // The first one settles for longer than the time to live; the device answers.
         let much_later = start + TTL * 3;
         assert!(book.take_expired(much_later, |_| true).is_empty());
-        book.finish("valve", "opening", true, much_later);
+        book.finish("valve", "opening");
         assert_eq!(book.take_ready(much_later, |_| true)[0].text, "50");
     }
 
@@ -426,7 +432,8 @@ mod tests {
         let mut book = CommandBook::new(TTL);
         book.submit("valve", "setpoint", "1", "1", interval, start);
         assert_eq!(book.take_ready(start, |_| true).len(), 1);
-        book.finish("valve", "setpoint", true, start);
+        book.finish("valve", "setpoint");
+        book.note_write("valve", "setpoint", start);
         book.submit("valve", "setpoint", "2", "2", interval, start);
         assert!(book
             .take_ready(start + Duration::from_secs(9), |_| true)
@@ -435,6 +442,33 @@ mod tests {
             book.take_ready(start + Duration::from_secs(10), |_| true)[0].text,
             "2"
         );
+    }
+
+    #[test]
+    fn a_write_from_another_source_starts_the_interval_too() {
+        let start = Instant::now();
+        let interval = Some(Duration::from_secs(10));
+        let mut book = CommandBook::new(TTL);
+        // A client of the served line wrote the setpoint; then a command comes.
+        book.note_write("valve", "setpoint", start);
+        book.submit("valve", "setpoint", "1", "1", interval, start);
+        assert!(book
+            .take_ready(start + Duration::from_secs(1), |_| true)
+            .is_empty());
+        // The newest wins while it waits.
+        book.submit("valve", "setpoint", "2", "2", interval, start);
+        let at_the_end = start + Duration::from_secs(10);
+        let ready = book.take_ready(at_the_end, |_| true);
+        assert_eq!(ready.len(), 1);
+        assert_eq!(ready[0].text, "2");
+        // An older report never moves the interval's start back.
+        book.finish("valve", "setpoint");
+        book.note_write("valve", "setpoint", at_the_end);
+        book.note_write("valve", "setpoint", start);
+        book.submit("valve", "setpoint", "3", "3", interval, at_the_end);
+        assert!(book
+            .take_ready(at_the_end + Duration::from_secs(9), |_| true)
+            .is_empty());
     }
 
     #[test]

@@ -258,6 +258,7 @@ impl Core {
                     self.desk.dispatch_ready(p, now);
                 }
             }
+            LineEvent::Written { device, fields, at } => self.desk.on_written(&device, &fields, at),
             LineEvent::CommandFinished { id, outcome, .. } => {
                 self.desk.on_finished(p, id, outcome, now)
             }
@@ -345,9 +346,9 @@ impl Core {
 
     /// The driver could not hand `command` to its line: the line's queue is `full` (try again
     /// on the next tick), or the line has stopped.
-    pub fn on_send_failed(&mut self, command: Command, full: bool, now: Instant) -> Vec<Action> {
+    pub fn on_send_failed(&mut self, command: Command, full: bool) -> Vec<Action> {
         let p = &mut self.publisher;
-        self.desk.on_send_failed(p, command, full, now);
+        self.desk.on_send_failed(p, command, full);
         p.take()
     }
 

@@ -477,11 +477,11 @@ fn a_full_line_queue_retries_and_a_stopped_line_fails_the_command() {
     let now = Instant::now();
     let mut core = online_core(now);
     let command_sent = take_sent(command(&mut core, "opening", "50", 1, now));
-    let retry = core.on_send_failed(command_sent.into_iter().next().unwrap(), true, now);
+    let retry = core.on_send_failed(command_sent.into_iter().next().unwrap(), true);
     assert!(retry.is_empty());
     let again = take_sent(core.on_tick(now, Vec::new));
     assert_eq!(again.len(), 1, "tried again on the next tick");
-    let actions = core.on_send_failed(again.into_iter().next().unwrap(), false, now);
+    let actions = core.on_send_failed(again.into_iter().next().unwrap(), false);
     let results = results(&actions);
     assert_eq!(results[0].1, "failed");
     assert_eq!(results[0].2, "the line has stopped");
@@ -1122,4 +1122,32 @@ fn a_live_refresh_goes_to_the_line_and_a_retained_one_is_cleared_instead() {
         assert!(refreshes(&actions).is_empty(), "{topic}: {actions:?}");
         assert!(publishes(&actions).is_empty(), "{topic}: {actions:?}");
     }
+}
+
+#[test]
+fn a_write_the_line_reports_holds_commands_and_dcmds_for_the_fields_interval() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    // A client of the served line wrote the setpoint (interval 10 s): the line says so.
+    let written = LineEvent::Written {
+        device: "valve".to_string(),
+        fields: vec!["setpoint".to_string()],
+        at: now,
+    };
+    assert!(take_sent(core.on_line_event(written, now)).is_empty());
+    let second = Duration::from_secs(1);
+    assert!(take_sent(command(&mut core, "setpoint", "50", 1, now + second)).is_empty());
+    // A Sparkplug DCMD for the same field a second later waits too, and the newest wins.
+    let actions = core.on_external_command(external("setpoint", "60"), now + second * 2);
+    assert!(take_sent(actions).is_empty());
+    assert!(take_sent(core.on_tick(now + second * 9, Vec::new)).is_empty());
+    let sent = take_sent(core.on_tick(now + second * 10, Vec::new));
+    assert_eq!(sent.len(), 1);
+    assert_eq!(sent[0].plan.field(), "setpoint");
+    assert_eq!(sent[0].plan.target().to_text(), "60.00");
+    // Another field is not held.
+    assert_eq!(
+        take_sent(command(&mut core, "opening", "40", 2, now + second)).len(),
+        1
+    );
 }

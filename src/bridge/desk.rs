@@ -72,14 +72,13 @@ fn log_received(device: &str, field: &str, value: &str, origin: Origin) {
 /// The one line of a command's end, its outcome and detail as words. INFO, except for the
 /// outcomes that mean a valid command was not carried out (`failed`, `expired`): the device
 /// or its line needs a look, so they are warnings.
-/// The result word and detail of a command's end on the bus, and whether it may have written.
-fn outcome_word(outcome: CommandOutcome) -> (Outcome, String, bool) {
+/// The result word and detail of a command's end on the bus.
+fn outcome_word(outcome: CommandOutcome) -> (Outcome, String) {
     match outcome {
-        CommandOutcome::Applied { detail } => (Outcome::Applied, detail, true),
-        CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail, true),
-        CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail, false),
-        // A failed write may have reached the device: count it for the write interval.
-        CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string(), true),
+        CommandOutcome::Applied { detail } => (Outcome::Applied, detail),
+        CommandOutcome::NotApplied { detail } => (Outcome::NotApplied, detail),
+        CommandOutcome::Rejected { detail } => (Outcome::Rejected, detail),
+        CommandOutcome::Failed { cause } => (Outcome::Failed, cause.to_string()),
     }
 }
 
@@ -400,7 +399,7 @@ impl CommandDesk {
             let plan = self.plans.remove(&command.id);
             let line = p.devices().get(&command.device).map(|entry| entry.line);
             let (Some(plan), Some(line)) = (plan, line) else {
-                self.fail(p, command, "the command has no line to run on", now);
+                self.fail(p, command, "the command has no line to run on");
                 continue;
             };
             tracing::debug!(device = %command.device, field = %command.field, "command handed to the line");
@@ -423,13 +422,7 @@ impl CommandDesk {
 
     /// The driver could not hand `command` to its line: the line's queue is `full` (try again
     /// on the next tick), or the line has stopped.
-    pub fn on_send_failed(
-        &mut self,
-        p: &mut Publisher,
-        command: Command,
-        full: bool,
-        now: Instant,
-    ) {
+    pub fn on_send_failed(&mut self, p: &mut Publisher, command: Command, full: bool) {
         let Some(tracked) = self.on_bus.remove(&command.id) else {
             return;
         };
@@ -439,13 +432,12 @@ impl CommandDesk {
                 self.supersede(p, older);
             }
         } else {
-            self.fail(p, tracked, "the line has stopped", now);
+            self.fail(p, tracked, "the line has stopped");
         }
     }
 
-    fn fail(&mut self, p: &mut Publisher, command: TrackedCommand, detail: &str, now: Instant) {
-        self.book
-            .finish(&command.device, &command.field, false, now);
+    fn fail(&mut self, p: &mut Publisher, command: TrackedCommand, detail: &str) {
+        self.book.finish(&command.device, &command.field);
         self.report_end(p, &command, false);
         self.counters.commands_failed += 1;
         log_outcome(
@@ -471,7 +463,7 @@ impl CommandDesk {
             tracing::warn!(id, "outcome of a command the bridge did not send");
             return;
         };
-        let (word, detail, wrote) = outcome_word(outcome);
+        let (word, detail) = outcome_word(outcome);
         match word {
             Outcome::Applied => self.counters.commands_applied += 1,
             Outcome::NotApplied => self.counters.commands_not_applied += 1,
@@ -487,8 +479,7 @@ impl CommandDesk {
             word,
             &detail,
         );
-        self.book
-            .finish(&command.device, &command.field, wrote, now);
+        self.book.finish(&command.device, &command.field);
         self.report_end(p, &command, word == Outcome::Applied);
         let result = CommandResult::new(&command.value, word, detail);
         self.finish_with(p, &command.device, &command.field, result);
@@ -506,11 +497,19 @@ impl CommandDesk {
         client: &str,
         outcome: CommandOutcome,
     ) {
-        let (word, detail, _) = outcome_word(outcome);
+        let (word, detail) = outcome_word(outcome);
         tracing::info!(%device, %field, ?value, %client, outcome = %word.word(), ?detail, "client write finished");
         let result = CommandResult::new(value, word, detail);
         let topic = p.topics().result_topic(device, field);
         p.publish_or_keep(topic, result.to_json(), false);
+    }
+
+    /// A write reached `device` (a command's or a client's, the line says): the write
+    /// intervals of `fields` run from `at`, for every source.
+    pub fn on_written(&mut self, device: &str, fields: &[String], at: Instant) {
+        for field in fields {
+            self.book.note_write(device, field, at);
+        }
     }
 
     /// Commands whose device stayed offline for their time to live end `expired`; then

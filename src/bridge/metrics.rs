@@ -199,8 +199,13 @@ const LINE_COUNTERS: &[LineCounter] = &[
     ),
     (
         "client_busy_total",
-        "Client requests answered busy (06): their client pipelined too many.",
+        "Client requests answered busy (06): their client pipelined too many, or wrote inside a write interval.",
         |s| s.client_busy,
+    ),
+    (
+        "client_evicted_total",
+        "Client connections closed to give their place to a newcomer (no completed request).",
+        |s| s.client_evicted,
     ),
 ];
 
@@ -540,6 +545,7 @@ fn line_json(line: &LineStats) -> Json {
         "cache_hits": line.cache_hits,
         "client_refusals": line.client_refusals,
         "client_busy": line.client_busy,
+        "client_evicted": line.client_evicted,
         "devices": devices,
     })
 }

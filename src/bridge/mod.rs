@@ -351,7 +351,7 @@ impl Bridge {
                         None => Some((command, false)),
                     };
                     if let Some((command, full)) = refused {
-                        queue.extend(self.core.on_send_failed(command, full, Instant::now()));
+                        queue.extend(self.core.on_send_failed(command, full));
                     }
                 }
                 Action::Refresh { line, device } => {

@@ -2,7 +2,9 @@
 //! they arrive on and the list of commands whose device is still settling. It runs a command's
 //! slot when the scheduler gives it its turn, and re-reads a device that is still settling
 //! (outside the slot: the writes are done by then, so nothing can interleave with them any
-//! more, and a 60 s settle window must not take the line from the other devices). What a run
+//! more, and a 60 s settle window must not take the line from the other devices). A command
+//! whose field's write interval is still running when its turn comes (a client of the served
+//! line wrote the field meanwhile) is held here until the interval ends. What a run
 //! leaves for the line to do (note the contact, publish the reads, report the end, close a
 //! failed port) comes back as a [`SlotReport`]; the line owns the events channel, the
 //! scheduler and the port. The frames of a slot are [`super::slot`]'s.
@@ -28,6 +30,17 @@ pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);
 pub(super) struct Pending {
     pub(super) command: Command,
     pub(super) arrived: Instant,
+}
+
+impl Pending {
+    /// This command's end without a slot: it failed for `cause`.
+    pub(super) fn failed(&self, cause: CommandFailure) -> Finished {
+        Finished {
+            id: self.command.id,
+            arrived: self.arrived,
+            outcome: CommandOutcome::Failed { cause },
+        }
+    }
 }
 
 /// A command whose writes are done and whose device is still moving toward the value.
@@ -61,6 +74,8 @@ pub(super) struct SlotReport {
     pub(super) changed: Vec<usize>,
     pub(super) finished: Option<Finished>,
     pub(super) port_gone: Option<PortFault>,
+    /// A write may have reached the device (every end but a refusal before the writes).
+    pub(super) wrote: bool,
 }
 
 /// What a slot needs of its line: the exchange for the device, the link and the device's
@@ -79,6 +94,8 @@ pub(super) struct CommandSlots {
     /// The sending side (the bridge) is still there.
     open: bool,
     settling: Vec<Settle>,
+    /// Commands held until their field's write interval ends: (device, command, end).
+    held: Vec<(usize, Pending, Instant)>,
 }
 
 impl CommandSlots {
@@ -87,6 +104,7 @@ impl CommandSlots {
             queue,
             open: true,
             settling: Vec::new(),
+            held: Vec::new(),
         }
     }
 
@@ -126,9 +144,36 @@ impl CommandSlots {
         Some(self.settling.swap_remove(index))
     }
 
-    /// When the next settle re-read is due.
-    pub(super) fn next_settle(&self) -> Option<Instant> {
-        self.settling.iter().map(|s| s.next_read).min()
+    /// When the next settle re-read or held command is due.
+    pub(super) fn next_due(&self) -> Option<Instant> {
+        let settles = self.settling.iter().map(|s| s.next_read);
+        settles.chain(self.held.iter().map(|h| h.2)).min()
+    }
+
+    /// Holds `pending` for `device` until `until` (its field's write interval ends then).
+    pub(super) fn hold(&mut self, device: usize, pending: Pending, until: Instant) {
+        self.held.push((device, pending, until));
+    }
+
+    /// A held command whose write interval has ended at `now`, the longest held first.
+    pub(super) fn take_due_held(&mut self, now: Instant) -> Option<(usize, Pending)> {
+        let index = self
+            .held
+            .iter()
+            .enumerate()
+            .filter(|(_, held)| held.2 <= now)
+            .min_by_key(|(_, held)| held.1.arrived)
+            .map(|(index, _)| index)?;
+        let (device, pending, _) = self.held.remove(index);
+        Some((device, pending))
+    }
+
+    /// Every held command, removed (the line stops).
+    pub(super) fn drain_held(&mut self) -> Vec<(usize, Pending)> {
+        std::mem::take(&mut self.held)
+            .into_iter()
+            .map(|(device, pending, _)| (device, pending))
+            .collect()
     }
 
     /// Runs `pending`'s slot on `device`.
@@ -159,6 +204,7 @@ impl CommandSlots {
             changed: command.plan.readback_blocks().collect(),
             finished: None,
             port_gone: None,
+            wrote: !matches!(end, SlotEnd::Done(CommandOutcome::Rejected { .. })),
         };
         match end {
             SlotEnd::Done(outcome) => {
@@ -220,6 +266,7 @@ impl CommandSlots {
             changed: settle.plan.readback_blocks().collect(),
             finished: None,
             port_gone: None,
+            wrote: false,
         };
         let outcome = match result {
             Ok(Verification::Applied) => CommandOutcome::Applied {
@@ -292,5 +339,48 @@ impl Settle {
             arrived: self.arrived,
             outcome,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::registry::built_in;
+    use crate::profile::DeviceState;
+
+    #[test]
+    fn a_held_command_is_due_when_its_write_interval_ends() {
+        let (_commands, queue) = mpsc::channel(1);
+        let mut slots = CommandSlots::new(queue);
+        let profile = built_in("ruiwan-dust-collector").unwrap();
+        let plan = profile
+            .plan_command("gear", "8", &DeviceState::new())
+            .unwrap();
+        let now = Instant::now();
+        let until = now + Duration::from_secs(1);
+        let command = Command {
+            id: 7,
+            device: "dust".into(),
+            plan,
+        };
+        slots.hold(
+            0,
+            Pending {
+                command,
+                arrived: now,
+            },
+            until,
+        );
+        assert_eq!(slots.next_due(), Some(until));
+        assert!(slots.take_due_held(now).is_none());
+        let (device, pending) = slots.take_due_held(until).unwrap();
+        assert_eq!((device, pending.command.id), (0, 7));
+        assert_eq!(slots.next_due(), None);
+        // Held commands fail when the line stops, with their id.
+        slots.hold(0, pending, until);
+        let held = slots.drain_held();
+        let finished = held[0].1.failed(CommandFailure::ShuttingDown);
+        assert_eq!(finished.id, 7);
+        assert!(slots.drain_held().is_empty());
     }
 }

@@ -39,6 +39,7 @@ use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
 use super::{
     Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats, Transport,
+    WriteClock,
 };
 use crate::profile::Profile;
 use crate::shutdown::Shutdown;
@@ -64,11 +65,22 @@ pub const LOAD_WINDOW: Duration = Duration::from_secs(10);
 /// their ends answer the client and never reach the bridge.
 const CLIENT_COMMAND_IDS: u64 = 1 << 63;
 
-/// Starts the task that owns `spec`'s port.
+/// Starts the task that owns `spec`'s port, with a write clock of its own.
 pub fn spawn_line(
     spec: LineSpec,
     events_tx: mpsc::Sender<LineEvent>,
     shutdown: Shutdown,
+) -> (LineHandle, tokio::task::JoinHandle<()>) {
+    spawn_line_with_clock(spec, events_tx, shutdown, WriteClock::new())
+}
+
+/// Starts the task that owns `spec`'s port; the write intervals of its devices' fields run on
+/// `writes`, which the gateway's other lines (and the ones a reload starts) share.
+pub fn spawn_line_with_clock(
+    spec: LineSpec,
+    events_tx: mpsc::Sender<LineEvent>,
+    shutdown: Shutdown,
+    writes: WriteClock,
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
     let now = Instant::now();
@@ -100,6 +112,7 @@ pub fn spawn_line(
     };
     let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
     line.refreshes = Some(refresh_rx);
+    line.writes = writes;
     line.clients = ClientQueue::new(clients);
     line.serve_counters = counters;
     let task = tokio::spawn(line.run().instrument(span));
@@ -162,6 +175,8 @@ struct Line {
     /// Clients' writes still settling on their device, by command id: their end is published
     /// when the read-back settles.
     settling_client_writes: std::collections::HashMap<u64, ClientWrite>,
+    /// When the fields with a write interval were last written, by any source.
+    writes: WriteClock,
 }
 
 /// A client's write as its outcome is published.
@@ -238,6 +253,7 @@ impl Line {
             serve_counters: None,
             next_client_command: CLIENT_COMMAND_IDS,
             settling_client_writes: std::collections::HashMap::new(),
+            writes: WriteClock::new(),
             spec,
         }
     }
@@ -270,6 +286,11 @@ impl Line {
                 self.publish_stats();
                 continue;
             }
+            if let Some((device, pending)) = self.commands.take_due_held(now) {
+                self.run_command(device, pending).await;
+                self.publish_stats();
+                continue;
+            }
             // Clients after commands, before polls; a due poll between two client slots.
             if self.scheduler.queued_commands() == 0 && !self.client_went_last {
                 if let Some(request) = self.clients.try_take() {
@@ -281,7 +302,7 @@ impl Line {
             }
             self.client_went_last = false;
             self.accept_refreshes();
-            let next_settle = self.commands.next_settle();
+            let next_settle = self.commands.next_due();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
                     self.run_command(device, command).await;
@@ -585,6 +606,7 @@ impl Line {
             stats.cache_hits = counters.cache_hits.load(Relaxed);
             stats.client_refusals = counters.refusals.load(Relaxed);
             stats.client_busy = counters.busy.load(Relaxed);
+            stats.client_evicted = counters.evicted.load(Relaxed);
         }
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.
@@ -595,6 +617,10 @@ impl Line {
     /// Shutdown: answer every command still waiting, publish the last statistics.
     async fn finish(&mut self) {
         self.fail_queued(&CommandFailure::ShuttingDown).await;
+        for (device, pending) in self.commands.drain_held() {
+            let finished = pending.failed(CommandFailure::ShuttingDown);
+            self.reply(device, finished).await;
+        }
         for (device, finished) in self.commands.abandon_settling() {
             self.reply(device, finished).await;
         }
@@ -668,6 +694,29 @@ impl Line {
     }
 
     async fn run_command(&mut self, device: usize, pending: Pending) {
+        // A client wrote one of the command's fields after the bridge sent it: the command
+        // waits out the field's interval like any command for it.
+        let now = Instant::now();
+        if let Some(runtime) = self.devices.get(device) {
+            let plan = &pending.command.plan;
+            let fields = plan.targets().into_iter().map(|(field, _)| field);
+            let busy =
+                self.writes
+                    .busy_until(&runtime.spec.name, &runtime.spec.profile, fields, now);
+            if let Some(until) = busy {
+                tracing::debug!(device = %runtime.spec.name, field = plan.field(), wait = ?until - now,
+                    "command held: the field's write interval runs");
+                self.commands.hold(device, pending, until);
+                return;
+            }
+        }
+        let fields: Vec<String> = pending
+            .command
+            .plan
+            .targets()
+            .into_iter()
+            .map(|(field, _)| field.to_string())
+            .collect();
         let attempts = self.attempts();
         let Some(link) = slot_link(
             &mut self.devices,
@@ -678,18 +727,35 @@ impl Line {
             device,
             attempts,
         ) else {
-            let finished = Finished {
-                id: pending.command.id,
-                arrived: pending.arrived,
-                outcome: CommandOutcome::Failed {
-                    cause: CommandFailure::PortNotOpen,
-                },
-            };
+            let finished = pending.failed(CommandFailure::PortNotOpen);
             self.reply(device, finished).await;
             return;
         };
         let report = self.commands.run(link, device, pending).await;
+        if report.wrote {
+            self.note_write(device, &fields).await;
+        }
         self.carry_out(report).await;
+    }
+
+    /// A slot that wrote `fields` of `device` has ended: their write intervals start now, and
+    /// the bridge learns it before the slot's values and end.
+    async fn note_write(&mut self, device: usize, fields: &[String]) {
+        let Some(runtime) = self.devices.get(device) else {
+            return;
+        };
+        let at = Instant::now();
+        let name = runtime.spec.name.clone();
+        let fields = fields.iter().map(String::as_str);
+        let noted = self.writes.wrote(&name, &runtime.spec.profile, fields, at);
+        if !noted.is_empty() {
+            self.emit(LineEvent::Written {
+                device: name,
+                fields: noted,
+                at,
+            })
+            .await;
+        }
     }
 
     async fn run_settle(&mut self, settle: Settle) {
@@ -724,6 +790,7 @@ impl Line {
             changed,
             finished,
             port_gone,
+            wrote: _,
         } = report;
         let now = Instant::now();
         // The command can have changed what a poll read: clients read the device again.
@@ -832,11 +899,7 @@ impl Line {
             return;
         }
         for (device, pending) in self.scheduler.drain_commands() {
-            let finished = Finished {
-                id: pending.command.id,
-                arrived: pending.arrived,
-                outcome: CommandOutcome::Failed { cause: why.clone() },
-            };
+            let finished = pending.failed(why.clone());
             self.reply(device, finished).await;
         }
     }
@@ -872,6 +935,25 @@ impl Line {
                 }
             }
         }
+        // A raw write passes as it came, but not inside a write interval of a field it covers.
+        let raw_write = match device.and_then(|d| self.devices.get(d).map(|r| (d, r))) {
+            Some((device, runtime)) if !request.is_read() => {
+                let fields: Vec<String> = runtime
+                    .spec
+                    .profile
+                    .decode_write(&request)
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(|reading| reading.field)
+                    .collect();
+                if let Err(code) = self.client_write_allowed(device, &client, &fields) {
+                    let _ = reply.send(Err(code));
+                    return;
+                }
+                Some((device, fields))
+            }
+            _ => None,
+        };
         let attempts = self.attempts();
         let Some(master) = self.master.as_mut() else {
             let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
@@ -892,6 +974,9 @@ impl Line {
         };
         let result = exchange.run(master, stats, &request, attempts).await;
         tracing::debug!(%client, unit, ?request, ?result, "client request on the line");
+        if let Some((device, fields)) = raw_write {
+            self.note_write(device, &fields).await;
+        }
         match result {
             Ok(answer) => {
                 if let (Some(device), Ok(_)) = (device, &answer) {
@@ -948,8 +1033,9 @@ impl Line {
             return Err(ExceptionCode::GatewayPathUnavailable);
         };
         let name = runtime.spec.name.clone();
-        let plan = match policy::plan_write(&runtime.spec.profile, write, &runtime.known_state()) {
-            Ok(plan) => plan,
+        let planned = policy::plan_write(&runtime.spec.profile, write, &runtime.known_state());
+        let planned = match planned {
+            Ok(planned) => planned,
             Err(code) => {
                 tracing::info!(%client, device = %name, ?write, "client write refused: {code}");
                 if let Some(counters) = &self.serve_counters {
@@ -959,6 +1045,12 @@ impl Line {
                 }
                 return Err(code);
             }
+        };
+        self.client_write_allowed(device, client, &planned.covered)?;
+        let Some(plan) = planned.plan else {
+            // Only zeros on buttons and toggles: the device itself would do nothing.
+            tracing::debug!(%client, device = %name, ?write, "client write leaves the device as it is");
+            return echo(write).ok_or(ExceptionCode::IllegalFunction);
         };
         let field = plan.field().to_string();
         let write_record = ClientWrite {
@@ -995,6 +1087,9 @@ impl Line {
             attempts,
         };
         let mut report = self.commands.run(link, device, pending).await;
+        if report.wrote {
+            self.note_write(device, &planned.covered).await;
+        }
         let finished = report.finished.take();
         let answer = match &finished {
             Some(finished) => {
@@ -1019,6 +1114,37 @@ impl Line {
             }
         }
         answer
+    }
+
+    /// The write-interval rule for a client's write covering `fields` of `device`: refused at
+    /// once with 06 (server device busy) while the interval of any of them runs, whoever
+    /// wrote last; the client may send it again later.
+    fn client_write_allowed(
+        &self,
+        device: usize,
+        client: &str,
+        fields: &[String],
+    ) -> Result<(), ExceptionCode> {
+        let Some(runtime) = self.devices.get(device) else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let covered = fields.iter().map(String::as_str);
+        let name = &runtime.spec.name;
+        let Some(until) = self
+            .writes
+            .busy_until(name, &runtime.spec.profile, covered, now)
+        else {
+            return Ok(());
+        };
+        tracing::info!(%client, device = %name, ?fields, wait = ?until - now,
+            "client write refused: the write interval runs (06, busy)");
+        if let Some(counters) = &self.serve_counters {
+            counters
+                .busy
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        Err(ExceptionCode::ServerDeviceBusy)
     }
 
     /// Reports a client's write's end to the bridge (after the values of its reads).

@@ -21,6 +21,7 @@ pub mod serve;
 pub mod slot;
 pub mod stats;
 pub mod transaction;
+pub mod write_clock;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -34,6 +35,7 @@ use rtu2mqtt_modbus::SlaveId;
 
 pub use outcome::CommandFailure;
 pub use stats::LineStats;
+pub use write_clock::WriteClock;
 
 /// One configured device on a line.
 #[derive(Debug, Clone)]
@@ -122,6 +124,15 @@ pub enum LineEvent {
         device: String,
         outcome: CommandOutcome,
     },
+    /// A write reached `device` (or may have: its answer was lost), from any source, and
+    /// started the write interval of `fields` (those of the write that have one). Sent before
+    /// the `Values` and the end of the slot that wrote.
+    Written {
+        device: String,
+        fields: Vec<String>,
+        /// When the slot that wrote ended.
+        at: std::time::Instant,
+    },
     /// A write from a client of the line's server ran as a command slot (sent after the
     /// `Values` of its reads): its outcome is published like a command's, though no MQTT
     /// command asked for it.
@@ -171,4 +182,4 @@ pub struct LineHandle {
     pub stats_rx: watch::Receiver<LineStats>,
 }
 
-pub use line::spawn_line;
+pub use line::{spawn_line, spawn_line_with_clock};

@@ -148,8 +148,11 @@ pub struct LineStats {
     pub cache_hits: u64,
     /// Client requests refused before the line (access, unknown unit, malformed).
     pub client_refusals: u64,
-    /// Client requests answered 06 (server device busy): their client pipelined too many.
+    /// Client requests answered 06 (server device busy): their client pipelined too many, or
+    /// a field it writes was inside its write interval.
     pub client_busy: u64,
+    /// Client connections closed to give their place to a newcomer (no completed request).
+    pub client_evicted: u64,
     pub devices: Vec<DeviceStats>,
 }
 
@@ -207,6 +210,7 @@ impl LineStats {
             cache_hits: 0,
             client_refusals: 0,
             client_busy: 0,
+            client_evicted: 0,
             devices: devices.iter().map(|name| DeviceStats::new(name)).collect(),
         }
     }

@@ -187,6 +187,22 @@ impl Profile {
     /// not be its place in the read block). `None` when no write frame of the profile holds
     /// every register or coil the write touches; the values of fields the write covers whole.
     pub fn decode_write(&self, write: &Request) -> Option<Vec<FieldReading>> {
+        let (frame, start, image) = self.landing(write)?;
+        let quantity = match &image {
+            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
+            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
+            _ => return None,
+        };
+        let block = self.inner.blocks.get(frame.block)?;
+        let read = block
+            .request
+            .sub_read(frame.offset + (start - frame.address), quantity)?;
+        Some(self.decode_read(&read, &image))
+    }
+
+    /// The write frame a foreign master's `write` lands on (the first of the profile's that
+    /// holds every register or coil it touches), the write's first address and its values.
+    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, u16, Response)> {
         let (start, image, registers) = match write {
             Request::WriteSingleRegister { address, value } => {
                 (*address, Response::HoldingRegisters(vec![*value]), true)
@@ -203,8 +219,8 @@ impl Profile {
             _ => return None,
         };
         let quantity = match &image {
-            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
-            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
+            Response::HoldingRegisters(words) => u32::try_from(words.len()).ok()?,
+            Response::Coils(bits) => u32::try_from(bits.len()).ok()?,
             _ => return None,
         };
         let inner = &self.inner;
@@ -217,14 +233,38 @@ impl Profile {
             .filter(|frame| matches!(frame.function, 0x06 | 0x10) == registers)
             .find(|frame| {
                 start >= frame.address
-                    && u32::from(start) + u32::from(quantity)
+                    && u32::from(start) + quantity
                         <= u32::from(frame.address) + u32::from(frame.count)
             })?;
-        let block = inner.blocks.get(frame.block)?;
-        let read = block
-            .request
-            .sub_read(frame.offset + (start - frame.address), quantity)?;
-        Some(self.decode_read(&read, &image))
+        Some((frame, start, image))
+    }
+
+    /// Plans a foreign master's `write` as the fields it sets (`values`, command texts) written
+    /// through the very frame the write lands on, so that the device gets the frame a client
+    /// sent and not another one that would also rewrite other fields. Validated like a command
+    /// on the last known `state`; labelled by the frame's name when it is a shared one.
+    pub fn plan_foreign_write(
+        &self,
+        write: &Request,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let Some((frame, _, _)) = self.landing(write) else {
+            return Err(Rejection("the write lands on no write frame".to_string()));
+        };
+        let named = self
+            .inner
+            .named_frames
+            .iter()
+            .find(|(_, named)| named == frame)
+            .map(|(name, _)| name.as_str());
+        let label = match (values, named) {
+            ([(field, _)], _) => field,
+            (_, Some(name)) => name,
+            ([(field, _), ..], None) => field,
+            ([], _) => return Err(Rejection("the write sets no field".to_string())),
+        };
+        self.plan_frame(label, frame.clone(), values, state)
     }
 
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
@@ -270,6 +310,18 @@ impl Profile {
                     inner.name
                 ))
             })?;
+        self.plan_frame(frame_name, frame, values, state)
+    }
+
+    /// Plans `values` written together through `frame`, labelled `label`.
+    fn plan_frame(
+        &self,
+        frame_name: &str,
+        frame: model::WriteFrame,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let inner = &self.inner;
         if values.is_empty() {
             return Err(Rejection(format!("{frame_name}: no values given")));
         }
@@ -307,6 +359,18 @@ impl Profile {
             .iter()
             .map(|(name, _)| name.as_str())
             .collect()
+    }
+
+    /// How a field behaves when written (a state, a toggle, a button) and whether it is an
+    /// overlay (a view over bits other fields own); `None` for an unknown field.
+    pub fn write_behaviour(&self, field: &str) -> Option<(model::Behaviour, bool)> {
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)?;
+        let def = self.inner.defs.get(index)?;
+        Some((def.behaviour, def.overlay))
     }
 
     /// The field's index and the command text parsed for it; refuses unknown and read-only

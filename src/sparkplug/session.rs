@@ -402,7 +402,9 @@ impl Session {
             }
             // Outcomes reach the node through the gateway's command path
             // ([`Session::on_command_outcome`]), not from the line.
-            LineEvent::CommandFinished { .. } | LineEvent::ClientWriteFinished { .. } => {}
+            LineEvent::CommandFinished { .. }
+            | LineEvent::ClientWriteFinished { .. }
+            | LineEvent::Written { .. } => {}
             LineEvent::Availability { device, online } => {
                 let Some(index) = self.device_index(device) else {
                     return actions;

@@ -3,7 +3,8 @@ this project) and prints one JSON object per request: {"registers": [...]}, {"bi
 {"written": true} or {"exception": CODE}.
 
 Usage: modbus_share_client.py HOST PORT OPS, OPS a JSON list of
-["read", UNIT, START, COUNT], ["coils", UNIT, START, COUNT] or ["write", UNIT, ADDRESS, VALUE].
+["read", UNIT, START, COUNT], ["coils", UNIT, START, COUNT], ["write", UNIT, ADDRESS, VALUE],
+["write_registers", UNIT, START, [VALUES]] or ["write_coils", UNIT, START, [BITS]].
 Exit status 1 when the connection fails or a request gets no answer at all.
 """
 
@@ -19,6 +20,10 @@ def run(client, op):
         result = client.read_holding_registers(start, count=arg, device_id=unit)
     elif kind == "coils":
         result = client.read_coils(start, count=arg, device_id=unit)
+    elif kind == "write_registers":
+        result = client.write_registers(start, arg, device_id=unit)
+    elif kind == "write_coils":
+        result = client.write_coils(start, [bool(bit) for bit in arg], device_id=unit)
     else:
         result = client.write_register(start, arg, device_id=unit)
     if result.isError():

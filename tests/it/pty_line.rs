@@ -135,7 +135,7 @@ impl Running {
                 self.finished.insert(id, outcome);
             }
             // These lines are not served: no client writes.
-            LineEvent::ClientWriteFinished { .. } => {}
+            LineEvent::ClientWriteFinished { .. } | LineEvent::Written { .. } => {}
         }
     }
 

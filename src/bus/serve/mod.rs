@@ -3,9 +3,11 @@
 //! line task as a slot of its scheduler, so the line keeps its one master and its timing.
 //!
 //! [`policy`] decides, without I/O, what a request may do under the line's [`Access`];
-//! [`server`] accepts clients and frames their requests; [`queue`] is the line task's side of
+//! [`server`] accepts clients and frames their requests, [`places`] decides who holds the
+//! `max_clients` places; [`queue`] is the line task's side of
 //! the requests' channel and the cache of polled blocks it answers reads from.
 
+pub mod places;
 pub mod policy;
 pub(crate) mod queue;
 pub mod server;

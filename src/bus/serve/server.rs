@@ -6,6 +6,8 @@
 //! 06 (server device busy) for them, and while [`HELD`] of its requests are unanswered its
 //! socket is not read, so a flood waits in the client's own buffers, not in the daemon.
 //! Bad input closes the client's connection or gets an exception; the line never sees it.
+//! Places are [`super::places`]': a client that has completed a request keeps its own, one
+//! that has not can lose it to a newcomer.
 
 use std::collections::VecDeque;
 use std::net::SocketAddr;
@@ -16,13 +18,14 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
-use tokio::sync::{mpsc, oneshot, Semaphore};
+use tokio::sync::{mpsc, oneshot};
 
 use rtu2mqtt_modbus::codec::{self, DecodeError};
 use rtu2mqtt_modbus::master::Reply;
 use rtu2mqtt_modbus::mbap::{self, Header};
 use rtu2mqtt_modbus::{ExceptionCode, FunctionCode, Request, SlaveId};
 
+use super::places::{NoPlace, Place, Places, PLACE_GRACE, PLACE_WAIT};
 use super::policy::{self, Verdict};
 use super::{Access, ClientRequest, ServeFraming, ServeSpec};
 use crate::bus::DeviceSpec;
@@ -52,8 +55,11 @@ pub struct ServeCounters {
     pub refusals: AtomicU64,
     /// Reads answered from the poll cache.
     pub cache_hits: AtomicU64,
-    /// Requests answered 06 (server device busy): their client had [`PIPELINE`] waiting.
+    /// Requests answered 06 (server device busy): their client had [`PIPELINE`] waiting, or
+    /// a field it writes was inside its write interval.
     pub busy: AtomicU64,
+    /// Connections closed to give their place to a newcomer (they had completed no request).
+    pub evicted: AtomicU64,
 }
 
 /// What a connection needs of its server.
@@ -74,15 +80,23 @@ pub async fn run(
     counters: Arc<ServeCounters>,
     mut shutdown: Shutdown,
 ) {
-    let listener = match listen(&spec.listen).await {
-        Ok(listener) => listener,
-        Err(error) => {
-            tracing::error!(listen = %spec.url(), "cannot serve the line: {error}");
-            return;
+    // A line restarted by a reload binds again while its old server may still be closing.
+    let mut attempts = 0;
+    let listener = loop {
+        match listen(&spec.listen).await {
+            Ok(listener) => break listener,
+            Err(error) if error.kind() == std::io::ErrorKind::AddrInUse && attempts < 20 => {
+                attempts += 1;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            Err(error) => {
+                tracing::error!(listen = %spec.url(), "cannot serve the line: {error}");
+                return;
+            }
         }
     };
     tracing::info!(listen = %spec.url(), access = spec.access.word(), "serving the line");
-    let places = Arc::new(Semaphore::new(spec.max_clients));
+    let places = Places::new(spec.max_clients, PLACE_GRACE, PLACE_WAIT);
     let context = Context {
         access: spec.access,
         framing: spec.framing,
@@ -103,19 +117,35 @@ pub async fn run(
                 continue;
             }
         };
-        let Ok(place) = Arc::clone(&places).try_acquire_owned() else {
-            tracing::warn!(client = %peer, max_clients = spec.max_clients, "client refused: too many clients");
-            drop(socket);
-            continue;
-        };
         let _ = socket.set_nodelay(true);
         let context = context.clone();
+        let places = Arc::clone(&places);
+        let max_clients = spec.max_clients;
         let mut client_shutdown = shutdown.clone();
         tokio::spawn(async move {
             let client = peer.to_string();
+            let counters = Arc::clone(&context.counters);
+            let evicted = move || {
+                counters.evicted.fetch_add(1, Ordering::Relaxed);
+            };
+            let place = tokio::select! {
+                place = places.take(evicted) => place,
+                () = client_shutdown.fired() => return,
+            };
+            let mut place = match place {
+                Ok(place) => place,
+                Err(why) => {
+                    let why = match why {
+                        NoPlace::QueueFull => "too many clients waiting",
+                        NoPlace::TimedOut => "no place came free",
+                    };
+                    tracing::warn!(%client, max_clients, "client refused: {why}");
+                    return;
+                }
+            };
             tracing::info!(%client, "client connected");
             tokio::select! {
-                end = serve_client(socket, &client, &context) => {
+                end = serve_client(socket, &client, &context, &mut place) => {
                     tracing::info!(%client, "client disconnected: {end}");
                 }
                 () = client_shutdown.fired() => {}
@@ -140,6 +170,8 @@ enum End {
     Garbage(String),
     #[error("the line has stopped")]
     LineGone,
+    #[error("its place went to a newcomer before it completed a request")]
+    Evicted,
 }
 
 /// One request as it came, in RTU form, with what its answer needs.
@@ -172,6 +204,7 @@ enum HeldState {
 enum Event {
     Read(Option<Result<Framed, End>>),
     LineAnswered(Option<Reply>),
+    Evicted,
 }
 
 /// Ends the task that reads a connection's requests when the connection's task ends.
@@ -183,7 +216,12 @@ impl Drop for AbortOnDrop {
     }
 }
 
-async fn serve_client(socket: TcpStream, client: &str, context: &Context) -> End {
+async fn serve_client(
+    socket: TcpStream,
+    client: &str,
+    context: &Context,
+    place: &mut Place,
+) -> End {
     let (read_half, mut write_half) = socket.into_split();
     let (framed_tx, mut framed_rx) = mpsc::channel(1);
     let _reader = AbortOnDrop(tokio::spawn(read_requests(
@@ -195,6 +233,8 @@ async fn serve_client(socket: TcpStream, client: &str, context: &Context) -> End
     let mut on_line: Option<oneshot::Receiver<Reply>> = None;
     // Why reading stopped: the requests read before it are still answered.
     let mut ended: Option<End> = None;
+    // The client has completed a request: its place is its own.
+    let mut settled = false;
     loop {
         while let Some(Held {
             state: HeldState::Answered(_),
@@ -228,9 +268,17 @@ async fn serve_client(socket: TcpStream, client: &str, context: &Context) -> End
         let event = tokio::select! {
             framed = framed_rx.recv(), if reading => Event::Read(framed),
             reply = line_answer(&mut on_line) => Event::LineAnswered(reply),
+            _ = &mut place.evicted, if !settled => Event::Evicted,
         };
         match event {
+            Event::Evicted => return End::Evicted,
             Event::Read(Some(Ok(framed))) => {
+                if !settled {
+                    if !place.complete() {
+                        return End::Evicted;
+                    }
+                    settled = true;
+                }
                 let waiting = held
                     .iter()
                     .filter(|h| !matches!(h.state, HeldState::Answered(_)))

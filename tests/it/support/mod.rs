@@ -567,6 +567,32 @@ impl Gateway {
         }
     }
 
+    /// Starts the gateway as [`Gateway::start`] does, reloading `path` whenever the returned
+    /// sender sends (as SIGHUP does for `run`).
+    pub async fn start_reloadable(
+        config: Config,
+        path: std::path::PathBuf,
+    ) -> (Gateway, tokio::sync::mpsc::Sender<()>) {
+        let (trigger, shutdown) = shutdown::channel();
+        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+        let (reload_tx, requests) = tokio::sync::mpsc::channel(1);
+        let hooks = Hooks {
+            ready_tx: Some(ready_tx),
+            reload: Some(rtu2mqtt::app::reload::ReloadSource { path, requests }),
+        };
+        let task = tokio::spawn(run_gateway(config, shutdown, hooks));
+        let running = tokio::time::timeout(GATEWAY_BOUND, ready_rx)
+            .await
+            .expect("gateway not ready in time")
+            .expect("gateway ended before it was ready");
+        let gateway = Gateway {
+            trigger,
+            task,
+            running,
+        };
+        (gateway, reload_tx)
+    }
+
     /// Asks the gateway to stop and waits until it has ended cleanly.
     pub async fn stop(self) {
         self.trigger.fire();
