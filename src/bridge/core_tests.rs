@@ -12,7 +12,7 @@ use serde_json::Value as Json;
 use super::core::{
     Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming,
 };
-use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
+use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
 use crate::contract::Topics;
 use crate::profile::registry;
@@ -396,6 +396,7 @@ fn home_assistant_online_brings_discovery_and_state_again() {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     };
     core.on_line_event(values, now);
     let start = core.on_tick(now, Vec::new);
@@ -498,6 +499,7 @@ fn state_of_a_slot_is_published_before_its_result() {
             device: "valve".to_string(),
             values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         },
         now,
     );
@@ -637,6 +639,7 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     };
     core.on_line_event(values, now);
     let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
@@ -1039,6 +1042,7 @@ fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(opening))],
         read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
+        origin: Origin::Poll,
     }
 }
 
