@@ -1080,3 +1080,64 @@ fn without_history_no_change_set_is_made() {
     let mut core = online_core(now);
     assert!(history_entries(&core.on_line_event(opening_at(40, 0), now)).is_empty());
 }
+
+#[test]
+fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
+    let now = Instant::now();
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: false,
+            options: GatewayOptions {
+                json_view: true,
+                ..options()
+            },
+            history: true,
+            line_names: vec!["a".to_string()],
+            devices: vec![BridgeDevice {
+                name: "valve".to_string(),
+                profile: Arc::new(registry::built_in("wuzhou-valve").unwrap()),
+                line: 0,
+            }],
+        },
+        now,
+        seeded(),
+    );
+    core.on_connected();
+    core.on_line_event(availability(true), now);
+    let first = core.on_line_event(opening_at(40, 1_796_223_601_000), now);
+    let topics = |actions: &[Action]| -> Vec<String> {
+        publishes(actions)
+            .into_iter()
+            .map(|(topic, ..)| topic)
+            .collect()
+    };
+    assert_eq!(topics(&first), ["plant/valve/opening", "plant/valve"]);
+    // The same value read again: nothing anywhere.
+    let again = core.on_line_event(opening_at(40, 1_796_223_602_000), now);
+    assert!(topics(&again).is_empty() && history_entries(&again).is_empty());
+    // The same value as a heartbeat: everywhere, with the heartbeat's instant.
+    let mut heartbeat = opening_at(40, 1_796_223_661_000);
+    if let LineEvent::Values { origin, .. } = &mut heartbeat {
+        *origin = Origin::Heartbeat;
+    }
+    let beat = core.on_line_event(heartbeat, now);
+    assert_eq!(
+        publishes(&beat),
+        [
+            ("plant/valve/opening".to_string(), "40".to_string(), true),
+            (
+                "plant/valve".to_string(),
+                r#"{"opening":40}"#.to_string(),
+                true
+            )
+        ]
+    );
+    assert_eq!(
+        history_entries(&beat)
+            .into_iter()
+            .map(|entry| entry.document)
+            .collect::<Vec<_>>(),
+        [r#"{"ts":"2026-12-02T15:01:01.000Z","values":{"opening":40}}"#]
+    );
+}

@@ -997,6 +997,20 @@ mod tests {
         assert_eq!(ddata.metrics[0].name, None, "data goes by alias");
         assert_eq!(ddata.metrics[0].alias, Some(1005));
         assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(4)));
+
+        // A heartbeat: its values go out as data though the host knows them.
+        let mut heartbeat = dust_values(4);
+        if let LineEvent::Values { values, origin, .. } = &mut heartbeat {
+            values.retain(|(field, _)| field == "gear");
+            *origin = Origin::Heartbeat;
+        }
+        let actions = session.on_line_event(T + 4, &heartbeat);
+        let messages = published(&actions);
+        assert_eq!(topics(&actions), ["spBv1.0/plant/DDATA/gw1/dust"]);
+        let ddata = &messages[0].1;
+        assert_eq!(ddata.metrics.len(), 1, "the gear again");
+        assert_eq!(ddata.metrics[0].alias, Some(1005));
+        assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(4)));
     }
 
     #[test]
