@@ -98,7 +98,10 @@ async fn count(publish: Option<&str>, window: Duration) -> anyhow::Result<BTreeM
     if let Some(publish) = publish {
         text = with_device_default(&text, publish);
     }
-    std::fs::write(&config_path, format!("{text}\n[health]\nstatus_file = \"\"\n"))?;
+    std::fs::write(
+        &config_path,
+        format!("{text}\n[health]\nstatus_file = \"\"\n"),
+    )?;
     let mut gateway = GatewayProcess::start(
         Path::new(env!("CARGO_BIN_EXE_rtu2mqtt")),
         &config_path,
@@ -139,6 +142,8 @@ fn kind_of(topic: &str) -> String {
         ["plant", device, "availability"] => format!("plant/{device}/availability"),
         ["plant", device, _field] => format!("plant/{device}/<field>"),
         ["plant", device] => format!("plant/{device} (JSON view)"),
-        _ => levels.first().map_or_else(String::new, |first| format!("{first}/…")),
+        _ => levels
+            .first()
+            .map_or_else(String::new, |first| format!("{first}/…")),
     }
 }
