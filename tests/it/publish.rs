@@ -291,7 +291,7 @@ async fn a_deadband_holds_small_moves_a_heartbeat_repeats_and_sparkplug_follows_
     .await;
     let beat_at = Instant::now();
     assert!(
-        beat_at - published_at + Duration::from_millis(500) >= HEARTBEAT,
+        beat_at - published_at + Duration::from_secs(1) >= HEARTBEAT,
         "the heartbeat came after {:?}",
         beat_at - published_at
     );
