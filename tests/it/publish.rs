@@ -37,7 +37,7 @@ start = 0
 count = 3
 
 [[fields]]
-name = "status"
+name = "running"
 block = "main"
 offset = 0
 codec = { type = "bit", bit = 1 }
@@ -93,7 +93,7 @@ fn a_fields_publish_settings_are_checked_with_their_place() {
         "publish = { deadband = -0.5, min_interval = \"90s\", max_interval = \"1m\" }",
     );
     for expected in [
-        "test.toml: fields[0] (status).publish.deadband: a deadband needs a number",
+        "test.toml: fields[0] (running).publish.deadband: a deadband needs a number",
         "test.toml: fields[1] (level).publish.deadband: -0.5 is not a number of at least 0",
         "test.toml: fields[1] (level).publish.min_interval: min_interval 1m 30s is over \
          max_interval 1m",
@@ -180,6 +180,35 @@ fn a_devices_publish_default_is_checked_with_its_place() {
     let found = config_problems("publish = { deadband = \"0.5\" }");
     assert!(
         found.contains("lines[0].devices[0].publish.deadband: \"0.5\" is not a number"),
+        "{found}"
+    );
+}
+
+#[test]
+fn a_fields_own_keys_and_its_devices_must_hold_together() {
+    let files = tempfile::tempdir().unwrap();
+    let profile = files.path().join("publish-test.toml");
+    let text = PROFILE.replace(
+        "codec = { type = \"u16\", decimals = 1 }",
+        "codec = { type = \"u16\", decimals = 1 }\npublish = { min_interval = \"90s\" }",
+    );
+    std::fs::write(&profile, text).unwrap();
+    let config = CONFIG.replace(
+        "profile = \"ruiwan-dust-collector\"",
+        &format!("profile = {:?}", profile.display().to_string()),
+    );
+    let load = |publish: &str| match config::from_str(&format!("{config}{publish}\n"), files.path())
+    {
+        Ok(_) => String::new(),
+        Err(problems) => problems.to_string(),
+    };
+    assert_eq!(load("publish = { max_interval = \"2m\" }"), "");
+    let found = load("publish = { max_interval = \"1m\" }");
+    assert!(
+        found.contains(
+            "lines[0].devices[0].publish: field `level` of profile publish-test: min_interval \
+             1m 30s is over max_interval 1m"
+        ),
         "{found}"
     );
 }
