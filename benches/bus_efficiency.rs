@@ -206,6 +206,7 @@ async fn measure(
             address: 0x81,
             profile: profile.clone(),
             poll_interval: Duration::ZERO,
+            publish: Default::default(),
         }],
     };
     let (events_tx, mut events_rx) = mpsc::channel(4096);

@@ -15,7 +15,8 @@
 //!   the frames of one bus slot. No I/O.
 //! - [`bus`]: one task per line. It owns the link, decides what is due (pure scheduler with the
 //!   clock passed in), runs polls and command slots, tracks device health and line statistics,
-//!   and reports [`bus::LineEvent`]s (a slot's values before its command's end). A line may be
+//!   and reports [`bus::LineEvent`]s (a slot's values before its command's end; fields with
+//!   `publish` settings by exception, decided once for every consumer). A line may be
 //!   served to other Modbus masters ([`bus::serve`]): their requests are slots of its scheduler.
 //! - `sim` (feature `demo`): simulated devices (the three seed devices written from
 //!   `docs/devices.md`, and a generic one built from any profile), on ptys or TCP, for tests,

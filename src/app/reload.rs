@@ -186,6 +186,7 @@ fn same_line(old: &LineSpec, new: &LineSpec) -> bool {
             a.name == b.name
                 && a.address == b.address
                 && a.poll_interval == b.poll_interval
+                && a.publish == b.publish
                 && a.profile.name() == b.profile.name()
                 && format!("{:?}", a.profile.read_blocks())
                     == format!("{:?}", b.profile.read_blocks())

@@ -23,7 +23,7 @@ use super::desk::{CommandDesk, SetMessage};
 use super::discovery;
 use super::metrics::{self, BridgeStats, HistoryStats};
 use super::publisher::Publisher;
-use crate::bus::{Command, LineEvent, LineStats};
+use crate::bus::{Command, LineEvent, LineStats, Origin};
 use crate::config::{Config, GatewayOptions};
 use crate::contract::{is_ha_online, Topics};
 
@@ -251,7 +251,8 @@ impl Core {
                 device,
                 values,
                 read_at,
-            } => p.values(&device, values, read_at),
+                origin,
+            } => p.values(&device, values, read_at, origin == Origin::Heartbeat),
             LineEvent::Availability { device, online } => {
                 p.availability(&device, online);
                 if online {

@@ -12,7 +12,7 @@ use serde_json::Value as Json;
 use super::core::{
     Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming,
 };
-use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
+use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
 use crate::contract::Topics;
 use crate::profile::registry;
@@ -396,6 +396,7 @@ fn home_assistant_online_brings_discovery_and_state_again() {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     };
     core.on_line_event(values, now);
     let start = core.on_tick(now, Vec::new);
@@ -498,6 +499,7 @@ fn state_of_a_slot_is_published_before_its_result() {
             device: "valve".to_string(),
             values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         },
         now,
     );
@@ -637,6 +639,7 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     };
     core.on_line_event(values, now);
     let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
@@ -1045,6 +1048,7 @@ fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
         device: "valve".to_string(),
         values: vec![("opening".to_string(), crate::profile::Value::Int(opening))],
         read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
+        origin: Origin::Poll,
     }
 }
 
@@ -1149,5 +1153,66 @@ fn a_write_the_line_reports_holds_commands_and_dcmds_for_the_fields_interval() {
     assert_eq!(
         take_sent(command(&mut core, "opening", "40", 2, now + second)).len(),
         1
+    );
+}
+
+#[test]
+fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
+    let now = Instant::now();
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: false,
+            options: GatewayOptions {
+                json_view: true,
+                ..options()
+            },
+            history: true,
+            line_names: vec!["a".to_string()],
+            devices: vec![BridgeDevice {
+                name: "valve".to_string(),
+                profile: Arc::new(registry::built_in("wuzhou-valve").unwrap()),
+                line: 0,
+            }],
+        },
+        now,
+        seeded(),
+    );
+    core.on_connected();
+    core.on_line_event(availability(true), now);
+    let first = core.on_line_event(opening_at(40, 1_796_223_601_000), now);
+    let topics = |actions: &[Action]| -> Vec<String> {
+        publishes(actions)
+            .into_iter()
+            .map(|(topic, ..)| topic)
+            .collect()
+    };
+    assert_eq!(topics(&first), ["plant/valve/opening", "plant/valve"]);
+    // The same value read again: nothing anywhere.
+    let again = core.on_line_event(opening_at(40, 1_796_223_602_000), now);
+    assert!(topics(&again).is_empty() && history_entries(&again).is_empty());
+    // The same value as a heartbeat: everywhere, with the heartbeat's instant.
+    let mut heartbeat = opening_at(40, 1_796_223_661_000);
+    if let LineEvent::Values { origin, .. } = &mut heartbeat {
+        *origin = Origin::Heartbeat;
+    }
+    let beat = core.on_line_event(heartbeat, now);
+    assert_eq!(
+        publishes(&beat),
+        [
+            ("plant/valve/opening".to_string(), "40".to_string(), true),
+            (
+                "plant/valve".to_string(),
+                r#"{"opening":40}"#.to_string(),
+                true
+            )
+        ]
+    );
+    assert_eq!(
+        history_entries(&beat)
+            .into_iter()
+            .map(|entry| entry.document)
+            .collect::<Vec<_>>(),
+        [r#"{"ts":"2026-12-02T15:01:01.000Z","values":{"opening":40}}"#]
     );
 }

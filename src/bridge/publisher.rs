@@ -291,10 +291,22 @@ impl Publisher {
     /// A line's fresh values of `device`, read at `read_at`: the state that changed, the
     /// discovery document when the device's identity changed, its JSON view, and the values
     /// that changed on the history stream (connected or not: what is measured while the
-    /// broker is away goes to the journal).
-    pub fn values(&mut self, device: &str, values: Vec<(String, Value)>, read_at: SystemTime) {
+    /// broker is away goes to the journal). A heartbeat (`again`) publishes its values, the
+    /// JSON view and a history entry even where nothing changed.
+    pub fn values(
+        &mut self,
+        device: &str,
+        values: Vec<(String, Value)>,
+        read_at: SystemTime,
+        again: bool,
+    ) {
         if self.history {
-            self.history_entry(device, &values, read_at);
+            self.history_entry(device, &values, read_at, again);
+        }
+        if again && self.connected {
+            self.cache
+                .forget_published(device, values.iter().map(|(field, _)| field.as_str()));
+            self.json_views.remove(&self.topics.json_view_topic(device));
         }
         let updates = self.cache.update(device, values, self.connected);
         if let Some((topic, document)) = self
@@ -320,14 +332,22 @@ impl Publisher {
     }
 
     /// The change set of `values` against the device's known state, as a history entry.
-    fn history_entry(&mut self, device: &str, values: &[(String, Value)], read_at: SystemTime) {
+    fn history_entry(
+        &mut self,
+        device: &str,
+        values: &[(String, Value)],
+        read_at: SystemTime,
+        again: bool,
+    ) {
         let known = self.cache.state(device);
         if known.is_none() && !self.devices.contains_key(device) {
             return;
         }
         let changed: Vec<(&str, &Value)> = values
             .iter()
-            .filter(|(field, value)| known.and_then(|state| state.get(field)) != Some(value))
+            .filter(|(field, value)| {
+                again || known.and_then(|state| state.get(field)) != Some(value)
+            })
             .map(|(field, value)| (field.as_str(), value))
             .collect();
         if changed.is_empty() {

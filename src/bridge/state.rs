@@ -106,6 +106,20 @@ impl StateCache {
         updates
     }
 
+    /// Forgets what was published for these fields of `device`: their next values go out
+    /// even when equal (a heartbeat).
+    pub fn forget_published<'a>(
+        &mut self,
+        device: &str,
+        fields: impl IntoIterator<Item = &'a str>,
+    ) {
+        if let Some(cache) = self.devices.get_mut(device) {
+            for field in fields {
+                cache.published.remove(field);
+            }
+        }
+    }
+
     /// Records availability; true when it changed. A device coming back gets every field
     /// republished with its next values.
     pub fn set_online(&mut self, device: &str, online: bool) -> bool {

@@ -29,6 +29,8 @@ use super::health::{HealthChange, HealthPolicy};
 use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
+use super::report::Report;
+use super::reporter;
 use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::serve::policy;
 use super::serve::queue::{BlockCache, ClientQueue, CLIENT_QUEUE};
@@ -38,8 +40,8 @@ use super::slot::SeenReads;
 use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
 use super::{
-    Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats, Transport,
-    WriteClock,
+    Command, CommandFailure, CommandOutcome, LineEvent, LineHandle, LineSpec, LineStats, Origin,
+    Transport, WriteClock,
 };
 use crate::profile::Profile;
 use crate::shutdown::Shutdown;
@@ -109,6 +111,16 @@ pub fn spawn_line_with_clock(
             (Some(client_rx), Some(counters))
         }
         None => (None, None),
+    };
+    // Fields with `publish` settings: the line's events pass its reporter on their way out.
+    let report = Report::new(&spec.devices);
+    let events_tx = if report.is_empty() {
+        events_tx
+    } else {
+        let (line_tx, line_rx) = mpsc::channel(reporter::REPORTER_QUEUE);
+        let reporting = reporter::run(report, line_rx, events_tx, shutdown.clone());
+        tokio::spawn(reporting.instrument(span.clone()));
+        line_tx
     };
     let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
     line.refreshes = Some(refresh_rx);
@@ -408,7 +420,13 @@ impl Line {
     /// Reports a device's freshly decoded values (nothing when there are none): the one way
     /// values of polls, command slots and settle re-reads reach the bridge.
     /// `read_at` is the wall-clock instant the answers were read.
-    async fn emit_values(&mut self, device: usize, values: Values, read_at: SystemTime) {
+    async fn emit_values(
+        &mut self,
+        device: usize,
+        values: Values,
+        read_at: SystemTime,
+        origin: Origin,
+    ) {
         let Some(runtime) = self.devices.get(device) else {
             return;
         };
@@ -419,6 +437,7 @@ impl Line {
             device: runtime.spec.name.clone(),
             values,
             read_at,
+            origin,
         };
         self.emit(event).await;
     }
@@ -580,7 +599,8 @@ impl Line {
         if let Some(change) = change {
             self.availability_changed(device, change).await;
         }
-        self.emit_values(device, values, read_at).await;
+        self.emit_values(device, values, read_at, Origin::Poll)
+            .await;
     }
 
     fn publish_stats(&mut self) {
@@ -855,7 +875,8 @@ impl Line {
         if let Some(change) = change {
             self.availability_changed(device, change).await;
         }
-        self.emit_values(device, values, read_at).await;
+        self.emit_values(device, values, read_at, Origin::Command)
+            .await;
     }
 
     /// Counts a command's end and reports it on the events channel (after any `Values` of
@@ -1319,6 +1340,7 @@ mod tests {
                 address: 1,
                 profile: Arc::new(profile),
                 poll_interval: Duration::from_secs(1),
+                publish: Default::default(),
             }],
         };
         let (events_tx, mut events_rx) = mpsc::channel(16);

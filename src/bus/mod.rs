@@ -7,6 +7,8 @@
 //! after the commands and ahead of the polls.
 //! A line with a [`serve::ServeSpec`] also serves other Modbus masters through [`serve`]: their
 //! requests are slots of the same scheduler, after commands and before polls.
+//! Fields with `publish` settings are reported by exception ([`report`], applied by the line's
+//! [`reporter`] task), so every consumer of the events sees the same series.
 
 mod commands;
 pub mod device;
@@ -16,6 +18,8 @@ pub mod outcome;
 pub mod plan;
 pub mod poll;
 pub mod port;
+pub mod report;
+pub mod reporter;
 pub mod scheduler;
 pub mod serve;
 pub mod slot;
@@ -28,7 +32,7 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use crate::profile::{CommandPlan, Profile, Value};
+use crate::profile::{CommandPlan, Profile, PublishRule, Value};
 use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_modbus::SlaveId;
@@ -45,6 +49,8 @@ pub struct DeviceSpec {
     pub profile: Arc<Profile>,
     /// Zero: continuously, as often as the profile's minimum allows.
     pub poll_interval: Duration,
+    /// When values are published, for every field whose profile leaves a key unset.
+    pub publish: PublishRule,
 }
 
 /// What a line talks through.
@@ -111,6 +117,8 @@ pub enum LineEvent {
         values: Vec<(String, Value)>,
         /// When the answers were read (wall clock: the history stream's `ts`).
         read_at: std::time::SystemTime,
+        /// Why they are reported.
+        origin: Origin,
     },
     Availability {
         device: String,
@@ -146,6 +154,19 @@ pub enum LineEvent {
         client: String,
         outcome: CommandOutcome,
     },
+}
+
+/// Why a [`LineEvent::Values`] carries its values.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Origin {
+    /// A poll read them (with `publish` settings: and they passed their rule).
+    #[default]
+    Poll,
+    /// A command's slot (or its settle re-reads) read them: published whatever the rule.
+    Command,
+    /// Unchanged, republished because the field's `max_interval` passed: consumers publish
+    /// these values even where they equal what they published last.
+    Heartbeat,
 }
 
 /// How a command ended on the bus.

@@ -11,6 +11,7 @@ use serde::Deserialize;
 
 use super::health::HealthSettings;
 use super::history::RawHistory;
+use crate::profile::publish::RawPublish;
 use rtu2mqtt_modbus::timing::Parity;
 
 /// The whole file.
@@ -204,6 +205,8 @@ pub struct RawDevice {
     /// Default: the profile's default poll interval. `"0s"`: continuously (back to back).
     #[serde(default, with = "humantime_serde")]
     pub poll_interval: Option<Duration>,
+    /// When values are published: the default of every field (a field's own keys win).
+    pub publish: Option<RawPublish>,
 }
 
 fn default_serve_access() -> String {

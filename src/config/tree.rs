@@ -748,7 +748,7 @@ mod tests {
     fn the_keys_are_the_structs_declaration() {
         assert_eq!(
             keys_of::<RawDevice>(),
-            ["name", "profile", "address", "poll_interval"]
+            ["name", "profile", "address", "poll_interval", "publish"]
         );
         assert_eq!(
             keys_of::<RawRs485>(),
@@ -806,12 +806,12 @@ mod tests {
         assert_eq!(
             reason_for::<RawDevice>(&tree),
             "adress: unknown key, did you mean `address`? \
-             (known here: name, profile, address, poll_interval)"
+             (known here: name, profile, address, poll_interval, publish)"
         );
         let tree = table(&[("colour", Node::Integer(3))]);
         assert_eq!(
             reason_for::<RawDevice>(&tree),
-            "colour: unknown key (known here: name, profile, address, poll_interval)"
+            "colour: unknown key (known here: name, profile, address, poll_interval, publish)"
         );
         assert_eq!(edit_distance("intervall", "interval"), 1);
         assert_eq!(edit_distance("", "url"), 3);

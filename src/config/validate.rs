@@ -18,7 +18,7 @@ use super::{Config, GatewayOptions, MqttSettings, Problem, Problems, TlsSettings
 use crate::bus::serve::{Access, ServeFraming, ServeSpec};
 use crate::bus::{DeviceSpec, LineSpec, Transport};
 use crate::contract::{self, reserved_name_problem, MAX_TOPIC_LEN};
-use crate::profile::Profile;
+use crate::profile::{Profile, PublishRule};
 use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::timing::CharFormat;
 use rtu2mqtt_modbus::transport::{Rs485Settings, SerialSettings};
@@ -868,6 +868,7 @@ fn validate_device(
             "must be at most 24h".to_string(),
         ));
     }
+    let publish = device_publish(raw, place, &profile, problems);
     if problems.len() != before {
         return None;
     }
@@ -876,7 +877,43 @@ fn validate_device(
         address: address?,
         profile,
         poll_interval,
+        publish,
     })
+}
+
+/// The device's `publish` table, checked, and with it each field's own keys: together they
+/// must still hold (a field's `min_interval` over the device's `max_interval` is refused).
+fn device_publish(
+    raw: &RawDevice,
+    place: &str,
+    profile: &Profile,
+    problems: &mut Vec<Problem>,
+) -> PublishRule {
+    let Some(table) = &raw.publish else {
+        return PublishRule::default();
+    };
+    let rule = match PublishRule::from_raw(table) {
+        Ok(rule) => rule,
+        Err(found) => {
+            for (key, reason) in found {
+                problems.push(Problem::new(format!("{place}.publish.{key}"), reason));
+            }
+            return PublishRule::default();
+        }
+    };
+    for field in profile.fields() {
+        if let Some(reason) = field.publish.or(rule).interval_problem() {
+            problems.push(Problem::new(
+                format!("{place}.publish"),
+                format!(
+                    "field `{}` of profile {}: {reason}",
+                    field.name,
+                    profile.name()
+                ),
+            ));
+        }
+    }
+    rule
 }
 
 /// Default network allowance of TCP lines (on top of the default response timeout).

@@ -19,6 +19,7 @@ use super::format::{
 use super::model::{
     Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass, ReadBlock, WriteFrame,
 };
+use super::publish::PublishRule;
 use super::value::Value;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
@@ -895,6 +896,7 @@ fn build_field(
         also: field.also.clone(),
         example: field.example.clone(),
     };
+    let publish = publish_rule(field, &field_kind, place, problems);
     let info = FieldInfo {
         name: field.name.clone(),
         description: field.description.clone(),
@@ -918,6 +920,7 @@ fn build_field(
             IdentityKey::SwVersion => Identity::SoftwareVersion,
         }),
         min_write_interval: field.min_write_interval,
+        publish,
     };
     if let Some(label) = &field.label {
         if label.trim().is_empty() || label.trim() != label || label.chars().any(char::is_control) {
@@ -944,6 +947,43 @@ fn build_field(
         }
     }
     Some((def, info))
+}
+
+/// The field's own `publish` keys, checked: a deadband only on a number.
+fn publish_rule(
+    field: &FieldSection,
+    kind: &FieldKind,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> PublishRule {
+    let Some(raw) = &field.publish else {
+        return PublishRule::default();
+    };
+    let rule = match PublishRule::from_raw(raw) {
+        Ok(rule) => rule,
+        Err(found) => {
+            for (key, reason) in found {
+                problems.add(format!("{place}.publish.{key}"), reason);
+            }
+            return PublishRule::default();
+        }
+    };
+    let numeric = matches!(kind, FieldKind::Integer { .. } | FieldKind::Decimal { .. });
+    if !numeric {
+        for (key, set) in [
+            ("deadband", rule.deadband.is_some()),
+            ("deadband_percent", rule.deadband_percent.is_some()),
+        ] {
+            if set {
+                problems.add(
+                    format!("{place}.publish.{key}"),
+                    "a deadband needs a number; ON/OFF, enumerations and text are published on \
+                     any change",
+                );
+            }
+        }
+    }
+    rule
 }
 
 fn field_kind(

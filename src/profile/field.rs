@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use super::publish::PublishRule;
 use super::Value;
 
 /// What a field is, for payloads, commands and Home Assistant.
@@ -80,4 +81,6 @@ pub struct FieldInfo {
     pub identity: Option<Identity>,
     /// Minimum time between two writes of this field (protects device EEPROM).
     pub min_write_interval: Option<Duration>,
+    /// When its value is published (its own `publish` keys; the device's fill the others).
+    pub publish: PublishRule,
 }

@@ -10,6 +10,7 @@ use serde::Deserialize;
 
 use super::codec::{ByteFormat, ByteSource, WordOrder};
 use super::model::Behaviour;
+use super::publish::RawPublish;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -167,6 +168,8 @@ pub(super) struct FieldSection {
     pub(super) identity: Option<IdentityKey>,
     #[serde(default)]
     pub(super) ha: HaSection,
+    /// When the value is published (deadband, minimum and maximum interval).
+    pub(super) publish: Option<RawPublish>,
 }
 
 /// The values of a field's `identity` key.

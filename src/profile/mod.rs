@@ -6,7 +6,7 @@
 //! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 //!
 //! Inside, a module only uses those before it in this order: [`bcd`], [`value`],
-//! [`rejection`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
+//! [`rejection`], [`number`], [`publish`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
 //! [`raw`] (planning and patching on the model); this file's [`Profile`] is what the rest of the
 //! crate sees.
 
@@ -18,6 +18,7 @@ pub mod field;
 pub mod format;
 pub mod model;
 pub mod number;
+pub mod publish;
 pub mod raw;
 pub mod registry;
 pub mod rejection;
@@ -33,6 +34,7 @@ pub use command::{CommandPlan, Verification};
 pub use compile::{ProfileError, ProfileErrors};
 pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Limits, PollClass, ReadBlock};
+pub use publish::PublishRule;
 pub use rejection::Rejection;
 pub use value::Value;
 

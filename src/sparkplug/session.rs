@@ -16,7 +16,7 @@ use serde_json::Value as Json;
 
 use super::metrics::{DeviceMetrics, Refusal};
 use super::payload::{DataType, Metric, MetricValue, Payload};
-use crate::bus::LineEvent;
+use crate::bus::{LineEvent, Origin};
 use crate::profile::{Profile, Value};
 
 /// The Sparkplug B topic namespace.
@@ -375,7 +375,12 @@ impl Session {
     pub fn on_line_event(&mut self, now: u64, event: &LineEvent) -> Vec<Action> {
         let mut actions = Vec::new();
         match event {
-            LineEvent::Values { device, values, .. } => {
+            LineEvent::Values {
+                device,
+                values,
+                origin,
+                ..
+            } => {
                 let Some(index) = self.device_index(device) else {
                     return actions;
                 };
@@ -387,9 +392,11 @@ impl Session {
                 }
                 let born = entry.born;
                 let ready = entry.ready_for_birth(now, self.birth_wait);
+                // A heartbeat goes out as data even where the host knows the value.
+                let again = *origin == Origin::Heartbeat;
                 let changed: Vec<String> = values
                     .iter()
-                    .filter(|(field, value)| entry.published.get(field) != Some(value))
+                    .filter(|(field, value)| again || entry.published.get(field) != Some(value))
                     .map(|(field, _)| field.clone())
                     .collect();
                 if self.node_born {
@@ -873,6 +880,7 @@ mod tests {
                 ("fan_speed".into(), Value::Int(1450)),
             ],
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         }
     }
 
@@ -1001,6 +1009,20 @@ mod tests {
         assert_eq!(ddata.seq, Some(3));
         assert_eq!(ddata.metrics.len(), 1, "only the gear changed");
         assert_eq!(ddata.metrics[0].name, None, "data goes by alias");
+        assert_eq!(ddata.metrics[0].alias, Some(1005));
+        assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(4)));
+
+        // A heartbeat: its values go out as data though the host knows them.
+        let mut heartbeat = dust_values(4);
+        if let LineEvent::Values { values, origin, .. } = &mut heartbeat {
+            values.retain(|(field, _)| field == "gear");
+            *origin = Origin::Heartbeat;
+        }
+        let actions = session.on_line_event(T + 4, &heartbeat);
+        let messages = published(&actions);
+        assert_eq!(topics(&actions), ["spBv1.0/plant/DDATA/gw1/dust"]);
+        let ddata = &messages[0].1;
+        assert_eq!(ddata.metrics.len(), 1, "the gear again");
         assert_eq!(ddata.metrics[0].alias, Some(1005));
         assert_eq!(ddata.metrics[0].value, Some(MetricValue::Int(4)));
     }
@@ -1382,6 +1404,7 @@ mod tests {
                 .filter(|(name, _)| !["power", "gear", "fan_speed"].contains(&name.as_str()))
                 .collect(),
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         };
         let births = dbirths(&session.on_line_event(T + 2, &rest));
         assert_eq!(births.len(), 1);
@@ -1397,6 +1420,7 @@ mod tests {
             device: "valve".into(),
             values: vec![("opening".into(), Value::Int(gear))],
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         };
         assert!(dbirths(&session.on_line_event(T + 3, &valve(10))).is_empty());
         assert!(dbirths(&session.on_line_event(T + 9_000, &valve(11))).is_empty());

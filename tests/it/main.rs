@@ -31,6 +31,7 @@ mod profiles_golden;
 mod profiles_valid;
 mod pty_line;
 mod pty_master;
+mod publish;
 mod readme;
 mod reliability;
 mod reload;

@@ -52,6 +52,7 @@ fn device(name: &str, profile: Arc<Profile>, address: u8, poll_ms: u64) -> Devic
         address,
         profile,
         poll_interval: Duration::from_millis(poll_ms),
+        publish: Default::default(),
     }
 }
 

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use crate::support::pysparkplug;
 
 use pysparkplug::decode_with_pysparkplug;
-use rtu2mqtt::bus::LineEvent;
+use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::profile::{registry, FieldInfo, FieldKind, Profile, Value};
 use rtu2mqtt::sparkplug::metrics::datatype_for;
 use rtu2mqtt::sparkplug::payload::DataType;
@@ -115,6 +115,7 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
             device: device.clone(),
             values,
             read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
         };
         messages.extend(publishes(session.on_line_event(NOW + 1, &event)));
     }
@@ -123,6 +124,7 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
         device: "ruiwan-dust-collector".into(),
         values: vec![("gear".into(), Value::Int(8))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     };
     messages.extend(publishes(session.on_line_event(NOW + 2, &change)));
 

@@ -8,7 +8,7 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rtu2mqtt::bus::LineEvent;
+use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::profile::{registry, Value};
 use rtu2mqtt::shutdown;
@@ -89,6 +89,7 @@ fn dust(gear: i64) -> LineEvent {
             ("gear".into(), Value::Int(gear)),
         ],
         read_at: std::time::SystemTime::UNIX_EPOCH,
+        origin: Origin::Poll,
     }
 }
 

@@ -146,6 +146,7 @@ mod tests {
             address: 1,
             profile: Arc::new(built_in("ruiwan-dust-collector").unwrap()),
             poll_interval: Duration::from_secs(1),
+            publish: Default::default(),
         }
     }
 
