@@ -221,7 +221,8 @@ impl NumberCodec {
     }
 
     fn value(&self, scaled: i128, precision: u8) -> Value {
-        if precision == 0 && !self.scaled_by_exponent {
+        // A float is a decimal at any number of places, as the profile format always had it.
+        if precision == 0 && !self.scaled_by_exponent && !self.ty.is_float() {
             Value::Int(scaled)
         } else {
             Value::Decimal { scaled, precision }
@@ -348,5 +349,284 @@ pub fn at_precision(value: &Value, precision: u8) -> Result<i128, String> {
             Ok(scaled / divisor)
         }
         other => Err(format!("{other:?} is not a number")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::registers::{ByteOrder, WordOrder};
+    use proptest::prelude::*;
+
+    const LAYOUTS: [RegisterLayout; 4] = [
+        RegisterLayout {
+            words: WordOrder::HighFirst,
+            bytes: ByteOrder::HighFirst,
+        },
+        RegisterLayout {
+            words: WordOrder::LowFirst,
+            bytes: ByteOrder::HighFirst,
+        },
+        RegisterLayout {
+            words: WordOrder::HighFirst,
+            bytes: ByteOrder::LowFirst,
+        },
+        RegisterLayout {
+            words: WordOrder::LowFirst,
+            bytes: ByteOrder::LowFirst,
+        },
+    ];
+
+    fn codec(ty: NumberType, layout: RegisterLayout, decimals: u8) -> NumberCodec {
+        NumberCodec {
+            ty,
+            layout,
+            decimals,
+            factor: if ty.is_float() {
+                10i64.pow(u32::from(decimals))
+            } else {
+                1
+            },
+            offset: 0,
+            invalid: Vec::new(),
+            scaled_by_exponent: false,
+        }
+    }
+
+    fn text(value: Result<Value, NumberError>) -> String {
+        match value {
+            Ok(value) => value.to_text(),
+            Err(error) => format!("{error:?}"),
+        }
+    }
+
+    #[test]
+    fn a_float_in_its_four_layouts() {
+        // 123.456 as an IEEE 754 single is 0x42F6E979 (the worked example of many vendors'
+        // "float byte order" pages): ABCD, CDAB, BADC, DCBA.
+        let images: [[u16; 2]; 4] = [
+            [0x42F6, 0xE979],
+            [0xE979, 0x42F6],
+            [0xF642, 0x79E9],
+            [0x79E9, 0xF642],
+        ];
+        for (layout, words) in LAYOUTS.into_iter().zip(images) {
+            let f32_codec = codec(NumberType::F32, layout, 3);
+            assert_eq!(text(f32_codec.decode(&words, &Exponent::None)), "123.456");
+            let value = Value::Decimal {
+                scaled: 123_456,
+                precision: 3,
+            };
+            assert_eq!(
+                f32_codec.encode(&value, &Exponent::None),
+                Ok(words.to_vec())
+            );
+        }
+    }
+
+    #[test]
+    fn a_double_in_its_four_layouts() {
+        // 123.456 as an IEEE 754 double is 0x405EDD2F1A9FBE77.
+        let images: [[u16; 4]; 4] = [
+            [0x405E, 0xDD2F, 0x1A9F, 0xBE77],
+            [0xBE77, 0x1A9F, 0xDD2F, 0x405E],
+            [0x5E40, 0x2FDD, 0x9F1A, 0x77BE],
+            [0x77BE, 0x9F1A, 0x2FDD, 0x5E40],
+        ];
+        for (layout, words) in LAYOUTS.into_iter().zip(images) {
+            let f64_codec = codec(NumberType::F64, layout, 3);
+            assert_eq!(text(f64_codec.decode(&words, &Exponent::None)), "123.456");
+            let value = Value::Decimal {
+                scaled: 123_456,
+                precision: 3,
+            };
+            assert_eq!(
+                f64_codec.encode(&value, &Exponent::None),
+                Ok(words.to_vec())
+            );
+        }
+    }
+
+    #[test]
+    fn sixty_four_bit_integers_keep_every_digit() {
+        let abcd = LAYOUTS[0];
+        let u64_codec = codec(NumberType::U64, abcd, 0);
+        let words = [0xFFFF, 0xFFFF, 0xFFFF, 0xFFFE];
+        assert_eq!(
+            text(u64_codec.decode(&words, &Exponent::None)),
+            "18446744073709551614"
+        );
+        let i64_codec = codec(NumberType::I64, abcd, 0);
+        assert_eq!(text(i64_codec.decode(&words, &Exponent::None)), "-2");
+        assert_eq!(
+            i64_codec.encode(&Value::Int(i128::from(i64::MIN)), &Exponent::None),
+            Ok(vec![0x8000, 0, 0, 0])
+        );
+        // Energy in Wh shown as kWh with three decimals, above 2^63 Wh.
+        let kwh = codec(NumberType::U64, abcd, 3);
+        assert_eq!(
+            text(kwh.decode(&words, &Exponent::None)),
+            "18446744073709551.614"
+        );
+        assert_eq!(
+            u64_codec.encode(&Value::Int(1 << 64), &Exponent::None),
+            Err("18446744073709551616 is out of the codec's range".to_string())
+        );
+    }
+
+    #[test]
+    fn sixteen_bit_byte_order_and_eight_bit_places() {
+        let badc = LAYOUTS[2];
+        assert_eq!(
+            text(codec(NumberType::I16, badc, 0).decode(&[0xFEFF], &Exponent::None)),
+            "-2"
+        );
+        let high = codec(NumberType::I8(BytePlace::High), LAYOUTS[0], 0);
+        let low = codec(NumberType::U8(BytePlace::Low), LAYOUTS[0], 0);
+        assert_eq!(text(high.decode(&[0xFE12], &Exponent::None)), "-2");
+        assert_eq!(text(low.decode(&[0xFE12], &Exponent::None)), "18");
+        assert_eq!(
+            high.encode(&Value::Int(-3), &Exponent::None),
+            Ok(vec![0xFD00])
+        );
+        assert_eq!(
+            low.encode(&Value::Int(255), &Exponent::None),
+            Ok(vec![0x00FF])
+        );
+        assert!(low.encode(&Value::Int(256), &Exponent::None).is_err());
+    }
+
+    #[test]
+    fn offset_is_added_after_scaling() {
+        // Temperature = raw × 0.1 − 40.0.
+        let mut temperature = codec(NumberType::U16, LAYOUTS[0], 1);
+        temperature.offset = -400;
+        assert_eq!(text(temperature.decode(&[250], &Exponent::None)), "-15.0");
+        let value = Value::Decimal {
+            scaled: 215,
+            precision: 1,
+        };
+        assert_eq!(temperature.encode(&value, &Exponent::None), Ok(vec![615]));
+    }
+
+    #[test]
+    fn sunspec_scale_factors() {
+        // SunSpec model 101: W = 12345 with W_SF = -1 is 1234.5 W; with W_SF = 2, 1234500 W.
+        let mut watts = codec(NumberType::I16, LAYOUTS[0], 0);
+        watts.scaled_by_exponent = true;
+        assert_eq!(text(watts.decode(&[12345], &Exponent::Power(-1))), "1234.5");
+        assert_eq!(text(watts.decode(&[12345], &Exponent::Power(2))), "1234500");
+        assert_eq!(text(watts.decode(&[12345], &Exponent::Power(0))), "12345");
+        assert_eq!(
+            watts.decode(&[12345], &Exponent::Unavailable),
+            Err(NumberError::Unavailable)
+        );
+        assert!(matches!(
+            watts.decode(&[12345], &Exponent::None),
+            Err(NumberError::Invalid(_))
+        ));
+        // A write takes the exponent read in its slot: 1234.5 at -1 is raw 12345.
+        let value = Value::Decimal {
+            scaled: 12_345,
+            precision: 1,
+        };
+        assert_eq!(watts.encode(&value, &Exponent::Power(-1)), Ok(vec![12345]));
+        assert!(watts.encode(&value, &Exponent::Power(0)).is_err());
+        assert_eq!(
+            watts.encode(&Value::Int(1_234_500), &Exponent::Power(2)),
+            Ok(vec![12345])
+        );
+        // The exponent's own value decides whether it is usable.
+        assert_eq!(
+            Exponent::from_value(Ok(&Value::Int(-3))),
+            Exponent::Power(-3)
+        );
+        assert_eq!(
+            Exponent::from_value(Ok(&Value::Unavailable)),
+            Exponent::Unavailable
+        );
+        assert!(matches!(
+            Exponent::from_value(Ok(&Value::Int(11))),
+            Exponent::Unusable(_)
+        ));
+    }
+
+    #[test]
+    fn invalid_marks_are_raw_values() {
+        let mut current = codec(NumberType::I16, LAYOUTS[0], 2);
+        current.invalid = vec![0x8000];
+        assert_eq!(
+            current.decode(&[0x8000], &Exponent::None),
+            Err(NumberError::Unavailable)
+        );
+        assert_eq!(text(current.decode(&[0x8001], &Exponent::None)), "-327.67");
+        assert_eq!(NumberType::I16.raw_bits_of(-32768), Some(0x8000));
+        assert_eq!(NumberType::I16.raw_bits_of(0xFFFF), Some(0xFFFF));
+        assert_eq!(NumberType::U16.raw_bits_of(0x1_0000), None);
+        assert_eq!(NumberType::U64.raw_bits_of(-1), Some(u64::MAX));
+    }
+
+    fn integer_type() -> impl Strategy<Value = NumberType> {
+        prop_oneof![
+            Just(NumberType::U8(BytePlace::High)),
+            Just(NumberType::U8(BytePlace::Low)),
+            Just(NumberType::I8(BytePlace::High)),
+            Just(NumberType::I8(BytePlace::Low)),
+            Just(NumberType::U16),
+            Just(NumberType::I16),
+            Just(NumberType::U32),
+            Just(NumberType::I32),
+            Just(NumberType::U64),
+            Just(NumberType::I64),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn every_integer_codec_round_trips_its_registers(
+            ty in integer_type(),
+            layout in 0usize..4,
+            decimals in 0u8..=6,
+            factor in prop_oneof![Just(1i64), 1i64..1000],
+            offset in -1_000_000i128..1_000_000,
+            exponent in prop_oneof![Just(None), (-10i8..=10).prop_map(Some)],
+            words in prop::array::uniform4(any::<u16>()),
+        ) {
+            let mut number = codec(ty, LAYOUTS[layout], decimals);
+            number.factor = factor;
+            number.offset = offset;
+            number.scaled_by_exponent = exponent.is_some();
+            let exponent = exponent.map_or(Exponent::None, Exponent::Power);
+            let words = &words[..usize::from(ty.registers())];
+            let value = number.decode(words, &exponent);
+            prop_assert!(value.is_ok());
+            let value = value.unwrap_or(Value::Unavailable);
+            // The text form is exact too.
+            let parsed = crate::profile::number::DecimalText::parse(&value.to_text())
+                .and_then(|text| text.scaled(number.max_precision()).ok());
+            prop_assert_eq!(parsed, at_precision(&value, number.max_precision()).ok());
+            let encoded = number.encode(&value, &exponent);
+            let mask = ty.mask();
+            let expected: Vec<u16> = words.iter().map(|word| word & mask).collect();
+            prop_assert_eq!(encoded, Ok(expected));
+        }
+
+        #[test]
+        fn floats_round_trip_their_shown_value(
+            layout in 0usize..4,
+            decimals in 0u8..=3,
+            scaled in -99_999i128..99_999,
+            wide in -99_999_999_999_999i128..99_999_999_999_999,
+        ) {
+            // Inside a float's exact digits: 7 for f32 at these magnitudes, 15 for f64.
+            for (ty, scaled) in [(NumberType::F32, scaled), (NumberType::F64, wide)] {
+                let number = codec(ty, LAYOUTS[layout], decimals);
+                let value = Value::Decimal { scaled, precision: decimals };
+                let words = number.encode(&value, &Exponent::None);
+                prop_assert!(words.is_ok());
+                let back = number.decode(&words.unwrap_or_default(), &Exponent::None);
+                prop_assert_eq!(back, Ok(value));
+            }
+        }
     }
 }

@@ -146,4 +146,45 @@ mod tests {
         assert_eq!(Value::Int(8).to_json().to_string(), "8");
         assert_eq!(Value::Text("0A".into()).to_json().to_string(), "\"0A\"");
     }
+
+    #[test]
+    fn json_numbers_are_exact_at_every_magnitude() {
+        let json = |value: Value| value.to_json().to_string();
+        let decimal = |scaled, precision| Value::Decimal { scaled, precision };
+        // A u64 counter above i64::MAX, and beyond u64 after an offset.
+        assert_eq!(
+            json(Value::Int(18_446_744_073_709_551_614)),
+            "18446744073709551614"
+        );
+        assert_eq!(json(Value::Int(1 << 70)), "1180591620717411303424");
+        assert_eq!(
+            json(Value::Int(i128::from(i64::MIN))),
+            "-9223372036854775808"
+        );
+        // More digits than a double holds: the digits themselves.
+        assert_eq!(
+            json(decimal(18_446_744_073_709_551_614, 3)),
+            "18446744073709551.614"
+        );
+        assert_eq!(
+            json(decimal(12_345_678_901_234_567, 2)),
+            "123456789012345.67"
+        );
+        // A double that is the decimal: written as before.
+        assert_eq!(json(decimal(1230, 2)), "12.3");
+        assert_eq!(json(decimal(500, 2)), "5.0");
+        assert_eq!(json(decimal(-5, 2)), "-0.05");
+        assert_eq!(json(Value::Unavailable), "null");
+        assert_eq!(Value::Unavailable.to_text(), "");
+    }
+
+    #[test]
+    fn numbers_compare_by_magnitude() {
+        let decimal = |scaled, precision| Value::Decimal { scaled, precision };
+        assert!(decimal(150, 2).same_number(&decimal(15, 1)));
+        assert!(decimal(1_234_500, 0).same_number(&Value::Int(1_234_500)));
+        assert!(!decimal(151, 2).same_number(&decimal(15, 1)));
+        assert!(Value::Bool(true).same_number(&Value::Bool(true)));
+        assert!(!Value::Unavailable.same_number(&Value::Int(0)));
+    }
 }
