@@ -518,3 +518,70 @@ fn the_codecs_read_what_pymodbus_writes_and_write_what_it_would() {
         }
     }
 }
+
+#[test]
+fn a_scaled_write_reads_an_exponent_held_in_another_block_in_its_slot() {
+    let profile = Profile::from_toml(
+        r#"
+[device]
+name = "split"
+manufacturer = "Test"
+model = "S2"
+
+[line]
+
+[[blocks]]
+name = "settings"
+function = 3
+start = 0
+count = 2
+
+[[blocks]]
+name = "factors"
+function = 3
+start = 100
+count = 1
+
+[[fields]]
+name = "limit"
+block = "settings"
+offset = 1
+codec = { type = "u16", scale_by = "limit_sf" }
+range = [0, 100000]
+write = { function = 6, address = 1 }
+
+[[fields]]
+name = "limit_sf"
+block = "factors"
+offset = 0
+codec = { type = "i16" }
+"#,
+        "split.toml",
+    )
+    .expect("valid");
+    let plan = profile
+        .plan_command("limit", "42000", &Default::default())
+        .expect("planned");
+    let exponent_read = rtu2mqtt_modbus::Request::ReadHoldingRegisters {
+        start: 100,
+        quantity: 1,
+    };
+    assert_eq!(plan.reads_before().len(), 2);
+    assert_eq!(plan.reads_before()[1], exponent_read);
+    // The exponent is read back before the value it judges.
+    assert_eq!(plan.readback()[0], exponent_read);
+    // Exponent 3: 42000 is raw 42.
+    assert_eq!(
+        plan.writes(&[fresh(&[0, 0]), fresh(&[3])]),
+        Ok(vec![rtu2mqtt_modbus::Request::WriteSingleRegister {
+            address: 1,
+            value: 42
+        }])
+    );
+    assert_eq!(
+        plan.verify(&[fresh(&[3]), fresh(&[42])]),
+        rtu2mqtt::profile::Verification::Applied
+    );
+    // Without the exponent's answer nothing is written.
+    assert!(plan.writes(&[fresh(&[0, 0])]).is_err());
+}
