@@ -638,3 +638,28 @@ fn sixty_four_bit_commands_are_read_exactly() {
         .plan_command("offset_count", "9223372036854775808", &state)
         .is_err());
 }
+
+#[test]
+fn a_generic_simulator_seeds_a_string_with_its_name() {
+    let profile = profile_with(&field(
+        "model",
+        "main",
+        0,
+        r#"{ type = "string", registers = 2 }"#,
+    ))
+    .expect("valid");
+    let image = profile.initial_image(0).expect("an image");
+    let rtu2mqtt::profile::BlockImage::Words(words) = image else {
+        panic!("a register block");
+    };
+    assert_eq!(&words[..2], [0x4D4F, 0x4445]);
+    let values = profile.decode_block(0, &fresh(&words));
+    assert_eq!(
+        values[0].value,
+        Ok(rtu2mqtt::profile::Value::Text("MODE".into()))
+    );
+    // Still no command: a string is read-only.
+    assert!(profile
+        .plan_command("model", "X", &Default::default())
+        .is_err());
+}
