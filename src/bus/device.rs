@@ -24,6 +24,9 @@ pub struct DeviceRuntime {
     /// online. An equal answer decodes to the same values, so it is neither decoded nor sent
     /// again: polling a device whose values do not move allocates nothing.
     last_answers: Vec<Option<Response>>,
+    /// Per block: its latest answer while the device is online, whatever it held: where the
+    /// `scale_by` fields of other blocks find their exponents.
+    latest_answers: Vec<Option<Response>>,
 }
 
 impl DeviceRuntime {
@@ -32,6 +35,7 @@ impl DeviceRuntime {
             stats: DeviceStats::new(&spec.name),
             read_by_parts: vec![false; spec.profile.read_blocks().len()],
             last_answers: vec![None; spec.profile.read_blocks().len()],
+            latest_answers: vec![None; spec.profile.read_blocks().len()],
             spec,
         }
     }
@@ -49,7 +53,8 @@ impl DeviceRuntime {
         let mut state = DeviceState::new();
         for (block, answer) in self.last_answers.iter().enumerate() {
             let Some(answer) = answer else { continue };
-            for reading in self.spec.profile.decode_block(block, answer) {
+            let latest = |other: usize| self.latest_answers.get(other).and_then(Option::as_ref);
+            for reading in self.spec.profile.decode_block_with(block, answer, latest) {
                 if let Ok(value) = reading.value {
                     state.insert(reading.field, value);
                 }
@@ -61,6 +66,7 @@ impl DeviceRuntime {
     /// The device went offline: its next answers are sent whatever they hold.
     pub fn forget_answers(&mut self) {
         self.last_answers.fill(None);
+        self.latest_answers.fill(None);
     }
 
     /// Decodes `answer` to the device's read block `block` and adds its valid values to
@@ -69,7 +75,20 @@ impl DeviceRuntime {
     /// and logged each time.
     pub fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
         let mut all_valid = true;
-        for reading in self.spec.profile.decode_block(block, answer) {
+        let profile = self.spec.profile.clone();
+        if let Some(latest) = self.latest_answers.get_mut(block) {
+            if latest.as_ref() != Some(answer) {
+                // New exponents: the blocks they scale decode again even when unchanged.
+                for user in profile.blocks_scaled_by(block) {
+                    if let Some(last) = self.last_answers.get_mut(user) {
+                        *last = None;
+                    }
+                }
+            }
+            *latest = Some(answer.clone());
+        }
+        let latest = |other: usize| self.latest_answers.get(other).and_then(Option::as_ref);
+        for reading in profile.decode_block_with(block, answer, latest) {
             match reading.value {
                 Ok(value) => values.push((reading.field, value)),
                 Err(error) => {
@@ -86,5 +105,102 @@ impl DeviceRuntime {
         if let Some(last) = self.last_answers.get_mut(block) {
             *last = all_valid.then(|| answer.clone());
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::profile::Profile;
+
+    /// A fast block holding the exponent, a slow one holding the value it scales.
+    const PROFILE: &str = r#"
+[device]
+name = "scaled"
+manufacturer = "Test"
+model = "S1"
+
+[line]
+
+[[blocks]]
+name = "factors"
+function = 3
+start = 0
+count = 1
+
+[[blocks]]
+name = "ratings"
+function = 3
+start = 10
+count = 1
+poll = "slow"
+
+[[fields]]
+name = "rating_sf"
+block = "factors"
+offset = 0
+codec = { type = "i16", invalid = [0x8000] }
+
+[[fields]]
+name = "rating"
+block = "ratings"
+offset = 0
+codec = { type = "u16", scale_by = "rating_sf" }
+"#;
+
+    fn runtime() -> DeviceRuntime {
+        let profile = Profile::from_toml(PROFILE, "scaled.toml").expect("valid profile");
+        let mut runtime = DeviceRuntime::new(DeviceSpec {
+            name: "scaled".to_string(),
+            address: 1,
+            profile: Arc::new(profile),
+            poll_interval: Duration::from_millis(100),
+            publish: Default::default(),
+        });
+        runtime.stats.online = true;
+        runtime
+    }
+
+    fn words(word: u16) -> Response {
+        Response::HoldingRegisters(vec![word])
+    }
+
+    fn decoded(runtime: &mut DeviceRuntime, block: usize, answer: &Response) -> Values {
+        let mut values = Values::new();
+        runtime.decode_into(block, answer, &mut values);
+        values
+    }
+
+    #[test]
+    fn an_exponent_in_another_block_is_its_latest_read() {
+        let mut runtime = runtime();
+        // Not read yet: the value is invalid data, not published.
+        assert!(decoded(&mut runtime, 1, &words(4200)).is_empty());
+        assert_eq!(runtime.stats.field_errors, 1);
+        let exponent = decoded(&mut runtime, 0, &words(0xFFFE));
+        assert_eq!(exponent, [("rating_sf".to_string(), Value::Int(-2))]);
+        let value = Value::Decimal {
+            scaled: 4200,
+            precision: 2,
+        };
+        // The value's answer did not change, but its exponent did: it is decoded again.
+        assert!(!runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(
+            decoded(&mut runtime, 1, &words(4200)),
+            [("rating".to_string(), value.clone())]
+        );
+        assert!(runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(runtime.known_state()["rating"], value);
+        // "Not implemented": the value is unavailable, not an error.
+        decoded(&mut runtime, 0, &words(0x8000));
+        assert!(!runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(
+            decoded(&mut runtime, 1, &words(4200)),
+            [("rating".to_string(), Value::Unavailable)]
+        );
+        assert_eq!(runtime.stats.field_errors, 1);
     }
 }

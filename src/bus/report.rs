@@ -280,7 +280,7 @@ mod tests {
     }
 
     fn speed(rpm: i64) -> Value {
-        Value::Int(rpm)
+        Value::Int(rpm.into())
     }
 
     fn pairs(list: &[(&str, Value)]) -> Vec<(String, Value)> {

@@ -12,9 +12,10 @@ pub enum FieldKind {
     Bool,
     /// A button: written once when pressed, never a state to hold.
     Momentary,
+    /// Wide enough for every 64-bit register value, signed or not.
     Integer {
-        min: i64,
-        max: i64,
+        min: i128,
+        max: i128,
     },
     /// A fixed-point number with `precision` decimals.
     Decimal {
@@ -83,4 +84,7 @@ pub struct FieldInfo {
     pub min_write_interval: Option<Duration>,
     /// When its value is published (its own `publish` keys; the device's fill the others).
     pub publish: PublishRule,
+    /// The field holding the power of ten this number is multiplied by (`scale_by`): its
+    /// places follow the device, up to those of [`FieldKind::Decimal`]'s precision.
+    pub scaled_by: Option<String>,
 }

@@ -61,7 +61,7 @@ impl Amount {
 impl std::fmt::Display for Amount {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let value = Value::Decimal {
-            scaled: self.scaled,
+            scaled: i128::from(self.scaled),
             precision: self.decimals,
         };
         f.write_str(&value.to_text())
@@ -203,8 +203,8 @@ impl PublishRule {
 /// A number as (scaled, decimals); None for anything else.
 fn fixed(value: &Value) -> Option<(i128, u8)> {
     match value {
-        Value::Int(number) => Some((i128::from(*number), 0)),
-        Value::Decimal { scaled, precision } => Some((i128::from(*scaled), *precision)),
+        Value::Int(number) => Some((*number, 0)),
+        Value::Decimal { scaled, precision } => Some((*scaled, *precision)),
         _ => None,
     }
 }
@@ -218,7 +218,10 @@ mod tests {
     use super::*;
 
     fn decimal(scaled: i64, precision: u8) -> Value {
-        Value::Decimal { scaled, precision }
+        Value::Decimal {
+            scaled: scaled.into(),
+            precision,
+        }
     }
 
     fn rule(deadband: Option<f64>, percent: Option<f64>) -> PublishRule {

@@ -10,7 +10,8 @@ use rtu2mqtt_modbus::{Request, Response};
 
 impl Profile {
     /// A plausible value for a field: the middle of a number's range, the first option of an
-    /// enumeration, OFF for booleans, zeros for text. Always encodable by the field's codec.
+    /// enumeration, OFF for booleans, a `string` its own name (byte strings none). Always
+    /// encodable by the field's codec.
     pub fn plausible_value(&self, field: &str) -> Option<Value> {
         let index = self
             .inner
@@ -39,8 +40,8 @@ impl Profile {
                 // Keep sensor-like magnitudes for unbounded floats.
                 let (min, max) = (min.max(-1000.0), max.min(1000.0));
                 let (low, middle) = (
-                    (min * factor).round() as i64,
-                    ((min + max) / 2.0 * factor).round() as i64,
+                    (min * factor).round() as i128,
+                    ((min + max) / 2.0 * factor).round() as i128,
                 );
                 Value::Decimal {
                     scaled: on_step(middle, low, step),
@@ -48,11 +49,21 @@ impl Profile {
                 }
             }
             FieldKind::Enum { options } => Value::Enum(options.first()?.clone()),
-            FieldKind::Text => return None,
+            // A `string` holds its own name, as much as fits (`MODEL`); byte strings stay zero.
+            FieldKind::Text => match self.inner.defs[index].codec {
+                super::codec::FieldCodec::Text { registers, .. } => Value::Text(
+                    info.name
+                        .to_ascii_uppercase()
+                        .chars()
+                        .take(2 * usize::from(registers))
+                        .collect(),
+                ),
+                _ => return None,
+            },
         })
     }
 
-    /// An image of `read_blocks()[block]` with every field at its plausible value (text fields
+    /// An image of `read_blocks()[block]` with every field at its plausible value (byte strings
     /// and unused places zero). None for an unknown block.
     pub fn initial_image(&self, block: usize) -> Option<BlockImage> {
         let read = self.inner.blocks.get(block)?;
@@ -172,7 +183,7 @@ impl Profile {
 }
 
 /// `value` moved down to a multiple of `step`, or up when that falls below `min`.
-fn on_step(value: i64, min: i64, step: i64) -> i64 {
+fn on_step(value: i128, min: i128, step: i128) -> i128 {
     let down = value - value.rem_euclid(step);
     if down < min {
         down + step

@@ -46,6 +46,7 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         identity: None,
         min_write_interval: None,
         publish: Default::default(),
+        scaled_by: None,
     }
 }
 
@@ -54,7 +55,7 @@ fn with_unit(mut field: FieldInfo, unit: &str) -> FieldInfo {
     field
 }
 
-fn int(min: i64, max: i64) -> FieldKind {
+fn int(min: i128, max: i128) -> FieldKind {
     FieldKind::Integer { min, max }
 }
 
