@@ -193,6 +193,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
             &infos,
             &defs,
             &layout.blocks,
+            &layout.limits,
             problems,
         );
     }
@@ -1249,8 +1250,24 @@ fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
 
 /// True when a block of class `exponent` is read at least as often as one of class `user`: an
 /// exponent is then never older than the values it scales.
-fn polled_at_least_as_often(exponent: PollClass, user: PollClass) -> bool {
-    exponent == PollClass::Fast || user == PollClass::Slow
+fn polled_at_least_as_often(exponent: PollClass, user: PollClass, limits: &Limits) -> bool {
+    // A period per class, at the profile's defaults; `None` is a block read only once (at
+    // start, after a write into it, on refresh), which no exponent outlasts.
+    let period = |class: PollClass| match class {
+        PollClass::Fast => Some(limits.default_poll_interval),
+        PollClass::Slow => Some(limits.slow_interval.max(limits.default_poll_interval)),
+        PollClass::Every(period) => Some(period),
+        PollClass::Once => None,
+    };
+    match (exponent, user) {
+        // Fast follows the device's poll interval, which slow never undercuts.
+        (PollClass::Fast, PollClass::Fast | PollClass::Slow) => true,
+        _ => match (period(exponent), period(user)) {
+            (_, None) => true,
+            (None, Some(_)) => false,
+            (Some(exponent), Some(user)) => exponent <= user,
+        },
+    }
 }
 
 /// The index of the field a `scale_by` number takes its exponent from: a whole-number field of
@@ -1263,6 +1280,7 @@ fn resolve_scale_by(
     infos: &[FieldInfo],
     defs: &[FieldDef],
     blocks: &[ReadBlock],
+    limits: &Limits,
     problems: &mut Problems<'_>,
 ) -> Option<usize> {
     let name = section.codec.scale_by()?;
@@ -1293,7 +1311,7 @@ fn resolve_scale_by(
         return None;
     }
     let (user, held) = (&blocks[defs[index].block], &blocks[defs[exponent].block]);
-    if !polled_at_least_as_often(held.class, user.class) {
+    if !polled_at_least_as_often(held.class, user.class, limits) {
         problems.add(
             at,
             format!(

@@ -663,3 +663,70 @@ fn a_generic_simulator_seeds_a_string_with_its_name() {
         .plan_command("model", "X", &Default::default())
         .is_err());
 }
+
+/// A device whose exponent and value sit in blocks of every cadence: `exponent_block` holds
+/// `sf`, `user_block` holds the value it scales; every other block holds a word of its own.
+fn cadence_pair(exponent_block: &str, user_block: &str) -> Result<Profile, String> {
+    let blocks = [
+        ("fast", "fast"),
+        ("quick", "250ms"),
+        ("minute", "1min"),
+        ("slow", "slow"),
+        ("once", "once"),
+    ];
+    let mut text = String::from(
+        "[device]\nname = \"cadences\"\nmanufacturer = \"Test\"\nmodel = \"C2\"\n\n[line]\nmin_poll_interval = \"100ms\"\npoll_interval = \"1s\"\nslow_interval = \"5min\"\n",
+    );
+    for (index, (name, poll)) in blocks.iter().enumerate() {
+        text += &format!(
+            "\n[[blocks]]\nname = \"{name}\"\nfunction = 3\nstart = {}\ncount = 2\npoll = \"{poll}\"\n",
+            index * 0x10
+        );
+    }
+    text += &field("sf", exponent_block, 0, r#"{ type = "i16" }"#);
+    text += &field(
+        "value",
+        user_block,
+        1,
+        r#"{ type = "u16", scale_by = "sf" }"#,
+    );
+    // Every block is used by some field.
+    for (name, _) in blocks.iter().filter(|(name, _)| *name != user_block) {
+        text += &field(&format!("{name}_word"), name, 1, r#"{ type = "u16" }"#);
+    }
+    Profile::from_toml(&text, "cadences.toml").map_err(|errors| errors.to_string())
+}
+
+#[test]
+fn an_exponent_must_be_read_at_least_as_often_as_the_values_it_scales_at_every_cadence() {
+    // (exponent's block, value's block, accepted)
+    let cases = [
+        ("fast", "fast", true),
+        ("fast", "slow", true),
+        ("fast", "minute", true),
+        ("fast", "once", true),
+        ("fast", "quick", false),
+        ("quick", "fast", true),
+        ("minute", "fast", false),
+        ("minute", "slow", true),
+        ("slow", "minute", false),
+        ("once", "once", true),
+        ("once", "slow", false),
+        ("once", "fast", false),
+        ("slow", "once", true),
+    ];
+    for (exponent, user, accepted) in cases {
+        let result = cadence_pair(exponent, user);
+        if accepted {
+            assert!(result.is_ok(), "{exponent} → {user}: {result:?}");
+        } else {
+            let error = result.expect_err(&format!("{exponent} → {user} accepted"));
+            assert!(
+                error.contains(&format!(
+                    "is in block `{exponent}`, polled less often than this field's block `{user}`"
+                )),
+                "{exponent} → {user}: {error}"
+            );
+        }
+    }
+}
