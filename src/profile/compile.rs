@@ -186,16 +186,8 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     for (index, (section, place)) in built_sections.iter().zip(&places).enumerate() {
         let until = resolve_settle_until(section, place, &infos, &defs, problems);
         defs[index].settle_until = until;
-        defs[index].scale_by = resolve_scale_by(
-            section,
-            place,
-            index,
-            &infos,
-            &defs,
-            &layout.blocks,
-            &layout.limits,
-            problems,
-        );
+        defs[index].scale_by =
+            resolve_scale_by(section, place, index, &infos, &defs, &layout, problems);
     }
 
     let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); layout.blocks.len()];
@@ -1279,8 +1271,7 @@ fn resolve_scale_by(
     index: usize,
     infos: &[FieldInfo],
     defs: &[FieldDef],
-    blocks: &[ReadBlock],
-    limits: &Limits,
+    layout: &Layout<'_>,
     problems: &mut Problems<'_>,
 ) -> Option<usize> {
     let name = section.codec.scale_by()?;
@@ -1310,8 +1301,9 @@ fn resolve_scale_by(
         );
         return None;
     }
+    let blocks = &layout.blocks;
     let (user, held) = (&blocks[defs[index].block], &blocks[defs[exponent].block]);
-    if !polled_at_least_as_often(held.class, user.class, limits) {
+    if !polled_at_least_as_often(held.class, user.class, &layout.limits) {
         problems.add(
             at,
             format!(
