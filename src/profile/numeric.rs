@@ -150,6 +150,10 @@ fn pow10(places: u8) -> i128 {
     10i128.pow(u32::from(places))
 }
 
+fn pow10_checked(places: u8) -> Option<i128> {
+    10i128.checked_pow(u32::from(places))
+}
+
 impl NumberCodec {
     /// The most decimals a value of this codec can have: its own, plus ten for a `scale_by`
     /// field read with exponent -10.
@@ -213,10 +217,18 @@ impl NumberCodec {
             }
             NumberType::F64 => return self.decode_float(f64::from_bits(bits), power),
         };
-        // At most 2^64 × 10^9 × 10^10 before the offset: far inside i128.
+        // A 64-bit count times a large scale and a large exponent can leave i128: such a
+        // reading is out of range, never a wrapped number.
         let (precision, multiplier) = self.shape(power);
-        let offset = self.offset * pow10(precision - self.decimals);
-        let scaled = counts * i128::from(self.factor) * multiplier + offset;
+        let scaled = pow10_checked(precision - self.decimals)
+            .and_then(|places| self.offset.checked_mul(places))
+            .and_then(|offset| {
+                counts
+                    .checked_mul(i128::from(self.factor))?
+                    .checked_mul(multiplier)?
+                    .checked_add(offset)
+            })
+            .ok_or_else(|| NumberError::Invalid(format!("raw value {bits} is out of range")))?;
         Ok(self.value(scaled, precision))
     }
 
@@ -507,6 +519,25 @@ mod tests {
             precision: 1,
         };
         assert_eq!(temperature.encode(&value, &Exponent::None), Ok(vec![615]));
+    }
+
+    #[test]
+    fn a_reading_beyond_i128_is_out_of_range_never_wrapped() {
+        // u64::MAX counts of 1000 (shown with 9 decimals), times 10^10: past i128, so invalid
+        // data.
+        let mut energy = codec(NumberType::U64, LAYOUTS[0], 9);
+        energy.factor = 1_000_000_000_000;
+        energy.scaled_by_exponent = true;
+        let all_ones = [0xFFFF; 4];
+        assert!(matches!(
+            energy.decode(&all_ones, &Exponent::Power(10)),
+            Err(NumberError::Invalid(_))
+        ));
+        // The same count at exponent 0 is exact.
+        assert_eq!(
+            text(energy.decode(&all_ones, &Exponent::Power(0))),
+            "18446744073709551615000.000000000"
+        );
     }
 
     #[test]

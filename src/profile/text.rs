@@ -24,13 +24,12 @@ pub enum TextError {
     NotAscii { byte: u8, position: usize },
     #[error("the bytes are not valid UTF-8 (from position {0})")]
     NotUtf8(usize),
-    #[error("a NUL byte inside the text at position {0}")]
-    InnerNul(usize),
 }
 
 /// The text in `words`: the first character in the high byte of the first register
 /// (`ByteOrder::HighFirst`) or in its low byte (`ByteOrder::LowFirst`). Trailing NULs and
-/// spaces are padding and removed; a NUL before other text is refused.
+/// The text ends at the first NUL (a device that writes a shorter text over a longer one
+/// leaves the old bytes behind it); trailing spaces are padding and removed.
 pub fn decode(words: &[u16], order: ByteOrder, encoding: Encoding) -> Result<String, TextError> {
     let bytes: Vec<u8> = words
         .iter()
@@ -39,14 +38,12 @@ pub fn decode(words: &[u16], order: ByteOrder, encoding: Encoding) -> Result<Str
             ByteOrder::LowFirst => word.to_le_bytes(),
         })
         .collect();
-    let end = bytes
+    let terminated = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
+    let end = bytes[..terminated]
         .iter()
-        .rposition(|b| *b != 0 && *b != b' ')
+        .rposition(|b| *b != b' ')
         .map_or(0, |last| last + 1);
     let kept = &bytes[..end];
-    if let Some(position) = kept.iter().position(|b| *b == 0) {
-        return Err(TextError::InnerNul(position));
-    }
     match encoding {
         Encoding::Ascii => {
             if let Some(position) = kept.iter().position(|b| !b.is_ascii()) {
@@ -146,9 +143,18 @@ mod tests {
             decode(&[0x41E2, 0x8200], ByteOrder::HighFirst, Encoding::Utf8),
             Err(TextError::NotUtf8(1))
         );
+        // The text ends at its first NUL, whatever an older text left behind it.
         assert_eq!(
             decode(&[0x4100, 0x4200], ByteOrder::HighFirst, Encoding::Ascii),
-            Err(TextError::InnerNul(1))
+            Ok("A".to_string())
+        );
+        assert_eq!(
+            decode(
+                &[0x4142, 0x2000, 0xFFFF],
+                ByteOrder::HighFirst,
+                Encoding::Ascii
+            ),
+            Ok("AB".to_string())
         );
     }
 
