@@ -20,6 +20,7 @@ pub mod model;
 pub mod number;
 pub mod raw;
 pub mod registry;
+pub mod sunspec;
 pub mod rejection;
 pub mod value;
 
