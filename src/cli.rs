@@ -249,7 +249,9 @@ mod tests {
             .get_subcommands()
             .map(|command| command.get_name().to_string())
             .collect();
-        for command in ["run", "check", "scan", "read", "sunspec", "profiles", "health"] {
+        for command in [
+            "run", "check", "scan", "read", "sunspec", "profiles", "health",
+        ] {
             assert!(commands.iter().any(|c| c == command), "{commands:?}");
         }
         for command in ["demo", "simulate"] {

@@ -133,10 +133,7 @@ pub fn report(address: SlaveId, chain: &Chain) -> String {
             Some(def) => match def.repeats(found.length) {
                 Some(0) => def.label.clone(),
                 Some(n) => format!("{}, {n} × {}", def.label, def_group(def)),
-                None => format!(
-                    "{}: length does not fit the model, not read",
-                    def.label
-                ),
+                None => format!("{}: length does not fit the model, not read", def.label),
             },
             None => "unknown model, not read".to_string(),
         };

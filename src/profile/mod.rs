@@ -20,8 +20,8 @@ pub mod model;
 pub mod number;
 pub mod raw;
 pub mod registry;
-pub mod sunspec;
 pub mod rejection;
+pub mod sunspec;
 pub mod value;
 
 use std::collections::HashMap;

@@ -150,9 +150,7 @@ pub fn codec_of(point: &Point) -> Option<String> {
             r#"type = "u32", word_order = "high_first", invalid = [0xFFFFFFFF]"#.to_string()
         }
         "acc32" => r#"type = "u32", word_order = "high_first""#.to_string(),
-        "int32" => {
-            r#"type = "i32", word_order = "high_first", invalid = [0x80000000]"#.to_string()
-        }
+        "int32" => r#"type = "i32", word_order = "high_first", invalid = [0x80000000]"#.to_string(),
         "uint64" | "acc64" => r#"type = "u64", word_order = "high_first""#.to_string(),
         "int64" => r#"type = "i64", word_order = "high_first""#.to_string(),
         "float32" => r#"type = "f32", word_order = "high_first", decimals = 3"#.to_string(),
@@ -300,7 +298,12 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
         .models
         .iter()
         .filter(|found| !known.contains(found))
-        .map(|found| format!("{} (length {}) at {}", found.id, found.length, found.address))
+        .map(|found| {
+            format!(
+                "{} (length {}) at {}",
+                found.id, found.length, found.address
+            )
+        })
         .collect();
     let ids: Vec<String> = known.iter().map(|f| f.id.to_string()).collect();
     let _ = writeln!(
@@ -316,13 +319,20 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
         source()
     );
     if !skipped.is_empty() {
-        let _ = writeln!(out, "# Not read (unknown model or length): {}.", skipped.join(", "));
+        let _ = writeln!(
+            out,
+            "# Not read (unknown model or length): {}.",
+            skipped.join(", ")
+        );
     }
     let _ = writeln!(
         out,
         "# Values with a `scale_by` are raw × 10^(their *_sf field), read in the same poll;"
     );
-    let _ = writeln!(out, "# SunSpec's \"not implemented\" values are `invalid`.\n");
+    let _ = writeln!(
+        out,
+        "# SunSpec's \"not implemented\" values are `invalid`.\n"
+    );
     let mut device_name = format!(
         "sunspec-{}-{}",
         name_part(&chain.manufacturer),
@@ -349,7 +359,11 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
     let _ = writeln!(
         out,
         "description = {}\n",
-        quoted(&format!("SunSpec models {} at base {}", ids.join(", "), chain.base))
+        quoted(&format!(
+            "SunSpec models {} at base {}",
+            ids.join(", "),
+            chain.base
+        ))
     );
     let _ = writeln!(out, "[line]");
     let _ = writeln!(out, "baud = {}", line.baud);
@@ -377,7 +391,12 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
         let mut address = found.address;
         for point in &def.points {
             if point.name != "ID" && point.name != "L" {
-                points.push((address, format!("{prefix}_{}", snake(&point.name)), point, prefix.clone()));
+                points.push((
+                    address,
+                    format!("{prefix}_{}", snake(&point.name)),
+                    point,
+                    prefix.clone(),
+                ));
             }
             address += point.size;
         }
@@ -396,7 +415,11 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             }
         }
         // Blocks of at most MAX_BLOCK registers, never splitting a point.
-        let poll = if matches!(found.id, 1 | 120) { "slow" } else { "fast" };
+        let poll = if matches!(found.id, 1 | 120) {
+            "slow"
+        } else {
+            "fast"
+        };
         let mut blocks: Vec<(u16, u16)> = Vec::new();
         for (address, _, point, _) in &points {
             match blocks.last_mut() {

@@ -37,7 +37,13 @@ impl SunSpecMap {
     /// "SunS" at `base`; models follow.
     pub fn new(base: u16) -> Self {
         let map = RegisterMap {
-            entries: vec![Entry::new("marker", Table::Holding, base, Raw::Text("SunS", 2), "SunS")],
+            entries: vec![Entry::new(
+                "marker",
+                Table::Holding,
+                base,
+                Raw::Text("SunS", 2),
+                "SunS",
+            )],
             filler: vec![],
         };
         Self {
@@ -99,9 +105,10 @@ impl SunSpecMap {
 
     /// The end marker (ID 0xFFFF, L 0) and the map.
     pub fn end(mut self) -> RegisterMap {
-        self.map
-            .filler
-            .extend([(Table::Holding, self.next, 0xFFFF), (Table::Holding, self.next + 1, 0)]);
+        self.map.filler.extend([
+            (Table::Holding, self.next, 0xFFFF),
+            (Table::Holding, self.next + 1, 0),
+        ]);
         self.map
     }
 }
@@ -120,14 +127,23 @@ mod tests {
         let device = map.device(1);
         assert_eq!(device.holding(40000), Some(0x5375));
         assert_eq!(device.holding(40001), Some(0x6E53));
-        assert_eq!((device.holding(40002), device.holding(40003)), (Some(1), Some(66)));
+        assert_eq!(
+            (device.holding(40002), device.holding(40003)),
+            (Some(1), Some(66))
+        );
         assert_eq!(device.holding(40004), Some(0x5369));
-        assert_eq!((device.holding(40070), device.holding(40071)), (Some(103), Some(50)));
+        assert_eq!(
+            (device.holding(40070), device.holding(40071)),
+            (Some(103), Some(50))
+        );
         assert_eq!(device.holding(40072 + 12), Some(0xFFFB));
         // Points left out hold "not implemented": A (uint16) and A_SF (sunssf).
         assert_eq!(device.holding(40072), Some(0xFFFF));
         assert_eq!(device.holding(40076), Some(0x8000));
-        assert_eq!((device.holding(40122), device.holding(40123)), (Some(160), Some(48)));
+        assert_eq!(
+            (device.holding(40122), device.holding(40123)),
+            (Some(160), Some(48))
+        );
         // N, the module count, at offset 8 of model 160 (ID, L, 4 SF, Evt×2).
         assert_eq!(device.holding(40122 + 8), Some(2));
         // Module 2's DCA: after the fixed part (10) and one module (20), behind the module's

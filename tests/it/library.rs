@@ -27,7 +27,10 @@ const ANSWER: Duration = Duration::from_secs(20);
 
 /// Decodes every block of `profile` from what `device` answers: field → published text, or
 /// the decoding error.
-fn read_all(profile: &Profile, device: &mut dyn SimDevice) -> Vec<(String, Result<String, String>)> {
+fn read_all(
+    profile: &Profile,
+    device: &mut dyn SimDevice,
+) -> Vec<(String, Result<String, String>)> {
     let mut out = Vec::new();
     for (index, block) in profile.read_blocks().iter().enumerate() {
         let Reply::Normal(answer) = device.handle(&block.request, Instant::now()) else {
@@ -36,7 +39,10 @@ fn read_all(profile: &Profile, device: &mut dyn SimDevice) -> Vec<(String, Resul
         for reading in profile.decode_block(index, &answer) {
             out.push((
                 reading.field,
-                reading.value.map(|v| v.to_text()).map_err(|e| e.to_string()),
+                reading
+                    .value
+                    .map(|v| v.to_text())
+                    .map_err(|e| e.to_string()),
             ));
         }
     }
@@ -57,7 +63,12 @@ fn assert_readings(name: &str, readings: &[(String, Result<String, String>)], en
                 "{name}.{}",
                 entry.field
             ),
-            None => assert!(reading.1.is_err(), "{name}.{}: {:?}", entry.field, reading.1),
+            None => assert!(
+                reading.1.is_err(),
+                "{name}.{}: {:?}",
+                entry.field,
+                reading.1
+            ),
         }
     }
 }
@@ -66,7 +77,12 @@ fn assert_readings(name: &str, readings: &[(String, Result<String, String>)], en
 fn the_library_is_built_in_and_listed() {
     assert_eq!(
         library_names(),
-        ["eastron-sdm120", "eastron-sdm630", "abb-a43", "sunspec-inverter"]
+        [
+            "eastron-sdm120",
+            "eastron-sdm630",
+            "abb-a43",
+            "sunspec-inverter"
+        ]
     );
     let output = Command::new(child::BIN).arg("profiles").output().unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
@@ -152,7 +168,11 @@ fn vendor_examples_decode_as_the_maps_say() {
          00 00 00 00 00 00 92 3A 00 00 00 00 00 01 1C 9B 00 00 00 00 00 01 63 33",
     );
     assert_eq!(phase.len(), 24);
-    let values = decode(&abb, "phase_energy", Response::HoldingRegisters(phase.clone()));
+    let values = decode(
+        &abb,
+        "phase_energy",
+        Response::HoldingRegisters(phase.clone()),
+    );
     assert_eq!(value(&values, "active_import_l1"), "2013.62");
     assert_eq!(value(&values, "active_import_l2"), "3012.81");
     assert_eq!(value(&values, "active_import_l3"), "3538.77");
@@ -194,7 +214,10 @@ fn vendor_examples_decode_as_the_maps_say() {
     model[37] = (-1i16) as u16; // Tmp_SF
     let values = decode(&inverter, "inverter", Response::HoldingRegisters(model));
     assert_eq!(value(&values, "dc_current"), "12.34");
-    assert!(!values.iter().any(|(f, _)| f == "cabinet_temperature"), "{values:?}");
+    assert!(
+        !values.iter().any(|(f, _)| f == "cabinet_temperature"),
+        "{values:?}"
+    );
     assert!(!values.iter().any(|(f, _)| f == "ac_current"), "{values:?}");
 }
 
@@ -376,12 +399,7 @@ async fn sunspec_walks_the_inverter_and_its_profile_reads_it() {
     let entries: Vec<Entry> = map
         .entries
         .iter()
-        .filter_map(|e| {
-            written_field(&e.field).map(|field| Entry {
-                field,
-                ..e.clone()
-            })
-        })
+        .filter_map(|e| written_field(&e.field).map(|field| Entry { field, ..e.clone() }))
         .collect();
     assert!(entries.len() > 40, "{}", entries.len());
     let mut client = TestClient::connect(broker.port, "sunspec-written-test").await;
