@@ -573,6 +573,71 @@ mod tests {
         assert_eq!(common.offset_of("DA"), Some(66));
     }
 
+    fn found(id: u16, address: u16, length: u16) -> FoundModel {
+        FoundModel {
+            id,
+            address,
+            length,
+        }
+    }
+
+    #[test]
+    fn a_written_profile_compiles_splits_long_models_and_skips_unknown_ones() {
+        // Model 160 with six modules is 8 + 6 × 20 = 128 registers: two blocks.
+        let chain = Chain {
+            base: 40000,
+            models: vec![
+                found(1, 40002, 66),
+                found(103, 40070, 50),
+                found(160, 40122, 128),
+                found(203, 40252, 105),
+                found(203, 40359, 105),
+                found(64999, 40466, 10),
+                found(101, 40478, 49),
+            ],
+            manufacturer: "Sim \"Solar\"".into(),
+            model: "X/1 ".into(),
+            serial: "1".into(),
+            version: "2".into(),
+        };
+        let line = LineChoice {
+            baud: 19200,
+            parity: "even",
+            address: 3,
+        };
+        let text = write_profile(&chain, &line);
+        let profile = crate::profile::Profile::from_toml(&text, "written")
+            .unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(profile.name(), "sunspec-sim-solar-x-1");
+        assert_eq!(profile.manufacturer(), "Sim \"Solar\"");
+        assert_eq!(profile.limits().default_baud, 19200);
+        assert_eq!(profile.default_address(), Some(3));
+        let blocks: Vec<(&str, String)> = profile
+            .read_blocks()
+            .iter()
+            .map(|b| (b.name.as_str(), format!("{:?}", b.request)))
+            .collect();
+        let names: Vec<&str> = blocks.iter().map(|(n, _)| *n).collect();
+        assert_eq!(
+            names,
+            [
+                "m1_common",
+                "m103_inverter",
+                "m160_mppt_1",
+                "m160_mppt_2",
+                "m203_meter",
+                "m203_meter2"
+            ]
+        );
+        assert!(profile.field("mppt_module6_dcw").is_some());
+        assert!(profile.field("mppt_dca_sf").is_some());
+        assert!(profile.field("meter2_tot_wh_imp").is_some());
+        assert!(profile.field("inverter_w").is_some());
+        // The unknown model and the model whose length does not fit are named, not read.
+        assert!(text.contains("Not read (unknown model or length): 64999 (length 10) at 40466, 101 (length 49) at 40478."), "{text}");
+        assert!(profile.fields().iter().all(|f| !f.writable));
+    }
+
     #[test]
     fn names_become_snake_case() {
         assert_eq!(snake("PhVphA"), "ph_vph_a");
