@@ -1037,7 +1037,10 @@ fn history_entries(actions: &[Action]) -> Vec<HistoryEntry> {
 fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
     LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(opening))],
+        values: vec![(
+            "opening".to_string(),
+            crate::profile::Value::Int(i128::from(opening)),
+        )],
         read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
     }
 }

@@ -147,7 +147,7 @@ fn platform_fits(platform: Platform, field: &FieldInfo) -> bool {
 }
 
 /// Most options a select of integers may have: beyond this, a list is no way to pick a value.
-const MAX_CHOICES: i64 = 256;
+const MAX_CHOICES: i128 = 256;
 
 /// Every value a writable integer field with `also` values accepts, as select options
 /// (`0`…`100`, `255`), when they are few and one count apart; None for any other field.
@@ -160,10 +160,12 @@ fn integer_choices(field: &FieldInfo) -> Option<Vec<String>> {
     if field.also.is_empty() || !field.writable || !unit_step || count > MAX_CHOICES {
         return None;
     }
-    let mut values: Vec<i64> = (min..=max).chain(field.also.iter().copied()).collect();
+    let mut values: Vec<i128> = (min..=max)
+        .chain(field.also.iter().map(|value| i128::from(*value)))
+        .collect();
     values.sort_unstable();
     values.dedup();
-    Some(values.iter().map(i64::to_string).collect())
+    Some(values.iter().map(i128::to_string).collect())
 }
 
 /// The platform a field is exposed as: the profile's `component` hint when it names a platform

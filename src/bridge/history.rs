@@ -247,7 +247,7 @@ mod tests {
     /// The change set of `gear` read at second `n` (recent, so that `max_age` keeps it).
     fn entry(n: u64) -> HistoryEntry {
         let at_ms = epoch_ms(SystemTime::now()) - 100_000 + n * 1000;
-        let gear = Value::Int(n as i64);
+        let gear = Value::Int(i128::from(n));
         HistoryEntry {
             device: "dust".to_string(),
             topic: "plant/dust/history".to_string(),

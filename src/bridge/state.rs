@@ -76,7 +76,9 @@ impl StateCache {
     }
 
     /// Stores fresh values. When `connected`, returns the fields to publish (changed ones, or
-    /// all of them right after the device came back) and records them as published.
+    /// all of them right after the device came back) and records them as published. A value
+    /// the device marks unavailable is kept (the JSON view shows it as `null`) but never
+    /// published: the field's topic keeps the last value it had.
     pub fn update(
         &mut self,
         device: &str,
@@ -90,7 +92,8 @@ impl StateCache {
         let everything = cache.republish_next;
         for (field, value) in values {
             let text = value.to_text();
-            if connected && (everything || cache.published.get(&field) != Some(&text)) {
+            let changed = everything || cache.published.get(&field) != Some(&text);
+            if connected && value.is_available() && changed {
                 cache.published.insert(field.clone(), text.clone());
                 updates.push(StateUpdate {
                     device: device.to_string(),
@@ -144,7 +147,10 @@ impl StateCache {
             let mut fields: Vec<&String> = cache.state.keys().collect();
             fields.sort();
             let mut published = HashMap::new();
-            for field in fields {
+            for field in fields
+                .into_iter()
+                .filter(|field| cache.state[*field].is_available())
+            {
                 let text = cache.state[field].to_text();
                 published.insert(field.clone(), text.clone());
                 updates.push(StateUpdate {
@@ -163,7 +169,7 @@ impl StateCache {
 mod tests {
     use super::*;
 
-    fn values(pairs: &[(&str, i64)]) -> Vec<(String, Value)> {
+    fn values(pairs: &[(&str, i128)]) -> Vec<(String, Value)> {
         pairs
             .iter()
             .map(|(field, value)| (field.to_string(), Value::Int(*value)))
@@ -217,6 +223,20 @@ mod tests {
         assert!(cache
             .update("dust", values(&[("gear", 5)]), true)
             .is_empty());
+    }
+
+    #[test]
+    fn an_unavailable_value_is_kept_but_never_published() {
+        let mut cache = StateCache::new(["meter"]);
+        cache.update("meter", values(&[("power", 1500)]), true);
+        let marked = vec![("power".to_string(), Value::Unavailable)];
+        assert!(cache.update("meter", marked, true).is_empty());
+        assert_eq!(cache.state("meter").unwrap()["power"], Value::Unavailable);
+        assert_eq!(cache.published_text("meter", "power"), Some("1500"));
+        assert!(cache.republish_all().is_empty());
+        // The value coming back is published again.
+        let back = cache.update("meter", values(&[("power", 1500)]), true);
+        assert_eq!(fields(&back), ["power"]);
     }
 
     #[test]

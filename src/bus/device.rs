@@ -24,6 +24,9 @@ pub struct DeviceRuntime {
     /// online. An equal answer decodes to the same values, so it is neither decoded nor sent
     /// again: polling a device whose values do not move allocates nothing.
     last_answers: Vec<Option<Response>>,
+    /// Per block: its latest answer while the device is online, whatever it held: where the
+    /// `scale_by` fields of other blocks find their exponents.
+    latest_answers: Vec<Option<Response>>,
 }
 
 impl DeviceRuntime {
@@ -32,6 +35,7 @@ impl DeviceRuntime {
             stats: DeviceStats::new(&spec.name),
             read_by_parts: vec![false; spec.profile.read_blocks().len()],
             last_answers: vec![None; spec.profile.read_blocks().len()],
+            latest_answers: vec![None; spec.profile.read_blocks().len()],
             spec,
         }
     }
@@ -49,7 +53,8 @@ impl DeviceRuntime {
         let mut state = DeviceState::new();
         for (block, answer) in self.last_answers.iter().enumerate() {
             let Some(answer) = answer else { continue };
-            for reading in self.spec.profile.decode_block(block, answer) {
+            let latest = |other: usize| self.latest_answers.get(other).and_then(Option::as_ref);
+            for reading in self.spec.profile.decode_block_with(block, answer, latest) {
                 if let Ok(value) = reading.value {
                     state.insert(reading.field, value);
                 }
@@ -61,6 +66,7 @@ impl DeviceRuntime {
     /// The device went offline: its next answers are sent whatever they hold.
     pub fn forget_answers(&mut self) {
         self.last_answers.fill(None);
+        self.latest_answers.fill(None);
     }
 
     /// Decodes `answer` to the device's read block `block` and adds its valid values to
@@ -69,7 +75,20 @@ impl DeviceRuntime {
     /// and logged each time.
     pub fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
         let mut all_valid = true;
-        for reading in self.spec.profile.decode_block(block, answer) {
+        let profile = self.spec.profile.clone();
+        if let Some(latest) = self.latest_answers.get_mut(block) {
+            if latest.as_ref() != Some(answer) {
+                // New exponents: the blocks they scale decode again even when unchanged.
+                for user in profile.blocks_scaled_by(block) {
+                    if let Some(last) = self.last_answers.get_mut(user) {
+                        *last = None;
+                    }
+                }
+            }
+            *latest = Some(answer.clone());
+        }
+        let latest = |other: usize| self.latest_answers.get(other).and_then(Option::as_ref);
+        for reading in profile.decode_block_with(block, answer, latest) {
             match reading.value {
                 Ok(value) => values.push((reading.field, value)),
                 Err(error) => {

@@ -1,5 +1,6 @@
-//! The closed set of field codecs: bits, bit groups with enumerations, inverted bits, words,
-//! scaled numbers, packed BCD integer + fraction pairs, low-byte chars, byte strings, coils.
+//! The closed set of field codecs: bits, bit groups with enumerations, inverted bits, numbers
+//! of one byte to four registers ([`super::numeric`]), packed BCD integer + fraction pairs,
+//! low-byte chars, byte strings, text ([`super::text`]), coils.
 //!
 //! A codec turns the raw registers or coils at a field's place into a [`Value`] and back into
 //! a [`RawPatch`] (what to change in the block image). Command text is parsed here too, against
@@ -11,7 +12,10 @@ use serde::Deserialize;
 use super::bcd::{self, BcdError};
 use super::field::{FieldInfo, FieldKind};
 use super::number::{self, DecimalText, ScaleError};
+use super::numeric::{at_precision, Exponent, NumberCodec, NumberError, NumberType, EXPONENTS};
+use super::registers::ByteOrder;
 use super::rejection::Rejection;
+use super::text::{self, Encoding};
 use super::Value;
 
 /// Why a field has no value in a block answer.
@@ -21,16 +25,6 @@ pub enum FieldError {
     InvalidBcd(u16),
     #[error("{0}")]
     Invalid(String),
-}
-
-/// Order of the two registers of a 32-bit value.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WordOrder {
-    /// The first register holds the high word (Modbus "big endian", most devices).
-    HighFirst,
-    /// The first register holds the low word ("word swapped").
-    LowFirst,
 }
 
 /// How a byte string is shown.
@@ -55,16 +49,6 @@ pub enum ByteSource {
     Both,
 }
 
-/// Register number types.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum NumberType {
-    U16,
-    I16,
-    U32(WordOrder),
-    I32(WordOrder),
-    F32(WordOrder),
-}
-
 /// A compiled field codec.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FieldCodec {
@@ -82,14 +66,11 @@ pub enum FieldCodec {
     /// `width` coils from the field's offset (coil i is bit i of the raw value), as an integer
     /// or an enumeration.
     Coils { width: u8, options: Vec<String> },
-    /// A register number shown with `decimals` places; one raw count is worth `factor` units
-    /// of the last place (`decimals` 2, `factor` 1: raw 1234 → 12.34; `decimals` 1, `factor`
-    /// 5, i.e. scale 0.5: raw 3 → 1.5). Integers all the way, so values stay exact.
-    Number {
-        ty: NumberType,
-        decimals: u8,
-        factor: i64,
-    },
+    /// A number of one byte to four registers shown with `decimals` places; one raw count is
+    /// worth `factor` units of the last place (`decimals` 2, `factor` 1: raw 1234 → 12.34;
+    /// `decimals` 1, `factor` 5, i.e. scale 0.5: raw 3 → 1.5), plus an offset, times a power of
+    /// ten read from another field for `scale_by`. Integers all the way, so values stay exact.
+    Number(NumberCodec),
     /// Packed BCD over two registers: integer part, then fraction part.
     Bcd { int_digits: u8, frac_digits: u8 },
     /// The low byte of one register.
@@ -100,6 +81,12 @@ pub enum FieldCodec {
         format: ByteFormat,
         separator: String,
         bytes: ByteSource,
+    },
+    /// Read-only text over `registers` registers, two characters to a register.
+    Text {
+        registers: u16,
+        byte_order: ByteOrder,
+        encoding: Encoding,
     },
 }
 
@@ -148,7 +135,7 @@ fn pow10(decimals: u8) -> i64 {
 
 fn enum_or_int(raw: u16, options: &[String]) -> Result<Value, FieldError> {
     if options.is_empty() {
-        return Ok(Value::Int(i64::from(raw)));
+        return Ok(Value::Int(i128::from(raw)));
     }
     options
         .get(usize::from(raw))
@@ -163,9 +150,7 @@ fn raw_of_enum(value: &Value, options: &[String], width: u8) -> Result<u16, Stri
             .iter()
             .position(|o| o == word)
             .ok_or_else(|| format!("unknown option `{word}`"))?,
-        Value::Int(v) if options.is_empty() && *v >= 0 && *v as u64 <= u64::from(limit) => {
-            *v as usize
-        }
+        Value::Int(v) if options.is_empty() && *v >= 0 && *v <= i128::from(limit) => *v as usize,
         other => return Err(format!("{other:?} does not fit {width} bits")),
     };
     u16::try_from(raw).map_err(|_| "option index too large".to_string())
@@ -184,7 +169,7 @@ fn bcd_digits(word: u16, digits: u8) -> Result<i64, FieldError> {
 }
 
 /// One word of a BCD pair; the caller has already bounded the value to the pair's digits.
-fn to_bcd(value: i64) -> Result<u16, String> {
+fn to_bcd(value: i128) -> Result<u16, String> {
     u16::try_from(value)
         .ok()
         .and_then(|value| bcd::encode(value, bcd::WORD_DIGITS))
@@ -197,12 +182,9 @@ impl FieldCodec {
         match self {
             Self::Bit { .. } | Self::Bits { .. } | Self::Coil { .. } | Self::Char => 1,
             Self::Coils { width, .. } => u16::from(*width),
-            Self::Number { ty, .. } => match ty {
-                NumberType::U16 | NumberType::I16 => 1,
-                _ => 2,
-            },
+            Self::Number(number) => number.ty.registers(),
             Self::Bcd { .. } => 2,
-            Self::Bytes { registers, .. } => *registers,
+            Self::Bytes { registers, .. } | Self::Text { registers, .. } => *registers,
         }
     }
 
@@ -212,7 +194,12 @@ impl FieldCodec {
     }
 
     pub fn is_writable(&self) -> bool {
-        !matches!(self, Self::Bytes { .. })
+        !matches!(self, Self::Bytes { .. } | Self::Text { .. })
+    }
+
+    /// True for a `scale_by` number: it is read and written with its exponent field's value.
+    pub fn needs_exponent(&self) -> bool {
+        matches!(self, Self::Number(number) if number.scaled_by_exponent)
     }
 
     /// The bits the field occupies: (block offset, mask) for each register or coil.
@@ -223,6 +210,9 @@ impl FieldCodec {
                 vec![(offset, (((1u32 << width) - 1) << bit) as u16)]
             }
             Self::Char => vec![(offset, 0xFFFF)],
+            Self::Number(number) if number.ty.registers() == 1 => {
+                vec![(offset, number.ty.mask())]
+            }
             _ if self.is_bit_codec() => (0..self.width()).map(|i| (offset + i, 1)).collect(),
             _ => (0..self.width()).map(|i| (offset + i, 0xFFFF)).collect(),
         }
@@ -232,7 +222,7 @@ impl FieldCodec {
     /// `decimals = 1, scale = 0.5` → 0.5, BCD with two fraction digits → 0.01). None for
     /// fields that are not numbers (booleans, enumerations, text).
     pub fn step(&self) -> Option<Value> {
-        let last_place = |decimals: u8, counts: i64| {
+        let last_place = |decimals: u8, counts: i128| {
             if decimals == 0 {
                 Value::Int(counts)
             } else {
@@ -243,20 +233,17 @@ impl FieldCodec {
             }
         };
         match self {
-            Self::Bit { .. } | Self::Coil { .. } | Self::Bytes { .. } => None,
+            Self::Bit { .. } | Self::Coil { .. } | Self::Bytes { .. } | Self::Text { .. } => None,
             Self::Bits { options, .. } | Self::Coils { options, .. } => {
                 options.is_empty().then_some(Value::Int(1))
             }
             Self::Char => Some(Value::Int(1)),
-            // A float holds any value; commands keep to the shown places.
-            Self::Number {
-                ty: NumberType::F32(_),
-                decimals,
-                ..
-            } => Some(last_place(*decimals, 1)),
-            Self::Number {
-                decimals, factor, ..
-            } => Some(last_place(*decimals, *factor)),
+            // A float holds any value, and a `scale_by` number's step follows its exponent:
+            // commands keep to the shown places (the slot refuses what the exponent cannot hold).
+            Self::Number(number) if number.ty.is_float() || number.scaled_by_exponent => {
+                Some(last_place(number.max_precision(), 1))
+            }
+            Self::Number(number) => Some(last_place(number.decimals, i128::from(number.factor))),
             Self::Bcd { frac_digits, .. } => Some(last_place(*frac_digits, 1)),
         }
     }
@@ -269,7 +256,7 @@ impl FieldCodec {
                 if options.is_empty() {
                     FieldKind::Integer {
                         min: 0,
-                        max: (1i64 << width) - 1,
+                        max: (1i128 << width) - 1,
                     }
                 } else {
                     FieldKind::Enum {
@@ -278,36 +265,7 @@ impl FieldCodec {
                 }
             }
             Self::Char => FieldKind::Integer { min: 0, max: 255 },
-            Self::Number {
-                ty,
-                decimals,
-                factor,
-            } => {
-                let (min, max) = match ty {
-                    NumberType::U16 => (0, i64::from(u16::MAX)),
-                    NumberType::I16 => (i64::from(i16::MIN), i64::from(i16::MAX)),
-                    NumberType::U32(_) => (0, i64::from(u32::MAX)),
-                    NumberType::I32(_) => (i64::from(i32::MIN), i64::from(i32::MAX)),
-                    NumberType::F32(_) => {
-                        return FieldKind::Decimal {
-                            min: f64::from(f32::MIN),
-                            max: f64::from(f32::MAX),
-                            precision: *decimals,
-                        }
-                    }
-                };
-                let (min, max) = (min * factor, max * factor);
-                if *decimals == 0 {
-                    FieldKind::Integer { min, max }
-                } else {
-                    let scale = pow10(*decimals) as f64;
-                    FieldKind::Decimal {
-                        min: min as f64 / scale,
-                        max: max as f64 / scale,
-                        precision: *decimals,
-                    }
-                }
-            }
+            Self::Number(number) => number_kind(number),
             Self::Bcd {
                 int_digits,
                 frac_digits,
@@ -319,19 +277,31 @@ impl FieldCodec {
                     precision: *frac_digits,
                 }
             }
-            Self::Bytes { .. } => FieldKind::Text,
+            Self::Bytes { .. } | Self::Text { .. } => FieldKind::Text,
         }
     }
 
-    /// Decodes the field at `offset` of a block image.
+    /// Decodes the field at `offset` of a block image (a `scale_by` number has no exponent
+    /// this way and is invalid data: see [`FieldCodec::decode_with`]).
     pub fn decode(&self, image: &BlockImage, offset: u16) -> Result<Value, FieldError> {
+        self.decode_with(image, offset, &Exponent::None)
+    }
+
+    /// Decodes the field at `offset` of a block image; `exponent` is what the field's
+    /// `scale_by` field read in the same answer.
+    pub fn decode_with(
+        &self,
+        image: &BlockImage,
+        offset: u16,
+        exponent: &Exponent,
+    ) -> Result<Value, FieldError> {
         let start = usize::from(offset);
         let end = start + usize::from(self.width());
         let short = || FieldError::Invalid("the answer is shorter than the block".to_string());
         match image {
             BlockImage::Words(words) => {
                 let words = words.get(start..end).ok_or_else(short)?;
-                self.decode_words(words)
+                self.decode_words(words, exponent)
             }
             BlockImage::Bits(bits) => {
                 let bits = bits.get(start..end).ok_or_else(short)?;
@@ -352,16 +322,8 @@ impl FieldCodec {
         }
     }
 
-    fn decode_words(&self, words: &[u16]) -> Result<Value, FieldError> {
+    fn decode_words(&self, words: &[u16], exponent: &Exponent) -> Result<Value, FieldError> {
         let first = words[0];
-        let pair = || (u32::from(words[0]), u32::from(words[1]));
-        let join = |order: WordOrder| {
-            let (a, b) = pair();
-            match order {
-                WordOrder::HighFirst => (a << 16) | b,
-                WordOrder::LowFirst => (b << 16) | a,
-            }
-        };
         match self {
             Self::Bit { bit, invert } => Ok(Value::Bool(((first >> bit) & 1 == 1) != *invert)),
             Self::Bits {
@@ -372,42 +334,12 @@ impl FieldCodec {
                 let raw = (u32::from(first) >> bit) & ((1u32 << width) - 1);
                 enum_or_int(raw as u16, options)
             }
-            Self::Char => Ok(Value::Int(i64::from(first & 0xFF))),
-            Self::Number {
-                ty,
-                decimals,
-                factor,
-            } => {
-                let raw = match ty {
-                    NumberType::U16 => i64::from(first),
-                    NumberType::I16 => i64::from(first as i16),
-                    NumberType::U32(order) => i64::from(join(*order)),
-                    NumberType::I32(order) => i64::from(join(*order) as i32),
-                    NumberType::F32(order) => {
-                        let float = f64::from(f32::from_bits(join(*order)));
-                        if !float.is_finite() {
-                            return Err(FieldError::Invalid(format!("not a number: {float}")));
-                        }
-                        let scaled = (float * *factor as f64).round();
-                        if scaled.abs() > 9.0e15 {
-                            return Err(FieldError::Invalid(format!("out of range: {float}")));
-                        }
-                        return Ok(Value::Decimal {
-                            scaled: scaled as i64,
-                            precision: *decimals,
-                        });
-                    }
-                };
-                let scaled = raw * factor;
-                Ok(if *decimals == 0 {
-                    Value::Int(scaled)
-                } else {
-                    Value::Decimal {
-                        scaled,
-                        precision: *decimals,
-                    }
-                })
-            }
+            Self::Char => Ok(Value::Int(i128::from(first & 0xFF))),
+            Self::Number(number) => match number.decode(words, exponent) {
+                Ok(value) => Ok(value),
+                Err(NumberError::Unavailable) => Ok(Value::Unavailable),
+                Err(NumberError::Invalid(why)) => Err(FieldError::Invalid(why)),
+            },
             Self::Bcd {
                 int_digits,
                 frac_digits,
@@ -415,7 +347,7 @@ impl FieldCodec {
                 let integer = bcd_digits(words[0], *int_digits)?;
                 let fraction = bcd_digits(words[1], *frac_digits)?;
                 Ok(Value::Decimal {
-                    scaled: integer * pow10(*frac_digits) + fraction,
+                    scaled: i128::from(integer * pow10(*frac_digits) + fraction),
                     precision: *frac_digits,
                 })
             }
@@ -441,6 +373,13 @@ impl FieldCodec {
                     .collect();
                 Ok(Value::Text(parts.join(separator)))
             }
+            Self::Text {
+                byte_order,
+                encoding,
+                ..
+            } => text::decode(words, *byte_order, *encoding)
+                .map(Value::Text)
+                .map_err(|error| FieldError::Invalid(error.to_string())),
             Self::Coil { .. } | Self::Coils { .. } => Err(FieldError::Invalid(
                 "bit codec on a register block".to_string(),
             )),
@@ -450,30 +389,23 @@ impl FieldCodec {
     /// The raw change that writes `value` into the field's place (`offset` block-relative).
     /// The value must already have the field's kind (see [`parse_command`]).
     pub fn encode(&self, offset: u16, value: &Value) -> Result<Vec<RawPatch>, String> {
+        self.encode_with(offset, value, &Exponent::None)
+    }
+
+    /// [`FieldCodec::encode`] for a value read back with `exponent` (a `scale_by` number).
+    pub fn encode_with(
+        &self,
+        offset: u16,
+        value: &Value,
+        exponent: &Exponent,
+    ) -> Result<Vec<RawPatch>, String> {
         let word = |rel: u16, mask: u16, bits: u16| RawPatch {
             offset: offset + rel,
             mask,
             bits,
         };
-        let number = |decimals: u8| -> Result<i64, String> {
-            match value {
-                Value::Int(v) => v
-                    .checked_mul(pow10(decimals))
-                    .ok_or_else(|| "number too large".to_string()),
-                Value::Decimal { scaled, precision } if *precision <= decimals => scaled
-                    .checked_mul(pow10(decimals - precision))
-                    .ok_or_else(|| "number too large".to_string()),
-                Value::Decimal { scaled, precision } => {
-                    let divisor = pow10(precision - decimals);
-                    if scaled % divisor != 0 {
-                        return Err(format!("{} has too many decimals", value.to_text()));
-                    }
-                    Ok(scaled / divisor)
-                }
-                other => Err(format!("{other:?} is not a number")),
-            }
-        };
-        let fits = |raw: i64, min: i64, max: i64| {
+        let number = |decimals: u8| -> Result<i128, String> { at_precision(value, decimals) };
+        let fits = |raw: i128, min: i128, max: i128| {
             if raw < min || raw > max {
                 Err(format!("{} is out of the codec's range", value.to_text()))
             } else {
@@ -513,71 +445,66 @@ impl FieldCodec {
                 let raw = fits(number(0)?, 0, 255)?;
                 Ok(vec![word(0, 0xFFFF, raw as u16)])
             }
-            Self::Number {
-                ty,
-                decimals,
-                factor,
-            } => {
-                // The value in raw counts; it must be a whole number of them.
-                let counts = || -> Result<i64, String> {
-                    let scaled = number(*decimals)?;
-                    if scaled % factor != 0 {
-                        return Err(format!(
-                            "{} is not a multiple of the step {}",
-                            value.to_text(),
-                            Value::Decimal {
-                                scaled: *factor,
-                                precision: *decimals
-                            }
-                            .to_text()
-                        ));
-                    }
-                    Ok(scaled / factor)
-                };
-                let split = |raw: u32, order: WordOrder| {
-                    let (high, low) = ((raw >> 16) as u16, raw as u16);
-                    match order {
-                        WordOrder::HighFirst => vec![word(0, 0xFFFF, high), word(1, 0xFFFF, low)],
-                        WordOrder::LowFirst => vec![word(0, 0xFFFF, low), word(1, 0xFFFF, high)],
-                    }
-                };
-                match ty {
-                    NumberType::U16 => {
-                        let raw = fits(counts()?, 0, i64::from(u16::MAX))?;
-                        Ok(vec![word(0, 0xFFFF, raw as u16)])
-                    }
-                    NumberType::I16 => {
-                        let raw = fits(counts()?, i64::from(i16::MIN), i64::from(i16::MAX))?;
-                        Ok(vec![word(0, 0xFFFF, raw as i16 as u16)])
-                    }
-                    NumberType::U32(order) => {
-                        let raw = fits(counts()?, 0, i64::from(u32::MAX))?;
-                        Ok(split(raw as u32, *order))
-                    }
-                    NumberType::I32(order) => {
-                        let raw = fits(counts()?, i64::from(i32::MIN), i64::from(i32::MAX))?;
-                        Ok(split(raw as i32 as u32, *order))
-                    }
-                    NumberType::F32(order) => {
-                        // A float holds any value: no whole-count rule.
-                        let float = number(*decimals)? as f64 / *factor as f64;
-                        Ok(split((float as f32).to_bits(), *order))
-                    }
-                }
+            Self::Number(number) => {
+                let mask = number.ty.mask();
+                Ok(number
+                    .encode(value, exponent)?
+                    .into_iter()
+                    .zip(0u16..)
+                    .map(|(bits, rel)| word(rel, mask, bits))
+                    .collect())
             }
             Self::Bcd {
                 int_digits,
                 frac_digits,
             } => {
                 let scaled = number(*frac_digits)?;
-                let scaled = fits(scaled, 0, pow10(int_digits + frac_digits) - 1)?;
-                let divisor = pow10(*frac_digits);
+                let scaled = fits(scaled, 0, i128::from(pow10(int_digits + frac_digits)) - 1)?;
+                let divisor = i128::from(pow10(*frac_digits));
                 Ok(vec![
                     word(0, 0xFFFF, to_bcd(scaled / divisor)?),
                     word(1, 0xFFFF, to_bcd(scaled % divisor)?),
                 ])
             }
             Self::Bytes { .. } => Err("a byte string is read-only".to_string()),
+            Self::Text { .. } => Err("text is read-only".to_string()),
+        }
+    }
+}
+
+/// The kind and widest range of a number codec (for a `scale_by` number, with the widest
+/// exponent either way).
+fn number_kind(number: &NumberCodec) -> FieldKind {
+    let precision = number.max_precision();
+    let Some((raw_min, raw_max)) = number.ty.raw_range() else {
+        let (min, max) = match number.ty {
+            NumberType::F32 => (f64::from(f32::MIN), f64::from(f32::MAX)),
+            _ => (f64::MIN, f64::MAX),
+        };
+        return FieldKind::Decimal {
+            min,
+            max,
+            precision,
+        };
+    };
+    let widest = if number.scaled_by_exponent {
+        10i128.pow(u32::from(EXPONENTS.end().unsigned_abs()))
+    } else {
+        1
+    };
+    let factor = i128::from(number.factor) * widest;
+    let (min, max) = (
+        raw_min * factor + number.offset,
+        raw_max * factor + number.offset,
+    );
+    if precision == 0 && !number.scaled_by_exponent {
+        FieldKind::Integer { min, max }
+    } else {
+        let scale = 10f64.powi(i32::from(number.decimals));
+        FieldKind::Decimal {
+            min: min as f64 / scale,
+            max: max as f64 / scale,
+            precision,
         }
     }
 }
@@ -626,7 +553,7 @@ pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
                 "{name} is a button: send PRESS (or ON), got {shown}"
             ))),
         },
-        FieldKind::Integer { min, max } => match number::integer(trimmed) {
+        FieldKind::Integer { min, max } => match number::wide_integer(trimmed) {
             Some(value) if (*min..=*max).contains(&value) => Ok(Value::Int(value)),
             _ => Err(Rejection(format!(
                 "{name} must be an integer {min}–{max}, got {shown}"
@@ -661,7 +588,7 @@ pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
             // The limits are exact at the field's precision (they come from its raw range).
             let factor = pow10(*precision) as f64;
             let (low, high) = ((min * factor).round(), (max * factor).round());
-            let value = i64::try_from(scaled).map_err(|_| refuse())?;
+            let value = scaled;
             if (value as f64) < low || (value as f64) > high {
                 return Err(refuse());
             }

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use super::codec::{BlockImage, RawPatch};
 use super::model::{Behaviour, Compiled, WriteFrame};
+use super::numeric::Exponent;
 use super::rejection::Rejection;
 use super::Value;
 use rtu2mqtt_modbus::{Request, Response};
@@ -39,8 +40,11 @@ pub struct CommandPlan {
     /// (field index, commanded value), parsed and normalised to each field's kind.
     targets: Vec<(usize, Value)>,
     reads_before: Vec<Request>,
-    /// Block offset of the first coil or register `reads_before` returns.
+    /// Block offset of the first coil or register the first of `reads_before` returns.
     before_base: u16,
+    /// Parallel to `reads_before[1..]`: the reads of exponents (`scale_by`) held in other
+    /// blocks than the frame's, as (block, block offset of the first register returned).
+    exponent_places: Vec<(usize, u16)>,
     /// The reads of the settle conditions' blocks (other than the frame's), then the read of
     /// the targets last: a condition seen to hold is then never older than the value judged.
     readback: Vec<Request>,
@@ -82,6 +86,26 @@ impl CommandPlan {
         let frame_filled = covered.iter().all(|mask| *mask == full);
         let mut before_span = (frame.offset, frame.offset + frame.count);
         let mut depends_on_state = false;
+        // A `scale_by` target is written and judged with the exponent read in this slot: in
+        // the frame's block it widens the reads, elsewhere it gets reads of its own.
+        let mut exponent_spans: Vec<(usize, (u16, u16))> = Vec::new();
+        for (field, _) in &targets {
+            let Some(exponent) = profile.defs[*field].scale_by else {
+                continue;
+            };
+            depends_on_state = true;
+            let def = &profile.defs[exponent];
+            let width = def.codec.width();
+            if def.block == frame.block {
+                before_span = widen(before_span, def.offset, width);
+                target_span = widen(target_span, def.offset, width);
+            } else if let Some((_, span)) = exponent_spans.iter_mut().find(|(b, _)| *b == def.block)
+            {
+                *span = widen(*span, def.offset, width);
+            } else {
+                exponent_spans.push((def.block, (def.offset, def.offset + width)));
+            }
+        }
         for (field, _) in &targets {
             depends_on_state |= profile.defs[*field].behaviour == Behaviour::Toggle;
             for rule in &profile.forbidden {
@@ -98,12 +122,18 @@ impl CommandPlan {
                 }
             }
         }
-        let (reads_before, before_base) = if frame_filled && !depends_on_state {
+        let (mut reads_before, before_base) = if frame_filled && !depends_on_state {
             (Vec::new(), 0)
         } else {
             let (request, base) = run_read(&profile, frame.block, before_span);
             (vec![request], base)
         };
+        let mut exponent_places = Vec::new();
+        for &(block, span) in &exponent_spans {
+            let (request, base) = run_read(&profile, block, span);
+            reads_before.push(request);
+            exponent_places.push((block, base));
+        }
         // Settle conditions in the frame's block widen the targets' read (one answer holds
         // both); those elsewhere get a read of their own, made before the targets' read.
         let mut condition_spans: Vec<(usize, (u16, u16))> = Vec::new();
@@ -120,6 +150,13 @@ impl CommandPlan {
                 } else {
                     condition_spans.push((def.block, (def.offset, def.offset + width)));
                 }
+            }
+        }
+        for (block, span) in exponent_spans {
+            if let Some((_, known)) = condition_spans.iter_mut().find(|(b, _)| *b == block) {
+                *known = widen(*known, span.0, span.1 - span.0);
+            } else {
+                condition_spans.push((block, span));
             }
         }
         let mut readback = Vec::new();
@@ -139,6 +176,7 @@ impl CommandPlan {
             targets,
             reads_before,
             before_base,
+            exponent_places,
             readback,
             readback_places,
             first_readback_judged: OnceLock::new(),
@@ -230,16 +268,31 @@ impl CommandPlan {
                 })?
         };
 
+        // The exponents of `scale_by` targets held in other blocks, as read in this slot.
+        let mut images = vec![(frame.block, fresh.clone())];
+        for ((block, base), (request, answer)) in self
+            .exponent_places
+            .iter()
+            .zip(self.reads_before.iter().zip(before).skip(1))
+        {
+            if let Some(image) = self.place(*block, answer, request, *base) {
+                images.push((*block, image));
+            }
+        }
+
         // Toggles already in the commanded state are left alone (written 0).
         let mut pressed = Vec::new();
         let mut intended = fresh.clone();
+        let mut encodings = Vec::new();
         for (field, target) in &self.targets {
             let def = &profile.defs[*field];
             let field_name = &profile.infos[*field].name;
+            let exponent = self.exponent(*field, &images);
             let encoded = def
                 .codec
-                .encode(def.offset, target)
+                .encode_with(def.offset, target, &exponent)
                 .map_err(|why| Rejection(format!("{field_name}: {why}")))?;
+            encodings.push(encoded.clone());
             match def.behaviour {
                 Behaviour::State => {}
                 Behaviour::Momentary => pressed.push(*field),
@@ -284,13 +337,9 @@ impl CommandPlan {
                 image.apply(&rest_patches(other.codec.footprint(other.offset)));
             }
         }
-        for (field, target) in &self.targets {
-            let def = &profile.defs[*field];
-            if def.behaviour == Behaviour::State {
-                // Encoded successfully above.
-                if let Ok(encoded) = def.codec.encode(def.offset, target) {
-                    image.apply(&encoded);
-                }
+        for ((field, _), encoded) in self.targets.iter().zip(&encodings) {
+            if profile.defs[*field].behaviour == Behaviour::State {
+                image.apply(encoded);
             }
         }
         for field in pressed {
@@ -357,8 +406,9 @@ impl CommandPlan {
                 // A button has no state to show; the acknowledged write is the whole effect.
                 continue;
             }
-            match def.codec.decode(image, def.offset) {
-                Ok(value) if value == *target => {}
+            let exponent = self.exponent(*field, &images);
+            match def.codec.decode_with(image, def.offset, &exponent) {
+                Ok(value) if value.same_number(target) => {}
                 Ok(value) => differences.push(format!(
                     "{name} reads {} after writing {}",
                     value.to_text(),
@@ -379,6 +429,16 @@ impl CommandPlan {
         } else {
             Verification::Settling
         }
+    }
+
+    /// The exponent a target is written and judged with, from the images of this slot's reads.
+    fn exponent(&self, field: usize, images: &[(usize, BlockImage)]) -> Exponent {
+        let profile = &self.profile;
+        profile.exponent_for(field, |exponent| {
+            let def = &profile.defs[exponent];
+            let (_, image) = images.iter().find(|(block, _)| *block == def.block)?;
+            Some(def.codec.decode(image, def.offset))
+        })
     }
 
     /// When the targets' `settle_until` conditions all hold on a repeated read-back (the motor

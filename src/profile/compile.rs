@@ -9,15 +9,17 @@
 
 use std::collections::HashMap;
 
-use super::codec::{FieldCodec, NumberType};
+use super::codec::FieldCodec;
 use super::field::{FieldInfo, FieldKind, HaHints, Identity};
 use super::format::{
     BlockSection, CodecSection, FieldSection, ForbiddenSection, IdentityKey, LineSection,
-    ProfileFile, WriteFrameSection, WriteSection,
+    NumberSection, ProfileFile, WriteFrameSection, WriteSection,
 };
 use super::model::{
     Behaviour, BlockKind, Compiled, FieldDef, Forbidden, Limits, PollClass, ReadBlock, WriteFrame,
 };
+use super::numeric::{BytePlace, NumberCodec, NumberType};
+use super::registers::RegisterLayout;
 use super::value::Value;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
@@ -182,6 +184,15 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     for (index, (section, place)) in built_sections.iter().zip(&places).enumerate() {
         let until = resolve_settle_until(section, place, &infos, &defs, problems);
         defs[index].settle_until = until;
+        defs[index].scale_by = resolve_scale_by(
+            section,
+            place,
+            index,
+            &infos,
+            &defs,
+            &layout.blocks,
+            problems,
+        );
     }
 
     let mut used: Vec<Vec<(u16, u16)>> = vec![Vec::new(); layout.blocks.len()];
@@ -561,42 +572,8 @@ fn build_codec(
             }
         }
     };
-    // `decimals` places shown; `scale` the value of one raw count (default 10^-decimals).
-    // scale × 10^decimals must be a whole number so values stay exact.
-    let mut number = |ty: NumberType, decimals: u8, scale: Option<f64>| -> Option<FieldCodec> {
-        if decimals > 6 {
-            problems.add(
-                format!("{place}.codec.decimals"),
-                format!("{decimals} decimals: at most 6"),
-            );
-            return None;
-        }
-        let factor = match scale {
-            // Integers count the last shown place; a float is the value itself.
-            None if matches!(ty, NumberType::F32(_)) => 10i64.pow(u32::from(decimals)),
-            None => 1,
-            Some(scale) => {
-                let counts = scale * 10f64.powi(i32::from(decimals));
-                if !(counts.is_finite() && (1.0..=1e9).contains(&counts))
-                    || (counts - counts.round()).abs() > 1e-6
-                {
-                    problems.add(
-                        format!("{place}.codec.scale"),
-                        format!(
-                            "scale {scale} is not a positive whole number of the last shown \
-                             place with {decimals} decimals (raise `decimals`)"
-                        ),
-                    );
-                    return None;
-                }
-                counts.round() as i64
-            }
-        };
-        Some(FieldCodec::Number {
-            ty,
-            decimals,
-            factor,
-        })
+    let mut number = |ty: NumberType, keys: &NumberSection| {
+        build_number(ty, keys, place, problems).map(FieldCodec::Number)
     };
     Some(match section {
         CodecSection::Bit { bit, invert } => {
@@ -649,23 +626,22 @@ fn build_codec(
                 options: options.clone(),
             }
         }
-        CodecSection::U16 { decimals, scale } => number(NumberType::U16, *decimals, *scale)?,
-        CodecSection::I16 { decimals, scale } => number(NumberType::I16, *decimals, *scale)?,
-        CodecSection::U32 {
-            word_order,
-            decimals,
-            scale,
-        } => number(NumberType::U32(*word_order), *decimals, *scale)?,
-        CodecSection::I32 {
-            word_order,
-            decimals,
-            scale,
-        } => number(NumberType::I32(*word_order), *decimals, *scale)?,
-        CodecSection::F32 {
-            word_order,
-            decimals,
-            scale,
-        } => number(NumberType::F32(*word_order), *decimals, *scale)?,
+        CodecSection::U8(keys) => {
+            let place_of = keys.byte.unwrap_or(BytePlace::Low);
+            number(NumberType::U8(place_of), keys)?
+        }
+        CodecSection::I8(keys) => {
+            let place_of = keys.byte.unwrap_or(BytePlace::Low);
+            number(NumberType::I8(place_of), keys)?
+        }
+        CodecSection::U16(keys) => number(NumberType::U16, keys)?,
+        CodecSection::I16(keys) => number(NumberType::I16, keys)?,
+        CodecSection::U32(keys) => number(NumberType::U32, keys)?,
+        CodecSection::I32(keys) => number(NumberType::I32, keys)?,
+        CodecSection::F32(keys) => number(NumberType::F32, keys)?,
+        CodecSection::U64(keys) => number(NumberType::U64, keys)?,
+        CodecSection::I64(keys) => number(NumberType::I64, keys)?,
+        CodecSection::F64(keys) => number(NumberType::F64, keys)?,
         CodecSection::Bcd {
             int_digits,
             frac_digits,
@@ -703,6 +679,134 @@ fn build_codec(
                 bytes: *bytes,
             }
         }
+        CodecSection::String {
+            registers,
+            byte_order,
+            encoding,
+        } => {
+            if *registers == 0 || *registers > 125 {
+                problems.add(
+                    format!("{place}.codec.registers"),
+                    "a string spans 1–125 registers",
+                );
+                return None;
+            }
+            FieldCodec::Text {
+                registers: *registers,
+                byte_order: *byte_order,
+                encoding: *encoding,
+            }
+        }
+    })
+}
+
+/// A number codec from its keys. `decimals` places are shown; `scale` is the value of one raw
+/// count (default 10^-decimals) and `offset` is added after scaling: both must be whole numbers
+/// of the last shown place, so values stay exact.
+fn build_number(
+    ty: NumberType,
+    keys: &NumberSection,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<NumberCodec> {
+    let before = problems.list.len();
+    let decimals = keys.decimals;
+    if decimals > 6 {
+        problems.add(
+            format!("{place}.codec.decimals"),
+            format!("{decimals} decimals: at most 6"),
+        );
+        return None;
+    }
+    let last_place = 10f64.powi(i32::from(decimals));
+    let whole = |value: f64| (value - value.round()).abs() <= 1e-6;
+    let factor = match keys.scale {
+        // Integers count the last shown place; a float is the value itself.
+        None if ty.is_float() => 10i64.pow(u32::from(decimals)),
+        None => 1,
+        Some(scale) => {
+            let counts = scale * last_place;
+            if !(counts.is_finite() && (1.0..=1e9).contains(&counts) && whole(counts)) {
+                problems.add(
+                    format!("{place}.codec.scale"),
+                    format!(
+                        "scale {scale} is not a positive whole number of the last shown \
+                         place with {decimals} decimals (raise `decimals`)"
+                    ),
+                );
+            }
+            counts.round() as i64
+        }
+    };
+    let offset = match keys.offset {
+        None => 0,
+        Some(offset) => {
+            let counts = offset * last_place;
+            if !(counts.is_finite() && counts.abs() <= 1e15 && whole(counts)) {
+                problems.add(
+                    format!("{place}.codec.offset"),
+                    format!(
+                        "offset {offset} is not a whole number of the last shown place with \
+                         {decimals} decimals (raise `decimals`)"
+                    ),
+                );
+            }
+            counts.round() as i128
+        }
+    };
+    let mut invalid = Vec::new();
+    for mark in &keys.invalid {
+        match ty.raw_bits_of(i128::from(*mark)) {
+            Some(bits) => invalid.push(bits),
+            None if ty.is_float() => {
+                problems.add(
+                    format!("{place}.codec.invalid"),
+                    "only integer codecs have invalid raw values (a float's is NaN)",
+                );
+                break;
+            }
+            None => problems.add(
+                format!("{place}.codec.invalid"),
+                format!("{mark} is not a raw value of this codec"),
+            ),
+        }
+    }
+    let eight_bits = matches!(ty, NumberType::U8(_) | NumberType::I8(_));
+    if eight_bits && keys.byte.is_none() {
+        problems.add(
+            format!("{place}.codec.byte"),
+            "an 8-bit codec names its byte: `byte = \"high\"` or `\"low\"`",
+        );
+    }
+    if !eight_bits && keys.byte.is_some() {
+        problems.add(
+            format!("{place}.codec.byte"),
+            "`byte` is for the 8-bit codecs u8 and i8",
+        );
+    }
+    if eight_bits && keys.byte_order.is_some() {
+        problems.add(
+            format!("{place}.codec.byte_order"),
+            "an 8-bit codec takes `byte`, not `byte_order`",
+        );
+    }
+    if ty.registers() == 1 && keys.word_order.is_some() {
+        problems.add(
+            format!("{place}.codec.word_order"),
+            "`word_order` is for codecs over several registers",
+        );
+    }
+    (problems.list.len() == before).then(|| NumberCodec {
+        ty,
+        layout: RegisterLayout {
+            words: keys.word_order.unwrap_or_default(),
+            bytes: keys.byte_order.unwrap_or_default(),
+        },
+        decimals,
+        factor,
+        offset,
+        invalid,
+        scaled_by_exponent: keys.scale_by.is_some(),
     })
 }
 
@@ -846,7 +950,7 @@ fn build_field(
         match codec.natural_kind() {
             FieldKind::Integer { min, max } if matches!(field_kind, FieldKind::Integer { .. }) => {
                 for value in &field.also {
-                    if *value < min || *value > max {
+                    if i128::from(*value) < min || i128::from(*value) > max {
                         problems.add(
                             format!("{place}.also"),
                             format!("{value} is outside the codec's {min}–{max}"),
@@ -866,6 +970,8 @@ fn build_field(
         settle_window: field.settle_window,
         // Field names resolve once every field is built (`resolve_settle_until`).
         settle_until: Vec::new(),
+        // Resolved with the other fields' names too (`resolve_scale_by`).
+        scale_by: None,
         overlay: field.overlay,
         also: field.also.clone(),
         example: field.example.clone(),
@@ -938,7 +1044,7 @@ fn field_kind(
                 );
                 return None;
             }
-            let (low, high) = (low as i64, high as i64);
+            let (low, high) = (low as i128, high as i128);
             if low > high || low < min || high > max {
                 problems.add(
                     format!("{place}.range"),
@@ -1064,6 +1170,65 @@ fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
         }
     }
     runs
+}
+
+/// True when a block of class `exponent` is read at least as often as one of class `user`: an
+/// exponent is then never older than the values it scales.
+fn polled_at_least_as_often(exponent: PollClass, user: PollClass) -> bool {
+    exponent == PollClass::Fast || user == PollClass::Slow
+}
+
+/// The index of the field a `scale_by` number takes its exponent from: a whole-number field of
+/// the same device (no decimals, scale, offset or exponent of its own) in a block read at
+/// least as often as the number's.
+fn resolve_scale_by(
+    section: &FieldSection,
+    place: &str,
+    index: usize,
+    infos: &[FieldInfo],
+    defs: &[FieldDef],
+    blocks: &[ReadBlock],
+    problems: &mut Problems<'_>,
+) -> Option<usize> {
+    let name = section.codec.scale_by()?;
+    let at = format!("{place}.codec.scale_by");
+    let Some(exponent) = infos.iter().position(|info| info.name == name) else {
+        problems.add(at, format!("no field named `{name}`"));
+        return None;
+    };
+    if exponent == index {
+        problems.add(at, "a field cannot scale itself");
+        return None;
+    }
+    let plain_integer = match &defs[exponent].codec {
+        FieldCodec::Number(number) => {
+            !number.ty.is_float()
+                && !number.scaled_by_exponent
+                && number.decimals == 0
+                && number.factor == 1
+                && number.offset == 0
+        }
+        _ => false,
+    };
+    if !plain_integer {
+        problems.add(
+            at,
+            format!("`{name}` must be a whole-number field (an integer codec without decimals, scale, offset or scale_by)"),
+        );
+        return None;
+    }
+    let (user, held) = (&blocks[defs[index].block], &blocks[defs[exponent].block]);
+    if !polled_at_least_as_often(held.class, user.class) {
+        problems.add(
+            at,
+            format!(
+                "`{name}` is in block `{}`, polled less often than this field's block `{}`",
+                held.name, user.name
+            ),
+        );
+        return None;
+    }
+    Some(exponent)
 }
 
 /// The `settle_until` conditions of a field as (field index, value).

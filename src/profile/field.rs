@@ -11,9 +11,10 @@ pub enum FieldKind {
     Bool,
     /// A button: written once when pressed, never a state to hold.
     Momentary,
+    /// Wide enough for every 64-bit register value, signed or not.
     Integer {
-        min: i64,
-        max: i64,
+        min: i128,
+        max: i128,
     },
     /// A fixed-point number with `precision` decimals.
     Decimal {

@@ -8,8 +8,11 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::codec::{ByteFormat, ByteSource, WordOrder};
+use super::codec::{ByteFormat, ByteSource};
 use super::model::Behaviour;
+use super::numeric::BytePlace;
+use super::registers::{ByteOrder, WordOrder};
+use super::text::Encoding;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -235,34 +238,16 @@ pub(super) enum CodecSection {
         #[serde(default)]
         options: Vec<String>,
     },
-    U16 {
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    I16 {
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    U32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    I32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
-    F32 {
-        word_order: WordOrder,
-        #[serde(default)]
-        decimals: u8,
-        scale: Option<f64>,
-    },
+    U8(NumberSection),
+    I8(NumberSection),
+    U16(NumberSection),
+    I16(NumberSection),
+    U32(NumberSection),
+    I32(NumberSection),
+    F32(NumberSection),
+    U64(NumberSection),
+    I64(NumberSection),
+    F64(NumberSection),
     Bcd {
         int_digits: u8,
         frac_digits: u8,
@@ -277,4 +262,51 @@ pub(super) enum CodecSection {
         #[serde(default)]
         bytes: ByteSource,
     },
+    String {
+        registers: u16,
+        #[serde(default)]
+        byte_order: ByteOrder,
+        #[serde(default)]
+        encoding: Encoding,
+    },
+}
+
+impl CodecSection {
+    /// The field a number codec's `scale_by` names, if any.
+    pub(super) fn scale_by(&self) -> Option<&str> {
+        match self {
+            Self::U8(keys)
+            | Self::I8(keys)
+            | Self::U16(keys)
+            | Self::I16(keys)
+            | Self::U32(keys)
+            | Self::I32(keys)
+            | Self::F32(keys)
+            | Self::U64(keys)
+            | Self::I64(keys)
+            | Self::F64(keys) => keys.scale_by.as_deref(),
+            _ => None,
+        }
+    }
+}
+
+/// The keys of the number codecs (`u8` … `f64`); which of them a type takes is checked by
+/// the compiler (`byte` only for 8-bit codecs, `word_order` only over several registers).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct NumberSection {
+    #[serde(default)]
+    pub(super) decimals: u8,
+    /// The value of one raw count (default one unit of the last shown place).
+    pub(super) scale: Option<f64>,
+    /// Added after scaling; a whole number of the last shown place.
+    pub(super) offset: Option<f64>,
+    /// Raw values that mean "no value" (`[0x8000]`), written unsigned or signed.
+    #[serde(default)]
+    pub(super) invalid: Vec<i64>,
+    /// A field of the same device holding the power of ten the value is multiplied by.
+    pub(super) scale_by: Option<String>,
+    pub(super) word_order: Option<WordOrder>,
+    pub(super) byte_order: Option<ByteOrder>,
+    pub(super) byte: Option<BytePlace>,
 }

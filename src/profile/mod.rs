@@ -5,8 +5,8 @@
 //! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
 //! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 //!
-//! Inside, a module only uses those before it in this order: [`bcd`], [`value`],
-//! [`rejection`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
+//! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
+//! [`registers`], [`numeric`], [`text`], [`rejection`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
 //! [`raw`] (planning and patching on the model); this file's [`Profile`] is what the rest of the
 //! crate sees.
 
@@ -18,10 +18,13 @@ pub mod field;
 pub mod format;
 pub mod model;
 pub mod number;
+pub mod numeric;
 pub mod raw;
+pub mod registers;
 pub mod registry;
 pub mod rejection;
 pub mod sunspec;
+pub mod text;
 pub mod value;
 
 use std::collections::HashMap;
@@ -114,8 +117,36 @@ impl Profile {
 
     /// Decodes the answer to `read_blocks()[block]` into its fields' values. An answer of the
     /// wrong kind or length gives every field of the block an error; a bad field (invalid BCD)
-    /// gives an error for that field only.
+    /// gives an error for that field only. A `scale_by` field whose exponent lies in another
+    /// block is invalid this way: see [`Profile::decode_block_with`].
     pub fn decode_block(&self, block: usize, answer: &Response) -> Vec<FieldReading> {
+        self.decode_block_with(block, answer, |_| None)
+    }
+
+    /// The blocks (other than `block`) holding fields whose exponent lies in `block`: their
+    /// values change when `block`'s answer does.
+    pub fn blocks_scaled_by(&self, block: usize) -> Vec<usize> {
+        let defs = &self.inner.defs;
+        let mut users: Vec<usize> = defs
+            .iter()
+            .filter(|def| def.block != block)
+            .filter(|def| def.scale_by.is_some_and(|e| defs[e].block == block))
+            .map(|def| def.block)
+            .collect();
+        users.sort_unstable();
+        users.dedup();
+        users
+    }
+
+    /// [`Profile::decode_block`], with `latest(b)` the latest answer to block `b` for the
+    /// exponents of `scale_by` fields that lie in other blocks (None: not read; such a field's
+    /// value is then invalid data).
+    pub fn decode_block_with<'a>(
+        &self,
+        block: usize,
+        answer: &Response,
+        latest: impl Fn(usize) -> Option<&'a Response>,
+    ) -> Vec<FieldReading> {
         let Some(read) = self.inner.blocks.get(block) else {
             return Vec::new();
         };
@@ -129,15 +160,34 @@ impl Profile {
                 (BlockImage::Bits(_), true) | (BlockImage::Words(_), false)
             )
         });
-        self.inner
+        let inner = &self.inner;
+        let exponent_of = |index: usize, image: &BlockImage| {
+            inner.exponent_for(index, |exponent| {
+                let def = &inner.defs[exponent];
+                if def.block == block {
+                    return Some(def.codec.decode(image, def.offset));
+                }
+                let length = inner.blocks[def.block]
+                    .request
+                    .read_span()
+                    .map_or(0, |(_, quantity)| usize::from(quantity));
+                let other = command::image_of(latest(def.block)?, length)?;
+                Some(def.codec.decode(&other, def.offset))
+            })
+        };
+        inner
             .defs
             .iter()
-            .zip(&self.inner.infos)
-            .filter(|(def, _)| def.block == block)
-            .map(|(def, info)| FieldReading {
+            .zip(&inner.infos)
+            .enumerate()
+            .filter(|(_, (def, _))| def.block == block)
+            .map(|(index, (def, info))| FieldReading {
                 field: info.name.clone(),
                 value: match &image {
-                    Some(image) => def.codec.decode(image, def.offset),
+                    Some(image) => {
+                        def.codec
+                            .decode_with(image, def.offset, &exponent_of(index, image))
+                    }
                     None => Err(FieldError::Invalid(format!(
                         "the answer does not fit block `{}`",
                         read.name
@@ -166,19 +216,28 @@ impl Profile {
         let Some(part) = command::image_of(answer, usize::from(quantity)) else {
             return Vec::new();
         };
+        let inside = |def: &model::FieldDef| {
+            def.block == block
+                && def.offset >= base
+                && u32::from(def.offset) + u32::from(def.codec.width())
+                    <= u32::from(base) + u32::from(quantity)
+        };
         inner
             .defs
             .iter()
             .zip(&inner.infos)
-            .filter(|(def, _)| {
-                def.block == block
-                    && def.offset >= base
-                    && u32::from(def.offset) + u32::from(def.codec.width())
-                        <= u32::from(base) + u32::from(quantity)
-            })
-            .map(|(def, info)| FieldReading {
-                field: info.name.clone(),
-                value: def.codec.decode(&part, def.offset - base),
+            .enumerate()
+            .filter(|(_, (def, _))| inside(def))
+            .map(|(index, (def, info))| {
+                // An exponent is only taken from the same read.
+                let exponent = inner.exponent_for(index, |exponent| {
+                    let held = &inner.defs[exponent];
+                    inside(held).then(|| held.codec.decode(&part, held.offset - base))
+                });
+                FieldReading {
+                    field: info.name.clone(),
+                    value: def.codec.decode_with(&part, def.offset - base, &exponent),
+                }
             })
             .collect()
     }
@@ -328,7 +387,7 @@ impl Profile {
             Ok(value) => value,
             Err(rejection) if def.also.is_empty() => return Err(rejection),
             Err(rejection) => match number::integer(text) {
-                Some(value) if def.also.contains(&value) => Value::Int(value),
+                Some(value) if def.also.contains(&value) => Value::Int(i128::from(value)),
                 _ => {
                     let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
                     let or = format!(" or {}, got ", list.join(", "));
@@ -337,10 +396,13 @@ impl Profile {
             },
         };
         // Kinds and ranges are validated against the codec at load, so this only fails on a
-        // profile bug; refuse rather than write something else.
-        def.codec
-            .encode(def.offset, &target)
-            .map_err(|why| Rejection(format!("{field}: {why}")))?;
+        // profile bug; refuse rather than write something else. A `scale_by` number is
+        // encoded in its slot, with the exponent read there.
+        if !def.codec.needs_exponent() {
+            def.codec
+                .encode(def.offset, &target)
+                .map_err(|why| Rejection(format!("{field}: {why}")))?;
+        }
         Ok((index, target))
     }
 

@@ -9,8 +9,9 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::codec::FieldCodec;
+use super::codec::{FieldCodec, FieldError};
 use super::field::FieldInfo;
+use super::numeric::Exponent;
 use super::value::Value;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
@@ -116,6 +117,42 @@ pub struct FieldDef {
     pub also: Vec<i64>,
     /// The profile's example command value for this field, checked at load.
     pub example: Option<String>,
+    /// The field holding the power of ten this number is multiplied by (`scale_by`).
+    pub scale_by: Option<usize>,
+}
+
+impl Compiled {
+    /// The exponent field `index` is read or written with: [`Exponent::None`] without
+    /// `scale_by`; otherwise the exponent field's value as `read` gives it (None: it was not
+    /// read with the value).
+    pub fn exponent_for(
+        &self,
+        index: usize,
+        read: impl FnOnce(usize) -> Option<Result<Value, FieldError>>,
+    ) -> Exponent {
+        let Some(exponent) = self.defs.get(index).and_then(|def| def.scale_by) else {
+            return Exponent::None;
+        };
+        match read(exponent) {
+            None => Exponent::Unusable("the exponent was not read with the value".to_string()),
+            Some(Ok(value)) => Exponent::from_value(Ok(&value)),
+            Some(Err(error)) => Exponent::from_value(Err(error.to_string())),
+        }
+    }
+
+    /// The exponent of field `index` from `image`, a whole image of its exponent's block, when
+    /// that is `block`.
+    pub fn exponent_in(
+        &self,
+        index: usize,
+        block: usize,
+        image: &super::codec::BlockImage,
+    ) -> Exponent {
+        self.exponent_for(index, |exponent| {
+            let def = &self.defs[exponent];
+            (def.block == block).then(|| def.codec.decode(image, def.offset))
+        })
+    }
 }
 
 /// A compiled forbidden combination.

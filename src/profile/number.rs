@@ -48,6 +48,11 @@ impl<'a> DecimalText<'a> {
         })
     }
 
+    /// How many decimals the number is written with (`12.340` → 3), at most 255.
+    pub fn places(&self) -> u8 {
+        u8::try_from(self.fraction.len()).unwrap_or(u8::MAX)
+    }
+
     /// The number in units of 10^-`precision` (`12.34` at 2 → 1234), exactly. Trailing zeros
     /// beyond the precision are fine (`12.340`); any other extra digit is refused, whatever the
     /// magnitude.
@@ -81,6 +86,12 @@ impl<'a> DecimalText<'a> {
 /// Whether `text` is a number by the grammar.
 pub fn is_number(text: &str) -> bool {
     DecimalText::parse(text).is_some()
+}
+
+/// `text` as an integer of any register width (a u64 counter, an i64): a number whose
+/// decimals, if any, are all zeros. None for anything else.
+pub fn wide_integer(text: &str) -> Option<i128> {
+    DecimalText::parse(text)?.scaled(0).ok()
 }
 
 /// `text` as an integer: a number whose decimals, if any, are all zeros (`8`, `8.0`, `-0`).

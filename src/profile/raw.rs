@@ -39,8 +39,8 @@ impl Profile {
                 // Keep sensor-like magnitudes for unbounded floats.
                 let (min, max) = (min.max(-1000.0), max.min(1000.0));
                 let (low, middle) = (
-                    (min * factor).round() as i64,
-                    ((min + max) / 2.0 * factor).round() as i64,
+                    (min * factor).round() as i128,
+                    ((min + max) / 2.0 * factor).round() as i128,
                 );
                 Value::Decimal {
                     scaled: on_step(middle, low, step),
@@ -172,7 +172,7 @@ impl Profile {
 }
 
 /// `value` moved down to a multiple of `step`, or up when that falls below `min`.
-fn on_step(value: i64, min: i64, step: i64) -> i64 {
+fn on_step(value: i128, min: i128, step: i128) -> i128 {
     let down = value - value.rem_euclid(step);
     if down < min {
         down + step

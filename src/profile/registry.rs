@@ -37,6 +37,14 @@ const LIBRARY: &[(&str, &str)] = &[
         "eastron-sdm630",
         include_str!("../../config/profiles/eastron-sdm630.toml"),
     ),
+    (
+        "abb-a43",
+        include_str!("../../config/profiles/abb-a43.toml"),
+    ),
+    (
+        "sunspec-inverter",
+        include_str!("../../config/profiles/sunspec-inverter.toml"),
+    ),
 ];
 
 fn all_built_in() -> impl Iterator<Item = &'static (&'static str, &'static str)> {

@@ -170,8 +170,16 @@ pub fn datatype_for(info: &FieldInfo) -> DataType {
     match &info.kind {
         FieldKind::Bool | FieldKind::Momentary => DataType::Boolean,
         FieldKind::Integer { min, max } => {
-            let low = info.also.iter().copied().fold(*min, i64::min);
-            let high = info.also.iter().copied().fold(*max, i64::max);
+            let low = info
+                .also
+                .iter()
+                .map(|v| i128::from(*v))
+                .fold(*min, i128::min);
+            let high = info
+                .also
+                .iter()
+                .map(|v| i128::from(*v))
+                .fold(*max, i128::max);
             integer_type(low, high)
         }
         FieldKind::Decimal {
@@ -191,7 +199,7 @@ pub fn datatype_for(info: &FieldInfo) -> DataType {
 }
 
 /// The narrowest Sparkplug integer type holding `low..=high`.
-fn integer_type(low: i64, high: i64) -> DataType {
+fn integer_type(low: i128, high: i128) -> DataType {
     if low >= 0 {
         match high {
             ..=0xff => DataType::UInt8,
@@ -199,11 +207,11 @@ fn integer_type(low: i64, high: i64) -> DataType {
             0x1_0000..=0xffff_ffff => DataType::UInt32,
             _ => DataType::UInt64,
         }
-    } else if low >= i64::from(i8::MIN) && high <= i64::from(i8::MAX) {
+    } else if low >= i128::from(i8::MIN) && high <= i128::from(i8::MAX) {
         DataType::Int8
-    } else if low >= i64::from(i16::MIN) && high <= i64::from(i16::MAX) {
+    } else if low >= i128::from(i16::MIN) && high <= i128::from(i16::MAX) {
         DataType::Int16
-    } else if low >= i64::from(i32::MIN) && high <= i64::from(i32::MAX) {
+    } else if low >= i128::from(i32::MIN) && high <= i128::from(i32::MAX) {
         DataType::Int32
     } else {
         DataType::Int64
@@ -322,28 +330,30 @@ pub fn json_metric_value(datatype: DataType, value: &Json) -> Option<MetricValue
             .as_f64()
             .map(|number| MetricValue::Float(number as f32)),
         (DataType::Double, Json::Number(number)) => number.as_f64().map(MetricValue::Double),
-        (datatype, Json::Number(number)) => integer_to_wire(datatype, number.as_i64()?),
+        (datatype, Json::Number(number)) => {
+            let integer = match number.as_i64() {
+                Some(signed) => i128::from(signed),
+                None => i128::from(number.as_u64()?),
+            };
+            integer_to_wire(datatype, integer)
+        }
         _ => None,
     }
 }
 
 /// An integer in its Sparkplug wire form: 8-, 16- and 32-bit types in `int_value`, 64-bit ones
 /// in `long_value`, negatives as two's complement in the type's width.
-fn integer_to_wire(datatype: DataType, number: i64) -> Option<MetricValue> {
+fn integer_to_wire(datatype: DataType, number: i128) -> Option<MetricValue> {
     let (bits, signed) = datatype.integer_bits()?;
     let fits = if signed {
-        bits == 64 || (-(1i64 << (bits - 1))..(1i64 << (bits - 1))).contains(&number)
+        (-(1i128 << (bits - 1))..(1i128 << (bits - 1))).contains(&number)
     } else {
-        number >= 0 && (bits == 64 || number < (1i64 << bits))
+        (0..(1i128 << bits)).contains(&number)
     };
     if !fits {
         return None;
     }
-    let word = if bits == 64 {
-        number as u64
-    } else {
-        (number as u64) & ((1u64 << bits) - 1)
-    };
+    let word = (number as u64) & (u64::MAX >> (64 - bits));
     Some(if bits == 64 {
         MetricValue::Long(word)
     } else {
@@ -386,7 +396,8 @@ mod tests {
         assert_eq!(integer_type(-1, 127), DataType::Int8);
         assert_eq!(integer_type(-1, 128), DataType::Int16);
         assert_eq!(integer_type(-40_000, 0), DataType::Int32);
-        assert_eq!(integer_type(i64::MIN, 0), DataType::Int64);
+        assert_eq!(integer_type(i128::from(i64::MIN), 0), DataType::Int64);
+        assert_eq!(integer_type(0, i128::from(u64::MAX)), DataType::UInt64);
     }
 
     #[test]
@@ -476,7 +487,7 @@ mod tests {
             FieldKind::Bool | FieldKind::Momentary => Value::Bool(true),
             FieldKind::Integer { max, .. } => Value::Int(*max),
             FieldKind::Decimal { max, precision, .. } => Value::Decimal {
-                scaled: (max.min(9999.99) * 10f64.powi(i32::from(*precision))).round() as i64,
+                scaled: (max.min(9999.99) * 10f64.powi(i32::from(*precision))).round() as i128,
                 precision: *precision,
             },
             FieldKind::Enum { options } => Value::Enum(options.last().cloned().unwrap_or_default()),

@@ -855,7 +855,7 @@ mod tests {
             device: "dust".into(),
             values: vec![
                 ("power".into(), Value::Bool(true)),
-                ("gear".into(), Value::Int(gear)),
+                ("gear".into(), Value::Int(i128::from(gear))),
                 ("fan_speed".into(), Value::Int(1450)),
             ],
             read_at: std::time::SystemTime::UNIX_EPOCH,

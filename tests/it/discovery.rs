@@ -53,7 +53,7 @@ fn with_unit(mut field: FieldInfo, unit: &str) -> FieldInfo {
     field
 }
 
-fn int(min: i64, max: i64) -> FieldKind {
+fn int(min: i128, max: i128) -> FieldKind {
     FieldKind::Integer { min, max }
 }
 

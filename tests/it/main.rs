@@ -26,6 +26,7 @@ mod library;
 mod line_server;
 mod logs;
 mod number_grammar;
+mod profile_codecs;
 mod profiles_cli;
 mod profiles_golden;
 mod profiles_valid;

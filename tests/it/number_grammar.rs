@@ -30,7 +30,7 @@ fn accepted(profile: &Profile, field: &str, text: &str) -> Value {
     }
 }
 
-fn decimal(scaled: i64, precision: u8) -> Value {
+fn decimal(scaled: i128, precision: u8) -> Value {
     Value::Decimal { scaled, precision }
 }
 

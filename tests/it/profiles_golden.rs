@@ -1529,7 +1529,7 @@ mod robustness {
                 let Some(info) = numbers.get(pick % numbers.len().max(1)) else { continue };
                 let text = match info.kind {
                     rtu2mqtt::profile::FieldKind::Integer { min, max } => {
-                        (min + ((max - min) as f64 * fraction) as i64).to_string()
+                        (min + ((max - min) as f64 * fraction) as i128).to_string()
                     }
                     rtu2mqtt::profile::FieldKind::Decimal { min, max, precision } => {
                         format!("{:.*}", usize::from(precision), min + (max - min) * fraction)

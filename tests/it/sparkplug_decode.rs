@@ -49,7 +49,7 @@ fn sample(info: &FieldInfo) -> Value {
         FieldKind::Bool | FieldKind::Momentary => Value::Bool(true),
         FieldKind::Integer { max, .. } => Value::Int(*max),
         FieldKind::Decimal { max, precision, .. } => Value::Decimal {
-            scaled: (max.min(1234.5) * 10f64.powi(i32::from(*precision))).round() as i64,
+            scaled: (max.min(1234.5) * 10f64.powi(i32::from(*precision))).round() as i128,
             precision: *precision,
         },
         FieldKind::Enum { options } => Value::Enum(options.last().cloned().unwrap_or_default()),

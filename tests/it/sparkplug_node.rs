@@ -86,7 +86,7 @@ fn dust(gear: i64) -> LineEvent {
         device: "dust".into(),
         values: vec![
             ("power".into(), Value::Bool(true)),
-            ("gear".into(), Value::Int(gear)),
+            ("gear".into(), Value::Int(i128::from(gear))),
         ],
         read_at: std::time::SystemTime::UNIX_EPOCH,
     }
