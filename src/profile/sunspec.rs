@@ -160,9 +160,9 @@ pub fn codec_of(point: &Point) -> Option<String> {
     Some(text)
 }
 
-/// `PhVphA` → `ph_vph_a`, `W_SF` → `w_sf`, `DCWH` → `dcwh`.
+/// `PhVphA` → `ph_vph_a`, `W_SF` → `w_sf`, `DCWH` → `dcwh`, `VAr` (the unit) → `var`.
 pub fn snake(name: &str) -> String {
-    let chars: Vec<char> = name.chars().collect();
+    let chars: Vec<char> = name.replace("VAr", "Var").chars().collect();
     let mut out = String::new();
     for (i, &c) in chars.iter().enumerate() {
         if c.is_ascii_uppercase() && i > 0 {
@@ -646,6 +646,9 @@ mod tests {
         assert_eq!(snake("TmpCab"), "tmp_cab");
         assert_eq!(snake("WMaxLimPct_RvrtTms"), "w_max_lim_pct_rvrt_tms");
         assert_eq!(snake("TotWhImpPhA"), "tot_wh_imp_ph_a");
+        assert_eq!(snake("VAr_SF"), "var_sf");
+        assert_eq!(snake("VArMaxQ1"), "var_max_q1");
+        assert_eq!(snake("VA"), "va");
     }
 
     #[test]
