@@ -433,7 +433,8 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
             if let FieldKind::Enum { options } = &field.kind {
                 put("options", json!(options));
             }
-            if let FieldKind::Decimal { precision, .. } = field.kind {
+            // A `scale_by` number has as many places as its device's exponent gives it.
+            if let (FieldKind::Decimal { precision, .. }, None) = (&field.kind, &field.scaled_by) {
                 put("suggested_display_precision", json!(precision));
             }
         }

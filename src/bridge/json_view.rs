@@ -35,3 +35,20 @@ pub fn json_view(state: &DeviceState) -> Json {
 pub fn json_view_payload(state: &DeviceState) -> Vec<u8> {
     json_view(state).to_string().into_bytes()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unavailable_value_is_null_and_a_64_bit_counter_exact() {
+        let mut state = DeviceState::new();
+        state.insert("current".to_string(), Value::Unavailable);
+        state.insert("energy".to_string(), Value::Int(18_446_744_073_709_551_614));
+        state.insert("model".to_string(), Value::Text("SDM630".to_string()));
+        assert_eq!(
+            String::from_utf8_lossy(&json_view_payload(&state)),
+            r#"{"current":null,"energy":18446744073709551614,"model":"SDM630"}"#
+        );
+    }
+}

@@ -107,3 +107,99 @@ impl DeviceRuntime {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::profile::Profile;
+
+    /// A fast block holding the exponent, a slow one holding the value it scales.
+    const PROFILE: &str = r#"
+[device]
+name = "scaled"
+manufacturer = "Test"
+model = "S1"
+
+[line]
+
+[[blocks]]
+name = "factors"
+function = 3
+start = 0
+count = 1
+
+[[blocks]]
+name = "ratings"
+function = 3
+start = 10
+count = 1
+poll = "slow"
+
+[[fields]]
+name = "rating_sf"
+block = "factors"
+offset = 0
+codec = { type = "i16", invalid = [0x8000] }
+
+[[fields]]
+name = "rating"
+block = "ratings"
+offset = 0
+codec = { type = "u16", scale_by = "rating_sf" }
+"#;
+
+    fn runtime() -> DeviceRuntime {
+        let profile = Profile::from_toml(PROFILE, "scaled.toml").expect("valid profile");
+        let mut runtime = DeviceRuntime::new(DeviceSpec {
+            name: "scaled".to_string(),
+            address: 1,
+            profile: Arc::new(profile),
+            poll_interval: Duration::from_millis(100),
+        });
+        runtime.stats.online = true;
+        runtime
+    }
+
+    fn words(word: u16) -> Response {
+        Response::HoldingRegisters(vec![word])
+    }
+
+    fn decoded(runtime: &mut DeviceRuntime, block: usize, answer: &Response) -> Values {
+        let mut values = Values::new();
+        runtime.decode_into(block, answer, &mut values);
+        values
+    }
+
+    #[test]
+    fn an_exponent_in_another_block_is_its_latest_read() {
+        let mut runtime = runtime();
+        // Not read yet: the value is invalid data, not published.
+        assert!(decoded(&mut runtime, 1, &words(4200)).is_empty());
+        assert_eq!(runtime.stats.field_errors, 1);
+        let exponent = decoded(&mut runtime, 0, &words(0xFFFE));
+        assert_eq!(exponent, [("rating_sf".to_string(), Value::Int(-2))]);
+        let value = Value::Decimal {
+            scaled: 4200,
+            precision: 2,
+        };
+        // The value's answer did not change, but its exponent did: it is decoded again.
+        assert!(!runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(
+            decoded(&mut runtime, 1, &words(4200)),
+            [("rating".to_string(), value.clone())]
+        );
+        assert!(runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(runtime.known_state()["rating"], value);
+        // "Not implemented": the value is unavailable, not an error.
+        decoded(&mut runtime, 0, &words(0x8000));
+        assert!(!runtime.answer_unchanged(1, &words(4200)));
+        assert_eq!(
+            decoded(&mut runtime, 1, &words(4200)),
+            [("rating".to_string(), Value::Unavailable)]
+        );
+        assert_eq!(runtime.stats.field_errors, 1);
+    }
+}

@@ -238,11 +238,10 @@ impl FieldCodec {
                 options.is_empty().then_some(Value::Int(1))
             }
             Self::Char => Some(Value::Int(1)),
-            // A float holds any value, and a `scale_by` number's step follows its exponent:
-            // commands keep to the shown places (the slot refuses what the exponent cannot hold).
-            Self::Number(number) if number.ty.is_float() || number.scaled_by_exponent => {
-                Some(last_place(number.max_precision(), 1))
-            }
+            // A float holds any value: commands keep to the shown places.
+            Self::Number(number) if number.ty.is_float() => Some(last_place(number.decimals, 1)),
+            // A `scale_by` number's real step follows its exponent (the slot refuses what the
+            // exponent read there cannot hold); shown is one raw count at exponent 0.
             Self::Number(number) => Some(last_place(number.decimals, i128::from(number.factor))),
             Self::Bcd { frac_digits, .. } => Some(last_place(*frac_digits, 1)),
         }

@@ -999,6 +999,7 @@ fn build_field(
             IdentityKey::SwVersion => Identity::SoftwareVersion,
         }),
         min_write_interval: field.min_write_interval,
+        scaled_by: field.codec.scale_by().map(str::to_string),
     };
     if let Some(label) = &field.label {
         if label.trim().is_empty() || label.trim() != label || label.chars().any(char::is_control) {

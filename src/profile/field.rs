@@ -81,4 +81,7 @@ pub struct FieldInfo {
     pub identity: Option<Identity>,
     /// Minimum time between two writes of this field (protects device EEPROM).
     pub min_write_interval: Option<Duration>,
+    /// The field holding the power of ten this number is multiplied by (`scale_by`): its
+    /// places follow the device, up to those of [`FieldKind::Decimal`]'s precision.
+    pub scaled_by: Option<String>,
 }

@@ -6,9 +6,9 @@
 //! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
 //!
 //! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
-//! [`registers`], [`numeric`], [`text`], [`rejection`], [`field`], [`codec`], [`model`], [`format`](mod@format), [`compile`], then [`command`] and
-//! [`raw`] (planning and patching on the model); this file's [`Profile`] is what the rest of the
-//! crate sees.
+//! [`registers`], [`numeric`], [`text`], [`rejection`], [`field`], [`codec`], [`model`],
+//! [`format`](mod@format), [`compile`], then [`command`] and [`raw`] (planning and patching on
+//! the model); this file's [`Profile`] is what the rest of the crate sees.
 
 pub mod bcd;
 pub mod codec;

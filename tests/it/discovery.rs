@@ -45,6 +45,7 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         label: None,
         identity: None,
         min_write_interval: None,
+        scaled_by: None,
     }
 }
 

@@ -224,3 +224,364 @@ address = 1
         .all(|m| !m.text().is_empty()));
     gateway.stop().await;
 }
+
+/// A profile with `fields` (TOML `[[fields]]` tables) on a holding block of 12 registers and a
+/// slow input block of 2 (whose second register is a serial number).
+fn profile_with(fields: &str) -> Result<Profile, rtu2mqtt::profile::ProfileErrors> {
+    let text = format!(
+        r#"
+[device]
+name = "codecs"
+manufacturer = "Test"
+model = "C1"
+
+[line]
+
+[[blocks]]
+name = "main"
+function = 3
+start = 0
+count = 12
+
+[[blocks]]
+name = "nameplate"
+function = 4
+start = 0x100
+count = 2
+poll = "slow"
+
+[[fields]]
+name = "serial"
+block = "nameplate"
+offset = 1
+codec = {{ type = "u16" }}
+{fields}"#
+    );
+    Profile::from_toml(&text, "codecs.toml")
+}
+
+fn refused_with(fields: &str, fragment: &str) {
+    match profile_with(fields) {
+        Ok(_) => panic!("accepted:\n{fields}"),
+        Err(errors) => assert!(
+            errors.to_string().contains(fragment),
+            "expected {fragment:?} in:\n{errors}"
+        ),
+    }
+}
+
+fn field(name: &str, block: &str, offset: u16, codec: &str) -> String {
+    format!("\n[[fields]]\nname = \"{name}\"\nblock = \"{block}\"\noffset = {offset}\ncodec = {codec}\n")
+}
+
+#[test]
+fn codec_keys_are_checked_at_load() {
+    let scaled = field("power", "main", 0, r#"{ type = "i16", scale_by = "sf" }"#);
+    refused_with(&scaled, "no field named `sf`");
+    refused_with(
+        &(scaled.clone() + &field("sf", "main", 1, r#"{ type = "f32" }"#)),
+        "must be a whole-number field",
+    );
+    refused_with(
+        &(scaled.clone() + &field("sf", "main", 1, r#"{ type = "i16", decimals = 1 }"#)),
+        "must be a whole-number field",
+    );
+    refused_with(
+        &(scaled.clone() + &field("sf", "nameplate", 0, r#"{ type = "i16" }"#)),
+        "polled less often than this field's block `main`",
+    );
+    // A slow value may take its exponent from a fast block.
+    let slow_user = field(
+        "rating",
+        "nameplate",
+        0,
+        r#"{ type = "u16", scale_by = "sf" }"#,
+    ) + &field("sf", "main", 1, r#"{ type = "i16", invalid = [0x8000] }"#);
+    assert!(profile_with(&slow_user).is_ok());
+    refused_with(
+        &field("b", "main", 0, r#"{ type = "u8" }"#),
+        "an 8-bit codec names its byte",
+    );
+    refused_with(
+        &field(
+            "w",
+            "main",
+            0,
+            r#"{ type = "u16", word_order = "low_first" }"#,
+        ),
+        "`word_order` is for codecs over several registers",
+    );
+    refused_with(
+        &field("f", "main", 0, r#"{ type = "f32", invalid = [0] }"#),
+        "only integer codecs have invalid raw values",
+    );
+    refused_with(
+        &field("i", "main", 0, r#"{ type = "u16", invalid = [0x10000] }"#),
+        "65536 is not a raw value of this codec",
+    );
+    refused_with(
+        &field(
+            "t",
+            "main",
+            0,
+            r#"{ type = "u16", decimals = 1, offset = 0.05 }"#,
+        ),
+        "offset 0.05 is not a whole number of the last shown place",
+    );
+    refused_with(
+        &(field("s", "main", 0, r#"{ type = "string", registers = 4 }"#)
+            + "write = { function = 16, address = 0 }\n"),
+        "cannot be written",
+    );
+    refused_with(
+        &field("x", "main", 0, r#"{ type = "u64", encoding = "ascii" }"#),
+        "unknown field `encoding`",
+    );
+}
+
+fn fresh(words: &[u16]) -> rtu2mqtt_modbus::Response {
+    rtu2mqtt_modbus::Response::HoldingRegisters(words.to_vec())
+}
+
+#[test]
+fn a_byte_is_written_with_the_other_byte_as_freshly_read() {
+    let profile = profile_with(
+        &(field("mode", "main", 0, r#"{ type = "u8", byte = "high" }"#)
+            + "range = [0, 255]\nwrite = { function = 6, address = 0 }\n"
+            + &field("flags", "main", 0, r#"{ type = "i8", byte = "low" }"#)),
+    )
+    .expect("valid");
+    let state = Default::default();
+    let plan = profile
+        .plan_command("mode", "200", &state)
+        .expect("planned");
+    assert_eq!(plan.reads_before().len(), 1);
+    let writes = plan.writes(&[fresh(&[0x12FE])]).expect("writes");
+    assert_eq!(
+        writes,
+        [rtu2mqtt_modbus::Request::WriteSingleRegister {
+            address: 0,
+            value: 0xC8FE
+        }]
+    );
+    let values = profile.decode_block(0, &fresh(&[0xC8FE; 12]));
+    assert_eq!(values[0].field, "mode");
+    assert_eq!(values[0].value, Ok(rtu2mqtt::profile::Value::Int(200)));
+    assert_eq!(values[1].value, Ok(rtu2mqtt::profile::Value::Int(-2)));
+}
+
+#[test]
+fn a_scaled_write_uses_the_exponent_read_in_its_slot() {
+    let profile = profile_with(
+        &(field(
+            "limit",
+            "main",
+            0,
+            r#"{ type = "u16", scale_by = "limit_sf" }"#,
+        ) + "range = [0, 10000]\nwrite = { function = 6, address = 0 }\n"
+            + &field("limit_sf", "main", 1, r#"{ type = "i16" }"#)),
+    )
+    .expect("valid");
+    let plan = profile
+        .plan_command("limit", "1234.5", &Default::default())
+        .expect("planned");
+    // The exponent is part of what the slot reads before writing and when reading back.
+    assert_eq!(
+        plan.reads_before(),
+        [rtu2mqtt_modbus::Request::ReadHoldingRegisters {
+            start: 0,
+            quantity: 2
+        }]
+    );
+    assert_eq!(
+        plan.readback(),
+        [rtu2mqtt_modbus::Request::ReadHoldingRegisters {
+            start: 0,
+            quantity: 2
+        }]
+    );
+    // Exponent -1: 1234.5 is raw 12345.
+    assert_eq!(
+        plan.writes(&[fresh(&[0, 0xFFFF])]),
+        Ok(vec![rtu2mqtt_modbus::Request::WriteSingleRegister {
+            address: 0,
+            value: 12345
+        }])
+    );
+    assert_eq!(
+        plan.verify(&[fresh(&[12345, 0xFFFF])]),
+        rtu2mqtt::profile::Verification::Applied
+    );
+    // Exponent 0 cannot hold a half: refused, nothing written.
+    let refusal = plan.writes(&[fresh(&[0, 0])]).expect_err("refused");
+    assert!(refusal.0.contains("too many decimals"), "{refusal}");
+}
+
+#[test]
+fn registers_are_written_one_by_one_in_the_codec_order_with_fc06() {
+    let profile = profile_with(
+        &(field(
+            "total",
+            "main",
+            2,
+            r#"{ type = "u32", word_order = "low_first", byte_order = "low_first" }"#,
+        ) + "range = [0, 4000000000]\nwrite = { function = 6, address = 2 }\n"),
+    )
+    .expect("valid");
+    let plan = profile
+        .plan_command("total", "123456789", &Default::default())
+        .expect("planned");
+    // 123456789 = 0x075BCD15, DCBA: 15 CD 5B 07.
+    assert_eq!(
+        plan.writes(&[]),
+        Ok(vec![
+            rtu2mqtt_modbus::Request::WriteSingleRegister {
+                address: 2,
+                value: 0x15CD
+            },
+            rtu2mqtt_modbus::Request::WriteSingleRegister {
+                address: 3,
+                value: 0x5B07
+            },
+        ])
+    );
+}
+
+/// pymodbus's own register conversion (`convert_to_registers`, pymodbus 3.16.1), for both of its
+/// word orders: every case as (codec type, word order, value text, registers).
+const PYMODBUS_CASES: &str = r#"
+import json
+from pymodbus.client.mixin import ModbusClientMixin as M
+D = M.DATATYPE
+cases = [
+    ("u16", D.UINT16, 65535), ("i16", D.INT16, -2),
+    ("u32", D.UINT32, 123456789), ("i32", D.INT32, -123456789),
+    ("u64", D.UINT64, 18446744073709551614), ("i64", D.INT64, -1234567890123),
+    ("f32", D.FLOAT32, 123.456), ("f64", D.FLOAT64, -98765.4321),
+]
+out = []
+for name, datatype, value in cases:
+    for order in ("big", "little"):
+        registers = M.convert_to_registers(value, datatype, word_order=order)
+        out.append([name, order, str(value), registers])
+out.append(["string", "big", "SDM630", M.convert_to_registers("SDM630", D.STRING)])
+print(json.dumps(out))
+"#;
+
+#[test]
+fn the_codecs_read_what_pymodbus_writes_and_write_what_it_would() {
+    let output = std::process::Command::new("python3")
+        .args(["-c", PYMODBUS_CASES])
+        .output()
+        .expect("python3 runs");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let cases: Vec<(String, String, String, Vec<u16>)> =
+        serde_json::from_slice(&output.stdout).expect("the cases as JSON");
+    assert_eq!(cases.len(), 17);
+    for (codec, order, value, registers) in cases {
+        let word_order = if order == "big" {
+            "high_first"
+        } else {
+            "low_first"
+        };
+        let keys = match codec.as_str() {
+            "string" => format!(r#"{{ type = "string", registers = {} }}"#, registers.len()),
+            "u16" | "i16" => format!(r#"{{ type = "{codec}" }}"#),
+            "f32" | "f64" => {
+                format!(r#"{{ type = "{codec}", word_order = "{word_order}", decimals = 4 }}"#)
+            }
+            _ => format!(r#"{{ type = "{codec}", word_order = "{word_order}" }}"#),
+        };
+        let profile = profile_with(&field("value", "main", 0, &keys)).expect("valid");
+        let mut image = registers.clone();
+        image.resize(12, 0);
+        let read = profile.decode_block(0, &fresh(&image));
+        let shown = match &read[0].value {
+            Ok(value) => value.to_text(),
+            Err(error) => panic!("{codec} {order}: {error}"),
+        };
+        let expected = match codec.as_str() {
+            "f32" => "123.4560".to_string(),
+            "f64" => "-98765.4321".to_string(),
+            _ => value.clone(),
+        };
+        assert_eq!(shown, expected, "{codec} {order} {registers:04X?}");
+        if codec != "string" {
+            let parsed = profile.parse_value("value", &value).expect("a value");
+            let (_, patches) = profile.encode_value_raw("value", &parsed).expect("encoded");
+            let written: Vec<u16> = patches.iter().map(|patch| patch.bits).collect();
+            assert_eq!(written, registers, "{codec} {order} {value}");
+        }
+    }
+}
+
+#[test]
+fn a_scaled_write_reads_an_exponent_held_in_another_block_in_its_slot() {
+    let profile = Profile::from_toml(
+        r#"
+[device]
+name = "split"
+manufacturer = "Test"
+model = "S2"
+
+[line]
+
+[[blocks]]
+name = "settings"
+function = 3
+start = 0
+count = 2
+
+[[blocks]]
+name = "factors"
+function = 3
+start = 100
+count = 1
+
+[[fields]]
+name = "limit"
+block = "settings"
+offset = 1
+codec = { type = "u16", scale_by = "limit_sf" }
+range = [0, 100000]
+write = { function = 6, address = 1 }
+
+[[fields]]
+name = "limit_sf"
+block = "factors"
+offset = 0
+codec = { type = "i16" }
+"#,
+        "split.toml",
+    )
+    .expect("valid");
+    let plan = profile
+        .plan_command("limit", "42000", &Default::default())
+        .expect("planned");
+    let exponent_read = rtu2mqtt_modbus::Request::ReadHoldingRegisters {
+        start: 100,
+        quantity: 1,
+    };
+    assert_eq!(plan.reads_before().len(), 2);
+    assert_eq!(plan.reads_before()[1], exponent_read);
+    // The exponent is read back before the value it judges.
+    assert_eq!(plan.readback()[0], exponent_read);
+    // Exponent 3: 42000 is raw 42.
+    assert_eq!(
+        plan.writes(&[fresh(&[0, 0]), fresh(&[3])]),
+        Ok(vec![rtu2mqtt_modbus::Request::WriteSingleRegister {
+            address: 1,
+            value: 42
+        }])
+    );
+    assert_eq!(
+        plan.verify(&[fresh(&[3]), fresh(&[42])]),
+        rtu2mqtt::profile::Verification::Applied
+    );
+    // Without the exponent's answer nothing is written.
+    assert!(plan.writes(&[fresh(&[0, 0])]).is_err());
+}
