@@ -284,6 +284,11 @@ async fn sdm120_publishes_its_map_over_a_pty() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sdm630_publishes_its_map_over_a_pty() {
+    run_on_pty(library::sdm630(), "eastron-sdm630").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn abb_a43_publishes_its_64_bit_counters_over_a_pty() {
     run_on_pty(library::abb_a43(), "abb-a43").await;
 }
@@ -413,4 +418,45 @@ async fn sunspec_walks_the_inverter_and_its_profile_reads_it() {
     let gateway = Gateway::start(fast_config(&text)).await;
     assert_published(&mut client, "written sunspec profile", &entries).await;
     gateway.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sunspec_over_modbus_tcp_writes_the_profile_to_standard_output() {
+    let shared: SharedDevice = share(library::sunspec_chain().device(7)).1;
+    let sim = TcpSimulator::bind(
+        "127.0.0.1:0",
+        Protocol::ModbusTcp,
+        ServeOptions::new(9600, Parity::None),
+        vec![shared],
+    )
+    .await
+    .unwrap();
+    let url = sim.url();
+    let output = tokio::task::spawn_blocking(move || {
+        Command::new(child::BIN)
+            .args(["sunspec", "--address", "7", "--url", &url])
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("SunSpec map at address 7, base 40000"),
+        "{stderr}"
+    );
+    let text = String::from_utf8_lossy(&output.stdout);
+    let profile = Profile::from_toml(&text, "stdout").unwrap_or_else(|e| panic!("{e}\n{text}"));
+    assert_eq!(profile.default_address(), Some(7));
+    let blocks: Vec<&str> = profile
+        .read_blocks()
+        .iter()
+        .map(|b| b.name.as_str())
+        .collect();
+    assert_eq!(blocks, ["m1_common", "m103_inverter", "m160_mppt"]);
+    // Only reads (FC03) went to the device: marker, headers to the end marker, model 1.
+    let requests = sim.journal().requests();
+    assert!(requests.len() >= 6, "{}", requests.len());
+    assert!(requests.iter().all(|r| r.frame.get(1) == Some(&3)));
 }
