@@ -466,7 +466,24 @@ impl FieldCodec {
                 ])
             }
             Self::Bytes { .. } => Err("a byte string is read-only".to_string()),
-            Self::Text { .. } => Err("text is read-only".to_string()),
+            // The device side only (simulators seeding a model name): commands never get here,
+            // a string having no write rule and no command kind.
+            Self::Text {
+                registers,
+                byte_order,
+                ..
+            } => {
+                let Value::Text(text) = value else {
+                    return Err(format!("{value:?} is not text"));
+                };
+                let words = text::encode(text, *registers, *byte_order)
+                    .ok_or_else(|| format!("`{text}` does not fit {registers} registers"))?;
+                Ok(words
+                    .into_iter()
+                    .zip(0u16..)
+                    .map(|(bits, rel)| word(rel, 0xFFFF, bits))
+                    .collect())
+            }
         }
     }
 }

@@ -1045,7 +1045,16 @@ fn field_kind(
                 );
                 return None;
             }
-            let (low, high) = (low as i128, high as i128);
+            // A bound written as the codec's own limit means that limit, though a 64-bit one
+            // has no exact spelling in a TOML float (`1.8446744073709552e19` is u64::MAX).
+            let exact = |bound: f64, limit: i128| {
+                if bound == limit as f64 {
+                    limit
+                } else {
+                    bound as i128
+                }
+            };
+            let (low, high) = (exact(low, min), exact(high, max));
             if low > high || low < min || high > max {
                 problems.add(
                     format!("{place}.range"),

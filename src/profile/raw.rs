@@ -10,7 +10,8 @@ use rtu2mqtt_modbus::{Request, Response};
 
 impl Profile {
     /// A plausible value for a field: the middle of a number's range, the first option of an
-    /// enumeration, OFF for booleans, zeros for text. Always encodable by the field's codec.
+    /// enumeration, OFF for booleans, a `string` its own name (byte strings none). Always
+    /// encodable by the field's codec.
     pub fn plausible_value(&self, field: &str) -> Option<Value> {
         let index = self
             .inner
@@ -48,11 +49,21 @@ impl Profile {
                 }
             }
             FieldKind::Enum { options } => Value::Enum(options.first()?.clone()),
-            FieldKind::Text => return None,
+            // A `string` holds its own name, as much as fits (`MODEL`); byte strings stay zero.
+            FieldKind::Text => match self.inner.defs[index].codec {
+                super::codec::FieldCodec::Text { registers, .. } => Value::Text(
+                    info.name
+                        .to_ascii_uppercase()
+                        .chars()
+                        .take(2 * usize::from(registers))
+                        .collect(),
+                ),
+                _ => return None,
+            },
         })
     }
 
-    /// An image of `read_blocks()[block]` with every field at its plausible value (text fields
+    /// An image of `read_blocks()[block]` with every field at its plausible value (byte strings
     /// and unused places zero). None for an unknown block.
     pub fn initial_image(&self, block: usize) -> Option<BlockImage> {
         let read = self.inner.blocks.get(block)?;

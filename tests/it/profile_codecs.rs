@@ -585,3 +585,81 @@ codec = { type = "i16" }
     // Without the exponent's answer nothing is written.
     assert!(plan.writes(&[fresh(&[0, 0])]).is_err());
 }
+
+#[test]
+fn sixty_four_bit_commands_are_read_exactly() {
+    let profile = profile_with(
+        &(field("counter", "main", 0, r#"{ type = "u64" }"#)
+            + "range = [0, 1.8446744073709552e19]\nwrite = { function = 16, address = 0 }\n"
+            + &field(
+                "offset_count",
+                "main",
+                4,
+                r#"{ type = "i64", word_order = "low_first" }"#,
+            )
+            + "range = [-9.223372036854775808e18, 9.223372036854775807e18]\n"
+            + "write = { function = 16, address = 4 }\n"),
+    )
+    .expect("valid");
+    let state = Default::default();
+    let plan = profile
+        .plan_command("counter", "18446744073709551615", &state)
+        .expect("u64::MAX is a command");
+    assert_eq!(
+        plan.writes(&[]),
+        Ok(vec![rtu2mqtt_modbus::Request::WriteMultipleRegisters {
+            start: 0,
+            values: vec![0xFFFF; 4]
+        }])
+    );
+    for refused in [
+        "18446744073709551616",
+        "-1",
+        "1e19",
+        "18446744073709551615.5",
+    ] {
+        assert!(
+            profile.plan_command("counter", refused, &state).is_err(),
+            "{refused}"
+        );
+    }
+    let plan = profile
+        .plan_command("offset_count", "-9223372036854775808", &state)
+        .expect("i64::MIN is a command");
+    assert_eq!(
+        plan.writes(&[]),
+        Ok(vec![rtu2mqtt_modbus::Request::WriteMultipleRegisters {
+            start: 4,
+            values: vec![0, 0, 0, 0x8000]
+        }])
+    );
+    // One above i64::MAX: refused, not rounded to a neighbour.
+    assert!(profile
+        .plan_command("offset_count", "9223372036854775808", &state)
+        .is_err());
+}
+
+#[test]
+fn a_generic_simulator_seeds_a_string_with_its_name() {
+    let profile = profile_with(&field(
+        "model",
+        "main",
+        0,
+        r#"{ type = "string", registers = 2 }"#,
+    ))
+    .expect("valid");
+    let image = profile.initial_image(0).expect("an image");
+    let rtu2mqtt::profile::BlockImage::Words(words) = image else {
+        panic!("a register block");
+    };
+    assert_eq!(&words[..2], [0x4D4F, 0x4445]);
+    let values = profile.decode_block(0, &fresh(&words));
+    assert_eq!(
+        values[0].value,
+        Ok(rtu2mqtt::profile::Value::Text("MODE".into()))
+    );
+    // Still no command: a string is read-only.
+    assert!(profile
+        .plan_command("model", "X", &Default::default())
+        .is_err());
+}
