@@ -2,8 +2,7 @@
 //! coil, discrete input and register the blocks cover, seeded with plausible values, and
 //! FC01–06/0F/10 on it. Places no field uses get small numbers whose hex digits are all
 //! decimal; each field then gets a value inside its range (the middle of a number's range,
-//! an enumeration's first word, OFF), put in place by the profile's own encoder; text gets
-//! printable characters.
+//! an enumeration's first word, OFF), put in place by the profile's own encoder.
 //!
 //! Reads outside the memory give exception 02. Writes land anywhere in the coil and holding
 //! register tables (a profile may write at addresses it reads elsewhere, like the dust
@@ -39,28 +38,9 @@ impl GenericDevice {
     /// with a plausible value.
     pub fn from_profile(profile: &Profile, address: SlaveId) -> Self {
         let mut device = Self::from_blocks(profile.read_blocks(), address);
-        for (index, field) in profile.fields().iter().enumerate() {
+        for field in profile.fields() {
             // A button has no state to seed.
             if field.kind == FieldKind::Momentary {
-                continue;
-            }
-            // Text is read-only, so it has no encoder: its registers get printable characters.
-            if field.kind == FieldKind::Text {
-                if let Some(def) = profile.inner.defs.get(index) {
-                    let patches: Vec<RawPatch> = def
-                        .codec
-                        .footprint(def.offset)
-                        .into_iter()
-                        .map(|(offset, mask)| RawPatch {
-                            offset,
-                            mask,
-                            bits: u16::from_be_bytes(*b"AB") & mask,
-                        })
-                        .collect();
-                    if let Some(read) = profile.read_blocks().get(def.block) {
-                        device.patch(&read.request, &patches);
-                    }
-                }
                 continue;
             }
             let Some(value) = profile.plausible_value(&field.name) else {
