@@ -1,4 +1,5 @@
-//! The command line (clap): `run | check | demo | simulate | scan | read | profiles | health`
+//! The command line (clap): `run | check | demo | simulate | scan | read | sunspec | profiles |
+//! health`
 //! (`demo` and `simulate` with the feature `demo`).
 
 use std::path::PathBuf;
@@ -66,6 +67,9 @@ pub enum Command {
     Scan(ScanArgs),
     /// One raw read, shown as hex and decoded every way a profile could (never a write).
     Read(ReadArgs),
+    /// Find a SunSpec device's map ("SunS" at 40000, 0 or 50000), walk its model chain, print
+    /// what it found on stderr and write a profile for the models known (never a write).
+    Sunspec(SunspecArgs),
     /// List profiles with their fields: every built-in one, or only those named.
     Profiles {
         /// Built-in profile names and/or profile file paths (none: every built-in profile).
@@ -202,6 +206,29 @@ pub struct ReadArgs {
     pub timeout: std::time::Duration,
 }
 
+#[derive(Debug, Args)]
+pub struct SunspecArgs {
+    /// Serial port path (a running gateway's port is refused).
+    #[arg(long, required_unless_present = "url", conflicts_with = "url")]
+    pub port: Option<PathBuf>,
+    /// Instead of a port: `tcp://host:port` (a serial device server) or
+    /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
+    #[arg(long)]
+    pub url: Option<String>,
+    #[arg(long, value_parser = parse_address)]
+    pub address: u8,
+    #[arg(long, default_value_t = 9600)]
+    pub baud: u32,
+    /// none | even | odd
+    #[arg(long, default_value = "none")]
+    pub parity: String,
+    #[arg(long, default_value = "1s", value_parser = humantime::parse_duration)]
+    pub timeout: std::time::Duration,
+    /// Write the profile to this file instead of standard output.
+    #[arg(long)]
+    pub output: Option<PathBuf>,
+}
+
 /// Accepts `4096` or `0x1000`.
 pub fn parse_u16(text: &str) -> Result<u16, String> {
     let parsed = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
@@ -222,7 +249,9 @@ mod tests {
             .get_subcommands()
             .map(|command| command.get_name().to_string())
             .collect();
-        for command in ["run", "check", "scan", "read", "profiles", "health"] {
+        for command in [
+            "run", "check", "scan", "read", "sunspec", "profiles", "health",
+        ] {
             assert!(commands.iter().any(|c| c == command), "{commands:?}");
         }
         for command in ["demo", "simulate"] {

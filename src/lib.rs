@@ -12,15 +12,16 @@
 //!   behind one [`rtu2mqtt_modbus::link::Link`]. It knows nothing of MQTT or the configuration.
 //! - [`profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
 //!   and write rules; pure functions decode raw blocks into field values and turn a command into
-//!   the frames of one bus slot. No I/O.
+//!   the frames of one bus slot. No I/O. Built in: the seed devices and the device library;
+//!   the SunSpec model table and the profile `rtu2mqtt sunspec` writes from it.
 //! - [`bus`]: one task per line. It owns the link, decides what is due (pure scheduler with the
 //!   clock passed in), runs polls and command slots, tracks device health and line statistics,
 //!   and reports [`bus::LineEvent`]s (a slot's values before its command's end; fields with
 //!   `publish` settings by exception, decided once for every consumer). A line may be
 //!   served to other Modbus masters ([`bus::serve`]): their requests are slots of its scheduler.
 //! - `sim` (feature `demo`): simulated devices (the three seed devices written from
-//!   `docs/devices.md`, and a generic one built from any profile), on ptys or TCP, for tests,
-//!   benchmarks and the demo.
+//!   `docs/devices.md`, the device library's register maps, and a generic one built from any
+//!   profile), on ptys or TCP, for tests, benchmarks and the demo.
 //! - [`contract`]: the MQTT contract (topic names, Home Assistant ids, payload words, reserved
 //!   names), pure strings shared by the configuration check, discovery and the bridge.
 //! - [`config`]: the gateway configuration (file + environment), validated completely with the
@@ -38,7 +39,7 @@
 //!   as historical DDATA.
 //! - `broker` (feature `demo`): the demo's embedded MQTT broker; [`cli`]: the command line.
 //! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, the
-//!   commissioning tools `scan` and `read`, and with the feature `demo`, `demo` and `simulate`.
+//!   commissioning tools `scan`, `read` and `sunspec`, and with the feature `demo`, `demo` and `simulate`.
 //!
 //! The feature `demo` (on by default) brings the simulators, the demo, its embedded broker and
 //! `simulate`; the daemon for an edge box is built without it (`--no-default-features`).

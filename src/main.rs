@@ -18,6 +18,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => rtu2mqtt::app::simulate::simulate(&args),
         Command::Scan(args) => rtu2mqtt::app::scan::scan(&args),
         Command::Read(args) => rtu2mqtt::app::read::read(&args),
+        Command::Sunspec(args) => rtu2mqtt::app::sunspec::sunspec(&args),
         Command::Profiles { paths } => rtu2mqtt::profile::registry::print_profiles(&paths),
         Command::Health {
             status_file,

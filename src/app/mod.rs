@@ -12,6 +12,7 @@ pub mod reload;
 pub mod scan;
 #[cfg(feature = "demo")]
 pub mod simulate;
+pub mod sunspec;
 
 use std::path::Path;
 use std::process::ExitCode;

@@ -1,8 +1,9 @@
 //! `rtu2mqtt simulate`: one simulated device or a seed plant line on a serial port (a socat pty
 //! or a real adapter for bench tests) or behind a TCP port (`--listen tcp://…` or
-//! `modbus-tcp://…`). The three seed devices by their profile names; any other profile (built-in
-//! name or file) as a generic device built from its read blocks. Logs every request; Ctrl-C
-//! stops.
+//! `modbus-tcp://…`). The three seed devices by their profile names, the device library's by
+//! theirs (`eastron-sdm120`, `sunspec-inverter`, … from their register maps); any other profile
+//! (built-in name or file) as a generic device built from its read blocks. Logs every request;
+//! Ctrl-C stops.
 
 use std::future::Future;
 use std::path::Path;
@@ -35,7 +36,10 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
             }
             share(AirShower::new()).1
         }
-        other => generic_device(other, address)?,
+        other => match crate::sim::library::device(other) {
+            Some(library) => share(library.map.device(address.unwrap_or(1))).1,
+            None => generic_device(other, address)?,
+        },
     })
 }
 

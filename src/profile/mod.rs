@@ -24,6 +24,7 @@ pub mod raw;
 pub mod registers;
 pub mod registry;
 pub mod rejection;
+pub mod sunspec;
 pub mod text;
 pub mod value;
 

@@ -1,7 +1,8 @@
 //! Built-in profiles (compiled into the binary) and loading a profile by name or by path.
 //!
 //! The built-ins are the files in `config/profiles/`, included at compile time, so the binary
-//! works alone and the files users copy are exactly what runs.
+//! works alone and the files users copy are exactly what runs: the seed plant's devices, then
+//! the device library (meters and inverters written from their vendors' public register maps).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -10,8 +11,8 @@ use super::codec;
 use super::model::Behaviour;
 use super::{FieldInfo, FieldKind, Profile, ProfileErrors};
 
-/// (name, TOML text) of every built-in profile.
-const BUILT_IN: &[(&str, &str)] = &[
+/// (name, TOML text) of every built-in profile: the seed plant first, then [`LIBRARY`].
+const SEED: &[(&str, &str)] = &[
     (
         "ruiwan-dust-collector",
         include_str!("../../config/profiles/ruiwan-dust-collector.toml"),
@@ -25,6 +26,30 @@ const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../config/profiles/lixian-air-shower.toml"),
     ),
 ];
+
+/// (name, TOML text) of the device library.
+const LIBRARY: &[(&str, &str)] = &[
+    (
+        "eastron-sdm120",
+        include_str!("../../config/profiles/eastron-sdm120.toml"),
+    ),
+    (
+        "eastron-sdm630",
+        include_str!("../../config/profiles/eastron-sdm630.toml"),
+    ),
+    (
+        "abb-a43",
+        include_str!("../../config/profiles/abb-a43.toml"),
+    ),
+    (
+        "sunspec-inverter",
+        include_str!("../../config/profiles/sunspec-inverter.toml"),
+    ),
+];
+
+fn all_built_in() -> impl Iterator<Item = &'static (&'static str, &'static str)> {
+    SEED.iter().chain(LIBRARY)
+}
 
 /// Why a profile could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -46,13 +71,17 @@ pub enum LoadError {
 
 /// Names of the built-in profiles.
 pub fn built_in_names() -> Vec<&'static str> {
-    BUILT_IN.iter().map(|(name, _)| *name).collect()
+    all_built_in().map(|(name, _)| *name).collect()
+}
+
+/// Names of the device library's profiles (built in too).
+pub fn library_names() -> Vec<&'static str> {
+    LIBRARY.iter().map(|(name, _)| *name).collect()
 }
 
 /// A built-in profile by name.
 pub fn built_in(name: &str) -> Result<Profile, LoadError> {
-    let (_, text) = BUILT_IN
-        .iter()
+    let (_, text) = all_built_in()
         .find(|(known, _)| *known == name)
         .ok_or_else(|| LoadError::UnknownBuiltIn {
             name: name.to_string(),
@@ -292,6 +321,13 @@ pub fn print_profiles(arguments: &[PathBuf]) -> anyhow::Result<ExitCode> {
     let mut problems = String::new();
     for argument in &listed {
         match load_listed(argument) {
+            Ok((profile, None)) if library_names().contains(&profile.name()) => {
+                listing.push_str(&format!(
+                    "{}  device library: config/profiles/{}.toml names its register map\n\n",
+                    describe(&profile),
+                    profile.name()
+                ))
+            }
             Ok((profile, None)) => listing.push_str(&format!("{}\n", describe(&profile))),
             Ok((profile, Some(path))) => listing.push_str(&format!(
                 "{}  file: {}\n\n",

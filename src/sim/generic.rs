@@ -97,6 +97,16 @@ impl GenericDevice {
         }
     }
 
+    /// A device at `address` with no memory yet: registers are added with [`Self::set_holding`]
+    /// and [`Self::set_input_register`] (the device library's register maps).
+    pub fn empty(address: SlaveId) -> Self {
+        Self {
+            address,
+            memory: BTreeMap::new(),
+            writes: 0,
+        }
+    }
+
     /// A register's value (holding registers).
     pub fn holding(&self, address: u16) -> Option<u16> {
         self.memory.get(&(Table::Holding, address)).copied()

@@ -23,6 +23,7 @@ mod gateway_e2e;
 mod golden_frames;
 mod history;
 mod layers;
+mod library;
 mod line_server;
 mod logs;
 mod number_grammar;

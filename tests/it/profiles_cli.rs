@@ -32,7 +32,15 @@ fn without_arguments_every_built_in_is_listed() {
     assert!(output.status.success(), "{}", text(&output.stderr));
     assert_eq!(
         listed(&text(&output.stdout)),
-        ["ruiwan-dust-collector", "wuzhou-valve", "lixian-air-shower"]
+        [
+            "ruiwan-dust-collector",
+            "wuzhou-valve",
+            "lixian-air-shower",
+            "eastron-sdm120",
+            "eastron-sdm630",
+            "abb-a43",
+            "sunspec-inverter"
+        ]
     );
     assert!(output.stderr.is_empty(), "{}", text(&output.stderr));
 }
@@ -79,7 +87,8 @@ fn an_unknown_name_is_refused_with_the_built_ins() {
     assert_eq!(
         text(&output.stderr),
         "`ruiwan-dust-colector` is neither a built-in profile (built-in: \
-         ruiwan-dust-collector, wuzhou-valve, lixian-air-shower) nor a profile file\n"
+         ruiwan-dust-collector, wuzhou-valve, lixian-air-shower, eastron-sdm120, eastron-sdm630, \
+         abb-a43, sunspec-inverter) nor a profile file\n"
     );
 
     // The good ones are still listed; the bad one still fails the run.

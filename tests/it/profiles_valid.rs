@@ -30,9 +30,13 @@ fn every_profile_file_loads() {
     assert_eq!(
         names,
         [
+            "abb-a43",
+            "eastron-sdm120",
+            "eastron-sdm630",
             "generic-th-sensor",
             "lixian-air-shower",
             "ruiwan-dust-collector",
+            "sunspec-inverter",
             "wuzhou-valve"
         ]
     );
@@ -42,7 +46,15 @@ fn every_profile_file_loads() {
 fn built_ins_are_the_files() {
     assert_eq!(
         built_in_names(),
-        ["ruiwan-dust-collector", "wuzhou-valve", "lixian-air-shower"]
+        [
+            "ruiwan-dust-collector",
+            "wuzhou-valve",
+            "lixian-air-shower",
+            "eastron-sdm120",
+            "eastron-sdm630",
+            "abb-a43",
+            "sunspec-inverter"
+        ]
     );
     for name in built_in_names() {
         let compiled_in = built_in(name).unwrap();
