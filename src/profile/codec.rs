@@ -377,7 +377,15 @@ impl FieldCodec {
                 encoding,
                 ..
             } => text::decode(words, *byte_order, *encoding)
-                .map(Value::Text)
+                // No characters at all (SunSpec's "not implemented" string is all NULs) is no
+                // value: an empty retained payload would clear the field's topic instead.
+                .map(|text| {
+                    if text.is_empty() {
+                        Value::Unavailable
+                    } else {
+                        Value::Text(text)
+                    }
+                })
                 .map_err(|error| FieldError::Invalid(error.to_string())),
             Self::Coil { .. } | Self::Coils { .. } => Err(FieldError::Invalid(
                 "bit codec on a register block".to_string(),
@@ -624,5 +632,26 @@ pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
                 ))
             }),
         FieldKind::Text => Err(Rejection(format!("{name} is read-only text"))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_string_of_no_characters_is_unavailable_not_an_empty_payload() {
+        let model = FieldCodec::Text {
+            registers: 2,
+            byte_order: ByteOrder::HighFirst,
+            encoding: Encoding::Ascii,
+        };
+        let decode = |words: Vec<u16>| model.decode(&BlockImage::Words(words), 0);
+        assert_eq!(decode(vec![0, 0]), Ok(Value::Unavailable));
+        assert_eq!(decode(vec![0x2020, 0x2000]), Ok(Value::Unavailable));
+        assert_eq!(
+            decode(vec![0x5344, 0x4D00]),
+            Ok(Value::Text("SDM".to_string()))
+        );
     }
 }
