@@ -959,14 +959,15 @@ impl Line {
         // A raw write passes as it came, but not inside a write interval of a field it covers.
         let raw_write = match device.and_then(|d| self.devices.get(d).map(|r| (d, r))) {
             Some((device, runtime)) if !request.is_read() => {
-                let fields: Vec<String> = runtime
-                    .spec
-                    .profile
-                    .decode_write(&request)
-                    .unwrap_or_default()
-                    .into_iter()
-                    .map(|reading| reading.field)
-                    .collect();
+                // By address through each field's own write, and as the profile's shared frames
+                // read it (the dust collector's gear at 0x1001 of its settings frame).
+                let profile = &runtime.spec.profile;
+                let mut fields = profile.fields_touched(&request);
+                for reading in profile.decode_write(&request).unwrap_or_default() {
+                    if !fields.contains(&reading.field) {
+                        fields.push(reading.field);
+                    }
+                }
                 if let Err(code) = self.client_write_allowed(device, &client, &fields) {
                     let _ = reply.send(Err(code));
                     return;

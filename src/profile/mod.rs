@@ -262,6 +262,37 @@ impl Profile {
         Some(self.decode_read(&read, &image))
     }
 
+    /// Every writable field a foreign master's `write` touches, whole or in part, found by
+    /// address through the fields' write frames: a raw write of one register of a two-register
+    /// value still writes that field (and its EEPROM).
+    pub fn fields_touched(&self, write: &Request) -> Vec<String> {
+        let (start, count, registers) = match write {
+            Request::WriteSingleRegister { address, .. } => (*address, 1, true),
+            Request::WriteMultipleRegisters { start, values } => (*start, values.len(), true),
+            Request::WriteSingleCoil { address, .. } => (*address, 1, false),
+            Request::WriteMultipleCoils { start, values } => (*start, values.len(), false),
+            _ => return Vec::new(),
+        };
+        let first = usize::from(start);
+        let end = first + count;
+        let inner = &self.inner;
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| {
+                let frame = def.write.as_ref()?;
+                if matches!(frame.function, 6 | 16) != registers {
+                    return None;
+                }
+                let at =
+                    usize::from(frame.address) + usize::from(def.offset.checked_sub(frame.offset)?);
+                let width = usize::from(def.codec.width());
+                (at < end && first < at + width).then(|| info.name.clone())
+            })
+            .collect()
+    }
+
     /// The write frame a foreign master's `write` lands on (the first of the profile's that
     /// holds every register or coil it touches), the write's first address and its values.
     fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, u16, Response)> {

@@ -1643,3 +1643,20 @@ fn partial_reads_decode_the_fields_inside_them() {
         )
         .is_empty());
 }
+
+#[test]
+fn a_write_of_part_of_a_field_touches_that_field() {
+    let register = |address| Request::WriteSingleRegister { address, value: 0 };
+    // Either register of the setpoint's BCD pair is a setpoint write (and an EEPROM write).
+    assert_eq!(valve().fields_touched(&register(0xB2)), ["setpoint"]);
+    assert_eq!(valve().fields_touched(&register(0xB3)), ["setpoint"]);
+    // The gear at its own FC06 address; nothing at an address no field writes.
+    assert_eq!(dust().fields_touched(&register(0x1002)), ["gear"]);
+    assert!(dust().fields_touched(&register(0x1003)).is_empty());
+    // A coil write is not a register write.
+    let coil = Request::WriteSingleCoil {
+        address: 0xB2,
+        value: true,
+    };
+    assert!(valve().fields_touched(&coil).is_empty());
+}
