@@ -868,6 +868,18 @@ fn validate_device(
             "must be at most 24h".to_string(),
         ));
     }
+    for (number, exponent) in profile.exponents_read_too_rarely(poll_interval) {
+        problems.push(Problem::new(
+            format!("{place}.poll_interval"),
+            format!(
+                "at {} the exponent `{exponent}` of `{number}` (profile {}) would be read less \
+                 often than `{number}` itself; poll the device at most as often as the \
+                 exponent's block is read",
+                humantime::format_duration(poll_interval),
+                profile.name()
+            ),
+        ));
+    }
     let publish = device_publish(raw, place, &profile, problems);
     if problems.len() != before {
         return None;

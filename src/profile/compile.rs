@@ -1241,13 +1241,19 @@ fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
 }
 
 /// True when a block of class `exponent` is read at least as often as one of class `user`: an
-/// exponent is then never older than the values it scales.
-fn polled_at_least_as_often(exponent: PollClass, user: PollClass, limits: &Limits) -> bool {
-    // A period per class, at the profile's defaults; `None` is a block read only once (at
-    // start, after a write into it, on refresh), which no exponent outlasts.
+/// exponent is then never older than the values it scales. `fast` is the period of the fast
+/// blocks (the profile's default poll interval, or a device's own).
+pub(super) fn polled_at_least_as_often(
+    exponent: PollClass,
+    user: PollClass,
+    limits: &Limits,
+    fast: Duration,
+) -> bool {
+    // A period per class; `None` is a block read only once (at start, after a write into it,
+    // on refresh), which no exponent outlasts.
     let period = |class: PollClass| match class {
-        PollClass::Fast => Some(limits.default_poll_interval),
-        PollClass::Slow => Some(limits.slow_interval.max(limits.default_poll_interval)),
+        PollClass::Fast => Some(fast),
+        PollClass::Slow => Some(limits.slow_interval.max(fast)),
         PollClass::Every(period) => Some(period),
         PollClass::Once => None,
     };
@@ -1303,7 +1309,8 @@ fn resolve_scale_by(
     }
     let blocks = &layout.blocks;
     let (user, held) = (&blocks[defs[index].block], &blocks[defs[exponent].block]);
-    if !polled_at_least_as_often(held.class, user.class, &layout.limits) {
+    let limits = &layout.limits;
+    if !polled_at_least_as_often(held.class, user.class, limits, limits.default_poll_interval) {
         problems.add(
             at,
             format!(

@@ -30,6 +30,7 @@ pub mod value;
 
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::time::Duration;
 
 use rtu2mqtt_modbus::{Request, Response};
 
@@ -260,6 +261,33 @@ impl Profile {
             .request
             .sub_read(frame.offset + (start - frame.address), quantity)?;
         Some(self.decode_read(&read, &image))
+    }
+
+    /// The `scale_by` numbers whose exponent a device polled every `poll_interval` (its fast
+    /// blocks; zero is continuous polling at the profile's minimum) would read less often than
+    /// the number itself, as (number, exponent field). `check` refuses such a device: the
+    /// profile alone is judged at its own default interval.
+    pub fn exponents_read_too_rarely(&self, poll_interval: Duration) -> Vec<(String, String)> {
+        let inner = &self.inner;
+        let fast = if poll_interval.is_zero() {
+            inner.limits.min_poll_interval
+        } else {
+            poll_interval
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| {
+                let exponent = def.scale_by?;
+                let held = inner.blocks.get(inner.defs.get(exponent)?.block)?.class;
+                let user = inner.blocks.get(def.block)?.class;
+                if compile::polled_at_least_as_often(held, user, &inner.limits, fast) {
+                    return None;
+                }
+                Some((info.name.clone(), inner.infos.get(exponent)?.name.clone()))
+            })
+            .collect()
     }
 
     /// Every writable field a foreign master's `write` touches, whole or in part, found by

@@ -586,3 +586,66 @@ fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
     let line_sum: f64 = plan.devices.iter().map(|d| d.bus_load).sum();
     assert!((plan.bus_load - line_sum).abs() < 1e-9);
 }
+
+/// A meter whose power exponent sits in a block of its own read every second, while the power
+/// is in the fast block (every second at the profile's default).
+const SCALED_METER: &str = r#"
+[device]
+name = "scaled-meter"
+manufacturer = "Test"
+model = "S1"
+
+[line]
+min_poll_interval = "100ms"
+poll_interval = "1s"
+
+[[blocks]]
+name = "power"
+function = 3
+start = 0
+count = 1
+
+[[blocks]]
+name = "factors"
+function = 3
+start = 0x10
+count = 1
+poll = "1s"
+
+[[fields]]
+name = "power"
+block = "power"
+offset = 0
+codec = { type = "i16", scale_by = "power_sf" }
+
+[[fields]]
+name = "power_sf"
+block = "factors"
+offset = 0
+codec = { type = "i16" }
+"#;
+
+#[test]
+fn a_device_polled_faster_than_its_exponents_are_read_is_refused_with_its_place() {
+    let config = |poll: &str| {
+        MIXED_CONFIG
+            .replace("cadence-meter.toml", "scaled-meter.toml")
+            .replace(
+                "poll_interval = \"1s\"",
+                &format!("poll_interval = \"{poll}\""),
+            )
+    };
+    let files = [("scaled-meter.toml", SCALED_METER)];
+    let (ok, stdout, stderr) = check_text(&config("1s"), &files);
+    assert!(ok, "{stdout}{stderr}");
+    let (ok, _, stderr) = check_text(&config("500ms"), &files);
+    assert!(
+        !ok,
+        "accepted a fast block read twice as often as its exponent"
+    );
+    assert!(
+        stderr.contains("lines[0].devices[0].poll_interval")
+            && stderr.contains("the exponent `power_sf` of `power`"),
+        "{stderr}"
+    );
+}
