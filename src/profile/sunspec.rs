@@ -286,7 +286,8 @@ fn quoted(text: &str) -> String {
 const MAX_BLOCK: u16 = 125;
 
 /// The TOML text of a profile reading every known model of `chain` (unknown models are listed
-/// in a comment and skipped). Nameplate models (1, 120) are polled slow, the rest fast.
+/// in a comment and skipped). Nameplate models (1, 120) are read once (at start, after an outage, on refresh), the rest
+/// fast.
 pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
     let mut out = String::new();
     let known: Vec<&FoundModel> = chain
@@ -416,7 +417,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
         }
         // Blocks of at most MAX_BLOCK registers, never splitting a point.
         let poll = if matches!(found.id, 1 | 120) {
-            "slow"
+            "once"
         } else {
             "fast"
         };
