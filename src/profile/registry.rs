@@ -118,6 +118,10 @@ pub fn load(reference: &str, base: Option<&Path>) -> Result<Profile, LoadError> 
 /// The field's values as `rtu2mqtt profiles` lists them, with the extra integers its `also`
 /// admits (`integer 0–100 or 255`).
 fn describe_values(field: &FieldInfo) -> String {
+    // Its places follow the exponent the device reports: the range says nothing useful.
+    if let Some(exponent) = &field.scaled_by {
+        return format!("number × 10^{exponent}");
+    }
     let kind = describe_kind(&field.kind);
     if field.also.is_empty() {
         return kind;

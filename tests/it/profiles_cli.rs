@@ -107,3 +107,16 @@ fn decimal_counts_are_spelled_right() {
     assert!(sensor.contains("decimal, 1 decimal"), "{sensor}");
     assert!(sensor.contains("decimal, 2 decimals"), "{sensor}");
 }
+
+#[test]
+fn a_number_scaled_by_an_exponent_field_is_listed_with_that_field() {
+    let output = profiles(&["sunspec-inverter"]);
+    assert!(output.status.success(), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    let line = stdout
+        .lines()
+        .find(|line| line.trim_start().starts_with("ac_power "))
+        .unwrap_or_else(|| panic!("no ac_power in:\n{stdout}"));
+    assert!(line.contains("number × 10^ac_power_sf"), "{line}");
+    assert!(line.trim_end().ends_with('W'), "{line}");
+}
