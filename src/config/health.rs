@@ -6,6 +6,8 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::Problem;
+
 /// Default place of the status file (systemd `RuntimeDirectory=rtu2mqtt`, a tmpfs in Docker).
 pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 
@@ -62,5 +64,47 @@ impl Default for HealthSettings {
             stale_after: Duration::from_secs(15),
             stall_limit: Duration::from_secs(60),
         }
+    }
+}
+
+/// Checks the table; every problem is named with its place (`health.interval`).
+pub(super) fn validate_health(health: &HealthSettings, problems: &mut Vec<Problem>) {
+    if health.interval < Duration::from_millis(100) {
+        problems.push(Problem::new(
+            "health.interval",
+            "must be at least 100ms".to_string(),
+        ));
+    }
+    if health.stale_after <= health.interval {
+        problems.push(Problem::new(
+            "health.stale_after",
+            "must be longer than health.interval".to_string(),
+        ));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_interval_and_staleness_are_refused_at_their_keys() {
+        let mut problems = Vec::new();
+        validate_health(&HealthSettings::default(), &mut problems);
+        assert_eq!(problems, Vec::new());
+        let settings = HealthSettings {
+            interval: Duration::from_millis(50),
+            stale_after: Duration::from_millis(50),
+            ..HealthSettings::default()
+        };
+        validate_health(&settings, &mut problems);
+        let shown: Vec<String> = problems.iter().map(ToString::to_string).collect();
+        assert_eq!(
+            shown,
+            [
+                "health.interval: must be at least 100ms",
+                "health.stale_after: must be longer than health.interval",
+            ]
+        );
     }
 }

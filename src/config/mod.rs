@@ -1,17 +1,24 @@
 //! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
 //! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) read strictly with every
-//! problem placed ([`tree`]), and complete validation ([`validate`]) that names the place of
-//! every problem before anything is opened. [`plan`] computes each line's poll plan and bus
-//! load from the wire timing, for validation and `rtu2mqtt check`. [`sparkplug`] holds the
-//! checked `[sparkplug]` section, [`history`] the `[history]` table.
+//! problem placed ([`tree`]), and complete validation ([`validate`]) that runs every section's
+//! checks and names the place of every problem before anything is opened. Each section is
+//! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
+//! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
+//! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
+//! the quoting they share. [`plan`] computes each line's poll plan and bus load from the wire
+//! timing, for validation and `rtu2mqtt check`.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
+pub mod devices;
+pub mod gateway;
 pub mod health;
 pub mod history;
-pub mod link;
+pub mod lines;
 pub mod load;
+pub mod mqtt;
+pub mod names;
 pub mod plan;
 pub mod schema;
 pub mod sparkplug;

@@ -2,8 +2,11 @@
 //! (group, edge node and optional primary host ids, checked by Sparkplug's rules) and the
 //! broker of its own connection (its own `mqtt` table, or the plain broker under another
 //! client id). Only settings: the edge node itself is `crate::sparkplug`'s; the section as
-//! written is `schema`'s, and `validate` checks its broker like `[mqtt]`.
+//! written is `schema`'s, and its own broker is checked like `[mqtt]` by [`super::mqtt`].
 
+use std::path::Path;
+
+use super::mqtt::validate_mqtt_section;
 use super::schema::SparkplugSettings;
 use super::{MqttSettings, Problem};
 
@@ -67,6 +70,49 @@ pub fn shared_broker(plain: &MqttSettings) -> MqttSettings {
         clean_session: true,
         ..plain.clone()
     }
+}
+
+/// The whole section: identity and broker, every problem added to `problems`. `plain` is the
+/// checked `[mqtt]` (None when it has problems of its own; the identity is still checked).
+pub fn validate_sparkplug(
+    raw: &SparkplugSettings,
+    plain_client_id: &str,
+    plain: Option<&MqttSettings>,
+    base: &Path,
+    problems: &mut Vec<Problem>,
+) -> Option<SparkplugConfig> {
+    let identity = check_identity(raw, plain_client_id)
+        .map_err(|found| problems.extend(found))
+        .ok();
+    let mqtt = match &raw.mqtt {
+        Some(own) => {
+            let checked = validate_mqtt_section("sparkplug.mqtt", own, base, problems)?;
+            if let Some(plain) = plain.filter(|plain| same_client(plain, &checked)) {
+                problems.push(Problem::new(
+                    "sparkplug.mqtt.client_id",
+                    format!(
+                        "{:?} is also mqtt.client_id on the same broker: the two connections \
+                         would take each other over",
+                        plain.client_id
+                    ),
+                ));
+                return None;
+            }
+            MqttSettings {
+                clean_session: true,
+                ..checked
+            }
+        }
+        None => shared_broker(plain?),
+    };
+    Some(SparkplugConfig {
+        identity: identity?,
+        mqtt,
+    })
+}
+
+fn same_client(a: &MqttSettings, b: &MqttSettings) -> bool {
+    a.host == b.host && a.port == b.port && a.client_id == b.client_id
 }
 
 fn check_id(place: &str, id: &str, problems: &mut Vec<Problem>) {
@@ -145,5 +191,79 @@ mod tests {
             .mqtt
             .is_some_and(|mqtt| mqtt.url == "mqtt://broker:1883"));
         assert!(toml::from_str::<SparkplugSettings>("group = \"x\"").is_err());
+    }
+
+    const PLAIN: &str = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n";
+    const LINE: &str = "[[lines]]\nname = \"a\"\nport = \"/dev/ttyS0\"\n[[lines.devices]]\nname = \"valve\"\nprofile = \"wuzhou-valve\"\naddress = 3\n";
+
+    fn load_with_sparkplug(extra: &str) -> Result<super::super::Config, String> {
+        super::super::from_str(&format!("{PLAIN}{LINE}{extra}"), Path::new("."))
+            .map_err(|problems| problems.to_string())
+    }
+
+    #[test]
+    fn absent_means_no_edge_node_and_present_shares_the_broker_by_default() {
+        let config = load_with_sparkplug("").unwrap_or_else(|problems| panic!("{problems}"));
+        assert!(config.sparkplug.is_none());
+        let Ok(config) = load_with_sparkplug("[sparkplug]\ngroup_id = \"plant\"\n") else {
+            panic!("[sparkplug] refused");
+        };
+        let Some(sparkplug) = config.sparkplug else {
+            panic!("[sparkplug] ignored");
+        };
+        assert_eq!(sparkplug.identity.edge_node_id, "edge1");
+        assert_eq!(sparkplug.mqtt.client_id, "edge1-sparkplug");
+        assert_eq!(sparkplug.mqtt.port, 1883);
+        assert!(sparkplug.mqtt.clean_session);
+    }
+
+    #[test]
+    fn its_own_broker_is_checked_like_mqtt_with_every_problem_placed() {
+        let Ok(config) = load_with_sparkplug(
+            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://scada:1884\"\nclient_id = \"edge1\"\n",
+        ) else {
+            panic!("own broker refused");
+        };
+        let mqtt = config.sparkplug.map(|sparkplug| sparkplug.mqtt);
+        assert_eq!(
+            mqtt.map(|mqtt| (mqtt.host, mqtt.port)),
+            Some(("scada".into(), 1884))
+        );
+
+        let Err(problems) = load_with_sparkplug(
+            "[sparkplug]\ngroup_id = \"a/b\"\n[sparkplug.mqtt]\nurl = \"http://x\"\nclient_id = \"edge1\"\ninflight = 0\n",
+        ) else {
+            panic!("bad section accepted");
+        };
+        for expected in [
+            "sparkplug.group_id: `a/b` contains `/`",
+            "sparkplug.mqtt.url: \"http://x\" must start with mqtt://",
+            "sparkplug.mqtt.inflight: must be at least 1",
+        ] {
+            assert!(problems.contains(expected), "{expected}\n{problems}");
+        }
+
+        let Err(problems) = load_with_sparkplug(
+            "[sparkplug]\ngroup_id = \"plant\"\n[sparkplug.mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge1\"\n",
+        ) else {
+            panic!("a client id taking over the plain connection accepted");
+        };
+        assert!(
+            problems.contains("sparkplug.mqtt.client_id: \"edge1\" is also mqtt.client_id"),
+            "{problems}"
+        );
+
+        let Err(problems) = load_with_sparkplug("[sparkplug]\nedge_node_id = \"gw\"\ncolour = 1\n")
+        else {
+            panic!("missing group_id accepted");
+        };
+        assert!(
+            problems.contains("sparkplug.group_id: required"),
+            "{problems}"
+        );
+        assert!(
+            problems.contains("sparkplug.colour: unknown key"),
+            "{problems}"
+        );
     }
 }

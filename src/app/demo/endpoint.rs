@@ -8,7 +8,7 @@ use anyhow::{bail, Context as _};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
 use crate::broker::{self, BrokerError};
-use crate::config::validate;
+use crate::config::mqtt;
 
 /// How long the look for running gateways waits for the broker's answer.
 pub(super) const PROBE_CONNECT: Duration = Duration::from_secs(5);
@@ -64,7 +64,7 @@ pub(super) fn parse_broker_url(url: &str) -> anyhow::Result<(String, u16)> {
     } else {
         format!("mqtt://{url}")
     };
-    let endpoint = validate::parse_broker_url(&url).map_err(|problem| anyhow::anyhow!(problem))?;
+    let endpoint = mqtt::parse_broker_url(&url).map_err(|problem| anyhow::anyhow!(problem))?;
     if endpoint.tls {
         bail!("`{url}`: the demo talks plain MQTT only (mqtt://host:port)");
     }
