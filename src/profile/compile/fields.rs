@@ -355,7 +355,7 @@ fn check_info(field: &FieldSection, info: &FieldInfo, place: &str, problems: &mu
                 format!("{place}.example"),
                 "only a writable field has an example command",
             );
-        } else if let Err(rejection) = parse_command(&info, example) {
+        } else if let Err(rejection) = parse_command(info, example) {
             problems.add(format!("{place}.example"), rejection.0);
         }
     }
