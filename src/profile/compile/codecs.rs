@@ -38,16 +38,7 @@ pub(super) fn build_codec(
             width,
             options,
         } => {
-            if *width == 0 || u32::from(*bit) + u32::from(*width) > 16 {
-                problems.add(
-                    format!("{place}.codec.width"),
-                    format!(
-                        "bits {bit}..{} do not fit a word",
-                        u32::from(*bit) + u32::from(*width)
-                    ),
-                );
-                return None;
-            }
+            check_bit_group(*bit, *width, place, problems)?;
             check_options(options, *width, place, problems);
             FieldCodec::Bits {
                 bit: *bit,
@@ -84,13 +75,7 @@ pub(super) fn build_codec(
             int_digits,
             frac_digits,
         } => {
-            if *int_digits == 0 || *int_digits > 4 || *frac_digits > 4 {
-                problems.add(
-                    format!("{place}.codec"),
-                    "a BCD pair has 1–4 integer digits and 0–4 fraction digits",
-                );
-                return None;
-            }
+            check_bcd_digits(*int_digits, *frac_digits, place, problems)?;
             FieldCodec::Bcd {
                 int_digits: *int_digits,
                 frac_digits: *frac_digits,
@@ -103,13 +88,7 @@ pub(super) fn build_codec(
             separator,
             bytes,
         } => {
-            if *registers == 0 || *registers > 125 {
-                problems.add(
-                    format!("{place}.codec.registers"),
-                    "a byte string spans 1–125 registers",
-                );
-                return None;
-            }
+            check_register_span(*registers, "a byte string", place, problems)?;
             FieldCodec::Bytes {
                 registers: *registers,
                 format: *format,
@@ -122,13 +101,7 @@ pub(super) fn build_codec(
             byte_order,
             encoding,
         } => {
-            if *registers == 0 || *registers > 125 {
-                problems.add(
-                    format!("{place}.codec.registers"),
-                    "a string spans 1–125 registers",
-                );
-                return None;
-            }
+            check_register_span(*registers, "a string", place, problems)?;
             FieldCodec::Text {
                 registers: *registers,
                 byte_order: *byte_order,
@@ -136,6 +109,55 @@ pub(super) fn build_codec(
             }
         }
     })
+}
+
+/// A `bits` group lies inside one word.
+fn check_bit_group(bit: u8, width: u8, place: &str, problems: &mut Problems<'_>) -> Option<()> {
+    if width == 0 || u32::from(bit) + u32::from(width) > 16 {
+        problems.add(
+            format!("{place}.codec.width"),
+            format!(
+                "bits {bit}..{} do not fit a word",
+                u32::from(bit) + u32::from(width)
+            ),
+        );
+        return None;
+    }
+    Some(())
+}
+
+/// A BCD pair's digits fit its two words.
+fn check_bcd_digits(
+    int_digits: u8,
+    frac_digits: u8,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<()> {
+    if int_digits == 0 || int_digits > 4 || frac_digits > 4 {
+        problems.add(
+            format!("{place}.codec"),
+            "a BCD pair has 1–4 integer digits and 0–4 fraction digits",
+        );
+        return None;
+    }
+    Some(())
+}
+
+/// A string (`what`) spans no more registers than one read returns.
+fn check_register_span(
+    registers: u16,
+    what: &str,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<()> {
+    if registers == 0 || registers > 125 {
+        problems.add(
+            format!("{place}.codec.registers"),
+            format!("{what} spans 1–125 registers"),
+        );
+        return None;
+    }
+    Some(())
 }
 
 /// The byte an 8-bit codec takes (the low one when unnamed, which [`build_number`] refuses).
@@ -360,6 +382,10 @@ mod tests {
         assert_eq!(
             refused_at("type = \"bits\"\nbit = 12\nwidth = 5"),
             ["p: fields[0] (f).codec.width"]
+        );
+        assert_eq!(
+            refused_at("type = \"bcd\"\nint_digits = 5\nfrac_digits = 0"),
+            ["p: fields[0] (f).codec"]
         );
         assert_eq!(
             refused_at("type = \"string\"\nregisters = 126"),
