@@ -1,0 +1,354 @@
+//! The line task's served side: a client's request as a line slot. Reads come from the poll
+//! cache or the wire, writes are planned through the profile (or passed raw), kept to the
+//! fields' write intervals, and answered as the device answered.
+
+use std::time::Instant;
+
+use super::{ClientWrite, Line};
+use crate::bus::commands::{Pending, SlotLink};
+use crate::bus::device::DeviceRuntime;
+use crate::bus::serve::policy;
+use crate::bus::serve::{Access, ClientRequest};
+use crate::bus::transaction::{Exchange, Failure};
+use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
+use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
+
+/// Client requests: the cache, the profile's write planning, and the exchange on the line.
+impl Line {
+    pub(super) async fn run_client(&mut self, slot: ClientRequest) {
+        let ClientRequest {
+            client,
+            unit,
+            request,
+            reply,
+        } = slot;
+        let device = self.devices.iter().position(|d| d.spec.address == unit);
+        let access = self.spec.serve.as_ref().map_or(Access::Raw, |s| s.access);
+        if let Some(device) = device {
+            if let Some(answer) = self.cache.lookup(device, &request, Instant::now()) {
+                if let Some(counters) = &self.serve_counters {
+                    counters
+                        .cache_hits
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                let _ = reply.send(Ok(answer));
+                return;
+            }
+            if !request.is_read() {
+                self.cache.forget(device);
+                if access == Access::Profile {
+                    let answer = self.run_client_write(device, &client, &request).await;
+                    let _ = reply.send(answer);
+                    return;
+                }
+            }
+        }
+        // A raw write passes as it came, but not inside a write interval of a field it covers.
+        let raw_write = match device.and_then(|d| self.devices.get(d).map(|r| (d, r))) {
+            Some((device, runtime)) if !request.is_read() => {
+                // By address through each field's own write, and as the profile's shared frames
+                // read it (the dust collector's gear at 0x1001 of its settings frame).
+                let profile = &runtime.spec.profile;
+                let mut fields = profile.fields_touched(&request);
+                for reading in profile.decode_write(&request).unwrap_or_default() {
+                    if !fields.contains(&reading.field) {
+                        fields.push(reading.field);
+                    }
+                }
+                if let Err(code) = self.client_write_allowed(device, &client, &fields) {
+                    let _ = reply.send(Err(code));
+                    return;
+                }
+                Some((device, fields))
+            }
+            _ => None,
+        };
+        let attempts = self.attempts();
+        let Some(master) = self.master.as_mut() else {
+            let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+            return;
+        };
+        let mut passer_by = crate::bus::stats::DeviceStats::new(&format!("unit {unit}"));
+        let unknown = format!("unit {unit}");
+        let (name, stats) = match device.and_then(|d| self.devices.get_mut(d)) {
+            Some(runtime) => (runtime.spec.name.as_str(), &mut runtime.stats),
+            None => (unknown.as_str(), &mut passer_by),
+        };
+        let exchange = Exchange {
+            line: &self.spec.name,
+            device: name,
+            slave: unit,
+            timeout: self.timeout,
+            turnaround: &self.turnaround,
+        };
+        let result = exchange.run(master, stats, &request, attempts).await;
+        tracing::debug!(%client, unit, ?request, ?result, "client request on the line");
+        if let Some((device, fields)) = raw_write {
+            self.note_write(device, &fields).await;
+        }
+        match result {
+            Ok(answer) => {
+                if let (Some(device), Ok(_)) = (device, &answer) {
+                    self.after_raw_write(device, &request);
+                }
+                let _ = reply.send(answer);
+            }
+            Err(Failure::NoAnswer(_)) => {
+                let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+            }
+            Err(Failure::PortGone(error)) => {
+                let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+                self.port_failed(error).await;
+            }
+        }
+    }
+
+    /// A client's write went to `device` as it was sent (`raw` access): the device's blocks
+    /// of the table it wrote, at the addresses it wrote, are read again at once (a `once`
+    /// block included), like after a command.
+    pub(super) fn after_raw_write(&mut self, device: usize, write: &Request) {
+        let Some(runtime) = self.devices.get(device) else {
+            return;
+        };
+        let written = written_span(write);
+        let changed: Vec<bool> = runtime
+            .spec
+            .profile
+            .read_blocks()
+            .iter()
+            .map(|block| written.is_some_and(|span| block_overlaps(&block.request, span)))
+            .collect();
+        if changed.iter().any(|&changed| changed) {
+            let none = vec![false; changed.len()];
+            self.scheduler
+                .after_command(device, &changed, &none, Instant::now());
+        }
+    }
+
+    /// The port is closed: waiting clients are told the device cannot be reached rather than
+    /// left to time out.
+    pub(super) fn fail_client_requests(&mut self) {
+        while let Some(request) = self.clients.try_take() {
+            let _ = request
+                .reply
+                .send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+        }
+    }
+
+    /// A client's write under `profile` access: planned by the device's profile on its known
+    /// state (a refusal sends nothing), then run as a command slot whose reads are published.
+    pub(super) async fn run_client_write(
+        &mut self,
+        device: usize,
+        client: &str,
+        write: &Request,
+    ) -> Reply {
+        let Some(runtime) = self.devices.get(device) else {
+            return Err(ExceptionCode::GatewayPathUnavailable);
+        };
+        let name = runtime.spec.name.clone();
+        let planned = policy::plan_write(&runtime.spec.profile, write, &runtime.known_state());
+        let planned = match planned {
+            Ok(planned) => planned,
+            Err(code) => {
+                tracing::info!(%client, device = %name, ?write, "client write refused: {code}");
+                if let Some(counters) = &self.serve_counters {
+                    counters
+                        .refusals
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                return Err(code);
+            }
+        };
+        self.client_write_allowed(device, client, &planned.covered)?;
+        let Some(plan) = planned.plan else {
+            // Only zeros on buttons and toggles: the device itself would do nothing.
+            tracing::debug!(%client, device = %name, ?write, "client write leaves the device as it is");
+            return echo(write).ok_or(ExceptionCode::IllegalFunction);
+        };
+        let field = plan.field().to_string();
+        let write_record = ClientWrite {
+            device: name.clone(),
+            field: field.clone(),
+            value: plan
+                .targets()
+                .iter()
+                .map(|(_, value)| value.to_text())
+                .collect::<Vec<_>>()
+                .join(","),
+            client: client.to_string(),
+        };
+        let id = self.next_client_command;
+        self.next_client_command += 1;
+        let pending = Pending {
+            command: Command {
+                id,
+                device: name.clone(),
+                plan,
+            },
+            arrived: Instant::now(),
+        };
+        let attempts = self.attempts();
+        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
+            (self.devices.get_mut(device), self.master.as_mut())
+        else {
+            return Err(ExceptionCode::GatewayTargetFailedToRespond);
+        };
+        let link = SlotLink {
+            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
+            master,
+            stats,
+            attempts,
+        };
+        let mut report = self.commands.run(link, device, pending).await;
+        if report.wrote {
+            self.note_write(device, &planned.covered).await;
+        }
+        let finished = report.finished.take();
+        let answer = match &finished {
+            Some(finished) => {
+                tracing::info!(%client, device = %name, %field, outcome = %finished.outcome, "client write");
+                client_answer(&finished.outcome, write)
+            }
+            // Written; the device is still moving toward the value.
+            None if report.port_gone.is_none() => {
+                tracing::info!(%client, device = %name, %field, "client write applied, settling");
+                echo(write).ok_or(ExceptionCode::IllegalFunction)
+            }
+            None => Err(ExceptionCode::GatewayTargetFailedToRespond),
+        };
+        self.carry_out(report).await;
+        match finished {
+            Some(finished) => {
+                self.client_write_finished(write_record, finished.outcome)
+                    .await;
+            }
+            None => {
+                self.settling_client_writes.insert(id, write_record);
+            }
+        }
+        answer
+    }
+
+    /// The write-interval rule for a client's write covering `fields` of `device`: refused at
+    /// once with 06 (server device busy) while the interval of any of them runs, whoever
+    /// wrote last; the client may send it again later.
+    pub(super) fn client_write_allowed(
+        &self,
+        device: usize,
+        client: &str,
+        fields: &[String],
+    ) -> Result<(), ExceptionCode> {
+        let Some(runtime) = self.devices.get(device) else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let covered = fields.iter().map(String::as_str);
+        let name = &runtime.spec.name;
+        let Some(until) = self
+            .writes
+            .busy_until(name, &runtime.spec.profile, covered, now)
+        else {
+            return Ok(());
+        };
+        tracing::info!(%client, device = %name, ?fields, wait = ?until - now,
+            "client write refused: the write interval runs (06, busy)");
+        if let Some(counters) = &self.serve_counters {
+            counters
+                .busy
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        Err(ExceptionCode::ServerDeviceBusy)
+    }
+
+    /// Reports a client's write's end to the bridge (after the values of its reads).
+    pub(super) async fn client_write_finished(
+        &mut self,
+        write: ClientWrite,
+        outcome: CommandOutcome,
+    ) {
+        let ClientWrite {
+            device,
+            field,
+            value,
+            client,
+        } = write;
+        self.emit(LineEvent::ClientWriteFinished {
+            device,
+            field,
+            value,
+            client,
+            outcome,
+        })
+        .await;
+    }
+}
+
+/// What the client of a write is answered for its command's outcome.
+fn client_answer(outcome: &CommandOutcome, write: &Request) -> Reply {
+    match outcome {
+        CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. } => {
+            echo(write).ok_or(ExceptionCode::IllegalFunction)
+        }
+        CommandOutcome::Rejected { .. } => Err(ExceptionCode::IllegalDataValue),
+        CommandOutcome::Failed {
+            cause: CommandFailure::Exception(code),
+        } => Err(*code),
+        CommandOutcome::Failed { .. } => Err(ExceptionCode::GatewayTargetFailedToRespond),
+    }
+}
+
+/// Where a write lands: (holding registers rather than coils, first address, count).
+fn written_span(write: &Request) -> Option<(bool, u16, u16)> {
+    let count = |len: usize| u16::try_from(len).ok();
+    match write {
+        Request::WriteSingleCoil { address, .. } => Some((false, *address, 1)),
+        Request::WriteSingleRegister { address, .. } => Some((true, *address, 1)),
+        Request::WriteMultipleCoils { start, values } => {
+            Some((false, *start, count(values.len())?))
+        }
+        Request::WriteMultipleRegisters { start, values } => {
+            Some((true, *start, count(values.len())?))
+        }
+        _ => None,
+    }
+}
+
+/// Whether the read `block` reads any item of `(registers, start, count)`.
+fn block_overlaps(block: &Request, (registers, start, count): (bool, u16, u16)) -> bool {
+    let same_table = match block {
+        Request::ReadHoldingRegisters { .. } => registers,
+        Request::ReadCoils { .. } => !registers,
+        _ => false,
+    };
+    let Some((first, len)) = block.read_span() else {
+        return false;
+    };
+    let (first, end) = (u32::from(first), u32::from(first) + u32::from(len));
+    let (start, stop) = (u32::from(start), u32::from(start) + u32::from(count));
+    same_table && start < end && first < stop
+}
+
+/// The normal answer to a write: the device echoes what it was asked.
+fn echo(write: &Request) -> Option<Response> {
+    Some(match write {
+        Request::WriteSingleRegister { address, value } => Response::WriteSingleRegister {
+            address: *address,
+            value: *value,
+        },
+        Request::WriteSingleCoil { address, value } => Response::WriteSingleCoil {
+            address: *address,
+            value: *value,
+        },
+        Request::WriteMultipleRegisters { start, values } => Response::WriteMultipleRegisters {
+            start: *start,
+            quantity: u16::try_from(values.len()).ok()?,
+        },
+        Request::WriteMultipleCoils { start, values } => Response::WriteMultipleCoils {
+            start: *start,
+            quantity: u16::try_from(values.len()).ok()?,
+        },
+        _ => return None,
+    })
+}
