@@ -15,6 +15,7 @@ pub mod figures;
 pub mod metrics;
 pub mod payload;
 pub mod session;
+pub mod session_interface;
 
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
