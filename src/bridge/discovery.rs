@@ -29,6 +29,10 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
+use super::entity_naming::{
+    default_entity_category, is_numeric, name_has_word, DIAGNOSTIC_WORDS, PROBLEM_WORDS,
+};
+pub use super::entity_naming::{display_name, entity_name};
 use super::payload::Outcome;
 use super::state::StateUpdate;
 use crate::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
@@ -183,92 +187,6 @@ pub fn platform_for(field: &FieldInfo) -> Platform {
         .unwrap_or_else(|| default_platform(field))
 }
 
-/// Words of field names that are abbreviations, written in capitals in a display name.
-const ACRONYMS: &[&str] = &["pid", "hepa", "crc", "id", "pv", "sv", "co2", "pm25", "rtu"];
-
-/// A display name from a field name: `pulse_interval` → `Pulse interval`,
-/// `pid_invalid_flags` → `PID invalid flags` (see [`ACRONYMS`]).
-pub fn display_name(field: &str) -> String {
-    let words: Vec<String> = field
-        .split(['_', '-'])
-        .filter(|word| !word.is_empty())
-        .enumerate()
-        .map(|(index, word)| {
-            if ACRONYMS.contains(&word) {
-                word.to_uppercase()
-            } else if index == 0 {
-                let mut chars = word.chars();
-                chars
-                    .next()
-                    .map(|first| first.to_uppercase().chain(chars).collect())
-                    .unwrap_or_default()
-            } else {
-                word.to_string()
-            }
-        })
-        .collect();
-    words.join(" ")
-}
-
-/// The entity's name in Home Assistant: the profile's `label`, else [`display_name`]. Never
-/// the device name: Home Assistant puts the device name in front by itself
-/// (`has_entity_name`), so the entity list of a device reads `Gear`, not `dust_collector Gear`.
-pub fn entity_name(field: &FieldInfo) -> String {
-    field
-        .label
-        .clone()
-        .unwrap_or_else(|| display_name(&field.name))
-}
-
-/// Words in a field name that mark it as a diagnostic (identity or health bookkeeping, not
-/// something an operator watches).
-const DIAGNOSTIC_WORDS: &[&str] = &[
-    "version", "serial", "flags", "firmware", "hardware", "station", "address", "baud",
-];
-
-/// Words in a read-only boolean's name that mark it as a problem indicator.
-const PROBLEM_WORDS: &[&str] = &[
-    "alarm", "failed", "failure", "fault", "error", "jammed", "expired", "invalid",
-];
-
-fn name_has_word(name: &str, words: &[&str]) -> bool {
-    name.split(['_', '-']).any(|part| words.contains(&part))
-}
-
-/// Words in a writable number's name that mark it as a setting (configured once, not operated).
-const SETTING_WORDS: &[&str] = &[
-    "alarm",
-    "ratio",
-    "scale",
-    "interval",
-    "duration",
-    "period",
-    "time",
-    "limit",
-    "threshold",
-    "offset",
-    "delay",
-    "calibration",
-];
-
-/// `entity_category` when the profile gives none: identity and health data (versions, serial
-/// number, flag words, address and baud code) is `diagnostic` when read-only and `config` when
-/// writable; writable numbers named like settings (alarm limits, ratios, full scales, intervals,
-/// durations) are `config`. Live values and controls stay primary entities.
-fn default_entity_category(field: &FieldInfo) -> Option<&'static str> {
-    let identity = name_has_word(&field.name, DIAGNOSTIC_WORDS);
-    if identity {
-        return Some(if field.writable {
-            "config"
-        } else {
-            "diagnostic"
-        });
-    }
-    let setting =
-        field.writable && is_numeric(&field.kind) && name_has_word(&field.name, SETTING_WORDS);
-    setting.then_some("config")
-}
-
 /// `device_class` from a unit when the profile gives none. Only classes valid for both
 /// `sensor` and `number` are produced.
 fn device_class_for_unit(unit: &str) -> Option<&'static str> {
@@ -286,10 +204,6 @@ fn device_class_for_unit(unit: &str) -> Option<&'static str> {
 
 fn unit_of(field: &FieldInfo) -> Option<&str> {
     field.ha.unit.as_deref().or(field.unit.as_deref())
-}
-
-fn is_numeric(kind: &FieldKind) -> bool {
-    matches!(kind, FieldKind::Integer { .. } | FieldKind::Decimal { .. })
 }
 
 /// A JSON number from a profile bound: integral bounds stay integers so Home Assistant shows

@@ -20,6 +20,7 @@ mod core_tests;
 pub mod desk;
 pub mod device;
 pub mod discovery;
+mod entity_naming;
 pub mod guard;
 pub mod history;
 pub mod json_view;
