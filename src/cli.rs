@@ -147,8 +147,10 @@ pub struct SimulateArgs {
     pub pace: Pace,
 }
 
+/// Where a commissioning command reaches a line: a serial port, or a serial device server or
+/// Modbus TCP gateway by URL.
 #[derive(Debug, Args)]
-pub struct ScanArgs {
+pub struct LinkArgs {
     /// Serial port path (a running gateway's port is refused).
     #[arg(long, required_unless_present = "url", conflicts_with = "url")]
     pub port: Option<PathBuf>,
@@ -156,6 +158,12 @@ pub struct ScanArgs {
     /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
     #[arg(long)]
     pub url: Option<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct ScanArgs {
+    #[command(flatten)]
+    pub link: LinkArgs,
     /// Baud rates to try, comma-separated.
     #[arg(
         long,
@@ -180,13 +188,8 @@ pub struct ScanArgs {
 
 #[derive(Debug, Args)]
 pub struct ReadArgs {
-    /// Serial port path (a running gateway's port is refused).
-    #[arg(long, required_unless_present = "url", conflicts_with = "url")]
-    pub port: Option<PathBuf>,
-    /// Instead of a port: `tcp://host:port` (a serial device server) or
-    /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
-    #[arg(long)]
-    pub url: Option<String>,
+    #[command(flatten)]
+    pub link: LinkArgs,
     #[arg(long, value_parser = parse_address)]
     pub address: u8,
     /// 1 (coils), 2 (discrete inputs), 3 (holding registers) or 4 (input registers).
@@ -208,13 +211,8 @@ pub struct ReadArgs {
 
 #[derive(Debug, Args)]
 pub struct SunspecArgs {
-    /// Serial port path (a running gateway's port is refused).
-    #[arg(long, required_unless_present = "url", conflicts_with = "url")]
-    pub port: Option<PathBuf>,
-    /// Instead of a port: `tcp://host:port` (a serial device server) or
-    /// `modbus-tcp://host:port` (a Modbus TCP gateway; baud and parity are the gateway's).
-    #[arg(long)]
-    pub url: Option<String>,
+    #[command(flatten)]
+    pub link: LinkArgs,
     #[arg(long, value_parser = parse_address)]
     pub address: u8,
     #[arg(long, default_value_t = 9600)]

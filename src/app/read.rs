@@ -188,7 +188,7 @@ pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {
         .context("starting the runtime")?;
     let result = runtime.block_on(async {
         // The serial stream registers with the runtime's reactor: opened inside it.
-        let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+        let target = Target::of(args.link.port.as_deref(), args.link.url.as_deref())?;
         let mut master = target.open(args.baud, parity).await?;
         anyhow::Ok(master.transact(args.address, &request, args.timeout).await)
     })?;

@@ -227,7 +227,7 @@ async fn run_scan(
     found: &mut Vec<Found>,
     garbled: &mut Vec<String>,
 ) -> anyhow::Result<()> {
-    let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+    let target = Target::of(args.link.port.as_deref(), args.link.url.as_deref())?;
     // A Modbus TCP gateway has one serial setting, its own: probed once.
     let (bauds, parities) = if target.is_modbus_tcp()? {
         (
@@ -366,7 +366,7 @@ async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::R
             device.baud,
             format_name(device.parity)
         );
-        let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+        let target = Target::of(args.link.port.as_deref(), args.link.url.as_deref())?;
         let mut master = target.open(device.baud, device.parity).await?;
         for (index, block) in profile.read_blocks().iter().enumerate() {
             if !block.request.is_read() {

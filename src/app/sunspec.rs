@@ -168,7 +168,7 @@ pub fn sunspec(args: &SunspecArgs) -> anyhow::Result<ExitCode> {
         .context("starting the runtime")?;
     let chain = runtime.block_on(async {
         // The serial stream registers with the runtime's reactor: opened inside it.
-        let target = Target::of(args.port.as_deref(), args.url.as_deref())?;
+        let target = Target::of(args.link.port.as_deref(), args.link.url.as_deref())?;
         let mut link = target.open(args.baud, parity).await?;
         let base = find_base(&mut link, args.address, args.timeout).await?;
         walk(&mut link, args.address, base, args.timeout).await
