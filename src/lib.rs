@@ -3,7 +3,6 @@
 //! The crate is layered from the wire upwards; each layer only knows the ones listed before it
 //! (`tests/it/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
 //!
-//! - [`shutdown`]: the shutdown token every task holds.
 //! - Modbus on the wire lives in its own crate, [`rtu2mqtt_modbus`] (`crates/rtu2mqtt-modbus`),
 //!   below every module here: frame types with their arithmetic, CRC, the codec (pure byte
 //!   work), line timing (character time, t1.5, t3.5, response timeout), the answer framer, the
@@ -62,7 +61,6 @@ pub mod contract;
 pub mod health;
 pub mod history;
 pub mod profile;
-pub mod shutdown;
 #[cfg(feature = "demo")]
 pub mod sim;
 pub mod sparkplug;

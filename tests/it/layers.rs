@@ -9,7 +9,6 @@ use std::path::{Path, PathBuf};
 
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
-    "shutdown",
     "profile",
     "bus",
     "sim",
