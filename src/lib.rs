@@ -9,7 +9,7 @@
 //!   serial transport and master that run exactly one RTU transaction on a port with legal
 //!   timing, and the TCP links (raw RTU to a serial device server, Modbus TCP to a gateway)
 //!   behind one [`rtu2mqtt_modbus::link::Link`]. It knows nothing of MQTT or the configuration.
-//! - [`profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
+//! - [`rtu2mqtt_profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
 //!   and write rules; pure functions decode raw blocks into field values and turn a command into
 //!   the frames of one bus slot. No I/O. Built in: the seed devices and the device library;
 //!   the SunSpec model table and the profile `rtu2mqtt sunspec` writes from it.
@@ -57,10 +57,8 @@ pub mod broker;
 pub mod bus;
 pub mod cli;
 pub mod config;
-pub mod contract;
 pub mod health;
 pub mod history;
-pub mod profile;
 #[cfg(feature = "demo")]
 pub mod sim;
 pub mod sparkplug;

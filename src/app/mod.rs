@@ -7,6 +7,7 @@ pub mod check;
 #[cfg(feature = "demo")]
 pub mod demo;
 pub mod logging;
+pub mod profiles;
 pub mod read;
 pub mod reload;
 pub mod scan;

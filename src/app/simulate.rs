@@ -45,7 +45,7 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
 }
 
 fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
-    let profile = crate::profile::registry::load(profile, None)
+    let profile = rtu2mqtt_profile::registry::load(profile, None)
         .with_context(|| format!("loading profile `{profile}`"))?;
     let address = address
         .or(profile.default_address())

@@ -18,13 +18,13 @@ use rtu2mqtt::bus::{
     spawn_line, Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle,
     LineSpec,
 };
-use rtu2mqtt::profile::{registry, CommandPlan, DeviceState, Profile, Value};
 use rtu2mqtt::sim::{
     self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
     SharedDevice, SimDevice, Valve, VirtualLine,
 };
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};
 use rtu2mqtt_modbus::transport::SerialSettings;
+use rtu2mqtt_profile::{registry, CommandPlan, DeviceState, Profile, Value};
 use tokio_util::sync::CancellationToken;
 
 const AIR_SHOWER_TOML: &str = include_str!("../../config/profiles/lixian-air-shower.toml");
@@ -788,7 +788,7 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
         "valve values: {:?}",
         running.latest.get("valve")
     );
-    let merged: Vec<(usize, &rtu2mqtt::profile::ReadBlock)> = profile
+    let merged: Vec<(usize, &rtu2mqtt_profile::ReadBlock)> = profile
         .read_blocks()
         .iter()
         .enumerate()

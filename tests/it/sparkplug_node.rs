@@ -10,12 +10,12 @@ use std::time::Duration;
 
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
-use rtu2mqtt::profile::{registry, Value};
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
 use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
     run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
 };
+use rtu2mqtt_profile::{registry, Value};
 use support::{Message, Mosquitto, TestClient};
 use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;

@@ -47,11 +47,11 @@ use super::{
     Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats, Origin, Transport,
     WriteClock,
 };
-use crate::profile::Profile;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{PortFault, WireCounters};
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::transport::TransportError;
+use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
@@ -710,7 +710,7 @@ mod tests {
             .with_max_level(tracing::Level::INFO)
             .finish();
         let _default = tracing::subscriber::set_default(subscriber);
-        let profile = crate::profile::registry::built_in("wuzhou-valve").unwrap();
+        let profile = rtu2mqtt_profile::registry::built_in("wuzhou-valve").unwrap();
         let spec = LineSpec {
             name: "line-x".into(),
             serial: rtu2mqtt_modbus::transport::SerialSettings {
