@@ -11,7 +11,7 @@ use std::fmt;
 use serde::de;
 use serde_value::{Value, ValueDeserializer};
 
-use super::schema::{keys_at, RawConfig};
+use super::schema::{keys_at, shape_at, RawConfig, Shape};
 use super::tree::{place_text, Step, Tree};
 use super::{Problem, Problems};
 
@@ -113,6 +113,11 @@ pub fn read_leniently(mut tree: Tree) -> Loaded {
     let mut found: Vec<(Vec<Step>, Problem)> = Vec::new();
     // Places given a stand-in: what fails inside them was reported already.
     let mut stood_in: Vec<Vec<Step>> = Vec::new();
+    for place in lists_where_tables_go(tree.root(), &mut Vec::new()) {
+        let reason = format!("{} is not a table", shown(&tree, &place));
+        found.push((place.clone(), Problem::new(place_text(&place), reason)));
+        take_out(&mut tree, &place, &mut stood_in);
+    }
     let (raw, unknown_keys) = loop {
         let (result, unknown_keys) = read_once(&tree);
         let Fault { place, complaint } = match result {
@@ -175,6 +180,34 @@ pub fn read_leniently(mut tree: Tree) -> Loaded {
         raw,
         problems: found.into_iter().map(|(_, problem)| problem).collect(),
     }
+}
+
+/// The places inside `value` (at `place`) where a list stands for a table: serde would read the
+/// table's keys from it by position.
+fn lists_where_tables_go(value: &Value, place: &mut Vec<Step>) -> Vec<Vec<Step>> {
+    let mut found = Vec::new();
+    let children: Vec<(Step, &Value)> = match value {
+        Value::Seq(_) if matches!(shape_at(place), Shape::Table(_)) => return vec![place.clone()],
+        Value::Seq(items) => items
+            .iter()
+            .enumerate()
+            .map(|(index, item)| (Step::Index(index), item))
+            .collect(),
+        Value::Map(entries) => entries
+            .iter()
+            .filter_map(|(key, item)| match key {
+                Value::String(key) => Some((Step::Key(key.clone()), item)),
+                _ => None,
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    for (step, child) in children {
+        place.push(step);
+        found.extend(lists_where_tables_go(child, place));
+        place.pop();
+    }
+    found
 }
 
 /// One reading of the whole tree: the configuration or the first problem, and the places of
@@ -478,6 +511,19 @@ mod tests {
         assert!(
             line("stop_bits = 300").contains("lines[0].stop_bits: 300 is out of range (0 to 255)")
         );
+        let mqtt = "[mqtt]\nurl = \"mqtt://h\"\nclient_id = \"e\"";
+        for (text, place) in [
+            ("mqtt = [\"mqtt://h\", \"edge1\"]".to_string(), "mqtt"),
+            (format!("history = [{{}}]\n{mqtt}"), "history"),
+            (format!("{mqtt}\n[[history]]"), "history"),
+            (format!("lines = [[]]\n{mqtt}"), "lines[0]"),
+        ] {
+            let problems = load_str(&text).unwrap_err().to_string();
+            assert!(
+                problems.contains(&format!("{place}: a list is not a table")),
+                "{problems}"
+            );
+        }
         let text = BASE.replace("[[lines.devices]]", "devices = 5\n[extra]");
         let problems = load_str(&text).unwrap_err().to_string();
         assert!(

@@ -22,29 +22,50 @@ pub fn keys_of<T: DeserializeOwned>() -> &'static [&'static str] {
     serde_aux::serde_introspection::serde_introspect::<T>()
 }
 
-/// The keys of the table at `place` (any item of a list alike): for naming an unknown key's
-/// neighbours and listing problems in the order of the declaration.
-pub fn keys_at(place: &[Step]) -> &'static [&'static str] {
-    let keys: Vec<&str> = place
+/// What the file holds at a place: a table (a struct, with its keys), a list of tables (a
+/// `Vec` of structs), or a value of another kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    Table(&'static [&'static str]),
+    ListOfTables,
+    Value,
+}
+
+/// Where each struct sits in the file. serde reads a struct from a list as well (its keys by
+/// position), so the reading needs to know where a list must not be (`mqtt = ["mqtt://h", "e"]`).
+pub fn shape_at(place: &[Step]) -> Shape {
+    // An item of a list is `[]` whatever its index.
+    let steps: Vec<&str> = place
         .iter()
-        .filter_map(|step| match step {
-            Step::Key(key) => Some(key.as_str()),
-            Step::Index(_) => None,
+        .map(|step| match step {
+            Step::Key(key) => key.as_str(),
+            Step::Index(_) => "[]",
         })
         .collect();
-    match keys.as_slice() {
+    let keys = match steps.as_slice() {
+        ["lines"] | ["lines", "[]", "devices"] => return Shape::ListOfTables,
         [] => keys_of::<RawConfig>(),
         ["mqtt"] | ["sparkplug", "mqtt"] => keys_of::<RawMqtt>(),
         ["gateway"] => keys_of::<RawGateway>(),
         ["health"] => keys_of::<HealthSettings>(),
-        ["lines"] => keys_of::<RawLine>(),
-        ["lines", "rs485"] => keys_of::<RawRs485>(),
-        ["lines", "serve"] => keys_of::<RawServe>(),
-        ["lines", "devices"] => keys_of::<RawDevice>(),
-        ["lines", "devices", "publish"] => keys_of::<RawPublish>(),
+        ["lines", "[]"] => keys_of::<RawLine>(),
+        ["lines", "[]", "rs485"] => keys_of::<RawRs485>(),
+        ["lines", "[]", "serve"] => keys_of::<RawServe>(),
+        ["lines", "[]", "devices", "[]"] => keys_of::<RawDevice>(),
+        ["lines", "[]", "devices", "[]", "publish"] => keys_of::<RawPublish>(),
         ["sparkplug"] => keys_of::<SparkplugSettings>(),
         ["history"] => keys_of::<RawHistory>(),
-        _ => &[],
+        _ => return Shape::Value,
+    };
+    Shape::Table(keys)
+}
+
+/// The keys of the table at `place` (none where no table goes): for naming an unknown key's
+/// neighbours and listing problems in the order of the declaration.
+pub fn keys_at(place: &[Step]) -> &'static [&'static str] {
+    match shape_at(place) {
+        Shape::Table(keys) => keys,
+        Shape::ListOfTables | Shape::Value => &[],
     }
 }
 
@@ -304,5 +325,7 @@ mod tests {
         ];
         assert_eq!(keys_at(&device), keys_of::<RawDevice>());
         assert!(keys_at(&[Step::Key("colour".into())]).is_empty());
+        assert_eq!(shape_at(&device[..3]), Shape::ListOfTables);
+        assert_eq!(shape_at(&[Step::Key("lines".into())]), Shape::ListOfTables);
     }
 }
