@@ -109,76 +109,109 @@ struct Fault {
 /// reads: every problem of the reading stage is reported, and the rest can still be validated
 /// (a wrong type must not hide an address out of range elsewhere). Problems are listed table by
 /// table in the order the structs declare their keys, unknown keys first.
-pub fn read_leniently(mut tree: Tree) -> Loaded {
-    let mut found: Vec<(Vec<Step>, Problem)> = Vec::new();
-    // Places given a stand-in: what fails inside them was reported already.
-    let mut stood_in: Vec<Vec<Step>> = Vec::new();
-    for place in lists_where_tables_go(tree.root(), &mut Vec::new()) {
-        let reason = format!("{} is not a table", shown(&tree, &place));
-        found.push((place.clone(), Problem::new(place_text(&place), reason)));
-        take_out(&mut tree, &place, &mut stood_in);
+pub fn read_leniently(tree: Tree) -> Loaded {
+    let mut reading = Reading {
+        tree,
+        found: Vec::new(),
+        stood_in: Vec::new(),
+    };
+    for place in lists_where_tables_go(reading.tree.root(), &mut Vec::new()) {
+        reading.report_wrong_value(&place, "is not a table");
     }
     let (raw, unknown_keys) = loop {
-        let (result, unknown_keys) = read_once(&tree);
-        let Fault { place, complaint } = match result {
+        let (result, unknown_keys) = read_once(&reading.tree);
+        match result {
             Ok(raw) => break (Some(raw), unknown_keys),
-            Err(fault) => fault,
-        };
-        let in_stand_in = stood_in.iter().any(|stand_in| place.starts_with(stand_in));
-        let progressed = match &complaint {
-            Complaint::MissingKey(_) => {
-                // A required key whose wrong value was taken out is reported already.
-                let reported = found.iter().any(|(at, _)| *at == place);
-                if !in_stand_in && !reported {
-                    found.push((
-                        place.clone(),
-                        Problem::new(place_text(&place), "required, but not set"),
-                    ));
-                }
-                stood_in.push(place.clone());
-                tree.set(&place, Value::Unit)
-            }
-            Complaint::UnknownKey { key, known } => {
-                let reason = unknown_key_reason(key, known);
-                found.push((place.clone(), Problem::new(place_text(&place), reason)));
-                tree.remove(&place)
-            }
-            complaint => {
-                let want = Want::of(&tree, &place, complaint);
-                let retyped = tree
-                    .env_text(&place)
-                    .and_then(|text| want.type_env_text(text));
-                if in_stand_in {
-                    want.emptiest().is_some_and(|value| tree.set(&place, value))
-                } else if retyped.is_some_and(|value| tree.set(&place, value)) {
-                    // Environment text the `config` crate typed by its look, now typed by its
-                    // key (a password `1e5` is text): no problem yet.
-                    true
-                } else {
-                    let reason = format!(
-                        "{} {}",
-                        shown(&tree, &place),
-                        want.reason(&tree, &place, complaint)
-                    );
-                    found.push((place.clone(), Problem::new(place_text(&place), reason)));
-                    take_out(&mut tree, &place, &mut stood_in)
+            Err(fault) => {
+                if !reading.settle(fault) {
+                    break (None, unknown_keys);
                 }
             }
-        };
-        if !progressed {
-            break (None, unknown_keys);
         }
     };
     for place in unknown_keys {
         if let Some((Step::Key(key), table)) = place.split_last() {
-            let reason = unknown_key_reason(key, keys_at(table));
-            found.push((place.clone(), Problem::new(place_text(&place), reason)));
+            reading.report(&place, unknown_key_reason(key, keys_at(table)));
         }
     }
+    let mut found = reading.found;
     found.sort_by_cached_key(|(place, _)| declared_order(place));
     Loaded {
         raw,
         problems: found.into_iter().map(|(_, problem)| problem).collect(),
+    }
+}
+
+/// The tree as edited so far and what its readings found.
+struct Reading {
+    tree: Tree,
+    found: Vec<(Vec<Step>, Problem)>,
+    /// Places given a stand-in: what fails inside them was reported already.
+    stood_in: Vec<Vec<Step>>,
+}
+
+impl Reading {
+    /// Deals with the problem a reading stopped at, so that the next reading goes past it;
+    /// false when the tree cannot be changed to go past it.
+    fn settle(&mut self, Fault { place, complaint }: Fault) -> bool {
+        let in_stand_in = self
+            .stood_in
+            .iter()
+            .any(|stand_in| place.starts_with(stand_in));
+        match &complaint {
+            Complaint::MissingKey(_) => {
+                // A required key whose wrong value was taken out is reported already.
+                let reported = self.found.iter().any(|(at, _)| *at == place);
+                if !in_stand_in && !reported {
+                    self.report(&place, "required, but not set");
+                }
+                self.stood_in.push(place.clone());
+                self.tree.set(&place, Value::Unit)
+            }
+            Complaint::UnknownKey { key, known } => {
+                self.report(&place, unknown_key_reason(key, known));
+                self.tree.remove(&place)
+            }
+            complaint => {
+                let want = Want::of(&self.tree, &place, complaint);
+                if in_stand_in {
+                    return want
+                        .emptiest()
+                        .is_some_and(|value| self.tree.set(&place, value));
+                }
+                // Environment text the `config` crate typed by its look, typed by its key
+                // instead (a password `1e5` is text): no problem yet.
+                let retyped = self
+                    .tree
+                    .env_text(&place)
+                    .and_then(|text| want.type_env_text(text));
+                if retyped.is_some_and(|value| self.tree.set(&place, value)) {
+                    return true;
+                }
+                let reason = want.reason(&self.tree, &place, complaint);
+                self.report_wrong_value(&place, &reason)
+            }
+        }
+    }
+
+    fn report(&mut self, place: &[Step], reason: impl Into<String>) {
+        self.found
+            .push((place.to_vec(), Problem::new(place_text(place), reason)));
+    }
+
+    /// Reports the value at `place`, shown, and takes it out: a key goes from its table (its
+    /// default applies, or a required key is stood in for); an item of a list is stood in
+    /// for, so that the places of the items after it stay as the user wrote them.
+    fn report_wrong_value(&mut self, place: &[Step], reason: &str) -> bool {
+        self.report(place, format!("{} {reason}", shown(&self.tree, place)));
+        match place.last() {
+            Some(Step::Key(_)) => self.tree.remove(place),
+            Some(Step::Index(_)) => {
+                self.stood_in.push(place.to_vec());
+                self.tree.set(place, Value::Unit)
+            }
+            None => false,
+        }
     }
 }
 
@@ -258,20 +291,6 @@ fn ignored_place(path: &serde_ignored::Path<'_>) -> Vec<Step> {
     let mut place = ignored_place(parent);
     place.extend(step);
     place
-}
-
-/// Takes a reported value out: a key goes from its table (its default applies, or a required
-/// key is stood in for); an item of a list is stood in for, so that the places of the items
-/// after it stay as the user wrote them.
-fn take_out(tree: &mut Tree, place: &[Step], stood_in: &mut Vec<Vec<Step>>) -> bool {
-    match place.last() {
-        Some(Step::Key(_)) => tree.remove(place),
-        Some(Step::Index(_)) => {
-            stood_in.push(place.to_vec());
-            tree.set(place, Value::Unit)
-        }
-        None => false,
-    }
 }
 
 /// What a key takes, told from what its visitor expected.
