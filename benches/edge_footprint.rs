@@ -44,9 +44,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use gateway_process::{cpu_time_of, GatewayProcess, Memory};
-use rtu2mqtt::profile::Profile;
 use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use rtu2mqtt_profile::Profile;
 use rumqttc::QoS;
 use support::Mosquitto;
 use wire_bench::{command_client, percentile, timed_subscriber, wire_load, WireLoad, EIGHT_N_ONE};

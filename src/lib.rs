@@ -3,14 +3,13 @@
 //! The crate is layered from the wire upwards; each layer only knows the ones listed before it
 //! (`tests/it/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
 //!
-//! - [`shutdown`]: the shutdown token every task holds.
 //! - Modbus on the wire lives in its own crate, [`rtu2mqtt_modbus`] (`crates/rtu2mqtt-modbus`),
 //!   below every module here: frame types with their arithmetic, CRC, the codec (pure byte
 //!   work), line timing (character time, t1.5, t3.5, response timeout), the answer framer, the
 //!   serial transport and master that run exactly one RTU transaction on a port with legal
 //!   timing, and the TCP links (raw RTU to a serial device server, Modbus TCP to a gateway)
 //!   behind one [`rtu2mqtt_modbus::link::Link`]. It knows nothing of MQTT or the configuration.
-//! - [`profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
+//! - [`rtu2mqtt_profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
 //!   and write rules; pure functions decode raw blocks into field values and turn a command into
 //!   the frames of one bus slot. No I/O. Built in: the seed devices and the device library;
 //!   the SunSpec model table and the profile `rtu2mqtt sunspec` writes from it.
@@ -58,11 +57,8 @@ pub mod broker;
 pub mod bus;
 pub mod cli;
 pub mod config;
-pub mod contract;
 pub mod health;
 pub mod history;
-pub mod profile;
-pub mod shutdown;
 #[cfg(feature = "demo")]
 pub mod sim;
 pub mod sparkplug;

@@ -19,7 +19,7 @@ fn main() -> ExitCode {
         Command::Scan(args) => rtu2mqtt::app::scan::scan(&args),
         Command::Read(args) => rtu2mqtt::app::read::read(&args),
         Command::Sunspec(args) => rtu2mqtt::app::sunspec::sunspec(&args),
-        Command::Profiles { paths } => rtu2mqtt::profile::registry::print_profiles(&paths),
+        Command::Profiles { paths } => rtu2mqtt::app::profiles::print_profiles(&paths),
         Command::Health {
             status_file,
             max_age,

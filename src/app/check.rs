@@ -15,9 +15,9 @@ use crate::bus::Transport;
 use crate::config::plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
 use crate::history::Journal;
-use crate::profile::registry::describe_read;
-use crate::profile::PollClass;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
+use rtu2mqtt_profile::registry::describe_read;
+use rtu2mqtt_profile::PollClass;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {

@@ -9,6 +9,7 @@ use std::future::Future;
 use std::path::Path;
 use std::pin::Pin;
 use std::process::ExitCode;
+use tokio_util::sync::CancellationToken;
 
 use anyhow::{bail, Context};
 
@@ -44,7 +45,7 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
 }
 
 fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
-    let profile = crate::profile::registry::load(profile, None)
+    let profile = rtu2mqtt_profile::registry::load(profile, None)
         .with_context(|| format!("loading profile `{profile}`"))?;
     let address = address
         .or(profile.default_address())
@@ -83,7 +84,8 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
         .build()
         .context("starting the runtime")?;
     runtime.block_on(async move {
-        let (trigger, shutdown) = crate::shutdown::channel();
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
         let (journal, served): (Journal, Pin<Box<dyn Future<Output = anyhow::Result<()>>>>) =
             match (&args.listen, &args.port) {
                 (Some(url), _) => {
@@ -97,11 +99,11 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                     tracing::info!(url = %simulator.url(), baud = args.baud, %parity, "simulating");
                     let journal = simulator.journal().clone();
                     let stopper = simulator.stopper();
-                    let mut shutdown = shutdown;
+                    let shutdown = shutdown;
                     let served = async move {
                         tokio::select! {
                             _ = simulator.wait() => {}
-                            _ = shutdown.fired() => stopper.fire(),
+                            _ = shutdown.cancelled() => stopper.cancel(),
                         }
                         Ok(())
                     };
@@ -122,7 +124,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
             };
         tokio::spawn(async move {
             if tokio::signal::ctrl_c().await.is_ok() {
-                trigger.fire();
+                trigger.cancel();
             }
         });
         tokio::pin!(served);

@@ -32,10 +32,10 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use crate::profile::{CommandPlan, Profile, PublishRule, Value};
 use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_modbus::SlaveId;
+use rtu2mqtt_profile::{CommandPlan, Profile, PublishRule, Value};
 
 pub use outcome::CommandFailure;
 pub use stats::LineStats;

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use crate::profile::PollClass;
+use rtu2mqtt_profile::PollClass;
 
 use super::DeviceSpec;
 

@@ -427,7 +427,7 @@ impl<C> Scheduler<C> {
 mod tests {
     use super::*;
     use crate::bus::plan::BlockPlan;
-    use crate::profile::PollClass;
+    use rtu2mqtt_profile::PollClass;
 
     const MS: Duration = Duration::from_millis(1);
 

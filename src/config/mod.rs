@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::bus::LineSpec;
-use crate::contract::Topics;
+use rtu2mqtt_profile::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use history::HistoryConfig;

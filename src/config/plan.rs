@@ -12,8 +12,8 @@
 use std::time::Duration;
 
 use crate::bus::{DeviceSpec, LineSpec};
-use crate::profile::PollClass;
 use rtu2mqtt_modbus::timing::LineTiming;
+use rtu2mqtt_profile::PollClass;
 
 /// One block's share of its line.
 #[derive(Debug, Clone, PartialEq)]

@@ -1,6 +1,6 @@
 //! The configuration file as written: these serde structs are the one declaration of every
 //! key (name, type, default, required or not); reading, the list of keys and the reference's
-//! test derive from them, and [`keys_at`] says which struct each table is. Unknown keys are
+//! test derive from them, and [`shape_at`] says where each struct sits. Unknown keys are
 //! refused by the reading (`read`), which lists them all; durations are humantime strings
 //! (`"300ms"`), addresses plain integers (TOML accepts `0x81`). Nothing here is checked beyond
 //! its type; `validate` turns it into the gateway's settings.
@@ -14,8 +14,8 @@ use serde::Deserialize;
 use super::health::HealthSettings;
 use super::history::RawHistory;
 use super::tree::Step;
-use crate::profile::publish::RawPublish;
 use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_profile::publish::RawPublish;
 
 /// The keys the serde struct `T` declares, in order (`#[derive(Deserialize)]` names them).
 pub fn keys_of<T: DeserializeOwned>() -> &'static [&'static str] {
@@ -275,7 +275,7 @@ fn default_true() -> bool {
     true
 }
 fn default_discovery_prefix() -> String {
-    crate::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
+    rtu2mqtt_profile::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)

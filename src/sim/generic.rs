@@ -12,9 +12,9 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use super::{Reply, SimDevice};
-use crate::profile::codec::RawPatch;
-use crate::profile::{FieldKind, Profile, ReadBlock};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_profile::codec::RawPatch;
+use rtu2mqtt_profile::{FieldKind, Profile, ReadBlock};
 
 /// The four Modbus tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -192,7 +192,7 @@ fn seed(table: Table, address: u16) -> u16 {
         Table::Holding | Table::Input => {
             let n = address % 90 + 10;
             // n < 100 always fits two BCD digits.
-            crate::profile::bcd::encode(n, 2).unwrap_or(0x10)
+            rtu2mqtt_profile::bcd::encode(n, 2).unwrap_or(0x10)
         }
     }
 }
@@ -269,7 +269,7 @@ impl SimDevice for GenericDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::PollClass;
+    use rtu2mqtt_profile::PollClass;
 
     fn block(request: Request) -> ReadBlock {
         ReadBlock {
@@ -283,8 +283,8 @@ mod tests {
 
     #[test]
     fn built_in_profiles_read_back_plausible_values() {
-        for name in crate::profile::registry::built_in_names() {
-            let profile = crate::profile::registry::built_in(name).unwrap();
+        for name in rtu2mqtt_profile::registry::built_in_names() {
+            let profile = rtu2mqtt_profile::registry::built_in(name).unwrap();
             let mut device = GenericDevice::from_profile(&profile, 1);
             for (index, block) in profile.read_blocks().iter().enumerate() {
                 let Reply::Normal(answer) = device.handle(&block.request, Instant::now()) else {
@@ -295,7 +295,7 @@ mod tests {
                     let value = reading
                         .value
                         .unwrap_or_else(|e| panic!("{name}.{}: {e}", reading.field));
-                    if let (FieldKind::Integer { min, max }, crate::profile::Value::Int(n)) =
+                    if let (FieldKind::Integer { min, max }, rtu2mqtt_profile::Value::Int(n)) =
                         (&field.kind, &value)
                     {
                         assert!((min..=max).contains(&n), "{name}.{}: {n}", field.name);
@@ -331,7 +331,7 @@ mod tests {
         };
         assert!(words
             .iter()
-            .all(|w| crate::profile::bcd::decode(*w, 4).is_ok()));
+            .all(|w| rtu2mqtt_profile::bcd::decode(*w, 4).is_ok()));
         assert_eq!(
             device.handle(
                 &Request::ReadHoldingRegisters {

@@ -185,10 +185,10 @@ mod tests {
                 Box::new(Valve::new(1)),
                 Box::new(AirShower::new()),
                 Box::new(GenericDevice::from_blocks(
-                    &[crate::profile::ReadBlock {
+                    &[rtu2mqtt_profile::ReadBlock {
                         name: "all".into(),
                         request: Request::ReadHoldingRegisters { start: 0xFFF0, quantity: 16 },
-                        class: crate::profile::PollClass::Fast,
+                        class: rtu2mqtt_profile::PollClass::Fast,
                         used_runs: vec![(0, 16)],
                         reads_linearly: true,
                     }],

@@ -22,11 +22,11 @@ use super::pace::Pace;
 use super::pty_settings::{garble, BaudWatch};
 use super::wire::{self, FrameLen, RequestError};
 use super::{lock, Addressing, Reply, SharedDevice};
-use crate::shutdown::Shutdown;
 use rtu2mqtt_modbus::clock::sleep_until_precise;
 use rtu2mqtt_modbus::codec::{encode_answer, encode_exception, hex};
 use rtu2mqtt_modbus::frame::Request;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use tokio_util::sync::CancellationToken;
 
 /// The longest RTU frame (address, PDU of at most 253 bytes, CRC).
 const MAX_FRAME_LEN: usize = 256;
@@ -87,7 +87,7 @@ pub async fn serve<S>(
     devices: Vec<SharedDevice>,
     faults: FaultHandle,
     journal: Journal,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin,
@@ -103,7 +103,7 @@ pub(crate) async fn serve_watching<S>(
     devices: Vec<SharedDevice>,
     faults: FaultHandle,
     journal: Journal,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin,
@@ -136,7 +136,7 @@ where
             tokio::time::Instant::now() + idle_garbage.unwrap_or(FAULT_RECHECK)
         });
         tokio::select! {
-            _ = shutdown.fired() => return Ok(()),
+            _ = shutdown.cancelled() => return Ok(()),
             read = server.stream.read(&mut chunk) => {
                 let count = read?;
                 if count == 0 {

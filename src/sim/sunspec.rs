@@ -4,7 +4,7 @@
 //! a [`RegisterMap`] like every other library device's.
 
 use super::register_map::{Entry, Raw, RegisterMap, Table};
-use crate::profile::sunspec::{self, Point};
+use rtu2mqtt_profile::sunspec::{self, Point};
 
 /// The register map of a SunSpec device, model by model.
 #[derive(Debug, Clone)]

@@ -22,10 +22,10 @@ use super::journal::Journal;
 use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
 use super::SharedDevice;
-use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
 use rtu2mqtt_modbus::mbap;
+use tokio_util::sync::CancellationToken;
 
 /// Longest wait for the devices' answer to one request. A new request from the client ends
 /// the wait earlier (the master has given up on the previous one).
@@ -131,7 +131,7 @@ pub struct TcpSimulator {
     faults: FaultHandle,
     tcp_faults: TcpFaultHandle,
     journal: Journal,
-    stop: ShutdownTrigger,
+    stop: CancellationToken,
     task: Option<JoinHandle<()>>,
 }
 
@@ -148,7 +148,8 @@ impl TcpSimulator {
         let faults = FaultHandle::default();
         let tcp_faults = TcpFaultHandle::default();
         let journal = Journal::new();
-        let (stop, token) = shutdown::channel();
+        let token = CancellationToken::new();
+        let stop = token.clone();
         let link = Link {
             protocol,
             options,
@@ -195,7 +196,7 @@ impl TcpSimulator {
 
     /// Stops listening and closes every connection.
     pub async fn stop(&mut self) {
-        self.stop.fire();
+        self.stop.cancel();
         if let Some(task) = self.task.take() {
             if let Err(error) = task.await {
                 tracing::warn!(%error, "TCP simulator task ended abnormally");
@@ -213,14 +214,14 @@ impl TcpSimulator {
     }
 
     /// A trigger that stops the simulator from elsewhere (Ctrl-C).
-    pub fn stopper(&self) -> ShutdownTrigger {
+    pub fn stopper(&self) -> CancellationToken {
         self.stop.clone()
     }
 }
 
 impl Drop for TcpSimulator {
     fn drop(&mut self) {
-        self.stop.fire();
+        self.stop.cancel();
     }
 }
 
@@ -235,11 +236,11 @@ struct Link {
     journal: Journal,
 }
 
-async fn accept_loop(listener: TcpListener, link: Link, mut shutdown: Shutdown) {
+async fn accept_loop(listener: TcpListener, link: Link, shutdown: CancellationToken) {
     let mut connections = Vec::new();
     loop {
         tokio::select! {
-            _ = shutdown.fired() => break,
+            _ = shutdown.cancelled() => break,
             accepted = listener.accept() => match accepted {
                 Ok((socket, peer)) => {
                     tracing::debug!(%peer, "TCP simulator connection");
@@ -261,7 +262,7 @@ async fn accept_loop(listener: TcpListener, link: Link, mut shutdown: Shutdown) 
     }
 }
 
-async fn connection(socket: TcpStream, link: Link, shutdown: Shutdown) {
+async fn connection(socket: TcpStream, link: Link, shutdown: CancellationToken) {
     let (device_end, relay_end) = tokio::io::duplex(4 * MAX_FRAME_LEN);
     let server = tokio::spawn(serve(
         device_end,
@@ -314,14 +315,14 @@ struct Relay {
 }
 
 impl Relay {
-    async fn run(&mut self, mut shutdown: Shutdown) -> std::io::Result<()> {
+    async fn run(&mut self, shutdown: CancellationToken) -> std::io::Result<()> {
         let mut chunk = [0u8; 1024];
         loop {
             while let Some(incoming) = self.next_request()? {
                 self.exchange(incoming).await?;
             }
             tokio::select! {
-                _ = shutdown.fired() => return Ok(()),
+                _ = shutdown.cancelled() => return Ok(()),
                 read = self.socket.read(&mut chunk) => {
                     let count = read?;
                     if count == 0 {

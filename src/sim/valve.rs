@@ -13,8 +13,8 @@ use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use super::{Addressing, Reply, SimDevice};
-use crate::profile::bcd;
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
+use rtu2mqtt_profile::bcd;
 
 pub const REG_ADDRESS: u16 = 0x00;
 pub const REG_BAUD: u16 = 0x0A;

@@ -19,14 +19,14 @@ use super::pty_settings::BaudWatch;
 use super::serial_stream::AsyncSerial;
 use super::server::{serve_watching, ServeOptions};
 use super::SharedDevice;
-use crate::shutdown::{self, ShutdownTrigger};
+use tokio_util::sync::CancellationToken;
 
 /// The serving side of one plugged-in pty.
 struct Plugged {
     slave_path: PathBuf,
     /// Held open so the master never sees EIO while the gateway has the port closed.
     _slave: File,
-    stop: ShutdownTrigger,
+    stop: CancellationToken,
     task: JoinHandle<std::io::Result<()>>,
 }
 
@@ -97,7 +97,8 @@ impl VirtualLine {
         } else {
             None
         };
-        let (stop, token) = shutdown::channel();
+        let token = CancellationToken::new();
+        let stop = token.clone();
         let task = tokio::spawn(serve_watching(
             AsyncSerial::new(master)?,
             self.options,
@@ -163,7 +164,7 @@ impl VirtualLine {
     /// writes fail, its reopens find nothing.
     pub async fn unplug(&mut self) {
         if let Some(plugged) = self.plugged.take() {
-            plugged.stop.fire();
+            plugged.stop.cancel();
             if let Err(error) = plugged.task.await {
                 tracing::warn!(%error, "virtual line task ended abnormally");
             }
@@ -189,7 +190,7 @@ impl VirtualLine {
 impl Drop for VirtualLine {
     fn drop(&mut self) {
         if let Some(plugged) = &self.plugged {
-            plugged.stop.fire();
+            plugged.stop.cancel();
         }
         if let Some(link) = &self.link {
             let _ = std::fs::remove_file(link);

@@ -28,7 +28,7 @@ use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
 use crate::history::document::values_of;
 use crate::history::Record;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 pub use crate::config::sparkplug::{
     shared_broker, SparkplugConfig, SparkplugIdentity, CLIENT_ID_SUFFIX,
@@ -95,7 +95,7 @@ pub struct NodeLinks {
     pub reports: mpsc::Receiver<CommandReport>,
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
     pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
-    pub shutdown: Shutdown,
+    pub shutdown: CancellationToken,
     /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,
     /// The records the bridge replays from the history journal (with `[history]`).
@@ -211,7 +211,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     let actions = session.history_batch(HISTORY_BATCH);
                     closing |= carry_out(&client, &links.commands, actions).await;
                 }
-                () = links.shutdown.fired(), if !closing => {
+                () = links.shutdown.cancelled(), if !closing => {
                     closing = true;
                     stop_by = Some(tokio::time::Instant::now() + CLOSE_GRACE);
                     end_session(&client, &mut session);
@@ -240,7 +240,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 // Outcomes of commands from before the connection was lost: the births
                 // carry the true values.
                 Some(_) = links.reports.recv() => {}
-                () = links.shutdown.fired() => return,
+                () = links.shutdown.cancelled() => return,
             }
         }
     }

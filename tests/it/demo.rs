@@ -148,7 +148,7 @@ fn expected_topics() -> Vec<String> {
         ("air_shower", "lixian-air-shower"),
         ("valve", "wuzhou-valve"),
     ] {
-        let profile = rtu2mqtt::profile::registry::built_in(profile).expect("built-in profile");
+        let profile = rtu2mqtt_profile::registry::built_in(profile).expect("built-in profile");
         for field in profile.fields() {
             topics.push(format!("plant/{device}/{}", field.name));
         }

@@ -63,7 +63,7 @@ impl Drop for Tmux {
 /// The fields the table shows for a device: all of them when `everything`, otherwise those
 /// that are not settings or diagnostics.
 fn shown_fields(profile: &str, everything: bool) -> Vec<String> {
-    let profile = rtu2mqtt::profile::registry::built_in(profile).expect("built-in profile");
+    let profile = rtu2mqtt_profile::registry::built_in(profile).expect("built-in profile");
     profile
         .fields()
         .iter()

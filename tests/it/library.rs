@@ -11,8 +11,6 @@ use crate::support::child;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::profile::registry::{built_in, library_names};
-use rtu2mqtt::profile::{sunspec, Profile, Value};
 use rtu2mqtt::sim::library::{self, LibraryDevice};
 use rtu2mqtt::sim::register_map::Entry;
 use rtu2mqtt::sim::{
@@ -20,6 +18,8 @@ use rtu2mqtt::sim::{
 };
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Response;
+use rtu2mqtt_profile::registry::{built_in, library_names};
+use rtu2mqtt_profile::{sunspec, Profile, Value};
 use support::{fast_config, Gateway, Mosquitto, TestClient};
 
 /// Generous for a busy 2-core machine: only runs out when something is broken.

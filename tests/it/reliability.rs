@@ -351,7 +351,7 @@ fn keep_changing_the_measured_value(
         let mut set = BTreeSet::new();
         let mut value = 100;
         loop {
-            if let Some(raw) = rtu2mqtt::profile::bcd::encode(value, 4) {
+            if let Some(raw) = rtu2mqtt_profile::bcd::encode(value, 4) {
                 let mut valve = sim::lock(&valve);
                 if valve.set_register(VALVE_MEASURED_1_FRACTION, 0)
                     && valve.set_register(VALVE_MEASURED_1, raw)

@@ -688,11 +688,11 @@ async fn seed_plant_serves_both_lines() {
 // simulators were written from docs/devices.md apart from the profiles, so this is where a profile
 // that writes the wrong bits or reads the wrong places shows.
 
-use rtu2mqtt::profile::{DeviceState, Profile, Verification};
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::{Request, Response, Transact};
+use rtu2mqtt_profile::{DeviceState, Profile, Verification};
 
 const MASTER_TIMEOUT: Duration = Duration::from_millis(800);
 
@@ -823,7 +823,7 @@ async fn command(
 }
 
 fn built_in(name: &str) -> Profile {
-    rtu2mqtt::profile::registry::built_in(name).unwrap()
+    rtu2mqtt_profile::registry::built_in(name).unwrap()
 }
 
 #[tokio::test]

@@ -1,5 +1,5 @@
 //! The words around the plant: what runs where, and example commands to try. The commands come
-//! from the devices' profiles ([`crate::profile::Profile::example_commands`]), so a profile
+//! from the devices' profiles ([`rtu2mqtt_profile::Profile::example_commands`]), so a profile
 //! change shows up here without touching the demo.
 
 use super::endpoint::BrokerEndpoint;

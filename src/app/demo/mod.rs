@@ -44,8 +44,8 @@ use self::terminal::terminal_size;
 use self::view::{log_line, DeviceOutline, PlantView};
 use self::watch::watch_broker;
 use super::{run_gateway, Hooks};
-use crate::shutdown;
 use crate::sim::{lock, SeedPlant};
+use tokio_util::sync::CancellationToken;
 
 /// How long the gateway gets to stop (finish its transaction, publish offline).
 const STOP_GRACE: Duration = Duration::from_secs(10);
@@ -117,8 +117,10 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
         hints = format!("{notice}\n{hints}");
     }
 
-    let (trigger, shutdown) = shutdown::channel();
-    let signals = tokio::spawn(super::stop_on_signals(trigger.clone()));
+    let shutdown = CancellationToken::new();
+
+    let trigger = shutdown.clone();
+    let signals = tokio::spawn(super::signals::stop_on_signals(trigger.clone()));
     let (messages_tx, mut messages_rx) = mpsc::channel(1024);
     let mut filters = vec![format!("{}/#", config.mqtt.prefix)];
     filters.extend(leftovers.as_ref().and_then(Leftovers::discovery_filter));
@@ -146,7 +148,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     // A closed stdout (`rtu2mqtt demo --log | head`) ends the demo cleanly instead of a panic
     // in println!.
     if !table && writeln!(stdout, "{intro}").is_err() {
-        trigger.fire();
+        trigger.cancel();
     }
 
     let mut gateway = tokio::spawn(run_gateway(config, shutdown.clone(), Hooks::default()));
@@ -159,10 +161,10 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     if table {
         let _ = write!(stdout, "\x1b[2J");
     }
-    let mut stopping = shutdown.clone();
+    let stopping = shutdown.clone();
     let gateway_result = loop {
         tokio::select! {
-            _ = stopping.fired() => break None,
+            _ = stopping.cancelled() => break None,
             result = &mut gateway => break Some(result),
             Some(seen) = messages_rx.recv() => {
                 if let Some(leftovers) = &mut leftovers {
@@ -174,7 +176,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
                         dirty = true;
                     } else if let Some(line) = pacing.on_change(now, &change) {
                         if writeln!(stdout, "{line}").is_err() {
-                            trigger.fire();
+                            trigger.cancel();
                         }
                     }
                 }
@@ -211,7 +213,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
                 } else {
                     lines.extend(pacing.due(now));
                     if lines.iter().any(|line| writeln!(stdout, "{line}").is_err()) {
-                        trigger.fire();
+                        trigger.cancel();
                     }
                 }
             }
@@ -222,7 +224,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     let outcome = match gateway_result {
         // The gateway ended by itself: that is an error unless a shutdown asked for it.
         Some(result) => result.context("the gateway task failed")?.and_then(|()| {
-            if shutdown.is_fired() {
+            if shutdown.is_cancelled() {
                 Ok(())
             } else {
                 Err(anyhow::anyhow!("the gateway stopped unexpectedly"))
@@ -235,7 +237,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
             )),
         },
     };
-    trigger.fire();
+    trigger.cancel();
     let _ = watcher.await;
     signals.abort();
     drop(plant);

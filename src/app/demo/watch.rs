@@ -8,7 +8,7 @@ use tokio::sync::mpsc;
 
 use super::endpoint::BrokerEndpoint;
 use crate::broker;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// A message as the view receives it.
 #[derive(Debug, Clone)]
@@ -25,7 +25,7 @@ pub(super) async fn watch_broker(
     endpoint: BrokerEndpoint,
     filters: Vec<String>,
     messages_tx: mpsc::Sender<Seen>,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) {
     let client_id = format!("rtu2mqtt-demo-view-{}", std::process::id());
     let mut options = MqttOptions::new(client_id, endpoint.host.clone(), endpoint.port);
@@ -34,7 +34,7 @@ pub(super) async fn watch_broker(
     let (client, mut event_loop) = AsyncClient::new(options, 64);
     loop {
         let event = tokio::select! {
-            _ = shutdown.fired() => break,
+            _ = shutdown.cancelled() => break,
             event = event_loop.poll() => event,
         };
         match event {
@@ -59,7 +59,7 @@ pub(super) async fn watch_broker(
             Err(error) => {
                 tracing::debug!(%error, "demo view: broker connection lost; retrying");
                 tokio::select! {
-                    _ = shutdown.fired() => break,
+                    _ = shutdown.cancelled() => break,
                     _ = tokio::time::sleep(Duration::from_millis(500)) => {}
                 }
             }

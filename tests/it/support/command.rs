@@ -1,6 +1,6 @@
 //! What a profile makes of a command's text, for the tests of its command grammar and rules.
 
-use rtu2mqtt::profile::{DeviceState, Profile, Rejection};
+use rtu2mqtt_profile::{DeviceState, Profile, Rejection};
 
 /// The reason `profile` gives for refusing `text` for `field` on a device with no state yet;
 /// an accepted command fails the test.

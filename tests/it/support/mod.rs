@@ -19,10 +19,10 @@ use std::time::{Duration, Instant};
 use child::KillOnDrop;
 use rtu2mqtt::app::{run_gateway, Hooks, Running};
 use rtu2mqtt::config::Config;
-use rtu2mqtt::shutdown::{self, ShutdownTrigger};
 use rtu2mqtt::sim::SeedPlant;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
 
 pub const MOSQUITTO: &str = "/usr/sbin/mosquitto";
 
@@ -541,7 +541,7 @@ fn with_newline(keys: &str) -> String {
 
 /// The gateway (`run_gateway`) running in a task of the test's runtime.
 pub struct Gateway {
-    trigger: ShutdownTrigger,
+    trigger: CancellationToken,
     task: tokio::task::JoinHandle<anyhow::Result<()>>,
     pub running: Running,
 }
@@ -549,7 +549,8 @@ pub struct Gateway {
 impl Gateway {
     /// Starts the gateway and waits until it is ready.
     pub async fn start(config: Config) -> Gateway {
-        let (trigger, shutdown) = shutdown::channel();
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
         let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
@@ -573,7 +574,8 @@ impl Gateway {
         config: Config,
         path: std::path::PathBuf,
     ) -> (Gateway, tokio::sync::mpsc::Sender<()>) {
-        let (trigger, shutdown) = shutdown::channel();
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
         let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
         let (reload_tx, requests) = tokio::sync::mpsc::channel(1);
         let hooks = Hooks {
@@ -595,7 +597,7 @@ impl Gateway {
 
     /// Asks the gateway to stop and waits until it has ended cleanly.
     pub async fn stop(self) {
-        self.trigger.fire();
+        self.trigger.cancel();
         tokio::time::timeout(GATEWAY_BOUND, self.task)
             .await
             .expect("gateway did not stop in time")

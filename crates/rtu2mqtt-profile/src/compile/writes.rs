@@ -6,8 +6,8 @@ use std::collections::HashMap;
 
 use super::blocks::Layout;
 use super::problems::Problems;
-use crate::profile::format::{WriteFrameSection, WriteSection};
-use crate::profile::model::{BlockKind, Limits, WriteFrame};
+use crate::format::{WriteFrameSection, WriteSection};
+use crate::model::{BlockKind, Limits, WriteFrame};
 
 /// A write function that fits its block (5/15 for coils, 6/16 for registers) and writes no more
 /// than the device takes at once.
@@ -211,7 +211,7 @@ pub(super) fn named_frames(
 
 #[cfg(test)]
 mod tests {
-    use crate::profile::compile::compile;
+    use crate::compile::compile;
 
     const DEVICE: &str = "[device]\nname = \"t\"\nmanufacturer = \"m\"\nmodel = \"x\"\n\
         [line]\nmax_write_registers = 4\n\

@@ -11,7 +11,7 @@ use std::sync::OnceLock;
 use serde::Deserialize;
 
 /// The generated table, embedded.
-const TABLE: &str = include_str!("../../data/sunspec/models.json");
+const TABLE: &str = include_str!("../../../data/sunspec/models.json");
 
 /// The two registers at a SunSpec base: "SunS".
 pub const MARKER: [u16; 2] = [0x5375, 0x6E53];
@@ -607,8 +607,8 @@ mod tests {
             address: 3,
         };
         let text = write_profile(&chain, &line);
-        let profile = crate::profile::Profile::from_toml(&text, "written")
-            .unwrap_or_else(|e| panic!("{e}\n{text}"));
+        let profile =
+            crate::Profile::from_toml(&text, "written").unwrap_or_else(|e| panic!("{e}\n{text}"));
         assert_eq!(profile.name(), "sunspec-sim-solar-x-1");
         assert_eq!(profile.manufacturer(), "Sim \"Solar\"");
         assert_eq!(profile.limits().default_baud, 19200);

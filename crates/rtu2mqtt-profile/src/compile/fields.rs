@@ -9,12 +9,12 @@ use super::blocks::{polled_at_least_as_often, Layout};
 use super::codecs::build_codec;
 use super::problems::Problems;
 use super::writes::field_write;
-use crate::profile::codec::{parse_command, FieldCodec};
-use crate::profile::field::{FieldInfo, FieldKind, HaHints, Identity};
-use crate::profile::format::{FieldSection, ForbiddenSection, IdentityKey};
-use crate::profile::model::{Behaviour, BlockKind, FieldDef, Forbidden, ReadBlock, WriteFrame};
-use crate::profile::publish::PublishRule;
-use crate::profile::value::Value;
+use crate::codec::{parse_command, FieldCodec};
+use crate::field::{FieldInfo, FieldKind, HaHints, Identity};
+use crate::format::{FieldSection, ForbiddenSection, IdentityKey};
+use crate::model::{Behaviour, BlockKind, FieldDef, Forbidden, ReadBlock, WriteFrame};
+use crate::publish::PublishRule;
+use crate::value::Value;
 
 /// The device's `name` names its topics and files.
 pub(super) fn check_device_name(name: &str, problems: &mut Problems<'_>) {
@@ -684,7 +684,7 @@ pub(super) fn build_forbidden(
 
 #[cfg(test)]
 mod tests {
-    use crate::profile::compile::compile;
+    use crate::compile::compile;
 
     const DEVICE: &str = "[device]\nname = \"t\"\nmanufacturer = \"m\"\nmodel = \"x\"\n[line]\n\
         [[blocks]]\nname = \"hold\"\nfunction = 3\nstart = 0\ncount = 8\n\

@@ -367,7 +367,7 @@ pub fn at_precision(value: &Value, precision: u8) -> Result<i128, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::registers::{ByteOrder, WordOrder};
+    use crate::registers::{ByteOrder, WordOrder};
     use proptest::prelude::*;
 
     const LAYOUTS: [RegisterLayout; 4] = [
@@ -633,7 +633,7 @@ mod tests {
             prop_assert!(value.is_ok());
             let value = value.unwrap_or(Value::Unavailable);
             // The text form is exact too.
-            let parsed = crate::profile::number::DecimalText::parse(&value.to_text())
+            let parsed = crate::number::DecimalText::parse(&value.to_text())
                 .and_then(|text| text.scaled(number.max_precision()).ok());
             prop_assert_eq!(parsed, at_precision(&value, number.max_precision()).ok());
             let encoded = number.encode(&value, &exponent);

@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::time::Duration;
 
 use super::problems::Problems;
-use crate::profile::format::{BlockSection, LineSection};
-use crate::profile::model::{BlockKind, FieldDef, Limits, PollClass, ReadBlock, WriteFrame};
+use crate::format::{BlockSection, LineSection};
+use crate::model::{BlockKind, FieldDef, Limits, PollClass, ReadBlock, WriteFrame};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
 
@@ -311,7 +311,7 @@ fn merge_runs(mut spans: Vec<(u16, u16)>) -> Vec<(u16, u16)> {
 /// True when a block of class `exponent` is read at least as often as one of class `user`: an
 /// exponent is then never older than the values it scales. `fast` is the period of the fast
 /// blocks (the profile's default poll interval, or a device's own).
-pub(in crate::profile) fn polled_at_least_as_often(
+pub(crate) fn polled_at_least_as_often(
     exponent: PollClass,
     user: PollClass,
     limits: &Limits,

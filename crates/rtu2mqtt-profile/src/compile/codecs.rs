@@ -4,10 +4,10 @@
 use std::collections::HashSet;
 
 use super::problems::Problems;
-use crate::profile::codec::FieldCodec;
-use crate::profile::format::{CodecSection, NumberSection};
-use crate::profile::numeric::{BytePlace, NumberCodec, NumberType};
-use crate::profile::registers::RegisterLayout;
+use crate::codec::FieldCodec;
+use crate::format::{CodecSection, NumberSection};
+use crate::numeric::{BytePlace, NumberCodec, NumberType};
+use crate::registers::RegisterLayout;
 
 /// A field's codec from its `codec` section; `None` when the section is refused (the problems
 /// are added).

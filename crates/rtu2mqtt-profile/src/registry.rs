@@ -4,8 +4,7 @@
 //! works alone and the files users copy are exactly what runs: the seed plant's devices, then
 //! the device library (meters and inverters written from their vendors' public register maps).
 
-use std::path::{Path, PathBuf};
-use std::process::ExitCode;
+use std::path::Path;
 
 use super::codec;
 use super::model::Behaviour;
@@ -15,15 +14,15 @@ use super::{FieldInfo, FieldKind, Profile, ProfileErrors};
 const SEED: &[(&str, &str)] = &[
     (
         "ruiwan-dust-collector",
-        include_str!("../../config/profiles/ruiwan-dust-collector.toml"),
+        include_str!("../../../config/profiles/ruiwan-dust-collector.toml"),
     ),
     (
         "wuzhou-valve",
-        include_str!("../../config/profiles/wuzhou-valve.toml"),
+        include_str!("../../../config/profiles/wuzhou-valve.toml"),
     ),
     (
         "lixian-air-shower",
-        include_str!("../../config/profiles/lixian-air-shower.toml"),
+        include_str!("../../../config/profiles/lixian-air-shower.toml"),
     ),
 ];
 
@@ -31,19 +30,19 @@ const SEED: &[(&str, &str)] = &[
 const LIBRARY: &[(&str, &str)] = &[
     (
         "eastron-sdm120",
-        include_str!("../../config/profiles/eastron-sdm120.toml"),
+        include_str!("../../../config/profiles/eastron-sdm120.toml"),
     ),
     (
         "eastron-sdm630",
-        include_str!("../../config/profiles/eastron-sdm630.toml"),
+        include_str!("../../../config/profiles/eastron-sdm630.toml"),
     ),
     (
         "abb-a43",
-        include_str!("../../config/profiles/abb-a43.toml"),
+        include_str!("../../../config/profiles/abb-a43.toml"),
     ),
     (
         "sunspec-inverter",
-        include_str!("../../config/profiles/sunspec-inverter.toml"),
+        include_str!("../../../config/profiles/sunspec-inverter.toml"),
     ),
 ];
 
@@ -285,68 +284,4 @@ pub fn describe(profile: &Profile) -> String {
         let _ = writeln!(out, "{}", line.trim_end());
     }
     out
-}
-
-/// What one argument of `rtu2mqtt profiles` names: a built-in profile by its name, else a
-/// profile file by its path.
-fn load_listed(argument: &Path) -> Result<(Profile, Option<&Path>), LoadError> {
-    if let Some(name) = argument
-        .to_str()
-        .filter(|name| built_in_names().contains(name))
-    {
-        return built_in(name).map(|profile| (profile, None));
-    }
-    match std::fs::metadata(argument) {
-        Ok(_) => load_file(argument).map(|profile| (profile, Some(argument))),
-        Err(source) if source.kind() == std::io::ErrorKind::NotFound => {
-            Err(LoadError::NeitherBuiltInNorFile {
-                name: argument.display().to_string(),
-                known: built_in_names().join(", "),
-            })
-        }
-        Err(source) => Err(LoadError::Read {
-            path: argument.display().to_string(),
-            source,
-        }),
-    }
-}
-
-/// `rtu2mqtt profiles [NAME|FILE]…`: with no argument every built-in profile, otherwise only
-/// the built-ins named and the files given, in argument order, each with its fields. Any
-/// argument that cannot be listed is reported on stderr and makes the exit status 1.
-pub fn print_profiles(arguments: &[PathBuf]) -> anyhow::Result<ExitCode> {
-    use std::io::Write as _;
-    let listed: Vec<PathBuf> = if arguments.is_empty() {
-        built_in_names().into_iter().map(PathBuf::from).collect()
-    } else {
-        arguments.to_vec()
-    };
-    let mut listing = String::new();
-    let mut problems = String::new();
-    for argument in &listed {
-        match load_listed(argument) {
-            Ok((profile, None)) if library_names().contains(&profile.name()) => {
-                listing.push_str(&format!(
-                    "{}  device library: config/profiles/{}.toml names its register map\n\n",
-                    describe(&profile),
-                    profile.name()
-                ))
-            }
-            Ok((profile, None)) => listing.push_str(&format!("{}\n", describe(&profile))),
-            Ok((profile, Some(path))) => listing.push_str(&format!(
-                "{}  file: {}\n\n",
-                describe(&profile),
-                path.display()
-            )),
-            Err(err) => problems.push_str(&format!("{err}\n")),
-        }
-    }
-    // A closed pipe (`rtu2mqtt profiles | head`) is not an error worth a panic.
-    let _ = std::io::stdout().lock().write_all(listing.as_bytes());
-    let _ = std::io::stderr().lock().write_all(problems.as_bytes());
-    Ok(if problems.is_empty() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    })
 }

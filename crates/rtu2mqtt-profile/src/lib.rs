@@ -14,6 +14,7 @@ pub mod bcd;
 pub mod codec;
 pub mod command;
 pub mod compile;
+pub mod contract;
 pub mod field;
 pub mod format;
 pub mod model;
