@@ -73,6 +73,9 @@ pub fn check(raw: &RawHistory) -> Result<HistoryConfig, Vec<Problem>> {
 }
 
 /// `"64MiB"`, `"500KB"`, `"1GiB"`, `"4096"` (bytes) in bytes; None when it is not a size.
+///
+/// Whole numbers with these units only, never past `u64`. A size crate would take more than
+/// the message names: `byte-unit` reads `"64Mb"` as megabits unless told to ignore case.
 pub fn parse_size(text: &str) -> Option<u64> {
     let text = text.trim();
     let digits = text
