@@ -263,22 +263,16 @@ fn read_once(tree: &Tree) -> (Result<RawConfig, Fault>, Vec<Vec<Step>>) {
             })
             .collect();
         let complaint = error.into_inner();
-        let key = match &complaint {
-            Complaint::MissingKey(key) => Some(key.to_string()),
-            Complaint::UnknownKey { key, .. } => Some(key.clone()),
-            _ => None,
-        };
-        if let Some(key) = key {
+        if let Complaint::MissingKey(key) = &complaint {
             // The path is the table's; the problem is its key's.
-            if place.last() != Some(&Step::Key(key.clone())) {
-                place.push(Step::Key(key));
-            }
+            place.push(Step::Key(key.to_string()));
         }
         Fault { place, complaint }
     });
     (result, unknown_keys)
 }
 
+/// The place `serde_ignored` names (an `Option`'s or a newtype's value at its own place).
 fn ignored_place(path: &serde_ignored::Path<'_>) -> Vec<Step> {
     let (parent, step) = match path {
         serde_ignored::Path::Root => return Vec::new(),
