@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
-use crate::config::plan::{BlockLoad, LinePlan};
+use crate::config::poll_plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
 use crate::history::Journal;
 use rtu2mqtt_modbus::tcp_link::TcpKind;

@@ -4,16 +4,12 @@
 //! library entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
-#[cfg(feature = "demo")]
-pub mod demo;
 pub mod logging;
 pub mod profiles;
 pub mod read;
 pub mod reload;
 pub mod scan;
-pub(crate) mod signals;
-#[cfg(feature = "demo")]
-pub mod simulate;
+pub mod signals;
 pub mod sunspec;
 
 use std::path::Path;

@@ -5,7 +5,7 @@
 use tokio_util::sync::CancellationToken;
 
 /// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-pub(crate) async fn stop_on_signals(trigger: CancellationToken) {
+pub async fn stop_on_signals(trigger: CancellationToken) {
     use tokio::signal::unix::{signal, SignalKind};
     let (Ok(mut terminate), Ok(mut interrupt)) = (
         signal(SignalKind::terminate()),

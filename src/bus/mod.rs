@@ -10,12 +10,12 @@
 //! Fields with `publish` settings are reported by exception ([`report`], applied by the line's
 //! [`reporter`] task), so every consumer of the events sees the same series.
 
+pub mod availability;
+pub mod cadence;
 mod commands;
 pub mod device;
-pub mod health;
 pub mod line;
 pub mod outcome;
-pub mod plan;
 pub mod poll;
 pub mod port;
 pub mod report;

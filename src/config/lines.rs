@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use super::devices::validate_device;
 use super::names::{invalid_name, is_valid_name};
-use super::plan::LinePlan;
+use super::poll_plan::LinePlan;
 use super::schema::{RawLine, RawServe};
 use super::Problem;
 use crate::bus::serve::{Access, ServeFraming, ServeSpec};

@@ -1,11 +1,12 @@
 //! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
 //! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) into one typed [`tree`], read
-//! by serde strictly with every problem placed ([`read`]), and complete validation ([`validate`]) that runs every section's
-//! checks and names the place of every problem before anything is opened. Each section is
+//! by serde strictly with every problem placed ([`read`]), and complete validation
+//! ([`validate`]) that runs every section's checks and names the place of every problem before
+//! anything is opened. Each section is
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
-//! the quoting they share. [`plan`] computes each line's poll plan and bus load from the wire
+//! the quoting they share. [`poll_plan`] computes each line's poll plan and bus load from the wire
 //! timing, for validation and `rtu2mqtt check`.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
@@ -19,7 +20,7 @@ pub mod lines;
 pub mod load;
 pub mod mqtt;
 pub mod names;
-pub mod plan;
+pub mod poll_plan;
 pub mod read;
 pub mod schema;
 pub mod sparkplug;

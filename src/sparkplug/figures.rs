@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use super::payload::{DataType, MetricValue};
+use super::protobuf::{DataType, MetricValue};
 use super::session::NodeMetricSpec;
 use crate::bus::LineStats;
 use tokio_util::sync::CancellationToken;

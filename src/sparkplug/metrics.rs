@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use serde_json::Value as Json;
 
-use super::payload::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
+use super::protobuf::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
 use rtu2mqtt_profile::{FieldInfo, FieldKind, Profile, Value};
 
 /// Range bounds this large come from the number format (float registers), not the device.

@@ -1,4 +1,4 @@
-//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`payload`] is the
+//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`protobuf`] is the
 //! protobuf payload, [`metrics`] turns profile fields into typed metrics and command metrics
 //! back into command text, [`figures`] turns line statistics into node metrics, [`session`] is
 //! the pure edge node state machine. This module makes the session for a configuration
@@ -13,7 +13,7 @@
 pub mod bd_seq;
 pub mod figures;
 pub mod metrics;
-pub mod payload;
+pub mod protobuf;
 pub mod session;
 pub mod session_interface;
 
@@ -94,7 +94,7 @@ pub struct NodeLinks {
     pub commands: mpsc::Sender<SparkplugCommand>,
     pub reports: mpsc::Receiver<CommandReport>,
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
-    pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
+    pub node_values: mpsc::Receiver<Vec<(String, protobuf::MetricValue)>>,
     pub shutdown: CancellationToken,
     /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,

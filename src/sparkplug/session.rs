@@ -13,7 +13,7 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use super::metrics::{DeviceMetrics, Refusal};
-use super::payload::{DataType, Metric, MetricValue, Payload};
+use super::protobuf::{DataType, Metric, MetricValue, Payload};
 pub use super::session_interface::{
     Action, Delivery, HistoricalValues, NodeMetricSpec, SessionSettings, SparkplugCommand, Will,
     BD_SEQ, DEVICES, DEVICES_ONLINE, HISTORY_QUEUE, NAMESPACE, REBIRTH, VERSION,

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use serde_json::Value as Json;
 
-use super::payload::DataType;
+use super::protobuf::DataType;
 use rtu2mqtt_profile::Profile;
 
 /// The Sparkplug B topic namespace.

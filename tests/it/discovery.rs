@@ -24,11 +24,11 @@ use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
 use rtu2mqtt::bridge::state::StateUpdate;
 use rtu2mqtt::bus::LineStats;
-use rtu2mqtt::sim::SeedPlant;
 use rtu2mqtt_profile::contract::{is_ha_online, json_view_topic, Topics};
 use rtu2mqtt_profile::{
     registry, DeviceState, FieldInfo, FieldKind, HaHints, Identity, Profile, Value,
 };
+use rtu2mqtt_sim::SeedPlant;
 use support::{Mosquitto, PlantConfig, TestClient};
 use tokio_util::sync::CancellationToken;
 

@@ -11,9 +11,9 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::sim::{lock, share, GenericDevice, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{lock, share, GenericDevice, ServeOptions, VirtualLine};
 
 use crate::support::{fast_config, hex, Gateway, Mosquitto, TestClient};
 

@@ -1292,7 +1292,7 @@ mod bytes {
 /// golden words set in the device, and commands go through plan → writes → read-back.
 #[test]
 fn th_sensor_against_the_generic_simulator() {
-    use rtu2mqtt::sim::generic::GenericDevice;
+    use rtu2mqtt_sim::generic::GenericDevice;
 
     let profile = th_sensor();
     let mut device = GenericDevice::from_profile(&profile, 7);
@@ -1332,8 +1332,8 @@ fn th_sensor_against_the_generic_simulator() {
 }
 
 /// The device's normal answer to `request`.
-fn ask(device: &mut dyn rtu2mqtt::sim::SimDevice, request: &Request) -> Response {
-    use rtu2mqtt::sim::Reply;
+fn ask(device: &mut dyn rtu2mqtt_sim::SimDevice, request: &Request) -> Response {
+    use rtu2mqtt_sim::Reply;
     match device.handle(request, std::time::Instant::now()) {
         Reply::Normal(response) => response,
         other => panic!("{request:?}: {other:?}"),
@@ -1343,7 +1343,7 @@ fn ask(device: &mut dyn rtu2mqtt::sim::SimDevice, request: &Request) -> Response
 /// Runs one planned command on a simulated device as the line does, returning the verification
 /// of the read-back.
 fn run_on(
-    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    device: &mut dyn rtu2mqtt_sim::SimDevice,
     plan: &CommandPlan,
 ) -> Result<Verification, Rejection> {
     let before: Vec<Response> = plan
@@ -1364,7 +1364,7 @@ fn run_on(
 
 /// Each (field, text) in turn, planned on no known state, is applied by the device.
 fn assert_all_applied(
-    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    device: &mut dyn rtu2mqtt_sim::SimDevice,
     profile: &Profile,
     commands: &[(&str, &str)],
 ) {
@@ -1381,7 +1381,7 @@ fn assert_all_applied(
 /// is applied by the simulated device as intended, and no device-protecting rule is broken.
 #[test]
 fn seed_simulators_apply_what_the_profiles_plan() {
-    use rtu2mqtt::sim::{AirShower, DustCollector, SimDevice};
+    use rtu2mqtt_sim::{AirShower, DustCollector, SimDevice};
     let none = DeviceState::new();
 
     let profile = dust();
@@ -1438,7 +1438,7 @@ fn seed_simulators_apply_what_the_profiles_plan() {
     assert_eq!(device.violations(), Vec::<String>::new());
 
     let profile = valve();
-    let mut device = rtu2mqtt::sim::Valve::new(1);
+    let mut device = rtu2mqtt_sim::Valve::new(1);
     assert_all_applied(
         &mut device,
         &profile,

@@ -18,13 +18,13 @@ use rtu2mqtt::bus::{
     spawn_line, Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle,
     LineSpec,
 };
-use rtu2mqtt::sim::{
-    self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
-    SharedDevice, SimDevice, Valve, VirtualLine,
-};
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};
 use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_profile::{registry, CommandPlan, DeviceState, Profile, Value};
+use rtu2mqtt_sim::{
+    self as sim, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
+    SharedDevice, SimDevice, Valve, VirtualLine,
+};
 use tokio_util::sync::CancellationToken;
 
 const AIR_SHOWER_TOML: &str = include_str!("../../config/profiles/lixian-air-shower.toml");

@@ -15,7 +15,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 use rtu2mqtt::bus::stats::LineStats;
-use rtu2mqtt::sim::{self, air_shower, Faults, Occurrence, SeedPlant};
+use rtu2mqtt_sim::{self as sim, air_shower, Faults, Occurrence, SeedPlant};
 use support::{Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// How long any single expected message may take before the test fails.

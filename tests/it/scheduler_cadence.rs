@@ -6,8 +6,8 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::bus::health::{Availability, HealthPolicy};
-use rtu2mqtt::bus::plan::{BlockPlan, DevicePlan};
+use rtu2mqtt::bus::availability::{Availability, HealthPolicy};
+use rtu2mqtt::bus::cadence::{BlockPlan, DevicePlan};
 use rtu2mqtt::bus::scheduler::{Due, PollOutcome, Scheduler};
 use rtu2mqtt_profile::PollClass;
 

@@ -11,7 +11,7 @@ use std::time::Duration;
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
-use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
     run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
 };

@@ -1,14 +1,20 @@
-//! Device knowledge as data. A [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or
+//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or
 //! one of the built-in copies), validated completely at load, and then answers every question
 //! the rest of the gateway has about a device: which blocks to poll, how raw words become field
 //! values, which fields exist and how they are exposed, and how a command on a field becomes the
 //! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
-//! [`registry`], which reads profile files and prints the `rtu2mqtt profiles` listing.
+//! [`registry`], which holds the built-in profiles, reads profile files and describes a profile
+//! for the `rtu2mqtt profiles` listing.
 //!
 //! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
 //! [`registers`], [`numeric`], [`text`], [`rejection`], [`publish`], [`field`], [`codec`],
 //! [`model`], [`format`](mod@format), [`compile`], then [`command`] and [`raw`] (planning and
 //! patching on the model); this file's [`Profile`] is what the rest of the crate sees.
+//! [`sunspec`] is the SunSpec model table and the profile written from a device's model chain.
+//!
+//! [`contract`] is the MQTT contract (topic names, the parse of a command topic, Home
+//! Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
+//! daemon's configuration check, discovery and bridge, and by the demo.
 
 pub mod bcd;
 pub mod codec;

@@ -30,10 +30,10 @@ use tracing::Instrument;
 mod client_requests;
 mod command_slots;
 
+use super::availability::{HealthChange, HealthPolicy};
+use super::cadence::DevicePlan;
 use super::commands::{CommandSlots, Pending, SlotLink};
 use super::device::{DeviceRuntime, Values};
-use super::health::{HealthChange, HealthPolicy};
-use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;

@@ -1,4 +1,4 @@
-//! The demo's live table in a real terminal: `rtu2mqtt demo` runs inside tmux at 80×24 and at
+//! The demo's live table in a real terminal: `rtu2mqtt-demo` runs inside tmux at 80×24 and at
 //! 200×60 and the screen is read back as a user sees it (`tmux capture-pane`). The footer
 //! ("Ctrl-C stops") is on the last row, every device's row is there with its status, no value
 //! is cut off by the edge, the hints can be copied whole, a changed value is highlighted, and
@@ -115,8 +115,8 @@ fn check_the_screen(width: u16, height: u16) {
         ),
     };
     let demo = format!(
-        "{} demo --port {port}; echo \"demo exited: $?\"; sleep 30",
-        crate::support::child::BIN
+        "{} --port {port}; echo \"demo exited: $?\"; sleep 30",
+        crate::DEMO
     );
     let started = tmux.run(&[
         "new-session",
@@ -137,7 +137,7 @@ fn check_the_screen(width: u16, height: u16) {
 
     // Before its first poll the dust collector (3 s start-up) is starting, not offline.
     let (seen, screen) = tmux.wait_for(Duration::from_secs(30), |screen| {
-        screen.iter().any(|row| row.starts_with("rtu2mqtt demo:"))
+        screen.iter().any(|row| row.starts_with("rtu2mqtt-demo:"))
     });
     assert!(seen, "no table:\n{}", screen.join("\n"));
     assert!(
@@ -221,7 +221,7 @@ fn check_the_screen(width: u16, height: u16) {
     let text = screen.join("\n");
     assert!(stopped, "the demo did not stop on Ctrl-C:\n{text}");
     assert!(text.contains("demo exited: 0"), "{text}");
-    assert!(text.contains("rtu2mqtt demo stopped after"), "{text}");
+    assert!(text.contains("rtu2mqtt-demo stopped after"), "{text}");
 }
 
 #[test]

@@ -241,7 +241,7 @@ pub(super) fn keep_log_line(line: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::app::demo::view::DeviceOutline;
+    use crate::demo::view::DeviceOutline;
 
     #[test]
     fn warnings_outlive_ordinary_log_lines() {
@@ -276,7 +276,7 @@ mod tests {
 
     /// The visible rows of a frame (escape sequences removed).
     fn rows(frame: &str) -> Vec<String> {
-        let plain = crate::app::demo::capture::strip_ansi(frame);
+        let plain = crate::demo::capture::strip_ansi(frame);
         plain.split("\r\n").map(str::to_string).collect()
     }
 

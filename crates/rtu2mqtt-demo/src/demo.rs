@@ -1,4 +1,4 @@
-//! `rtu2mqtt demo`: the seed plant with no hardware. The three simulated seed devices are
+//! `rtu2mqtt-demo`: the seed plant with no hardware. The three simulated seed devices are
 //! served on two virtual serial lines (pseudo-terminals: line A 9600 8N1 with the dust collector
 //! at 1 and the air shower at 0x81, line B with the valve's 8E1 settings at 1), the embedded
 //! MQTT broker listens on 127.0.0.1 (unless `--broker` names one), and the very gateway of
@@ -43,8 +43,8 @@ use self::screen::{compose_screen, keep_log_line, remember_log_line};
 use self::terminal::terminal_size;
 use self::view::{log_line, DeviceOutline, PlantView};
 use self::watch::watch_broker;
-use super::{run_gateway, Hooks};
-use crate::sim::{lock, SeedPlant};
+use rtu2mqtt::app::{run_gateway, Hooks};
+use rtu2mqtt_sim::{lock, SeedPlant};
 use tokio_util::sync::CancellationToken;
 
 /// How long the gateway gets to stop (finish its transaction, publish offline).
@@ -57,7 +57,7 @@ const REDRAW: Duration = Duration::from_millis(200);
 /// means offline (a device that needs split reads retries its first blocks).
 const FIRST_POLLS: Duration = Duration::from_secs(10);
 
-/// `rtu2mqtt demo`.
+/// `rtu2mqtt-demo`.
 pub fn demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Result<ExitCode> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -120,7 +120,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     let shutdown = CancellationToken::new();
 
     let trigger = shutdown.clone();
-    let signals = tokio::spawn(super::signals::stop_on_signals(trigger.clone()));
+    let signals = tokio::spawn(rtu2mqtt::app::signals::stop_on_signals(trigger.clone()));
     let (messages_tx, mut messages_rx) = mpsc::channel(1024);
     let mut filters = vec![format!("{}/#", config.mqtt.prefix)];
     filters.extend(leftovers.as_ref().and_then(Leftovers::discovery_filter));
@@ -145,7 +145,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
         None
     };
     let mut stdout = std::io::stdout();
-    // A closed stdout (`rtu2mqtt demo --log | head`) ends the demo cleanly instead of a panic
+    // A closed stdout (`rtu2mqtt-demo --log | head`) ends the demo cleanly instead of a panic
     // in println!.
     if !table && writeln!(stdout, "{intro}").is_err() {
         trigger.cancel();
@@ -201,7 +201,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
                         dirty = false;
                         marked_on_screen = marked;
                         let header = format!(
-                            "rtu2mqtt demo: {} fields published, {}s",
+                            "rtu2mqtt-demo: {} fields published, {}s",
                             view.published_fields(),
                             now.as_secs()
                         );
@@ -266,7 +266,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     outcome?;
     let _ = writeln!(
         stdout,
-        "rtu2mqtt demo stopped after {}s ({} fields published).",
+        "rtu2mqtt-demo stopped after {}s ({} fields published).",
         started.elapsed().as_secs(),
         view.published_fields()
     );

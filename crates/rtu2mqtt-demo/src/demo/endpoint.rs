@@ -8,7 +8,7 @@ use anyhow::{bail, Context as _};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
 use crate::broker::{self, BrokerError};
-use crate::config::mqtt;
+use rtu2mqtt::config::mqtt;
 
 /// How long the look for running gateways waits for the broker's answer.
 pub(super) const PROBE_CONNECT: Duration = Duration::from_secs(5);

@@ -1,6 +1,6 @@
 //! The demo's promises, checked with real MQTT clients (`mosquitto_sub` / `mosquitto_pub`):
 //! the embedded broker serves, keeps and clears retained messages and forwards live ones; and
-//! the real `rtu2mqtt demo` binary publishes every field of the three seed devices, applies
+//! the real `rtu2mqtt-demo` binary publishes every field of the three seed devices, applies
 //! commands (the simulated devices behave: gear set, e-stop opens the doors, the valve moves),
 //! and stops cleanly with exit status 0 on SIGINT, with its own broker, with a broker already
 //! on its port, and with `--broker`; on a broker it did not start it leaves nothing retained
@@ -16,7 +16,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use support::child::{self, KillOnDrop};
+use support::child::KillOnDrop;
 use support::free_port;
 
 fn mosquitto_pub(port: u16, args: &[&str]) -> Output {
@@ -99,7 +99,7 @@ impl Subscriber {
 #[test]
 fn embedded_broker_keeps_and_clears_retained_messages() {
     let port = free_port();
-    let broker = rtu2mqtt::broker::start(port).expect("the embedded broker starts");
+    let broker = rtu2mqtt_demo::broker::start(port).expect("the embedded broker starts");
     assert_eq!(broker.url(), format!("mqtt://127.0.0.1:{port}"));
 
     mosquitto_pub(port, &["-r", "-t", "plant/test/kept", "-m", "42"]);
@@ -124,7 +124,7 @@ fn embedded_broker_keeps_and_clears_retained_messages() {
 #[test]
 fn embedded_broker_forwards_live_messages() {
     let port = free_port();
-    rtu2mqtt::broker::start(port).expect("the embedded broker starts");
+    rtu2mqtt_demo::broker::start(port).expect("the embedded broker starts");
     // The retained marker proves the subscription is in place before the live publish.
     mosquitto_pub(port, &["-r", "-t", "plant/live/ready", "-m", "yes"]);
     let subscriber = Subscriber::start(port, "plant/live/#");
@@ -156,7 +156,7 @@ fn expected_topics() -> Vec<String> {
     topics
 }
 
-/// A running `rtu2mqtt demo --log`, its output drained in the background; SIGKILLed on drop
+/// A running `rtu2mqtt-demo --log`, its output drained in the background; SIGKILLed on drop
 /// if a test failed before stopping it.
 struct Demo {
     child: KillOnDrop,
@@ -166,16 +166,15 @@ struct Demo {
 
 impl Demo {
     fn start(args: &[&str]) -> Demo {
-        let mut command = Command::new(child::BIN);
+        let mut command = Command::new(crate::DEMO);
         command
-            .arg("demo")
             .arg("--log")
             .args(args)
             .env("RUST_LOG", "info")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        let mut demo = KillOnDrop::spawn(command).expect("the rtu2mqtt binary runs");
+        let mut demo = KillOnDrop::spawn(command).expect("the rtu2mqtt-demo binary runs");
         let stdout = demo.0.stdout.take().expect("piped stdout");
         let mut stderr = demo.0.stderr.take().expect("piped stderr");
         let (stdout_tx, stdout_rx) = mpsc::channel();
@@ -222,7 +221,7 @@ impl Demo {
 fn wait_for_broker(port: u16) {
     let address = SocketAddr::from(([127, 0, 0, 1], port));
     let deadline = Instant::now() + Duration::from_secs(30);
-    while rtu2mqtt::broker::mqtt_handshake(address).is_err() {
+    while rtu2mqtt_demo::broker::mqtt_handshake(address).is_err() {
         assert!(Instant::now() < deadline, "no broker on {port}");
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -344,7 +343,7 @@ fn exercise_the_plant(demo: Demo, port: u16) -> String {
     let (status, stdout, stderr) = demo.interrupt();
     assert!(status.success(), "exit {status:?}\n{stdout}\n{stderr}");
     assert!(stdout.contains("dust_collector/gear = 8"), "{stdout}");
-    assert!(stdout.contains("rtu2mqtt demo stopped"), "{stdout}");
+    assert!(stdout.contains("rtu2mqtt-demo stopped"), "{stdout}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     // The valve's line runs with the device's even parity settings, which a pty ignores.
     assert!(stderr.contains("parity"), "{stderr}");

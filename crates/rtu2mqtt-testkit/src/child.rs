@@ -3,23 +3,40 @@
 //! the gateway is built without it), and a child killed and reaped on drop, which every test
 //! that starts a process holds.
 
-#![allow(dead_code)]
-
 use std::os::unix::process::CommandExt as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
 
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
+/// A binary of the workspace, built by `cargo test` beside the test executable that runs
+/// (`target/<profile>/<name>`, the test being in `target/<profile>/deps/`).
+pub fn binary(name: &str) -> PathBuf {
+    let test = std::env::current_exe().expect("the test executable's path");
+    let profile_dir = test
+        .parent()
+        .and_then(Path::parent)
+        .expect("the test executable lies in target/<profile>/deps");
+    let path = profile_dir.join(name);
+    assert!(
+        path.exists(),
+        "{} is not built: run the tests with `cargo test` at the workspace root",
+        path.display()
+    );
+    path
+}
+
 /// The gateway binary under test.
-pub const BIN: &str = env!("CARGO_BIN_EXE_rtu2mqtt");
+pub fn gateway_binary() -> PathBuf {
+    binary("rtu2mqtt")
+}
 
 /// `rtu2mqtt run --config <config>` with stdin and stdout closed and stderr discarded; the
 /// caller adds its environment and, to read the log, where stderr goes.
 pub fn gateway_run(config: &Path) -> Command {
-    let mut command = Command::new(BIN);
+    let mut command = Command::new(gateway_binary());
     command
         .args(["run", "--config"])
         .arg(config)

@@ -14,13 +14,21 @@
 //! - [`TcpSimulator`]: the same devices behind a TCP port, as a serial device server (raw RTU
 //!   frames) or a Modbus TCP gateway, with network faults of its own ([`TcpFaults`]).
 //!
-//! Nothing here is used by the daemon's `run`; it serves tests, the benchmark, `demo` and
-//! `simulate`.
+//! Modules: the devices `dust_collector`, `air_shower`, `valve` (written by hand), `generic`
+//! (from any profile), `library` (the device library's tables of `register_map` values) and
+//! `sunspec` (SunSpec maps); `server` (framing, `pace`, `faults`, `journal`; `drive` runs a
+//! device's clock), `wire` (frames on the simulator's side), `virtual_line` (a served pty),
+//! `pty_settings` (the baud rate the master set, watched through the pty), `serial_stream` (a
+//! mio-serial port as a tokio stream), `tcp` (serving over TCP: raw RTU or Modbus TCP) and
+//! `plant` (the seed plant).
+//!
+//! The daemon does not depend on this crate; it serves tests, the benchmarks and the demo
+//! (`rtu2mqtt-demo`, `rtu2mqtt-demo simulate`).
 //!
 //! ```no_run
 //! # async fn example() -> std::io::Result<()> {
 //! use rtu2mqtt_modbus::timing::Parity;
-//! use rtu2mqtt::sim::{lock, share, AirShower, DustCollector, Occurrence, ServeOptions, VirtualLine};
+//! use rtu2mqtt_sim::{lock, share, AirShower, DustCollector, Occurrence, ServeOptions, VirtualLine};
 //!
 //! let (dust, dust_shared) = share(DustCollector::new(1));
 //! let (_shower, shower_shared) = share(AirShower::new());

@@ -1,10 +1,13 @@
-//! Test support shared by every integration test: a real mosquitto on a free loopback port
-//! (temporary config, killed on drop, restartable on the same port), a small rumqttc client
-//! that records what it receives, and the gateway over the simulated seed plant (its
-//! configuration, started and stopped by a test); child processes, command refusals, frames as
-//! hex text and the pysparkplug peer in their own modules.
-
-#![allow(dead_code)]
+//! The end-to-end test harness every integration test and benchmark of the workspace shares.
+//!
+//! - This file: a real mosquitto on a free loopback port ([`Mosquitto`]: temporary config,
+//!   killed on drop, restartable on the same port), a small rumqttc client that records what it
+//!   receives ([`TestClient`]), and the gateway over the simulated seed plant ([`PlantConfig`],
+//!   [`Gateway`]: its configuration, started and stopped by a test).
+//! - [`child`]: the workspace's binaries as child processes, killed and reaped on drop.
+//! - [`command`]: a command's refusal by a profile, for asserting the same words as the gateway.
+//! - [`hex`]: frames as hex text.
+//! - [`pysparkplug`]: the Sparkplug B decoder written by others, run through Python.
 
 pub mod child;
 pub mod command;
@@ -19,7 +22,7 @@ use std::time::{Duration, Instant};
 use child::KillOnDrop;
 use rtu2mqtt::app::{run_gateway, Hooks, Running};
 use rtu2mqtt::config::Config;
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_sim::SeedPlant;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;

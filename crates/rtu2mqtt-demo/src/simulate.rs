@@ -1,4 +1,4 @@
-//! `rtu2mqtt simulate`: one simulated device or a seed plant line on a serial port (a socat pty
+//! `rtu2mqtt-demo simulate`: one simulated device or a seed plant line on a serial port (a socat pty
 //! or a real adapter for bench tests) or behind a TCP port (`--listen tcp://…` or
 //! `modbus-tcp://…`). The three seed devices by their profile names, the device library's by
 //! theirs (`eastron-sdm120`, `sunspec-inverter`, … from their register maps); any other profile
@@ -13,12 +13,13 @@ use tokio_util::sync::CancellationToken;
 
 use anyhow::{bail, Context};
 
-use crate::cli::{parse_parity, SimulateArgs};
-use crate::sim::faults::FaultHandle;
-use crate::sim::{
+use crate::cli::SimulateArgs;
+use rtu2mqtt::cli::parse_parity;
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_sim::faults::FaultHandle;
+use rtu2mqtt_sim::{
     share, AirShower, AsyncSerial, DustCollector, Journal, ServeOptions, SharedDevice, Valve,
 };
-use rtu2mqtt_modbus::timing::Parity;
 
 /// The simulated device for `profile` at `address` (the profile's usual address if None).
 pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDevice> {
@@ -32,12 +33,12 @@ pub fn device_for_profile(profile: &str, address: Option<u8>) -> anyhow::Result<
             share(Valve::new(address)).1
         }
         "lixian-air-shower" => {
-            if address.is_some_and(|a| a != crate::sim::air_shower::ADDRESS) {
+            if address.is_some_and(|a| a != rtu2mqtt_sim::air_shower::ADDRESS) {
                 bail!("the air shower's address is fixed at 0x81");
             }
             share(AirShower::new()).1
         }
-        other => match crate::sim::library::device(other) {
+        other => match rtu2mqtt_sim::library::device(other) {
             Some(library) => share(library.map.device(address.unwrap_or(1))).1,
             None => generic_device(other, address)?,
         },
@@ -56,7 +57,7 @@ fn generic_device(profile: &str, address: Option<u8>) -> anyhow::Result<SharedDe
             profile.limits().address_range
         );
     }
-    Ok(share(crate::sim::GenericDevice::from_profile(&profile, address)).1)
+    Ok(share(rtu2mqtt_sim::GenericDevice::from_profile(&profile, address)).1)
 }
 
 /// The devices `simulate` serves: one profile's device, or a seed plant line.
@@ -89,11 +90,11 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
         let (journal, served): (Journal, Pin<Box<dyn Future<Output = anyhow::Result<()>>>>) =
             match (&args.listen, &args.port) {
                 (Some(url), _) => {
-                    let Some((protocol, address)) = crate::sim::tcp::Protocol::parse_url(url) else {
+                    let Some((protocol, address)) = rtu2mqtt_sim::tcp::Protocol::parse_url(url) else {
                         bail!("--listen `{url}`: expected tcp://HOST:PORT or modbus-tcp://HOST:PORT");
                     };
                     let mut simulator =
-                        crate::sim::TcpSimulator::bind(address, protocol, options, devices)
+                        rtu2mqtt_sim::TcpSimulator::bind(address, protocol, options, devices)
                             .await
                             .with_context(|| format!("listening on {url}"))?;
                     tracing::info!(url = %simulator.url(), baud = args.baud, %parity, "simulating");
@@ -116,7 +117,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
                         "simulating"
                     );
                     let journal = Journal::new();
-                    let served = crate::sim::serve(stream, options, devices, FaultHandle::default(), journal.clone(), shutdown);
+                    let served = rtu2mqtt_sim::serve(stream, options, devices, FaultHandle::default(), journal.clone(), shutdown);
                     let label = port.display().to_string();
                     (journal, Box::pin(async move { served.await.with_context(|| format!("serving {label}")) }))
                 }

@@ -1,4 +1,4 @@
-//! The embedded MQTT broker of `rtu2mqtt demo`: rumqttd serving MQTT 3.1.1 on
+//! The embedded MQTT broker of `rtu2mqtt-demo`: rumqttd serving MQTT 3.1.1 on
 //! `127.0.0.1:<port>`, so the demo needs nothing installed and standard clients
 //! (`mosquitto_sub`, `mosquitto_pub`, Home Assistant, MQTT Explorer) can watch and poke the plant.
 //!

@@ -82,6 +82,6 @@ mod tests {
             rtu2mqtt_modbus::frame::ExceptionCode::IllegalDataAddress,
         );
         garble(&mut answer);
-        assert!(!crate::sim::wire::crc_ok(&answer));
+        assert!(!crate::wire::crc_ok(&answer));
     }
 }

@@ -336,7 +336,7 @@ impl SimDevice for DustCollector {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::drive::{assert_refuses_coils, read, words, write};
+    use crate::drive::{assert_refuses_coils, read, words, write};
 
     /// An FC10 write of `values` from the table's first register.
     fn write_registers(dust: &mut DustCollector, values: Vec<u16>, now: Instant) -> Reply {

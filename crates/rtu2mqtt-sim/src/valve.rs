@@ -476,7 +476,7 @@ pub fn travel_time(from: u16, to: u16, speed: f64) -> Duration {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::drive::{assert_refuses_coils, read, words, write};
+    use crate::drive::{assert_refuses_coils, read, words, write};
 
     #[test]
     fn identity_registers_read_as_chars() {

@@ -3,7 +3,7 @@
 //! change shows up here without touching the demo.
 
 use super::endpoint::BrokerEndpoint;
-use crate::config::Config;
+use rtu2mqtt::config::Config;
 
 /// One `mosquitto_pub` line per example command of every configured device, in line order.
 fn example_commands(endpoint: &BrokerEndpoint, config: &Config) -> Vec<String> {
@@ -31,7 +31,7 @@ pub(super) fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String
     let options = endpoint.client_options();
     let prefix = &config.mqtt.prefix;
     let mut text = format!(
-        "rtu2mqtt demo: the seed plant, simulated, on {} ({}).\n",
+        "rtu2mqtt-demo: the seed plant, simulated, on {} ({}).\n",
         endpoint.url(),
         endpoint.origin
     );
@@ -95,8 +95,8 @@ mod tests {
     use std::path::Path;
 
     use super::*;
-    use crate::app::demo::endpoint::{Placement, SHARED_BROKER_PREFIX};
-    use crate::app::demo::plant::{demo_config, DEMO_CLIENT_ID};
+    use crate::demo::endpoint::{Placement, SHARED_BROKER_PREFIX};
+    use crate::demo::plant::{demo_config, DEMO_CLIENT_ID};
 
     /// A broker on this host at `port`, chosen the way `origin` says.
     fn local_endpoint(port: u16, origin: &'static str) -> BrokerEndpoint {
