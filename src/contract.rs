@@ -166,9 +166,26 @@ impl Topics {
         format!("{}/{GATEWAY_DEVICE}/{}/status", self.prefix, self.client_id)
     }
 
-    /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics document.
+    /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics summary.
     pub fn gateway_stats_topic(&self) -> String {
         format!("{}/{GATEWAY_DEVICE}/{}/stats", self.prefix, self.client_id)
+    }
+
+    /// `<prefix>/gateway/<client_id>/stats/<line>`: one line's statistics, its devices'
+    /// included (one document per line keeps each one bounded, whatever the number of lines).
+    pub fn line_stats_topic(&self, line: &str) -> String {
+        format!("{}/{line}", self.gateway_stats_topic())
+    }
+
+    /// Whether `topic` is the statistics summary or one line's statistics.
+    pub fn is_stats_topic(&self, topic: &str) -> bool {
+        let summary = self.gateway_stats_topic();
+        topic.strip_prefix(summary.as_str()).is_some_and(|rest| {
+            rest.is_empty()
+                || rest
+                    .strip_prefix('/')
+                    .is_some_and(|line| !line.is_empty() && !line.contains('/'))
+        })
     }
 
     /// The subscription that carries every command: `<prefix>/+/+/set`.

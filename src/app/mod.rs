@@ -208,6 +208,7 @@ impl NodeWiring {
             shutdown: shutdown.clone(),
             bd_seq_store: self.bd_seq_store,
             replayed,
+            packet_limit: bridge.packet_limit("sparkplug"),
         };
         let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
         (bridge_events_rx, task)

@@ -584,8 +584,8 @@ pub fn all_configs(
         .collect()
 }
 
-/// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
-/// JSON, name suffix, unit, state class).
+/// A line's statistics exposed on the gateway device: (key in the line's statistics
+/// document, name suffix, unit, state class).
 const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("bus_load_percent", "bus load", Some("%"), "measurement"),
     ("transactions", "transactions", None, "total_increasing"),
@@ -594,17 +594,12 @@ const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("exceptions", "exceptions", None, "total_increasing"),
 ];
 
-/// The Jinja expression of a line's entry in the stats JSON: bracket access by name, since
-/// line names may hold `-`, which a dotted path would read as a minus.
-pub fn line_selector(line: &str) -> String {
-    format!("value_json.lines[{}]", jinja_string(line))
-}
-
 /// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
-/// topic, and from the statistics JSON on `<prefix>/gateway/<client_id>/stats`
-/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
-/// uptime, and per line its bus load and counters. It is what every device's `via_device`
-/// points at.
+/// topic, from the statistics summary on `<prefix>/gateway/<client_id>/stats`
+/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands and
+/// uptime, and per line its bus load and counters from the line's own document on
+/// `…/stats/<line>` ([`super::metrics::line_stats_json`]). It is what every device's
+/// `via_device` points at.
 pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
     let status_topic = ctx.gateway_status_topic();
     let stats_topic = ctx.gateway_stats_topic();
@@ -614,12 +609,12 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         "payload_available": ONLINE,
         "payload_not_available": OFFLINE,
     }]);
-    let stats_sensor = |key: &str, name: &str, template: String, state_class: &str| {
+    let stats_sensor = |key: &str, name: &str, topic: &str, template: String, state_class: &str| {
         json!({
             "p": "sensor",
             "name": name,
             "unique_id": unique(key),
-            "state_topic": stats_topic,
+            "state_topic": topic,
             "value_template": template,
             "state_class": state_class,
             "availability": stats_availability,
@@ -647,6 +642,7 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         stats_sensor(
             "devices_online",
             "Devices online",
+            &stats_topic,
             "{{ value_json.devices_online }}".to_string(),
             "measurement",
         ),
@@ -656,6 +652,7 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         stats_sensor(
             "waiting_commands",
             "Waiting commands",
+            &stats_topic,
             "{{ value_json.commands.waiting }}".to_string(),
             "measurement",
         ),
@@ -663,6 +660,7 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
     let mut uptime = stats_sensor(
         "uptime",
         "Uptime",
+        &stats_topic,
         "{{ value_json.uptime_seconds }}".to_string(),
         "measurement",
     );
@@ -674,13 +672,14 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
 
     for line in lines {
         let line_key = line.replace('-', "_");
-        let selector = line_selector(line);
+        let line_topic = ctx.line_stats_topic(line);
         for (key, label, unit, state_class) in LINE_SENSORS {
             let component_id = format!("{line_key}_{key}");
-            let template = format!("{{{{ {selector}.{key} }}}}");
+            let template = format!("{{{{ value_json.{key} }}}}");
             let mut sensor = stats_sensor(
                 &component_id,
                 &format!("{line} {label}"),
+                &line_topic,
                 template,
                 state_class,
             );
@@ -704,12 +703,6 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         "cmps": components,
     });
     (ctx.gateway_config_topic(), document)
-}
-
-/// A string literal for a Jinja template: single-quoted, with `\` and `'` escaped.
-fn jinja_string(text: &str) -> String {
-    let escaped = text.replace('\\', "\\\\").replace('\'', "\\'");
-    format!("'{escaped}'")
 }
 
 /// The removal of a device's discovery document: its topic and the empty retained payload

@@ -48,7 +48,7 @@ use self::core::{
 };
 use self::history::{is_history, HistoryLane, REPLAY_ROOM};
 use self::metrics::BridgeStats;
-use self::mqtt::{LinkEvent, LinkFlag};
+use self::mqtt::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::outbox::{Lane, Outbox, Request};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
@@ -123,6 +123,8 @@ pub struct Bridge {
     /// Asks the event loop task to give back what rumqttc holds and end (a stop whose
     /// Disconnect does not complete).
     give_back: watch::Sender<bool>,
+    /// Refuses what rumqttc would end the connection on.
+    packet_limit: PacketLimit,
 }
 
 impl Bridge {
@@ -181,6 +183,7 @@ impl Bridge {
                 .map(|history| HistoryLane::open(history, config.mqtt.topics())),
             in_writer,
             give_back,
+            packet_limit: PacketLimit::new(MAX_OUTGOING_PACKET, "plain"),
         };
         (
             bridge,
@@ -241,6 +244,7 @@ impl Bridge {
                     let now = Instant::now();
                     self.history_tick(now);
                     let lines = &self.lines;
+                    self.core.set_oversized_refused(self.packet_limit.refused());
                     let actions = self.core.on_tick(now, || line_stats(lines));
                     self.execute(actions);
                     self.counters_tx.send_replace(self.core.counters(now));
@@ -256,6 +260,12 @@ impl Bridge {
         if let Some(history) = &mut self.history {
             history.forward_replays(replayed);
         }
+    }
+
+    /// The packet limit for another connection to the broker (the Sparkplug node's), counting
+    /// its refusals into this bridge's statistics.
+    pub fn packet_limit(&self, connection: &'static str) -> PacketLimit {
+        self.packet_limit.for_connection(connection)
     }
 
     /// Where a configuration reload tells this bridge its new devices and lines.
@@ -332,6 +342,9 @@ impl Bridge {
         while let Some(action) = queue.pop_front() {
             match action {
                 Action::Publish(publish) => {
+                    if !self.admits(&publish) {
+                        continue;
+                    }
                     let lane = self.lane_of(&publish);
                     if let Some(dropped) = self.outbox.push(publish, lane) {
                         self.on_dropped(dropped);
@@ -415,6 +428,14 @@ impl Bridge {
         if self.link_up {
             let room = REPLAY_ROOM.saturating_sub(self.outbox.len());
             for publish in history.replay(room) {
+                let fits = self.packet_limit.admits(
+                    &publish.topic,
+                    publish.payload.len(),
+                    publish.qos,
+                );
+                if !fits {
+                    continue;
+                }
                 if let Some(dropped) = self.outbox.push(publish, Lane::Urgent) {
                     self.on_dropped(dropped);
                 }
@@ -429,10 +450,18 @@ impl Bridge {
         }
     }
 
+    /// Whether `publish` fits in one packet; one that does not is refused here, alone, since
+    /// rumqttc would end the connection on it (and send it again after every reconnect). It is
+    /// not kept for a later connection: it would not fit then either.
+    fn admits(&mut self, publish: &Publish) -> bool {
+        self.packet_limit
+            .admits(&publish.topic, publish.payload.len(), publish.qos)
+    }
+
     /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
     fn lane_of(&self, publish: &Publish) -> Lane {
         let topics = self.core.topics();
-        if publish.topic == topics.gateway_stats_topic()
+        if topics.is_stats_topic(&publish.topic)
             || publish
                 .topic
                 .starts_with(&format!("{}/", topics.discovery_prefix))

@@ -102,6 +102,11 @@ impl Publisher {
         &self.devices
     }
 
+    /// The configured lines' names, in order.
+    pub fn line_names(&self) -> &[String] {
+        &self.line_names
+    }
+
     pub fn cache(&self) -> &StateCache {
         &self.cache
     }

@@ -22,7 +22,9 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{client, connect_went_out, options, Backoff, REQUEST_QUEUE};
+use crate::bridge::mqtt::{
+    client, connect_went_out, options, Backoff, PacketLimit, REQUEST_QUEUE,
+};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
@@ -100,6 +102,9 @@ pub struct NodeLinks {
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,
     /// The records the bridge replays from the history journal (with `[history]`).
     pub replayed: Option<mpsc::Receiver<Record>>,
+    /// Refuses a payload rumqttc would end the connection on (shared with the bridge's
+    /// statistics: [`crate::bridge::Bridge::packet_limit`]).
+    pub packet_limit: PacketLimit,
 }
 
 /// Runs the edge node until shutdown: connects (a fresh bdSeq and NDEATH Will per connection),
@@ -149,11 +154,11 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                         connected_since = Some(tokio::time::Instant::now());
                         tracing::info!(bd_seq = session.bd_seq(), "Sparkplug edge node connected");
                         let actions = session.on_connected(now_millis());
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Ok(Event::Incoming(Packet::Publish(publish))) => {
                         let actions = session.on_message(now_millis(), &publish.topic, &publish.payload);
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Ok(Event::Outgoing(Outgoing::Disconnect)) => {
                         let drain = async { while eventloop.poll().await.is_ok() {} };
@@ -181,14 +186,14 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 event = links.line_events.recv(), if !closing => match event {
                     Ok(event) => {
                         let actions = session.on_line_event(now_millis(), &event);
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Err(broadcast::error::RecvError::Lagged(missed)) => {
                         // A device may have come or gone unseen: births tell the host the
                         // node's whole view again, the next polls bring the values.
                         tracing::warn!(missed, "Sparkplug: line events missed; rebirth");
                         let actions = session.rebirth(now_millis());
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Err(broadcast::error::RecvError::Closed) => {
                         closing = true;
@@ -198,18 +203,18 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 },
                 Some(report) = links.reports.recv(), if !closing => {
                     let actions = session.on_command_outcome(now_millis(), &report.device, &report.field, report.applied);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
                 Some(values) = links.node_values.recv(), if !closing => {
                     let actions = session.on_node_values(now_millis(), &values);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
                 record = next_replayed(&mut links.replayed), if !closing => {
                     queue_replayed(&mut session, record);
                 }
                 _ = history_tick.tick(), if !closing && session.history_waiting() > 0 => {
                     let actions = session.history_batch(HISTORY_BATCH);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
                 () = links.shutdown.fired(), if !closing => {
                     closing = true;
@@ -286,6 +291,7 @@ fn end_session(client: &AsyncClient, session: &mut Session) {
 async fn carry_out(
     client: &AsyncClient,
     commands: &mpsc::Sender<SparkplugCommand>,
+    packet_limit: &mut PacketLimit,
     actions: Vec<Action>,
 ) -> bool {
     let mut closing = false;
@@ -300,6 +306,10 @@ async fn carry_out(
                     session::Delivery::AtMostOnce => QoS::AtMostOnce,
                     session::Delivery::AtLeastOnce => QoS::AtLeastOnce,
                 };
+                // Refused alone: handed over, it would end the node's connection.
+                if !packet_limit.admits(&topic, payload.len(), qos) {
+                    continue;
+                }
                 if let Err(error) = client.try_publish(&topic, qos, false, payload) {
                     tracing::warn!(%error, %topic, "Sparkplug: publish dropped");
                 }

@@ -5,7 +5,7 @@
 
 use crate::support;
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
@@ -20,7 +20,7 @@ use rtu2mqtt::bridge::discovery::{
     RESULT_EVENT_TEMPLATE,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
-use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
+use rtu2mqtt::bridge::metrics::{line_stats_json, prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
 use rtu2mqtt::bridge::state::StateUpdate;
 use rtu2mqtt::bus::LineStats;
@@ -532,7 +532,18 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
         waiting_commands: 2,
         ..BridgeStats::default()
     };
-    let stats = stats_json(&[line_b, line_a], &bridge);
+    // The summary, and each line's own document on its own topic.
+    let mut documents = HashMap::new();
+    documents.insert(
+        "plant/gateway/rtu2mqtt-edge1/stats".to_string(),
+        stats_json(&[line_b.clone(), line_a.clone()], &bridge),
+    );
+    for line in [&line_b, &line_a] {
+        documents.insert(
+            format!("plant/gateway/rtu2mqtt-edge1/stats/{}", line.line),
+            line_stats_json(line),
+        );
+    }
 
     let expected: &[(&str, f64)] = &[
         ("devices_online", 2.0),
@@ -551,11 +562,21 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
         let Some(template) = config["value_template"].as_str() else {
             continue;
         };
+        let topic = config["state_topic"].as_str().unwrap_or_default();
+        let line_topic = id
+            .strip_prefix("line_a_")
+            .map(|_| "plant/gateway/rtu2mqtt-edge1/stats/line-a")
+            .or_else(|| {
+                id.strip_prefix("line_b_")
+                    .map(|_| "plant/gateway/rtu2mqtt-edge1/stats/line-b")
+            });
         assert_eq!(
-            config["state_topic"], "plant/gateway/rtu2mqtt-edge1/stats",
+            topic,
+            line_topic.unwrap_or("plant/gateway/rtu2mqtt-edge1/stats"),
             "{id}"
         );
-        let value = render_stats_template(&stats, template)
+        let stats = &documents[topic];
+        let value = render_stats_template(stats, template)
             .unwrap_or_else(|| panic!("{id}: {template} reads nothing in {stats}"));
         if let Some((_, want)) = expected.iter().find(|(key, _)| key == id) {
             assert!((value - want).abs() < 1e-9, "{id}: {value} != {want}");
@@ -1307,8 +1328,12 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
         waiting_commands: 1,
         ..BridgeStats::default()
     };
-    let stats = stats_json(&sample_lines(), &bridge);
-    let line = &stats["lines"]["line-a"];
+    let lines = sample_lines();
+    let stats = stats_json(&lines, &bridge);
+    assert!(stats.get("lines").is_none(), "lines have their own documents");
+    assert_eq!(stats["lines_total"], lines.len());
+    let line = &line_stats_json(&lines[0]);
+    assert_eq!(line["line"], "line-a");
     assert_eq!(line["transactions"], 1234);
     assert_eq!(line["bus_load_percent"], 25.0);
     assert_eq!(line["command_latency_ms"], 180.0);

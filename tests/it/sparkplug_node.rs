@@ -8,6 +8,7 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
+use rtu2mqtt::bridge::mqtt::{PacketLimit, MAX_OUTGOING_PACKET};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::profile::{registry, Value};
@@ -135,6 +136,7 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         shutdown,
         bd_seq_store,
         replayed: None,
+        packet_limit: PacketLimit::new(MAX_OUTGOING_PACKET, "sparkplug"),
     };
     let task = tokio::spawn(run(session, settings(port), links));
     Node {
