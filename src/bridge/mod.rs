@@ -428,11 +428,9 @@ impl Bridge {
         if self.link_up {
             let room = REPLAY_ROOM.saturating_sub(self.outbox.len());
             for publish in history.replay(room) {
-                let fits = self.packet_limit.admits(
-                    &publish.topic,
-                    publish.payload.len(),
-                    publish.qos,
-                );
+                let fits =
+                    self.packet_limit
+                        .admits(&publish.topic, publish.payload.len(), publish.qos);
                 if !fits {
                     continue;
                 }

@@ -22,9 +22,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{
-    client, connect_went_out, options, Backoff, PacketLimit, REQUEST_QUEUE,
-};
+use crate::bridge::mqtt::{client, connect_went_out, options, Backoff, PacketLimit, REQUEST_QUEUE};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};

@@ -1330,7 +1330,10 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
     };
     let lines = sample_lines();
     let stats = stats_json(&lines, &bridge);
-    assert!(stats.get("lines").is_none(), "lines have their own documents");
+    assert!(
+        stats.get("lines").is_none(),
+        "lines have their own documents"
+    );
     assert_eq!(stats["lines_total"], lines.len());
     let line = &line_stats_json(&lines[0]);
     assert_eq!(line["line"], "line-a");

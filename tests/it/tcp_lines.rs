@@ -395,10 +395,7 @@ async fn a_server_that_accepts_but_never_answers_takes_the_devices_offline() {
     let mut plant = Plant::start("silent").await;
     let stats = offline_under_and_back(&mut plant, |f| f.never_answer = Occurrence::ALWAYS).await;
     for line in ["line-raw", "line-modbus"] {
-        assert!(
-            stats[line]["timeouts"].as_u64().unwrap_or(0) > 0,
-            "{stats}"
-        );
+        assert!(stats[line]["timeouts"].as_u64().unwrap_or(0) > 0, "{stats}");
     }
     plant.assert_no_wrong_value(&[]).await;
     plant.stop().await;

@@ -1,0 +1,144 @@
+//! The MQTT connection at plant scale, on a real mosquitto: a gateway with 1,000
+//! `modbus-tcp://` lines (each to a closed loopback port, so every line is retried and every
+//! device is offline, at no cost) publishes a statistics summary and one document per line,
+//! each well within the packet limit; its Home Assistant gateway document, far larger than
+//! the limit at this scale, is refused alone and counted; and the connection stays up all
+//! along (no `offline` on the gateway status, one connect, no disconnect).
+
+use crate::support;
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use rtu2mqtt::bridge::mqtt::MAX_OUTGOING_PACKET;
+use support::{free_port, Gateway, Mosquitto, TestClient};
+
+const LINES: usize = 1_000;
+const CLIENT_ID: &str = "scale-gw";
+/// Generous bound for a busy 2-core machine: it only runs out when something is broken.
+const ANSWER: Duration = Duration::from_secs(15);
+
+/// `LINES` Modbus TCP lines, one device each, every one to `closed_port` on its own loopback
+/// address; statistics every second, discovery on.
+fn config_text(broker: &Mosquitto, closed_port: u16) -> String {
+    let mut text = format!(
+        r#"
+[mqtt]
+url = "{broker}"
+client_id = "{CLIENT_ID}"
+prefix = "plant"
+discovery = true
+
+[gateway]
+stats_interval = "1s"
+"#,
+        broker = broker.url()
+    );
+    for index in 0..LINES {
+        let host = format!("127.0.{}.{}", index / 250, index % 250 + 1);
+        text.push_str(&format!(
+            r#"
+[[lines]]
+name = "line-{index:04}"
+url = "modbus-tcp://{host}:{closed_port}"
+response_timeout = "200ms"
+
+[[lines.devices]]
+name = "meter_{index:04}"
+profile = "ruiwan-dust-collector"
+address = 1
+"#
+        ));
+    }
+    text
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_thousand_lines_keep_the_connection_up_and_every_document_within_the_limit() {
+    let broker = Mosquitto::start();
+    // Bound, then closed: nothing listens there.
+    let closed_port = free_port();
+    let mut observer = TestClient::connect(broker.port, "scale-observer").await;
+    observer.subscribe("plant/gateway/#").await;
+    let gateway = Gateway::start(support::fast_config(&config_text(&broker, closed_port))).await;
+    let started = Instant::now();
+
+    let status = format!("plant/gateway/{CLIENT_ID}/status");
+    let summary_topic = format!("plant/gateway/{CLIENT_ID}/stats");
+    observer
+        .wait_for(&status, ANSWER, |m| m.text() == "online")
+        .await;
+
+    // Every line's document arrives, and each is small; together they are what one document
+    // would have been.
+    let mut line_documents: HashMap<String, usize> = HashMap::new();
+    let mut statuses = Vec::new();
+    let line_prefix = format!("{summary_topic}/");
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    while line_documents.len() < LINES {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "{} line documents of {LINES} within {ANSWER:?}",
+            line_documents.len()
+        );
+        observer.settle(Duration::from_millis(200)).await;
+        for message in observer.received.drain(..) {
+            if message.topic == status {
+                statuses.push(message.text());
+            }
+            if let Some(line) = message.topic.strip_prefix(&line_prefix) {
+                let document = message.json();
+                assert_eq!(document["line"], line, "{document}");
+                assert_eq!(document["devices"].as_object().map(|d| d.len()), Some(1));
+                line_documents.insert(line.to_string(), message.payload.len());
+            }
+        }
+    }
+    let largest_line = line_documents.values().copied().max().unwrap_or(0);
+    let all_lines: usize = line_documents.values().sum();
+    assert!(
+        largest_line < MAX_OUTGOING_PACKET / 100,
+        "{largest_line} bytes"
+    );
+    assert!(
+        all_lines > MAX_OUTGOING_PACKET,
+        "one document would not fit: {all_lines} bytes"
+    );
+
+    // A summary after the gateway has had time to trip over anything too large: still the
+    // first connection, and the oversized Home Assistant gateway document was refused alone.
+    let summary = observer
+        .wait_for(&summary_topic, ANSWER, |m| {
+            m.json()["uptime_seconds"].as_u64().unwrap_or(0) >= 3
+        })
+        .await;
+    let figures = summary.json();
+    assert!(
+        summary.payload.len() < 4096,
+        "{} bytes",
+        summary.payload.len()
+    );
+    assert_eq!(figures["lines_total"], LINES, "{figures}");
+    assert_eq!(figures["devices_total"], LINES, "{figures}");
+    assert_eq!(figures["mqtt"]["connected"], true, "{figures}");
+    assert_eq!(figures["mqtt"]["connects"], 1, "{figures}");
+    assert_eq!(figures["mqtt"]["disconnects"], 0, "{figures}");
+    assert!(
+        figures["mqtt"]["oversized_refused"].as_u64().unwrap_or(0) >= 1,
+        "{figures}"
+    );
+    eprintln!(
+        "{LINES} lines: summary {} bytes, largest line document {largest_line} bytes, \
+         all line documents {all_lines} bytes, after {:?}",
+        summary.payload.len(),
+        started.elapsed()
+    );
+    // The gateway's status never went to its Will.
+    observer.settle(Duration::from_millis(300)).await;
+    statuses.extend(observer.on(&status).iter().map(|m| m.text()));
+    assert!(
+        statuses.iter().all(|text| text == "online"),
+        "the connection went down: {statuses:?}"
+    );
+    gateway.stop().await;
+}
