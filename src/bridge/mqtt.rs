@@ -455,6 +455,52 @@ mod tests {
     }
 
     #[test]
+    fn the_packet_size_is_the_one_rumqttc_checks() {
+        for payload_len in [
+            0, 1, 100, 122, 123, 127, 128, 16_370, 16_383, 16_384, 300_000,
+        ] {
+            for qos in [QoS::AtMostOnce, QoS::AtLeastOnce] {
+                let topic = "plant/gateway/gw1/stats/line-a";
+                let mut publish = Publish::new(topic, qos, vec![0u8; payload_len]);
+                // rumqttc numbers a QoS 1 publish before it measures and writes it.
+                if qos != QoS::AtMostOnce {
+                    publish.pkid = 1;
+                }
+                assert_eq!(
+                    publish_packet_size(topic, payload_len, qos),
+                    publish.size(),
+                    "{payload_len} bytes at {qos:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_publish_over_the_limit_is_refused_and_counted_on_every_connection() {
+        let topic = "plant/gateway/gw1/stats";
+        // The largest payload that fits (the remaining length's own bytes grow with it).
+        let fits = (0..MAX_OUTGOING_PACKET)
+            .rev()
+            .find(|len| publish_packet_size(topic, *len, QoS::AtLeastOnce) <= MAX_OUTGOING_PACKET)
+            .unwrap_or(0);
+        assert_eq!(
+            publish_packet_size(topic, fits, QoS::AtLeastOnce),
+            MAX_OUTGOING_PACKET
+        );
+        let mut plain = PacketLimit::new(MAX_OUTGOING_PACKET, "plain");
+        let mut node = plain.for_connection("sparkplug");
+        assert!(plain.admits(topic, fits, QoS::AtLeastOnce));
+        assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));
+        assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));
+        assert!(!node.admits("spBv1.0/plant/NBIRTH/gw1", fits * 2, QoS::AtMostOnce));
+        assert_eq!(plain.refused(), 3);
+        assert_eq!(node.refused(), 3);
+        // Each topic is named in the log once.
+        assert_eq!(plain.logged.len(), 1);
+        assert_eq!(node.logged.len(), 1);
+    }
+
+    #[test]
     fn backoff_grows_to_its_cap_and_resets() {
         let mut backoff = Backoff::default();
         let mut previous_base = Duration::ZERO;
