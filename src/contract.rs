@@ -138,7 +138,7 @@ impl Topics {
     }
 
     /// `<prefix>/<device>/refresh`: a message there (not retained) has every block of the
-    /// device read at once. It arrives on [`Topics::device_topics_filter`].
+    /// device read at once. It arrives on [`Topics::refresh_filter`].
     pub fn refresh_topic(&self, device: &str) -> String {
         format!("{}/{device}/{REFRESH}", self.prefix)
     }
@@ -207,10 +207,27 @@ impl Topics {
         Some((device, field))
     }
 
-    /// The subscription that carries every device's state and availability, ours and other
-    /// gateways', and the refresh requests: `<prefix>/+/+`.
+    /// `<prefix>/+/+`: every device's state, availability and refresh topic. The gateway
+    /// no longer subscribes to it (it would bring all of its own state back); it is removed
+    /// from a persistent session that still holds it.
     pub fn device_topics_filter(&self) -> String {
         format!("{}/+/+", self.prefix)
+    }
+
+    /// `<prefix>/+/availability`: every device's availability, ours and other gateways'.
+    pub fn availability_filter(&self) -> String {
+        self.availability_topic("+")
+    }
+
+    /// `<prefix>/+/refresh`: the refresh requests.
+    pub fn refresh_filter(&self) -> String {
+        self.refresh_topic("+")
+    }
+
+    /// `<prefix>/<device>/+`: one device's state topics (and its availability and refresh
+    /// topics), watched while the device is audited.
+    pub fn device_filter(&self, device: &str) -> String {
+        format!("{}/{device}/+", self.prefix)
     }
 
     /// `(device, level)` of a topic exactly two levels under the prefix: a state topic

@@ -377,6 +377,7 @@ impl Core {
             self.publisher.reannounce();
         }
         self.publisher.reassert_due(now);
+        self.publisher.audit_turn(now);
         if self.publisher.is_connected() && (self.stats_due || now >= self.next_stats) {
             self.stats_due = false;
             self.next_stats = now + self.stats_interval;

@@ -329,11 +329,21 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         vec![
             "plant/+/+/set",
             "plant/gateway/edge1/status",
-            "plant/+/+",
+            "plant/+/availability",
+            "plant/+/refresh",
             "homeassistant/status",
             "homeassistant/device/+/config"
         ]
     );
+    // Not every device's state: what a persistent session still holds of it is dropped.
+    let dropped: Vec<&str> = actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::UnsubscribeInTurn { filter } => Some(filter.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(dropped, vec!["plant/+/+"]);
     let published = publishes(&actions);
     let topics: Vec<&str> = published.iter().map(|p| p.0.as_str()).collect();
     assert_eq!(
@@ -635,13 +645,27 @@ fn a_retained_copy_of_the_waiting_command_is_the_same_command() {
 fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
     let now = Instant::now();
     let mut core = online_core(now);
-    let values = LineEvent::Values {
+    let values = |opening: i128| LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        values: vec![("opening".to_string(), crate::profile::Value::Int(opening))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
         origin: Origin::Poll,
     };
-    core.on_line_event(values, now);
+    core.on_line_event(values(30), now);
+    // Before its audit a device's state topics are not watched: nothing comes back of them,
+    // and a late message of an earlier subscription is not judged.
+    let unwatched = core.on_message(message("plant/valve/opening", b"99", 0, false), now);
+    assert!(publishes(&unwatched).is_empty());
+    // The valve's turn: its topics are subscribed to behind what is queued.
+    let audit = core.on_tick(now, Vec::new);
+    assert!(audit.iter().any(|action| matches!(
+        action,
+        Action::SubscribeInTurn { filter, .. } if filter == "plant/valve/+"
+    )));
+    // The broker hands over what it holds: ours, the truth.
+    let held = core.on_message(message("plant/valve/opening", b"30", 0, false), now);
+    assert!(held.is_empty());
+    core.on_line_event(values(40), now);
     let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
     assert!(echo.is_empty());
     let fake = core.on_message(message("plant/valve/opening", b"99", 0, false), now);
@@ -683,6 +707,15 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
         now,
     );
     assert!(other.is_empty());
+    // The audit's window over: the valve's topics are left, and no longer judged.
+    let later = now + super::guard::AUDIT_WINDOW;
+    let ended = core.on_tick(later, Vec::new);
+    assert!(ended.iter().any(|action| matches!(
+        action,
+        Action::UnsubscribeInTurn { filter } if filter == "plant/valve/+"
+    )));
+    let late = core.on_message(message("plant/valve/opening", b"98", 0, false), later);
+    assert!(publishes(&late).is_empty());
 }
 
 #[test]

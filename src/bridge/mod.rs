@@ -353,6 +353,12 @@ impl Bridge {
                 Action::Subscribe { filter, qos } => {
                     self.outbox.push_control(Request::Subscribe { filter, qos });
                 }
+                Action::SubscribeInTurn { filter, qos } => {
+                    self.outbox.push_in_turn(Request::Subscribe { filter, qos });
+                }
+                Action::UnsubscribeInTurn { filter } => {
+                    self.outbox.push_in_turn(Request::Unsubscribe { filter });
+                }
                 Action::Send { line, command } => {
                     let refused = match self.lines.get(line) {
                         Some(handle) => match handle.command_tx.try_send(command) {
@@ -715,6 +721,7 @@ fn spawn_writer(
                         .await
                 }
                 Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
+                Request::Unsubscribe { filter } => client.unsubscribe(filter).await,
                 Request::Disconnect => client.disconnect().await,
             };
             in_writer.fetch_sub(1, Ordering::SeqCst);
