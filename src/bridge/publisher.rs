@@ -432,9 +432,16 @@ impl Publisher {
             return;
         }
         let topics = &self.topics;
+        let devices = &self.devices;
+        // A device's state topics, its availability and its refresh topic.
+        let topics_of = |device: &str| {
+            devices
+                .get(device)
+                .map_or(0, |entry| entry.profile.fields().len() + 2)
+        };
         let turn = self
             .guard
-            .audit_turn(self.cache.devices(), now, |device, topic| {
+            .audit_turn(self.cache.devices(), now, topics_of, |device, topic| {
                 // Availability is watched all the time: its echoes still come.
                 topics
                     .parse_device_topic(topic)
