@@ -307,6 +307,33 @@ impl Topics {
         self.config_topic(GATEWAY_DEVICE)
     }
 
+    /// `homeassistant/device/<client_id>_gateway/<line>/config`: the document of one line's
+    /// sensors on the gateway device (the discovery topic's optional node id level keeps it
+    /// apart from every device's config topic).
+    pub fn line_config_topic(&self, line: &str) -> String {
+        format!(
+            "{}/device/{}/{line}/config",
+            self.discovery_prefix,
+            self.device_id(GATEWAY_DEVICE)
+        )
+    }
+
+    /// Where this gateway's line documents are found: `homeassistant/device/<client_id>_gateway/+/config`.
+    pub fn line_config_filter(&self) -> String {
+        self.line_config_topic("+")
+    }
+
+    /// The line of a [`Topics::line_config_topic`], or None.
+    pub fn line_of_config_topic<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        let gateway = format!(
+            "{}/device/{}/",
+            self.discovery_prefix,
+            self.device_id(GATEWAY_DEVICE)
+        );
+        let line = topic.strip_prefix(&gateway)?.strip_suffix("/config")?;
+        (!line.is_empty() && !line.contains('/')).then_some(line)
+    }
+
     /// What to subscribe to for finding the configs this gateway published earlier. MQTT
     /// wildcards take whole levels, so `<client_id>_+` is not a valid filter: subscribe to
     /// every device config and keep the ones [`Topics::device_of_config_topic`] names.

@@ -312,6 +312,10 @@ impl Core {
                 p.on_config(topic, message.payload);
                 return;
             }
+            if let Some(line) = p.topics().line_of_config_topic(topic) {
+                p.on_line_config(topic, line, message.payload);
+                return;
+            }
         }
         if let Some(guarded) = p.guarded(topic) {
             p.on_guarded(guarded, topic, message.payload, now);
@@ -421,6 +425,10 @@ impl Core {
             tracing::info!(line = %gone, "line removed by the reload: clearing its statistics");
             let topic = p.topics().line_stats_topic(&gone);
             p.publish_or_keep(topic, String::new(), true);
+            if p.discovery() {
+                let topic = p.topics().line_config_topic(&gone);
+                p.publish_or_keep(topic, String::new(), true);
+            }
         }
         for name in p.cache().devices().to_vec() {
             let Some(old) = p.devices().get(&name).cloned() else {

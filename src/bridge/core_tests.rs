@@ -332,7 +332,8 @@ fn connecting_subscribes_announces_and_sends_discovery() {
             "plant/+/availability",
             "plant/+/refresh",
             "homeassistant/status",
-            "homeassistant/device/+/config"
+            "homeassistant/device/+/config",
+            "homeassistant/device/edge1_gateway/+/config"
         ]
     );
     // Not every device's state: what a persistent session still holds of it is dropped.
@@ -351,13 +352,14 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         vec![
             "plant/gateway/edge1/status",
             "homeassistant/device/edge1_gateway/config",
+            "homeassistant/device/edge1_gateway/a/config",
             "homeassistant/device/edge1_valve/config",
             "plant/valve/availability",
         ]
     );
     assert!(published.iter().all(|p| p.2), "all retained");
     assert_eq!(published[0].1, "online");
-    assert_eq!(published[3].1, "offline", "the valve has not answered yet");
+    assert_eq!(published[4].1, "offline", "the valve has not answered yet");
 }
 
 #[test]
@@ -429,6 +431,56 @@ fn home_assistant_online_brings_discovery_and_state_again() {
     let offline = core.on_message(message("homeassistant/status", b"offline", 2, false), now);
     assert!(offline.is_empty());
     assert!(publishes(&core.on_tick(now + LATER * 2, Vec::new)).is_empty());
+}
+
+#[test]
+fn statistics_go_out_one_document_per_line_and_a_removed_line_is_cleared() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let line = || vec![crate::bus::LineStats::new("a", &["valve".to_string()], now)];
+    let start = publishes(&core.on_tick(now, line));
+    let topics: Vec<&str> = start.iter().map(|p| p.0.as_str()).collect();
+    assert_eq!(
+        topics,
+        ["plant/gateway/edge1/stats", "plant/gateway/edge1/stats/a"]
+    );
+    let document: Json = serde_json::from_str(&start[1].1).unwrap();
+    assert_eq!(document["line"], "a");
+    assert!(document["devices"]["valve"].is_object(), "{document}");
+    // A reload that drops line `a` clears its statistics and its discovery document.
+    let reload = core.on_reconfigure(vec!["b".to_string()], Vec::new(), now);
+    let cleared: Vec<(String, String, bool)> = publishes(&reload)
+        .into_iter()
+        .filter(|p| p.1.is_empty())
+        .collect();
+    for topic in [
+        "plant/gateway/edge1/stats/a",
+        "homeassistant/device/edge1_gateway/a/config",
+    ] {
+        assert!(
+            cleared.contains(&(topic.to_string(), String::new(), true)),
+            "{topic} not cleared: {cleared:?}"
+        );
+    }
+    // A line document of a line no longer configured, found on the broker, is removed; the
+    // configured line's is kept.
+    let stale = core.on_message(
+        message("homeassistant/device/edge1_gateway/a/config", b"{}", 0, false),
+        now,
+    );
+    assert_eq!(
+        publishes(&stale),
+        [(
+            "homeassistant/device/edge1_gateway/a/config".to_string(),
+            String::new(),
+            true
+        )]
+    );
+    let kept = core.on_message(
+        message("homeassistant/device/edge1_gateway/b/config", b"{}", 0, false),
+        now,
+    );
+    assert!(publishes(&kept).is_empty());
 }
 
 #[test]

@@ -159,6 +159,7 @@ impl Publisher {
             // devices no longer configured).
             self.subscribe(self.topics.ha_status_topic());
             self.subscribe(self.topics.config_filter());
+            self.subscribe(self.topics.line_config_filter());
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
         self.publish_discovery();
@@ -261,8 +262,12 @@ impl Publisher {
         // Each document is serialized as soon as it is built: a JSON tree is several times
         // the size of its text, and a gateway with hundreds of devices would otherwise hold
         // all of their trees at once.
-        let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
+        let (topic, document) = discovery::gateway_config(&self.topics);
         let mut payloads = vec![(topic, document.to_string())];
+        for line in &self.line_names {
+            let (topic, document) = discovery::line_config(&self.topics, line);
+            payloads.push((topic, document.to_string()));
+        }
         for device in self.cache.devices() {
             if let Some(entry) = self.devices.get(device) {
                 let (topic, document) = discovery::device_config_with_state(
@@ -386,6 +391,15 @@ impl Publisher {
             tracing::info!(%device, online, "availability");
             let topic = self.topics.availability_topic(device);
             self.publish(topic, availability_word(online).to_string(), true);
+        }
+    }
+
+    /// One of our own line documents as the broker holds it: removed when its line is no
+    /// longer configured.
+    pub fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+        if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
+            tracing::info!(%topic, "removing the discovery config of a line no longer configured");
+            self.publish(topic.to_string(), String::new(), true);
         }
     }
 
