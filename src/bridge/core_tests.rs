@@ -465,7 +465,12 @@ fn statistics_go_out_one_document_per_line_and_a_removed_line_is_cleared() {
     // A line document of a line no longer configured, found on the broker, is removed; the
     // configured line's is kept.
     let stale = core.on_message(
-        message("homeassistant/device/edge1_gateway/a/config", b"{}", 0, false),
+        message(
+            "homeassistant/device/edge1_gateway/a/config",
+            b"{}",
+            0,
+            false,
+        ),
         now,
     );
     assert_eq!(
@@ -477,7 +482,12 @@ fn statistics_go_out_one_document_per_line_and_a_removed_line_is_cleared() {
         )]
     );
     let kept = core.on_message(
-        message("homeassistant/device/edge1_gateway/b/config", b"{}", 0, false),
+        message(
+            "homeassistant/device/edge1_gateway/b/config",
+            b"{}",
+            0,
+            false,
+        ),
         now,
     );
     assert!(publishes(&kept).is_empty());

@@ -656,7 +656,10 @@ pub fn gateway_config(ctx: &Topics) -> (String, Json) {
         map.insert("device_class".to_string(), json!("duration"));
     }
     components.insert("uptime".to_string(), uptime);
-    (ctx.gateway_config_topic(), gateway_document(ctx, components))
+    (
+        ctx.gateway_config_topic(),
+        gateway_document(ctx, components),
+    )
 }
 
 /// One line's sensors on the gateway device, on [`Topics::line_config_topic`]: its bus load

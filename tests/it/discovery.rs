@@ -15,8 +15,8 @@ use serde_json::{json, Value as Json};
 use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::bridge::discovery::{
     all_configs, device_config, device_config_from_fields, device_config_with_state,
-    gateway_config, identity_update, line_config, is_stale_config, platform_for, reannounce_delay, removal,
-    unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
+    gateway_config, identity_update, is_stale_config, line_config, platform_for, reannounce_delay,
+    removal, unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
     RESULT_EVENT_TEMPLATE,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
