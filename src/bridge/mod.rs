@@ -262,10 +262,10 @@ impl Bridge {
         }
     }
 
-    /// The packet limit for another connection to the broker (the Sparkplug node's), counting
-    /// its refusals into this bridge's statistics.
-    pub fn packet_limit(&self, connection: &'static str) -> PacketLimit {
-        self.packet_limit.for_connection(connection)
+    /// A packet limit of `max` bytes for another connection to the broker (the Sparkplug
+    /// node's), counting its refusals into this bridge's statistics.
+    pub fn packet_limit(&self, connection: &'static str, max: usize) -> PacketLimit {
+        self.packet_limit.for_connection(connection, max)
     }
 
     /// Where a configuration reload tells this bridge its new devices and lines.

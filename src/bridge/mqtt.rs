@@ -121,10 +121,10 @@ impl PacketLimit {
         }
     }
 
-    /// The same limit and count for another connection.
-    pub fn for_connection(&self, connection: &'static str) -> Self {
+    /// A limit of `max` bytes for another connection, counting into the same figure.
+    pub fn for_connection(&self, connection: &'static str, max: usize) -> Self {
         PacketLimit {
-            max: self.max,
+            max,
             refused: Arc::clone(&self.refused),
             logged: HashSet::new(),
             connection,
@@ -146,6 +146,11 @@ impl PacketLimit {
                  the connection); counted as mqtt.oversized_refused");
         }
         false
+    }
+
+    /// The largest packet admitted, in bytes (what rumqttc must be told too).
+    pub fn max(&self) -> usize {
+        self.max
     }
 
     /// Publishes refused so far, on every connection sharing this count.
@@ -488,7 +493,7 @@ mod tests {
             MAX_OUTGOING_PACKET
         );
         let mut plain = PacketLimit::new(MAX_OUTGOING_PACKET, "plain");
-        let mut node = plain.for_connection("sparkplug");
+        let mut node = plain.for_connection("sparkplug", MAX_OUTGOING_PACKET);
         assert!(plain.admits(topic, fits, QoS::AtLeastOnce));
         assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));
         assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));

@@ -22,7 +22,9 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{client, connect_went_out, options, Backoff, PacketLimit, REQUEST_QUEUE};
+use crate::bridge::mqtt::{
+    client, connect_went_out, options, Backoff, PacketLimit, MAX_INCOMING_PACKET, REQUEST_QUEUE,
+};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
@@ -49,6 +51,11 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// (well inside the client's request queue, beside live traffic).
 const HISTORY_TICK: Duration = Duration::from_millis(250);
 const HISTORY_BATCH: usize = 250;
+/// The largest packet the node sends. An NBIRTH carries every node metric in one message
+/// (Sparkplug allows no other way): with the figures of 1,000 lines it is about 300 KB, past
+/// the plain connection's limit, so the node's is larger. A larger birth still is refused
+/// alone, counted with the plain connection's.
+pub const MAX_OUTGOING_PACKET: usize = 4 * 1024 * 1024;
 
 /// The session for `config`'s devices, identity and lines (None without `[sparkplug]`),
 /// with the broker settings of its own connection.
@@ -126,6 +133,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
             }
         };
         mqtt_options
+            .set_max_packet_size(MAX_INCOMING_PACKET, links.packet_limit.max())
             .set_clean_session(true)
             .set_last_will(LastWill::new(
                 will.topic,
