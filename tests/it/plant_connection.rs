@@ -74,34 +74,41 @@ stats_interval = "1s"
     );
     for index in 0..LINES {
         let host = format!("127.0.{}.{}", index / 250, index % 250 + 1);
-        text.push_str(&format!(
-            r#"
-[[lines]]
-name = "line-{index:04}"
-url = "modbus-tcp://{host}:{closed_port}"
-response_timeout = "200ms"
-
-[[lines.devices]]
-name = "meter_{index:04}"
-profile = "ruiwan-dust-collector"
-address = 1
-"#
+        let line = format!("line-{index:04}");
+        let device = format!("meter_{index:04}");
+        text.push_str(&line_text(
+            &line,
+            &host,
+            closed_port,
+            &device,
+            "ruiwan-dust-collector",
         ));
     }
-    text.push_str(&format!(
+    text.push_str(&line_text(
+        "line-big",
+        "127.0.4.1",
+        closed_port,
+        "big_meter",
+        big_profile_path,
+    ));
+    text
+}
+
+/// One `modbus-tcp://` line to `host:port` with one device of `profile` at address 1.
+fn line_text(line: &str, host: &str, port: u16, device: &str, profile: &str) -> String {
+    format!(
         r#"
 [[lines]]
-name = "line-big"
-url = "modbus-tcp://127.0.4.1:{closed_port}"
+name = "{line}"
+url = "modbus-tcp://{host}:{port}"
 response_timeout = "200ms"
 
 [[lines.devices]]
-name = "big_meter"
-profile = "{big_profile_path}"
+name = "{device}"
+profile = "{profile}"
 address = 1
 "#
-    ));
-    text
+    )
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
