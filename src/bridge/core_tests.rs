@@ -174,7 +174,7 @@ fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
         ),
         (
             CommandOutcome::Failed {
-                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::master::Error::Timeout(
+                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::Error::Timeout(
                     Duration::from_millis(300),
                 )),
             },

@@ -48,9 +48,9 @@ use super::{
     WriteClock,
 };
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{PortFault, WireCounters};
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::transport::TransportError;
+use rtu2mqtt_modbus::{PortFault, WireCounters};
 use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
 
