@@ -75,7 +75,7 @@ impl Publisher {
         line_names: Vec<String>,
         devices: Vec<BridgeDevice>,
     ) -> Self {
-        // The Last Will the MQTT connection registers (crate::bridge::mqtt::options).
+        // The Last Will the MQTT connection registers (crate::bridge::driver::connection::options).
         let guard = TopicGuard::with_own_will(&topics.gateway_status_topic(), OFFLINE);
         Publisher {
             topics,
