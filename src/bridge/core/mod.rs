@@ -17,12 +17,12 @@
 //! Its parts: [`desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
 //! and a result says), [`publisher`] with [`state`] and [`json_view`] (the published state),
 //! [`discovery`] with [`entity_naming`] (Home Assistant), [`guard`] (our retained topics
-//! defended), [`action`] and [`device`] (what the core gives and is given).
+//! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
 
 pub mod action;
+pub mod bridge_device;
 pub mod command_book;
 pub mod desk;
-pub mod device;
 pub mod discovery;
 mod entity_naming;
 pub mod guard;
@@ -46,7 +46,7 @@ use crate::config::{Config, GatewayOptions};
 use rtu2mqtt_profile::contract::{is_ha_online, Topics};
 
 pub use self::action::{Action, CommandReport, HistoryEntry, Publish};
-pub use self::device::BridgeDevice;
+pub use self::bridge_device::BridgeDevice;
 
 /// A command that did not come from a plain `…/set` topic (a Sparkplug DCMD): the field and
 /// the command text as `…/set` would carry it (`ON`, `8`, `12.5`).
