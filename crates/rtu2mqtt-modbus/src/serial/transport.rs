@@ -14,7 +14,7 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::time::Instant;
 
-use super::timing::{CharFormat, Parity};
+use crate::timing::{CharFormat, Parity};
 
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]
