@@ -11,11 +11,11 @@ use super::stats::DeviceStats;
 use super::DeviceSpec;
 
 /// Decoded values of a device, by field name, ready for a `LineEvent::Values`.
-pub type Values = Vec<(String, Value)>;
+pub(crate) type Values = Vec<(String, Value)>;
 
 /// A configured device as its line runs it.
 #[derive(Debug, Clone)]
-pub struct DeviceRuntime {
+pub(crate) struct DeviceRuntime {
     pub spec: DeviceSpec,
     pub stats: DeviceStats,
     /// Per block: the device refused the merged block, read its used runs instead.
@@ -30,7 +30,7 @@ pub struct DeviceRuntime {
 }
 
 impl DeviceRuntime {
-    pub fn new(spec: DeviceSpec) -> Self {
+    pub(crate) fn new(spec: DeviceSpec) -> Self {
         DeviceRuntime {
             stats: DeviceStats::new(&spec.name),
             read_by_parts: vec![false; spec.profile.read_blocks().len()],
@@ -43,13 +43,13 @@ impl DeviceRuntime {
     /// True when `answer` to `block` equals the last one whose values were sent and the device
     /// is online: its values are already known to the bridge. A device that comes back online
     /// sends its values again (the bridge republishes them then).
-    pub fn answer_unchanged(&self, block: usize, answer: &Response) -> bool {
+    pub(crate) fn answer_unchanged(&self, block: usize, answer: &Response) -> bool {
         self.stats.online && self.last_answers.get(block).and_then(Option::as_ref) == Some(answer)
     }
 
     /// The values of the device's last remembered answers: the state a client's write is
     /// validated on.
-    pub fn known_state(&self) -> DeviceState {
+    pub(crate) fn known_state(&self) -> DeviceState {
         let mut state = DeviceState::new();
         for (block, answer) in self.last_answers.iter().enumerate() {
             let Some(answer) = answer else { continue };
@@ -64,7 +64,7 @@ impl DeviceRuntime {
     }
 
     /// The device went offline: its next answers are sent whatever they hold.
-    pub fn forget_answers(&mut self) {
+    pub(crate) fn forget_answers(&mut self) {
         self.last_answers.fill(None);
         self.latest_answers.fill(None);
     }
@@ -73,7 +73,7 @@ impl DeviceRuntime {
     /// `values`. An answer whose fields all decode is remembered (see
     /// [`DeviceRuntime::answer_unchanged`]); one with invalid field data is decoded, counted
     /// and logged each time.
-    pub fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
+    pub(crate) fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
         let mut all_valid = true;
         let profile = self.spec.profile.clone();
         if let Some(latest) = self.latest_answers.get_mut(block) {

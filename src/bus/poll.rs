@@ -15,7 +15,7 @@ use super::transaction::{Exchange, Failure, Turnaround};
 
 /// What one poll of a device needs from its line.
 #[derive(Debug, Clone, Copy)]
-pub struct PollContext<'a> {
+pub(crate) struct PollContext<'a> {
     pub line: &'a str,
     pub timeout: std::time::Duration,
     pub turnaround: &'a Turnaround,
@@ -24,7 +24,7 @@ pub struct PollContext<'a> {
 
 /// Reads `block`, `device`'s read block number `index`, falling back to its used runs (for
 /// good) when the device refuses the merged block with exception 02.
-pub async fn read_block(
+pub(crate) async fn read_block(
     context: PollContext<'_>,
     master: &mut Link,
     device: &mut DeviceRuntime,
@@ -66,7 +66,7 @@ pub async fn read_block(
 }
 
 /// What a poll's reply says about the device.
-pub fn outcome(reply: &Reply, device: &str, block: &str) -> PollOutcome {
+pub(crate) fn outcome(reply: &Reply, device: &str, block: &str) -> PollOutcome {
     match reply {
         Ok(_) => PollOutcome::Answered,
         Err(ExceptionCode::ServerDeviceBusy) => PollOutcome::Busy,

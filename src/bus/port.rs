@@ -23,32 +23,32 @@ use super::{LineSpec, Transport};
 
 /// Waits between attempts: the first one, doubling up to the longest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Backoff {
+pub(crate) struct Backoff {
     pub first: Duration,
     pub longest: Duration,
 }
 
 /// For a port that is missing or failed.
-pub const MISSING_PORT: Backoff = Backoff {
+pub(crate) const MISSING_PORT: Backoff = Backoff {
     first: Duration::from_millis(100),
     longest: Duration::from_secs(3),
 };
 
 /// For a port path that is no serial port.
-pub const NOT_A_PORT: Backoff = Backoff {
+pub(crate) const NOT_A_PORT: Backoff = Backoff {
     first: Duration::from_secs(5),
     longest: Duration::from_secs(60),
 };
 
 /// For a TCP server that cannot be reached.
-pub const UNREACHABLE_SERVER: Backoff = Backoff {
+pub(crate) const UNREACHABLE_SERVER: Backoff = Backoff {
     first: Duration::from_millis(200),
     longest: Duration::from_secs(10),
 };
 
 impl Backoff {
     /// The schedule for a failed attempt to open the link.
-    pub fn after(error: &OpenError) -> Backoff {
+    pub(crate) fn after(error: &OpenError) -> Backoff {
         match error {
             OpenError::Serial(TransportError::NotATerminal { .. }) => NOT_A_PORT,
             OpenError::Serial(_) => MISSING_PORT,
@@ -59,7 +59,7 @@ impl Backoff {
 
 /// Why a line's link could not be opened.
 #[derive(Debug, thiserror::Error)]
-pub enum OpenError {
+pub(crate) enum OpenError {
     #[error(transparent)]
     Serial(#[from] TransportError),
     #[error("cannot connect to {url}: {source}")]
@@ -68,7 +68,7 @@ pub enum OpenError {
 
 /// When the line tries to open its port next.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Reopen {
+pub(crate) struct Reopen {
     at: Instant,
     /// The wait after the next failure, before it is fitted to that failure's schedule.
     next_delay: Duration,
@@ -76,7 +76,7 @@ pub struct Reopen {
 
 impl Reopen {
     /// A line that has not opened its port yet tries at once.
-    pub fn new(now: Instant) -> Self {
+    pub(crate) fn new(now: Instant) -> Self {
         Reopen {
             at: now,
             next_delay: MISSING_PORT.first,
@@ -84,19 +84,19 @@ impl Reopen {
     }
 
     /// When the next attempt is due.
-    pub fn at(&self) -> Instant {
+    pub(crate) fn at(&self) -> Instant {
         self.at
     }
 
     /// The port is open: its next failure starts the schedule from the beginning.
-    pub fn opened(&mut self) {
+    pub(crate) fn opened(&mut self) {
         self.next_delay = MISSING_PORT.first;
     }
 
     /// An attempt failed (or the open port failed): the next one waits under `backoff`, from
     /// where the previous failures left the wait (so a path that was no serial port and is
     /// now missing is tried again within the quick schedule's longest wait). Returns the wait.
-    pub fn failed(&mut self, now: Instant, backoff: Backoff) -> Duration {
+    pub(crate) fn failed(&mut self, now: Instant, backoff: Backoff) -> Duration {
         let delay = self.next_delay.clamp(backoff.first, backoff.longest);
         self.at = now + delay;
         self.next_delay = (delay * 2).min(backoff.longest);
@@ -105,7 +105,7 @@ impl Reopen {
 }
 
 /// Opens the line's port, or connects to its server, with the line's settings.
-pub async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Link, OpenError> {
+pub(crate) async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Link, OpenError> {
     let mut link = match &spec.transport {
         Transport::Serial => {
             let port = Port::open(&spec.serial)?;

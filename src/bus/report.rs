@@ -19,7 +19,7 @@ use rtu2mqtt_profile::{PublishRule, Value};
 
 /// The publishing state of one line's devices.
 #[derive(Debug, Default)]
-pub struct Report {
+pub(crate) struct Report {
     /// By device name; only devices with at least one field that has settings.
     devices: HashMap<String, HashMap<String, FieldReport>>,
 }
@@ -77,7 +77,7 @@ impl FieldReport {
 
 impl Report {
     /// The settings of `devices`' fields: their own keys, the device's for the others.
-    pub fn new(devices: &[DeviceSpec]) -> Self {
+    pub(crate) fn new(devices: &[DeviceSpec]) -> Self {
         let mut report = Report::default();
         for device in devices {
             let fields: HashMap<String, FieldReport> = device
@@ -104,13 +104,13 @@ impl Report {
     }
 
     /// No field of the line has settings: every value passes as it comes.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.devices.is_empty()
     }
 
     /// What of `event` is reported now (None: nothing). Values are filtered by their fields'
     /// rules; a command's pass and are the last published; availability forgets the device.
-    pub fn on_event(&mut self, event: LineEvent, now: Instant) -> Option<LineEvent> {
+    pub(crate) fn on_event(&mut self, event: LineEvent, now: Instant) -> Option<LineEvent> {
         match event {
             LineEvent::Values {
                 device,
@@ -155,7 +155,7 @@ impl Report {
     }
 
     /// When [`Report::due`] has something next: a held value's interval ends or a heartbeat.
-    pub fn next_wake(&self) -> Option<Instant> {
+    pub(crate) fn next_wake(&self) -> Option<Instant> {
         self.devices
             .values()
             .flat_map(HashMap::values)
@@ -167,7 +167,7 @@ impl Report {
     /// The values due at `now` (`wall` is the same instant on the wall clock): held values
     /// whose `min_interval` ended and that still moved (one event per device and read time),
     /// then heartbeats (one event per device, read at `wall`).
-    pub fn due(&mut self, now: Instant, wall: SystemTime) -> Vec<LineEvent> {
+    pub(crate) fn due(&mut self, now: Instant, wall: SystemTime) -> Vec<LineEvent> {
         let mut events = Vec::new();
         let mut names: Vec<&String> = self.devices.keys().collect();
         names.sort();

@@ -12,11 +12,11 @@ use super::LineEvent;
 use tokio_util::sync::CancellationToken;
 
 /// Events a line may be ahead of its reporter by (the reporter hands them on at once).
-pub const REPORTER_QUEUE: usize = 64;
+pub(crate) const REPORTER_QUEUE: usize = 64;
 
 /// Reports what `report` lets through of the events on `from` to `to`, until `from` closes
 /// (the line has stopped). Waits for room on `to`, but not past a shutdown.
-pub async fn run(
+pub(crate) async fn run(
     mut report: Report,
     mut from: mpsc::Receiver<LineEvent>,
     to: mpsc::Sender<LineEvent>,

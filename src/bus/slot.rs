@@ -25,7 +25,7 @@ use super::CommandOutcome;
 
 /// How a slot ended.
 #[derive(Debug)]
-pub enum SlotEnd {
+pub(crate) enum SlotEnd {
     Done(CommandOutcome),
     /// Written; the read-back shows the device still moving toward the value. The line
     /// re-reads until `deadline` (see [`reread`]).
@@ -39,7 +39,7 @@ pub enum SlotEnd {
 /// Why a slot stopped before its verification: the device refused (an exception answer, the
 /// device's word) or was not heard.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Stop {
+pub(crate) enum Stop {
     Refused(ExceptionCode),
     Failed(Failure),
 }
@@ -52,7 +52,7 @@ impl From<Failure> for Stop {
 
 impl Stop {
     /// What the slot ends with: a port that is gone must also be reopened.
-    pub fn end(self) -> SlotEnd {
+    pub(crate) fn end(self) -> SlotEnd {
         match self {
             Stop::Failed(Failure::PortGone(fault)) => SlotEnd::PortGone(fault),
             stop => failed_with(stop.cause()),
@@ -60,7 +60,7 @@ impl Stop {
     }
 
     /// The command's failure cause.
-    pub fn cause(self) -> CommandFailure {
+    pub(crate) fn cause(self) -> CommandFailure {
         match self {
             Stop::Refused(code) => CommandFailure::Exception(code),
             Stop::Failed(failure) => failure.into(),
@@ -74,11 +74,11 @@ fn failed_with(cause: CommandFailure) -> SlotEnd {
 
 /// Reads made in a slot with their answers: the line publishes the values of those that are
 /// one of the device's poll blocks, instead of polling them again right away.
-pub type SeenReads = Vec<(Request, Response)>;
+pub(crate) type SeenReads = Vec<(Request, Response)>;
 
 /// Runs `plan` on the device of `exchange`. `attempts` bounds the reads and the slot repeats.
 /// Every read answered in the slot is added to `seen`.
-pub async fn run_slot(
+pub(crate) async fn run_slot(
     exchange: &Exchange<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
@@ -134,7 +134,7 @@ pub async fn run_slot(
 }
 
 /// Reads the plan's read-back and judges it.
-pub async fn reread(
+pub(crate) async fn reread(
     exchange: &Exchange<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,

@@ -36,7 +36,7 @@ impl std::fmt::Display for Failure {
 
 /// What every exchange of one line shares.
 #[derive(Debug, Clone)]
-pub struct Exchange<'a> {
+pub(crate) struct Exchange<'a> {
     pub line: &'a str,
     pub device: &'a str,
     pub slave: SlaveId,
@@ -49,7 +49,7 @@ pub struct Exchange<'a> {
 /// master waits out inside the next transaction, so this time is hidden in it when shorter).
 /// Atomics only so that a line task holding a reference across awaits stays `Send`.
 #[derive(Debug)]
-pub struct Turnaround {
+pub(crate) struct Turnaround {
     epoch: Instant,
     /// Nanoseconds since `epoch` when the last transaction ended; 0 after a wait.
     ended: AtomicU64,
@@ -78,7 +78,7 @@ impl Turnaround {
     }
 
     /// A transaction starts now.
-    pub fn starting(&self) {
+    pub(crate) fn starting(&self) {
         let ended = self.ended.swap(0, Ordering::Relaxed);
         if ended == 0 {
             return;
@@ -90,14 +90,14 @@ impl Turnaround {
     }
 
     /// A transaction ended now.
-    pub fn ended(&self) {
+    pub(crate) fn ended(&self) {
         self.ended
             .store(self.nanos(Instant::now()), Ordering::Relaxed);
     }
 
     /// The silence after the last transaction is over: the line's own time runs from here
     /// (the silence is the wire's, not overhead).
-    pub fn silence_over(&self) {
+    pub(crate) fn silence_over(&self) {
         let ended = self.ended.load(Ordering::Relaxed);
         if ended != 0 {
             self.ended
@@ -106,12 +106,12 @@ impl Turnaround {
     }
 
     /// The line waits for something to become due: the gap that follows is not overhead.
-    pub fn idle(&self) {
+    pub(crate) fn idle(&self) {
         self.ended.store(0, Ordering::Relaxed);
     }
 
     /// Mean and worst turnaround so far.
-    pub fn figures(&self) -> Option<(Duration, Duration)> {
+    pub(crate) fn figures(&self) -> Option<(Duration, Duration)> {
         let count = self.count.load(Ordering::Relaxed);
         if count == 0 {
             return None;
@@ -124,7 +124,7 @@ impl Turnaround {
 
 impl<'a> Exchange<'a> {
     /// The exchanges with the configured `device` on the line named `line`.
-    pub fn for_device(
+    pub(crate) fn for_device(
         line: &'a str,
         device: &'a DeviceSpec,
         timeout: Duration,
@@ -141,7 +141,7 @@ impl<'a> Exchange<'a> {
 
     /// Sends `request` up to `attempts` times (at least once) until the device answers,
     /// normally or with an exception (not retried: it is the device's word).
-    pub async fn run(
+    pub(crate) async fn run(
         &self,
         master: &mut Link,
         stats: &mut DeviceStats,

@@ -41,7 +41,7 @@ impl Loaded {
 
 /// What a serde visitor said was wrong with a value (its place is `serde_path_to_error`'s).
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Complaint {
+pub(crate) enum Complaint {
     /// A value of the wrong type or out of range: what the key takes instead, as its visitor
     /// says it (`u16`, `a boolean`, `a duration`, `struct RawMqtt`).
     Expected(String),
@@ -109,7 +109,7 @@ struct Fault {
 /// reads: every problem of the reading stage is reported, and the rest can still be validated
 /// (a wrong type must not hide an address out of range elsewhere). Problems are listed table by
 /// table in the order the structs declare their keys, unknown keys first.
-pub fn read_leniently(tree: Tree) -> Loaded {
+pub(crate) fn read_leniently(tree: Tree) -> Loaded {
     let mut reading = Reading {
         tree,
         found: Vec::new(),

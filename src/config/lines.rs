@@ -21,7 +21,7 @@ use rtu2mqtt_modbus::timing::CharFormat;
 use rtu2mqtt_profile::Profile;
 
 /// Baud rates a Modbus RTU line may be configured with.
-pub const ALLOWED_BAUDS: &[u32] = &[
+pub(crate) const ALLOWED_BAUDS: &[u32] = &[
     300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
 ];
 /// The serial-line specification's longest sensible wait; rumqttc-style zero means "never".
@@ -299,7 +299,7 @@ fn validate_serve(
 }
 
 /// Default network allowance of TCP lines (on top of the default response timeout).
-pub const DEFAULT_NETWORK_ALLOWANCE: Duration = Duration::from_millis(200);
+pub(crate) const DEFAULT_NETWORK_ALLOWANCE: Duration = Duration::from_millis(200);
 
 fn is_modbus_tcp(transport: &Transport) -> bool {
     matches!(transport, Transport::Tcp { endpoint, .. } if endpoint.kind == TcpKind::ModbusTcp)
@@ -451,7 +451,7 @@ fn is_unstable_port_path(port: &str) -> bool {
 
 /// The path a port name reaches: links and `.`/`..` resolved when it exists (a by-id link and
 /// its target are one port), else normalised lexically (`/dev/./ttyA` is `/dev/ttyA`).
-pub fn port_identity(port: &str) -> PathBuf {
+pub(crate) fn port_identity(port: &str) -> PathBuf {
     let path = Path::new(port);
     std::fs::canonicalize(path).unwrap_or_else(|_| normalize(path))
 }

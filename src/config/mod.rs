@@ -12,20 +12,20 @@
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
-pub mod deserialize;
-pub mod devices;
-pub mod gateway;
-pub mod health;
+pub(crate) mod deserialize;
+pub(crate) mod devices;
+pub(crate) mod gateway;
+pub(crate) mod health;
 pub mod history;
-pub mod lines;
+pub(crate) mod lines;
 pub mod load;
 pub mod mqtt;
-pub mod names;
+pub(crate) mod names;
 pub mod poll_plan;
 pub mod schema;
-pub mod sparkplug;
-pub mod tree;
-pub mod validate;
+pub(crate) mod sparkplug;
+pub(crate) mod tree;
+pub(crate) mod validate;
 
 use std::fmt;
 use std::net::SocketAddr;

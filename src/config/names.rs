@@ -10,7 +10,7 @@ use rtu2mqtt_profile::contract;
 const SHOWN_MAX: usize = 48;
 
 /// `value` quoted for a message, cut to [`SHOWN_MAX`] characters.
-pub fn shown(value: &str) -> String {
+pub(crate) fn shown(value: &str) -> String {
     if value.chars().count() <= SHOWN_MAX {
         return format!("{value:?}");
     }
@@ -19,10 +19,10 @@ pub fn shown(value: &str) -> String {
 }
 
 /// Device, line and client names become topic levels: keep them short.
-pub const MAX_NAME_LEN: usize = contract::MAX_NAME_LEN;
+pub(crate) const MAX_NAME_LEN: usize = contract::MAX_NAME_LEN;
 
 /// `[a-z0-9_-]+`, at most 64 characters.
-pub fn is_valid_name(name: &str) -> bool {
+pub(crate) fn is_valid_name(name: &str) -> bool {
     !name.is_empty()
         && name.len() <= MAX_NAME_LEN
         && name
@@ -31,7 +31,7 @@ pub fn is_valid_name(name: &str) -> bool {
 }
 
 /// The problem of a line or device `name` at `place` that [`is_valid_name`] refuses.
-pub fn invalid_name(place: &str, name: &str) -> Problem {
+pub(crate) fn invalid_name(place: &str, name: &str) -> Problem {
     Problem::new(
         format!("{place}.name"),
         format!(

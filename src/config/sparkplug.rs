@@ -33,7 +33,7 @@ pub struct SparkplugConfig {
 /// Checks the ids of `raw` by Sparkplug's rules (non-empty, no `+`, `#` or `/`; they are
 /// topic levels) and fills the edge node id from the MQTT client id. Every problem is named
 /// with its place (`sparkplug.group_id`).
-pub fn check_identity(
+pub(crate) fn check_identity(
     raw: &SparkplugSettings,
     mqtt_client_id: &str,
 ) -> Result<SparkplugIdentity, Vec<Problem>> {
@@ -74,7 +74,7 @@ pub fn shared_broker(plain: &MqttSettings) -> MqttSettings {
 
 /// The whole section: identity and broker, every problem added to `problems`. `plain` is the
 /// checked `[mqtt]` (None when it has problems of its own; the identity is still checked).
-pub fn validate_sparkplug(
+pub(crate) fn validate_sparkplug(
     raw: &SparkplugSettings,
     plain_client_id: &str,
     plain: Option<&MqttSettings>,

@@ -19,7 +19,7 @@ pub enum Step {
 }
 
 /// A place as the user reads it: `lines[0].devices[1].address`.
-pub fn place_text(place: &[Step]) -> String {
+pub(crate) fn place_text(place: &[Step]) -> String {
     let mut text = String::new();
     for step in place {
         match step {
@@ -36,7 +36,7 @@ pub fn place_text(place: &[Step]) -> String {
 
 /// The configuration to read, and the text each environment variable gave its key.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Tree {
+pub(crate) struct Tree {
     root: Value,
     /// By place (`mqtt.inflight`): the `config` crate typed this text by its look (`10` an
     /// integer, `true` a boolean); the reading types it again by the key it sets.
@@ -45,7 +45,7 @@ pub struct Tree {
 
 impl Tree {
     /// The layered value; `env_text` holds the text of each place an environment variable set.
-    pub fn new(layered: config::Value, env_text: HashMap<String, String>) -> Self {
+    pub(crate) fn new(layered: config::Value, env_text: HashMap<String, String>) -> Self {
         Tree {
             root: typed(layered.kind),
             env_text,
@@ -53,12 +53,12 @@ impl Tree {
     }
 
     /// The whole value, to be read.
-    pub fn root(&self) -> &Value {
+    pub(crate) fn root(&self) -> &Value {
         &self.root
     }
 
     /// The environment text behind the value at `place`, when a variable set it.
-    pub fn env_text(&self, place: &[Step]) -> Option<&str> {
+    pub(crate) fn env_text(&self, place: &[Step]) -> Option<&str> {
         if self.env_text.is_empty() {
             return None;
         }
@@ -66,7 +66,7 @@ impl Tree {
     }
 
     /// The value at `place`.
-    pub fn get(&self, place: &[Step]) -> Option<&Value> {
+    pub(crate) fn get(&self, place: &[Step]) -> Option<&Value> {
         place
             .iter()
             .try_fold(&self.root, |value, step| match (value, step) {
@@ -90,7 +90,7 @@ impl Tree {
 
     /// Puts `value` at `place`: a key of a table (added when missing) or an item of a list.
     /// False when its table or list is not there or the value is already `value`.
-    pub fn set(&mut self, place: &[Step], value: Value) -> bool {
+    pub(crate) fn set(&mut self, place: &[Step], value: Value) -> bool {
         let Some((last, parent)) = place.split_last() else {
             return false;
         };
@@ -118,7 +118,7 @@ impl Tree {
     }
 
     /// Takes the key at `place` out of its table. False when there is no such key.
-    pub fn remove(&mut self, place: &[Step]) -> bool {
+    pub(crate) fn remove(&mut self, place: &[Step]) -> bool {
         let Some((Step::Key(key), parent)) = place.split_last() else {
             return false;
         };

@@ -17,7 +17,7 @@ use super::{Config, MqttSettings, Problem, Problems};
 use crate::bus::LineSpec;
 
 /// Validates `raw`; profile paths are relative to `base`.
-pub fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
+pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {
     let mut problems = Vec::new();
     let mut warnings = Vec::new();
     let mqtt = validate_mqtt(&raw.mqtt, base, &mut problems);

@@ -21,10 +21,10 @@
 //! (the thread). The settings are the configuration's ([`crate::config::HealthSettings`]);
 //! the MQTT loop is seen only through the [`MqttProbe`] the application hands over.
 
-pub mod assess;
-pub mod status_file;
-pub mod systemd;
-pub mod watchdog;
+pub(crate) mod assess;
+pub(crate) mod status_file;
+pub(crate) mod systemd;
+pub(crate) mod watchdog;
 
 use std::time::Duration;
 

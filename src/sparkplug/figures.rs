@@ -48,7 +48,7 @@ fn metric_name(line: &str, reading: &str) -> String {
 }
 
 /// The node metrics declared for the configured lines, in configuration order.
-pub fn node_metric_specs(lines: &[String]) -> Vec<NodeMetricSpec> {
+pub(crate) fn node_metric_specs(lines: &[String]) -> Vec<NodeMetricSpec> {
     lines
         .iter()
         .flat_map(|line| {
@@ -63,7 +63,7 @@ pub fn node_metric_specs(lines: &[String]) -> Vec<NodeMetricSpec> {
 }
 
 /// The current values of every line's figures.
-pub fn figures(stats: &[LineStats]) -> Vec<(String, MetricValue)> {
+pub(crate) fn figures(stats: &[LineStats]) -> Vec<(String, MetricValue)> {
     stats
         .iter()
         .flat_map(|line| {
@@ -76,7 +76,7 @@ pub fn figures(stats: &[LineStats]) -> Vec<(String, MetricValue)> {
 
 /// Samples the lines' statistics every `interval` and hands the figures to the node (which
 /// publishes only what changed) until shutdown or until the node is gone.
-pub async fn feed(
+pub(crate) async fn feed(
     lines: Vec<watch::Receiver<LineStats>>,
     values: mpsc::Sender<Vec<(String, MetricValue)>>,
     interval: Duration,

@@ -11,7 +11,7 @@
 //! historical DDATA once their device is born in the session.
 
 pub mod bd_seq;
-pub mod figures;
+pub(crate) mod figures;
 pub mod metrics;
 pub mod protobuf;
 pub mod session;

@@ -15,10 +15,10 @@ pub struct BridgeDevice {
 }
 
 /// The configured devices by name.
-pub type Devices = HashMap<String, BridgeDevice>;
+pub(crate) type Devices = HashMap<String, BridgeDevice>;
 
 /// `devices` by name.
-pub fn by_name(devices: impl IntoIterator<Item = BridgeDevice>) -> Devices {
+pub(crate) fn by_name(devices: impl IntoIterator<Item = BridgeDevice>) -> Devices {
     devices
         .into_iter()
         .map(|device| (device.name.clone(), device))

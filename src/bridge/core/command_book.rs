@@ -17,7 +17,7 @@ const REDELIVERY_MEMORY: usize = 256;
 
 /// One command on its way: waiting or on the bus.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TrackedCommand {
+pub(crate) struct TrackedCommand {
     pub id: u64,
     pub device: String,
     pub field: String,
@@ -35,7 +35,7 @@ pub struct TrackedCommand {
 
 /// What became of a submitted command.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Admission {
+pub(crate) enum Admission {
     /// Waiting; `superseded` is the older command of the same field it replaced.
     Queued { superseded: Option<TrackedCommand> },
     /// The same payload as the command already waiting for this field (a retained command
@@ -46,7 +46,7 @@ pub enum Admission {
 type Key = (String, String);
 
 #[derive(Debug)]
-pub struct CommandBook {
+pub(crate) struct CommandBook {
     ttl: Duration,
     next_id: u64,
     waiting: HashMap<Key, TrackedCommand>,
@@ -57,7 +57,7 @@ pub struct CommandBook {
 }
 
 impl CommandBook {
-    pub fn new(ttl: Duration) -> Self {
+    pub(crate) fn new(ttl: Duration) -> Self {
         CommandBook {
             ttl,
             next_id: 1,
@@ -70,7 +70,7 @@ impl CommandBook {
 
     /// True when this QoS 1 message is a redelivery (DUP) of one seen within the window.
     /// Every message is remembered.
-    pub fn is_redelivery(
+    pub(crate) fn is_redelivery(
         &mut self,
         topic: &str,
         pkid: u16,
@@ -101,7 +101,7 @@ impl CommandBook {
 
     /// Queues a validated command (`text` as planned, `value` as sent). An older waiting
     /// command for the same field is superseded.
-    pub fn submit(
+    pub(crate) fn submit(
         &mut self,
         device: &str,
         field: &str,
@@ -118,7 +118,7 @@ impl CommandBook {
 
     /// The command waiting for this field, or on the bus for it, carries `value`: a retained
     /// command the broker delivers again (a re-subscription) is that same command.
-    pub fn is_current(&self, device: &str, field: &str, value: &str) -> bool {
+    pub(crate) fn is_current(&self, device: &str, field: &str, value: &str) -> bool {
         let key = (device.to_string(), field.to_string());
         self.waiting.get(&key).is_some_and(|w| w.value == value)
             || self.on_bus.get(&key).is_some_and(|c| c.value == value)
@@ -126,7 +126,7 @@ impl CommandBook {
 
     /// Queues a command that arrived live: a new command even when its payload equals the one
     /// waiting (the older one is superseded, so each gets its own outcome).
-    pub fn queue(
+    pub(crate) fn queue(
         &mut self,
         device: &str,
         field: &str,
@@ -153,7 +153,7 @@ impl CommandBook {
 
     /// Waiting commands that may go to the bus now (device online, field not on the bus, write
     /// interval over), moved to "on the bus".
-    pub fn take_ready(
+    pub(crate) fn take_ready(
         &mut self,
         now: Instant,
         is_online: impl Fn(&str) -> bool,
@@ -183,7 +183,7 @@ impl CommandBook {
     /// Waiting commands whose device has stayed offline for their whole time to live, removed.
     /// A command of an online device never expires here: it waits for a command on the bus or
     /// for the write interval, both of which end.
-    pub fn take_expired(
+    pub(crate) fn take_expired(
         &mut self,
         now: Instant,
         is_online: impl Fn(&str) -> bool,
@@ -209,13 +209,13 @@ impl CommandBook {
     }
 
     /// A command left the bus (any outcome).
-    pub fn finish(&mut self, device: &str, field: &str) {
+    pub(crate) fn finish(&mut self, device: &str, field: &str) {
         self.on_bus.remove(&(device.to_string(), field.to_string()));
     }
 
     /// A write of `field` reached `device` at `at` (the line says so, whoever wrote): the
     /// field's write interval runs from there.
-    pub fn note_write(&mut self, device: &str, field: &str, at: Instant) {
+    pub(crate) fn note_write(&mut self, device: &str, field: &str, at: Instant) {
         let last = self
             .last_write
             .entry((device.to_string(), field.to_string()))
@@ -225,7 +225,7 @@ impl CommandBook {
 
     /// Puts a command that could not be handed to the bus back to waiting. When a newer one
     /// arrived meanwhile, that one stays and the returned older one is superseded.
-    pub fn requeue(&mut self, command: TrackedCommand) -> Option<TrackedCommand> {
+    pub(crate) fn requeue(&mut self, command: TrackedCommand) -> Option<TrackedCommand> {
         let key = (command.device.clone(), command.field.clone());
         self.on_bus.remove(&key);
         if self.waiting.contains_key(&key) {
@@ -236,33 +236,29 @@ impl CommandBook {
     }
 
     /// The id of the command waiting for this field.
-    pub fn waiting_id(&self, device: &str, field: &str) -> Option<u64> {
+    pub(crate) fn waiting_id(&self, device: &str, field: &str) -> Option<u64> {
         self.waiting
             .get(&(device.to_string(), field.to_string()))
             .map(|command| command.id)
     }
 
     /// A newer command for this field is waiting.
-    pub fn has_waiting(&self, device: &str, field: &str) -> bool {
+    pub(crate) fn has_waiting(&self, device: &str, field: &str) -> bool {
         self.waiting
             .contains_key(&(device.to_string(), field.to_string()))
     }
 
-    pub fn on_bus_count(&self) -> usize {
-        self.on_bus.len()
-    }
-
-    pub fn waiting_count(&self) -> usize {
+    pub(crate) fn waiting_count(&self) -> usize {
         self.waiting.len()
     }
 
     /// Every waiting command, removed (shutdown: they stay retained in the broker).
-    pub fn drain_waiting(&mut self) -> Vec<TrackedCommand> {
+    pub(crate) fn drain_waiting(&mut self) -> Vec<TrackedCommand> {
         self.waiting.drain().map(|(_, command)| command).collect()
     }
 
     /// The waiting commands of `device`, removed (the device is no longer configured).
-    pub fn drain_device(&mut self, device: &str) -> Vec<TrackedCommand> {
+    pub(crate) fn drain_device(&mut self, device: &str) -> Vec<TrackedCommand> {
         let keys: Vec<Key> = self
             .waiting
             .keys()

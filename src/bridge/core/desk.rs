@@ -23,7 +23,7 @@ const SHED_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// Where a command came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Origin {
+pub(crate) enum Origin {
     /// `…/set`: its (possibly retained) message is cleared once it has an outcome.
     Plain,
     /// An external command (a Sparkplug DCMD): its end is reported.
@@ -42,7 +42,7 @@ impl std::fmt::Display for Origin {
 
 /// A command message on `…/set`, as much of it as the desk looks at.
 #[derive(Debug, Clone, Copy)]
-pub struct SetMessage<'m> {
+pub(crate) struct SetMessage<'m> {
     pub topic: &'m str,
     pub device: &'m str,
     pub field: &'m str,
@@ -93,7 +93,7 @@ fn log_outcome(device: &str, field: &str, value: &str, outcome: Outcome, detail:
 
 /// Every command from its arrival to its result.
 #[derive(Debug)]
-pub struct CommandDesk {
+pub(crate) struct CommandDesk {
     book: CommandBook,
     /// The plans of waiting commands, by command id (planned once, when validated).
     plans: HashMap<u64, CommandPlan>,
@@ -116,7 +116,7 @@ pub struct CommandDesk {
 }
 
 impl CommandDesk {
-    pub fn new(ttl: Duration, max_payload: usize) -> Self {
+    pub(crate) fn new(ttl: Duration, max_payload: usize) -> Self {
         CommandDesk {
             book: CommandBook::new(ttl),
             plans: HashMap::new(),
@@ -132,32 +132,32 @@ impl CommandDesk {
     }
 
     /// Commands handed to a line whose end has not been reported yet.
-    pub fn commands_on_bus(&self) -> usize {
+    pub(crate) fn commands_on_bus(&self) -> usize {
         self.on_bus.len()
     }
 
     /// Commands waiting for an offline device or their turn on the line.
-    pub fn waiting(&self) -> usize {
+    pub(crate) fn waiting(&self) -> usize {
         self.book.waiting_count()
     }
 
     /// The command counters (every other field zero).
-    pub fn counters(&self) -> &BridgeStats {
+    pub(crate) fn counters(&self) -> &BridgeStats {
         &self.counters
     }
 
     /// Tells the desk whether the driver keeps up with what it is asked to publish.
-    pub fn set_overloaded(&mut self, overloaded: bool) {
+    pub(crate) fn set_overloaded(&mut self, overloaded: bool) {
         self.shedding.overloaded = overloaded;
     }
 
     /// Another gateway announces `device` under our prefix.
-    pub fn note_foreign(&mut self, device: &str) {
+    pub(crate) fn note_foreign(&mut self, device: &str) {
         self.foreign_devices.insert(device.to_string());
     }
 
     /// A message on a `…/set` topic.
-    pub fn on_set(&mut self, p: &mut Publisher, message: SetMessage<'_>, now: Instant) {
+    pub(crate) fn on_set(&mut self, p: &mut Publisher, message: SetMessage<'_>, now: Instant) {
         let SetMessage {
             topic,
             device,
@@ -213,7 +213,7 @@ impl CommandDesk {
 
     /// A command from outside the plain topics, as `…/set` would carry its `text`: the same
     /// validation, book and results, and its end reported with an [`Action::Report`].
-    pub fn on_external(
+    pub(crate) fn on_external(
         &mut self,
         p: &mut Publisher,
         device: &str,
@@ -392,7 +392,7 @@ impl CommandDesk {
     }
 
     /// Hands every command that may run now to its line.
-    pub fn dispatch_ready(&mut self, p: &mut Publisher, now: Instant) {
+    pub(crate) fn dispatch_ready(&mut self, p: &mut Publisher, now: Instant) {
         let cache = p.cache();
         let ready = self.book.take_ready(now, |device| cache.is_online(device));
         for command in ready {
@@ -422,7 +422,7 @@ impl CommandDesk {
 
     /// The driver could not hand `command` to its line: the line's queue is `full` (try again
     /// on the next tick), or the line has stopped.
-    pub fn on_send_failed(&mut self, p: &mut Publisher, command: Command, full: bool) {
+    pub(crate) fn on_send_failed(&mut self, p: &mut Publisher, command: Command, full: bool) {
         let Some(tracked) = self.on_bus.remove(&command.id) else {
             return;
         };
@@ -452,7 +452,7 @@ impl CommandDesk {
     }
 
     /// A line's word on how command `id` ended.
-    pub fn on_finished(
+    pub(crate) fn on_finished(
         &mut self,
         p: &mut Publisher,
         id: u64,
@@ -488,7 +488,7 @@ impl CommandDesk {
 
     /// A write from a client of a line's server ran on the line: its outcome goes out on the
     /// field's result topic like a command's (no `…/set` was involved, so none is cleared).
-    pub fn on_client_write(
+    pub(crate) fn on_client_write(
         &mut self,
         p: &mut Publisher,
         device: &str,
@@ -506,7 +506,7 @@ impl CommandDesk {
 
     /// A write reached `device` (a command's or a client's, the line says): the write
     /// intervals of `fields` run from `at`, for every source.
-    pub fn on_written(&mut self, device: &str, fields: &[String], at: Instant) {
+    pub(crate) fn on_written(&mut self, device: &str, fields: &[String], at: Instant) {
         for field in fields {
             self.book.note_write(device, field, at);
         }
@@ -514,7 +514,7 @@ impl CommandDesk {
 
     /// Commands whose device stayed offline for their time to live end `expired`; then
     /// whatever may run now goes to its line.
-    pub fn on_tick(&mut self, p: &mut Publisher, now: Instant) {
+    pub(crate) fn on_tick(&mut self, p: &mut Publisher, now: Instant) {
         let cache = p.cache();
         let expired = self
             .book
@@ -626,7 +626,7 @@ impl CommandDesk {
     }
 
     /// After a reconnect, clear again what may not have reached the broker.
-    pub fn clear_again(&mut self, p: &mut Publisher) {
+    pub(crate) fn clear_again(&mut self, p: &mut Publisher) {
         let topics: Vec<String> = self.clearing.keys().cloned().collect();
         for set in topics {
             p.publish_or_keep(set, String::new(), true);
@@ -634,7 +634,7 @@ impl CommandDesk {
     }
 
     /// A device removed by a reload: its waiting commands fail.
-    pub fn forget_device(&mut self, p: &mut Publisher, name: &str) {
+    pub(crate) fn forget_device(&mut self, p: &mut Publisher, name: &str) {
         for command in self.book.drain_device(name) {
             self.plans.remove(&command.id);
             self.counters.commands_failed += 1;
@@ -646,7 +646,7 @@ impl CommandDesk {
 
     /// Stopping: actions still waiting for their clearing never ran and fail; waiting
     /// commands stay retained in the broker for the next start.
-    pub fn stop(&mut self, p: &mut Publisher) {
+    pub(crate) fn stop(&mut self, p: &mut Publisher) {
         let uncleared: Vec<(String, (usize, Command))> = self.clearing.drain().collect();
         for (_, (_, command)) in uncleared {
             if let Some(tracked) = self.on_bus.remove(&command.id) {

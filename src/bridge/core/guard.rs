@@ -25,16 +25,16 @@ use std::time::{Duration, Instant};
 /// Own messages remembered per topic while their echo is awaited.
 const IN_FLIGHT: usize = 8;
 /// The shortest time between two re-assertions of one topic.
-pub const REASSERT_INTERVAL: Duration = Duration::from_secs(2);
+pub(crate) const REASSERT_INTERVAL: Duration = Duration::from_secs(2);
 /// How long one device's state topics are watched in its turn, at least.
-pub const AUDIT_WINDOW: Duration = Duration::from_secs(1);
+pub(crate) const AUDIT_WINDOW: Duration = Duration::from_secs(1);
 /// Topics audited per second at most: a device with more topics is watched for longer, so
 /// the messages the broker hands over for the audit stay this few whatever the plant's size.
-pub const AUDIT_TOPICS_PER_SECOND: u32 = 50;
+pub(crate) const AUDIT_TOPICS_PER_SECOND: u32 = 50;
 
 /// What a turn of the state audit asks for.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct AuditTurn {
+pub(crate) struct AuditTurn {
     /// The device whose audit is over: unsubscribe from its topics.
     pub ended: Option<String>,
     /// The device audited from now: subscribe to its topics.
@@ -43,7 +43,7 @@ pub struct AuditTurn {
 
 /// What to do about a message seen on a guarded topic.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Verdict {
+pub(crate) enum Verdict {
     /// Our own message, or one that agrees with the truth.
     Fine,
     /// Someone else contradicted the truth: publish it again.
@@ -53,7 +53,7 @@ pub enum Verdict {
 }
 
 #[derive(Debug, Default)]
-pub struct TopicGuard {
+pub(crate) struct TopicGuard {
     /// Our payloads per topic, oldest first, until the broker echoes them.
     in_flight: HashMap<String, VecDeque<String>>,
     last_reassert: HashMap<String, Instant>,
@@ -74,7 +74,7 @@ impl TopicGuard {
     /// gateway's own connections ended: the broker stopping, a late Will of an earlier
     /// connection), the truth goes back all the same, but the log does not blame another
     /// client.
-    pub fn with_own_will(topic: &str, payload: &str) -> Self {
+    pub(crate) fn with_own_will(topic: &str, payload: &str) -> Self {
         TopicGuard {
             own_will: Some((topic.to_string(), payload.to_string())),
             ..TopicGuard::default()
@@ -82,7 +82,7 @@ impl TopicGuard {
     }
 
     /// We publish `payload` on `topic`.
-    pub fn sent(&mut self, topic: &str, payload: &str) {
+    pub(crate) fn sent(&mut self, topic: &str, payload: &str) {
         let queue = self.in_flight.entry(topic.to_string()).or_default();
         if queue.len() >= IN_FLIGHT {
             queue.pop_front();
@@ -93,13 +93,13 @@ impl TopicGuard {
     /// A new connection: echoes of the old one will not come, and the audit starts again.
     /// Returns the device whose audit the lost connection interrupted (a persistent session
     /// may still hold its subscription).
-    pub fn reset(&mut self) -> Option<String> {
+    pub(crate) fn reset(&mut self) -> Option<String> {
         self.in_flight.clear();
         self.audited.take().map(|(device, _)| device)
     }
 
     /// The device whose state topics are watched now.
-    pub fn audited(&self) -> Option<&str> {
+    pub(crate) fn audited(&self) -> Option<&str> {
         self.audited.as_ref().map(|(device, _)| device.as_str())
     }
 
@@ -108,7 +108,7 @@ impl TopicGuard {
     /// `is_audited_topic`, since those echoes will not come), and the next device's begins,
     /// watched for [`AUDIT_WINDOW`] or, when it has more topics (`topics_of`), for as long as
     /// [`AUDIT_TOPICS_PER_SECOND`] takes to cover them.
-    pub fn audit_turn(
+    pub(crate) fn audit_turn(
         &mut self,
         devices: &[String],
         now: Instant,
@@ -142,7 +142,13 @@ impl TopicGuard {
     /// messages in order, so our echo is the oldest of our in-flight payloads that matches, and
     /// anything else that arrives while one of ours is in flight was taken before ours, which
     /// replaces it.
-    pub fn judge(&mut self, topic: &str, payload: &str, truth: &str, now: Instant) -> Verdict {
+    pub(crate) fn judge(
+        &mut self,
+        topic: &str,
+        payload: &str,
+        truth: &str,
+        now: Instant,
+    ) -> Verdict {
         if let Some(queue) = self.in_flight.get_mut(topic) {
             if let Some(position) = queue.iter().position(|sent| sent == payload) {
                 queue.drain(..=position);
@@ -187,7 +193,7 @@ impl TopicGuard {
     }
 
     /// Held topics whose interval has passed, to re-assert now.
-    pub fn due(&mut self, now: Instant) -> Vec<String> {
+    pub(crate) fn due(&mut self, now: Instant) -> Vec<String> {
         let last = &self.last_reassert;
         let due: Vec<String> = self
             .held

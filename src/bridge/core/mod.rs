@@ -19,16 +19,16 @@
 //! [`discovery`] with [`entity_naming`] (Home Assistant), [`guard`] (our retained topics
 //! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
 
-pub mod action;
-pub mod bridge_device;
-pub mod command_book;
-pub mod desk;
+pub(crate) mod action;
+pub(crate) mod bridge_device;
+pub(crate) mod command_book;
+pub(crate) mod desk;
 pub mod discovery;
 mod entity_naming;
-pub mod guard;
+pub(crate) mod guard;
 pub mod json_view;
 pub mod payload;
-pub mod publisher;
+pub(crate) mod publisher;
 pub mod state;
 #[cfg(test)]
 mod tests;

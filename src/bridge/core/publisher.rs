@@ -25,7 +25,7 @@ const MAX_DEFERRED: usize = 1024;
 
 /// A topic this gateway owns and defends.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Guarded {
+pub(crate) enum Guarded {
     Status,
     Availability(String),
     State(String, String),
@@ -33,7 +33,7 @@ pub enum Guarded {
 
 /// Counts of what the publisher handed out and defended.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct PublishCounters {
+pub(crate) struct PublishCounters {
     pub published: u64,
     pub publish_failures: u64,
     pub topics_reasserted: u64,
@@ -41,7 +41,7 @@ pub struct PublishCounters {
 
 /// What the gateway publishes and keeps published.
 #[derive(Debug)]
-pub struct Publisher {
+pub(crate) struct Publisher {
     topics: Topics,
     /// Home Assistant discovery is published.
     discovery: bool,
@@ -67,7 +67,7 @@ pub struct Publisher {
 
 impl Publisher {
     /// A publisher for `devices` (in configuration order) on the lines named `line_names`.
-    pub fn new(
+    pub(crate) fn new(
         topics: Topics,
         discovery: bool,
         json_view: bool,
@@ -94,42 +94,42 @@ impl Publisher {
         }
     }
 
-    pub fn topics(&self) -> &Topics {
+    pub(crate) fn topics(&self) -> &Topics {
         &self.topics
     }
 
-    pub fn devices(&self) -> &Devices {
+    pub(crate) fn devices(&self) -> &Devices {
         &self.devices
     }
 
     /// The configured lines' names, in order.
-    pub fn line_names(&self) -> &[String] {
+    pub(crate) fn line_names(&self) -> &[String] {
         &self.line_names
     }
 
-    pub fn cache(&self) -> &StateCache {
+    pub(crate) fn cache(&self) -> &StateCache {
         &self.cache
     }
 
-    pub fn is_connected(&self) -> bool {
+    pub(crate) fn is_connected(&self) -> bool {
         self.connected
     }
 
-    pub fn discovery(&self) -> bool {
+    pub(crate) fn discovery(&self) -> bool {
         self.discovery
     }
 
-    pub fn counters(&self) -> PublishCounters {
+    pub(crate) fn counters(&self) -> PublishCounters {
         self.counters
     }
 
     /// Adds an action that is not a publication (a send to a line, a report) in its place.
-    pub fn push(&mut self, action: Action) {
+    pub(crate) fn push(&mut self, action: Action) {
         self.out.push(action);
     }
 
     /// The actions of the event, in order.
-    pub fn take(&mut self) -> Vec<Action> {
+    pub(crate) fn take(&mut self) -> Vec<Action> {
         std::mem::take(&mut self.out)
     }
 
@@ -137,7 +137,7 @@ impl Publisher {
     /// whatever was unacknowledged, so everything is sent again, and what waited goes out.
     /// State topics are not subscribed to: they are audited one device at a time
     /// ([`Self::audit_turn`]).
-    pub fn connected(&mut self) {
+    pub(crate) fn connected(&mut self) {
         self.connected = true;
         // A persistent session keeps what an earlier connection subscribed to: the audit the
         // lost connection interrupted, and every device's topics as earlier versions watched
@@ -181,12 +181,12 @@ impl Publisher {
         }
     }
 
-    pub fn disconnected(&mut self) {
+    pub(crate) fn disconnected(&mut self) {
         self.connected = false;
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
-    pub fn on_published(&mut self, publish: Publish, sent: bool) {
+    pub(crate) fn on_published(&mut self, publish: Publish, sent: bool) {
         if sent {
             self.counters.published += 1;
             return;
@@ -206,7 +206,7 @@ impl Publisher {
     }
 
     /// A QoS 1 publish when connected; false when there is no connection to send it on.
-    pub fn publish(&mut self, topic: String, payload: String, retain: bool) -> bool {
+    pub(crate) fn publish(&mut self, topic: String, payload: String, retain: bool) -> bool {
         if !self.connected {
             return false;
         }
@@ -224,7 +224,7 @@ impl Publisher {
     }
 
     /// Results and clears must not be lost to a short outage: kept until the next ConnAck.
-    pub fn publish_or_keep(&mut self, topic: String, payload: String, retain: bool) {
+    pub(crate) fn publish_or_keep(&mut self, topic: String, payload: String, retain: bool) {
         let publish = Publish {
             topic,
             payload,
@@ -255,7 +255,7 @@ impl Publisher {
 
     /// Home Assistant device-based discovery: the gateway's own document, then one per
     /// configured device.
-    pub fn publish_discovery(&mut self) {
+    pub(crate) fn publish_discovery(&mut self) {
         if !self.discovery {
             return;
         }
@@ -285,7 +285,7 @@ impl Publisher {
     }
 
     /// Discovery and every state again (after Home Assistant's birth message).
-    pub fn reannounce(&mut self) {
+    pub(crate) fn reannounce(&mut self) {
         self.publish_discovery();
         let updates = self.cache.republish_all();
         self.publish_state(updates);
@@ -316,7 +316,7 @@ impl Publisher {
     /// that changed on the history stream (connected or not: what is measured while the
     /// broker is away goes to the journal). A heartbeat (`again`) publishes its values, the
     /// JSON view and a history entry even where nothing changed.
-    pub fn values(
+    pub(crate) fn values(
         &mut self,
         device: &str,
         values: Vec<(String, Value)>,
@@ -386,7 +386,7 @@ impl Publisher {
     }
 
     /// A line's word on `device`'s availability, published when it changed.
-    pub fn availability(&mut self, device: &str, online: bool) {
+    pub(crate) fn availability(&mut self, device: &str, online: bool) {
         if self.cache.set_online(device, online) {
             tracing::info!(%device, online, "availability");
             let topic = self.topics.availability_topic(device);
@@ -396,7 +396,7 @@ impl Publisher {
 
     /// One of our own line documents as the broker holds it: removed when its line is no
     /// longer configured.
-    pub fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+    pub(crate) fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
         if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
             tracing::info!(%topic, "removing the discovery config of a line no longer configured");
             self.publish(topic.to_string(), String::new(), true);
@@ -405,7 +405,7 @@ impl Publisher {
 
     /// One of our own discovery documents as the broker holds it: removed when its device is
     /// no longer configured.
-    pub fn on_config(&mut self, topic: &str, payload: &[u8]) {
+    pub(crate) fn on_config(&mut self, topic: &str, payload: &[u8]) {
         let configured = self.cache.devices();
         if discovery::is_stale_config(&self.topics, topic, payload, configured) {
             tracing::info!(%topic, "removing the discovery config of a device no longer configured");
@@ -416,7 +416,7 @@ impl Publisher {
     // ----- defence of the gateway's topics -----
 
     /// The topic as one this gateway defends, if it is one.
-    pub fn guarded(&self, topic: &str) -> Option<Guarded> {
+    pub(crate) fn guarded(&self, topic: &str) -> Option<Guarded> {
         if topic == self.topics.gateway_status_topic() {
             return Some(Guarded::Status);
         }
@@ -441,7 +441,7 @@ impl Publisher {
     /// The state audit's turn (every tick while connected): the audit whose window has passed
     /// ends, the next device's begins. Both go behind what is queued, so the broker hands
     /// over the device's topics as the gateway's earlier publishes left them.
-    pub fn audit_turn(&mut self, now: Instant) {
+    pub(crate) fn audit_turn(&mut self, now: Instant) {
         if !self.connected {
             return;
         }
@@ -491,7 +491,13 @@ impl Publisher {
 
     /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
     /// was overwritten again too soon (then later, [`Self::reassert_due`]).
-    pub fn on_guarded(&mut self, guarded: Guarded, topic: &str, payload: &[u8], now: Instant) {
+    pub(crate) fn on_guarded(
+        &mut self,
+        guarded: Guarded,
+        topic: &str,
+        payload: &[u8],
+        now: Instant,
+    ) {
         // A state topic outside its audit: a late message of an audit that has ended, or of
         // a subscription an earlier connection left behind.
         if !self.is_watched(&guarded) {
@@ -508,7 +514,7 @@ impl Publisher {
     }
 
     /// Topics overwritten again too soon, now that their interval has passed.
-    pub fn reassert_due(&mut self, now: Instant) {
+    pub(crate) fn reassert_due(&mut self, now: Instant) {
         for topic in self.guard.due(now) {
             let truth = self.guarded(&topic).and_then(|g| self.truth(&g));
             if let Some(truth) = truth {
@@ -522,7 +528,7 @@ impl Publisher {
 
     /// A reload kept `kept`, configured before as `before`: the state of fields its new
     /// profile no longer has is cleared.
-    pub fn clear_dropped_fields(&mut self, before: &BridgeDevice, kept: &BridgeDevice) {
+    pub(crate) fn clear_dropped_fields(&mut self, before: &BridgeDevice, kept: &BridgeDevice) {
         for field in before.profile.fields() {
             if kept.profile.field(&field.name).is_none() {
                 let topic = self.topics.state_topic(&before.name, &field.name);
@@ -534,7 +540,7 @@ impl Publisher {
     /// A reload's devices (in configuration order) on the lines named `line_names`: they
     /// replace the old ones, discovery goes out again and the availability of devices that
     /// are new is published.
-    pub fn reconfigure(&mut self, line_names: Vec<String>, devices: Vec<BridgeDevice>) {
+    pub(crate) fn reconfigure(&mut self, line_names: Vec<String>, devices: Vec<BridgeDevice>) {
         let added: Vec<String> = devices
             .iter()
             .filter(|device| !self.devices.contains_key(&device.name))
@@ -556,7 +562,7 @@ impl Publisher {
     /// A device removed by a reload: its retained topics are cleared (state of every field,
     /// availability, JSON view, discovery document). Results are not retained, so none is
     /// left to clear.
-    pub fn forget_device(&mut self, device: &BridgeDevice) {
+    pub(crate) fn forget_device(&mut self, device: &BridgeDevice) {
         let name = device.name.as_str();
         let mut cleared = Vec::new();
         for field in device.profile.fields() {
@@ -577,7 +583,7 @@ impl Publisher {
     }
 
     /// The last words: every device and the gateway `offline`.
-    pub fn stop(&mut self) {
+    pub(crate) fn stop(&mut self) {
         for device in self.cache.devices().to_vec() {
             let topic = self.topics.availability_topic(&device);
             self.publish(topic, OFFLINE.to_string(), true);

@@ -20,13 +20,13 @@ use crate::history::{Journal, Record};
 use rtu2mqtt_profile::contract::{Topics, HISTORY};
 
 /// Records replayed per tick at most (with the bridge's 250 ms tick, 2,000 a second).
-pub const REPLAY_BATCH: usize = 500;
+pub(crate) const REPLAY_BATCH: usize = 500;
 /// Replay waits while the outbox holds more than this: live values and results go first.
-pub const REPLAY_ROOM: usize = 256;
+pub(crate) const REPLAY_ROOM: usize = 256;
 
 /// The journal and the replay.
 #[derive(Debug)]
-pub struct HistoryLane {
+pub(crate) struct HistoryLane {
     topics: Topics,
     journal: Journal,
     /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
@@ -38,7 +38,7 @@ pub struct HistoryLane {
 
 /// A publish of the history stream (`<prefix>/<device>/history`, never retained; `history`
 /// is no field name, so no state topic looks like it).
-pub fn is_history(topic: &str, retain: bool) -> bool {
+pub(crate) fn is_history(topic: &str, retain: bool) -> bool {
     !retain
         && topic
             .strip_suffix(HISTORY)
@@ -49,7 +49,7 @@ impl HistoryLane {
     /// Opens the journal of `config`, with what earlier runs left in it. A journal that
     /// cannot be written is no reason not to run: it says why once, keeps the newest records
     /// in memory and is tried again until it can ([`HistoryLane::problem`]).
-    pub fn open(config: &HistoryConfig, topics: Topics) -> Self {
+    pub(crate) fn open(config: &HistoryConfig, topics: Topics) -> Self {
         let journal = Journal::open(config);
         let stats = journal.stats();
         if stats.waiting > 0 {
@@ -69,13 +69,13 @@ impl HistoryLane {
 
     /// Why the journal cannot be written now (the gateway is unhealthy meanwhile); None
     /// while it can.
-    pub fn problem(&self) -> Option<&str> {
+    pub(crate) fn problem(&self) -> Option<&str> {
         self.journal.problem()
     }
 
     /// A history publish that went towards the broker and was not acknowledged, or was not
     /// handed over at all: journaled (in the order they come back).
-    pub fn take_back(&mut self, topic: &str, document: &[u8]) {
+    pub(crate) fn take_back(&mut self, topic: &str, document: &[u8]) {
         let document = String::from_utf8_lossy(document).into_owned();
         match self.record_of(topic, document) {
             Some(record) => self.journal(record),
@@ -99,7 +99,7 @@ impl HistoryLane {
 
     /// From now on change sets wait in memory, behind `queued` (those the outbox held), until
     /// [`HistoryLane::release_held`].
-    pub fn hold(&mut self, queued: Vec<Publish>) {
+    pub(crate) fn hold(&mut self, queued: Vec<Publish>) {
         let records: Vec<Record> = queued
             .into_iter()
             .filter_map(|publish| self.record_of(&publish.topic, publish.payload))
@@ -108,13 +108,13 @@ impl HistoryLane {
     }
 
     /// Everything taken back is in the journal: what was held follows it there.
-    pub fn release_held(&mut self) {
+    pub(crate) fn release_held(&mut self) {
         for record in self.held.take().unwrap_or_default() {
             self.journal(record);
         }
     }
 
-    pub fn is_holding(&self) -> bool {
+    pub(crate) fn is_holding(&self) -> bool {
         self.held.is_some()
     }
 
@@ -123,13 +123,13 @@ impl HistoryLane {
     }
 
     /// Hands every replayed record to `forward` as well; the replay waits while it is full.
-    pub fn forward_replays(&mut self, forward: mpsc::Sender<Record>) {
+    pub(crate) fn forward_replays(&mut self, forward: mpsc::Sender<Record>) {
         self.forward = Some(forward);
     }
 
     /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
     /// is down, or older records still wait for their replay).
-    pub fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
+    pub(crate) fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
         let waiting = !self.journal.is_empty();
         if link_up && !waiting && self.held.is_none() {
             return Some(publish(entry.topic, entry.document));
@@ -148,7 +148,7 @@ impl HistoryLane {
 
     /// The next records of the replay, oldest first, as publishes: `room` is how many the
     /// outbox can take before live traffic would wait behind them.
-    pub fn replay(&mut self, room: usize) -> Vec<Publish> {
+    pub(crate) fn replay(&mut self, room: usize) -> Vec<Publish> {
         if self.forward.as_ref().is_some_and(mpsc::Sender::is_closed) {
             self.forward = None;
         }
@@ -176,17 +176,17 @@ impl HistoryLane {
 
     /// Every tick: what was written is synced once it has waited a second, and a journal
     /// that could not be written is tried again.
-    pub fn on_tick(&mut self, now: Instant) {
+    pub(crate) fn on_tick(&mut self, now: Instant) {
         self.journal.on_tick(now);
     }
 
     /// On shutdown: everything written is synced.
-    pub fn sync(&mut self) {
+    pub(crate) fn sync(&mut self) {
         self.journal.sync();
     }
 
     /// The journal's health; `link_up` makes what waits a replay backlog.
-    pub fn stats(&self, link_up: bool) -> HistoryStats {
+    pub(crate) fn stats(&self, link_up: bool) -> HistoryStats {
         let journal = self.journal.stats();
         HistoryStats {
             replay_backlog: if link_up { journal.waiting } else { 0 },

@@ -11,9 +11,9 @@
 //! the `mqtts://` client configuration.
 
 pub mod connection;
-pub mod history_stream;
-pub mod outbox;
-pub mod tls;
+pub(crate) mod history_stream;
+pub(crate) mod outbox;
+pub(crate) mod tls;
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

@@ -14,11 +14,11 @@ use crate::bridge::core::Publish;
 
 /// Entries held at most; beyond, the oldest re-send, then the oldest entry, is dropped (and
 /// reported by [`Outbox::push`]).
-pub const MAX_OUTBOX: usize = 100_000;
+pub(crate) const MAX_OUTBOX: usize = 100_000;
 
 /// One request for the MQTT client.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Request {
+pub(crate) enum Request {
     Publish(Publish),
     Subscribe { filter: String, qos: QoS },
     Unsubscribe { filter: String },
@@ -27,7 +27,7 @@ pub enum Request {
 
 /// How urgent a publish is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Lane {
+pub(crate) enum Lane {
     /// Outcomes, clears, state, availability.
     Urgent,
     /// Documents the core sends again anyway (discovery, statistics).
@@ -44,7 +44,7 @@ enum Entry {
 }
 
 #[derive(Debug, Default)]
-pub struct Outbox {
+pub(crate) struct Outbox {
     control: VecDeque<Request>,
     urgent: VecDeque<Entry>,
     resend: VecDeque<Entry>,
@@ -53,25 +53,25 @@ pub struct Outbox {
 
 impl Outbox {
     /// Entries waiting (a coalesced retained topic counts once).
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.control.len() + self.urgent.len() + self.resend.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
-    pub fn push_control(&mut self, request: Request) {
+    pub(crate) fn push_control(&mut self, request: Request) {
         self.control.push_back(request);
     }
 
     /// Queues a (un)subscription behind the urgent publishes already waiting.
-    pub fn push_in_turn(&mut self, request: Request) {
+    pub(crate) fn push_in_turn(&mut self, request: Request) {
         self.urgent.push_back(Entry::InTurn(request));
     }
 
     /// Queues `publish`; returns what had to be dropped to stay within [`MAX_OUTBOX`].
-    pub fn push(&mut self, publish: Publish, lane: Lane) -> Option<Publish> {
+    pub(crate) fn push(&mut self, publish: Publish, lane: Lane) -> Option<Publish> {
         if publish.retain {
             if let Some(queued) = self.retained.get_mut(&publish.topic) {
                 let keep = queued.keep || publish.keep;
@@ -115,7 +115,7 @@ impl Outbox {
     }
 
     /// Takes out the waiting publishes `wanted` picks (never retained ones), in their order.
-    pub fn take_where(&mut self, wanted: impl Fn(&Publish) -> bool) -> Vec<Publish> {
+    pub(crate) fn take_where(&mut self, wanted: impl Fn(&Publish) -> bool) -> Vec<Publish> {
         let mut taken = Vec::new();
         self.urgent.retain(|entry| match entry {
             Entry::Once(publish) if wanted(publish) => {
@@ -128,7 +128,7 @@ impl Outbox {
     }
 
     /// The next request in priority order.
-    pub fn pop(&mut self) -> Option<Request> {
+    pub(crate) fn pop(&mut self) -> Option<Request> {
         if let Some(control) = self.control.pop_front() {
             return Some(control);
         }
@@ -145,7 +145,7 @@ impl Outbox {
 
     /// The connection is gone: what the next connection publishes afresh is dropped, outcomes
     /// and clears (`keep`) stay. Returns how many were dropped.
-    pub fn on_disconnect(&mut self) -> usize {
+    pub(crate) fn on_disconnect(&mut self) -> usize {
         let before = self.len();
         self.control.clear();
         self.resend.clear();

@@ -16,7 +16,7 @@ use rustls::{ClientConfig, RootCertStore};
 use crate::config::TlsSettings;
 
 /// The client configuration for `tls`: its trust anchors, and its client certificate if any.
-pub fn client_config(tls: &TlsSettings) -> anyhow::Result<ClientConfig> {
+pub(crate) fn client_config(tls: &TlsSettings) -> anyhow::Result<ClientConfig> {
     let roots = match &tls.ca_file {
         Some(ca_file) => ca_file_roots(ca_file)?,
         None => system_roots()?,

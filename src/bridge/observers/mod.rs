@@ -2,5 +2,5 @@
 //! the Prometheus text, pure: snapshots in, JSON or text out) and [`prometheus`] (the HTTP
 //! endpoint that serves the text).
 
-pub mod prometheus;
+pub(crate) mod prometheus;
 pub mod statistics;

@@ -18,15 +18,15 @@ const MAX_REQUEST: usize = 8 * 1024;
 const IO_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Produces the exposition text on demand.
-pub type Render = Arc<dyn Fn() -> String + Send + Sync>;
+pub(crate) type Render = Arc<dyn Fn() -> String + Send + Sync>;
 
 /// Binds `address` (an error here is reported at start) and serves until `shutdown`.
-pub async fn bind(address: SocketAddr) -> std::io::Result<TcpListener> {
+pub(crate) async fn bind(address: SocketAddr) -> std::io::Result<TcpListener> {
     TcpListener::bind(address).await
 }
 
 /// Serves `/metrics` on `listener` until `shutdown` fires.
-pub async fn serve(listener: TcpListener, render: Render, shutdown: CancellationToken) {
+pub(crate) async fn serve(listener: TcpListener, render: Render, shutdown: CancellationToken) {
     loop {
         let accepted = tokio::select! {
             _ = shutdown.cancelled() => return,

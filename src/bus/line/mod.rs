@@ -56,17 +56,17 @@ use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
-pub const COMMAND_QUEUE: usize = 64;
+pub(crate) const COMMAND_QUEUE: usize = 64;
 /// Refresh requests that may wait to be taken by the line; more are dropped (a device's
 /// refresh already waiting covers them).
-pub const REFRESH_QUEUE: usize = 16;
+pub(crate) const REFRESH_QUEUE: usize = 16;
 /// Time a device takes to start answering on top of the answer's own wire time; with the
 /// timing's host allowance the default timeout leaves 100 ms beyond the wire.
-pub const DEVICE_MARGIN: Duration = Duration::from_millis(80);
+pub(crate) const DEVICE_MARGIN: Duration = Duration::from_millis(80);
 /// Statistics are published at least this often (the watchdog's heartbeat).
-pub const HEARTBEAT: Duration = Duration::from_secs(1);
+pub(crate) const HEARTBEAT: Duration = Duration::from_secs(1);
 /// Bus load is measured over this sliding window.
-pub const LOAD_WINDOW: Duration = Duration::from_secs(10);
+pub(crate) const LOAD_WINDOW: Duration = Duration::from_secs(10);
 
 /// Starts the task that owns `spec`'s port, with a write clock of its own.
 pub fn spawn_line(
@@ -134,7 +134,7 @@ pub fn spawn_line_with_clock(
 /// The response timeout of a line when none is configured: the wire time of the longest answer
 /// any of its devices' blocks can give, the end-of-frame silence, and a device margin; on a
 /// TCP line also the network allowance.
-pub fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duration {
+pub(crate) fn default_response_timeout(spec: &LineSpec, timing: &LineTiming) -> Duration {
     let network = match &spec.transport {
         Transport::Serial => Duration::ZERO,
         Transport::Tcp {

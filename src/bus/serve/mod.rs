@@ -10,10 +10,10 @@
 //! The line task runs their requests as slots (`bus::line`'s `client_requests`).
 
 pub mod places;
-pub mod policy;
+pub(crate) mod policy;
 pub(crate) mod queue;
 pub(crate) mod served_side;
-pub mod server;
+pub(crate) mod server;
 
 use std::time::Duration;
 

@@ -12,7 +12,7 @@ use rtu2mqtt_profile::{CommandPlan, DeviceState, Profile, Value};
 
 /// The server's decision on a request before it reaches the line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Verdict {
+pub(crate) enum Verdict {
     /// The line runs the request as it came.
     Forward,
     /// A write the line plans through the device's profile ([`plan_write`]).
@@ -22,7 +22,12 @@ pub enum Verdict {
 }
 
 /// Judges `request` to `unit` on a line with `devices`.
-pub fn judge(access: Access, devices: &[DeviceSpec], unit: SlaveId, request: &Request) -> Verdict {
+pub(crate) fn judge(
+    access: Access,
+    devices: &[DeviceSpec],
+    unit: SlaveId,
+    request: &Request,
+) -> Verdict {
     let device = devices.iter().find(|device| device.address == unit);
     if access == Access::Raw {
         return Verdict::Forward;
@@ -50,7 +55,7 @@ pub fn judge(access: Access, devices: &[DeviceSpec], unit: SlaveId, request: &Re
 
 /// A client's write as the profile reads it.
 #[derive(Debug)]
-pub struct PlannedWrite {
+pub(crate) struct PlannedWrite {
     /// Every field the write covers: the write waits for the write interval of each.
     pub covered: Vec<String>,
     /// The command slot that carries it out; `None` when the device would do nothing with it
@@ -69,7 +74,7 @@ pub struct PlannedWrite {
 /// (the dust collector's gear written at 0x1001, its place in the settings frame, goes out as
 /// the gear's own FC06), several through the very frame the client wrote. A write that lands on no write frame is refused with 02, a
 /// value the rules refuse with 03.
-pub fn plan_write(
+pub(crate) fn plan_write(
     profile: &Profile,
     write: &Request,
     state: &DeviceState,

@@ -33,14 +33,14 @@ use tokio_util::sync::CancellationToken;
 
 /// Once a request has started, the rest of it must arrive within this time: a torn frame
 /// must not hold the connection's place forever.
-pub const FRAME_PATIENCE: Duration = Duration::from_secs(2);
+pub(crate) const FRAME_PATIENCE: Duration = Duration::from_secs(2);
 /// A client that does not take its answer within this time is disconnected.
-pub const WRITE_PATIENCE: Duration = Duration::from_secs(5);
+pub(crate) const WRITE_PATIENCE: Duration = Duration::from_secs(5);
 /// Requests of one client that may wait for the line at once; more are answered 06.
-pub const PIPELINE: usize = 8;
+pub(crate) const PIPELINE: usize = 8;
 /// Requests of one client read and not yet answered (busy answers included); with this many
 /// the client's socket is not read until answers have gone out.
-pub const HELD: usize = 64;
+pub(crate) const HELD: usize = 64;
 /// The kernel's buffers of each client's socket, each way. Requests and answers are small: a
 /// client that does not take its answers is found out once this much waits, and one whose
 /// requests are not being read holds no more than this in the daemon's kernel.
@@ -48,7 +48,7 @@ const SOCKET_BUFFER: u32 = 8 * 1024;
 
 /// What the server counts for the line's statistics.
 #[derive(Debug, Default)]
-pub struct ServeCounters {
+pub(crate) struct ServeCounters {
     /// Requests clients sent that were framed and judged.
     pub requests: AtomicU64,
     /// Requests refused by the access policy (no frame on the line).
@@ -73,7 +73,7 @@ struct Context {
 }
 
 /// Binds `spec.listen` and serves clients until `shutdown`.
-pub async fn run(
+pub(crate) async fn run(
     spec: ServeSpec,
     devices: Vec<DeviceSpec>,
     line: mpsc::Sender<ClientRequest>,
