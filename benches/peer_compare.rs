@@ -16,7 +16,8 @@
 //!
 //! mqmgateway is found through `MQMGATEWAY=/path/to/modmqttd` (`scripts/build-peer` builds
 //! one); without it the bench measures rtu2mqtt alone and says so. Another build of rtu2mqtt is
-//! measured with `PEER_COMPARE_GATEWAY=/path/to/rtu2mqtt`. Rounds: 3, or
+//! measured with `PEER_COMPARE_GATEWAY=/path/to/rtu2mqtt`, and one more beside it in the same
+//! run (a build before a change) with `PEER_COMPARE_BASELINE=/path/to/rtu2mqtt`. Rounds: 3, or
 //! `PEER_COMPARE_ROUNDS`; each figure is the median over them with the range beside it.
 //! Prints figures; asserts nothing. Run: `MQMGATEWAY=… cargo bench --bench peer_compare`
 //! (about 40 s per gateway and round after the build).
@@ -58,13 +59,6 @@ enum Gateway {
 }
 
 impl Gateway {
-    fn name(self) -> &'static str {
-        match self {
-            Gateway::Rtu2mqtt => "rtu2mqtt",
-            Gateway::Mqmgateway => "mqmgateway",
-        }
-    }
-
     fn command_topic(self) -> &'static str {
         match self {
             Gateway::Rtu2mqtt => "plant/block/setpoint/set",
@@ -90,31 +84,48 @@ impl Gateway {
     }
 }
 
-/// Where the gateways are: this build's rtu2mqtt (or `PEER_COMPARE_GATEWAY`), and mqmgateway
-/// when `MQMGATEWAY` names it.
-struct Binaries {
-    rtu2mqtt: PathBuf,
-    mqmgateway: Option<PathBuf>,
+/// One gateway measured: what kind it is, its name in the table, its binary.
+struct Contender {
+    gateway: Gateway,
+    name: &'static str,
+    binary: PathBuf,
 }
 
-impl Binaries {
-    fn from_env() -> Binaries {
-        Binaries {
-            rtu2mqtt: std::env::var_os("PEER_COMPARE_GATEWAY").map_or_else(
-                || PathBuf::from(env!("CARGO_BIN_EXE_rtu2mqtt")),
-                PathBuf::from,
-            ),
-            mqmgateway: std::env::var_os("MQMGATEWAY").map(PathBuf::from),
-        }
+/// This build's rtu2mqtt (or `PEER_COMPARE_GATEWAY`), another build of it beside it when
+/// `PEER_COMPARE_BASELINE` names one, and mqmgateway when `MQMGATEWAY` names it.
+fn contenders() -> anyhow::Result<Vec<Contender>> {
+    let mut contenders = vec![Contender {
+        gateway: Gateway::Rtu2mqtt,
+        name: "rtu2mqtt",
+        binary: std::env::var_os("PEER_COMPARE_GATEWAY").map_or_else(
+            || PathBuf::from(env!("CARGO_BIN_EXE_rtu2mqtt")),
+            PathBuf::from,
+        ),
+    }];
+    let others = [
+        (
+            "PEER_COMPARE_BASELINE",
+            Gateway::Rtu2mqtt,
+            "rtu2mqtt baseline",
+        ),
+        ("MQMGATEWAY", Gateway::Mqmgateway, "mqmgateway"),
+    ];
+    for (variable, gateway, name) in others {
+        let Some(binary) = std::env::var_os(variable).map(PathBuf::from) else {
+            continue;
+        };
+        anyhow::ensure!(
+            binary.is_file(),
+            "{variable}={} is not a file",
+            binary.display()
+        );
+        contenders.push(Contender {
+            gateway,
+            name,
+            binary,
+        });
     }
-
-    fn gateways(&self) -> Vec<Gateway> {
-        let mut gateways = vec![Gateway::Rtu2mqtt];
-        if self.mqmgateway.is_some() {
-            gateways.push(Gateway::Mqmgateway);
-        }
-        gateways
-    }
+    Ok(contenders)
 }
 
 /// One gateway's turn on the line.
@@ -124,14 +135,7 @@ struct Turn {
 }
 
 fn main() -> anyhow::Result<()> {
-    let binaries = Binaries::from_env();
-    if let Some(peer) = &binaries.mqmgateway {
-        anyhow::ensure!(
-            peer.is_file(),
-            "MQMGATEWAY={} is not a file",
-            peer.display()
-        );
-    }
+    let contenders = contenders()?;
     let runtime = wire_bench::runtime()?;
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir()?;
@@ -145,60 +149,61 @@ fn main() -> anyhow::Result<()> {
         .and_then(|v| v.parse::<usize>().ok())
         .filter(|n| *n > 0)
         .unwrap_or(DEFAULT_ROUNDS);
-    let gateways = binaries.gateways();
-    let mut turns: Vec<Vec<Turn>> = gateways.iter().map(|_| Vec::new()).collect();
+    let mut turns: Vec<Vec<Turn>> = contenders.iter().map(|_| Vec::new()).collect();
     runtime.block_on(async {
         // One simulated device on one line for every turn of every gateway.
         let line = spawn_line(&profile, 1, Pace::Bytes)?;
         for round in 0..rounds {
-            let mut order: Vec<usize> = (0..gateways.len()).collect();
+            let mut order: Vec<usize> = (0..contenders.len()).collect();
             if round % 2 == 1 {
                 order.reverse();
             }
             for index in order {
-                let gateway = gateways[index];
-                eprintln!("round {} of {rounds}: {}", round + 1, gateway.name());
+                let Some((contender, list)) = contenders.get(index).zip(turns.get_mut(index))
+                else {
+                    continue;
+                };
+                eprintln!("round {} of {rounds}: {}", round + 1, contender.name);
                 let turn = take_turn(
-                    gateway,
-                    &binaries,
+                    contender,
                     &broker,
                     dir.path(),
                     &profile_path,
                     &line,
-                    round * gateways.len() + index,
+                    round * contenders.len() + index,
                 )
                 .await?;
-                turns[index].push(turn);
+                list.push(turn);
                 tokio::time::sleep(SETTLE).await;
             }
         }
         anyhow::Ok(())
     })?;
-    report(&binaries, &gateways, &turns, rounds);
+    report(&contenders, &turns, rounds);
     Ok(())
 }
 
 async fn take_turn(
-    gateway: Gateway,
-    binaries: &Binaries,
+    contender: &Contender,
     broker: &Mosquitto,
     dir: &Path,
     profile_path: &Path,
     line: &VirtualLine,
     turn: usize,
 ) -> anyhow::Result<Turn> {
-    let mut process = match (gateway, &binaries.mqmgateway) {
-        (Gateway::Mqmgateway, Some(peer)) => {
+    let gateway = contender.gateway;
+    let mut process = match gateway {
+        Gateway::Mqmgateway => {
             let config = dir.join(format!("peer-{turn}.yaml"));
             std::fs::write(&config, peer_config(broker, line, turn))?;
-            let mut command = Command::new(peer);
+            let mut command = Command::new(&contender.binary);
             command.arg(format!("--config={}", config.display()));
             GatewayProcess::spawn(command)?
         }
-        _ => {
+        Gateway::Rtu2mqtt => {
             let config = dir.join(format!("rtu2mqtt-{turn}.toml"));
             std::fs::write(&config, rtu2mqtt_config(broker, line, profile_path, turn))?;
-            GatewayProcess::start(&binaries.rtu2mqtt, &config, "warn")?
+            GatewayProcess::start(&contender.binary, &config, "warn")?
         }
     };
     // Client ids of their own per turn: the previous turn's clients may still be connected.
@@ -307,16 +312,20 @@ fn latency_pairs(turns: &[Vec<Turn>], list: fn(&Wire) -> &Vec<Duration>) -> Vec<
         .collect()
 }
 
-fn report(binaries: &Binaries, gateways: &[Gateway], turns: &[Vec<Turn>], rounds: usize) {
+fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
     println!();
-    println!("rtu2mqtt: {}", binaries.rtu2mqtt.display());
-    match &binaries.mqmgateway {
-        Some(peer) => println!("mqmgateway: {}", peer.display()),
-        None => println!(
+    for contender in contenders {
+        println!("{}: {}", contender.name, contender.binary.display());
+    }
+    if !contenders
+        .iter()
+        .any(|contender| contender.gateway == Gateway::Mqmgateway)
+    {
+        println!(
             "mqmgateway: not measured (MQMGATEWAY unset; scripts/build-peer builds it): \
              rtu2mqtt alone"
-        ),
+        );
     }
     println!(
         "one simulated device, 9600 8N1, answers released byte by byte; one 6-register block \
@@ -325,7 +334,7 @@ fn report(binaries: &Binaries, gateways: &[Gateway], turns: &[Vec<Turn>], rounds
         WINDOW.as_secs()
     );
     println!();
-    let names: Vec<String> = gateways.iter().map(|g| g.name().to_string()).collect();
+    let names: Vec<String> = contenders.iter().map(|c| c.name.to_string()).collect();
     row("figure", &names, "");
     let wire_limit = 1.0 / transaction_wire_time().as_secs_f64();
     row(
@@ -448,14 +457,19 @@ fn report(binaries: &Binaries, gateways: &[Gateway], turns: &[Vec<Turn>], rounds
         "target ≤ 4 ms / ≤ 5 ms",
     );
     row(
+        "  of which: write on the wire later than its bound",
+        &latency_pairs(turns, |w| &w.to_wire_over_bound),
+        "the command's way to the line, and t3.5's overshoot",
+    );
+    row(
         "  write echo end → next request at device",
         &latency_pairs(turns, |w| &w.echo_to_read_back),
-        "",
+        "t3.5 = 3.65 ms at best",
     );
     row(
         "  read-back answer end → on MQTT",
         &latency_pairs(turns, |w| &w.read_back_to_result),
-        "",
+        "line → bridge → broker → subscriber",
     );
     println!(
         "\nCPU from /proc/<pid>/stat (utime + stime) over each window; memory at its end; \

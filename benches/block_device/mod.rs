@@ -87,6 +87,8 @@ pub struct Wire {
     /// Publish → the write frame at the device, and its bound, per command seen.
     pub to_wire: Vec<Duration>,
     pub to_wire_bound: Vec<Duration>,
+    /// Per command seen: how much later than its bound its write reached the device.
+    pub to_wire_over_bound: Vec<Duration>,
     /// Publish → `…/result` at the subscriber, and its bound, per result seen.
     pub to_result: Vec<Duration>,
     pub to_result_bound: Vec<Duration>,
@@ -161,6 +163,7 @@ pub fn wire_figures(
             .count(),
         to_wire: Vec::new(),
         to_wire_bound: Vec::new(),
+        to_wire_over_bound: Vec::new(),
         to_result: Vec::new(),
         to_result_bound: Vec::new(),
         result_over_bound: Vec::new(),
@@ -197,6 +200,12 @@ pub fn wire_figures(
             wire.to_wire
                 .push(write.arrived.saturating_duration_since(*at));
             wire.to_wire_bound.push(bound);
+            wire.to_wire_over_bound.push(
+                write
+                    .arrived
+                    .saturating_duration_since(*at)
+                    .saturating_sub(bound),
+            );
         }
         // Commands are far apart: the first result after a publish, before the next, is its.
         let next = published.get(index + 1).map(|(_, next)| *next);
@@ -239,6 +248,7 @@ pub fn wire_figures(
     for list in [
         &mut wire.to_wire,
         &mut wire.to_wire_bound,
+        &mut wire.to_wire_over_bound,
         &mut wire.to_result,
         &mut wire.to_result_bound,
         &mut wire.result_over_bound,
