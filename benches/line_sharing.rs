@@ -22,17 +22,16 @@
 //! after the build).
 
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use gateway_process::GatewayProcess;
-use rtu2mqtt::sim::VirtualLine;
-use rtu2mqtt::sim::{share, AirShower, DustCollector, Pace, RequestRecord, ServeOptions};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use rtu2mqtt_sim::VirtualLine;
+use rtu2mqtt_sim::{share, AirShower, DustCollector, Pace, RequestRecord, ServeOptions};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use support::{free_port, Mosquitto};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -93,7 +92,7 @@ struct CacheRun {
 /// Seed line-a byte-paced: the dust collector (running) and the air shower.
 fn spawn_line() -> anyhow::Result<VirtualLine> {
     let (dust, dust_shared) = share(DustCollector::new(1));
-    rtu2mqtt::sim::lock(&dust).set_power(true);
+    rtu2mqtt_sim::lock(&dust).set_power(true);
     let (_shower, shower_shared) = share(AirShower::new());
     Ok(VirtualLine::spawn(
         ServeOptions::new(BAUD, Parity::None).pacing(Pace::Bytes),

@@ -24,8 +24,7 @@
 
 mod block_device;
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::path::{Path, PathBuf};
@@ -37,9 +36,9 @@ use block_device::{
     wire_figures, ResultAfter, Window, Wire, BAUD,
 };
 use gateway_process::GatewayProcess;
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{Pace, VirtualLine};
 use rtu2mqtt_modbus::timing::LineTiming;
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{Pace, VirtualLine};
 use rumqttc::QoS;
 use support::Mosquitto;
 use wire_bench::{command_client, percentile, timed_subscriber, EIGHT_N_ONE};

@@ -9,9 +9,9 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rumqttc::{AsyncClient, QoS};
 use tokio::sync::mpsc::UnboundedReceiver;
 

@@ -25,7 +25,7 @@ use super::metrics::{self, BridgeStats, HistoryStats};
 use super::publisher::Publisher;
 use crate::bus::{Command, LineEvent, LineStats, Origin};
 use crate::config::{Config, GatewayOptions};
-use crate::contract::{is_ha_online, Topics};
+use rtu2mqtt_profile::contract::{is_ha_online, Topics};
 
 pub use super::action::{Action, CommandReport, HistoryEntry, Publish};
 pub use super::device::BridgeDevice;

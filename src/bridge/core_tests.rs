@@ -14,8 +14,8 @@ use super::core::{
 };
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
-use crate::contract::Topics;
-use crate::profile::registry;
+use rtu2mqtt_profile::contract::Topics;
+use rtu2mqtt_profile::registry;
 
 /// The seed of every test core: equal inputs give equal actions.
 const SEED: u64 = 7;
@@ -174,7 +174,7 @@ fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
         ),
         (
             CommandOutcome::Failed {
-                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::master::Error::Timeout(
+                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::Error::Timeout(
                     Duration::from_millis(300),
                 )),
             },
@@ -394,7 +394,7 @@ fn home_assistant_online_brings_discovery_and_state_again() {
     let mut core = online_core(now);
     let values = LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
         origin: Origin::Poll,
     };
@@ -497,7 +497,7 @@ fn state_of_a_slot_is_published_before_its_result() {
     let mut actions = core.on_line_event(
         LineEvent::Values {
             device: "valve".to_string(),
-            values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
+            values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(50))],
             read_at: std::time::SystemTime::UNIX_EPOCH,
             origin: Origin::Poll,
         },
@@ -637,7 +637,7 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
     let mut core = online_core(now);
     let values = LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
         origin: Origin::Poll,
     };
@@ -1048,7 +1048,7 @@ fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
         device: "valve".to_string(),
         values: vec![(
             "opening".to_string(),
-            crate::profile::Value::Int(i128::from(opening)),
+            rtu2mqtt_profile::Value::Int(i128::from(opening)),
         )],
         read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
         origin: Origin::Poll,

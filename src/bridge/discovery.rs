@@ -35,8 +35,8 @@ use super::entity_naming::{
 pub use super::entity_naming::{display_name, entity_name};
 use super::payload::Outcome;
 use super::state::StateUpdate;
-use crate::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
-use crate::profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
+use rtu2mqtt_profile::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
+use rtu2mqtt_profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
 /// range spreads the load when several gateways restart discovery at once (HA's own advice).

@@ -52,7 +52,7 @@ use self::mqtt::{LinkEvent, LinkFlag};
 use self::outbox::{Lane, Outbox, Request};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// How often waiting commands, expiries and statistics are looked at; the bridge's heartbeat
 /// is refreshed at least this often.
@@ -203,7 +203,11 @@ impl Bridge {
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
-    pub async fn run(mut self, mut events_rx: mpsc::Receiver<LineEvent>, mut shutdown: Shutdown) {
+    pub async fn run(
+        mut self,
+        mut events_rx: mpsc::Receiver<LineEvent>,
+        shutdown: CancellationToken,
+    ) {
         let mut tick = tokio::time::interval(TICK);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -212,7 +216,7 @@ impl Bridge {
             let feed = self.link_up && !self.outbox.is_empty();
             let writer_tx = self.writer_tx.clone();
             tokio::select! {
-                _ = shutdown.fired() => break,
+                _ = shutdown.cancelled() => break,
                 permit = writer_tx.reserve_owned(), if feed => {
                     if let Ok(permit) = permit {
                         if let Some(request) = self.outbox.pop() {

@@ -21,7 +21,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::history::is_history;
 use crate::config::MqttSettings;
-use crate::contract::{Topics, OFFLINE};
+use rtu2mqtt_profile::contract::{Topics, OFFLINE};
 
 /// First wait after a connection error.
 pub const BACKOFF_INITIAL: Duration = Duration::from_millis(250);

@@ -16,9 +16,9 @@ use super::discovery;
 use super::guard::{TopicGuard, Verdict};
 use super::json_view;
 use super::state::{StateCache, StateUpdate};
-use crate::contract::{availability_word, Topics, OFFLINE, ONLINE};
 use crate::history::document;
-use crate::profile::Value;
+use rtu2mqtt_profile::contract::{availability_word, Topics, OFFLINE, ONLINE};
+use rtu2mqtt_profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
@@ -390,7 +390,7 @@ impl Publisher {
         }
         let (device, level) = self.topics.parse_device_topic(topic)?;
         let entry = self.devices.get(device)?;
-        if level == crate::contract::AVAILABILITY {
+        if level == rtu2mqtt_profile::contract::AVAILABILITY {
             return Some(Guarded::Availability(device.to_string()));
         }
         entry.profile.field(level)?;

@@ -1,4 +1,4 @@
-//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`payload`] is the
+//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`protobuf`] is the
 //! protobuf payload, [`metrics`] turns profile fields into typed metrics and command metrics
 //! back into command text, [`figures`] turns line statistics into node metrics, [`session`] is
 //! the pure edge node state machine. This module makes the session for a configuration
@@ -13,7 +13,7 @@
 pub mod bd_seq;
 pub mod figures;
 pub mod metrics;
-pub mod payload;
+pub mod protobuf;
 pub mod session;
 pub mod session_interface;
 
@@ -28,14 +28,14 @@ use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
 use crate::history::document::values_of;
 use crate::history::Record;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 pub use crate::config::sparkplug::{
     shared_broker, SparkplugConfig, SparkplugIdentity, CLIENT_ID_SUFFIX,
 };
 pub use crate::config::SparkplugSettings;
 pub use session::{
-    Action, HistoricalValues, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+    Action, ExternalCommand, HistoricalValues, NodeMetricSpec, Session, SessionSettings,
 };
 
 /// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
@@ -91,11 +91,11 @@ pub use crate::bridge::core::CommandReport;
 #[derive(Debug)]
 pub struct NodeLinks {
     pub line_events: broadcast::Receiver<LineEvent>,
-    pub commands: mpsc::Sender<SparkplugCommand>,
+    pub commands: mpsc::Sender<ExternalCommand>,
     pub reports: mpsc::Receiver<CommandReport>,
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
-    pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
-    pub shutdown: Shutdown,
+    pub node_values: mpsc::Receiver<Vec<(String, protobuf::MetricValue)>>,
+    pub shutdown: CancellationToken,
     /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,
     /// The records the bridge replays from the history journal (with `[history]`).
@@ -211,7 +211,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     let actions = session.history_batch(HISTORY_BATCH);
                     closing |= carry_out(&client, &links.commands, actions).await;
                 }
-                () = links.shutdown.fired(), if !closing => {
+                () = links.shutdown.cancelled(), if !closing => {
                     closing = true;
                     stop_by = Some(tokio::time::Instant::now() + CLOSE_GRACE);
                     end_session(&client, &mut session);
@@ -240,7 +240,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 // Outcomes of commands from before the connection was lost: the births
                 // carry the true values.
                 Some(_) = links.reports.recv() => {}
-                () = links.shutdown.fired() => return,
+                () = links.shutdown.cancelled() => return,
             }
         }
     }
@@ -285,7 +285,7 @@ fn end_session(client: &AsyncClient, session: &mut Session) {
 /// connection (the host went offline).
 async fn carry_out(
     client: &AsyncClient,
-    commands: &mpsc::Sender<SparkplugCommand>,
+    commands: &mpsc::Sender<ExternalCommand>,
     actions: Vec<Action>,
 ) -> bool {
     let mut closing = false;

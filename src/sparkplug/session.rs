@@ -13,13 +13,13 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use super::metrics::{DeviceMetrics, Refusal};
-use super::payload::{DataType, Metric, MetricValue, Payload};
+use super::protobuf::{DataType, Metric, MetricValue, Payload};
 pub use super::session_interface::{
-    Action, Delivery, HistoricalValues, NodeMetricSpec, SessionSettings, SparkplugCommand, Will,
+    Action, Delivery, ExternalCommand, HistoricalValues, NodeMetricSpec, SessionSettings, Will,
     BD_SEQ, DEVICES, DEVICES_ONLINE, HISTORY_QUEUE, NAMESPACE, REBIRTH, VERSION,
 };
 use crate::bus::{LineEvent, Origin};
-use crate::profile::{Profile, Value};
+use rtu2mqtt_profile::{Profile, Value};
 
 /// Aliases of a device's metrics start at this multiple of its (1-based) place in the list;
 /// node metrics use the aliases below the first.
@@ -530,7 +530,7 @@ impl Session {
         let mut republish = Vec::new();
         for metric in &payload.metrics {
             match self.devices[index].metrics.command_text(metric) {
-                Ok((def, text)) => actions.push(Action::Command(SparkplugCommand {
+                Ok((def, text)) => actions.push(Action::Command(ExternalCommand {
                     device: device.to_string(),
                     field: def.name.clone(),
                     text,
@@ -749,8 +749,8 @@ fn parse_host_state(payload: &[u8]) -> Option<(bool, u64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::registry;
-    use crate::profile::FieldKind;
+    use rtu2mqtt_profile::registry;
+    use rtu2mqtt_profile::FieldKind;
     use serde_json::Value as Json;
 
     const T: u64 = 1_700_000_000_000;
@@ -1126,12 +1126,12 @@ mod tests {
         assert_eq!(
             actions,
             [
-                Action::Command(SparkplugCommand {
+                Action::Command(ExternalCommand {
                     device: "dust".into(),
                     field: "gear".into(),
                     text: "8".into()
                 }),
-                Action::Command(SparkplugCommand {
+                Action::Command(ExternalCommand {
                     device: "dust".into(),
                     field: "power".into(),
                     text: "OFF".into()

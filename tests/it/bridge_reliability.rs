@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use rumqttc::QoS;
 use support::child::{self, KillOnDrop};
 use support::{fast_config, Gateway, Mosquitto, PlantConfig, TestClient};

@@ -24,13 +24,13 @@ use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
 use rtu2mqtt::bridge::state::StateUpdate;
 use rtu2mqtt::bus::LineStats;
-use rtu2mqtt::contract::{is_ha_online, json_view_topic, Topics};
-use rtu2mqtt::profile::{
+use rtu2mqtt_profile::contract::{is_ha_online, json_view_topic, Topics};
+use rtu2mqtt_profile::{
     registry, DeviceState, FieldInfo, FieldKind, HaHints, Identity, Profile, Value,
 };
-use rtu2mqtt::shutdown;
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_sim::SeedPlant;
 use support::{Mosquitto, PlantConfig, TestClient};
+use tokio_util::sync::CancellationToken;
 
 fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
     FieldInfo {
@@ -1374,7 +1374,8 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         std::path::Path::new("."),
     )
     .unwrap();
-    let (trigger, shutdown) = shutdown::channel();
+    let shutdown = CancellationToken::new();
+    let trigger = shutdown.clone();
     let gateway = tokio::spawn(run_gateway(config, shutdown, Hooks::default()));
 
     // A client that follows the command-result events exactly as announced.
@@ -1565,7 +1566,7 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         }
     }
 
-    trigger.fire();
+    trigger.cancel();
     tokio::time::timeout(ANSWER, gateway)
         .await
         .unwrap()

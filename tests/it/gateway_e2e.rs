@@ -7,7 +7,7 @@ use crate::support;
 use std::time::Duration;
 
 use rtu2mqtt::config::Config;
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::hex::{self, writes};
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 

@@ -10,9 +10,10 @@ use std::time::Duration;
 use mio_serial::SerialStream;
 use rtu2mqtt_modbus::clock::sleep_until_precise;
 use rtu2mqtt_modbus::codec::{self, request_frame_len};
-use rtu2mqtt_modbus::master::{Error, Master, MasterOptions, Reply};
+use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
+use rtu2mqtt_modbus::{Error, Reply};
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response, Transact};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
@@ -841,7 +842,7 @@ impl Write for TxInstants {
 /// which can only be later than the master's write.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
-    use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+    use rtu2mqtt_sim::{share, AirShower, ServeOptions, VirtualLine};
 
     const TRANSACTIONS: usize = 40;
     let baud = 38_400;

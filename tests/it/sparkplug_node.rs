@@ -10,15 +10,15 @@ use std::time::Duration;
 
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
-use rtu2mqtt::profile::{registry, Value};
-use rtu2mqtt::shutdown;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
-use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
-    run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+    run, CommandReport, ExternalCommand, NodeLinks, NodeMetricSpec, Session, SessionSettings,
 };
+use rtu2mqtt_profile::{registry, Value};
 use support::{Message, Mosquitto, TestClient};
 use tokio::sync::{broadcast, mpsc};
+use tokio_util::sync::CancellationToken;
 
 const WAIT: Duration = Duration::from_secs(10);
 const NBIRTH: &str = "spBv1.0/plant/NBIRTH/gw1";
@@ -109,10 +109,10 @@ fn command(name: &str, datatype: DataType, value: MetricValue) -> Vec<u8> {
 
 struct Node {
     events: broadcast::Sender<LineEvent>,
-    commands: mpsc::Receiver<SparkplugCommand>,
+    commands: mpsc::Receiver<ExternalCommand>,
     reports: mpsc::Sender<CommandReport>,
     node_values: mpsc::Sender<Vec<(String, MetricValue)>>,
-    trigger: shutdown::ShutdownTrigger,
+    trigger: CancellationToken,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -126,7 +126,8 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
     let (commands_tx, commands) = mpsc::channel(16);
     let (reports, reports_rx) = mpsc::channel(16);
     let (node_values, node_values_rx) = mpsc::channel(16);
-    let (trigger, shutdown) = shutdown::channel();
+    let shutdown = CancellationToken::new();
+    let trigger = shutdown.clone();
     let links = NodeLinks {
         line_events,
         commands: commands_tx,
@@ -211,7 +212,7 @@ async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
     let handed = tokio::time::timeout(WAIT, node.commands.recv()).await;
     assert_eq!(
         handed.ok().flatten(),
-        Some(SparkplugCommand {
+        Some(ExternalCommand {
             device: "dust".into(),
             field: "gear".into(),
             text: "8".into()
@@ -265,7 +266,7 @@ async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
     node.task.abort();
     let death = decode(&host.next_on(NDEATH, WAIT).await);
     assert_eq!(value_of(&death, "bdSeq"), bd_seq);
-    node.trigger.fire();
+    node.trigger.cancel();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -275,7 +276,7 @@ async fn an_orderly_shutdown_publishes_the_ndeath_itself() {
     host.subscribe("spBv1.0/plant/#").await;
     let node = start(session(None), broker.port);
     let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
-    node.trigger.fire();
+    node.trigger.cancel();
     let death = decode(&host.next_on(NDEATH, WAIT).await);
     assert_eq!(value_of(&death, "bdSeq"), value_of(&nbirth, "bdSeq"));
     let ended = tokio::time::timeout(WAIT, node.task).await;
@@ -351,7 +352,7 @@ async fn missed_line_events_bring_a_rebirth() {
     assert_eq!(reborn.seq, Some(0));
     assert_eq!(value_of(&reborn, "bdSeq"), Some(MetricValue::Long(0)));
     host.next_on(DBIRTH, WAIT).await;
-    node.trigger.fire();
+    node.trigger.cancel();
     let _ = tokio::time::timeout(WAIT, node.task).await;
 }
 
@@ -410,6 +411,6 @@ async fn a_restart_during_an_outage_takes_the_bd_seq_after_the_last_connection()
     let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
     assert_eq!(value_of(&nbirth, "bdSeq"), Some(MetricValue::Long(7)));
     assert_eq!(store.load(), 8);
-    node.trigger.fire();
+    node.trigger.cancel();
     let _ = tokio::time::timeout(WAIT, node.task).await;
 }

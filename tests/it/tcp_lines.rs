@@ -11,11 +11,11 @@ use crate::support::child;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use rtu2mqtt::sim::{
-    self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_sim::{
+    self as sim, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
     TcpSimulator, Valve, VirtualLine,
 };
-use rtu2mqtt_modbus::timing::Parity;
 use support::{free_port, Gateway, Mosquitto, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
@@ -538,7 +538,7 @@ address = 1
 
 /// Runs `rtu2mqtt args…` and returns its exit success and standard output.
 async fn run_cli(args: &[&str]) -> (bool, String) {
-    let mut command = Command::new(child::BIN);
+    let mut command = Command::new(child::gateway_binary());
     command.args(args);
     let output = child::output(command, Duration::from_secs(60))
         .await

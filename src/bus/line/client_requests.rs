@@ -11,7 +11,7 @@ use crate::bus::serve::policy;
 use crate::bus::serve::{Access, ClientRequest};
 use crate::bus::transaction::{Exchange, Failure};
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
-use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 
 /// Client requests: the cache, the profile's write planning, and the exchange on the line.

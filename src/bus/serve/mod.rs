@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use tokio::sync::oneshot;
 
-use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{Request, SlaveId};
 
 /// Connections a server takes when `max_clients` is not set.
