@@ -45,7 +45,7 @@ use std::time::{Duration, Instant};
 
 use block_device::{
     command_window, millis, ms_f, over_rounds, profile_text, spawn_line, transaction_wire_time,
-    wire_figures, ResultAfter, Wire, BAUD,
+    wire_figures, ResultAfter, Wire, Writes, BAUD,
 };
 use gateway_process::{GatewayProcess, Memory};
 use rtu2mqtt_modbus::timing::LineTiming;
@@ -185,11 +185,13 @@ async fn one_line(
         &gateway,
         &line,
         &client,
-        "plant/block-1-1/setpoint/set",
+        Writes {
+            topic: "plant/block-1-1/setpoint/set",
+            first_value: 1000 + 100 * (run % 500) as u16,
+            count: COMMANDS,
+        },
         &mut results,
-        1000 + 100 * (run % 500) as u16,
         WINDOW,
-        COMMANDS,
     )
     .await?;
     gateway.stop();

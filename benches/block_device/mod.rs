@@ -318,32 +318,37 @@ impl Window {
     }
 }
 
-/// A window of `length` with `commands` writes of the setpoint published evenly on
-/// `command_topic` (values `first_value`, `first_value + 1`, …; QoS 1), each in the middle of
-/// its share of the window; `results` notes the arrivals of whatever answers them.
+/// The writes a window publishes: `count` of them on `topic` (QoS 1), values `first_value`,
+/// `first_value + 1`, …
+pub struct Writes<'a> {
+    pub topic: &'a str,
+    pub first_value: u16,
+    pub count: u32,
+}
+
+/// A window of `length` with `writes` published evenly, each in the middle of its share of
+/// the window; `results` notes the arrivals of whatever answers them.
 pub async fn command_window(
     gateway: &GatewayProcess,
     line: &VirtualLine,
     client: &AsyncClient,
-    command_topic: &str,
+    writes: Writes<'_>,
     results: &mut UnboundedReceiver<Instant>,
-    first_value: u16,
     length: Duration,
-    commands: u32,
 ) -> anyhow::Result<Window> {
     while results.try_recv().is_ok() {}
     let start = Instant::now();
     let cpu_start = gateway.cpu_time()?;
     let simulator_start = cpu_time_of("self")?;
     let mut published = Vec::new();
-    let every = length / commands.max(1);
-    for i in 0..commands {
-        let value = first_value.wrapping_add(i as u16);
+    let every = length / writes.count.max(1);
+    for i in 0..writes.count {
+        let value = writes.first_value.wrapping_add(i as u16);
         tokio::time::sleep_until((start + every * i + every / 2).into()).await;
         published.push((value, Instant::now()));
         client
             .publish(
-                command_topic,
+                writes.topic,
                 QoS::AtLeastOnce,
                 false,
                 value.to_string().into_bytes(),
