@@ -23,10 +23,11 @@ pub const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 /// Waits until `deadline`, overshooting as little as the host allows.
 ///
 /// Sleeps on a timerfd set to the deadline: a timerfd's expiry has no timer slack, so the
-/// overshoot is the wake-up of the runtime's thread alone. Yielding to the runtime until the
-/// deadline (a spin that looks at the reactor on every turn) would shave a few tens of
-/// microseconds off the overshoot for a system call per turn, and was the larger part of a
-/// transaction's CPU time (`cargo bench --bench peer_compare`). Without a timerfd the tokio
+/// overshoot is the wake-up of the runtime's thread alone. Yielding to the runtime for the
+/// last stretch before the deadline (a spin that looks at the reactor on every turn) shaves a
+/// little off the overshoot for a system call per turn, which cost a large share of a
+/// transaction's CPU time (`cargo bench --bench peer_compare`, docs/performance.md). Without a
+/// timerfd the tokio
 /// timer sleeps until [`SPIN_WINDOW`] before the deadline and the rest is yielded away
 /// (`tokio::task::yield_now`), so other tasks keep running even on a current_thread runtime
 /// and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with

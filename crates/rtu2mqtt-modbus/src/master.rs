@@ -360,20 +360,17 @@ impl Master {
                 last_byte_at + gap_limit
             };
             // Once the length is known (from the third byte on), the rest cannot be complete
-            // before its wire time: it is waited for in one go, not with a wake-up per byte,
-            // and with the port unwatched, so that the bytes arriving meanwhile do not each
-            // wake the runtime either (the read below takes them all at once). Only once:
-            // bytes still missing after it come a little after their wire time (a byte-paced
-            // line always lags by some microseconds), and their arrival wakes the read, so
-            // that the answer ends, and t3.5 starts, when its last byte came, not a character
-            // time later.
+            // before its wire time: it is waited for in one go, not with a wake-up per byte.
+            // Only once: bytes still missing after it come a little after their wire time
+            // (a byte-paced line always lags by some microseconds), and their arrival wakes
+            // the read, so that the answer ends, and t3.5 starts, when its last byte came,
+            // not a character time later.
             if let Framing::NeedMore { needed } = framing {
                 if received.len() >= 3 && !rest_waited_for {
                     rest_waited_for = true;
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
                     if due > Instant::now() {
-                        self.port.unwatch_input();
                         self.timer.sleep_until(due.min(wait_until)).await;
                     }
                 }

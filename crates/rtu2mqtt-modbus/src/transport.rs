@@ -5,17 +5,16 @@
 //! waits until the transmit buffer has drained (tcdrain), reads bytes with deadlines, discards
 //! stray input, and optionally switches the kernel's RS485 mode on.
 
-use std::io::{self, Write};
+use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
 use std::time::Duration;
 
 use mio_serial::{DataBits, SerialPort, SerialStream, StopBits};
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
 use tokio::time::Instant;
 
 use super::timing::{CharFormat, Parity};
-use read_watch::ReadWatch;
-
-mod read_watch;
 
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -71,10 +70,8 @@ pub struct Port {
     /// Registered with the reactor for reading only. The transmit side signals "writable" each
     /// time the driver moves bytes out (on a pty: each time the other end reads), and with
     /// write interest every such signal woke the runtime for nothing, about once per
-    /// transaction; writes never need the reactor (see [`Port::write_all`]). The read watch is
-    /// lifted while the rest of an answer is known not to be there yet
-    /// ([`Port::unwatch_input`]).
-    stream: ReadWatch,
+    /// transaction; writes never need the reactor (see [`Port::write_all`]).
+    stream: AsyncFd<SerialStream>,
     path: String,
     pseudo_terminal: bool,
 }
@@ -158,7 +155,10 @@ impl Port {
             // Exclusive access is a safeguard, not a requirement for talking on the line.
             tracing::warn!(path = %path, %error, "cannot get exclusive access (TIOCEXCL)");
         }
-        let stream = ReadWatch::new(stream)?;
+        // SAFETY: the AsyncFd owns the stream, whose descriptor stays open and the same until
+        // the AsyncFd is dropped. Needs the runtime's I/O driver.
+        let stream = unsafe { AsyncFd::register_with_interest(stream, Interest::READABLE) }
+            .map_err(io::Error::from)?;
         let mut port = Port {
             stream,
             path,
@@ -380,7 +380,7 @@ impl Port {
         buf: &mut [u8],
         deadline: Instant,
     ) -> io::Result<Option<(usize, Instant)>> {
-        match tokio::time::timeout_at(deadline, self.stream.read(buf)).await {
+        match tokio::time::timeout_at(deadline, self.read(buf)).await {
             Err(_elapsed) => Ok(None),
             Ok(Ok(0)) if !buf.is_empty() => Err(port_gone(&self.path)),
             Ok(Ok(count)) => Ok(Some((count, Instant::now()))),
@@ -393,7 +393,10 @@ impl Port {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
         loop {
-            match self.stream.try_read(&mut chunk) {
+            match self
+                .stream
+                .try_io(Interest::READABLE, |mut stream| stream.read(&mut chunk))
+            {
                 Ok(0) => return Err(port_gone(&self.path)),
                 Ok(count) => pending.extend_from_slice(&chunk[..count]),
                 Err(error) if error.kind() == io::ErrorKind::WouldBlock => return Ok(pending),
@@ -403,13 +406,14 @@ impl Port {
         }
     }
 
-    /// Stops the runtime waking for received bytes until the next read or
-    /// [`Port::take_pending`]: for a wait in which none is wanted yet (the rest of an answer
-    /// that cannot be complete before its wire time), so that the bytes arriving one by one
-    /// do not each wake the runtime for nothing. They are read at once afterwards; no byte is
-    /// lost or delayed beyond the wait.
-    pub fn unwatch_input(&mut self) {
-        self.stream.lift();
+    /// Waits for received bytes and reads them into `buf`.
+    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            let mut ready = self.stream.readable().await?;
+            if let Ok(result) = ready.try_io(|stream| stream.get_ref().read(buf)) {
+                return result;
+            }
+        }
     }
 
     /// Writes all of `frame` into the kernel's transmit buffer. It has room for a frame
