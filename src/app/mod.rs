@@ -206,6 +206,7 @@ impl NodeWiring {
             shutdown: shutdown.clone(),
             bd_seq_store: self.bd_seq_store,
             replayed,
+            packet_limit: bridge.packet_limit("sparkplug", sparkplug::MAX_OUTGOING_PACKET),
         };
         let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
         (bridge_events_rx, task)

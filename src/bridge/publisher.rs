@@ -102,6 +102,11 @@ impl Publisher {
         &self.devices
     }
 
+    /// The configured lines' names, in order.
+    pub fn line_names(&self) -> &[String] {
+        &self.line_names
+    }
+
     pub fn cache(&self) -> &StateCache {
         &self.cache
     }
@@ -130,17 +135,31 @@ impl Publisher {
 
     /// Every ConnAck: subscriptions are not restored by rumqttc, and a clean session has lost
     /// whatever was unacknowledged, so everything is sent again, and what waited goes out.
+    /// State topics are not subscribed to: they are audited one device at a time
+    /// ([`Self::audit_turn`]).
     pub fn connected(&mut self) {
         self.connected = true;
-        self.guard.reset();
+        // A persistent session keeps what an earlier connection subscribed to: the audit the
+        // lost connection interrupted, and every device's topics as earlier versions watched
+        // them.
+        if let Some(device) = self.guard.reset() {
+            self.out.push(Action::UnsubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+            });
+        }
+        self.out.push(Action::UnsubscribeInTurn {
+            filter: self.topics.device_topics_filter(),
+        });
         self.subscribe(self.topics.command_filter());
         self.subscribe(self.topics.gateway_status_topic());
-        self.subscribe(self.topics.device_topics_filter());
+        self.subscribe(self.topics.availability_filter());
+        self.subscribe(self.topics.refresh_filter());
         if self.discovery {
             // Home Assistant's birth message, and our own earlier configs (to remove those of
             // devices no longer configured).
             self.subscribe(self.topics.ha_status_topic());
             self.subscribe(self.topics.config_filter());
+            self.subscribe(self.topics.line_config_filter());
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
         self.publish_discovery();
@@ -191,7 +210,7 @@ impl Publisher {
         if !self.connected {
             return false;
         }
-        if retain && self.guarded(&topic).is_some() {
+        if retain && self.guarded(&topic).is_some_and(|g| self.is_watched(&g)) {
             self.guard.sent(&topic, &payload);
         }
         self.out.push(Action::Publish(Publish {
@@ -243,8 +262,12 @@ impl Publisher {
         // Each document is serialized as soon as it is built: a JSON tree is several times
         // the size of its text, and a gateway with hundreds of devices would otherwise hold
         // all of their trees at once.
-        let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
+        let (topic, document) = discovery::gateway_config(&self.topics);
         let mut payloads = vec![(topic, document.to_string())];
+        for line in &self.line_names {
+            let (topic, document) = discovery::line_config(&self.topics, line);
+            payloads.push((topic, document.to_string()));
+        }
         for device in self.cache.devices() {
             if let Some(entry) = self.devices.get(device) {
                 let (topic, document) = discovery::device_config_with_state(
@@ -371,6 +394,15 @@ impl Publisher {
         }
     }
 
+    /// One of our own line documents as the broker holds it: removed when its line is no
+    /// longer configured.
+    pub fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+        if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
+            tracing::info!(%topic, "removing the discovery config of a line no longer configured");
+            self.publish(topic.to_string(), String::new(), true);
+        }
+    }
+
     /// One of our own discovery documents as the broker holds it: removed when its device is
     /// no longer configured.
     pub fn on_config(&mut self, topic: &str, payload: &[u8]) {
@@ -397,6 +429,53 @@ impl Publisher {
         Some(Guarded::State(device.to_string(), level.to_string()))
     }
 
+    /// Whether the broker hands this gateway what is published on the topic now: the status
+    /// and availability always, a state topic only while its device is audited.
+    fn is_watched(&self, guarded: &Guarded) -> bool {
+        match guarded {
+            Guarded::Status | Guarded::Availability(_) => true,
+            Guarded::State(device, _) => self.guard.audited() == Some(device.as_str()),
+        }
+    }
+
+    /// The state audit's turn (every tick while connected): the audit whose window has passed
+    /// ends, the next device's begins. Both go behind what is queued, so the broker hands
+    /// over the device's topics as the gateway's earlier publishes left them.
+    pub fn audit_turn(&mut self, now: Instant) {
+        if !self.connected {
+            return;
+        }
+        let topics = &self.topics;
+        let devices = &self.devices;
+        // A device's state topics, its availability and its refresh topic.
+        let topics_of = |device: &str| {
+            devices
+                .get(device)
+                .map_or(0, |entry| entry.profile.fields().len() + 2)
+        };
+        let turn = self
+            .guard
+            .audit_turn(self.cache.devices(), now, topics_of, |device, topic| {
+                // Availability is watched all the time: its echoes still come.
+                topics
+                    .parse_device_topic(topic)
+                    .is_some_and(|(owner, level)| {
+                        owner == device && level != rtu2mqtt_profile::contract::AVAILABILITY
+                    })
+            });
+        if let Some(device) = turn.ended {
+            self.out.push(Action::UnsubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+            });
+        }
+        if let Some(device) = turn.started {
+            self.out.push(Action::SubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+                qos: QoS::AtLeastOnce,
+            });
+        }
+    }
+
     /// What the topic must say now; None when there is nothing to defend yet.
     fn truth(&self, guarded: &Guarded) -> Option<String> {
         match guarded {
@@ -413,6 +492,11 @@ impl Publisher {
     /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
     /// was overwritten again too soon (then later, [`Self::reassert_due`]).
     pub fn on_guarded(&mut self, guarded: Guarded, topic: &str, payload: &[u8], now: Instant) {
+        // A state topic outside its audit: a late message of an audit that has ended, or of
+        // a subscription an earlier connection left behind.
+        if !self.is_watched(&guarded) {
+            return;
+        }
         let Some(truth) = self.truth(&guarded) else {
             return;
         };

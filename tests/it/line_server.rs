@@ -168,13 +168,11 @@ impl Harness {
 
     /// The next statistics document whose figures of the served line satisfy `accept`.
     async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
-        let topic = format!("plant/gateway/{}/stats", self.client_id);
-        let line = self.line;
+        let topic = format!("plant/gateway/{}/stats/{}", self.client_id, self.line);
         self.mqtt
-            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"][line]))
+            .wait_for(&topic, ANSWER, |m| accept(&m.json()))
             .await
-            .json()["lines"][line]
-            .clone()
+            .json()
     }
 }
 

@@ -8,6 +8,7 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
+use rtu2mqtt::bridge::mqtt::{publish_packet_size, PacketLimit};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
@@ -16,6 +17,7 @@ use rtu2mqtt::sparkplug::{
     run, CommandReport, ExternalCommand, NodeLinks, NodeMetricSpec, Session, SessionSettings,
 };
 use rtu2mqtt_profile::{registry, Value};
+use rumqttc::QoS;
 use support::{Message, Mosquitto, TestClient};
 use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
@@ -122,6 +124,17 @@ fn start(session: Session, port: u16) -> Node {
 
 /// Like [`start`], keeping bdSeq in `bd_seq_store`.
 fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> Node {
+    let limit = PacketLimit::new(rtu2mqtt::sparkplug::MAX_OUTGOING_PACKET, "sparkplug");
+    start_limited(session, port, bd_seq_store, limit)
+}
+
+/// Like [`start_with`], sending nothing larger than `packet_limit` allows.
+fn start_limited(
+    session: Session,
+    port: u16,
+    bd_seq_store: Option<BdSeqStore>,
+    packet_limit: PacketLimit,
+) -> Node {
     let (events, line_events) = broadcast::channel(64);
     let (commands_tx, commands) = mpsc::channel(16);
     let (reports, reports_rx) = mpsc::channel(16);
@@ -136,6 +149,7 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         shutdown,
         bd_seq_store,
         replayed: None,
+        packet_limit,
     };
     let task = tokio::spawn(run(session, settings(port), links));
     Node {
@@ -146,6 +160,54 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         trigger,
         task,
     }
+}
+
+/// The sizes of the NBIRTH and of the dust collector's DBIRTH the node sends, as MQTT packets.
+fn birth_sizes() -> (usize, usize) {
+    let mut probe = session(None);
+    probe.prepare_connect(0);
+    let mut actions = probe.on_connected(rtu2mqtt::sparkplug::now_millis());
+    actions.extend(probe.on_line_event(rtu2mqtt::sparkplug::now_millis(), &dust(3)));
+    let size_of = |wanted: &str| {
+        actions.iter().find_map(|action| match action {
+            rtu2mqtt::sparkplug::Action::Publish { topic, payload, .. } if topic == wanted => {
+                Some(publish_packet_size(topic, payload.len(), QoS::AtLeastOnce))
+            }
+            _ => None,
+        })
+    };
+    let nbirth = size_of(NBIRTH).expect("an NBIRTH");
+    let dbirth = size_of(DBIRTH).expect("a DBIRTH");
+    (nbirth, dbirth)
+}
+
+/// A birth larger than the node's packet limit is refused alone: the connection stays (the
+/// broker never publishes the NDEATH Will), what fits keeps flowing, the refusal is counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_birth_over_the_packet_limit_is_refused_and_the_connection_stays() {
+    let (nbirth, dbirth) = birth_sizes();
+    // Room for the NBIRTH (its timestamps may take a few more bytes), not for the DBIRTH.
+    let max = nbirth + 32;
+    assert!(dbirth > max, "NBIRTH {nbirth} bytes, DBIRTH {dbirth} bytes");
+    let limit = PacketLimit::new(max, "sparkplug");
+    let counted = limit.for_connection("count", max);
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "limit-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start_limited(session(None), broker.port, None, limit);
+    host.next_on(NBIRTH, WAIT).await;
+    let _ = node.events.send(dust(3));
+    let _ = node
+        .node_values
+        .send(vec![(BUS_LOAD.to_string(), MetricValue::Float(0.5))])
+        .await;
+    host.next_on(NDATA, WAIT).await;
+    host.settle(Duration::from_millis(500)).await;
+    assert!(host.on(DBIRTH).is_empty(), "the DBIRTH went out");
+    assert!(host.on(NDEATH).is_empty(), "the connection was lost");
+    assert_eq!(counted.refused(), 1);
+    node.trigger.cancel();
+    let _ = tokio::time::timeout(WAIT, node.task).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -138,7 +138,7 @@ impl Topics {
     }
 
     /// `<prefix>/<device>/refresh`: a message there (not retained) has every block of the
-    /// device read at once. It arrives on [`Topics::device_topics_filter`].
+    /// device read at once. It arrives on [`Topics::refresh_filter`].
     pub fn refresh_topic(&self, device: &str) -> String {
         format!("{}/{device}/{REFRESH}", self.prefix)
     }
@@ -166,9 +166,26 @@ impl Topics {
         format!("{}/{GATEWAY_DEVICE}/{}/status", self.prefix, self.client_id)
     }
 
-    /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics document.
+    /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics summary.
     pub fn gateway_stats_topic(&self) -> String {
         format!("{}/{GATEWAY_DEVICE}/{}/stats", self.prefix, self.client_id)
+    }
+
+    /// `<prefix>/gateway/<client_id>/stats/<line>`: one line's statistics, its devices'
+    /// included (one document per line keeps each one bounded, whatever the number of lines).
+    pub fn line_stats_topic(&self, line: &str) -> String {
+        format!("{}/{line}", self.gateway_stats_topic())
+    }
+
+    /// Whether `topic` is the statistics summary or one line's statistics.
+    pub fn is_stats_topic(&self, topic: &str) -> bool {
+        let summary = self.gateway_stats_topic();
+        topic.strip_prefix(summary.as_str()).is_some_and(|rest| {
+            rest.is_empty()
+                || rest
+                    .strip_prefix('/')
+                    .is_some_and(|line| !line.is_empty() && !line.contains('/'))
+        })
     }
 
     /// The subscription that carries every command: `<prefix>/+/+/set`.
@@ -190,10 +207,27 @@ impl Topics {
         Some((device, field))
     }
 
-    /// The subscription that carries every device's state and availability, ours and other
-    /// gateways', and the refresh requests: `<prefix>/+/+`.
+    /// `<prefix>/+/+`: every device's state, availability and refresh topic. The gateway
+    /// no longer subscribes to it (it would bring all of its own state back); it is removed
+    /// from a persistent session that still holds it.
     pub fn device_topics_filter(&self) -> String {
         format!("{}/+/+", self.prefix)
+    }
+
+    /// `<prefix>/+/availability`: every device's availability, ours and other gateways'.
+    pub fn availability_filter(&self) -> String {
+        self.availability_topic("+")
+    }
+
+    /// `<prefix>/+/refresh`: the refresh requests.
+    pub fn refresh_filter(&self) -> String {
+        self.refresh_topic("+")
+    }
+
+    /// `<prefix>/<device>/+`: one device's state topics (and its availability and refresh
+    /// topics), watched while the device is audited.
+    pub fn device_filter(&self, device: &str) -> String {
+        format!("{}/{device}/+", self.prefix)
     }
 
     /// `(device, level)` of a topic exactly two levels under the prefix: a state topic
@@ -271,6 +305,33 @@ impl Topics {
     /// `homeassistant/device/<client_id>_gateway/config`.
     pub fn gateway_config_topic(&self) -> String {
         self.config_topic(GATEWAY_DEVICE)
+    }
+
+    /// `homeassistant/device/<client_id>_gateway/<line>/config`: the document of one line's
+    /// sensors on the gateway device (the discovery topic's optional node id level keeps it
+    /// apart from every device's config topic).
+    pub fn line_config_topic(&self, line: &str) -> String {
+        format!(
+            "{}/device/{}/{line}/config",
+            self.discovery_prefix,
+            self.device_id(GATEWAY_DEVICE)
+        )
+    }
+
+    /// Where this gateway's line documents are found: `homeassistant/device/<client_id>_gateway/+/config`.
+    pub fn line_config_filter(&self) -> String {
+        self.line_config_topic("+")
+    }
+
+    /// The line of a [`Topics::line_config_topic`], or None.
+    pub fn line_of_config_topic<'t>(&self, topic: &'t str) -> Option<&'t str> {
+        let gateway = format!(
+            "{}/device/{}/",
+            self.discovery_prefix,
+            self.device_id(GATEWAY_DEVICE)
+        );
+        let line = topic.strip_prefix(&gateway)?.strip_suffix("/config")?;
+        (!line.is_empty() && !line.contains('/')).then_some(line)
     }
 
     /// What to subscribe to for finding the configs this gateway published earlier. MQTT

@@ -1,7 +1,8 @@
 //! What the demo leaves behind on a broker it did not start: nothing. While it runs, it notes
 //! every topic of its own devices and gateway it sees (`<prefix>/<device>/…`,
 //! `<prefix>/gateway/<client_id>/…`) and every discovery document of its client id
-//! (`<discovery_prefix>/device/<client_id>_…/config`); after the gateway stopped it publishes an
+//! (`<discovery_prefix>/device/<client_id>_…/config`, and the gateway's line documents
+//! `<discovery_prefix>/device/<client_id>_gateway/<line>/config`); after the gateway stopped it publishes an
 //! empty retained message on each, which removes whatever the broker kept there, so Home
 //! Assistant on that broker shows no ghost devices and `plant/…` holds no stale values.
 //! Topics of other gateways and devices are never touched.
@@ -52,7 +53,7 @@ impl Leftovers {
     pub(super) fn discovery_filter(&self) -> Option<String> {
         self.discovery
             .as_ref()
-            .map(|(levels, _)| format!("{levels}+/config"))
+            .map(|(levels, _)| format!("{levels}#"))
     }
 
     /// Remembers `topic` when it is one of the demo's own.
@@ -62,7 +63,12 @@ impl Leftovers {
             topic
                 .strip_prefix(levels.as_str())
                 .and_then(|rest| rest.strip_suffix("/config"))
-                .is_some_and(|object| object.starts_with(id.as_str()) && !object.contains('/'))
+                .and_then(|object| object.strip_prefix(id.as_str()))
+                .is_some_and(|object| match object.split_once('/') {
+                    None => true,
+                    // The gateway's line documents.
+                    Some((node, line)) => node == "gateway" && !line.contains('/'),
+                })
         });
         if own || discovered {
             self.seen.insert(topic.to_string());
@@ -135,11 +141,14 @@ mod tests {
             "plant/gateway/rtu2mqtt-demo/stats/commands",
             "homeassistant/device/rtu2mqtt-demo_valve/config",
             "homeassistant/device/rtu2mqtt-demo_gateway/config",
+            "homeassistant/device/rtu2mqtt-demo_gateway/line-a/config",
             // Another gateway's, another device's, someone else's discovery: not ours.
             "plant/gateway/edge-1/status",
             "plant/boiler/temperature",
             "plant/valves/opening",
             "homeassistant/device/edge-1_valve/config",
+            "homeassistant/device/edge-1_gateway/line-a/config",
+            "homeassistant/device/rtu2mqtt-demo_valve/x/config",
             "homeassistant/sensor/rtu2mqtt-demo_valve/config",
             "homeassistant/status",
         ] {
@@ -149,6 +158,7 @@ mod tests {
             leftovers.topics(),
             vec![
                 "homeassistant/device/rtu2mqtt-demo_gateway/config",
+                "homeassistant/device/rtu2mqtt-demo_gateway/line-a/config",
                 "homeassistant/device/rtu2mqtt-demo_valve/config",
                 "plant/air_shower/wind/result",
                 "plant/gateway/rtu2mqtt-demo/stats/commands",
@@ -159,7 +169,7 @@ mod tests {
         );
         assert_eq!(
             leftovers.discovery_filter().as_deref(),
-            Some("homeassistant/device/+/config")
+            Some("homeassistant/device/#")
         );
         assert_eq!(
             Leftovers::new("demo", "x", &devices, None).discovery_filter(),
