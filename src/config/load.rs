@@ -9,7 +9,7 @@ use std::path::Path;
 
 use config::{Environment, File, FileFormat};
 
-use super::read::{read_leniently, Loaded};
+use super::deserialize::{read_leniently, Loaded};
 use super::schema::RawConfig;
 use super::tree::Tree;
 use super::{Problem, Problems};

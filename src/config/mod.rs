@@ -1,6 +1,6 @@
 //! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
 //! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) into one typed [`tree`], read
-//! by serde strictly with every problem placed ([`read`]), and complete validation
+//! by serde strictly with every problem placed ([`deserialize`]), and complete validation
 //! ([`validate`]) that runs every section's checks and names the place of every problem before
 //! anything is opened. Each section is
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
@@ -12,6 +12,7 @@
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
+pub mod deserialize;
 pub mod devices;
 pub mod gateway;
 pub mod health;
@@ -21,7 +22,6 @@ pub mod load;
 pub mod mqtt;
 pub mod names;
 pub mod poll_plan;
-pub mod read;
 pub mod schema;
 pub mod sparkplug;
 pub mod tree;
@@ -197,7 +197,7 @@ pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
 
 /// Validates what reading found. Problems of the reading stage come first; validation of the
 /// rest follows, leaving out problems at a place the reading stage already reported.
-fn validate_loaded(loaded: read::Loaded, base: &Path) -> Result<Config, Problems> {
+fn validate_loaded(loaded: deserialize::Loaded, base: &Path) -> Result<Config, Problems> {
     let Some(raw) = &loaded.raw else {
         return Err(Problems(loaded.problems));
     };

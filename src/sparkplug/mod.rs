@@ -22,7 +22,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{
+use crate::bridge::driver::connection::{
     client, connect_went_out, options, Backoff, PacketLimit, MAX_INCOMING_PACKET, REQUEST_QUEUE,
 };
 

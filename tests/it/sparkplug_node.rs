@@ -8,7 +8,7 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rtu2mqtt::bridge::mqtt::{publish_packet_size, PacketLimit};
+use rtu2mqtt::bridge::driver::connection::{publish_packet_size, PacketLimit};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;

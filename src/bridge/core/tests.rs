@@ -9,9 +9,7 @@ use rand::SeedableRng;
 use rumqttc::QoS;
 use serde_json::Value as Json;
 
-use super::core::{
-    Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming,
-};
+use super::{Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming};
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
 use rtu2mqtt_profile::contract::Topics;
