@@ -20,8 +20,8 @@ use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
 use rtu2mqtt_modbus::frame_log::FrameLog;
+use rtu2mqtt_modbus::serial::transport::SerialSettings;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_profile::{DeviceState, Profile};
 use rtu2mqtt_sim::{share, AirShower, ServeOptions, VirtualLine};
 use tokio_util::sync::CancellationToken;

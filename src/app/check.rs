@@ -15,7 +15,7 @@ use crate::bus::Transport;
 use crate::config::poll_plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
 use crate::history::Journal;
-use rtu2mqtt_modbus::tcp_link::TcpKind;
+use rtu2mqtt_modbus::tcp::masters::TcpKind;
 use rtu2mqtt_profile::registry::describe_read;
 use rtu2mqtt_profile::PollClass;
 

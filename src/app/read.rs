@@ -15,10 +15,12 @@ use anyhow::{bail, Context as _};
 use crate::cli::{parse_parity, ReadArgs};
 use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{Master, MasterOptions};
-use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings, TransportError};
+use rtu2mqtt_modbus::tcp::masters::{
+    ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions,
+};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt_modbus::transport::{Port, SerialSettings, TransportError};
 use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
 use rtu2mqtt_profile::bcd;
 

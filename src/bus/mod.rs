@@ -1,5 +1,5 @@
 //! One task per line (a serial port or a TCP link). [`spawn_line`] starts it: it owns the port (through
-//! [`rtu2mqtt_modbus::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
+//! [`rtu2mqtt_modbus::serial::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
 //! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll;
@@ -32,8 +32,8 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
-use rtu2mqtt_modbus::transport::SerialSettings;
+use rtu2mqtt_modbus::serial::transport::SerialSettings;
+use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::SlaveId;
 use rtu2mqtt_profile::{CommandPlan, Profile, PublishRule, Value};
 

@@ -14,10 +14,10 @@
 use std::time::{Duration, Instant};
 
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{Master, MasterOptions};
-use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpKind};
+use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::transport::{Port, TransportError};
+use rtu2mqtt_modbus::tcp::masters::{ModbusTcpMaster, RawTcpMaster, TcpKind};
 use rtu2mqtt_modbus::timing::LineTiming;
-use rtu2mqtt_modbus::transport::{Port, TransportError};
 
 use super::{LineSpec, Transport};
 

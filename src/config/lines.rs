@@ -15,9 +15,9 @@ use super::schema::{RawLine, RawServe};
 use super::Problem;
 use crate::bus::serve::{Access, ServeFraming, ServeSpec};
 use crate::bus::{LineSpec, Transport};
-use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::serial::transport::{Rs485Settings, SerialSettings};
+use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::timing::CharFormat;
-use rtu2mqtt_modbus::transport::{Rs485Settings, SerialSettings};
 use rtu2mqtt_profile::Profile;
 
 /// Baud rates a Modbus RTU line may be configured with.

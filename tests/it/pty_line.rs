@@ -18,8 +18,8 @@ use rtu2mqtt::bus::{
     spawn_line, Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle,
     LineSpec,
 };
+use rtu2mqtt_modbus::serial::transport::SerialSettings;
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};
-use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_profile::{registry, CommandPlan, DeviceState, Profile, Value};
 use rtu2mqtt_sim::{
     self as sim, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,

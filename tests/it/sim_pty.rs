@@ -688,9 +688,9 @@ async fn seed_plant_serves_both_lines() {
 // simulators were written from docs/devices.md apart from the profiles, so this is where a profile
 // that writes the wrong bits or reads the wrong places shows.
 
-use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming};
-use rtu2mqtt_modbus::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::{Request, Response, Transact};
 use rtu2mqtt_profile::{DeviceState, Profile, Verification};
 

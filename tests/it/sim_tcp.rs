@@ -6,10 +6,11 @@ use crate::support::child;
 
 use std::time::Duration;
 
-use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{decode_answer, encode_request, Answer};
+use rtu2mqtt_modbus::link::answer_framing::{AnswerFramer, Framed};
+use rtu2mqtt_modbus::tcp::mbap;
 use rtu2mqtt_modbus::timing::Parity;
-use rtu2mqtt_modbus::{mbap, Request, Response};
+use rtu2mqtt_modbus::{Request, Response};
 use rtu2mqtt_sim::{
     share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
 };

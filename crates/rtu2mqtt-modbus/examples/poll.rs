@@ -5,9 +5,9 @@
 
 use std::time::Duration;
 
-use rtu2mqtt_modbus::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
+use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt_modbus::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::{Request, Response, Transact};
 
 /// A number written in decimal or as `0x…`.

@@ -16,24 +16,28 @@
 //! Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
 //! daemon's configuration check, discovery and bridge, and by the demo.
 
+// Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
+// prints with `{:?}`, the 2018 idioms.
+#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+
 pub mod bcd;
 pub mod codec;
-pub mod command;
-pub mod compile;
+mod command;
+mod compile;
 pub mod contract;
-pub mod field;
-pub mod format;
+mod field;
+mod format;
 pub mod model;
-pub mod number;
-pub mod numeric;
+mod number;
+mod numeric;
 pub mod publish;
-pub mod raw;
-pub mod registers;
+mod raw;
+mod registers;
 pub mod registry;
-pub mod rejection;
+mod rejection;
 pub mod sunspec;
-pub mod text;
-pub mod value;
+mod text;
+mod value;
 
 use std::collections::HashMap;
 use std::sync::Arc;

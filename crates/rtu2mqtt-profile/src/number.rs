@@ -10,7 +10,7 @@
 
 /// A number as written: its sign and its digits, not yet scaled to any precision.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct DecimalText<'a> {
+pub(crate) struct DecimalText<'a> {
     negative: bool,
     whole: &'a str,
     fraction: &'a str,
@@ -18,7 +18,7 @@ pub struct DecimalText<'a> {
 
 /// Why a number cannot be taken at a given precision.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ScaleError {
+pub(crate) enum ScaleError {
     /// More decimals than the precision allows (digits other than trailing zeros).
     TooPrecise,
     /// Too large for any field (beyond ±2^127 scaled units).
@@ -27,7 +27,7 @@ pub enum ScaleError {
 
 impl<'a> DecimalText<'a> {
     /// Reads `text` (blanks around it ignored); None when it is not a number by the grammar.
-    pub fn parse(text: &'a str) -> Option<Self> {
+    pub(crate) fn parse(text: &'a str) -> Option<Self> {
         let text = text.trim();
         let (negative, unsigned) = match text.strip_prefix('-') {
             Some(rest) => (true, rest),
@@ -49,14 +49,14 @@ impl<'a> DecimalText<'a> {
     }
 
     /// How many decimals the number is written with (`12.340` → 3), at most 255.
-    pub fn places(&self) -> u8 {
+    pub(crate) fn places(&self) -> u8 {
         u8::try_from(self.fraction.len()).unwrap_or(u8::MAX)
     }
 
     /// The number in units of 10^-`precision` (`12.34` at 2 → 1234), exactly. Trailing zeros
     /// beyond the precision are fine (`12.340`); any other extra digit is refused, whatever the
     /// magnitude.
-    pub fn scaled(&self, precision: u8) -> Result<i128, ScaleError> {
+    pub(crate) fn scaled(&self, precision: u8) -> Result<i128, ScaleError> {
         let places = usize::from(precision);
         let (kept, extra) = if self.fraction.len() > places {
             self.fraction.split_at(places)
@@ -84,19 +84,19 @@ impl<'a> DecimalText<'a> {
 }
 
 /// Whether `text` is a number by the grammar.
-pub fn is_number(text: &str) -> bool {
+pub(crate) fn is_number(text: &str) -> bool {
     DecimalText::parse(text).is_some()
 }
 
 /// `text` as an integer of any register width (a u64 counter, an i64): a number whose
 /// decimals, if any, are all zeros. None for anything else.
-pub fn wide_integer(text: &str) -> Option<i128> {
+pub(crate) fn wide_integer(text: &str) -> Option<i128> {
     DecimalText::parse(text)?.scaled(0).ok()
 }
 
 /// `text` as an integer: a number whose decimals, if any, are all zeros (`8`, `8.0`, `-0`).
 /// None for anything else (`8.5`, `1e1`, `+8`, an integer beyond i64).
-pub fn integer(text: &str) -> Option<i64> {
+pub(crate) fn integer(text: &str) -> Option<i64> {
     let scaled = DecimalText::parse(text)?.scaled(0).ok()?;
     i64::try_from(scaled).ok()
 }

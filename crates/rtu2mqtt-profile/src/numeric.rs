@@ -104,7 +104,7 @@ pub enum Exponent {
 }
 
 /// Exponents a `scale_by` field may hold (SunSpec's scale factors).
-pub const EXPONENTS: std::ops::RangeInclusive<i8> = -10..=10;
+pub(crate) const EXPONENTS: std::ops::RangeInclusive<i8> = -10..=10;
 
 impl Exponent {
     /// The exponent a `scale_by` field's value is read with, from its exponent field's value.
@@ -340,7 +340,7 @@ impl NumberCodec {
 }
 
 /// `value` in units of 10^-`precision`, exactly; refused when it has more places.
-pub fn at_precision(value: &Value, precision: u8) -> Result<i128, String> {
+pub(crate) fn at_precision(value: &Value, precision: u8) -> Result<i128, String> {
     let too_large = || "number too large".to_string();
     match value {
         Value::Int(v) => v.checked_mul(pow10(precision)).ok_or_else(too_large),

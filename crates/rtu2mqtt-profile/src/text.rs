@@ -19,7 +19,7 @@ pub enum Encoding {
 
 /// Why registers do not hold text.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum TextError {
+pub(crate) enum TextError {
     #[error("byte {byte:#04x} at position {position} is not ASCII")]
     NotAscii { byte: u8, position: usize },
     #[error("the bytes are not valid UTF-8 (from position {0})")]
@@ -30,7 +30,11 @@ pub enum TextError {
 /// (`ByteOrder::HighFirst`) or in its low byte (`ByteOrder::LowFirst`). Trailing NULs and
 /// The text ends at the first NUL (a device that writes a shorter text over a longer one
 /// leaves the old bytes behind it); trailing spaces are padding and removed.
-pub fn decode(words: &[u16], order: ByteOrder, encoding: Encoding) -> Result<String, TextError> {
+pub(crate) fn decode(
+    words: &[u16],
+    order: ByteOrder,
+    encoding: Encoding,
+) -> Result<String, TextError> {
     let bytes: Vec<u8> = words
         .iter()
         .flat_map(|word| match order {
@@ -62,7 +66,7 @@ pub fn decode(words: &[u16], order: ByteOrder, encoding: Encoding) -> Result<Str
 
 /// `text` in `registers` registers, padded with NULs: the device side of [`decode`], for
 /// simulators and tests. None when the text does not fit.
-pub fn encode(text: &str, registers: u16, order: ByteOrder) -> Option<Vec<u16>> {
+pub(crate) fn encode(text: &str, registers: u16, order: ByteOrder) -> Option<Vec<u16>> {
     let capacity = 2 * usize::from(registers);
     let mut bytes = text.as_bytes().to_vec();
     if bytes.len() > capacity {

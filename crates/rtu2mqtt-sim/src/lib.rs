@@ -42,6 +42,10 @@
 //! # }
 //! ```
 
+// Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
+// prints with `{:?}`, the 2018 idioms.
+#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+
 pub mod air_shower;
 #[cfg(test)]
 mod drive;

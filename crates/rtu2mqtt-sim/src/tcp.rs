@@ -22,9 +22,9 @@ use super::journal::Journal;
 use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
 use super::SharedDevice;
-use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
-use rtu2mqtt_modbus::mbap;
+use rtu2mqtt_modbus::link::answer_framing::{AnswerFramer, Framed};
+use rtu2mqtt_modbus::tcp::mbap;
 use tokio_util::sync::CancellationToken;
 
 /// Longest wait for the devices' answer to one request. A new request from the client ends

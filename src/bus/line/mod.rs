@@ -49,8 +49,8 @@ use super::{
     WriteClock,
 };
 use rtu2mqtt_modbus::link::Link;
+use rtu2mqtt_modbus::serial::transport::TransportError;
 use rtu2mqtt_modbus::timing::LineTiming;
-use rtu2mqtt_modbus::transport::TransportError;
 use rtu2mqtt_modbus::{PortFault, WireCounters};
 use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
@@ -682,7 +682,7 @@ mod tests {
         let profile = rtu2mqtt_profile::registry::built_in("wuzhou-valve").unwrap();
         let spec = LineSpec {
             name: "line-x".into(),
-            serial: rtu2mqtt_modbus::transport::SerialSettings {
+            serial: rtu2mqtt_modbus::serial::transport::SerialSettings {
                 path: path.display().to_string(),
                 baud: 9600,
                 format: rtu2mqtt_modbus::timing::CharFormat {

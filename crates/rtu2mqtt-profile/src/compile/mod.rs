@@ -30,7 +30,7 @@ pub(super) use blocks::polled_at_least_as_often;
 pub use problems::{ProfileError, ProfileErrors};
 
 /// Parses and validates a profile. `source` names the file (or built-in) in error places.
-pub fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
+pub(crate) fn compile(text: &str, source: &str) -> Result<Compiled, ProfileErrors> {
     let file: ProfileFile = toml::from_str(text).map_err(|err| {
         let place = match err.span() {
             Some(span) => {

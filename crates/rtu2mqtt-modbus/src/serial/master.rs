@@ -24,17 +24,17 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use super::answer_framing::{AnswerFramer, Framing};
-use super::clock::PreciseTimer;
-use super::codec::{self, DecodeError, MAX_FRAME_LEN};
-use super::frame::{FunctionCode, Request, SlaveId};
-use super::link_core::{Ask, Direction, LinkCore, Transact};
-use super::outcome::reply_of;
+use crate::clock::PreciseTimer;
+use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
+use crate::frame::{FunctionCode, Request, SlaveId};
+use crate::link::answer_framing::{AnswerFramer, Framing};
+use crate::link::shared::{Ask, Direction, LinkCore, Transact};
+use crate::outcome::reply_of;
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
-use super::outcome::{Error, Reply, WireCounters};
-use super::timing::LineTiming;
-use super::transport::Port;
+use crate::outcome::{Error, Reply, WireCounters};
+use crate::serial::transport::Port;
+use crate::timing::LineTiming;
 
 /// The default byte timeout: the longest silence inside an answer before it is declared
 /// truncated. USB serial adapters hand received bytes over in bursts (CP210x/CH340 about every

@@ -2,14 +2,17 @@
 //! stream ([`RawTcpMaster`]) or a Modbus TCP gateway ([`ModbusTcpMaster`]). The line task runs
 //! the same transactions, counters and frame log on each; only this enum knows which it is.
 
+pub mod answer_framing;
+pub mod shared;
+
 use std::io::Write;
 use std::time::Duration;
 
 use super::frame::Request;
-use super::link_core::{Ask, LinkCore, Transact};
-use super::master::Master;
 use super::outcome::{Error, Reply, WireCounters};
-use super::tcp_link::{ModbusTcpMaster, RawTcpMaster};
+use crate::link::shared::{Ask, LinkCore, Transact};
+use crate::serial::master::Master;
+use crate::tcp::masters::{ModbusTcpMaster, RawTcpMaster};
 
 /// One line's open link.
 #[derive(Debug)]

@@ -4,6 +4,12 @@
 //! it, said once at INFO; a real UART that refuses a setting is an error), writes a frame and
 //! waits until the transmit buffer has drained (tcdrain), reads bytes with deadlines, discards
 //! stray input, and optionally switches the kernel's RS485 mode on.
+//!
+//! Why mio-serial under an `AsyncFd` and not tokio-serial: tokio-serial registers the port for
+//! read and write readiness, but a frame is written whole (a few bytes into a kernel buffer of
+//! kilobytes) and its end awaited with tcdrain, so write readiness would only wake the line's
+//! task for nothing. The port is registered for read interest alone (and even that is lifted
+//! while the rest of an answer cannot be there yet).
 
 use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
@@ -14,7 +20,7 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::time::Instant;
 
-use super::timing::{CharFormat, Parity};
+use crate::timing::{CharFormat, Parity};
 
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]

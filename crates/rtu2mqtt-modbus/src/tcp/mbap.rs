@@ -1,5 +1,5 @@
 //! Modbus TCP framing (MBAP header: transaction id, protocol id 0, length, unit id) and its
-//! mapping to and from the RTU frames of [`super::codec`]: an ADU is the RTU frame with the
+//! mapping to and from the RTU frames of [`crate::codec`]: an ADU is the RTU frame with the
 //! address moved into the header as the unit id and the CRC dropped (TCP checks integrity).
 //!
 //! Pure byte work, no I/O. Both sides use it: the master encodes requests and matches answers
@@ -7,9 +7,9 @@
 //! current request); the simulators turn a received ADU into the RTU frame their devices
 //! already understand and wrap the RTU answer back.
 
-use super::codec::{self, Answer, DecodeError, EncodeError};
-use super::crc::append_crc;
-use super::frame::{Request, SlaveId};
+use crate::codec::{self, Answer, DecodeError, EncodeError};
+use crate::crc::append_crc;
+use crate::frame::{Request, SlaveId};
 
 /// Bytes of the MBAP header.
 pub const HEADER_LEN: usize = 7;

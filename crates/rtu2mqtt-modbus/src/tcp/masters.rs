@@ -17,14 +17,14 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
-use super::answer_framing::{AnswerFramer, Framed};
-use super::clock::PreciseTimer;
-use super::codec::{self, Answer, DecodeError};
-use super::frame::{Request, SlaveId};
-use super::link_core::{Ask, Direction, LinkCore, Transact};
-use super::mbap::{self, Matched, MbapError};
-use super::outcome::{reply_of, Error, PortFault, Reply};
-use super::timing::LineTiming;
+use crate::clock::PreciseTimer;
+use crate::codec::{self, Answer, DecodeError};
+use crate::frame::{Request, SlaveId};
+use crate::link::answer_framing::{AnswerFramer, Framed};
+use crate::link::shared::{Ask, Direction, LinkCore, Transact};
+use crate::outcome::{reply_of, Error, PortFault, Reply};
+use crate::tcp::mbap::{self, Matched, MbapError};
+use crate::timing::LineTiming;
 
 /// What a TCP line's stream carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -348,7 +348,7 @@ impl RawTcpMaster {
     }
 
     /// Waits until the link's own t3.5 spacing after the last answer has passed
-    /// (cancel-safe; see [`super::master::Master::wait_until_quiet`]).
+    /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]).
     pub async fn wait_until_quiet(&mut self) {
         self.timer.sleep_until(self.next_send_at).await;
     }
