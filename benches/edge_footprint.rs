@@ -35,6 +35,7 @@
 //! edge_footprint` (about eleven minutes after the build for three rounds); another build of the
 //! gateway is measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
 
+mod block_device;
 mod gateway_process;
 use rtu2mqtt_testkit as support;
 mod wire_bench;
@@ -42,15 +43,18 @@ mod wire_bench;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use gateway_process::{cpu_time_of, GatewayProcess, Memory};
-use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use block_device::{
+    command_window, millis, ms_f, over_rounds, profile_text, spawn_line, transaction_wire_time,
+    wire_figures, ResultAfter, Wire, Writes, BAUD,
+};
+use gateway_process::{GatewayProcess, Memory};
+use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_profile::Profile;
-use rtu2mqtt_sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
+use rtu2mqtt_sim::{Pace, VirtualLine};
 use rumqttc::QoS;
 use support::Mosquitto;
-use wire_bench::{command_client, percentile, timed_subscriber, wire_load, WireLoad, EIGHT_N_ONE};
+use wire_bench::{command_client, percentile, timed_subscriber, EIGHT_N_ONE};
 
-const BAUD: u32 = 9600;
 const WARM_UP: Duration = Duration::from_secs(5);
 const WINDOW: Duration = Duration::from_secs(30);
 const COMMANDS: u32 = 40;
@@ -89,62 +93,6 @@ const RUNS: [(Pace, Option<Duration>, &str); 5] = [
 /// Rounds of every run; figures are printed as the median and the range over the rounds.
 /// `EDGE_FOOTPRINT_ROUNDS` sets another number.
 const DEFAULT_ROUNDS: usize = 3;
-/// Frame lengths of the bench's command slot: the FC06 write and its echo, the read-back of
-/// the 6-register block and its answer.
-const WRITE_LEN: usize = 8;
-const READ_REQUEST_LEN: usize = 8;
-const READ_ANSWER_LEN: usize = 17;
-
-/// One device type: one block of six holding registers, the first one writable (FC06); the
-/// other five are read-only fields `r1`–`r5` added by [`profile_text`].
-const PROFILE_HEAD: &str = r#"
-[device]
-name = "edge-block"
-manufacturer = "Bench"
-model = "six holding registers"
-description = "One 6-register block polled back to back"
-
-[line]
-baud = 9600
-parity = "none"
-address_range = [1, 247]
-default_address = 1
-min_poll_interval = "1ms"
-poll_interval = "1s"
-slow_interval = "5min"
-startup_delay = "0s"
-max_read_registers = 125
-max_write_registers = 1
-max_read_bits = 1
-max_write_bits = 1
-
-[[blocks]]
-name = "block"
-function = 3
-start = 0
-count = 6
-poll = "fast"
-
-[[fields]]
-name = "setpoint"
-block = "block"
-offset = 0
-codec = { type = "u16" }
-range = [0, 60000]
-write = { function = 6, address = 0 }
-"#;
-
-fn profile_text() -> String {
-    let mut text = PROFILE_HEAD.to_string();
-    for register in 1..6 {
-        text += &format!(
-            "\n[[fields]]\nname = \"r{register}\"\nblock = \"block\"\noffset = {register}\n\
-             codec = {{ type = \"u16\" }}\n"
-        );
-    }
-    text
-}
-
 fn main() -> anyhow::Result<()> {
     // The simulated devices and the MQTT client; the gateway is another process.
     let runtime = wire_bench::runtime()?;
@@ -203,33 +151,6 @@ struct OneLine {
     wire: Wire,
 }
 
-struct Wire {
-    efficiency: f64,
-    gap_p50: Duration,
-    gap_p95: Duration,
-    early: usize,
-    /// Requests that reached the device while its answer was still going out.
-    onto_answer: usize,
-    /// Publish → the write frame at the device, and its bound, per command seen.
-    to_wire: Vec<Duration>,
-    to_wire_bound: Vec<Duration>,
-    /// Publish → `…/result` at the subscriber, and its bound, per result seen.
-    to_result: Vec<Duration>,
-    to_result_bound: Vec<Duration>,
-    /// Per result seen: how much later than its own bound it came.
-    result_over_bound: Vec<Duration>,
-    /// Per result seen: how much later than the bound as the answers were delivered, i.e.
-    /// with each answer ending when its last byte reached the gateway's port rather than when
-    /// it was on the wire (a USB adapter hands bytes over only at its next chunk): the
-    /// gateway's own share of the latency.
-    result_over_delivered: Vec<Duration>,
-    /// Where a result's time goes beyond the wire's: the write's echo end → the read-back
-    /// request at the device (t3.5 at best), and the read-back's answer end → the result at
-    /// the subscriber (nothing at best).
-    echo_to_read_back: Vec<Duration>,
-    read_back_to_result: Vec<Duration>,
-}
-
 async fn one_line(
     broker: &Mosquitto,
     dir: &Path,
@@ -260,51 +181,35 @@ async fn one_line(
     .await?;
     let client = command_client(broker.port, &format!("bench-commands-{run}")).await;
     tokio::time::sleep(WARM_UP).await;
-    while results.try_recv().is_ok() {}
-
-    let start = Instant::now();
-    let cpu_start = gateway.cpu_time()?;
-    let simulator_start = cpu_time_of("self")?;
-    let mut published = Vec::new();
-    let every = WINDOW / COMMANDS;
-    for i in 0..COMMANDS {
-        let value = 1000 + 100 * (run % 500) as u16 + i as u16;
-        tokio::time::sleep_until((start + every * i + every / 2).into()).await;
-        published.push((value, Instant::now()));
-        client
-            .publish(
-                "plant/block-1-1/setpoint/set",
-                QoS::AtLeastOnce,
-                false,
-                value.to_string().into_bytes(),
-            )
-            .await?;
-    }
-    tokio::time::sleep_until((start + WINDOW).into()).await;
-    let wall = start.elapsed();
-    let cpu = gateway.cpu_time()? - cpu_start;
-    let simulator_cpu = cpu_time_of("self")? - simulator_start;
-    let memory = gateway.memory()?;
+    let window = command_window(
+        &gateway,
+        &line,
+        &client,
+        Writes {
+            topic: "plant/block-1-1/setpoint/set",
+            first_value: 1000 + 100 * (run % 500) as u16,
+            count: COMMANDS,
+        },
+        &mut results,
+        WINDOW,
+    )
+    .await?;
     gateway.stop();
-    let mut arrivals = Vec::new();
-    while let Ok(at) = results.try_recv() {
-        arrivals.push(at);
-    }
-
-    let records: Vec<RequestRecord> = line
-        .journal()
-        .requests()
-        .into_iter()
-        .filter(|r| r.arrived >= start && r.arrived < start + wall)
-        .collect();
     Ok(OneLine {
         footprint: Footprint {
-            transactions_per_second: records.len() as f64 / wall.as_secs_f64(),
-            cpu_percent: 100.0 * cpu.as_secs_f64() / wall.as_secs_f64(),
-            memory,
+            transactions_per_second: window.transactions_per_second(),
+            cpu_percent: window.gateway_cpu_percent(),
+            memory: window.memory,
         },
-        simulator_cpu_percent: 100.0 * simulator_cpu.as_secs_f64() / wall.as_secs_f64(),
-        wire: wire_figures(&records, wall, pause, &published, &arrivals),
+        simulator_cpu_percent: window.simulator_cpu_percent(),
+        wire: wire_figures(
+            &window.records,
+            window.wall,
+            pause,
+            &window.published,
+            &window.results,
+            ResultAfter::ReadBack,
+        ),
     })
 }
 
@@ -346,17 +251,6 @@ async fn many_lines(
         cpu_percent: 100.0 * cpu.as_secs_f64() / wall.as_secs_f64(),
         memory,
     })
-}
-
-/// A 9600 8N1 line paced by `pace` with `devices` bench devices at addresses 1, 2, …
-fn spawn_line(profile: &Profile, devices: u8, pace: Pace) -> anyhow::Result<VirtualLine> {
-    let shared = (1..=devices)
-        .map(|address| share(GenericDevice::from_profile(profile, address)).1)
-        .collect();
-    Ok(VirtualLine::spawn(
-        ServeOptions::new(BAUD, Parity::None).pacing(pace),
-        shared,
-    )?)
 }
 
 /// A configuration with one `[[lines]]` per virtual line, `devices` continuously polled
@@ -406,125 +300,6 @@ fn start_gateway(config: &Path) -> anyhow::Result<GatewayProcess> {
     GatewayProcess::start(&gateway_binary(), config, "warn")
 }
 
-fn wire_figures(
-    records: &[RequestRecord],
-    wall: Duration,
-    pause: Option<Duration>,
-    published: &[(u16, Instant)],
-    results: &[Instant],
-) -> Wire {
-    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
-    let WireLoad { busy, gaps, early } = wire_load(records, &timing, pause);
-    let slot = timing.frame_time(WRITE_LEN)
-        + timing.t3_5
-        + timing.frame_time(WRITE_LEN)
-        + timing.t3_5
-        + timing.frame_time(READ_REQUEST_LEN)
-        + timing.t3_5
-        + timing.frame_time(READ_ANSWER_LEN);
-    let mut wire = Wire {
-        efficiency: busy.as_secs_f64() / wall.as_secs_f64(),
-        gap_p50: percentile(&gaps, 50),
-        gap_p95: percentile(&gaps, 95),
-        early,
-        // Only the simulator's first request ever has no silence before it; the window starts
-        // well after it.
-        onto_answer: records
-            .iter()
-            .filter(|r| r.silence_before.is_none())
-            .count(),
-        to_wire: Vec::new(),
-        to_wire_bound: Vec::new(),
-        to_result: Vec::new(),
-        to_result_bound: Vec::new(),
-        result_over_bound: Vec::new(),
-        result_over_delivered: Vec::new(),
-        echo_to_read_back: Vec::new(),
-        read_back_to_result: Vec::new(),
-    };
-    for (index, (value, at)) in published.iter().enumerate() {
-        // The transaction on the wire when the command was published: the line is free for
-        // the write t3.5 after its last byte (on the wire, or as delivered to the gateway).
-        let in_flight = records.iter().rev().find(|r| r.arrived <= *at);
-        let free_after = |delivered: bool| {
-            in_flight
-                .map(|r| {
-                    let end = r.answer_timing.as_ref().map_or_else(
-                        || r.arrived + timing.frame_time(r.frame.len()),
-                        |answer| {
-                            if delivered {
-                                answer.handed_over
-                            } else {
-                                answer.due
-                            }
-                        },
-                    );
-                    end + timing.t3_5
-                })
-                .map_or(*at, |free| free.max(*at))
-        };
-        let bound = free_after(false) - *at;
-        let write = records.iter().position(|r| {
-            r.frame.get(1) == Some(&0x06) && r.frame.get(4..6) == Some(&value.to_be_bytes()[..])
-        });
-        if let Some(write) = write.and_then(|w| records.get(w)) {
-            wire.to_wire
-                .push(write.arrived.saturating_duration_since(*at));
-            wire.to_wire_bound.push(bound);
-        }
-        // Commands are far apart: the first result after a publish, before the next, is its.
-        let next = published.get(index + 1).map(|(_, next)| *next);
-        let Some(result) = results
-            .iter()
-            .find(|&&r| r >= *at && next.map_or(true, |next| r < next))
-        else {
-            continue;
-        };
-        let taken = result.saturating_duration_since(*at);
-        wire.to_result.push(taken);
-        wire.to_result_bound.push(bound + slot);
-        wire.result_over_bound
-            .push(taken.saturating_sub(bound + slot));
-        // The read-back is the request right after the write.
-        let pair = write.and_then(|w| Some((records.get(w)?, records.get(w + 1)?)));
-        if let Some((write, read_back)) = pair {
-            if let (Some(echo), Some(answer)) = (&write.answer_timing, &read_back.answer_timing) {
-                wire.echo_to_read_back
-                    .push(read_back.arrived.saturating_duration_since(echo.due));
-                wire.read_back_to_result
-                    .push(result.saturating_duration_since(answer.due));
-                let delivered = free_after(true).saturating_duration_since(*at)
-                    + echo.handed_over.saturating_duration_since(write.arrived)
-                    + timing.t3_5
-                    + answer
-                        .handed_over
-                        .saturating_duration_since(read_back.arrived);
-                wire.result_over_delivered
-                    .push(taken.saturating_sub(delivered));
-            }
-        }
-    }
-    for list in [
-        &mut wire.to_wire,
-        &mut wire.to_wire_bound,
-        &mut wire.to_result,
-        &mut wire.to_result_bound,
-        &mut wire.result_over_bound,
-        &mut wire.result_over_delivered,
-        &mut wire.echo_to_read_back,
-        &mut wire.read_back_to_result,
-    ] {
-        list.sort();
-    }
-    wire
-}
-
-/// One read of the block on the wire: request (8 bytes), answer (17) and both t3.5 silences.
-fn transaction_wire_time() -> Duration {
-    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
-    timing.frame_time(READ_REQUEST_LEN) + timing.frame_time(READ_ANSWER_LEN) + 2 * timing.t3_5
-}
-
 fn ms(duration: Duration) -> String {
     format!("{:.2} ms", duration.as_secs_f64() * 1000.0)
 }
@@ -535,30 +310,6 @@ fn mib(kib: u64) -> String {
 
 fn row(figure: &str, value: String, target: &str) {
     println!("{figure:<48} {value:>30}   {target}");
-}
-
-/// The median of one figure over the rounds, with its range when there are several.
-fn over_rounds(values: impl IntoIterator<Item = f64>, show: impl Fn(f64) -> String) -> String {
-    let mut values: Vec<f64> = values.into_iter().filter(|v| v.is_finite()).collect();
-    if values.is_empty() {
-        return "-".into();
-    }
-    values.sort_by(f64::total_cmp);
-    let median = values[(values.len() - 1) / 2];
-    match (values.first(), values.last()) {
-        (Some(low), Some(high)) if values.len() > 1 => {
-            format!("{} ({}–{})", show(median), show(*low), show(*high))
-        }
-        _ => show(median),
-    }
-}
-
-fn ms_f(value: f64) -> String {
-    format!("{value:.2} ms")
-}
-
-fn millis(duration: Duration) -> f64 {
-    duration.as_secs_f64() * 1000.0
 }
 
 /// The p-th percentile of one latency list of each run, in ms, over the rounds.

@@ -62,19 +62,26 @@ impl Memory {
     }
 }
 
-/// `rtu2mqtt run --config <config>` as its own process, stopped (SIGTERM, then SIGKILL after
-/// 5 s) when dropped.
+/// A gateway as its own process (`rtu2mqtt run --config <config>`, or another gateway's command),
+/// stopped (SIGTERM, then SIGKILL after 5 s) when dropped.
 pub struct GatewayProcess {
     child: Child,
 }
 
 impl GatewayProcess {
     pub fn start(binary: &Path, config: &Path, log: &str) -> anyhow::Result<GatewayProcess> {
-        let child = Command::new(binary)
+        let mut command = Command::new(binary);
+        command
             .arg("run")
             .arg("--config")
             .arg(config)
-            .env("RUST_LOG", log)
+            .env("RUST_LOG", log);
+        GatewayProcess::spawn(command)
+    }
+
+    /// Any gateway's `command`, its standard input and output closed, its errors on ours.
+    pub fn spawn(mut command: Command) -> anyhow::Result<GatewayProcess> {
+        let child = command
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())

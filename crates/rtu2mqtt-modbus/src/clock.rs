@@ -1,9 +1,9 @@
 //! Sub-millisecond waits for the wire's silences. Tokio timers tick in whole milliseconds and
 //! round up, so sleeping for a 1.75 ms t3.5 with them alone would cost up to a millisecond more
-//! on every transaction. This waits on a one-shot timerfd (a kernel high-resolution timer,
-//! registered with the runtime's reactor, so no thread is blocked) until shortly before the
-//! deadline and finishes by yielding to the runtime until it has passed. Where no timerfd can
-//! be had it falls back to the tokio timer with a wider yielding window.
+//! on every transaction. This waits on a one-shot timerfd (a kernel high-resolution timer
+//! without slack, registered with the runtime's reactor, so no thread is blocked) set to the
+//! deadline itself. Where no timerfd can be had it falls back to the tokio timer and yields to
+//! the runtime for the last stretch.
 
 use std::os::fd::{AsFd, AsRawFd, RawFd};
 use std::time::Duration;
@@ -20,26 +20,18 @@ use tokio::time::Instant;
 /// listening this long before it.
 pub const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 
-/// How long before the deadline the timerfd fires; the rest is spent yielding. Covers the
-/// kernel's default timer slack (50 µs) and the reactor's wake-up.
-pub const TIMERFD_SPIN_WINDOW: Duration = Duration::from_micros(120);
-
 /// Waits until `deadline`, overshooting as little as the host allows.
 ///
-/// Waits on a timerfd until [`TIMERFD_SPIN_WINDOW`] before the deadline (with the tokio timer
-/// until [`SPIN_WINDOW`] before it when no timerfd is available), then yields to the runtime
-/// (`tokio::task::yield_now`) until the deadline has passed, so other tasks keep running even
-/// on a current_thread runtime and no thread is blocked. The CPU is busy only for the yielding
-/// window at the end of each wait.
-///
-/// The window is short because a thread that spins long is preempted on a busy host, which
-/// costs far more than the spin saves; `cargo bench --bench timer_overshoot` compares the
-/// overshoot with a plain `tokio::time::sleep_until` (docs/performance.md).
-///
-/// The short yield is kept on purpose: a timerfd set to the deadline itself saves a little CPU,
-/// but the wake-up from a full sleep stretches the idle gap's tail and lowers bus efficiency
-/// (`cargo bench --bench edge_footprint`), and a second short timerfd in place of the yield is
-/// no cheaper.
+/// Sleeps on a timerfd set to the deadline: a timerfd's expiry has no timer slack, so the
+/// overshoot is the wake-up of the runtime's thread alone. Yielding to the runtime for the
+/// last stretch before the deadline (a spin that looks at the reactor on every turn) shaves a
+/// little off the overshoot for a system call per turn, which cost a large share of a
+/// transaction's CPU time (`cargo bench --bench peer_compare`, docs/performance.md). Without a
+/// timerfd the tokio
+/// timer sleeps until [`SPIN_WINDOW`] before the deadline and the rest is yielded away
+/// (`tokio::task::yield_now`), so other tasks keep running even on a current_thread runtime
+/// and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with
+/// a plain `tokio::time::sleep_until` (docs/performance.md).
 pub async fn sleep_until_precise(deadline: Instant) {
     PreciseTimer::default().sleep_until(deadline).await;
 }
@@ -65,12 +57,11 @@ impl PreciseTimer {
             return;
         }
         let until_deadline = deadline - now;
-        if until_deadline > TIMERFD_SPIN_WINDOW {
-            let coarse = until_deadline - TIMERFD_SPIN_WINDOW;
-            if self.timerfd_sleep(coarse).await.is_err() && until_deadline > SPIN_WINDOW {
-                tokio::time::sleep_until(deadline - SPIN_WINDOW).await;
-            }
+        if self.timerfd_sleep(until_deadline).await.is_err() && until_deadline > SPIN_WINDOW {
+            tokio::time::sleep_until(deadline - SPIN_WINDOW).await;
         }
+        // The timerfd was armed after `now` was read: it expires at the deadline or later, and
+        // this loop is left at once. Only the tokio timer's fallback yields here.
         while Instant::now() < deadline {
             tokio::task::yield_now().await;
         }
