@@ -253,13 +253,15 @@ async fn broker_outage(
         memory.anonymous_kib as f64 / 1024.0,
         memory.pss_kib as f64 / 1024.0
     );
-    // The replay: until the history values read in the outage stop coming.
+    // The replay: from the first history value read in the outage until they stop coming
+    // (the gateway reconnects after its back-off, up to two minutes).
     let cpu_before = gateway.cpu_time()?;
     let mut replayed = 0;
     let mut quiet_since = Instant::now();
     let mut replay_memory = Memory::default();
-    let deadline = Instant::now() + Duration::from_secs(600);
-    while Instant::now() < deadline && quiet_since.elapsed() < Duration::from_secs(10) {
+    let deadline = Instant::now() + Duration::from_secs(900);
+    let patience = |replayed| Duration::from_secs(if replayed == 0 { 120 } else { 15 });
+    while Instant::now() < deadline && quiet_since.elapsed() < patience(replayed) {
         tokio::time::sleep(Duration::from_millis(500)).await;
         replay_memory = replay_memory.max(gateway.memory()?);
         let now = counter.history_values_between(down_wall, up_wall);

@@ -149,6 +149,8 @@ pub struct Core {
     rng: StdRng,
     /// The history journal's health, as the driver last told it.
     history: Option<HistoryStats>,
+    /// The driver does not keep up with what it is asked to publish: discovery waits.
+    overloaded: bool,
 }
 
 impl Core {
@@ -175,6 +177,7 @@ impl Core {
             stats_interval: options.stats_interval,
             rng,
             history: None,
+            overloaded: false,
         }
     }
 
@@ -232,6 +235,12 @@ impl Core {
         self.publisher.on_published(publish, sent);
     }
 
+    /// The driver handed a publish to the client (the same as [`Core::on_published`] with
+    /// `sent`, without the publish).
+    pub fn on_handed(&mut self) {
+        self.publisher.on_handed();
+    }
+
     /// Tells the core the history journal's health, for the statistics.
     pub fn set_history_stats(&mut self, stats: HistoryStats) {
         self.history = Some(stats);
@@ -239,6 +248,7 @@ impl Core {
 
     /// Tells the core whether the driver keeps up with what it is asked to publish.
     pub fn set_overloaded(&mut self, overloaded: bool) {
+        self.overloaded = overloaded;
         self.desk.set_overloaded(overloaded);
     }
 
@@ -366,6 +376,8 @@ impl Core {
         if self.reannounce_at.is_some_and(|at| at <= now) {
             self.reannounce_at = None;
             self.publisher.reannounce();
+        } else if !self.overloaded {
+            self.publisher.continue_discovery();
         }
         self.publisher.reassert_due(now);
         if self.publisher.is_connected() && (self.stats_due || now >= self.next_stats) {

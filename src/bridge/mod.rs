@@ -432,11 +432,11 @@ impl Bridge {
     /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
     fn lane_of(&self, publish: &Publish) -> Lane {
         let topics = self.core.topics();
-        if publish.topic == topics.gateway_stats_topic()
-            || publish
-                .topic
-                .starts_with(&format!("{}/", topics.discovery_prefix))
-        {
+        let discovery = publish
+            .topic
+            .strip_prefix(topics.discovery_prefix.as_str())
+            .is_some_and(|rest| rest.starts_with('/'));
+        if discovery || publish.topic == topics.gateway_stats_topic() {
             Lane::Resend
         } else {
             Lane::Urgent
@@ -453,8 +453,8 @@ impl Bridge {
                 break;
             };
             self.in_writer.fetch_add(1, Ordering::SeqCst);
-            if let Request::Publish(publish) = &request {
-                self.core.on_published(publish.clone(), true);
+            if let Request::Publish(_) = &request {
+                self.core.on_handed();
             }
             permit.send(request);
         }
@@ -473,8 +473,8 @@ impl Bridge {
 
     fn note_handed(&mut self, request: &Request) {
         self.in_writer.fetch_add(1, Ordering::SeqCst);
-        if let Request::Publish(publish) = request {
-            self.core.on_published(publish.clone(), true);
+        if let Request::Publish(_) = request {
+            self.core.on_handed();
         }
     }
 

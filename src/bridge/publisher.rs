@@ -14,7 +14,7 @@ use super::action::{Action, HistoryEntry, Publish};
 use super::device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::guard::{TopicGuard, Verdict};
-use super::json_view;
+use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
 use crate::contract::{availability_word, Topics, OFFLINE, ONLINE};
 use crate::history::document;
@@ -22,6 +22,10 @@ use crate::profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
+/// Device discovery documents built and published at once, and then on each tick while the
+/// driver keeps up: a gateway with a thousand devices announces them over seconds instead of
+/// building megabytes of documents in one turn of the loop that also serves the lines.
+pub const DISCOVERY_BATCH: usize = 25;
 
 /// A topic this gateway owns and defends.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -56,8 +60,10 @@ pub struct Publisher {
     cache: StateCache,
     /// Results and clears that wait for the next connection.
     deferred: VecDeque<Publish>,
-    /// Last JSON view payload per topic, to skip unchanged ones.
-    json_views: HashMap<String, Vec<u8>>,
+    /// Each device's JSON view by its topic, with whether it changed since it was published.
+    json_views: HashMap<String, JsonView>,
+    /// Devices whose discovery document is still to be published, in configuration order.
+    discovery_waiting: VecDeque<String>,
     /// The status, availability and state topics this gateway defends.
     guard: TopicGuard,
     counters: PublishCounters,
@@ -88,6 +94,7 @@ impl Publisher {
             connected: false,
             deferred: VecDeque::new(),
             json_views: HashMap::new(),
+            discovery_waiting: VecDeque::new(),
             guard,
             counters: PublishCounters::default(),
             out: Vec::new(),
@@ -152,7 +159,7 @@ impl Publisher {
         let updates = self.cache.republish_all();
         self.publish_state(updates);
         if self.json_view {
-            self.json_views.clear();
+            self.json_views.values_mut().for_each(JsonView::mark_stale);
             for device in self.cache.devices().to_vec() {
                 self.publish_json_view(&device);
             }
@@ -164,19 +171,28 @@ impl Publisher {
 
     pub fn disconnected(&mut self) {
         self.connected = false;
+        // The next connection announces every device again.
+        self.discovery_waiting.clear();
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
     pub fn on_published(&mut self, publish: Publish, sent: bool) {
         if sent {
-            self.counters.published += 1;
+            self.on_handed();
             return;
         }
         self.counters.publish_failures += 1;
-        self.json_views.remove(&publish.topic);
+        if let Some(view) = self.json_views.get_mut(&publish.topic) {
+            view.mark_stale();
+        }
         if publish.keep {
             self.keep(publish);
         }
+    }
+
+    /// A publish handed to the client.
+    pub fn on_handed(&mut self) {
+        self.counters.published += 1;
     }
 
     fn subscribe(&mut self, filter: String) {
@@ -235,29 +251,37 @@ impl Publisher {
     }
 
     /// Home Assistant device-based discovery: the gateway's own document, then one per
-    /// configured device.
+    /// configured device, the first [`DISCOVERY_BATCH`] at once and the rest by
+    /// [`Publisher::continue_discovery`].
     pub fn publish_discovery(&mut self) {
         if !self.discovery {
             return;
         }
-        // Each document is serialized as soon as it is built: a JSON tree is several times
-        // the size of its text, and a gateway with hundreds of devices would otherwise hold
-        // all of their trees at once.
         let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
-        let mut payloads = vec![(topic, document.to_string())];
-        for device in self.cache.devices() {
-            if let Some(entry) = self.devices.get(device) {
+        self.publish(topic, document.to_string(), true);
+        self.discovery_waiting = self.cache.devices().iter().cloned().collect();
+        self.continue_discovery();
+    }
+
+    /// The next [`DISCOVERY_BATCH`] device documents still to be published. Each document is
+    /// built when it is published, from the device's state then (its identity fields).
+    pub fn continue_discovery(&mut self) {
+        if !self.connected {
+            return;
+        }
+        for _ in 0..DISCOVERY_BATCH {
+            let Some(device) = self.discovery_waiting.pop_front() else {
+                return;
+            };
+            if let Some(entry) = self.devices.get(&device) {
                 let (topic, document) = discovery::device_config_with_state(
                     &self.topics,
-                    device,
+                    &device,
                     &entry.profile,
-                    self.cache.state(device),
+                    self.cache.state(&device),
                 );
-                payloads.push((topic, document.to_string()));
+                self.publish(topic, document.to_string(), true);
             }
-        }
-        for (topic, payload) in payloads {
-            self.publish(topic, payload, true);
         }
     }
 
@@ -270,22 +294,15 @@ impl Publisher {
 
     /// The device's JSON view on `<prefix>/<device>`, when it changed.
     fn publish_json_view(&mut self, device: &str) {
-        let Some(state) = self.cache.state(device) else {
+        if !self.connected {
+            return;
+        }
+        let topic = self.topics.json_view_topic(device);
+        let Some(payload) = self.json_views.get_mut(&topic).and_then(JsonView::take_payload)
+        else {
             return;
         };
-        if state.is_empty() {
-            return;
-        }
-        let payload = json_view::json_view_payload(state);
-        let topic = self.topics.json_view_topic(device);
-        if self.json_views.get(&topic) == Some(&payload) {
-            return;
-        }
-        // Retained JSON is bytes of valid UTF-8 (serde_json output).
-        let text = String::from_utf8_lossy(&payload).into_owned();
-        if self.publish(topic.clone(), text, true) {
-            self.json_views.insert(topic, payload);
-        }
+        self.publish(topic, payload, true);
     }
 
     /// A line's fresh values of `device`, read at `read_at`: the state that changed, the
@@ -303,10 +320,21 @@ impl Publisher {
         if self.history {
             self.history_entry(device, &values, read_at, again);
         }
+        if self.json_view && self.cache.contains(device) {
+            let view = self
+                .json_views
+                .entry(self.topics.json_view_topic(device))
+                .or_default();
+            for (field, value) in &values {
+                view.set(field, value);
+            }
+            if again && self.connected {
+                view.mark_stale();
+            }
+        }
         if again && self.connected {
             self.cache
                 .forget_published(device, values.iter().map(|(field, _)| field.as_str()));
-            self.json_views.remove(&self.topics.json_view_topic(device));
         }
         let updates = self.cache.update(device, values, self.connected);
         if let Some((topic, document)) = self
