@@ -377,7 +377,7 @@ impl Core {
             self.reannounce_at = None;
             self.publisher.reannounce();
         } else if !self.overloaded {
-            self.publisher.continue_discovery();
+            self.publisher.continue_announcing();
         }
         self.publisher.reassert_due(now);
         if self.publisher.is_connected() && (self.stats_due || now >= self.next_stats) {

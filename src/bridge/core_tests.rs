@@ -1219,3 +1219,96 @@ fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
         [r#"{"ts":"2026-12-02T15:01:01.000Z","values":{"opening":40}}"#]
     );
 }
+
+// ----- announcing many devices -----
+
+/// A gateway of 60 valves announces 25 on the connect and 25 more on each tick: discovery,
+/// availability, every state and the JSON view of each; a device whose value moves before
+/// its turn has that value published at once.
+#[test]
+fn many_devices_are_announced_a_batch_per_tick() {
+    let now = Instant::now();
+    let profile = Arc::new(registry::built_in("wuzhou-valve").unwrap());
+    let names: Vec<String> = (0..60).map(|n| format!("valve{n:02}")).collect();
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: true,
+            options: GatewayOptions {
+                json_view: true,
+                ..options()
+            },
+            history: false,
+            line_names: vec!["a".to_string()],
+            devices: names
+                .iter()
+                .map(|name| BridgeDevice {
+                    name: name.clone(),
+                    profile: Arc::clone(&profile),
+                    line: 0,
+                })
+                .collect(),
+        },
+        now,
+        seeded(),
+    );
+    let opening = |value: i128| crate::profile::Value::Int(value);
+    // Known before the connection: the first connect republishes it in each device's turn.
+    for name in &names {
+        core.on_line_event(
+            LineEvent::Values {
+                device: name.clone(),
+                values: vec![("opening".to_string(), opening(40))],
+                read_at: std::time::SystemTime::UNIX_EPOCH,
+                origin: Origin::Poll,
+            },
+            now,
+        );
+    }
+    let announced = |actions: &[Action], kind: &str| -> Vec<String> {
+        publishes(actions)
+            .into_iter()
+            .map(|p| p.0)
+            .filter(|topic| match kind {
+                "config" => topic.starts_with("homeassistant/device/edge1_valve"),
+                "opening" => topic.ends_with("/opening"),
+                _ => topic.starts_with("plant/valve") && topic.matches('/').count() == 1,
+            })
+            .collect()
+    };
+    let first = core.on_connected();
+    assert_eq!(announced(&first, "config").len(), 25);
+    assert_eq!(announced(&first, "opening").len(), 25);
+    assert_eq!(announced(&first, "view").len(), 25);
+    assert!(publishes(&first)
+        .iter()
+        .any(|p| p.0 == "homeassistant/device/edge1_gateway/config"));
+    // valve59 moves before its turn: published at once, and again with the rest in its turn.
+    let moved = core.on_line_event(
+        LineEvent::Values {
+            device: "valve59".to_string(),
+            values: vec![("opening".to_string(), opening(41))],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
+        },
+        now,
+    );
+    assert_eq!(announced(&moved, "opening"), ["plant/valve59/opening"]);
+    let second = core.on_tick(now, Vec::new);
+    assert_eq!(announced(&second, "config").len(), 25);
+    assert_eq!(
+        announced(&second, "config")[0],
+        "homeassistant/device/edge1_valve25/config"
+    );
+    let third = core.on_tick(now + Duration::from_millis(250), Vec::new);
+    assert_eq!(announced(&third, "config").len(), 10);
+    let last = publishes(&third)
+        .into_iter()
+        .filter(|p| p.0 == "plant/valve59/opening")
+        .map(|p| p.1)
+        .collect::<Vec<_>>();
+    assert_eq!(last, ["41"], "its turn carries its newest value");
+    let quiet = core.on_tick(now + Duration::from_millis(500), Vec::new);
+    assert!(announced(&quiet, "config").is_empty());
+    assert!(announced(&quiet, "opening").is_empty());
+}

@@ -115,7 +115,13 @@ mod tests {
         let mut state = DeviceState::new();
         let mut view = JsonView::default();
         let readings = [
-            ("temperature", Value::Decimal { scaled: 2150, precision: 2 }),
+            (
+                "temperature",
+                Value::Decimal {
+                    scaled: 2150,
+                    precision: 2,
+                },
+            ),
             ("power", Value::Bool(true)),
             ("mode \"eco\"", Value::Enum("auto".into())),
             ("energy", Value::Int(18_446_744_073_709_551_614)),
@@ -130,8 +136,20 @@ mod tests {
         assert_eq!(view.take_payload(), None, "published as it is");
         assert!(!view.set("power", &Value::Bool(true)), "an equal value");
         assert_eq!(view.take_payload(), None);
-        assert!(view.set("temperature", &Value::Decimal { scaled: 2200, precision: 2 }));
-        state.insert("temperature".into(), Value::Decimal { scaled: 2200, precision: 2 });
+        assert!(view.set(
+            "temperature",
+            &Value::Decimal {
+                scaled: 2200,
+                precision: 2
+            }
+        ));
+        state.insert(
+            "temperature".into(),
+            Value::Decimal {
+                scaled: 2200,
+                precision: 2,
+            },
+        );
         let second = view.take_payload().expect("a changed view is published");
         assert_eq!(second.as_bytes(), json_view_payload(&state).as_slice());
         assert!(second.contains("\"temperature\":22.0"), "{second}");

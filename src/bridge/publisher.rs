@@ -22,10 +22,19 @@ use crate::profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
-/// Device discovery documents built and published at once, and then on each tick while the
-/// driver keeps up: a gateway with a thousand devices announces them over seconds instead of
-/// building megabytes of documents in one turn of the loop that also serves the lines.
-pub const DISCOVERY_BATCH: usize = 25;
+/// Devices announced at once (discovery document; after a connect also availability, every
+/// state and the JSON view), and then as many on each tick while the driver keeps up: a
+/// gateway with a thousand devices announces them over seconds instead of building a hundred
+/// thousand messages in one turn of the loop that also serves the lines.
+pub const ANNOUNCE_BATCH: usize = 25;
+
+/// A device still to be announced: its discovery document, and with `everything` its
+/// availability, every state and its JSON view.
+#[derive(Debug)]
+struct Announcement {
+    device: String,
+    everything: bool,
+}
 
 /// A topic this gateway owns and defends.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -62,8 +71,8 @@ pub struct Publisher {
     deferred: VecDeque<Publish>,
     /// Each device's JSON view by its topic, with whether it changed since it was published.
     json_views: HashMap<String, JsonView>,
-    /// Devices whose discovery document is still to be published, in configuration order.
-    discovery_waiting: VecDeque<String>,
+    /// Devices still to be announced, in configuration order.
+    announcing: VecDeque<Announcement>,
     /// The status, availability and state topics this gateway defends.
     guard: TopicGuard,
     counters: PublishCounters,
@@ -94,7 +103,7 @@ impl Publisher {
             connected: false,
             deferred: VecDeque::new(),
             json_views: HashMap::new(),
-            discovery_waiting: VecDeque::new(),
+            announcing: VecDeque::new(),
             guard,
             counters: PublishCounters::default(),
             out: Vec::new(),
@@ -150,20 +159,8 @@ impl Publisher {
             self.subscribe(self.topics.config_filter());
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
-        self.publish_discovery();
-        for device in self.cache.devices().to_vec() {
-            let word = availability_word(self.cache.is_online(&device));
-            let topic = self.topics.availability_topic(&device);
-            self.publish(topic, word.to_string(), true);
-        }
-        let updates = self.cache.republish_all();
-        self.publish_state(updates);
-        if self.json_view {
-            self.json_views.values_mut().for_each(JsonView::mark_stale);
-            for device in self.cache.devices().to_vec() {
-                self.publish_json_view(&device);
-            }
-        }
+        self.json_views.values_mut().for_each(JsonView::mark_stale);
+        self.announce(true);
         while let Some(kept) = self.deferred.pop_front() {
             self.out.push(Action::Publish(kept));
         }
@@ -172,7 +169,7 @@ impl Publisher {
     pub fn disconnected(&mut self) {
         self.connected = false;
         // The next connection announces every device again.
-        self.discovery_waiting.clear();
+        self.announcing.clear();
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
@@ -251,29 +248,52 @@ impl Publisher {
     }
 
     /// Home Assistant device-based discovery: the gateway's own document, then one per
-    /// configured device, the first [`DISCOVERY_BATCH`] at once and the rest by
-    /// [`Publisher::continue_discovery`].
+    /// configured device (see [`Publisher::announce`]).
     pub fn publish_discovery(&mut self) {
-        if !self.discovery {
-            return;
-        }
-        let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
-        self.publish(topic, document.to_string(), true);
-        self.discovery_waiting = self.cache.devices().iter().cloned().collect();
-        self.continue_discovery();
+        self.announce(false);
     }
 
-    /// The next [`DISCOVERY_BATCH`] device documents still to be published. Each document is
+    /// The gateway's discovery document, then every configured device's announcement (with
+    /// `everything`: its availability, states and JSON view too): the first [`ANNOUNCE_BATCH`]
+    /// devices at once, the rest by [`Publisher::continue_announcing`]. A device already
+    /// waiting keeps what it was to get.
+    fn announce(&mut self, everything: bool) {
+        if self.discovery {
+            let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
+            self.publish(topic, document.to_string(), true);
+        } else if !everything {
+            return;
+        }
+        let waiting_everything: std::collections::HashSet<&str> = self
+            .announcing
+            .iter()
+            .filter(|announcement| announcement.everything)
+            .map(|announcement| announcement.device.as_str())
+            .collect();
+        let announcing = self
+            .cache
+            .devices()
+            .iter()
+            .map(|device| Announcement {
+                everything: everything || waiting_everything.contains(device.as_str()),
+                device: device.clone(),
+            })
+            .collect();
+        self.announcing = announcing;
+        self.continue_announcing();
+    }
+
+    /// The next [`ANNOUNCE_BATCH`] devices still to be announced. Each discovery document is
     /// built when it is published, from the device's state then (its identity fields).
-    pub fn continue_discovery(&mut self) {
+    pub fn continue_announcing(&mut self) {
         if !self.connected {
             return;
         }
-        for _ in 0..DISCOVERY_BATCH {
-            let Some(device) = self.discovery_waiting.pop_front() else {
+        for _ in 0..ANNOUNCE_BATCH {
+            let Some(Announcement { device, everything }) = self.announcing.pop_front() else {
                 return;
             };
-            if let Some(entry) = self.devices.get(&device) {
+            if let Some(entry) = self.devices.get(&device).filter(|_| self.discovery) {
                 let (topic, document) = discovery::device_config_with_state(
                     &self.topics,
                     &device,
@@ -282,14 +302,22 @@ impl Publisher {
                 );
                 self.publish(topic, document.to_string(), true);
             }
+            if everything {
+                let word = availability_word(self.cache.is_online(&device));
+                let topic = self.topics.availability_topic(&device);
+                self.publish(topic, word.to_string(), true);
+                let updates = self.cache.republish(&device);
+                self.publish_state(updates);
+                if self.json_view {
+                    self.publish_json_view(&device);
+                }
+            }
         }
     }
 
     /// Discovery and every state again (after Home Assistant's birth message).
     pub fn reannounce(&mut self) {
-        self.publish_discovery();
-        let updates = self.cache.republish_all();
-        self.publish_state(updates);
+        self.announce(true);
     }
 
     /// The device's JSON view on `<prefix>/<device>`, when it changed.
@@ -298,7 +326,10 @@ impl Publisher {
             return;
         }
         let topic = self.topics.json_view_topic(device);
-        let Some(payload) = self.json_views.get_mut(&topic).and_then(JsonView::take_payload)
+        let Some(payload) = self
+            .json_views
+            .get_mut(&topic)
+            .and_then(JsonView::take_payload)
         else {
             return;
         };
@@ -320,13 +351,16 @@ impl Publisher {
         if self.history {
             self.history_entry(device, &values, read_at, again);
         }
-        if self.json_view && self.cache.contains(device) {
+        if let Some(known) = self.cache.state(device).filter(|_| self.json_view) {
             let view = self
                 .json_views
                 .entry(self.topics.json_view_topic(device))
                 .or_default();
+            // Only what moved is rendered again.
             for (field, value) in &values {
-                view.set(field, value);
+                if known.get(field) != Some(value) {
+                    view.set(field, value);
+                }
             }
             if again && self.connected {
                 view.mark_stale();

@@ -153,28 +153,37 @@ impl StateCache {
 
     /// Every known value, for the full republish after a (re)connect; recorded as published.
     pub fn republish_all(&mut self) -> Vec<StateUpdate> {
+        let order = std::mem::take(&mut self.order);
+        let updates = order
+            .iter()
+            .flat_map(|device| self.republish(device))
+            .collect();
+        self.order = order;
+        updates
+    }
+
+    /// Every known value of `device`, in the order of its field names; recorded as published.
+    pub fn republish(&mut self, device: &str) -> Vec<StateUpdate> {
+        let Some(cache) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let mut fields: Vec<&String> = cache.state.keys().collect();
+        fields.sort();
+        let mut published = HashMap::new();
         let mut updates = Vec::new();
-        for device in &self.order {
-            let Some(cache) = self.devices.get_mut(device) else {
-                continue;
-            };
-            let mut fields: Vec<&String> = cache.state.keys().collect();
-            fields.sort();
-            let mut published = HashMap::new();
-            for field in fields
-                .into_iter()
-                .filter(|field| cache.state[*field].is_available())
-            {
-                let text = cache.state[field].to_text();
-                published.insert(field.clone(), text.clone());
-                updates.push(StateUpdate {
-                    device: device.clone(),
-                    field: field.clone(),
-                    text,
-                });
-            }
-            cache.published = published;
+        for field in fields
+            .into_iter()
+            .filter(|field| cache.state[*field].is_available())
+        {
+            let text = cache.state[field].to_text();
+            published.insert(field.clone(), text.clone());
+            updates.push(StateUpdate {
+                device: device.to_string(),
+                field: field.clone(),
+                text,
+            });
         }
+        cache.published = published;
         updates
     }
 }
