@@ -24,18 +24,24 @@ WORKDIR /src
 # Dependencies first, in their own layer: a change to the sources does not rebuild them.
 # Placeholder sources stand in for every target of the manifest; the crate's own artefacts are
 # removed afterwards so the real sources are always compiled. Built as scripts/edge-build
-# builds (static, for this machine's target, without the feature `demo`: no simulators, demo,
-# embedded broker or `simulate`), so that its build reuses this layer.
+# builds (static, for this machine's target, the daemon's package alone: the simulators, the
+# demo and its embedded broker are other crates of the workspace), so that its build reuses
+# this layer.
 COPY Cargo.toml Cargo.lock ./
 COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
+COPY crates/rtu2mqtt-profile/Cargo.toml crates/rtu2mqtt-profile/
+COPY crates/rtu2mqtt-sim/Cargo.toml crates/rtu2mqtt-sim/
+COPY crates/rtu2mqtt-testkit/Cargo.toml crates/rtu2mqtt-testkit/
+COPY crates/rtu2mqtt-demo/Cargo.toml crates/rtu2mqtt-demo/
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \
  && target=$(rustc -vV | sed -n 's/^host: //p') \
  && RUSTFLAGS="-C target-feature=+crt-static" \
-    cargo build --release --locked --no-default-features --target "$target" \
- && rm -rf src benches tests crates/rtu2mqtt-modbus/src "target/$target/release/rtu2mqtt"* \
+    cargo build --release --locked -p rtu2mqtt --target "$target" \
+ && rm -rf src benches tests crates/*/src "target/$target/release/rtu2mqtt"* \
            "target/$target/release/deps/rtu2mqtt-"* "target/$target/release/deps/librtu2mqtt-"* \
            "target/$target/release/deps/librtu2mqtt_modbus-"* \
+           "target/$target/release/deps/librtu2mqtt_profile-"* \
            "target/$target/release/.fingerprint/rtu2mqtt-"*
 
 COPY . .

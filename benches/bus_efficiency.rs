@@ -19,12 +19,12 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
 use rtu2mqtt::bus::{spawn_line, Command, CommandOutcome, DeviceSpec, LineEvent, LineSpec};
-use rtu2mqtt::profile::{DeviceState, Profile};
-use rtu2mqtt::shutdown;
-use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::frame_log::FrameLog;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::SerialSettings;
+use rtu2mqtt_profile::{DeviceState, Profile};
+use rtu2mqtt_sim::{share, AirShower, ServeOptions, VirtualLine};
+use tokio_util::sync::CancellationToken;
 
 const AIR_SHOWER_TOML: &str = include_str!("../config/profiles/lixian-air-shower.toml");
 const WARM_UP: Duration = Duration::from_secs(2);
@@ -210,7 +210,8 @@ async fn measure(
         }],
     };
     let (events_tx, mut events_rx) = mpsc::channel(4096);
-    let (trigger, token) = shutdown::channel();
+    let token = CancellationToken::new();
+    let trigger = token.clone();
     let (handle, task) = spawn_line(spec, events_tx, token);
     let mut state = DeviceState::new();
     let drain = |state: &mut DeviceState, events_rx: &mut mpsc::Receiver<LineEvent>| {
@@ -267,7 +268,7 @@ async fn measure(
     let wall = started.elapsed();
     let cpu = cpu_time().saturating_sub(cpu_before);
     let stats_after = handle.stats_rx.borrow().clone();
-    trigger.fire();
+    trigger.cancel();
     task.await?;
 
     // Journal records between the measuring window's ends.

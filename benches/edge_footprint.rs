@@ -36,17 +36,16 @@
 //! gateway is measured with `EDGE_FOOTPRINT_GATEWAY=/path/to/rtu2mqtt`.
 
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use gateway_process::{cpu_time_of, GatewayProcess, Memory};
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
 use rumqttc::QoS;
 use support::Mosquitto;
 use wire_bench::{command_client, percentile, timed_subscriber, wire_load, WireLoad, EIGHT_N_ONE};

@@ -21,8 +21,7 @@
 //! a half minutes after the build).
 
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::path::{Path, PathBuf};
@@ -33,7 +32,7 @@ use rtu2mqtt::config::HistoryConfig;
 use rtu2mqtt::history::document::{epoch_ms, values_of};
 use rtu2mqtt::history::record::decode;
 use rtu2mqtt::history::{Journal, Record};
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_sim::SeedPlant;
 use rumqttc::QoS;
 use support::{Mosquitto, PlantConfig};
 use wire_bench::timed_subscriber;

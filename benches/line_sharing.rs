@@ -22,17 +22,16 @@
 //! after the build).
 
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use gateway_process::GatewayProcess;
-use rtu2mqtt::sim::VirtualLine;
-use rtu2mqtt::sim::{share, AirShower, DustCollector, Pace, RequestRecord, ServeOptions};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
+use rtu2mqtt_sim::VirtualLine;
+use rtu2mqtt_sim::{share, AirShower, DustCollector, Pace, RequestRecord, ServeOptions};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use support::{free_port, Mosquitto};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -93,7 +92,7 @@ struct CacheRun {
 /// Seed line-a byte-paced: the dust collector (running) and the air shower.
 fn spawn_line() -> anyhow::Result<VirtualLine> {
     let (dust, dust_shared) = share(DustCollector::new(1));
-    rtu2mqtt::sim::lock(&dust).set_power(true);
+    rtu2mqtt_sim::lock(&dust).set_power(true);
     let (_shower, shower_shared) = share(AirShower::new());
     Ok(VirtualLine::spawn(
         ServeOptions::new(BAUD, Parity::None).pacing(Pace::Bytes),
@@ -212,7 +211,8 @@ async fn cached(broker: &Mosquitto, dir: &Path) -> anyhow::Result<CacheRun> {
     let port = free_port();
     let config = config_file(dir, "share-cache", broker, &line, port, "1s")?;
     let _gateway = start_gateway(&config)?;
-    let stats = stats_subscriber(broker.port, "plant/gateway/bench-share-cache/stats").await?;
+    let stats =
+        stats_subscriber(broker.port, "plant/gateway/bench-share-cache/stats/line-a").await?;
     tokio::time::sleep(WARM_UP).await;
     let before = line_counters(&stats);
     let start = Instant::now();
@@ -247,10 +247,9 @@ async fn cached(broker: &Mosquitto, dir: &Path) -> anyhow::Result<CacheRun> {
     })
 }
 
-/// (client_requests, cache_hits) of line-a in the last statistics document.
+/// (client_requests, cache_hits) in line-a's last statistics document.
 fn line_counters(stats: &watch::Receiver<serde_json::Value>) -> (u64, u64) {
-    let doc = stats.borrow();
-    let line = &doc["lines"]["line-a"];
+    let line = stats.borrow();
     let count = |key: &str| line[key].as_u64().unwrap_or(0);
     (count("client_requests"), count("cache_hits"))
 }

@@ -14,8 +14,7 @@
 //! the window in seconds).
 
 mod gateway_process;
-#[path = "../tests/it/support/mod.rs"]
-mod support;
+use rtu2mqtt_testkit as support;
 mod wire_bench;
 
 use std::collections::BTreeMap;
@@ -23,7 +22,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use gateway_process::GatewayProcess;
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::{Mosquitto, PlantConfig, TestClient};
 
 /// The plant settles (first values of every block, slow ones included) before counting.

@@ -1,13 +1,9 @@
-//! The command line (clap): `run | check | demo | simulate | scan | read | sunspec | profiles |
-//! health`
-//! (`demo` and `simulate` with the feature `demo`).
+//! The command line (clap): `run | check | scan | read | sunspec | profiles | health`.
 
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
-#[cfg(feature = "demo")]
-use crate::sim::Pace;
 use rtu2mqtt_modbus::timing::Parity;
 
 #[derive(Debug, Parser)]
@@ -43,25 +39,6 @@ pub enum Command {
         )]
         config: PathBuf,
     },
-    #[cfg(feature = "demo")]
-    /// The whole seed plant with no hardware: simulated devices on virtual serial lines, an
-    /// embedded MQTT broker and the gateway.
-    Demo {
-        /// Use this broker instead of the embedded one (mqtt://host:port).
-        #[arg(long)]
-        broker: Option<String>,
-        /// Port of the embedded broker on 127.0.0.1.
-        #[arg(long, default_value_t = 1883)]
-        port: u16,
-        /// Print log lines instead of the live table: changes, commands and outcomes at once,
-        /// values that change on every poll gathered into a summary at most every 10 s.
-        #[arg(long)]
-        log: bool,
-    },
-    #[cfg(feature = "demo")]
-    /// One simulated device (or a seed plant line) on a serial port, or behind a TCP port as a
-    /// serial device server (tcp://) or a Modbus TCP gateway (modbus-tcp://).
-    Simulate(SimulateArgs),
     /// Probe a serial port for devices: each baud rate, parity and address with a harmless read
     /// (never a write). Prints a table of what answered where.
     Scan(ScanArgs),
@@ -103,48 +80,6 @@ pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
         "odd" | "o" => Ok(Parity::Odd),
         other => anyhow::bail!("parity `{other}`: expected none, even or odd"),
     }
-}
-
-#[cfg(feature = "demo")]
-#[derive(Debug, Args)]
-pub struct SimulateArgs {
-    /// Built-in profile name or profile file path.
-    #[arg(
-        long,
-        required_unless_present = "seed_line",
-        conflicts_with = "seed_line"
-    )]
-    pub profile: Option<String>,
-    /// A whole line of the seed plant instead of one device: `a` (dust collector at 1, air
-    /// shower at 0x81) or `b` (valve at 1).
-    #[arg(long)]
-    pub seed_line: Option<String>,
-    /// Serial port path.
-    #[arg(long, required_unless_present = "listen", conflicts_with = "listen")]
-    pub port: Option<PathBuf>,
-    /// Serve on TCP instead: tcp://HOST:PORT (raw RTU frames) or modbus-tcp://HOST:PORT.
-    #[arg(long)]
-    pub listen: Option<String>,
-    /// Device address (default: the profile's usual address).
-    #[arg(long, value_parser = parse_address)]
-    pub address: Option<u8>,
-    #[arg(long, default_value_t = 9600)]
-    pub baud: u32,
-    /// none | even | odd
-    #[arg(long, default_value = "none")]
-    pub parity: String,
-    /// When answers reach the port: `instant` (no wire time), `frame` (whole, after their wire
-    /// time; `--pace` alone), `bytes` (byte by byte at the character rate, like a UART) or
-    /// `usb:Nms` (what is on the wire every N ms, N from 1 to 16, like a USB adapter).
-    #[arg(
-        long,
-        value_name = "PACE",
-        num_args = 0..=1,
-        default_value = "instant",
-        default_missing_value = "frame",
-        value_parser = str::parse::<Pace>
-    )]
-    pub pace: Pace,
 }
 
 /// Where a commissioning command reaches a line: a serial port, or a serial device server or
@@ -242,29 +177,14 @@ mod tests {
     use clap::CommandFactory;
 
     #[test]
-    fn demo_and_simulate_are_commands_exactly_with_the_feature_demo() {
+    fn the_daemon_has_no_demo_and_no_simulator() {
         let commands: Vec<String> = Cli::command()
             .get_subcommands()
             .map(|command| command.get_name().to_string())
             .collect();
-        for command in [
-            "run", "check", "scan", "read", "sunspec", "profiles", "health",
-        ] {
-            assert!(commands.iter().any(|c| c == command), "{commands:?}");
-        }
-        for command in ["demo", "simulate"] {
-            assert_eq!(
-                commands.iter().any(|c| c == command),
-                cfg!(feature = "demo"),
-                "{command} in {commands:?}"
-            );
-        }
-        let help = Cli::command().render_help().to_string();
-        assert_eq!(help.contains("  demo "), cfg!(feature = "demo"), "{help}");
         assert_eq!(
-            help.contains("  simulate "),
-            cfg!(feature = "demo"),
-            "{help}"
+            commands,
+            ["run", "check", "scan", "read", "sunspec", "profiles", "health", "help"]
         );
     }
 

@@ -1,48 +1,44 @@
-//! rtu2mqtt: a Modbus RTU (RS485) to MQTT gateway.
+//! rtu2mqtt: a Modbus RTU (RS485) to MQTT gateway daemon. This is its module map.
 //!
-//! The crate is layered from the wire upwards; each layer only knows the ones listed before it
-//! (`tests/it/layers.rs` fails on any arrow pointing up; `ARCHITECTURE.md` draws them):
+//! Below this crate: [`rtu2mqtt_modbus`] (Modbus on the wire: frames, CRC, timing, the serial
+//! and TCP links that run one transaction at a time with legal timing) and [`rtu2mqtt_profile`]
+//! (device profiles as data, and the MQTT contract's names). The simulators and the demo are
+//! crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates fit.
 //!
-//! - [`shutdown`]: the shutdown token every task holds.
-//! - Modbus on the wire lives in its own crate, [`rtu2mqtt_modbus`] (`crates/rtu2mqtt-modbus`),
-//!   below every module here: frame types with their arithmetic, CRC, the codec (pure byte
-//!   work), line timing (character time, t1.5, t3.5, response timeout), the answer framer, the
-//!   serial transport and master that run exactly one RTU transaction on a port with legal
-//!   timing, and the TCP links (raw RTU to a serial device server, Modbus TCP to a gateway)
-//!   behind one [`rtu2mqtt_modbus::link::Link`]. It knows nothing of MQTT or the configuration.
-//! - [`profile`]: device knowledge as data. A profile (TOML) describes read blocks, field codecs
-//!   and write rules; pure functions decode raw blocks into field values and turn a command into
-//!   the frames of one bus slot. No I/O. Built in: the seed devices and the device library;
-//!   the SunSpec model table and the profile `rtu2mqtt sunspec` writes from it.
-//! - [`bus`]: one task per line. It owns the link, decides what is due (pure scheduler with the
-//!   clock passed in), runs polls and command slots, tracks device health and line statistics,
-//!   and reports [`bus::LineEvent`]s (a slot's values before its command's end; fields with
-//!   `publish` settings by exception, decided once for every consumer). A line may be
-//!   served to other Modbus masters ([`bus::serve`]): their requests are slots of its scheduler.
-//! - `sim` (feature `demo`): simulated devices (the three seed devices written from
-//!   `docs/devices.md`, the device library's register maps, and a generic one built from any
-//!   profile), on ptys or TCP, for tests, benchmarks and the demo.
-//! - [`contract`]: the MQTT contract (topic names, Home Assistant ids, payload words, reserved
-//!   names), pure strings shared by the configuration check, discovery and the bridge.
-//! - [`config`]: the gateway configuration (file + environment), validated completely with the
-//!   place of every problem before anything is opened.
-//! - [`health`]: readiness, the watchdog thread and the status file; it knows heartbeats, not
-//!   the bridge.
-//! - [`history`]: the journal of what was measured while the broker was away (append-only,
-//!   checksummed segment files in the `[history]` directory, bounded, crash-safe) and the
-//!   history stream's documents. File I/O only; the bridge decides what goes in and out.
-//! - [`bridge`]: the only plain-MQTT user. State, commands, outcomes, availability, Home
-//!   Assistant discovery and statistics, decided by an I/O-free core and carried out by a thin
-//!   driver.
-//! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection; its commands
-//!   enter the bridge core like `…/set` commands, and the history the bridge replays goes out
-//!   as historical DDATA.
-//! - `broker` (feature `demo`): the demo's embedded MQTT broker; [`cli`]: the command line.
-//! - [`app`]: wires the above together for `run` (with reload on SIGHUP), `check`, the
-//!   commissioning tools `scan`, `read` and `sunspec`, and with the feature `demo`, `demo` and `simulate`.
+//! The modules are layered from the wire upwards; each only knows the ones listed before it
+//! (`tests/it/layers.rs` fails on any arrow pointing up):
 //!
-//! The feature `demo` (on by default) brings the simulators, the demo, its embedded broker and
-//! `simulate`; the daemon for an edge box is built without it (`--no-default-features`).
+//! - [`bus`]: one task per line. `line` (the loop; `line::command_slots` its commands,
+//!   refreshes and settle re-reads), `port` (opening the link, one reopen back-off), `device`,
+//!   `poll` (a block, with the exception-02 fallback), `commands` (queue, slots, settle), `slot`,
+//!   `transaction` (one request with retries), `outcome` (typed failure causes), `cadence` (each
+//!   block's cadence), `scheduler` (what is due, pure, clock passed in: commands, then refreshes,
+//!   then polls), `availability` (offline, back-off), `stats`, `report` (report by exception,
+//!   pure) and `reporter` (its task), `write_clock` (when each field was last written, by any
+//!   source), `serve` (a line served to other Modbus masters: their requests are slots of its
+//!   scheduler). It reports [`bus::LineEvent`]s and publishes nothing.
+//! - [`config`]: the configuration (file + `RTU2MQTT__*` environment), validated completely with
+//!   the place of every problem before anything is opened; each section checked in its own file
+//!   (`mqtt`, `gateway`, `health`, `lines`, `devices`, `sparkplug`, `history`), `names`, and
+//!   `poll_plan` (the poll plan and bus load `check` prints). Opens no port or socket.
+//! - [`health`]: `assess` (pure judgement), `status_file` (and `rtu2mqtt health`), `systemd`
+//!   (readiness, watchdog pings), `watchdog` (its own thread; self-exit when stuck). It knows
+//!   heartbeats, not the bridge, and never judges devices.
+//! - [`history`]: what was measured while the broker was away: `document` (the history stream's
+//!   `{"ts","values"}`), `record` (length + CRC-32 per record, a damaged part skipped), `journal`
+//!   (append-only segment files, bounded, crash-safe). File I/O only.
+//! - [`bridge`]: the only plain-MQTT user. `core` (every decision, no I/O: events in, actions
+//!   out; `desk` the command desk from arrival to result, `publisher` the state cache and what is
+//!   published from it), the driver (client, channels, loop), `mqtt` (connection, back-off),
+//!   `tls`, `payload`, `state`, `commands`, `discovery` (Home Assistant; `entity_naming`),
+//!   `json_view`, `history` (journal or publish, the paced replay), `metrics` and `prometheus`.
+//! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
+//!   `metrics`, `figures`, `session_interface`, `session` (the pure edge-node rules) and its
+//!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.
+//! - [`cli`]: the command line (clap); parses, does nothing else.
+//! - [`app`]: wiring: `run`/[`app::run_gateway`] (lines, bridge, Sparkplug node, health, reload
+//!   on SIGHUP), `signals`, `check`, `profiles`, the commissioning tools `scan`, `read` and
+//!   `sunspec`, `logging`. No protocol logic.
 
 // What the codebase keeps true, checked on every build (`-D warnings` in CI):
 // - `pub` means part of the crate's surface: an item only its module uses is `pub(crate)` or
@@ -53,16 +49,9 @@
 
 pub mod app;
 pub mod bridge;
-#[cfg(feature = "demo")]
-pub mod broker;
 pub mod bus;
 pub mod cli;
 pub mod config;
-pub mod contract;
 pub mod health;
 pub mod history;
-pub mod profile;
-pub mod shutdown;
-#[cfg(feature = "demo")]
-pub mod sim;
 pub mod sparkplug;

@@ -8,18 +8,14 @@ use rtu2mqtt::cli::{Cli, Command};
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    rtu2mqtt::app::logging::init();
+    rtu2mqtt::app::logging::init(rtu2mqtt::app::logging::DEFAULT_FILTER);
     let result = match cli.command {
         Command::Run { config } => rtu2mqtt::app::run(&config),
         Command::Check { config } => rtu2mqtt::app::check::check(&config),
-        #[cfg(feature = "demo")]
-        Command::Demo { broker, port, log } => rtu2mqtt::app::demo::demo(broker, port, log),
-        #[cfg(feature = "demo")]
-        Command::Simulate(args) => rtu2mqtt::app::simulate::simulate(&args),
         Command::Scan(args) => rtu2mqtt::app::scan::scan(&args),
         Command::Read(args) => rtu2mqtt::app::read::read(&args),
         Command::Sunspec(args) => rtu2mqtt::app::sunspec::sunspec(&args),
-        Command::Profiles { paths } => rtu2mqtt::profile::registry::print_profiles(&paths),
+        Command::Profiles { paths } => rtu2mqtt::app::profiles::print_profiles(&paths),
         Command::Health {
             status_file,
             max_age,

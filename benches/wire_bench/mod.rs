@@ -7,8 +7,8 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::sim::RequestRecord;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_sim::RequestRecord;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::mpsc;
 

@@ -12,12 +12,12 @@ use std::time::Duration;
 
 use crate::bus::line::default_response_timeout;
 use crate::bus::Transport;
-use crate::config::plan::{BlockLoad, LinePlan};
+use crate::config::poll_plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
 use crate::history::Journal;
-use crate::profile::registry::describe_read;
-use crate::profile::PollClass;
 use rtu2mqtt_modbus::tcp_link::TcpKind;
+use rtu2mqtt_profile::registry::describe_read;
+use rtu2mqtt_profile::PollClass;
 
 pub fn check(path: &Path) -> anyhow::Result<ExitCode> {
     match config::load(path) {

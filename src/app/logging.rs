@@ -1,5 +1,5 @@
 //! Logging set-up: `tracing` to stderr, plain text or JSON (`RTU2MQTT_LOG_FORMAT=json`),
-//! filtered by `RUST_LOG` (default `info`, with the demo's embedded broker silent).
+//! filtered by `RUST_LOG` (default `info`; the demo passes its own default).
 //!
 //! Colour only when stderr is a terminal and `NO_COLOR` is not set: the journal, a file or a
 //! pipe get plain text. Under systemd (`JOURNAL_STREAM` names our stderr) the journal stamps
@@ -32,20 +32,17 @@ impl LogStyle {
     }
 }
 
-/// What is logged unless `RUST_LOG` says otherwise.
-#[cfg(feature = "demo")]
-// rumqttd (the demo's broker) logs every client connection at INFO and ordinary disconnects
-// at ERROR: noise for a demo user. `RUST_LOG=rumqttd=info` brings it back.
-const DEFAULT_FILTER: &str = "info,rumqttd=off";
-#[cfg(not(feature = "demo"))]
-const DEFAULT_FILTER: &str = "info";
+/// What the daemon logs unless `RUST_LOG` says otherwise.
+pub const DEFAULT_FILTER: &str = "info";
 
-pub fn init() {
+/// Logs to stderr in the style [`LogStyle::decide`] picks; `default_filter` applies unless
+/// `RUST_LOG` is set.
+pub fn init(default_filter: &str) {
     let style = LogStyle::decide(std::io::stderr().is_terminal(), |name| {
         std::env::var(name).ok()
     });
     let filter =
-        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(DEFAULT_FILTER));
+        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default_filter));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_ansi(style.ansi)

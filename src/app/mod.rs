@@ -4,14 +4,12 @@
 //! library entry point that `run`, the demo and the end-to-end tests share.
 
 pub mod check;
-#[cfg(feature = "demo")]
-pub mod demo;
 pub mod logging;
+pub mod profiles;
 pub mod read;
 pub mod reload;
 pub mod scan;
-#[cfg(feature = "demo")]
-pub mod simulate;
+pub mod signals;
 pub mod sunspec;
 
 use std::path::Path;
@@ -25,9 +23,9 @@ use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::{self, Config};
 use crate::health;
-use crate::shutdown::{self, Shutdown};
 use crate::sparkplug::{self, NodeLinks};
 use rtu2mqtt_modbus::frame_log::FrameLog;
+use tokio_util::sync::CancellationToken;
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
 const LINE_EVENTS: usize = 1024;
@@ -70,7 +68,7 @@ pub struct Hooks {
 /// transaction on the wire, the bridge publishes `offline` and disconnects.
 pub async fn run_gateway(
     mut config: Config,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
     hooks: Hooks,
 ) -> anyhow::Result<()> {
     for warning in &config.warnings {
@@ -178,7 +176,7 @@ impl NodeWiring {
         bridge: &mut Bridge,
         lines: &[LineHandle],
         events: mpsc::Receiver<LineEvent>,
-        shutdown: &Shutdown,
+        shutdown: &CancellationToken,
     ) -> (mpsc::Receiver<LineEvent>, tokio::task::JoinHandle<()>) {
         let (bridge_events_tx, bridge_events_rx) = mpsc::channel(LINE_EVENTS);
         let (node_events_tx, node_events_rx) = broadcast::channel(SPARKPLUG_EVENTS);
@@ -208,6 +206,7 @@ impl NodeWiring {
             shutdown: shutdown.clone(),
             bd_seq_store: self.bd_seq_store,
             replayed,
+            packet_limit: bridge.packet_limit("sparkplug", sparkplug::MAX_OUTGOING_PACKET),
         };
         let task = tokio::spawn(sparkplug::run(self.session, self.mqtt, links));
         (bridge_events_rx, task)
@@ -247,10 +246,11 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
     let health_settings = config.health.clone();
     let keeps_history = config.history.is_some();
     runtime.block_on(async move {
-        let (trigger, shutdown) = shutdown::channel();
-        let signals = tokio::spawn(stop_on_signals(trigger.clone()));
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
+        let signals = tokio::spawn(signals::stop_on_signals(trigger.clone()));
         // SIGHUP reloads; never the signal's default action (ending the process).
-        let reload = match shutdown::hangups() {
+        let reload = match signals::hangups() {
             Ok(requests) => Some(reload::ReloadSource {
                 path: path.to_path_buf(),
                 requests,
@@ -281,9 +281,9 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
                 watchdog_trigger,
             )
         });
-        let mut stopping = shutdown.clone();
+        let stopping = shutdown.clone();
         let announce_stop = tokio::spawn(async move {
-            stopping.fired().await;
+            stopping.cancelled().await;
             health::notify_stopping();
         });
         let hooks = Hooks {
@@ -300,27 +300,4 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
     })?;
     tracing::info!("stopped");
     Ok(ExitCode::SUCCESS)
-}
-
-/// SIGTERM or SIGINT fires the shutdown; a second one ends the process at once.
-pub(crate) async fn stop_on_signals(trigger: shutdown::ShutdownTrigger) {
-    use tokio::signal::unix::{signal, SignalKind};
-    let (Ok(mut terminate), Ok(mut interrupt)) = (
-        signal(SignalKind::terminate()),
-        signal(SignalKind::interrupt()),
-    ) else {
-        tracing::error!("cannot install signal handlers: stop with SIGKILL");
-        return;
-    };
-    tokio::select! {
-        _ = terminate.recv() => tracing::info!("SIGTERM: stopping"),
-        _ = interrupt.recv() => tracing::info!("SIGINT: stopping"),
-    }
-    trigger.fire();
-    tokio::select! {
-        _ = terminate.recv() => {},
-        _ = interrupt.recv() => {},
-    }
-    tracing::warn!("second signal: exiting without a clean stop");
-    std::process::exit(130);
 }

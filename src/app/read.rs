@@ -13,7 +13,6 @@ use std::process::ExitCode;
 use anyhow::{bail, Context as _};
 
 use crate::cli::{parse_parity, ReadArgs};
-use crate::profile::bcd;
 use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
@@ -21,6 +20,7 @@ use rtu2mqtt_modbus::tcp_link::{ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpK
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings, TransportError};
 use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
+use rtu2mqtt_profile::bcd;
 
 /// The read request for `function` 1–4 (anything else is refused: this tool never writes).
 pub fn read_request(function: u8, start: u16, quantity: u16) -> anyhow::Result<Request> {

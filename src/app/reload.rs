@@ -19,8 +19,8 @@ use crate::bridge::core::BridgeDevice;
 use crate::bridge::Reconfiguration;
 use crate::bus::{spawn_line_with_clock, LineEvent, LineHandle, LineSpec, LineStats, WriteClock};
 use crate::config::{self, Config};
-use crate::shutdown::{Shutdown, ShutdownTrigger};
 use rtu2mqtt_modbus::frame_log::FrameLog;
+use tokio_util::sync::CancellationToken;
 
 /// Where a reload reads its configuration, and the requests for one.
 #[derive(Debug)]
@@ -34,14 +34,14 @@ struct RunningLine {
     spec: LineSpec,
     handle: LineHandle,
     task: tokio::task::JoinHandle<()>,
-    stop: ShutdownTrigger,
+    stop: CancellationToken,
 }
 
 /// The line tasks of the gateway, in configuration order.
 pub(super) struct LineSet {
     lines: Vec<RunningLine>,
     events_tx: mpsc::Sender<LineEvent>,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
     frame_log: Option<FrameLog>,
     /// Every running line's statistics, for the watchdog.
     stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
@@ -55,7 +55,7 @@ impl LineSet {
     pub(super) fn start(
         specs: &[LineSpec],
         events_tx: mpsc::Sender<LineEvent>,
-        shutdown: Shutdown,
+        shutdown: CancellationToken,
         frame_log: Option<FrameLog>,
     ) -> Self {
         let mut set = LineSet {
@@ -95,7 +95,8 @@ impl LineSet {
     fn spawn(&self, mut spec: LineSpec) -> RunningLine {
         spec.frame_log = self.frame_log.clone();
         tracing::info!(line = %spec.name, port = %spec.serial.path, devices = spec.devices.len(), "starting line");
-        let (stop, token) = self.shutdown.child();
+        let token = self.shutdown.child_token();
+        let stop = token.clone();
         let events_tx = self.events_tx.clone();
         let (handle, task) =
             spawn_line_with_clock(spec.clone(), events_tx, token, self.writes.clone());
@@ -158,7 +159,7 @@ impl LineSet {
 /// Stops `lines` and waits for each (bounded by [`LINE_STOP_GRACE`]).
 async fn stop_lines(lines: Vec<RunningLine>) {
     for line in &lines {
-        line.stop.fire();
+        line.stop.cancel();
     }
     for line in lines {
         match tokio::time::timeout(LINE_STOP_GRACE, line.task).await {
@@ -205,7 +206,7 @@ pub(super) async fn serve(
     mut running: Config,
     mut source: Option<ReloadSource>,
     bridge: mpsc::Sender<Reconfiguration>,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) -> LineSet {
     loop {
         let request = async {
@@ -215,7 +216,7 @@ pub(super) async fn serve(
             }
         };
         tokio::select! {
-            () = shutdown.fired() => return lines,
+            () = shutdown.cancelled() => return lines,
             request = request => {
                 let Some(()) = request else {
                     source = None;

@@ -356,7 +356,7 @@ pub fn table(found: &[Found]) -> String {
 /// Reads `profile`'s blocks at each address found (at the setting it was found at) and prints
 /// the decoded fields.
 async fn show_profile(args: &ScanArgs, name: &str, found: &[Found]) -> anyhow::Result<()> {
-    let profile = crate::profile::registry::load(name, None)
+    let profile = rtu2mqtt_profile::registry::load(name, None)
         .with_context(|| format!("loading profile `{name}`"))?;
     for device in found {
         println!(

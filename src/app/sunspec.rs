@@ -15,10 +15,10 @@ use anyhow::{bail, Context as _};
 
 use super::read::Target;
 use crate::cli::{parse_parity, SunspecArgs};
-use crate::profile::sunspec::{self, Chain, FoundModel, LineChoice};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::{Request, SlaveId, Transact};
+use rtu2mqtt_profile::sunspec::{self, Chain, FoundModel, LineChoice};
 
 /// More models than any device carries: a chain longer than this loops or is garbage.
 const MAX_MODELS: usize = 64;

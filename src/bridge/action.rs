@@ -21,9 +21,20 @@ pub struct Publish {
 #[derive(Debug)]
 pub enum Action {
     Publish(Publish),
+    /// Subscribe ahead of everything queued.
     Subscribe {
         filter: String,
         qos: QoS,
+    },
+    /// Subscribe behind what is already queued: what the broker then hands over holds every
+    /// publish decided before.
+    SubscribeInTurn {
+        filter: String,
+        qos: QoS,
+    },
+    /// Unsubscribe behind what is already queued (never ahead of its subscription).
+    UnsubscribeInTurn {
+        filter: String,
     },
     /// Hand `command` to line number `line`; report a refusal with
     /// [`super::core::Core::on_send_failed`].

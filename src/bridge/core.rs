@@ -25,7 +25,7 @@ use super::metrics::{self, BridgeStats, HistoryStats};
 use super::publisher::Publisher;
 use crate::bus::{Command, LineEvent, LineStats, Origin};
 use crate::config::{Config, GatewayOptions};
-use crate::contract::{is_ha_online, Topics};
+use rtu2mqtt_profile::contract::{is_ha_online, Topics};
 
 pub use super::action::{Action, CommandReport, HistoryEntry, Publish};
 pub use super::device::BridgeDevice;
@@ -149,8 +149,10 @@ pub struct Core {
     rng: StdRng,
     /// The history journal's health, as the driver last told it.
     history: Option<HistoryStats>,
-    /// The driver does not keep up with what it is asked to publish: discovery waits.
+    /// The driver does not keep up with what it is asked to publish: announcing waits.
     overloaded: bool,
+    /// Publishes refused for their size, as the driver last told it.
+    oversized_refused: u64,
 }
 
 impl Core {
@@ -178,6 +180,7 @@ impl Core {
             rng,
             history: None,
             overloaded: false,
+            oversized_refused: 0,
         }
     }
 
@@ -207,6 +210,7 @@ impl Core {
             topics_reasserted: published.topics_reasserted,
             waiting_commands: self.desk.waiting() as u64,
             history: self.history,
+            oversized_refused: self.oversized_refused,
             ..self.desk.counters().clone()
         }
     }
@@ -244,6 +248,11 @@ impl Core {
     /// Tells the core the history journal's health, for the statistics.
     pub fn set_history_stats(&mut self, stats: HistoryStats) {
         self.history = Some(stats);
+    }
+
+    /// Tells the core how many publishes the packet limit has refused, for the statistics.
+    pub fn set_oversized_refused(&mut self, refused: u64) {
+        self.oversized_refused = refused;
     }
 
     /// Tells the core whether the driver keeps up with what it is asked to publish.
@@ -313,6 +322,10 @@ impl Core {
                 p.on_config(topic, message.payload);
                 return;
             }
+            if let Some(line) = p.topics().line_of_config_topic(topic) {
+                p.on_line_config(topic, line, message.payload);
+                return;
+            }
         }
         if let Some(guarded) = p.guarded(topic) {
             p.on_guarded(guarded, topic, message.payload, now);
@@ -380,14 +393,22 @@ impl Core {
             self.publisher.continue_announcing();
         }
         self.publisher.reassert_due(now);
+        self.publisher.audit_turn(now);
         if self.publisher.is_connected() && (self.stats_due || now >= self.next_stats) {
             self.stats_due = false;
             self.next_stats = now + self.stats_interval;
             // Retained: the gateway's Home Assistant sensors (and any client arriving later)
-            // read the last document at once instead of waiting up to a statistics interval.
-            let document = metrics::stats_json(&line_stats(), &self.counters(now));
+            // read the last documents at once instead of waiting up to a statistics interval.
+            // One document per line, so that none grows with the number of lines.
+            let lines = line_stats();
+            let summary = metrics::stats_json(&lines, &self.counters(now));
             let topic = self.publisher.topics().gateway_stats_topic();
-            self.publisher.publish(topic, document.to_string(), true);
+            self.publisher.publish(topic, summary.to_string(), true);
+            for line in &lines {
+                let document = metrics::line_stats_json(line);
+                let topic = self.publisher.topics().line_stats_topic(&line.line);
+                self.publisher.publish(topic, document.to_string(), true);
+            }
         }
         self.publisher.take()
     }
@@ -406,6 +427,21 @@ impl Core {
         now: Instant,
     ) -> Vec<Action> {
         let p = &mut self.publisher;
+        let gone_lines: Vec<String> = p
+            .line_names()
+            .iter()
+            .filter(|old| !line_names.contains(old))
+            .cloned()
+            .collect();
+        for gone in gone_lines {
+            tracing::info!(line = %gone, "line removed by the reload: clearing its statistics");
+            let topic = p.topics().line_stats_topic(&gone);
+            p.publish_or_keep(topic, String::new(), true);
+            if p.discovery() {
+                let topic = p.topics().line_config_topic(&gone);
+                p.publish_or_keep(topic, String::new(), true);
+            }
+        }
         for name in p.cache().devices().to_vec() {
             let Some(old) = p.devices().get(&name).cloned() else {
                 continue;

@@ -14,8 +14,8 @@ use super::core::{
 };
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
-use crate::contract::Topics;
-use crate::profile::registry;
+use rtu2mqtt_profile::contract::Topics;
+use rtu2mqtt_profile::registry;
 
 /// The seed of every test core: equal inputs give equal actions.
 const SEED: u64 = 7;
@@ -329,11 +329,22 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         vec![
             "plant/+/+/set",
             "plant/gateway/edge1/status",
-            "plant/+/+",
+            "plant/+/availability",
+            "plant/+/refresh",
             "homeassistant/status",
-            "homeassistant/device/+/config"
+            "homeassistant/device/+/config",
+            "homeassistant/device/edge1_gateway/+/config"
         ]
     );
+    // Not every device's state: what a persistent session still holds of it is dropped.
+    let dropped: Vec<&str> = actions
+        .iter()
+        .filter_map(|action| match action {
+            Action::UnsubscribeInTurn { filter } => Some(filter.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(dropped, vec!["plant/+/+"]);
     let published = publishes(&actions);
     let topics: Vec<&str> = published.iter().map(|p| p.0.as_str()).collect();
     assert_eq!(
@@ -341,13 +352,14 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         vec![
             "plant/gateway/edge1/status",
             "homeassistant/device/edge1_gateway/config",
+            "homeassistant/device/edge1_gateway/a/config",
             "homeassistant/device/edge1_valve/config",
             "plant/valve/availability",
         ]
     );
     assert!(published.iter().all(|p| p.2), "all retained");
     assert_eq!(published[0].1, "online");
-    assert_eq!(published[3].1, "offline", "the valve has not answered yet");
+    assert_eq!(published[4].1, "offline", "the valve has not answered yet");
 }
 
 #[test]
@@ -394,7 +406,7 @@ fn home_assistant_online_brings_discovery_and_state_again() {
     let mut core = online_core(now);
     let values = LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(40))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
         origin: Origin::Poll,
     };
@@ -419,6 +431,66 @@ fn home_assistant_online_brings_discovery_and_state_again() {
     let offline = core.on_message(message("homeassistant/status", b"offline", 2, false), now);
     assert!(offline.is_empty());
     assert!(publishes(&core.on_tick(now + LATER * 2, Vec::new)).is_empty());
+}
+
+#[test]
+fn statistics_go_out_one_document_per_line_and_a_removed_line_is_cleared() {
+    let now = Instant::now();
+    let mut core = online_core(now);
+    let line = || vec![crate::bus::LineStats::new("a", &["valve".to_string()], now)];
+    let start = publishes(&core.on_tick(now, line));
+    let topics: Vec<&str> = start.iter().map(|p| p.0.as_str()).collect();
+    assert_eq!(
+        topics,
+        ["plant/gateway/edge1/stats", "plant/gateway/edge1/stats/a"]
+    );
+    let document: Json = serde_json::from_str(&start[1].1).unwrap();
+    assert_eq!(document["line"], "a");
+    assert!(document["devices"]["valve"].is_object(), "{document}");
+    // A reload that drops line `a` clears its statistics and its discovery document.
+    let reload = core.on_reconfigure(vec!["b".to_string()], Vec::new(), now);
+    let cleared: Vec<(String, String, bool)> = publishes(&reload)
+        .into_iter()
+        .filter(|p| p.1.is_empty())
+        .collect();
+    for topic in [
+        "plant/gateway/edge1/stats/a",
+        "homeassistant/device/edge1_gateway/a/config",
+    ] {
+        assert!(
+            cleared.contains(&(topic.to_string(), String::new(), true)),
+            "{topic} not cleared: {cleared:?}"
+        );
+    }
+    // A line document of a line no longer configured, found on the broker, is removed; the
+    // configured line's is kept.
+    let stale = core.on_message(
+        message(
+            "homeassistant/device/edge1_gateway/a/config",
+            b"{}",
+            0,
+            false,
+        ),
+        now,
+    );
+    assert_eq!(
+        publishes(&stale),
+        [(
+            "homeassistant/device/edge1_gateway/a/config".to_string(),
+            String::new(),
+            true
+        )]
+    );
+    let kept = core.on_message(
+        message(
+            "homeassistant/device/edge1_gateway/b/config",
+            b"{}",
+            0,
+            false,
+        ),
+        now,
+    );
+    assert!(publishes(&kept).is_empty());
 }
 
 #[test]
@@ -497,7 +569,7 @@ fn state_of_a_slot_is_published_before_its_result() {
     let mut actions = core.on_line_event(
         LineEvent::Values {
             device: "valve".to_string(),
-            values: vec![("opening".to_string(), crate::profile::Value::Int(50))],
+            values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(50))],
             read_at: std::time::SystemTime::UNIX_EPOCH,
             origin: Origin::Poll,
         },
@@ -635,13 +707,27 @@ fn a_retained_copy_of_the_waiting_command_is_the_same_command() {
 fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
     let now = Instant::now();
     let mut core = online_core(now);
-    let values = LineEvent::Values {
+    let values = |opening: i128| LineEvent::Values {
         device: "valve".to_string(),
-        values: vec![("opening".to_string(), crate::profile::Value::Int(40))],
+        values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(opening))],
         read_at: std::time::SystemTime::UNIX_EPOCH,
         origin: Origin::Poll,
     };
-    core.on_line_event(values, now);
+    core.on_line_event(values(30), now);
+    // Before its audit a device's state topics are not watched: nothing comes back of them,
+    // and a late message of an earlier subscription is not judged.
+    let unwatched = core.on_message(message("plant/valve/opening", b"99", 0, false), now);
+    assert!(publishes(&unwatched).is_empty());
+    // The valve's turn: its topics are subscribed to behind what is queued.
+    let audit = core.on_tick(now, Vec::new);
+    assert!(audit.iter().any(|action| matches!(
+        action,
+        Action::SubscribeInTurn { filter, .. } if filter == "plant/valve/+"
+    )));
+    // The broker hands over what it holds: ours, the truth.
+    let held = core.on_message(message("plant/valve/opening", b"30", 0, false), now);
+    assert!(held.is_empty());
+    core.on_line_event(values(40), now);
     let echo = core.on_message(message("plant/valve/opening", b"40", 0, false), now);
     assert!(echo.is_empty());
     let fake = core.on_message(message("plant/valve/opening", b"99", 0, false), now);
@@ -683,6 +769,15 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
         now,
     );
     assert!(other.is_empty());
+    // The audit's window over: the valve's topics are left, and no longer judged.
+    let later = now + super::guard::AUDIT_WINDOW;
+    let ended = core.on_tick(later, Vec::new);
+    assert!(ended.iter().any(|action| matches!(
+        action,
+        Action::UnsubscribeInTurn { filter } if filter == "plant/valve/+"
+    )));
+    let late = core.on_message(message("plant/valve/opening", b"98", 0, false), later);
+    assert!(publishes(&late).is_empty());
 }
 
 #[test]
@@ -1048,7 +1143,7 @@ fn opening_at(opening: i64, at_ms: u64) -> LineEvent {
         device: "valve".to_string(),
         values: vec![(
             "opening".to_string(),
-            crate::profile::Value::Int(i128::from(opening)),
+            rtu2mqtt_profile::Value::Int(i128::from(opening)),
         )],
         read_at: std::time::UNIX_EPOCH + Duration::from_millis(at_ms),
         origin: Origin::Poll,
@@ -1222,9 +1317,10 @@ fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
 
 // ----- announcing many devices -----
 
-/// A gateway of 60 valves announces 25 on the connect and 25 more on each tick: discovery,
-/// availability, every state and the JSON view of each; a device whose value moves before
-/// its turn has that value published at once.
+/// A gateway of one line and 60 valves announces 25 of them on the connect (the line and 24
+/// valves) and 25 more on each tick: discovery, availability, every state and the JSON view
+/// of each valve; a device whose value moves before its turn has that value published at
+/// once.
 #[test]
 fn many_devices_are_announced_a_batch_per_tick() {
     let now = Instant::now();
@@ -1252,7 +1348,7 @@ fn many_devices_are_announced_a_batch_per_tick() {
         now,
         seeded(),
     );
-    let opening = |value: i128| crate::profile::Value::Int(value);
+    let opening = |value: i128| rtu2mqtt_profile::Value::Int(value);
     // Known before the connection: the first connect republishes it in each device's turn.
     for name in &names {
         core.on_line_event(
@@ -1277,9 +1373,9 @@ fn many_devices_are_announced_a_batch_per_tick() {
             .collect()
     };
     let first = core.on_connected();
-    assert_eq!(announced(&first, "config").len(), 25);
-    assert_eq!(announced(&first, "opening").len(), 25);
-    assert_eq!(announced(&first, "view").len(), 25);
+    assert_eq!(announced(&first, "config").len(), 24);
+    assert_eq!(announced(&first, "opening").len(), 24);
+    assert_eq!(announced(&first, "view").len(), 24);
     assert!(publishes(&first)
         .iter()
         .any(|p| p.0 == "homeassistant/device/edge1_gateway/config"));
@@ -1298,10 +1394,10 @@ fn many_devices_are_announced_a_batch_per_tick() {
     assert_eq!(announced(&second, "config").len(), 25);
     assert_eq!(
         announced(&second, "config")[0],
-        "homeassistant/device/edge1_valve25/config"
+        "homeassistant/device/edge1_valve24/config"
     );
     let third = core.on_tick(now + Duration::from_millis(250), Vec::new);
-    assert_eq!(announced(&third, "config").len(), 10);
+    assert_eq!(announced(&third, "config").len(), 11);
     let last = publishes(&third)
         .into_iter()
         .filter(|p| p.0 == "plant/valve59/opening")

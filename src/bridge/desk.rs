@@ -16,7 +16,7 @@ use super::metrics::BridgeStats;
 use super::payload::{self, decode_command, CommandPayload, CommandResult, Outcome};
 use super::publisher::Publisher;
 use crate::bus::{Command, CommandOutcome};
-use crate::profile::CommandPlan;
+use rtu2mqtt_profile::CommandPlan;
 
 /// Shortest time between two log lines about shed commands.
 const SHED_LOG_INTERVAL: Duration = Duration::from_secs(10);

@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use crate::profile::Profile;
+use rtu2mqtt_profile::Profile;
 
 /// A configured device as the bridge sees it.
 #[derive(Debug, Clone)]

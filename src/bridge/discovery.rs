@@ -35,8 +35,8 @@ use super::entity_naming::{
 pub use super::entity_naming::{display_name, entity_name};
 use super::payload::Outcome;
 use super::state::StateUpdate;
-use crate::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
-use crate::profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
+use rtu2mqtt_profile::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
+use rtu2mqtt_profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
 /// range spreads the load when several gateways restart discovery at once (HA's own advice).
@@ -567,25 +567,28 @@ pub fn identity_update(
 }
 
 /// Every discovery message of a gateway, ready to publish retained: the gateway's own document
-/// first (so `via_device` resolves), then one per configured device in the order given.
-/// `lines` are the configured line names, `devices` the configured devices with their profiles.
+/// first (so `via_device` resolves), its lines' documents, then one per configured device in
+/// the order given. `lines` are the configured line names, `devices` the configured devices
+/// with their profiles.
 pub fn all_configs(
     ctx: &Topics,
     lines: &[String],
     devices: &[(&str, &Profile)],
 ) -> Vec<(String, String)> {
-    let gateway = gateway_config(ctx, lines);
+    let gateway = gateway_config(ctx);
+    let lines = lines.iter().map(|line| line_config(ctx, line));
     let devices = devices
         .iter()
         .map(|(device, profile)| device_config(ctx, device, profile));
     std::iter::once(gateway)
+        .chain(lines)
         .chain(devices)
         .map(|(topic, document)| (topic, document.to_string()))
         .collect()
 }
 
-/// A line's statistics exposed on the gateway device: (key in the line's entry of the stats
-/// JSON, name suffix, unit, state class).
+/// A line's statistics exposed on the gateway device: (key in the line's statistics
+/// document, name suffix, unit, state class).
 const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("bus_load_percent", "bus load", Some("%"), "measurement"),
     ("transactions", "transactions", None, "total_increasing"),
@@ -594,39 +597,15 @@ const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
     ("exceptions", "exceptions", None, "total_increasing"),
 ];
 
-/// The Jinja expression of a line's entry in the stats JSON: bracket access by name, since
-/// line names may hold `-`, which a dotted path would read as a minus.
-pub fn line_selector(line: &str) -> String {
-    format!("value_json.lines[{}]", jinja_string(line))
-}
-
 /// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
-/// topic, and from the statistics JSON on `<prefix>/gateway/<client_id>/stats`
-/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands,
-/// uptime, and per line its bus load and counters. It is what every device's `via_device`
-/// points at.
-pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
+/// topic, and from the statistics summary on `<prefix>/gateway/<client_id>/stats`
+/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands and
+/// uptime. It is what every device's `via_device` points at. Each line's sensors are in a
+/// document of their own ([`line_config`]), so this one is the same size whatever the number
+/// of lines.
+pub fn gateway_config(ctx: &Topics) -> (String, Json) {
     let status_topic = ctx.gateway_status_topic();
     let stats_topic = ctx.gateway_stats_topic();
-    let unique = |key: &str| ctx.unique_id(GATEWAY_DEVICE, key);
-    let stats_availability = json!([{
-        "topic": status_topic,
-        "payload_available": ONLINE,
-        "payload_not_available": OFFLINE,
-    }]);
-    let stats_sensor = |key: &str, name: &str, template: String, state_class: &str| {
-        json!({
-            "p": "sensor",
-            "name": name,
-            "unique_id": unique(key),
-            "state_topic": stats_topic,
-            "value_template": template,
-            "state_class": state_class,
-            "availability": stats_availability,
-            "entity_category": "diagnostic",
-        })
-    };
-
     let mut components = Map::new();
     // No availability on the status itself: it must show `offline`, not `unavailable`.
     components.insert(
@@ -634,7 +613,7 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         json!({
             "p": "binary_sensor",
             "name": "Status",
-            "unique_id": unique("status"),
+            "unique_id": ctx.unique_id(GATEWAY_DEVICE, "status"),
             "state_topic": status_topic,
             "payload_on": ONLINE,
             "payload_off": OFFLINE,
@@ -645,25 +624,31 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
     components.insert(
         "devices_online".to_string(),
         stats_sensor(
+            ctx,
             "devices_online",
             "Devices online",
-            "{{ value_json.devices_online }}".to_string(),
+            &stats_topic,
+            "{{ value_json.devices_online }}",
             "measurement",
         ),
     );
     components.insert(
         "waiting_commands".to_string(),
         stats_sensor(
+            ctx,
             "waiting_commands",
             "Waiting commands",
-            "{{ value_json.commands.waiting }}".to_string(),
+            &stats_topic,
+            "{{ value_json.commands.waiting }}",
             "measurement",
         ),
     );
     let mut uptime = stats_sensor(
+        ctx,
         "uptime",
         "Uptime",
-        "{{ value_json.uptime_seconds }}".to_string(),
+        &stats_topic,
+        "{{ value_json.uptime_seconds }}",
         "measurement",
     );
     if let Some(map) = uptime.as_object_mut() {
@@ -671,27 +656,72 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         map.insert("device_class".to_string(), json!("duration"));
     }
     components.insert("uptime".to_string(), uptime);
+    (
+        ctx.gateway_config_topic(),
+        gateway_document(ctx, components),
+    )
+}
 
-    for line in lines {
-        let line_key = line.replace('-', "_");
-        let selector = line_selector(line);
-        for (key, label, unit, state_class) in LINE_SENSORS {
-            let component_id = format!("{line_key}_{key}");
-            let template = format!("{{{{ {selector}.{key} }}}}");
-            let mut sensor = stats_sensor(
-                &component_id,
-                &format!("{line} {label}"),
-                template,
-                state_class,
-            );
-            if let (Some(unit), Some(map)) = (unit, sensor.as_object_mut()) {
-                map.insert("unit_of_measurement".to_string(), json!(unit));
-            }
-            components.insert(component_id, sensor);
+/// One line's sensors on the gateway device, on [`Topics::line_config_topic`]: its bus load
+/// and counters from the line's statistics document on `<prefix>/gateway/<client_id>/stats/<line>`
+/// ([`super::metrics::line_stats_json`]). Home Assistant puts them on the gateway device,
+/// whose identifier they name; their unique ids are the gateway's, as when they were in its
+/// own document.
+pub fn line_config(ctx: &Topics, line: &str) -> (String, Json) {
+    let line_key = line.replace('-', "_");
+    let line_topic = ctx.line_stats_topic(line);
+    let mut components = Map::new();
+    for (key, label, unit, state_class) in LINE_SENSORS {
+        let component_id = format!("{line_key}_{key}");
+        let template = format!("{{{{ value_json.{key} }}}}");
+        let mut sensor = stats_sensor(
+            ctx,
+            &component_id,
+            &format!("{line} {label}"),
+            &line_topic,
+            &template,
+            state_class,
+        );
+        if let (Some(unit), Some(map)) = (unit, sensor.as_object_mut()) {
+            map.insert("unit_of_measurement".to_string(), json!(unit));
         }
+        components.insert(component_id, sensor);
     }
+    (
+        ctx.line_config_topic(line),
+        gateway_document(ctx, components),
+    )
+}
 
-    let document = json!({
+/// A sensor of the gateway device reading `template` from the statistics on `topic`,
+/// available while the gateway is online.
+fn stats_sensor(
+    ctx: &Topics,
+    key: &str,
+    name: &str,
+    topic: &str,
+    template: &str,
+    state_class: &str,
+) -> Json {
+    json!({
+        "p": "sensor",
+        "name": name,
+        "unique_id": ctx.unique_id(GATEWAY_DEVICE, key),
+        "state_topic": topic,
+        "value_template": template,
+        "state_class": state_class,
+        "availability": [{
+            "topic": ctx.gateway_status_topic(),
+            "payload_available": ONLINE,
+            "payload_not_available": OFFLINE,
+        }],
+        "entity_category": "diagnostic",
+    })
+}
+
+/// A discovery document of the gateway device holding `components`.
+fn gateway_document(ctx: &Topics, components: Map<String, Json>) -> Json {
+    json!({
         "dev": {
             "identifiers": [ctx.gateway_id()],
             "name": ctx.client_id,
@@ -702,14 +732,7 @@ pub fn gateway_config(ctx: &Topics, lines: &[String]) -> (String, Json) {
         "o": origin(),
         "qos": 1,
         "cmps": components,
-    });
-    (ctx.gateway_config_topic(), document)
-}
-
-/// A string literal for a Jinja template: single-quoted, with `\` and `'` escaped.
-fn jinja_string(text: &str) -> String {
-    let escaped = text.replace('\\', "\\\\").replace('\'', "\\'");
-    format!("'{escaped}'")
+    })
 }
 
 /// The removal of a device's discovery document: its topic and the empty retained payload

@@ -1,7 +1,7 @@
 //! How a field is named and sorted in Home Assistant: its display name from the field name (or
 //! its label), and the entity category a field gets when its profile gives none.
 
-use crate::profile::{FieldInfo, FieldKind};
+use rtu2mqtt_profile::{FieldInfo, FieldKind};
 
 /// Words of field names that are abbreviations, written in capitals in a display name.
 const ACRONYMS: &[&str] = &["pid", "hepa", "crc", "id", "pv", "sv", "co2", "pm25", "rtu"];

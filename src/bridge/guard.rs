@@ -9,6 +9,15 @@
 //! per [`REASSERT_INTERVAL`] so that two publishers can never loop at full speed; the log blames
 //! another client only when the message is not the gateway's own Will. Pure: it decides, the
 //! core publishes; the clock is passed in.
+//!
+//! The status and availability topics change rarely and are watched all the time. State
+//! topics carry most of the gateway's traffic, so they are not: watching them all would bring
+//! every value the gateway publishes back to it. Instead one device at a time is audited for
+//! [`AUDIT_WINDOW`] (longer for a device with many topics, so the audit costs at most
+//! [`AUDIT_TOPICS_PER_SECOND`] messages a second), in turn: the core subscribes to that device's topics behind what it has
+//! already queued (so what the broker then holds is all the gateway's earlier word), judges
+//! what the broker hands over and what arrives meanwhile, and unsubscribes. A contradiction
+//! left by another client is found within one round of the devices and set right then.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -17,6 +26,20 @@ use std::time::{Duration, Instant};
 const IN_FLIGHT: usize = 8;
 /// The shortest time between two re-assertions of one topic.
 pub const REASSERT_INTERVAL: Duration = Duration::from_secs(2);
+/// How long one device's state topics are watched in its turn, at least.
+pub const AUDIT_WINDOW: Duration = Duration::from_secs(1);
+/// Topics audited per second at most: a device with more topics is watched for longer, so
+/// the messages the broker hands over for the audit stay this few whatever the plant's size.
+pub const AUDIT_TOPICS_PER_SECOND: u32 = 50;
+
+/// What a turn of the state audit asks for.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct AuditTurn {
+    /// The device whose audit is over: unsubscribe from its topics.
+    pub ended: Option<String>,
+    /// The device audited from now: subscribe to its topics.
+    pub started: Option<String>,
+}
 
 /// What to do about a message seen on a guarded topic.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -40,6 +63,10 @@ pub struct TopicGuard {
     held: HashSet<String>,
     /// The topic and payload of the gateway's own Last Will.
     own_will: Option<(String, String)>,
+    /// The device whose state topics are watched now, and until when.
+    audited: Option<(String, Instant)>,
+    /// Where the round of audits goes on.
+    next_audit: usize,
 }
 
 impl TopicGuard {
@@ -63,9 +90,52 @@ impl TopicGuard {
         queue.push_back(payload.to_string());
     }
 
-    /// A new connection: echoes of the old one will not come.
-    pub fn reset(&mut self) {
+    /// A new connection: echoes of the old one will not come, and the audit starts again.
+    /// Returns the device whose audit the lost connection interrupted (a persistent session
+    /// may still hold its subscription).
+    pub fn reset(&mut self) -> Option<String> {
         self.in_flight.clear();
+        self.audited.take().map(|(device, _)| device)
+    }
+
+    /// The device whose state topics are watched now.
+    pub fn audited(&self) -> Option<&str> {
+        self.audited.as_ref().map(|(device, _)| device.as_str())
+    }
+
+    /// The audit's turn at `now` among `devices` (in configuration order): the audit under
+    /// way ends once its window has passed (what was awaited on its topics is forgotten with
+    /// `is_audited_topic`, since those echoes will not come), and the next device's begins,
+    /// watched for [`AUDIT_WINDOW`] or, when it has more topics (`topics_of`), for as long as
+    /// [`AUDIT_TOPICS_PER_SECOND`] takes to cover them.
+    pub fn audit_turn(
+        &mut self,
+        devices: &[String],
+        now: Instant,
+        topics_of: impl Fn(&str) -> usize,
+        is_audited_topic: impl Fn(&str, &str) -> bool,
+    ) -> AuditTurn {
+        let mut turn = AuditTurn::default();
+        if let Some((device, until)) = &self.audited {
+            if now < *until {
+                return turn;
+            }
+            let device = device.clone();
+            self.in_flight
+                .retain(|topic, _| !is_audited_topic(&device, topic));
+            self.audited = None;
+            turn.ended = Some(device);
+        }
+        if devices.is_empty() {
+            return turn;
+        }
+        let device = devices[self.next_audit % devices.len()].clone();
+        self.next_audit = (self.next_audit + 1) % devices.len();
+        let topics = u32::try_from(topics_of(&device)).unwrap_or(u32::MAX);
+        let window = AUDIT_WINDOW.max(Duration::from_secs(1) * topics / AUDIT_TOPICS_PER_SECOND);
+        self.audited = Some((device.clone(), now + window));
+        turn.started = Some(device);
+        turn
     }
 
     /// `payload` arrived on `topic`, whose truth is `truth`. The broker delivers one topic's
@@ -176,6 +246,54 @@ mod tests {
             Verdict::Reassert
         );
         assert!(guard.reported.contains(status));
+    }
+
+    #[test]
+    fn devices_are_audited_in_turn_for_as_long_as_their_topics_take() {
+        let now = Instant::now();
+        let devices = vec!["a".to_string(), "b".to_string()];
+        let state_of = |device: &str, topic: &str| topic.starts_with(&format!("p/{device}/"));
+        // `a` has few topics, `b` five seconds' worth.
+        let topics_of = |device: &str| {
+            if device == "a" {
+                3
+            } else {
+                5 * AUDIT_TOPICS_PER_SECOND as usize
+            }
+        };
+        let mut guard = TopicGuard::default();
+        let first = guard.audit_turn(&devices, now, topics_of, state_of);
+        assert_eq!(first.started.as_deref(), Some("a"));
+        assert_eq!(first.ended, None);
+        guard.sent("p/a/gear", "3");
+        guard.sent("p/status", "online");
+        // Within the window nothing changes.
+        let within = now + AUDIT_WINDOW / 2;
+        assert_eq!(
+            guard.audit_turn(&devices, within, topics_of, state_of),
+            AuditTurn::default()
+        );
+        assert_eq!(guard.audited(), Some("a"));
+        let b_from = now + AUDIT_WINDOW;
+        let second = guard.audit_turn(&devices, b_from, topics_of, state_of);
+        assert_eq!(second.ended.as_deref(), Some("a"));
+        assert_eq!(second.started.as_deref(), Some("b"));
+        // The audited device's awaited echoes are forgotten, the rest are not.
+        assert!(!guard.in_flight.contains_key("p/a/gear"));
+        assert!(guard.in_flight.contains_key("p/status"));
+        // The larger device is watched for longer.
+        let b_within = b_from + Duration::from_secs(4);
+        assert_eq!(
+            guard.audit_turn(&devices, b_within, topics_of, state_of),
+            AuditTurn::default()
+        );
+        let b_over = b_from + Duration::from_secs(5);
+        let third = guard.audit_turn(&devices, b_over, topics_of, state_of);
+        assert_eq!(third.ended.as_deref(), Some("b"));
+        assert_eq!(third.started.as_deref(), Some("a"));
+        // A lost connection interrupts the audit under way.
+        assert_eq!(guard.reset().as_deref(), Some("a"));
+        assert_eq!(guard.audited(), None);
     }
 
     #[test]

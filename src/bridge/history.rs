@@ -15,9 +15,9 @@ use tokio::sync::mpsc;
 use super::action::{HistoryEntry, Publish};
 use super::metrics::HistoryStats;
 use crate::config::HistoryConfig;
-use crate::contract::{Topics, HISTORY};
 use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};
+use rtu2mqtt_profile::contract::{Topics, HISTORY};
 
 /// Records replayed per tick at most (with the bridge's 250 ms tick, 4,000 a second). While
 /// the journal holds records, what is read meanwhile is journaled behind them: the replay has
@@ -216,7 +216,7 @@ mod tests {
 
     use super::*;
     use crate::history::document::document;
-    use crate::profile::Value;
+    use rtu2mqtt_profile::Value;
 
     fn lane(dir: &std::path::Path) -> HistoryLane {
         let config = HistoryConfig {

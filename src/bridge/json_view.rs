@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{Map, Value as Json};
 
-use crate::profile::{DeviceState, Value};
+use rtu2mqtt_profile::{DeviceState, Value};
 
 /// The JSON view of `(field, value)` pairs: an object keyed by field name in ascending order.
 /// A field given twice keeps its last value (the newest reading).

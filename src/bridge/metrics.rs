@@ -1,6 +1,6 @@
 //! Observability documents from the line statistics and the bridge's own counters: the
-//! Prometheus text exposition (format 0.0.4) and the JSON published on
-//! `<prefix>/gateway/<client_id>/stats`.
+//! Prometheus text exposition (format 0.0.4), the JSON summary published on
+//! `<prefix>/gateway/<client_id>/stats` and each line's JSON on `…/stats/<line>`.
 //!
 //! Pure: snapshots in, text or JSON out. The bridge (or a metrics endpoint) owns the timing
 //! and the transport. Metric names, labels and JSON keys are a stable interface for
@@ -40,6 +40,9 @@ pub struct BridgeStats {
     pub published: u64,
     /// Publishes dropped because the client's queue was full.
     pub publish_failures: u64,
+    /// Publishes refused because they were larger than the MQTT packet limit (the plain and
+    /// the Sparkplug connection together).
+    pub oversized_refused: u64,
     /// Commands waiting for an offline device or their turn on the line.
     pub waiting_commands: u64,
     /// QoS 1 redeliveries of a command recognised and not run again.
@@ -302,7 +305,7 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
     );
     family.sample(&[], bridge.waiting_commands as f64);
 
-    let bridge_counters: [(&str, &str, u64); 10] = [
+    let bridge_counters: [(&str, &str, u64); 11] = [
         (
             "rtu2mqtt_mqtt_connects_total",
             "Successful connections to the broker, the first one included.",
@@ -322,6 +325,11 @@ pub fn prometheus_text(lines: &[LineStats], bridge: &BridgeStats) -> String {
             "rtu2mqtt_mqtt_publish_failures_total",
             "Publishes dropped because the client's queue was full.",
             bridge.publish_failures,
+        ),
+        (
+            "rtu2mqtt_mqtt_oversized_refused_total",
+            "Messages not sent because they were larger than the MQTT packet limit.",
+            bridge.oversized_refused,
         ),
         (
             "rtu2mqtt_command_redeliveries_ignored_total",
@@ -519,13 +527,19 @@ fn device_json(device: &DeviceStats) -> Json {
     })
 }
 
-fn line_json(line: &LineStats) -> Json {
+/// One line's statistics document for `<prefix>/gateway/<client_id>/stats/<line>`: `line`
+/// (its name), its counters, `bus_load_percent`, latencies in milliseconds and
+/// `devices.<device>`. Latencies never measured are `null`. Its size depends on the line's
+/// devices alone (at most 247), never on the number of lines. The gateway's Home Assistant
+/// line sensors read these keys (see [`super::discovery::gateway_config`]).
+pub fn line_stats_json(line: &LineStats) -> Json {
     let devices: Map<String, Json> = line
         .devices
         .iter()
         .map(|device| (device.name.clone(), device_json(device)))
         .collect();
     json!({
+        "line": line.line,
         "port_open": line.port_open,
         "transactions": line.transactions,
         "timeouts": line.timeouts,
@@ -550,30 +564,29 @@ fn line_json(line: &LineStats) -> Json {
     })
 }
 
-/// The statistics document for `<prefix>/gateway/<client_id>/stats`: gateway-wide figures at
-/// the top (`uptime_seconds`, `devices_online`, `devices_total`, `mqtt`, `commands`), then
-/// `lines.<line>` with the line's counters, `bus_load_percent`, latencies in milliseconds and
-/// `devices.<device>`. Latencies never measured are `null`. The gateway's Home Assistant
-/// sensors read these keys (see [`super::discovery::gateway_config`]).
+/// The statistics summary for `<prefix>/gateway/<client_id>/stats`: the gateway-wide figures
+/// (`uptime_seconds`, `devices_online`, `devices_total`, `lines_total`, `lines_open`, `mqtt`,
+/// `commands`, `history`). Each line's figures are in their own document
+/// ([`line_stats_json`]), so this one stays the same size at any scale. The gateway's Home
+/// Assistant sensors read these keys (see [`super::discovery::gateway_config`]).
 pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
     let all_devices = lines.iter().flat_map(|line| line.devices.iter());
     let devices_total = all_devices.clone().count();
     let devices_online = all_devices.filter(|device| device.online).count();
-    let line_documents: Map<String, Json> = lines
-        .iter()
-        .map(|line| (line.line.clone(), line_json(line)))
-        .collect();
     json!({
         "version": env!("CARGO_PKG_VERSION"),
         "uptime_seconds": bridge.uptime.as_secs(),
         "devices_online": devices_online,
         "devices_total": devices_total,
+        "lines_total": lines.len(),
+        "lines_open": lines.iter().filter(|line| line.port_open).count(),
         "mqtt": {
             "connected": bridge.mqtt_connected,
             "connects": bridge.mqtt_connects,
             "disconnects": bridge.mqtt_disconnects,
             "published": bridge.published,
             "publish_failures": bridge.publish_failures,
+            "oversized_refused": bridge.oversized_refused,
         },
         "commands": {
             "waiting": bridge.waiting_commands,
@@ -591,7 +604,6 @@ pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
         },
         "invalid_values": bridge.invalid_values,
         "history": bridge.history.as_ref().map(history_json),
-        "lines": line_documents,
     })
 }
 
@@ -680,8 +692,8 @@ mod tests {
         let lines = [line];
         let bridge = BridgeStats::default();
 
-        let document = stats_json(&lines, &bridge);
-        let valve = &document["lines"]["line-b"]["devices"]["valve"];
+        let document = line_stats_json(&lines[0]);
+        let valve = &document["devices"]["valve"];
         assert_eq!(valve["split_read_fallbacks"], 2, "{valve}");
         assert_eq!(valve["exceptions"], 0, "{valve}");
         assert_eq!(valve["failures"], 1, "only the timeout fails: {valve}");

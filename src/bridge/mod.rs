@@ -48,11 +48,11 @@ use self::core::{
 };
 use self::history::{is_history, HistoryLane, REPLAY_ROOM};
 use self::metrics::BridgeStats;
-use self::mqtt::{LinkEvent, LinkFlag};
+use self::mqtt::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::outbox::{Lane, Outbox, Request};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// How often waiting commands, expiries and statistics are looked at; the bridge's heartbeat
 /// is refreshed at least this often.
@@ -123,6 +123,8 @@ pub struct Bridge {
     /// Asks the event loop task to give back what rumqttc holds and end (a stop whose
     /// Disconnect does not complete).
     give_back: watch::Sender<bool>,
+    /// Refuses what rumqttc would end the connection on.
+    packet_limit: PacketLimit,
 }
 
 impl Bridge {
@@ -181,6 +183,7 @@ impl Bridge {
                 .map(|history| HistoryLane::open(history, config.mqtt.topics())),
             in_writer,
             give_back,
+            packet_limit: PacketLimit::new(MAX_OUTGOING_PACKET, "plain"),
         };
         (
             bridge,
@@ -203,7 +206,11 @@ impl Bridge {
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
-    pub async fn run(mut self, mut events_rx: mpsc::Receiver<LineEvent>, mut shutdown: Shutdown) {
+    pub async fn run(
+        mut self,
+        mut events_rx: mpsc::Receiver<LineEvent>,
+        shutdown: CancellationToken,
+    ) {
         let mut tick = tokio::time::interval(TICK);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -212,7 +219,7 @@ impl Bridge {
             let feed = self.link_up && !self.outbox.is_empty();
             let writer_tx = self.writer_tx.clone();
             tokio::select! {
-                _ = shutdown.fired() => break,
+                _ = shutdown.cancelled() => break,
                 permit = writer_tx.reserve_owned(), if feed => {
                     if let Ok(permit) = permit {
                         if let Some(request) = self.outbox.pop() {
@@ -241,6 +248,7 @@ impl Bridge {
                     let now = Instant::now();
                     self.history_tick(now);
                     let lines = &self.lines;
+                    self.core.set_oversized_refused(self.packet_limit.refused());
                     let actions = self.core.on_tick(now, || line_stats(lines));
                     self.execute(actions);
                     self.counters_tx.send_replace(self.core.counters(now));
@@ -256,6 +264,12 @@ impl Bridge {
         if let Some(history) = &mut self.history {
             history.forward_replays(replayed);
         }
+    }
+
+    /// A packet limit of `max` bytes for another connection to the broker (the Sparkplug
+    /// node's), counting its refusals into this bridge's statistics.
+    pub fn packet_limit(&self, connection: &'static str, max: usize) -> PacketLimit {
+        self.packet_limit.for_connection(connection, max)
     }
 
     /// Where a configuration reload tells this bridge its new devices and lines.
@@ -332,6 +346,9 @@ impl Bridge {
         while let Some(action) = queue.pop_front() {
             match action {
                 Action::Publish(publish) => {
+                    if !self.admits(&publish) {
+                        continue;
+                    }
                     let lane = self.lane_of(&publish);
                     if let Some(dropped) = self.outbox.push(publish, lane) {
                         self.on_dropped(dropped);
@@ -339,6 +356,12 @@ impl Bridge {
                 }
                 Action::Subscribe { filter, qos } => {
                     self.outbox.push_control(Request::Subscribe { filter, qos });
+                }
+                Action::SubscribeInTurn { filter, qos } => {
+                    self.outbox.push_in_turn(Request::Subscribe { filter, qos });
+                }
+                Action::UnsubscribeInTurn { filter } => {
+                    self.outbox.push_in_turn(Request::Unsubscribe { filter });
                 }
                 Action::Send { line, command } => {
                     let refused = match self.lines.get(line) {
@@ -415,6 +438,12 @@ impl Bridge {
         if self.link_up {
             let room = REPLAY_ROOM.saturating_sub(self.outbox.len());
             for publish in history.replay(room) {
+                let fits =
+                    self.packet_limit
+                        .admits(&publish.topic, publish.payload.len(), publish.qos);
+                if !fits {
+                    continue;
+                }
                 if let Some(dropped) = self.outbox.push(publish, Lane::Urgent) {
                     self.on_dropped(dropped);
                 }
@@ -429,6 +458,14 @@ impl Bridge {
         }
     }
 
+    /// Whether `publish` fits in one packet; one that does not is refused here, alone, since
+    /// rumqttc would end the connection on it (and send it again after every reconnect). It is
+    /// not kept for a later connection: it would not fit then either.
+    fn admits(&mut self, publish: &Publish) -> bool {
+        self.packet_limit
+            .admits(&publish.topic, publish.payload.len(), publish.qos)
+    }
+
     /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
     fn lane_of(&self, publish: &Publish) -> Lane {
         let topics = self.core.topics();
@@ -436,7 +473,7 @@ impl Bridge {
             .topic
             .strip_prefix(topics.discovery_prefix.as_str())
             .is_some_and(|rest| rest.starts_with('/'));
-        if discovery || publish.topic == topics.gateway_stats_topic() {
+        if discovery || topics.is_stats_topic(&publish.topic) {
             Lane::Resend
         } else {
             Lane::Urgent
@@ -688,6 +725,7 @@ fn spawn_writer(
                         .await
                 }
                 Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
+                Request::Unsubscribe { filter } => client.unsubscribe(filter).await,
                 Request::Disconnect => client.disconnect().await,
             };
             in_writer.fetch_sub(1, Ordering::SeqCst);

@@ -8,8 +8,12 @@
 //! History publishes rumqttc still holds when a connection ends (sent but not acknowledged, or
 //! still queued) are taken back from it and handed to the bridge, which journals them: rumqttc
 //! would otherwise drop them (a new session) or send them ahead of older journaled records.
+//! A publish larger than the outgoing packet limit is refused before it reaches rumqttc
+//! ([`PacketLimit`]): rumqttc would fail the whole connection on it, and send it again after
+//! every reconnect.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::HashSet;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -21,7 +25,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::history::is_history;
 use crate::config::MqttSettings;
-use crate::contract::{Topics, OFFLINE};
+use rtu2mqtt_profile::contract::{Topics, OFFLINE};
 
 /// First wait after a connection error.
 pub const BACKOFF_INITIAL: Duration = Duration::from_millis(250);
@@ -48,7 +52,11 @@ const CLASH_SUSPECTED_AFTER: u32 = 3;
 /// memory bound is the broker's maximum message size (mosquitto `message_size_limit` /
 /// `max_packet_size`), which deployments can lower; the bridge drops the payload at once.
 pub const MAX_INCOMING_PACKET: usize = 268_435_455;
-/// Discovery configs of big devices are a few KiB.
+/// The largest packet the gateway sends. rumqttc checks every outgoing packet against it and
+/// ends the connection on one that is larger (keeping it to send again after the reconnect),
+/// so [`PacketLimit`] refuses such a publish before it is handed over. MQTT 3.1.1 has no way
+/// for the broker to announce its own limit: a broker configured below this one closes the
+/// connection on a packet it finds too large, so lower the broker's limit only with care.
 pub const MAX_OUTGOING_PACKET: usize = 256 * 1024;
 
 /// How long the event loop waits for the broker to close after our Disconnect.
@@ -72,6 +80,83 @@ pub enum LinkEvent {
     Closed { unacknowledged: Vec<Publish> },
     /// A history publish the writer did not hand to the client because the link was down.
     Unsent(super::core::Publish),
+}
+
+/// The size of a PUBLISH packet on `topic` with `payload_len` bytes of payload, as rumqttc
+/// measures it against [`MAX_OUTGOING_PACKET`]: the fixed header (its remaining length takes 1
+/// to 4 bytes), the topic with its length, the packet id of QoS 1 and 2, the payload.
+pub fn publish_packet_size(topic: &str, payload_len: usize, qos: QoS) -> usize {
+    let packet_id = if qos == QoS::AtMostOnce { 0 } else { 2 };
+    let remaining = 2 + topic.len() + packet_id + payload_len;
+    let length_bytes = match remaining {
+        0..=127 => 1,
+        128..=16_383 => 2,
+        16_384..=2_097_151 => 3,
+        _ => 4,
+    };
+    1 + length_bytes + remaining
+}
+
+/// The outgoing packet limit, applied by the gateway before rumqttc sees a publish: one that
+/// is too large is refused alone (counted, logged once per topic) and the connection carries
+/// on. Clones share the count, so the plain and the Sparkplug connection add to one figure.
+#[derive(Debug, Clone)]
+pub struct PacketLimit {
+    max: usize,
+    refused: Arc<AtomicU64>,
+    /// Topics already named in the log.
+    logged: HashSet<String>,
+    /// Which connection this copy guards, for the log.
+    connection: &'static str,
+}
+
+impl PacketLimit {
+    /// A limit of `max` bytes per packet for the connection named `connection` in the log.
+    pub fn new(max: usize, connection: &'static str) -> Self {
+        PacketLimit {
+            max,
+            refused: Arc::new(AtomicU64::new(0)),
+            logged: HashSet::new(),
+            connection,
+        }
+    }
+
+    /// A limit of `max` bytes for another connection, counting into the same figure.
+    pub fn for_connection(&self, connection: &'static str, max: usize) -> Self {
+        PacketLimit {
+            max,
+            refused: Arc::clone(&self.refused),
+            logged: HashSet::new(),
+            connection,
+        }
+    }
+
+    /// Whether a publish on `topic` with `payload_len` bytes fits; one that does not is
+    /// counted and, the first time on its topic, logged.
+    pub fn admits(&mut self, topic: &str, payload_len: usize, qos: QoS) -> bool {
+        let size = publish_packet_size(topic, payload_len, qos);
+        if size <= self.max {
+            return true;
+        }
+        self.refused.fetch_add(1, Ordering::Relaxed);
+        if !self.logged.contains(topic) {
+            self.logged.insert(topic.to_string());
+            tracing::error!(connection = self.connection, %topic, size, max = self.max,
+                "a message larger than the MQTT packet limit is not sent (sending it would end \
+                 the connection); counted as mqtt.oversized_refused");
+        }
+        false
+    }
+
+    /// The largest packet admitted, in bytes (what rumqttc must be told too).
+    pub fn max(&self) -> usize {
+        self.max
+    }
+
+    /// Publishes refused so far, on every connection sharing this count.
+    pub fn refused(&self) -> u64 {
+        self.refused.load(Ordering::Relaxed)
+    }
 }
 
 /// Whether the link is up, as the event loop task knows it first; the bridge's writer reads
@@ -372,6 +457,52 @@ mod tests {
         ] {
             assert!(connect_went_out(&sent), "{sent}");
         }
+    }
+
+    #[test]
+    fn the_packet_size_is_the_one_rumqttc_checks() {
+        for payload_len in [
+            0, 1, 100, 122, 123, 127, 128, 16_370, 16_383, 16_384, 300_000,
+        ] {
+            for qos in [QoS::AtMostOnce, QoS::AtLeastOnce] {
+                let topic = "plant/gateway/gw1/stats/line-a";
+                let mut publish = Publish::new(topic, qos, vec![0u8; payload_len]);
+                // rumqttc numbers a QoS 1 publish before it measures and writes it.
+                if qos != QoS::AtMostOnce {
+                    publish.pkid = 1;
+                }
+                assert_eq!(
+                    publish_packet_size(topic, payload_len, qos),
+                    publish.size(),
+                    "{payload_len} bytes at {qos:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_publish_over_the_limit_is_refused_and_counted_on_every_connection() {
+        let topic = "plant/gateway/gw1/stats";
+        // The largest payload that fits (the remaining length's own bytes grow with it).
+        let fits = (0..MAX_OUTGOING_PACKET)
+            .rev()
+            .find(|len| publish_packet_size(topic, *len, QoS::AtLeastOnce) <= MAX_OUTGOING_PACKET)
+            .unwrap_or(0);
+        assert_eq!(
+            publish_packet_size(topic, fits, QoS::AtLeastOnce),
+            MAX_OUTGOING_PACKET
+        );
+        let mut plain = PacketLimit::new(MAX_OUTGOING_PACKET, "plain");
+        let mut node = plain.for_connection("sparkplug", MAX_OUTGOING_PACKET);
+        assert!(plain.admits(topic, fits, QoS::AtLeastOnce));
+        assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));
+        assert!(!plain.admits(topic, fits + 1, QoS::AtLeastOnce));
+        assert!(!node.admits("spBv1.0/plant/NBIRTH/gw1", fits * 2, QoS::AtMostOnce));
+        assert_eq!(plain.refused(), 3);
+        assert_eq!(node.refused(), 3);
+        // Each topic is named in the log once.
+        assert_eq!(plain.logged.len(), 1);
+        assert_eq!(node.logged.len(), 1);
     }
 
     #[test]

@@ -21,6 +21,7 @@ pub const MAX_OUTBOX: usize = 100_000;
 pub enum Request {
     Publish(Publish),
     Subscribe { filter: String, qos: QoS },
+    Unsubscribe { filter: String },
     Disconnect,
 }
 
@@ -38,6 +39,8 @@ enum Entry {
     Once(Publish),
     /// The newest payload for this retained topic is in `retained`.
     Retained(String),
+    /// A (un)subscription that keeps its place among the publishes.
+    InTurn(Request),
 }
 
 #[derive(Debug, Default)]
@@ -60,6 +63,11 @@ impl Outbox {
 
     pub fn push_control(&mut self, request: Request) {
         self.control.push_back(request);
+    }
+
+    /// Queues a (un)subscription behind the urgent publishes already waiting.
+    pub fn push_in_turn(&mut self, request: Request) {
+        self.urgent.push_back(Entry::InTurn(request));
     }
 
     /// Queues `publish`; returns what had to be dropped to stay within [`MAX_OUTBOX`].
@@ -102,6 +110,7 @@ impl Outbox {
         match entry {
             Entry::Once(publish) => Some(publish),
             Entry::Retained(topic) => self.retained.remove(&topic),
+            Entry::InTurn(_) => None,
         }
     }
 
@@ -124,6 +133,9 @@ impl Outbox {
             return Some(control);
         }
         while let Some(entry) = self.urgent.pop_front().or_else(|| self.resend.pop_front()) {
+            if let Entry::InTurn(request) = entry {
+                return Some(request);
+            }
             if let Some(publish) = self.resolve(entry) {
                 return Some(Request::Publish(publish));
             }
@@ -138,16 +150,18 @@ impl Outbox {
         self.control.clear();
         self.resend.clear();
         let retained = &self.retained;
+        // A new connection makes its own subscriptions.
         self.urgent.retain(|entry| match entry {
             Entry::Once(publish) => publish.keep,
             Entry::Retained(topic) => retained.get(topic).is_some_and(|p| p.keep),
+            Entry::InTurn(_) => false,
         });
         let kept: std::collections::HashSet<&String> = self
             .urgent
             .iter()
             .filter_map(|entry| match entry {
                 Entry::Retained(topic) => Some(topic),
-                Entry::Once(_) => None,
+                Entry::Once(_) | Entry::InTurn(_) => None,
             })
             .collect();
         let stale: Vec<String> = self
@@ -182,6 +196,7 @@ mod tests {
             .map(|request| match request {
                 Request::Publish(p) => format!("{}={}", p.topic, p.payload),
                 Request::Subscribe { filter, .. } => format!("sub {filter}"),
+                Request::Unsubscribe { filter } => format!("unsub {filter}"),
                 Request::Disconnect => "disconnect".to_string(),
             })
             .collect()
@@ -208,6 +223,32 @@ mod tests {
                 "ha/config={}"
             ]
         );
+        assert!(outbox.is_empty());
+    }
+
+    #[test]
+    fn a_subscription_in_turn_keeps_its_place_behind_earlier_publishes() {
+        let mut outbox = Outbox::default();
+        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
+        outbox.push_in_turn(Request::Subscribe {
+            filter: "p/a/+".to_string(),
+            qos: QoS::AtLeastOnce,
+        });
+        // A newer payload for a topic queued before takes the older one's place.
+        outbox.push(publish("p/a/gear", "4", true, false), Lane::Urgent);
+        outbox.push(publish("p/a/power", "ON", true, false), Lane::Urgent);
+        outbox.push_in_turn(Request::Unsubscribe {
+            filter: "p/a/+".to_string(),
+        });
+        assert_eq!(
+            topics_in_order(&mut outbox),
+            ["p/a/gear=4", "sub p/a/+", "p/a/power=ON", "unsub p/a/+"]
+        );
+        // A lost connection drops them: the next one makes its own.
+        outbox.push_in_turn(Request::Unsubscribe {
+            filter: "p/a/+".to_string(),
+        });
+        assert_eq!(outbox.on_disconnect(), 1);
         assert!(outbox.is_empty());
     }
 

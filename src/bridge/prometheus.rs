@@ -10,7 +10,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// Largest request head read; a scraper's is a few hundred bytes.
 const MAX_REQUEST: usize = 8 * 1024;
@@ -26,10 +26,10 @@ pub async fn bind(address: SocketAddr) -> std::io::Result<TcpListener> {
 }
 
 /// Serves `/metrics` on `listener` until `shutdown` fires.
-pub async fn serve(listener: TcpListener, render: Render, mut shutdown: Shutdown) {
+pub async fn serve(listener: TcpListener, render: Render, shutdown: CancellationToken) {
     loop {
         let accepted = tokio::select! {
-            _ = shutdown.fired() => return,
+            _ = shutdown.cancelled() => return,
             accepted = listener.accept() => accepted,
         };
         match accepted {
@@ -127,7 +127,8 @@ mod tests {
     async fn serves_metrics_and_nothing_else() {
         let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
         let address = listener.local_addr().unwrap();
-        let (trigger, shutdown) = crate::shutdown::channel();
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
         let render: Render = Arc::new(|| "rtu2mqtt_up 1\n".to_string());
         let server = tokio::spawn(serve(listener, render, shutdown));
 
@@ -144,7 +145,7 @@ mod tests {
         let refused = get(address, &huge).await;
         assert!(refused.starts_with("HTTP/1.1 431"), "{refused}");
 
-        trigger.fire();
+        trigger.cancel();
         server.await.unwrap();
     }
 }

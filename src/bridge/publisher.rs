@@ -16,24 +16,25 @@ use super::discovery;
 use super::guard::{TopicGuard, Verdict};
 use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
-use crate::contract::{availability_word, Topics, OFFLINE, ONLINE};
 use crate::history::document;
-use crate::profile::Value;
+use rtu2mqtt_profile::contract::{availability_word, Topics, OFFLINE, ONLINE};
+use rtu2mqtt_profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
-/// Devices announced at once (discovery document; after a connect also availability, every
-/// state and the JSON view), and then as many on each tick while the driver keeps up: a
-/// gateway with a thousand devices announces them over seconds instead of building a hundred
-/// thousand messages in one turn of the loop that also serves the lines.
+/// Lines and devices announced at once (discovery documents; after a connect also each
+/// device's availability, every state and the JSON view), and then as many on each tick
+/// while the driver keeps up: a gateway with a thousand devices announces them over seconds
+/// instead of building a hundred thousand messages in one turn of the loop that also serves
+/// the lines.
 pub const ANNOUNCE_BATCH: usize = 25;
 
-/// A device still to be announced: its discovery document, and with `everything` its
-/// availability, every state and its JSON view.
+/// What is still to be announced: a line's discovery document; a device's, and with
+/// `everything` its availability, every state and its JSON view.
 #[derive(Debug)]
-struct Announcement {
-    device: String,
-    everything: bool,
+enum Announcement {
+    Line(String),
+    Device { device: String, everything: bool },
 }
 
 /// A topic this gateway owns and defends.
@@ -118,6 +119,11 @@ impl Publisher {
         &self.devices
     }
 
+    /// The configured lines' names, in order.
+    pub fn line_names(&self) -> &[String] {
+        &self.line_names
+    }
+
     pub fn cache(&self) -> &StateCache {
         &self.cache
     }
@@ -146,17 +152,31 @@ impl Publisher {
 
     /// Every ConnAck: subscriptions are not restored by rumqttc, and a clean session has lost
     /// whatever was unacknowledged, so everything is sent again, and what waited goes out.
+    /// State topics are not subscribed to: they are audited one device at a time
+    /// ([`Self::audit_turn`]).
     pub fn connected(&mut self) {
         self.connected = true;
-        self.guard.reset();
+        // A persistent session keeps what an earlier connection subscribed to: the audit the
+        // lost connection interrupted, and every device's topics as earlier versions watched
+        // them.
+        if let Some(device) = self.guard.reset() {
+            self.out.push(Action::UnsubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+            });
+        }
+        self.out.push(Action::UnsubscribeInTurn {
+            filter: self.topics.device_topics_filter(),
+        });
         self.subscribe(self.topics.command_filter());
         self.subscribe(self.topics.gateway_status_topic());
-        self.subscribe(self.topics.device_topics_filter());
+        self.subscribe(self.topics.availability_filter());
+        self.subscribe(self.topics.refresh_filter());
         if self.discovery {
             // Home Assistant's birth message, and our own earlier configs (to remove those of
             // devices no longer configured).
             self.subscribe(self.topics.ha_status_topic());
             self.subscribe(self.topics.config_filter());
+            self.subscribe(self.topics.line_config_filter());
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
         self.json_views.values_mut().for_each(JsonView::mark_stale);
@@ -204,7 +224,7 @@ impl Publisher {
         if !self.connected {
             return false;
         }
-        if retain && self.guarded(&topic).is_some() {
+        if retain && self.guarded(&topic).is_some_and(|g| self.is_watched(&g)) {
             self.guard.sent(&topic, &payload);
         }
         self.out.push(Action::Publish(Publish {
@@ -253,45 +273,59 @@ impl Publisher {
         self.announce(false);
     }
 
-    /// The gateway's discovery document, then every configured device's announcement (with
-    /// `everything`: its availability, states and JSON view too): the first [`ANNOUNCE_BATCH`]
-    /// devices at once, the rest by [`Publisher::continue_announcing`]. A device already
-    /// waiting keeps what it was to get.
+    /// The gateway's discovery document, then each line's and each configured device's
+    /// announcement (with `everything`: the device's availability, states and JSON view too):
+    /// the first [`ANNOUNCE_BATCH`] at once, the rest by [`Publisher::continue_announcing`].
+    /// A device already waiting keeps what it was to get.
     fn announce(&mut self, everything: bool) {
+        let mut announcing = VecDeque::new();
         if self.discovery {
-            let (topic, document) = discovery::gateway_config(&self.topics, &self.line_names);
+            let (topic, document) = discovery::gateway_config(&self.topics);
             self.publish(topic, document.to_string(), true);
+            announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
         } else if !everything {
             return;
         }
         let waiting_everything: std::collections::HashSet<&str> = self
             .announcing
             .iter()
-            .filter(|announcement| announcement.everything)
-            .map(|announcement| announcement.device.as_str())
-            .collect();
-        let announcing = self
-            .cache
-            .devices()
-            .iter()
-            .map(|device| Announcement {
-                everything: everything || waiting_everything.contains(device.as_str()),
-                device: device.clone(),
+            .filter_map(|announcement| match announcement {
+                Announcement::Device {
+                    device,
+                    everything: true,
+                } => Some(device.as_str()),
+                _ => None,
             })
             .collect();
+        announcing.extend(
+            self.cache
+                .devices()
+                .iter()
+                .map(|device| Announcement::Device {
+                    everything: everything || waiting_everything.contains(device.as_str()),
+                    device: device.clone(),
+                }),
+        );
         self.announcing = announcing;
         self.continue_announcing();
     }
 
-    /// The next [`ANNOUNCE_BATCH`] devices still to be announced. Each discovery document is
-    /// built when it is published, from the device's state then (its identity fields).
+    /// The next [`ANNOUNCE_BATCH`] lines or devices still to be announced. Each discovery
+    /// document is built when it is published, from the device's state then (its identity
+    /// fields).
     pub fn continue_announcing(&mut self) {
         if !self.connected {
             return;
         }
         for _ in 0..ANNOUNCE_BATCH {
-            let Some(Announcement { device, everything }) = self.announcing.pop_front() else {
-                return;
+            let (device, everything) = match self.announcing.pop_front() {
+                None => return,
+                Some(Announcement::Line(line)) => {
+                    let (topic, document) = discovery::line_config(&self.topics, &line);
+                    self.publish(topic, document.to_string(), true);
+                    continue;
+                }
+                Some(Announcement::Device { device, everything }) => (device, everything),
             };
             if let Some(entry) = self.devices.get(&device).filter(|_| self.discovery) {
                 let (topic, document) = discovery::device_config_with_state(
@@ -433,6 +467,15 @@ impl Publisher {
         }
     }
 
+    /// One of our own line documents as the broker holds it: removed when its line is no
+    /// longer configured.
+    pub fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+        if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
+            tracing::info!(%topic, "removing the discovery config of a line no longer configured");
+            self.publish(topic.to_string(), String::new(), true);
+        }
+    }
+
     /// One of our own discovery documents as the broker holds it: removed when its device is
     /// no longer configured.
     pub fn on_config(&mut self, topic: &str, payload: &[u8]) {
@@ -452,11 +495,58 @@ impl Publisher {
         }
         let (device, level) = self.topics.parse_device_topic(topic)?;
         let entry = self.devices.get(device)?;
-        if level == crate::contract::AVAILABILITY {
+        if level == rtu2mqtt_profile::contract::AVAILABILITY {
             return Some(Guarded::Availability(device.to_string()));
         }
         entry.profile.field(level)?;
         Some(Guarded::State(device.to_string(), level.to_string()))
+    }
+
+    /// Whether the broker hands this gateway what is published on the topic now: the status
+    /// and availability always, a state topic only while its device is audited.
+    fn is_watched(&self, guarded: &Guarded) -> bool {
+        match guarded {
+            Guarded::Status | Guarded::Availability(_) => true,
+            Guarded::State(device, _) => self.guard.audited() == Some(device.as_str()),
+        }
+    }
+
+    /// The state audit's turn (every tick while connected): the audit whose window has passed
+    /// ends, the next device's begins. Both go behind what is queued, so the broker hands
+    /// over the device's topics as the gateway's earlier publishes left them.
+    pub fn audit_turn(&mut self, now: Instant) {
+        if !self.connected {
+            return;
+        }
+        let topics = &self.topics;
+        let devices = &self.devices;
+        // A device's state topics, its availability and its refresh topic.
+        let topics_of = |device: &str| {
+            devices
+                .get(device)
+                .map_or(0, |entry| entry.profile.fields().len() + 2)
+        };
+        let turn = self
+            .guard
+            .audit_turn(self.cache.devices(), now, topics_of, |device, topic| {
+                // Availability is watched all the time: its echoes still come.
+                topics
+                    .parse_device_topic(topic)
+                    .is_some_and(|(owner, level)| {
+                        owner == device && level != rtu2mqtt_profile::contract::AVAILABILITY
+                    })
+            });
+        if let Some(device) = turn.ended {
+            self.out.push(Action::UnsubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+            });
+        }
+        if let Some(device) = turn.started {
+            self.out.push(Action::SubscribeInTurn {
+                filter: self.topics.device_filter(&device),
+                qos: QoS::AtLeastOnce,
+            });
+        }
     }
 
     /// What the topic must say now; None when there is nothing to defend yet.
@@ -475,6 +565,11 @@ impl Publisher {
     /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
     /// was overwritten again too soon (then later, [`Self::reassert_due`]).
     pub fn on_guarded(&mut self, guarded: Guarded, topic: &str, payload: &[u8], now: Instant) {
+        // A state topic outside its audit: a late message of an audit that has ended, or of
+        // a subscription an earlier connection left behind.
+        if !self.is_watched(&guarded) {
+            return;
+        }
         let Some(truth) = self.truth(&guarded) else {
             return;
         };

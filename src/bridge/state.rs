@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 
-use crate::profile::{DeviceState, Value};
+use rtu2mqtt_profile::{DeviceState, Value};
 
 #[derive(Debug, Default)]
 struct DeviceCache {

@@ -18,9 +18,9 @@ use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
 use super::{Command, CommandFailure, CommandOutcome};
-use crate::profile::{CommandPlan, Verification};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::PortFault;
+use rtu2mqtt_profile::{CommandPlan, Verification};
 
 /// Pause between two read-backs of a command whose device is still moving.
 pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);
@@ -345,8 +345,8 @@ impl Settle {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::registry::built_in;
-    use crate::profile::DeviceState;
+    use rtu2mqtt_profile::registry::built_in;
+    use rtu2mqtt_profile::DeviceState;
 
     #[test]
     fn a_held_command_is_due_when_its_write_interval_ends() {

@@ -4,8 +4,8 @@
 //! publishes (field data that does not decode is counted and logged, never published). No
 //! frames are run here.
 
-use crate::profile::{DeviceState, Value};
 use rtu2mqtt_modbus::Response;
+use rtu2mqtt_profile::{DeviceState, Value};
 
 use super::stats::DeviceStats;
 use super::DeviceSpec;
@@ -114,7 +114,7 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::profile::Profile;
+    use rtu2mqtt_profile::Profile;
 
     /// A fast block holding the exponent, a slow one holding the value it scales.
     const PROFILE: &str = r#"

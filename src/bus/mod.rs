@@ -10,12 +10,12 @@
 //! Fields with `publish` settings are reported by exception ([`report`], applied by the line's
 //! [`reporter`] task), so every consumer of the events sees the same series.
 
+pub mod availability;
+pub mod cadence;
 mod commands;
 pub mod device;
-pub mod health;
 pub mod line;
 pub mod outcome;
-pub mod plan;
 pub mod poll;
 pub mod port;
 pub mod report;
@@ -32,10 +32,10 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use crate::profile::{CommandPlan, Profile, PublishRule, Value};
 use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::transport::SerialSettings;
 use rtu2mqtt_modbus::SlaveId;
+use rtu2mqtt_profile::{CommandPlan, Profile, PublishRule, Value};
 
 pub use outcome::CommandFailure;
 pub use stats::LineStats;

@@ -3,10 +3,10 @@
 //! counted as a split-read fallback, not as an exception), and what the reply means for the
 //! device's health. Decoding and reporting are the line's.
 
-use crate::profile::ReadBlock;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Response};
+use rtu2mqtt_profile::ReadBlock;
 
 use super::device::DeviceRuntime;
 use super::scheduler::PollOutcome;

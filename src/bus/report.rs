@@ -15,7 +15,7 @@ use std::time::{Instant, SystemTime};
 
 use super::device::Values;
 use super::{DeviceSpec, LineEvent, Origin};
-use crate::profile::{PublishRule, Value};
+use rtu2mqtt_profile::{PublishRule, Value};
 
 /// The publishing state of one line's devices.
 #[derive(Debug, Default)]
@@ -237,8 +237,8 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::profile::publish::{Amount, RawPublish};
-    use crate::profile::registry::built_in;
+    use rtu2mqtt_profile::publish::{Amount, RawPublish};
+    use rtu2mqtt_profile::registry::built_in;
 
     const S: Duration = Duration::from_secs(1);
 

@@ -9,7 +9,7 @@ use tokio::sync::mpsc;
 
 use super::report::Report;
 use super::LineEvent;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// Events a line may be ahead of its reporter by (the reporter hands them on at once).
 pub const REPORTER_QUEUE: usize = 64;
@@ -20,7 +20,7 @@ pub async fn run(
     mut report: Report,
     mut from: mpsc::Receiver<LineEvent>,
     to: mpsc::Sender<LineEvent>,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) {
     loop {
         let wake = report.next_wake();
@@ -41,7 +41,7 @@ pub async fn run(
             tokio::select! {
                 biased;
                 sent = to.send(event) => if sent.is_err() { return },
-                () = shutdown.fired() => return,
+                () = shutdown.cancelled() => return,
             }
         }
     }

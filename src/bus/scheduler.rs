@@ -19,7 +19,7 @@
 //!    offline, after a write that can have changed it, or on a refresh (a read of it that
 //!    fails is tried again one poll interval later).
 //! 4. An offline device has no polls, only a probe (its cheapest block) on the back-off
-//!    schedule of [`super::health`]. That bounds what a dead device costs the line and it can
+//!    schedule of [`super::availability`]. That bounds what a dead device costs the line and it can
 //!    never starve the others: its failing polls push its own due instants, not theirs.
 //! 5. Exception 06 (busy) re-schedules the block a short while later without counting as a
 //!    failure; other devices use the line meanwhile.
@@ -30,8 +30,8 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use super::health::{Availability, DeviceHealth, HealthChange, HealthPolicy};
-use super::plan::DevicePlan;
+use super::availability::{Availability, DeviceHealth, HealthChange, HealthPolicy};
+use super::cadence::DevicePlan;
 
 /// How long a block answered with exception 06 (busy) waits before it is read again.
 pub const BUSY_RETRY_DELAY: Duration = Duration::from_millis(100);
@@ -426,8 +426,8 @@ impl<C> Scheduler<C> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bus::plan::BlockPlan;
-    use crate::profile::PollClass;
+    use crate::bus::cadence::BlockPlan;
+    use rtu2mqtt_profile::PollClass;
 
     const MS: Duration = Duration::from_millis(1);
 

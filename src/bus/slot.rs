@@ -12,10 +12,10 @@
 
 use std::time::Instant;
 
-use crate::profile::{CommandPlan, Verification};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{Error as MasterError, PortFault};
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
+use rtu2mqtt_profile::{CommandPlan, Verification};
 
 use super::outcome::CommandFailure;
 use super::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
-use crate::profile::Profile;
+use rtu2mqtt_profile::Profile;
 
 /// The last write of each (device, field) that has a write interval. Cloning shares it.
 #[derive(Debug, Clone, Default)]
@@ -83,7 +83,7 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::profile::registry::built_in;
+    use rtu2mqtt_profile::registry::built_in;
 
     #[test]
     fn an_interval_runs_from_the_last_write_of_any_covered_field() {

@@ -13,8 +13,8 @@ use super::names::{invalid_name, is_valid_name, shown, MAX_NAME_LEN};
 use super::schema::RawDevice;
 use super::Problem;
 use crate::bus::DeviceSpec;
-use crate::contract::reserved_name_problem;
-use crate::profile::{Profile, PublishRule};
+use rtu2mqtt_profile::contract::reserved_name_problem;
+use rtu2mqtt_profile::{Profile, PublishRule};
 
 pub(super) fn validate_device(
     raw: &RawDevice,
@@ -178,7 +178,7 @@ fn field_name_problems(profile: &Profile) -> Vec<String> {
 
 /// A built-in profile by name, else a profile file (relative to the config file).
 fn resolve_profile(spec: &str, base: &Path) -> Result<Profile, String> {
-    crate::profile::registry::load(spec, Some(base)).map_err(|error| error.to_string())
+    rtu2mqtt_profile::registry::load(spec, Some(base)).map_err(|error| error.to_string())
 }
 
 #[cfg(test)]

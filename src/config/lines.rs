@@ -10,15 +10,15 @@ use std::time::Duration;
 
 use super::devices::validate_device;
 use super::names::{invalid_name, is_valid_name};
-use super::plan::LinePlan;
+use super::poll_plan::LinePlan;
 use super::schema::{RawLine, RawServe};
 use super::Problem;
 use crate::bus::serve::{Access, ServeFraming, ServeSpec};
 use crate::bus::{LineSpec, Transport};
-use crate::profile::Profile;
 use rtu2mqtt_modbus::tcp_link::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::timing::CharFormat;
 use rtu2mqtt_modbus::transport::{Rs485Settings, SerialSettings};
+use rtu2mqtt_profile::Profile;
 
 /// Baud rates a Modbus RTU line may be configured with.
 pub const ALLOWED_BAUDS: &[u32] = &[

@@ -5,7 +5,7 @@
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
-//! the quoting they share. [`plan`] computes each line's poll plan and bus load from the wire
+//! the quoting they share. [`poll_plan`] computes each line's poll plan and bus load from the wire
 //! timing, for validation and `rtu2mqtt check`.
 //!
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
@@ -19,7 +19,7 @@ pub mod lines;
 pub mod load;
 pub mod mqtt;
 pub mod names;
-pub mod plan;
+pub mod poll_plan;
 pub mod schema;
 pub mod sparkplug;
 pub mod tree;
@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::bus::LineSpec;
-use crate::contract::Topics;
+use rtu2mqtt_profile::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use history::HistoryConfig;

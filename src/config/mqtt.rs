@@ -14,7 +14,7 @@ use rustls::RootCertStore;
 use super::names::{shown, MAX_NAME_LEN};
 use super::schema::RawMqtt;
 use super::{MqttSettings, Problem, TlsSettings};
-use crate::contract::MAX_TOPIC_LEN;
+use rtu2mqtt_profile::contract::MAX_TOPIC_LEN;
 
 /// Topic prefixes (`plant`, `site1/plant`).
 const MAX_PREFIX_LEN: usize = 128;

@@ -3,7 +3,7 @@
 //! in a message, cut short so that a huge value never becomes a huge log line.
 
 use super::Problem;
-use crate::contract;
+use rtu2mqtt_profile::contract;
 
 /// Longest part of a user's value quoted in a message; longer ones are cut and their length
 /// given (a 70,000-character name must not become a 70,000-character log line).

@@ -11,8 +11,8 @@ use serde::Deserialize;
 
 use super::health::HealthSettings;
 use super::history::RawHistory;
-use crate::profile::publish::RawPublish;
 use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_profile::publish::RawPublish;
 
 /// The whole file.
 #[derive(Debug, Clone, Deserialize)]
@@ -228,7 +228,7 @@ fn default_true() -> bool {
     true
 }
 fn default_discovery_prefix() -> String {
-    crate::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
+    rtu2mqtt_profile::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)

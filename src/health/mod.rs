@@ -31,7 +31,7 @@ use std::time::Duration;
 use tokio::sync::watch;
 
 use crate::bus::LineStats;
-use crate::shutdown::ShutdownTrigger;
+use tokio_util::sync::CancellationToken;
 
 pub use crate::config::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use assess::{
@@ -69,7 +69,7 @@ pub fn supervise(
     lines: watch::Receiver<Vec<watch::Receiver<LineStats>>>,
     mqtt: MqttProbe,
     history_problem: Option<watch::Receiver<Option<String>>>,
-    shutdown: ShutdownTrigger,
+    shutdown: CancellationToken,
 ) -> Option<WatchdogHandle> {
     let connected = *mqtt.connected.borrow();
     let mut watchdog = Watchdog::new(settings, mqtt);

@@ -315,7 +315,8 @@ fn a_stuck_line_fires_the_shutdown_then_ends_the_process() {
     let (_stats_tx, stats_rx) = watch::channel(line("a", Instant::now()));
     let mut watchdog = Watchdog::new(settings, probe);
     watchdog.watch_line(stats_rx);
-    let (trigger, token) = crate::shutdown::channel();
+    let token = CancellationToken::new();
+    let trigger = token.clone();
     let (exit_tx, exit_rx) = mpsc::channel();
     let handle = watchdog
         .spawn_with_exit(
@@ -326,7 +327,7 @@ fn a_stuck_line_fires_the_shutdown_then_ends_the_process() {
         )
         .unwrap();
     let deadline = Instant::now() + Duration::from_secs(20);
-    while !token.is_fired() {
+    while !token.is_cancelled() {
         assert!(Instant::now() < deadline, "the shutdown was never fired");
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -363,7 +364,8 @@ fn watchdog_writes_then_removes_the_status_file() {
     let (_stats_tx, stats_rx) = watch::channel(line("a", Instant::now()));
     let mut watchdog = Watchdog::new(health, probe);
     watchdog.watch_line(stats_rx);
-    let (trigger, _token) = crate::shutdown::channel();
+    let _token = CancellationToken::new();
+    let trigger = _token.clone();
     let handle = watchdog.spawn(trigger).unwrap();
     let deadline = Instant::now() + Duration::from_secs(20);
     while !path.exists() && Instant::now() < deadline {

@@ -12,7 +12,7 @@ use super::systemd::systemd_watchdog_period;
 use super::EXIT_STUCK;
 use crate::bus::LineStats;
 use crate::config::HealthSettings;
-use crate::shutdown::ShutdownTrigger;
+use tokio_util::sync::CancellationToken;
 
 /// The watchdog's last step when a loop is stuck (the process's exit, in production).
 pub type ExitFn = Box<dyn FnOnce(i32) + Send>;
@@ -81,7 +81,7 @@ impl Watchdog {
     /// Starts the watchdog thread. When a loop is stuck past the stall limit it fires
     /// `shutdown`, gives the tasks [`STUCK_GRACE`] to stop, then exits the process with
     /// [`EXIT_STUCK`].
-    pub fn spawn(self, shutdown: ShutdownTrigger) -> std::io::Result<WatchdogHandle> {
+    pub fn spawn(self, shutdown: CancellationToken) -> std::io::Result<WatchdogHandle> {
         self.spawn_with_exit(shutdown, Box::new(|code| std::process::exit(code)))
     }
 
@@ -89,7 +89,7 @@ impl Watchdog {
     /// observe it instead of ending the test process).
     pub fn spawn_with_exit(
         self,
-        shutdown: ShutdownTrigger,
+        shutdown: CancellationToken,
         exit: ExitFn,
     ) -> std::io::Result<WatchdogHandle> {
         let (stop_tx, stop_rx) = mpsc::channel();
@@ -99,7 +99,7 @@ impl Watchdog {
         Ok(WatchdogHandle { stop_tx, thread })
     }
 
-    fn run(mut self, stop_rx: mpsc::Receiver<()>, shutdown: ShutdownTrigger, exit: ExitFn) {
+    fn run(mut self, stop_rx: mpsc::Receiver<()>, shutdown: CancellationToken, exit: ExitFn) {
         let systemd_period = systemd_watchdog_period();
         let interval = match systemd_period {
             Some(period) => self.settings.interval.min(period / 3),
@@ -180,7 +180,7 @@ impl Watchdog {
                     limit = %humantime::format_duration(self.settings.stall_limit),
                     "stuck longer than the stall limit: stopping the process"
                 );
-                shutdown.fire();
+                shutdown.cancel();
                 // The runtime may be the thing that is stuck: give a clean stop a moment, then
                 // end regardless so that a supervisor restarts us.
                 let _ = stop_rx.recv_timeout(STUCK_GRACE);

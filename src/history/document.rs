@@ -7,7 +7,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde_json::{Map, Value as Json};
 
-use crate::profile::Value;
+use rtu2mqtt_profile::Value;
 
 /// The document of one change set read at `at`. A field given twice keeps its last value.
 pub fn document<'v, I>(at: SystemTime, values: I) -> String

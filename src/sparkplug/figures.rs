@@ -7,10 +7,10 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use super::payload::{DataType, MetricValue};
+use super::protobuf::{DataType, MetricValue};
 use super::session::NodeMetricSpec;
 use crate::bus::LineStats;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// The figures of one line: metric name suffix, datatype and how to read it.
 type Reading = (&'static str, DataType, fn(&LineStats) -> MetricValue);
@@ -80,13 +80,13 @@ pub async fn feed(
     lines: Vec<watch::Receiver<LineStats>>,
     values: mpsc::Sender<Vec<(String, MetricValue)>>,
     interval: Duration,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) {
     let mut tick = tokio::time::interval(interval);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
-            () = shutdown.fired() => return,
+            () = shutdown.cancelled() => return,
             _ = tick.tick() => {
                 let stats: Vec<LineStats> = lines.iter().map(|rx| rx.borrow().clone()).collect();
                 // Never waits on a slow node: the next sample carries the same figures.

@@ -9,8 +9,8 @@ use std::sync::Arc;
 
 use serde_json::Value as Json;
 
-use super::payload::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
-use crate::profile::{FieldInfo, FieldKind, Profile, Value};
+use super::protobuf::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
+use rtu2mqtt_profile::{FieldInfo, FieldKind, Profile, Value};
 
 /// Range bounds this large come from the number format (float registers), not the device.
 const NO_RANGE: f64 = 1e15;
@@ -497,8 +497,8 @@ mod tests {
 
     #[test]
     fn every_writable_field_round_trips_through_a_command_metric() {
-        for name in crate::profile::registry::built_in_names() {
-            let profile = match crate::profile::registry::built_in(name) {
+        for name in rtu2mqtt_profile::registry::built_in_names() {
+            let profile = match rtu2mqtt_profile::registry::built_in(name) {
                 Ok(profile) => Arc::new(profile),
                 Err(error) => panic!("{error}"),
             };

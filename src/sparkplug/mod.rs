@@ -1,4 +1,4 @@
-//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`payload`] is the
+//! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`protobuf`] is the
 //! protobuf payload, [`metrics`] turns profile fields into typed metrics and command metrics
 //! back into command text, [`figures`] turns line statistics into node metrics, [`session`] is
 //! the pure edge node state machine. This module makes the session for a configuration
@@ -13,7 +13,7 @@
 pub mod bd_seq;
 pub mod figures;
 pub mod metrics;
-pub mod payload;
+pub mod protobuf;
 pub mod session;
 pub mod session_interface;
 
@@ -22,13 +22,15 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{client, connect_went_out, options, Backoff, REQUEST_QUEUE};
+use crate::bridge::mqtt::{
+    client, connect_went_out, options, Backoff, PacketLimit, MAX_INCOMING_PACKET, REQUEST_QUEUE,
+};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
 use crate::history::document::values_of;
 use crate::history::Record;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 pub use crate::config::sparkplug::{
     shared_broker, SparkplugConfig, SparkplugIdentity, CLIENT_ID_SUFFIX,
@@ -49,6 +51,11 @@ const STABLE_CONNECTION: Duration = Duration::from_secs(10);
 /// (well inside the client's request queue, beside live traffic).
 const HISTORY_TICK: Duration = Duration::from_millis(250);
 const HISTORY_BATCH: usize = 250;
+/// The largest packet the node sends. An NBIRTH carries every node metric in one message
+/// (Sparkplug allows no other way): with the figures of 1,000 lines it is about 300 KB, past
+/// the plain connection's limit, so the node's is larger. A larger birth still is refused
+/// alone, counted with the plain connection's.
+pub const MAX_OUTGOING_PACKET: usize = 4 * 1024 * 1024;
 
 /// The session for `config`'s devices, identity and lines (None without `[sparkplug]`),
 /// with the broker settings of its own connection.
@@ -94,12 +101,15 @@ pub struct NodeLinks {
     pub commands: mpsc::Sender<SparkplugCommand>,
     pub reports: mpsc::Receiver<CommandReport>,
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
-    pub node_values: mpsc::Receiver<Vec<(String, payload::MetricValue)>>,
-    pub shutdown: Shutdown,
+    pub node_values: mpsc::Receiver<Vec<(String, protobuf::MetricValue)>>,
+    pub shutdown: CancellationToken,
     /// Where the next bdSeq is kept across restarts (none: it starts at 0 each run).
     pub bd_seq_store: Option<bd_seq::BdSeqStore>,
     /// The records the bridge replays from the history journal (with `[history]`).
     pub replayed: Option<mpsc::Receiver<Record>>,
+    /// Refuses a payload rumqttc would end the connection on (shared with the bridge's
+    /// statistics: [`crate::bridge::Bridge::packet_limit`]).
+    pub packet_limit: PacketLimit,
 }
 
 /// Runs the edge node until shutdown: connects (a fresh bdSeq and NDEATH Will per connection),
@@ -123,6 +133,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
             }
         };
         mqtt_options
+            .set_max_packet_size(MAX_INCOMING_PACKET, links.packet_limit.max())
             .set_clean_session(true)
             .set_last_will(LastWill::new(
                 will.topic,
@@ -149,11 +160,11 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                         connected_since = Some(tokio::time::Instant::now());
                         tracing::info!(bd_seq = session.bd_seq(), "Sparkplug edge node connected");
                         let actions = session.on_connected(now_millis());
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Ok(Event::Incoming(Packet::Publish(publish))) => {
                         let actions = session.on_message(now_millis(), &publish.topic, &publish.payload);
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Ok(Event::Outgoing(Outgoing::Disconnect)) => {
                         let drain = async { while eventloop.poll().await.is_ok() {} };
@@ -181,14 +192,14 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 event = links.line_events.recv(), if !closing => match event {
                     Ok(event) => {
                         let actions = session.on_line_event(now_millis(), &event);
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Err(broadcast::error::RecvError::Lagged(missed)) => {
                         // A device may have come or gone unseen: births tell the host the
                         // node's whole view again, the next polls bring the values.
                         tracing::warn!(missed, "Sparkplug: line events missed; rebirth");
                         let actions = session.rebirth(now_millis());
-                        closing |= carry_out(&client, &links.commands, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                     }
                     Err(broadcast::error::RecvError::Closed) => {
                         closing = true;
@@ -198,20 +209,20 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 },
                 Some(report) = links.reports.recv(), if !closing => {
                     let actions = session.on_command_outcome(now_millis(), &report.device, &report.field, report.applied);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
                 Some(values) = links.node_values.recv(), if !closing => {
                     let actions = session.on_node_values(now_millis(), &values);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
                 record = next_replayed(&mut links.replayed), if !closing => {
                     queue_replayed(&mut session, record);
                 }
                 _ = history_tick.tick(), if !closing && session.history_waiting() > 0 => {
                     let actions = session.history_batch(HISTORY_BATCH);
-                    closing |= carry_out(&client, &links.commands, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
                 }
-                () = links.shutdown.fired(), if !closing => {
+                () = links.shutdown.cancelled(), if !closing => {
                     closing = true;
                     stop_by = Some(tokio::time::Instant::now() + CLOSE_GRACE);
                     end_session(&client, &mut session);
@@ -240,7 +251,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 // Outcomes of commands from before the connection was lost: the births
                 // carry the true values.
                 Some(_) = links.reports.recv() => {}
-                () = links.shutdown.fired() => return,
+                () = links.shutdown.cancelled() => return,
             }
         }
     }
@@ -286,6 +297,7 @@ fn end_session(client: &AsyncClient, session: &mut Session) {
 async fn carry_out(
     client: &AsyncClient,
     commands: &mpsc::Sender<SparkplugCommand>,
+    packet_limit: &mut PacketLimit,
     actions: Vec<Action>,
 ) -> bool {
     let mut closing = false;
@@ -300,6 +312,10 @@ async fn carry_out(
                     session::Delivery::AtMostOnce => QoS::AtMostOnce,
                     session::Delivery::AtLeastOnce => QoS::AtLeastOnce,
                 };
+                // Refused alone: handed over, it would end the node's connection.
+                if !packet_limit.admits(&topic, payload.len(), qos) {
+                    continue;
+                }
                 if let Err(error) = client.try_publish(&topic, qos, false, payload) {
                     tracing::warn!(%error, %topic, "Sparkplug: publish dropped");
                 }

@@ -13,13 +13,13 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use super::metrics::{DeviceMetrics, Refusal};
-use super::payload::{DataType, Metric, MetricValue, Payload};
+use super::protobuf::{DataType, Metric, MetricValue, Payload};
 pub use super::session_interface::{
     Action, Delivery, HistoricalValues, NodeMetricSpec, SessionSettings, SparkplugCommand, Will,
     BD_SEQ, DEVICES, DEVICES_ONLINE, HISTORY_QUEUE, NAMESPACE, REBIRTH, VERSION,
 };
 use crate::bus::{LineEvent, Origin};
-use crate::profile::{Profile, Value};
+use rtu2mqtt_profile::{Profile, Value};
 
 /// Aliases of a device's metrics start at this multiple of its (1-based) place in the list;
 /// node metrics use the aliases below the first.
@@ -749,8 +749,8 @@ fn parse_host_state(payload: &[u8]) -> Option<(bool, u64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::registry;
-    use crate::profile::FieldKind;
+    use rtu2mqtt_profile::registry;
+    use rtu2mqtt_profile::FieldKind;
     use serde_json::Value as Json;
 
     const T: u64 = 1_700_000_000_000;

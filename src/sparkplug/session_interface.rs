@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use serde_json::Value as Json;
 
-use super::payload::DataType;
-use crate::profile::Profile;
+use super::protobuf::DataType;
+use rtu2mqtt_profile::Profile;
 
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";

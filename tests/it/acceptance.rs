@@ -11,7 +11,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use rtu2mqtt::config::{self, Config};
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::child::{self, KillOnDrop};
 use support::{Gateway, Mosquitto, PlantConfig, TestClient};
 
@@ -126,7 +126,7 @@ fn check(config_text: &str) -> (bool, String) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("config.toml");
     std::fs::write(&path, config_text).unwrap();
-    let output = Command::new(child::BIN)
+    let output = Command::new(child::gateway_binary())
         .arg("check")
         .arg("--config")
         .arg(&path)
@@ -226,12 +226,12 @@ async fn the_demo_on_a_shared_broker_leaves_a_running_gateway_alone() {
     use nix::sys::signal::{kill, Signal};
 
     let (broker, _plant, _observer, gateway) = plant_with_gateway("demo-shared").await;
-    let mut command = Command::new(child::BIN);
+    let mut command = Command::new(child::binary("rtu2mqtt-demo"));
     command
-        .args(["demo", "--log", "--broker", &broker.url()])
+        .args(["--log", "--broker", &broker.url()])
         .stdout(Stdio::null())
         .stderr(Stdio::null());
-    let mut demo = KillOnDrop::spawn(command).expect("rtu2mqtt demo starts");
+    let mut demo = KillOnDrop::spawn(command).expect("rtu2mqtt-demo starts");
     // Long enough for the demo's devices to come online and publish their state.
     tokio::time::sleep(Duration::from_secs(6)).await;
     kill(demo.pid(), Signal::SIGINT).unwrap();

@@ -11,12 +11,12 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::sim::faults::AnswerChunks;
-use rtu2mqtt::sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::{codec, Request, Response, Transact};
+use rtu2mqtt_sim::faults::AnswerChunks;
+use rtu2mqtt_sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLine};
 
 const BAUD: u32 = 9600;
 const DEVICE: u8 = 1;

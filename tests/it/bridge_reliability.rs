@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use rumqttc::QoS;
 use support::child::{self, KillOnDrop};
 use support::{fast_config, Gateway, Mosquitto, PlantConfig, TestClient};
@@ -303,6 +303,21 @@ async fn the_gateway_sets_its_overwritten_topics_right() {
             .is_empty(),
         "no loop"
     );
+    // It found the fake state by auditing the device's topics in its turn, never by
+    // subscribing to every device's state (which would bring all of its own traffic back).
+    let filters = subscriptions(&bench.broker.log(), "guard-gw");
+    assert!(
+        filters.iter().any(|f| f == "plant/dust_collector/+"),
+        "{filters:?}"
+    );
+    assert!(!filters.iter().any(|f| f == "plant/+/+"), "{filters:?}");
+    assert!(
+        bench
+            .broker
+            .log()
+            .contains("Received UNSUBSCRIBE from guard-gw"),
+        "every audit ends"
+    );
     // Another gateway's status is its own business.
     intruder
         .publish("plant/gateway/other-gw/status", "offline", true)
@@ -316,6 +331,26 @@ async fn the_gateway_sets_its_overwritten_topics_right() {
         .collect();
     assert_eq!(other, ["offline"]);
     bench.stop().await;
+}
+
+/// Every filter `client_id` subscribed to, as mosquitto's log (`log_type all`) tells them: the
+/// line `Received SUBSCRIBE from <client_id>` is followed by one tab-indented line per filter.
+fn subscriptions(log: &str, client_id: &str) -> Vec<String> {
+    let header = format!("Received SUBSCRIBE from {client_id}");
+    let mut filters = Vec::new();
+    let mut in_subscribe = false;
+    for line in log.lines() {
+        let text = line.split_once(": ").map_or(line, |(_, text)| text);
+        if text == header {
+            in_subscribe = true;
+        } else if let Some(filter) = text.strip_prefix('\t').filter(|_| in_subscribe) {
+            let filter = filter.split(" (QoS").next().unwrap_or(filter);
+            filters.push(filter.to_string());
+        } else if !text.starts_with(&format!("{client_id} ")) {
+            in_subscribe = false;
+        }
+    }
+    filters
 }
 
 /// A gateway binary with its stderr in `<name>.log`; killed when dropped.

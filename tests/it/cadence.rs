@@ -11,9 +11,9 @@ use crate::support;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{self, share, GenericDevice, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{self as sim, share, GenericDevice, ServeOptions, VirtualLine};
 use support::{Gateway, Mosquitto, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.

@@ -11,7 +11,7 @@ use std::process::Stdio;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::child::{self, KillOnDrop};
 use support::{Mosquitto, PlantConfig, TestClient};
 
@@ -220,16 +220,16 @@ async fn a_normal_start_is_calm_and_a_command_is_two_lines_in_words() {
 
     // (5) The valve's statistics from a normal start: no failure, no exception; the split
     // reads counted on their own.
-    let topic = format!("plant/gateway/{client_id}/stats");
+    let topic = format!("plant/gateway/{client_id}/stats/line-b");
     let stats = client
         .wait_for_new(&topic, ANSWER, |m| {
-            m.json()["lines"]["line-b"]["devices"]["valve"]["transactions"]
+            m.json()["devices"]["valve"]["transactions"]
                 .as_u64()
                 .is_some_and(|count| count > 0)
         })
         .await
         .json();
-    let valve = &stats["lines"]["line-b"]["devices"]["valve"];
+    let valve = &stats["devices"]["valve"];
     assert_eq!(valve["failures"], 0, "{valve}");
     assert_eq!(valve["exceptions"], 0, "{valve}");
     assert_eq!(

@@ -8,17 +8,17 @@ use crate::support::child;
 use std::process::Output;
 use std::time::Duration;
 
-use rtu2mqtt::sim::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
 use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_sim::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
 
 /// A pty served at `baud` 8N1 with the devices, answering garbled at any other baud rate.
-fn line(baud: u32, devices: Vec<rtu2mqtt::sim::SharedDevice>) -> VirtualLine {
+fn line(baud: u32, devices: Vec<rtu2mqtt_sim::SharedDevice>) -> VirtualLine {
     let options = ServeOptions::new(baud, Parity::None).enforcing_baud(true);
     VirtualLine::spawn(options, devices).unwrap()
 }
 
 async fn run(args: &[&str]) -> Output {
-    let mut command = std::process::Command::new(child::BIN);
+    let mut command = std::process::Command::new(child::gateway_binary());
     command.args(args).env("RUST_LOG", "error");
     child::output(command, Duration::from_secs(60))
         .await
@@ -139,7 +139,7 @@ async fn scan_finds_each_seed_device_at_its_address_and_baud_rate() {
     assert_eq!(answered.len(), 3, "one probe per baud rate");
     let garbled = answered
         .iter()
-        .filter(|record| !rtu2mqtt::sim::wire::crc_ok(record.answer.as_deref().unwrap_or_default()))
+        .filter(|record| !rtu2mqtt_sim::wire::crc_ok(record.answer.as_deref().unwrap_or_default()))
         .count();
     assert_eq!(garbled, 2);
 
@@ -307,7 +307,7 @@ async fn a_port_held_by_rtu2mqtt_is_refused() {
     let path = mio_serial::SerialPort::name(&slave).unwrap();
     drop(slave);
     // Another rtu2mqtt process holds the port (here a simulator; a gateway holds it the same way).
-    let mut command = std::process::Command::new(child::BIN);
+    let mut command = std::process::Command::new(child::binary("rtu2mqtt-demo"));
     command
         .args(["simulate", "--profile", "wuzhou-valve", "--port", &path])
         .env("RUST_LOG", "error");

@@ -15,7 +15,7 @@ fn example() -> PathBuf {
 }
 
 fn check(path: &Path) -> (bool, String, String) {
-    let output = Command::new(crate::support::child::BIN)
+    let output = Command::new(crate::support::child::gateway_binary())
         .arg("check")
         .arg("--config")
         .arg(path)
@@ -143,7 +143,7 @@ fn every_problem_is_listed_with_its_place() {
 
 #[test]
 fn environment_overrides_reach_the_settings() {
-    let output = Command::new(crate::support::child::BIN)
+    let output = Command::new(crate::support::child::gateway_binary())
         .arg("check")
         .arg("--config")
         .arg(example())
@@ -155,7 +155,7 @@ fn environment_overrides_reach_the_settings() {
     assert!(!output.status.success());
     assert!(stderr.contains("mqtt.keep_alive"), "{stderr}");
 
-    let output = Command::new(crate::support::child::BIN)
+    let output = Command::new(crate::support::child::gateway_binary())
         .arg("check")
         .arg("--config")
         .arg(example())
@@ -554,7 +554,7 @@ fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
     .unwrap();
     let text = MIXED_CONFIG.replace("{dir}", &dir.path().to_string_lossy());
     let config = config::from_str(&text, dir.path()).unwrap();
-    let plan = rtu2mqtt::config::plan::LinePlan::of(&config.lines[0]);
+    let plan = rtu2mqtt::config::poll_plan::LinePlan::of(&config.lines[0]);
     let meter = &plan.devices[0];
     let periods: Vec<Option<Duration>> = meter.blocks.iter().map(|b| b.period).collect();
     let ms = Duration::from_millis;

@@ -11,7 +11,7 @@ use crate::support;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::child::{self, KillOnDrop};
 use support::{Mosquitto, PlantConfig, TestClient};
 

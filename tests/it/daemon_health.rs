@@ -12,7 +12,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_sim::SeedPlant;
 use support::child::{self, KillOnDrop};
 
 /// The notifications received so far, one string per datagram.
@@ -47,7 +47,7 @@ fn wait_for_notification(
 
 /// `rtu2mqtt health` on the status file; (healthy, what it printed).
 fn health(status_file: &Path, max_age: &str) -> (bool, String) {
-    let output = Command::new(child::BIN)
+    let output = Command::new(child::gateway_binary())
         .args(["health", "--status-file"])
         .arg(status_file)
         .args(["--max-age", max_age])

@@ -5,7 +5,7 @@
 
 use crate::support;
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
@@ -15,22 +15,22 @@ use serde_json::{json, Value as Json};
 use rtu2mqtt::app::{run_gateway, Hooks};
 use rtu2mqtt::bridge::discovery::{
     all_configs, device_config, device_config_from_fields, device_config_with_state,
-    gateway_config, identity_update, is_stale_config, platform_for, reannounce_delay, removal,
-    unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
+    gateway_config, identity_update, is_stale_config, line_config, platform_for, reannounce_delay,
+    removal, unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
     RESULT_EVENT_TEMPLATE,
 };
 use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
-use rtu2mqtt::bridge::metrics::{prometheus_text, stats_json, BridgeStats};
+use rtu2mqtt::bridge::metrics::{line_stats_json, prometheus_text, stats_json, BridgeStats};
 use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
 use rtu2mqtt::bridge::state::StateUpdate;
 use rtu2mqtt::bus::LineStats;
-use rtu2mqtt::contract::{is_ha_online, json_view_topic, Topics};
-use rtu2mqtt::profile::{
+use rtu2mqtt_profile::contract::{is_ha_online, json_view_topic, Topics};
+use rtu2mqtt_profile::{
     registry, DeviceState, FieldInfo, FieldKind, HaHints, Identity, Profile, Value,
 };
-use rtu2mqtt::shutdown;
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_sim::SeedPlant;
 use support::{Mosquitto, PlantConfig, TestClient};
+use tokio_util::sync::CancellationToken;
 
 fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
     FieldInfo {
@@ -408,10 +408,13 @@ fn unique_ids_are_unique_across_devices_and_the_gateway_and_follow_the_pattern()
             assert!(seen.insert(id.clone()), "duplicate {id}");
         }
     }
-    let (_, gateway) = gateway_config(&ctx, &["line-a".to_string(), "line-b".to_string()]);
-    for (_, config) in gateway["cmps"].as_object().unwrap() {
-        let id = config["unique_id"].as_str().unwrap().to_string();
-        assert!(seen.insert(id.clone()), "duplicate {id}");
+    let gateway = std::iter::once(gateway_config(&ctx).1)
+        .chain(["line-a", "line-b"].map(|line| line_config(&ctx, line).1));
+    for document in gateway {
+        for (_, config) in document["cmps"].as_object().unwrap() {
+            let id = config["unique_id"].as_str().unwrap().to_string();
+            assert!(seen.insert(id.clone()), "duplicate {id}");
+        }
     }
     // Stable: the same input gives the same document.
     assert_eq!(seed_documents()[0].3, seed_documents()[0].3);
@@ -500,8 +503,7 @@ fn profile_hints_override_the_defaults_but_never_add_a_command_to_a_read_only_fi
 #[test]
 fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
     let ctx = context();
-    let lines = vec!["line-a".to_string(), "line-b".to_string()];
-    let (topic, document) = gateway_config(&ctx, &lines);
+    let (topic, document) = gateway_config(&ctx);
     assert_eq!(topic, "homeassistant/device/rtu2mqtt-edge1_gateway/config");
     assert_eq!(
         document["dev"]["identifiers"],
@@ -532,7 +534,18 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
         waiting_commands: 2,
         ..BridgeStats::default()
     };
-    let stats = stats_json(&[line_b, line_a], &bridge);
+    // The summary, and each line's own document on its own topic.
+    let mut documents = HashMap::new();
+    documents.insert(
+        "plant/gateway/rtu2mqtt-edge1/stats".to_string(),
+        stats_json(&[line_b.clone(), line_a.clone()], &bridge),
+    );
+    for line in [&line_b, &line_a] {
+        documents.insert(
+            format!("plant/gateway/rtu2mqtt-edge1/stats/{}", line.line),
+            line_stats_json(line),
+        );
+    }
 
     let expected: &[(&str, f64)] = &[
         ("devices_online", 2.0),
@@ -546,16 +559,38 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
         ("line_b_timeouts", 0.0),
         ("line_b_exceptions", 0.0),
     ];
+    // Each line's sensors are in a document of their own, on the same gateway device.
+    let mut components = document["cmps"].as_object().unwrap().clone();
+    for line in ["line-a", "line-b"] {
+        let (topic, line_document) = line_config(&ctx, line);
+        assert_eq!(
+            topic,
+            format!("homeassistant/device/rtu2mqtt-edge1_gateway/{line}/config")
+        );
+        assert_eq!(line_document["dev"], document["dev"]);
+        assert_eq!(line_document["o"], document["o"]);
+        components.extend(line_document["cmps"].as_object().unwrap().clone());
+    }
     let mut templates = 0;
-    for (id, config) in document["cmps"].as_object().unwrap() {
+    for (id, config) in &components {
         let Some(template) = config["value_template"].as_str() else {
             continue;
         };
+        let topic = config["state_topic"].as_str().unwrap_or_default();
+        let line_topic = id
+            .strip_prefix("line_a_")
+            .map(|_| "plant/gateway/rtu2mqtt-edge1/stats/line-a")
+            .or_else(|| {
+                id.strip_prefix("line_b_")
+                    .map(|_| "plant/gateway/rtu2mqtt-edge1/stats/line-b")
+            });
         assert_eq!(
-            config["state_topic"], "plant/gateway/rtu2mqtt-edge1/stats",
+            topic,
+            line_topic.unwrap_or("plant/gateway/rtu2mqtt-edge1/stats"),
             "{id}"
         );
-        let value = render_stats_template(&stats, template)
+        let stats = &documents[topic];
+        let value = render_stats_template(stats, template)
             .unwrap_or_else(|| panic!("{id}: {template} reads nothing in {stats}"));
         if let Some((_, want)) = expected.iter().find(|(key, _)| key == id) {
             assert!((value - want).abs() < 1e-9, "{id}: {value} != {want}");
@@ -564,7 +599,7 @@ fn gateway_document_is_a_real_device_whose_sensors_read_existing_stats_keys() {
     }
     assert_eq!(templates, 3 + 2 * 5, "stats sensors");
     for (id, _) in expected {
-        assert!(document["cmps"].get(*id).is_some(), "no sensor {id}");
+        assert!(components.get(*id).is_some(), "no sensor {id}");
     }
 }
 
@@ -636,7 +671,7 @@ fn only_configs_this_gateway_published_for_removed_devices_are_stale() {
         b"{not json",
         &configured
     ));
-    let gateway = gateway_config(&ctx, &[]).1.to_string();
+    let gateway = gateway_config(&ctx).1.to_string();
     assert!(!is_stale_config(
         &ctx,
         &ctx.gateway_config_topic(),
@@ -1285,12 +1320,14 @@ fn all_configs_lead_with_the_gateway_and_follow_the_configured_devices() {
         topics,
         vec![
             "homeassistant/device/rtu2mqtt-edge1_gateway/config",
+            "homeassistant/device/rtu2mqtt-edge1_gateway/line-a/config",
+            "homeassistant/device/rtu2mqtt-edge1_gateway/line-b/config",
             "homeassistant/device/rtu2mqtt-edge1_dust_collector/config",
             "homeassistant/device/rtu2mqtt-edge1_valve/config",
             "homeassistant/device/rtu2mqtt-edge1_air_shower/config",
         ]
     );
-    for ((_, payload), (_, _, document)) in messages[1..].iter().zip(&documents) {
+    for ((_, payload), (_, _, document)) in messages[3..].iter().zip(&documents) {
         assert_eq!(&serde_json::from_str::<Json>(payload).unwrap(), document);
     }
     let gateway: Json = serde_json::from_str(&messages[0].1).unwrap();
@@ -1307,8 +1344,15 @@ fn stats_json_carries_lines_devices_and_bridge_counters() {
         waiting_commands: 1,
         ..BridgeStats::default()
     };
-    let stats = stats_json(&sample_lines(), &bridge);
-    let line = &stats["lines"]["line-a"];
+    let lines = sample_lines();
+    let stats = stats_json(&lines, &bridge);
+    assert!(
+        stats.get("lines").is_none(),
+        "lines have their own documents"
+    );
+    assert_eq!(stats["lines_total"], lines.len());
+    let line = &line_stats_json(&lines[0]);
+    assert_eq!(line["line"], "line-a");
     assert_eq!(line["transactions"], 1234);
     assert_eq!(line["bus_load_percent"], 25.0);
     assert_eq!(line["command_latency_ms"], 180.0);
@@ -1374,7 +1418,8 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         std::path::Path::new("."),
     )
     .unwrap();
-    let (trigger, shutdown) = shutdown::channel();
+    let shutdown = CancellationToken::new();
+    let trigger = shutdown.clone();
     let gateway = tokio::spawn(run_gateway(config, shutdown, Hooks::default()));
 
     // A client that follows the command-result events exactly as announced.
@@ -1463,10 +1508,14 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         })
         .await
         .json();
-    assert_eq!(
-        gateway_document,
-        gateway_config(&ctx, &["line-a".to_string(), "line-b".to_string()]).1
-    );
+    assert_eq!(gateway_document, gateway_config(&ctx).1);
+    let line_document = observer
+        .wait_for(&ctx.line_config_topic("line-b"), ANSWER, |m| {
+            !m.payload.is_empty()
+        })
+        .await
+        .json();
+    assert_eq!(line_document, line_config(&ctx, "line-b").1);
 
     // The removed device's config is cleared; the other gateway's is left alone.
     observer
@@ -1565,7 +1614,7 @@ async fn gateway_announces_discovery_that_home_assistant_can_use_on_a_real_broke
         }
     }
 
-    trigger.fire();
+    trigger.cancel();
     tokio::time::timeout(ANSWER, gateway)
         .await
         .unwrap()

@@ -94,7 +94,7 @@ fn image_builds_in_two_stages_and_runs_unprivileged_on_an_empty_base() {
         .expect("a dependency layer");
     for flag in [
         r#"RUSTFLAGS="-C target-feature=+crt-static""#,
-        "--release --locked --no-default-features --target \"$target\"",
+        "--release --locked -p rtu2mqtt --target \"$target\"",
     ] {
         assert!(dependencies.contains(flag), "{flag} not in {dependencies}");
     }
@@ -210,7 +210,7 @@ fn the_image_and_the_edge_build_leave_the_demo_out() {
     // The image's dependency layer; its sources are built by scripts/edge-build itself.
     assert_eq!(builds.len(), 2, "{builds:?}");
     for build in builds {
-        assert!(build.contains("--no-default-features"), "{build}");
+        assert!(build.contains("-p rtu2mqtt "), "{build}");
     }
 }
 
@@ -265,13 +265,16 @@ fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_man
         std::fs::create_dir_all(target.parent().expect("a file in a folder")).expect("mkdir");
         std::fs::copy(root.join(file), target).expect("copy what the image copies");
     }
-    for manifest in [
-        "Cargo.toml",
-        "Cargo.lock",
-        "crates/rtu2mqtt-modbus/Cargo.toml",
-    ] {
+    let members = std::fs::read_dir(root.join("crates"))
+        .expect("the workspace's crates")
+        .flatten()
+        .map(|entry| format!("crates/{}/Cargo.toml", entry.file_name().to_string_lossy()));
+    for manifest in ["Cargo.toml".to_string(), "Cargo.lock".to_string()]
+        .into_iter()
+        .chain(members)
+    {
         assert!(
-            dir.path().join(manifest).exists(),
+            dir.path().join(&manifest).exists(),
             "{manifest} is copied before the dependency layer: {copied_before:?}"
         );
     }

@@ -11,10 +11,10 @@ use std::sync::OnceLock;
 
 use proptest::prelude::*;
 
-use rtu2mqtt::profile::{DeviceState, Profile, Rejection, Verification};
 use rtu2mqtt_modbus::codec::{decode_answer, decode_request, request_frame_len};
 use rtu2mqtt_modbus::crc::append_crc;
 use rtu2mqtt_modbus::{Request, Response};
+use rtu2mqtt_profile::{DeviceState, Profile, Rejection, Verification};
 
 const PROFILE_FILES: [&str; 4] = [
     "ruiwan-dust-collector",
@@ -266,7 +266,7 @@ proptest! {
             return Ok(());
         };
         let text = match value.to_text().as_str() {
-            "OFF" if field.kind == rtu2mqtt::profile::FieldKind::Momentary => "PRESS".to_string(),
+            "OFF" if field.kind == rtu2mqtt_profile::FieldKind::Momentary => "PRESS".to_string(),
             other => other.to_string(),
         };
         let Ok(plan) = profile.plan_command(&field.name, &text, &DeviceState::new()) else {

@@ -7,7 +7,7 @@ use crate::support;
 use std::time::Duration;
 
 use rtu2mqtt::config::Config;
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::hex::{self, writes};
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 
@@ -229,26 +229,23 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     assert!(running.bridge.heartbeat.borrow().elapsed() < Duration::from_secs(5));
     h.wait_text(&format!("plant/gateway/{}/status", h.client_id), "online")
         .await;
-    // Statistics go out every second; a later document counts the polls.
-    let stats = h
+    // Statistics go out every second, a summary and one document per line; a later line
+    // document counts the polls.
+    let stats_topic = format!("plant/gateway/{}/stats", h.client_id);
+    h.client
+        .wait_for(&format!("{stats_topic}/line-a"), ANSWER, |m| {
+            m.json()["transactions"].as_u64().unwrap_or(0) > 0
+        })
+        .await;
+    let stats = h.client.next_on(&stats_topic, ANSWER).await.json();
+    assert_eq!(stats["devices_total"], 3, "{stats}");
+    assert_eq!(stats["lines_total"], 2, "{stats}");
+    let line_b = h
         .client
-        .wait_for(
-            &format!("plant/gateway/{}/stats", h.client_id),
-            ANSWER,
-            |m| {
-                m.json()["lines"]["line-a"]["transactions"]
-                    .as_u64()
-                    .unwrap_or(0)
-                    > 0
-            },
-        )
+        .next_on(&format!("{stats_topic}/line-b"), ANSWER)
         .await
         .json();
-    assert_eq!(stats["devices_total"], 3, "{stats}");
-    assert!(
-        stats["lines"]["line-b"]["devices"]["valve"].is_object(),
-        "{stats}"
-    );
+    assert!(line_b["devices"]["valve"].is_object(), "{line_b}");
     h.stop_gateway().await;
 }
 

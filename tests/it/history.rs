@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::{Duration, SystemTime};
 
 use rtu2mqtt::history::document::epoch_ms;
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use serde_json::{Map, Value as Json};
 use support::child::{gateway_run, KillOnDrop};
 use support::pysparkplug::decode_with_pysparkplug;
@@ -534,7 +534,7 @@ async fn damage_a_fifo_and_a_stray_largest_number_in_the_journal_cost_only_the_d
 
 /// `rtu2mqtt health` on `status_file`: (healthy, what it printed).
 fn health(status_file: &Path) -> (bool, String) {
-    let output = std::process::Command::new(support::child::BIN)
+    let output = std::process::Command::new(support::child::gateway_binary())
         .args(["health", "--status-file"])
         .arg(status_file)
         .args(["--max-age", "10s"])

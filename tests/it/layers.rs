@@ -1,25 +1,22 @@
-//! The crate's layers point one way: a top-level module of `src/` names only modules below it
-//! (`crate::<module>` in code, test code and comments aside). The order is the crate map of
-//! `lib.rs`; an arrow pointing up, and so any import circle between top-level modules, fails.
-//! The wire crate (`crates/rtu2mqtt-modbus`) lies below all of them: it never names the
-//! daemon, and depends on no MQTT, JSON or configuration crate.
+//! The layers point one way. Between crates the compiler keeps them (a crate cannot name one
+//! that does not depend on it); what is checked here is what each manifest may depend on: the
+//! wire crate on no MQTT, JSON or configuration crate, the profile crate on no runtime and no
+//! MQTT, the daemon on no simulator, demo or broker. Inside the daemon a top-level module of
+//! `src/` names only modules below it (`crate::<module>` in code, test code and comments aside),
+//! in the order of `lib.rs`'s module map; an arrow pointing up, and so any import circle between
+//! top-level modules, fails.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
-    "shutdown",
-    "profile",
     "bus",
-    "sim",
-    "contract",
     "config",
     "health",
     "history",
     "bridge",
     "sparkplug",
-    "broker",
     "cli",
     "app",
 ];
@@ -105,7 +102,7 @@ fn top_level_modules_only_use_the_layers_below_them() {
         "arrows pointing up:\n{}",
         upward.join("\n")
     );
-    for layer in ["contract", "config", "health", "bridge"] {
+    for layer in ["bus", "config", "health", "bridge"] {
         assert!(seen_modules.contains(layer), "{layer} was not scanned");
     }
 }
@@ -118,24 +115,82 @@ fn the_scan_sees_uses_and_paths_but_not_comments_or_tests() {
     assert_eq!(names, vec!["bridge".to_string(), "bus".to_string()]);
 }
 
-/// The crates the wire crate must never depend on: the daemon, MQTT, JSON and configuration.
-const ABOVE_THE_WIRE: &[&str] = &["rtu2mqtt", "rumqttc", "rumqttd", "serde_json", "config"];
+/// The names of the dependencies a manifest's `[dependencies]` table declares (not its
+/// dev-dependencies: tests may use anything).
+fn dependencies(manifest: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    let mut in_dependencies = false;
+    for line in manifest.lines() {
+        let line = line.trim();
+        if line.starts_with('[') {
+            in_dependencies = line == "[dependencies]";
+            continue;
+        }
+        if in_dependencies && !line.starts_with('#') {
+            if let Some(name) = line.split(['=', '.', ' ']).next().filter(|n| !n.is_empty()) {
+                names.push(name.to_string());
+            }
+        }
+    }
+    names
+}
+
+#[test]
+fn each_crate_depends_only_on_what_lies_below_it() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let never: &[(&str, &[&str])] = &[
+        (
+            "crates/rtu2mqtt-modbus",
+            &[
+                "rtu2mqtt",
+                "rtu2mqtt-profile",
+                "rumqttc",
+                "rumqttd",
+                "serde_json",
+                "config",
+            ],
+        ),
+        (
+            "crates/rtu2mqtt-profile",
+            &[
+                "rtu2mqtt",
+                "rtu2mqtt-sim",
+                "tokio",
+                "rumqttc",
+                "rumqttd",
+                "config",
+            ],
+        ),
+        (
+            "crates/rtu2mqtt-sim",
+            &["rtu2mqtt", "rumqttc", "rumqttd", "config"],
+        ),
+        (
+            ".",
+            &[
+                "rtu2mqtt-sim",
+                "rtu2mqtt-demo",
+                "rtu2mqtt-testkit",
+                "rumqttd",
+            ],
+        ),
+    ];
+    for (krate, forbidden) in never {
+        let manifest = std::fs::read_to_string(root.join(krate).join("Cargo.toml")).unwrap();
+        let declared = dependencies(&manifest);
+        assert!(declared.len() >= 3, "{krate}: {declared:?}");
+        for name in *forbidden {
+            assert!(
+                !declared.iter().any(|d| d == name),
+                "{krate} depends on {name}: {declared:?}"
+            );
+        }
+    }
+}
 
 #[test]
 fn the_wire_crate_names_nothing_above_it() {
     let wire = Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/rtu2mqtt-modbus");
-    let manifest = std::fs::read_to_string(wire.join("Cargo.toml")).unwrap();
-    let dependency_names: Vec<&str> = manifest
-        .lines()
-        .filter_map(|line| line.split(['=', '.', ' ']).next())
-        .filter(|name| !name.is_empty())
-        .collect();
-    for crate_name in ABOVE_THE_WIRE {
-        assert!(
-            !dependency_names.contains(crate_name),
-            "the wire crate depends on {crate_name}"
-        );
-    }
     let mut files = Vec::new();
     rust_files(&wire, &mut files);
     assert!(files.len() > 5, "the wire crate's sources were not found");

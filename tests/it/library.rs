@@ -11,15 +11,15 @@ use crate::support::child;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::profile::registry::{built_in, library_names};
-use rtu2mqtt::profile::{sunspec, Profile, Value};
-use rtu2mqtt::sim::library::{self, LibraryDevice};
-use rtu2mqtt::sim::register_map::Entry;
-use rtu2mqtt::sim::{
-    share, Protocol, Reply, ServeOptions, SharedDevice, SimDevice, TcpSimulator, VirtualLine,
-};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Response;
+use rtu2mqtt_profile::registry::{built_in, library_names};
+use rtu2mqtt_profile::{sunspec, Profile, Value};
+use rtu2mqtt_sim::library::{self, LibraryDevice};
+use rtu2mqtt_sim::register_map::Entry;
+use rtu2mqtt_sim::{
+    share, Protocol, Reply, ServeOptions, SharedDevice, SimDevice, TcpSimulator, VirtualLine,
+};
 use support::{fast_config, Gateway, Mosquitto, TestClient};
 
 /// Generous for a busy 2-core machine: only runs out when something is broken.
@@ -77,7 +77,10 @@ fn the_library_is_built_in_and_listed() {
             "sunspec-inverter"
         ]
     );
-    let output = Command::new(child::BIN).arg("profiles").output().unwrap();
+    let output = Command::new(child::gateway_binary())
+        .arg("profiles")
+        .output()
+        .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
     for name in library_names() {
         assert!(
@@ -346,7 +349,7 @@ async fn sunspec_walks_the_inverter_and_its_profile_reads_it() {
     let output = tokio::task::spawn_blocking({
         let written = written.clone();
         move || {
-            Command::new(child::BIN)
+            Command::new(child::gateway_binary())
                 .args(["sunspec", "--address", "1", "--port"])
                 .arg(&port)
                 .arg("--output")
@@ -382,7 +385,7 @@ async fn sunspec_walks_the_inverter_and_its_profile_reads_it() {
     );
     let config_path = dir.path().join("config.toml");
     std::fs::write(&config_path, &text).unwrap();
-    let check = Command::new(child::BIN)
+    let check = Command::new(child::gateway_binary())
         .args(["check", "--config"])
         .arg(&config_path)
         .output()
@@ -433,7 +436,7 @@ async fn sunspec_over_modbus_tcp_writes_the_profile_to_standard_output() {
     .unwrap();
     let url = sim.url();
     let output = tokio::task::spawn_blocking(move || {
-        Command::new(child::BIN)
+        Command::new(child::gateway_binary())
             .args(["sunspec", "--address", "7", "--url", &url])
             .output()
             .unwrap()

@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use serde_json::{json, Value as Json};
 
 use rtu2mqtt::bus::serve::places::PLACE_WAIT;
-use rtu2mqtt::sim::{self, SeedPlant};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::{free_port, hex, Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
@@ -168,13 +168,11 @@ impl Harness {
 
     /// The next statistics document whose figures of the served line satisfy `accept`.
     async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
-        let topic = format!("plant/gateway/{}/stats", self.client_id);
-        let line = self.line;
+        let topic = format!("plant/gateway/{}/stats/{}", self.client_id, self.line);
         self.mqtt
-            .wait_for(&topic, ANSWER, |m| accept(&m.json()["lines"][line]))
+            .wait_for(&topic, ANSWER, |m| accept(&m.json()))
             .await
-            .json()["lines"][line]
-            .clone()
+            .json()
     }
 }
 

@@ -2,7 +2,7 @@
 //! pty_line::` runs one of them), `support` is what they share (a real mosquitto, an MQTT test
 //! client, the gateway over the simulated plant, child processes, frames as hex text).
 
-mod support;
+use rtu2mqtt_testkit as support;
 
 mod acceptance;
 mod answer_gaps;
@@ -14,8 +14,6 @@ mod commissioning;
 mod config_valid;
 mod crash_exactly_once;
 mod daemon_health;
-mod demo;
-mod demo_screen;
 mod discovery;
 mod docker_files;
 mod fuzz_smoke;
@@ -27,6 +25,7 @@ mod library;
 mod line_server;
 mod logs;
 mod number_grammar;
+mod plant_connection;
 mod profile_codecs;
 mod profiles_cli;
 mod profiles_golden;

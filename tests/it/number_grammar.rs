@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
-use rtu2mqtt::profile::registry::{built_in, load_file};
-use rtu2mqtt::profile::{DeviceState, Profile, Rejection, Value};
+use rtu2mqtt_profile::registry::{built_in, load_file};
+use rtu2mqtt_profile::{DeviceState, Profile, Rejection, Value};
 
 use crate::support::command::refused;
 

@@ -11,9 +11,9 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{lock, share, GenericDevice, ServeOptions, VirtualLine};
 use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{lock, share, GenericDevice, ServeOptions, VirtualLine};
 
 use crate::support::{fast_config, hex, Gateway, Mosquitto, TestClient};
 
@@ -227,7 +227,7 @@ address = 1
 
 /// A profile with `fields` (TOML `[[fields]]` tables) on a holding block of 12 registers and a
 /// slow input block of 2 (whose second register is a serial number).
-fn profile_with(fields: &str) -> Result<Profile, rtu2mqtt::profile::ProfileErrors> {
+fn profile_with(fields: &str) -> Result<Profile, rtu2mqtt_profile::ProfileErrors> {
     let text = format!(
         r#"
 [device]
@@ -366,8 +366,8 @@ fn a_byte_is_written_with_the_other_byte_as_freshly_read() {
     );
     let values = profile.decode_block(0, &fresh(&[0xC8FE; 12]));
     assert_eq!(values[0].field, "mode");
-    assert_eq!(values[0].value, Ok(rtu2mqtt::profile::Value::Int(200)));
-    assert_eq!(values[1].value, Ok(rtu2mqtt::profile::Value::Int(-2)));
+    assert_eq!(values[0].value, Ok(rtu2mqtt_profile::Value::Int(200)));
+    assert_eq!(values[1].value, Ok(rtu2mqtt_profile::Value::Int(-2)));
 }
 
 #[test]
@@ -410,7 +410,7 @@ fn a_scaled_write_uses_the_exponent_read_in_its_slot() {
     );
     assert_eq!(
         plan.verify(&[fresh(&[12345, 0xFFFF])]),
-        rtu2mqtt::profile::Verification::Applied
+        rtu2mqtt_profile::Verification::Applied
     );
     // Exponent 0 cannot hold a half: refused, nothing written.
     let refusal = plan.writes(&[fresh(&[0, 0])]).expect_err("refused");
@@ -580,7 +580,7 @@ codec = { type = "i16" }
     );
     assert_eq!(
         plan.verify(&[fresh(&[3]), fresh(&[42])]),
-        rtu2mqtt::profile::Verification::Applied
+        rtu2mqtt_profile::Verification::Applied
     );
     // Without the exponent's answer nothing is written.
     assert!(plan.writes(&[fresh(&[0, 0])]).is_err());
@@ -649,14 +649,14 @@ fn a_generic_simulator_seeds_a_string_with_its_name() {
     ))
     .expect("valid");
     let image = profile.initial_image(0).expect("an image");
-    let rtu2mqtt::profile::BlockImage::Words(words) = image else {
+    let rtu2mqtt_profile::BlockImage::Words(words) = image else {
         panic!("a register block");
     };
     assert_eq!(&words[..2], [0x4D4F, 0x4445]);
     let values = profile.decode_block(0, &fresh(&words));
     assert_eq!(
         values[0].value,
-        Ok(rtu2mqtt::profile::Value::Text("MODE".into()))
+        Ok(rtu2mqtt_profile::Value::Text("MODE".into()))
     );
     // Still no command: a string is read-only.
     assert!(profile

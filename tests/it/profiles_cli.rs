@@ -5,7 +5,7 @@
 use std::process::{Command, Output};
 
 fn profiles(args: &[&str]) -> Output {
-    Command::new(crate::support::child::BIN)
+    Command::new(crate::support::child::gateway_binary())
         .arg("profiles")
         .args(args)
         .output()

@@ -3,11 +3,11 @@
 //! documented values, and the device-protecting rules hold (read-modify-write, toggle,
 //! momentary, forbidden combinations, refusals with reasons).
 
-use rtu2mqtt::profile::registry::built_in;
-use rtu2mqtt::profile::{
+use rtu2mqtt_modbus::{Request, Response};
+use rtu2mqtt_profile::registry::built_in;
+use rtu2mqtt_profile::{
     BlockImage, CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
 };
-use rtu2mqtt_modbus::{Request, Response};
 
 use crate::support::command::refused;
 
@@ -445,7 +445,7 @@ fn block_index(profile: &Profile, name: &str) -> usize {
 
 #[test]
 fn valve_live_fast_and_configuration_slow() {
-    use rtu2mqtt::profile::PollClass;
+    use rtu2mqtt_profile::PollClass;
     let profile = valve();
     let fast: Vec<u16> = profile
         .read_blocks()
@@ -841,7 +841,7 @@ fn shower_decodes_every_field() {
 // --- the fourth profile, a file only --------------------------------------------------------
 
 fn th_sensor() -> Profile {
-    rtu2mqtt::profile::registry::load_file(std::path::Path::new(concat!(
+    rtu2mqtt_profile::registry::load_file(std::path::Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/config/profiles/generic-th-sensor.toml"
     )))
@@ -952,15 +952,15 @@ fn th_sensor_settings_are_written_without_code() {
 fn simulated_images_round_trip_through_every_profile() {
     for profile in [dust(), valve(), shower(), th_sensor()] {
         let mut images = seeded_images(&profile);
-        let answer_of = |images: &[rtu2mqtt::profile::BlockImage], b: usize| match (
+        let answer_of = |images: &[rtu2mqtt_profile::BlockImage], b: usize| match (
             &images[b],
             &profile.read_blocks()[b].request,
         ) {
-            (rtu2mqtt::profile::BlockImage::Words(w), Request::ReadInputRegisters { .. }) => {
+            (rtu2mqtt_profile::BlockImage::Words(w), Request::ReadInputRegisters { .. }) => {
                 Response::InputRegisters(w.clone())
             }
-            (rtu2mqtt::profile::BlockImage::Words(w), _) => Response::HoldingRegisters(w.clone()),
-            (rtu2mqtt::profile::BlockImage::Bits(bits), _) => Response::Coils(bits.clone()),
+            (rtu2mqtt_profile::BlockImage::Words(w), _) => Response::HoldingRegisters(w.clone()),
+            (rtu2mqtt_profile::BlockImage::Bits(bits), _) => Response::Coils(bits.clone()),
         };
         for (b, _) in profile.read_blocks().iter().enumerate() {
             for r in profile.decode_block(b, &answer_of(&images, b)) {
@@ -980,10 +980,10 @@ fn simulated_images_round_trip_through_every_profile() {
             }
             // Booleans go ON and back OFF so that no forbidden combination builds up.
             let texts: Vec<String> = match &info.kind {
-                rtu2mqtt::profile::FieldKind::Bool => vec!["ON".into(), "OFF".into()],
-                rtu2mqtt::profile::FieldKind::Integer { max, .. } => vec![max.to_string()],
-                rtu2mqtt::profile::FieldKind::Decimal { min, .. } => vec![format!("{}", min + 1.0)],
-                rtu2mqtt::profile::FieldKind::Enum { options } => {
+                rtu2mqtt_profile::FieldKind::Bool => vec!["ON".into(), "OFF".into()],
+                rtu2mqtt_profile::FieldKind::Integer { max, .. } => vec![max.to_string()],
+                rtu2mqtt_profile::FieldKind::Decimal { min, .. } => vec![format!("{}", min + 1.0)],
+                rtu2mqtt_profile::FieldKind::Enum { options } => {
                     vec![options.last().unwrap().clone(), options[0].clone()]
                 }
                 _ => continue,
@@ -1043,7 +1043,7 @@ fn apply_write_refuses_addresses_outside_the_write_frames() {
             &profile,
             0,
             &Response::HoldingRegisters(match &images[0] {
-                rtu2mqtt::profile::BlockImage::Words(w) => w.clone(),
+                rtu2mqtt_profile::BlockImage::Words(w) => w.clone(),
                 _ => panic!(),
             }),
             "pulse_duration"
@@ -1292,7 +1292,7 @@ mod bytes {
 /// golden words set in the device, and commands go through plan → writes → read-back.
 #[test]
 fn th_sensor_against_the_generic_simulator() {
-    use rtu2mqtt::sim::generic::GenericDevice;
+    use rtu2mqtt_sim::generic::GenericDevice;
 
     let profile = th_sensor();
     let mut device = GenericDevice::from_profile(&profile, 7);
@@ -1332,8 +1332,8 @@ fn th_sensor_against_the_generic_simulator() {
 }
 
 /// The device's normal answer to `request`.
-fn ask(device: &mut dyn rtu2mqtt::sim::SimDevice, request: &Request) -> Response {
-    use rtu2mqtt::sim::Reply;
+fn ask(device: &mut dyn rtu2mqtt_sim::SimDevice, request: &Request) -> Response {
+    use rtu2mqtt_sim::Reply;
     match device.handle(request, std::time::Instant::now()) {
         Reply::Normal(response) => response,
         other => panic!("{request:?}: {other:?}"),
@@ -1343,7 +1343,7 @@ fn ask(device: &mut dyn rtu2mqtt::sim::SimDevice, request: &Request) -> Response
 /// Runs one planned command on a simulated device as the line does, returning the verification
 /// of the read-back.
 fn run_on(
-    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    device: &mut dyn rtu2mqtt_sim::SimDevice,
     plan: &CommandPlan,
 ) -> Result<Verification, Rejection> {
     let before: Vec<Response> = plan
@@ -1364,7 +1364,7 @@ fn run_on(
 
 /// Each (field, text) in turn, planned on no known state, is applied by the device.
 fn assert_all_applied(
-    device: &mut dyn rtu2mqtt::sim::SimDevice,
+    device: &mut dyn rtu2mqtt_sim::SimDevice,
     profile: &Profile,
     commands: &[(&str, &str)],
 ) {
@@ -1381,7 +1381,7 @@ fn assert_all_applied(
 /// is applied by the simulated device as intended, and no device-protecting rule is broken.
 #[test]
 fn seed_simulators_apply_what_the_profiles_plan() {
-    use rtu2mqtt::sim::{AirShower, DustCollector, SimDevice};
+    use rtu2mqtt_sim::{AirShower, DustCollector, SimDevice};
     let none = DeviceState::new();
 
     let profile = dust();
@@ -1438,7 +1438,7 @@ fn seed_simulators_apply_what_the_profiles_plan() {
     assert_eq!(device.violations(), Vec::<String>::new());
 
     let profile = valve();
-    let mut device = rtu2mqtt::sim::Valve::new(1);
+    let mut device = rtu2mqtt_sim::Valve::new(1);
     assert_all_applied(
         &mut device,
         &profile,
@@ -1522,16 +1522,16 @@ mod robustness {
                     .filter(|f| f.writable)
                     .filter(|f| matches!(
                         f.kind,
-                        rtu2mqtt::profile::FieldKind::Integer { .. }
-                            | rtu2mqtt::profile::FieldKind::Decimal { .. }
+                        rtu2mqtt_profile::FieldKind::Integer { .. }
+                            | rtu2mqtt_profile::FieldKind::Decimal { .. }
                     ))
                     .collect();
                 let Some(info) = numbers.get(pick % numbers.len().max(1)) else { continue };
                 let text = match info.kind {
-                    rtu2mqtt::profile::FieldKind::Integer { min, max } => {
+                    rtu2mqtt_profile::FieldKind::Integer { min, max } => {
                         (min + ((max - min) as f64 * fraction) as i128).to_string()
                     }
-                    rtu2mqtt::profile::FieldKind::Decimal { min, max, precision } => {
+                    rtu2mqtt_profile::FieldKind::Decimal { min, max, precision } => {
                         format!("{:.*}", usize::from(precision), min + (max - min) * fraction)
                     }
                     _ => unreachable!(),
@@ -1563,12 +1563,12 @@ mod robustness {
                 let writable: Vec<_> = profile.fields().iter().filter(|f| f.writable).collect();
                 let Some(info) = writable.get(pick % writable.len().max(1)) else { continue };
                 let text = match &info.kind {
-                    rtu2mqtt::profile::FieldKind::Bool => "ON".to_string(),
-                    rtu2mqtt::profile::FieldKind::Momentary => "PRESS".to_string(),
-                    rtu2mqtt::profile::FieldKind::Integer { min, .. } => min.to_string(),
-                    rtu2mqtt::profile::FieldKind::Decimal { min, .. } => min.to_string(),
-                    rtu2mqtt::profile::FieldKind::Enum { options } => options[0].clone(),
-                    rtu2mqtt::profile::FieldKind::Text => continue,
+                    rtu2mqtt_profile::FieldKind::Bool => "ON".to_string(),
+                    rtu2mqtt_profile::FieldKind::Momentary => "PRESS".to_string(),
+                    rtu2mqtt_profile::FieldKind::Integer { min, .. } => min.to_string(),
+                    rtu2mqtt_profile::FieldKind::Decimal { min, .. } => min.to_string(),
+                    rtu2mqtt_profile::FieldKind::Enum { options } => options[0].clone(),
+                    rtu2mqtt_profile::FieldKind::Text => continue,
                 };
                 let plan = profile
                     .plan_command(&info.name, &text, &DeviceState::new())

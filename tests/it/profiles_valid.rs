@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use rtu2mqtt::profile::registry::{built_in, built_in_names, describe, load, load_file, LoadError};
-use rtu2mqtt::profile::{Profile, ProfileErrors};
+use rtu2mqtt_profile::registry::{built_in, built_in_names, describe, load, load_file, LoadError};
+use rtu2mqtt_profile::{Profile, ProfileErrors};
 
 const PROFILE_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/profiles");
 
@@ -510,7 +510,7 @@ fn several_problems_are_all_listed() {
 
 #[test]
 fn poll_takes_fast_slow_once_or_a_period_and_refuses_anything_else_with_its_place() {
-    use rtu2mqtt::profile::PollClass;
+    use rtu2mqtt_profile::PollClass;
     use std::time::Duration;
     let with_poll = |main: &str, inputs: &str| {
         BASE.replacen("count = 4\n", &format!("count = 4\npoll = {main}\n"), 1)

@@ -18,14 +18,14 @@ use rtu2mqtt::bus::{
     spawn_line, Command, CommandFailure, CommandOutcome, DeviceSpec, LineEvent, LineHandle,
     LineSpec,
 };
-use rtu2mqtt::profile::{registry, CommandPlan, DeviceState, Profile, Value};
-use rtu2mqtt::shutdown::{self, ShutdownTrigger};
-use rtu2mqtt::sim::{
-    self, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
-    SharedDevice, SimDevice, Valve, VirtualLine,
-};
 use rtu2mqtt_modbus::timing::{CharFormat, Parity};
 use rtu2mqtt_modbus::transport::SerialSettings;
+use rtu2mqtt_profile::{registry, CommandPlan, DeviceState, Profile, Value};
+use rtu2mqtt_sim::{
+    self as sim, air_shower, share, AirShower, DustCollector, Faults, Occurrence, ServeOptions,
+    SharedDevice, SimDevice, Valve, VirtualLine,
+};
+use tokio_util::sync::CancellationToken;
 
 const AIR_SHOWER_TOML: &str = include_str!("../../config/profiles/lixian-air-shower.toml");
 
@@ -89,7 +89,7 @@ type ValuesSeen = (Instant, String, Vec<(String, Value)>);
 struct Running {
     handle: LineHandle,
     task: tokio::task::JoinHandle<()>,
-    trigger: ShutdownTrigger,
+    trigger: CancellationToken,
     events_rx: mpsc::Receiver<LineEvent>,
     latest: HashMap<String, DeviceState>,
     /// Every Values event.
@@ -104,7 +104,8 @@ struct Running {
 impl Running {
     fn start(spec: LineSpec) -> Self {
         let (events_tx, events_rx) = mpsc::channel(1024);
-        let (trigger, token) = shutdown::channel();
+        let token = CancellationToken::new();
+        let trigger = token.clone();
         let (handle, task) = spawn_line(spec, events_tx, token);
         Running {
             handle,
@@ -256,7 +257,7 @@ impl Running {
     }
 
     async fn stop(self) {
-        self.trigger.fire();
+        self.trigger.cancel();
         tokio::time::timeout(Duration::from_secs(5), self.task)
             .await
             .expect("the line stops within 5 s")
@@ -787,7 +788,7 @@ async fn the_valve_falls_back_to_small_reads_after_exception_02_and_remembers() 
         "valve values: {:?}",
         running.latest.get("valve")
     );
-    let merged: Vec<(usize, &rtu2mqtt::profile::ReadBlock)> = profile
+    let merged: Vec<(usize, &rtu2mqtt_profile::ReadBlock)> = profile
         .read_blocks()
         .iter()
         .enumerate()

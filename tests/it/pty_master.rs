@@ -841,7 +841,7 @@ impl Write for TxInstants {
 /// which can only be later than the master's write.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn never_drives_the_line_sooner_than_t3_5_after_the_answer() {
-    use rtu2mqtt::sim::{share, AirShower, ServeOptions, VirtualLine};
+    use rtu2mqtt_sim::{share, AirShower, ServeOptions, VirtualLine};
 
     const TRANSACTIONS: usize = 40;
     let baud = 38_400;

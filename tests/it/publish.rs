@@ -12,8 +12,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use rtu2mqtt::config;
-use rtu2mqtt::profile::Profile;
-use rtu2mqtt::sim::{self, SeedPlant};
+use rtu2mqtt_profile::Profile;
+use rtu2mqtt_sim::{self as sim, SeedPlant};
 use serde_json::Value as Json;
 use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
 

@@ -15,7 +15,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 use rtu2mqtt::bus::stats::LineStats;
-use rtu2mqtt::sim::{self, air_shower, Faults, Occurrence, SeedPlant};
+use rtu2mqtt_sim::{self as sim, air_shower, Faults, Occurrence, SeedPlant};
 use support::{Gateway, Mosquitto, PlantConfig, TestClient};
 
 /// How long any single expected message may take before the test fails.
@@ -351,7 +351,7 @@ fn keep_changing_the_measured_value(
         let mut set = BTreeSet::new();
         let mut value = 100;
         loop {
-            if let Some(raw) = rtu2mqtt::profile::bcd::encode(value, 4) {
+            if let Some(raw) = rtu2mqtt_profile::bcd::encode(value, 4) {
                 let mut valve = sim::lock(&valve);
                 if valve.set_register(VALVE_MEASURED_1_FRACTION, 0)
                     && valve.set_register(VALVE_MEASURED_1, raw)

@@ -12,8 +12,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use rtu2mqtt::contract::Topics;
-use rtu2mqtt::sim::SeedPlant;
+use rtu2mqtt_profile::contract::Topics;
+use rtu2mqtt_sim::SeedPlant;
 use support::child::{self, KillOnDrop};
 use support::{Mosquitto, PlantConfig, TestClient};
 

@@ -6,10 +6,10 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::bus::health::{Availability, HealthPolicy};
-use rtu2mqtt::bus::plan::{BlockPlan, DevicePlan};
+use rtu2mqtt::bus::availability::{Availability, HealthPolicy};
+use rtu2mqtt::bus::cadence::{BlockPlan, DevicePlan};
 use rtu2mqtt::bus::scheduler::{Due, PollOutcome, Scheduler};
-use rtu2mqtt::profile::PollClass;
+use rtu2mqtt_profile::PollClass;
 
 const MS: Duration = Duration::from_millis(1);
 /// What one poll takes on the line in these tests.

@@ -4,10 +4,10 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::bus::health::{Availability, HealthChange, HealthPolicy};
-use rtu2mqtt::bus::plan::{BlockPlan, DevicePlan};
+use rtu2mqtt::bus::availability::{Availability, HealthChange, HealthPolicy};
+use rtu2mqtt::bus::cadence::{BlockPlan, DevicePlan};
 use rtu2mqtt::bus::scheduler::{Due, PollOutcome, Scheduler, BUSY_LIMIT, BUSY_RETRY_DELAY};
-use rtu2mqtt::profile::PollClass;
+use rtu2mqtt_profile::PollClass;
 
 const MS: Duration = Duration::from_millis(1);
 

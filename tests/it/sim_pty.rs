@@ -6,13 +6,13 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::sim::AsyncSerial;
-use rtu2mqtt::sim::{
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_modbus::ExceptionCode;
+use rtu2mqtt_sim::AsyncSerial;
+use rtu2mqtt_sim::{
     air_shower, lock, share, valve, AirShower, DustCollector, Occurrence, Pace, ServeOptions,
     Valve, VirtualLine,
 };
-use rtu2mqtt_modbus::timing::Parity;
-use rtu2mqtt_modbus::ExceptionCode;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 use crate::support::hex;
@@ -114,7 +114,7 @@ async fn dust_collector_golden_frames() {
             (5, 2, 10)
         );
         // The golden frame writes 0x0300 over internal bits 0x2040: recorded.
-        assert_eq!(rtu2mqtt::sim::SimDevice::violations(&*dust).len(), 1);
+        assert_eq!(rtu2mqtt_sim::SimDevice::violations(&*dust).len(), 1);
     }
     let answer = exchange(&mut port, &hex::decode(READ_ALL), 17).await;
     assert_eq!(
@@ -662,7 +662,7 @@ async fn power_up_handshake_keeps_the_device_quiet() {
 
 #[tokio::test]
 async fn seed_plant_serves_both_lines() {
-    let plant = rtu2mqtt::sim::SeedPlant::spawn(false).unwrap();
+    let plant = rtu2mqtt_sim::SeedPlant::spawn(false).unwrap();
     let mut line_a = open(&plant.line_a.path());
     let mut line_b = open(&plant.line_b.path());
     assert_eq!(
@@ -688,11 +688,11 @@ async fn seed_plant_serves_both_lines() {
 // simulators were written from docs/devices.md apart from the profiles, so this is where a profile
 // that writes the wrong bits or reads the wrong places shows.
 
-use rtu2mqtt::profile::{DeviceState, Profile, Verification};
 use rtu2mqtt_modbus::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming};
 use rtu2mqtt_modbus::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::{Request, Response, Transact};
+use rtu2mqtt_profile::{DeviceState, Profile, Verification};
 
 const MASTER_TIMEOUT: Duration = Duration::from_millis(800);
 
@@ -823,7 +823,7 @@ async fn command(
 }
 
 fn built_in(name: &str) -> Profile {
-    rtu2mqtt::profile::registry::built_in(name).unwrap()
+    rtu2mqtt_profile::registry::built_in(name).unwrap()
 }
 
 #[tokio::test]
@@ -853,7 +853,7 @@ async fn dust_collector_profile_against_the_simulator() {
     assert_eq!(dust.gear(), 8);
     // The status word was written read-modify-write: internal bits untouched.
     assert_eq!(
-        rtu2mqtt::sim::SimDevice::violations(&*dust),
+        rtu2mqtt_sim::SimDevice::violations(&*dust),
         Vec::<String>::new()
     );
 }

@@ -6,13 +6,13 @@ use crate::support::child;
 
 use std::time::Duration;
 
-use rtu2mqtt::sim::{
-    share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
-};
 use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{decode_answer, encode_request, Answer};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::{mbap, Request, Response};
+use rtu2mqtt_sim::{
+    share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
+};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -299,12 +299,12 @@ async fn pymodbus_client_reads_the_seed_devices() {
         .all(|r| r.frame[1] == 0x03 || r.frame[1] == 0x01));
 }
 
-/// `rtu2mqtt simulate --seed-line a --listen modbus-tcp://…` serves the line to a client.
+/// `rtu2mqtt-demo simulate --seed-line a --listen modbus-tcp://…` serves the line to a client.
 #[tokio::test]
 async fn simulate_command_listens_on_tcp() {
     let port = crate::support::free_port();
     let url = format!("modbus-tcp://127.0.0.1:{port}");
-    let mut command = std::process::Command::new(child::BIN);
+    let mut command = std::process::Command::new(child::binary("rtu2mqtt-demo"));
     command
         .args(["simulate", "--seed-line", "a", "--listen", &url])
         .env("RUST_LOG", "error");

@@ -8,17 +8,19 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
+use rtu2mqtt::bridge::mqtt::{publish_packet_size, PacketLimit};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
-use rtu2mqtt::profile::{registry, Value};
-use rtu2mqtt::shutdown;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
-use rtu2mqtt::sparkplug::payload::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
     run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
 };
+use rtu2mqtt_profile::{registry, Value};
+use rumqttc::QoS;
 use support::{Message, Mosquitto, TestClient};
 use tokio::sync::{broadcast, mpsc};
+use tokio_util::sync::CancellationToken;
 
 const WAIT: Duration = Duration::from_secs(10);
 const NBIRTH: &str = "spBv1.0/plant/NBIRTH/gw1";
@@ -112,7 +114,7 @@ struct Node {
     commands: mpsc::Receiver<SparkplugCommand>,
     reports: mpsc::Sender<CommandReport>,
     node_values: mpsc::Sender<Vec<(String, MetricValue)>>,
-    trigger: shutdown::ShutdownTrigger,
+    trigger: CancellationToken,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -122,11 +124,23 @@ fn start(session: Session, port: u16) -> Node {
 
 /// Like [`start`], keeping bdSeq in `bd_seq_store`.
 fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> Node {
+    let limit = PacketLimit::new(rtu2mqtt::sparkplug::MAX_OUTGOING_PACKET, "sparkplug");
+    start_limited(session, port, bd_seq_store, limit)
+}
+
+/// Like [`start_with`], sending nothing larger than `packet_limit` allows.
+fn start_limited(
+    session: Session,
+    port: u16,
+    bd_seq_store: Option<BdSeqStore>,
+    packet_limit: PacketLimit,
+) -> Node {
     let (events, line_events) = broadcast::channel(64);
     let (commands_tx, commands) = mpsc::channel(16);
     let (reports, reports_rx) = mpsc::channel(16);
     let (node_values, node_values_rx) = mpsc::channel(16);
-    let (trigger, shutdown) = shutdown::channel();
+    let shutdown = CancellationToken::new();
+    let trigger = shutdown.clone();
     let links = NodeLinks {
         line_events,
         commands: commands_tx,
@@ -135,6 +149,7 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         shutdown,
         bd_seq_store,
         replayed: None,
+        packet_limit,
     };
     let task = tokio::spawn(run(session, settings(port), links));
     Node {
@@ -145,6 +160,54 @@ fn start_with(session: Session, port: u16, bd_seq_store: Option<BdSeqStore>) -> 
         trigger,
         task,
     }
+}
+
+/// The sizes of the NBIRTH and of the dust collector's DBIRTH the node sends, as MQTT packets.
+fn birth_sizes() -> (usize, usize) {
+    let mut probe = session(None);
+    probe.prepare_connect(0);
+    let mut actions = probe.on_connected(rtu2mqtt::sparkplug::now_millis());
+    actions.extend(probe.on_line_event(rtu2mqtt::sparkplug::now_millis(), &dust(3)));
+    let size_of = |wanted: &str| {
+        actions.iter().find_map(|action| match action {
+            rtu2mqtt::sparkplug::Action::Publish { topic, payload, .. } if topic == wanted => {
+                Some(publish_packet_size(topic, payload.len(), QoS::AtLeastOnce))
+            }
+            _ => None,
+        })
+    };
+    let nbirth = size_of(NBIRTH).expect("an NBIRTH");
+    let dbirth = size_of(DBIRTH).expect("a DBIRTH");
+    (nbirth, dbirth)
+}
+
+/// A birth larger than the node's packet limit is refused alone: the connection stays (the
+/// broker never publishes the NDEATH Will), what fits keeps flowing, the refusal is counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_birth_over_the_packet_limit_is_refused_and_the_connection_stays() {
+    let (nbirth, dbirth) = birth_sizes();
+    // Room for the NBIRTH (its timestamps may take a few more bytes), not for the DBIRTH.
+    let max = nbirth + 32;
+    assert!(dbirth > max, "NBIRTH {nbirth} bytes, DBIRTH {dbirth} bytes");
+    let limit = PacketLimit::new(max, "sparkplug");
+    let counted = limit.for_connection("count", max);
+    let broker = Mosquitto::start();
+    let mut host = TestClient::connect(broker.port, "limit-host").await;
+    host.subscribe("spBv1.0/plant/#").await;
+    let node = start_limited(session(None), broker.port, None, limit);
+    host.next_on(NBIRTH, WAIT).await;
+    let _ = node.events.send(dust(3));
+    let _ = node
+        .node_values
+        .send(vec![(BUS_LOAD.to_string(), MetricValue::Float(0.5))])
+        .await;
+    host.next_on(NDATA, WAIT).await;
+    host.settle(Duration::from_millis(500)).await;
+    assert!(host.on(DBIRTH).is_empty(), "the DBIRTH went out");
+    assert!(host.on(NDEATH).is_empty(), "the connection was lost");
+    assert_eq!(counted.refused(), 1);
+    node.trigger.cancel();
+    let _ = tokio::time::timeout(WAIT, node.task).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -265,7 +328,7 @@ async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
     node.task.abort();
     let death = decode(&host.next_on(NDEATH, WAIT).await);
     assert_eq!(value_of(&death, "bdSeq"), bd_seq);
-    node.trigger.fire();
+    node.trigger.cancel();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -275,7 +338,7 @@ async fn an_orderly_shutdown_publishes_the_ndeath_itself() {
     host.subscribe("spBv1.0/plant/#").await;
     let node = start(session(None), broker.port);
     let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
-    node.trigger.fire();
+    node.trigger.cancel();
     let death = decode(&host.next_on(NDEATH, WAIT).await);
     assert_eq!(value_of(&death, "bdSeq"), value_of(&nbirth, "bdSeq"));
     let ended = tokio::time::timeout(WAIT, node.task).await;
@@ -351,7 +414,7 @@ async fn missed_line_events_bring_a_rebirth() {
     assert_eq!(reborn.seq, Some(0));
     assert_eq!(value_of(&reborn, "bdSeq"), Some(MetricValue::Long(0)));
     host.next_on(DBIRTH, WAIT).await;
-    node.trigger.fire();
+    node.trigger.cancel();
     let _ = tokio::time::timeout(WAIT, node.task).await;
 }
 
@@ -410,6 +473,6 @@ async fn a_restart_during_an_outage_takes_the_bd_seq_after_the_last_connection()
     let nbirth = decode(&host.next_on(NBIRTH, WAIT).await);
     assert_eq!(value_of(&nbirth, "bdSeq"), Some(MetricValue::Long(7)));
     assert_eq!(store.load(), 8);
-    node.trigger.fire();
+    node.trigger.cancel();
     let _ = tokio::time::timeout(WAIT, node.task).await;
 }

@@ -11,11 +11,11 @@ use crate::support::child;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use rtu2mqtt::sim::{
-    self, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
+use rtu2mqtt_modbus::timing::Parity;
+use rtu2mqtt_sim::{
+    self as sim, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
     TcpSimulator, Valve, VirtualLine,
 };
-use rtu2mqtt_modbus::timing::Parity;
 use support::{free_port, Gateway, Mosquitto, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
@@ -39,7 +39,7 @@ struct Plant {
     dust_gw: std::sync::Arc<std::sync::Mutex<DustCollector>>,
     raw_devices: Vec<sim::SharedDevice>,
     gateway: Option<Gateway>,
-    /// `plant/gateway/<client id>/stats`.
+    /// `plant/gateway/<client id>/stats` (each line's document is under it).
     stats_topic: String,
 }
 
@@ -330,16 +330,18 @@ async fn every_field_is_published_and_commands_apply_on_every_transport() {
         .iter()
         .any(|f| f.starts_with(&[0x81, 0x0F])));
     // Statistics and availability work the same on every transport.
+    for line in ["line-pty", "line-raw", "line-modbus"] {
+        let topic = format!("plant/gateway/mixed-gw/stats/{line}");
+        plant
+            .client
+            .wait_for(&topic, ANSWER, |m| {
+                m.json()["transactions"].as_u64().unwrap_or(0) > 0
+            })
+            .await;
+    }
     let stats = plant
         .client
-        .wait_for("plant/gateway/mixed-gw/stats", ANSWER, |m| {
-            ["line-pty", "line-raw", "line-modbus"].iter().all(|line| {
-                m.json()["lines"][line]["transactions"]
-                    .as_u64()
-                    .unwrap_or(0)
-                    > 0
-            })
-        })
+        .next_on("plant/gateway/mixed-gw/stats", ANSWER)
         .await
         .json();
     assert_eq!(stats["devices_total"], 5, "{stats}");
@@ -348,7 +350,7 @@ async fn every_field_is_published_and_commands_apply_on_every_transport() {
 }
 
 /// The TCP lines' devices under `fault` on both servers go offline; without it they come
-/// back. Returns the line statistics seen once they are back.
+/// back. Returns the TCP lines' statistics seen once they are back, by line name.
 async fn offline_under_and_back(plant: &mut Plant, fault: fn(&mut TcpFaults)) -> serde_json::Value {
     const TCP_DEVICES: [&str; 3] = ["valve", "dust_gw", "shower_gw"];
     plant.watch_from_now().await;
@@ -361,11 +363,13 @@ async fn offline_under_and_back(plant: &mut Plant, fault: fn(&mut TcpFaults)) ->
         sim.tcp_faults().clear();
     }
     plant.wait_all(&TCP_DEVICES, "online").await;
-    plant
-        .client
-        .next_on(&plant.stats_topic, ANSWER)
-        .await
-        .json()
+    let mut lines = serde_json::Map::new();
+    for line in ["line-raw", "line-modbus"] {
+        let topic = format!("{}/{line}", plant.stats_topic);
+        let document = plant.client.next_on(&topic, ANSWER).await.json();
+        lines.insert(line.to_string(), document);
+    }
+    serde_json::Value::Object(lines)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -377,10 +381,10 @@ async fn a_server_closing_mid_answer_fails_transactions_and_the_line_reconnects(
     // reconnected, so the server kept hearing requests and the devices came back.
     for line in ["line-raw", "line-modbus"] {
         assert!(
-            stats["lines"][line]["truncated"].as_u64().unwrap_or(0) > 0,
+            stats[line]["truncated"].as_u64().unwrap_or(0) > 0,
             "{stats}"
         );
-        assert_eq!(stats["lines"][line]["port_open"], true, "{stats}");
+        assert_eq!(stats[line]["port_open"], true, "{stats}");
     }
     plant.assert_no_wrong_value(&[]).await;
     plant.stop().await;
@@ -391,10 +395,7 @@ async fn a_server_that_accepts_but_never_answers_takes_the_devices_offline() {
     let mut plant = Plant::start("silent").await;
     let stats = offline_under_and_back(&mut plant, |f| f.never_answer = Occurrence::ALWAYS).await;
     for line in ["line-raw", "line-modbus"] {
-        assert!(
-            stats["lines"][line]["timeouts"].as_u64().unwrap_or(0) > 0,
-            "{stats}"
-        );
+        assert!(stats[line]["timeouts"].as_u64().unwrap_or(0) > 0, "{stats}");
     }
     plant.assert_no_wrong_value(&[]).await;
     plant.stop().await;
@@ -426,16 +427,21 @@ async fn split_coalesced_and_garbled_streams_never_publish_a_wrong_value() {
     }
     // The held answers came late, with the next ones: dropped and counted on both kinds; the
     // garbage on the raw stream was skipped and counted.
-    plant
-        .client
-        .wait_for("plant/gateway/stream-gw/stats", ANSWER, |m| {
-            let count =
-                |line: &str, counter: &str| m.json()["lines"][line][counter].as_u64().unwrap_or(0);
-            count("line-modbus", "late_answers") > 0
-                && count("line-raw", "late_answers") > 0
-                && count("line-raw", "stray_bytes") > 0
-        })
-        .await;
+    for (line, counters) in [
+        ("line-modbus", &["late_answers"][..]),
+        ("line-raw", &["late_answers", "stray_bytes"][..]),
+    ] {
+        let topic = format!("plant/gateway/stream-gw/stats/{line}");
+        plant
+            .client
+            .wait_for(&topic, ANSWER, |m| {
+                let document = m.json();
+                counters
+                    .iter()
+                    .all(|counter| document[*counter].as_u64().unwrap_or(0) > 0)
+            })
+            .await;
+    }
     plant
         .assert_no_wrong_value(&["valve", "dust_gw", "shower_gw"])
         .await;
@@ -538,7 +544,7 @@ address = 1
 
 /// Runs `rtu2mqtt args…` and returns its exit success and standard output.
 async fn run_cli(args: &[&str]) -> (bool, String) {
-    let mut command = Command::new(child::BIN);
+    let mut command = Command::new(child::gateway_binary());
     command.args(args);
     let output = child::output(command, Duration::from_secs(60))
         .await

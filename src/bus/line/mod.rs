@@ -30,10 +30,10 @@ use tracing::Instrument;
 mod client_requests;
 mod command_slots;
 
+use super::availability::{HealthChange, HealthPolicy};
+use super::cadence::DevicePlan;
 use super::commands::{CommandSlots, Pending, SlotLink};
 use super::device::{DeviceRuntime, Values};
-use super::health::{HealthChange, HealthPolicy};
-use super::plan::DevicePlan;
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;
@@ -47,12 +47,12 @@ use super::{
     Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats, Origin, Transport,
     WriteClock,
 };
-use crate::profile::Profile;
-use crate::shutdown::Shutdown;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::master::{PortFault, WireCounters};
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::transport::TransportError;
+use rtu2mqtt_profile::Profile;
+use tokio_util::sync::CancellationToken;
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub const COMMAND_QUEUE: usize = 64;
@@ -74,7 +74,7 @@ const CLIENT_COMMAND_IDS: u64 = 1 << 63;
 pub fn spawn_line(
     spec: LineSpec,
     events_tx: mpsc::Sender<LineEvent>,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
     spawn_line_with_clock(spec, events_tx, shutdown, WriteClock::new())
 }
@@ -84,7 +84,7 @@ pub fn spawn_line(
 pub fn spawn_line_with_clock(
     spec: LineSpec,
     events_tx: mpsc::Sender<LineEvent>,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
     writes: WriteClock,
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
@@ -178,7 +178,7 @@ struct Line {
     load: LoadWindow,
     turnaround: Turnaround,
     last_published: Instant,
-    shutdown: Shutdown,
+    shutdown: CancellationToken,
     /// Requests from the line's server (none when the line is not served).
     clients: ClientQueue,
     /// The last slot was a client's: a due poll goes before the next one.
@@ -209,7 +209,7 @@ impl Line {
         events_tx: mpsc::Sender<LineEvent>,
         command_rx: mpsc::Receiver<Command>,
         stats_tx: watch::Sender<LineStats>,
-        shutdown: Shutdown,
+        shutdown: CancellationToken,
         now: Instant,
     ) -> Self {
         let timing = LineTiming::new(spec.serial.baud, spec.serial.format);
@@ -278,7 +278,7 @@ impl Line {
     }
 
     async fn run(mut self) {
-        while !self.shutdown.is_fired() {
+        while !self.shutdown.is_cancelled() {
             let now = Instant::now();
             self.accept_commands(now).await;
             if self.master.is_none() {
@@ -400,7 +400,7 @@ impl Line {
             }
             asked = refresh, if refreshes_open => self.refresh(asked),
             () = self.clients.arrival() => {}
-            () = self.shutdown.fired() => {}
+            () = self.shutdown.cancelled() => {}
         }
         if self.last_published.elapsed() >= HEARTBEAT {
             self.publish_stats();
@@ -416,7 +416,7 @@ impl Line {
             // A free place in the queue always wins, even during shutdown.
             biased;
             _ = events_tx.send(event) => {}
-            () = shutdown.fired() => {}
+            () = shutdown.cancelled() => {}
         }
     }
 
@@ -449,7 +449,7 @@ impl Line {
         self.turnaround.idle();
         let opened = tokio::select! {
             opened = port::open_link(&self.spec, self.timing) => Some(opened),
-            () = self.shutdown.fired() => None,
+            () = self.shutdown.cancelled() => None,
         };
         let Some(opened) = opened else {
             return;
@@ -710,7 +710,7 @@ mod tests {
             .with_max_level(tracing::Level::INFO)
             .finish();
         let _default = tracing::subscriber::set_default(subscriber);
-        let profile = crate::profile::registry::built_in("wuzhou-valve").unwrap();
+        let profile = rtu2mqtt_profile::registry::built_in("wuzhou-valve").unwrap();
         let spec = LineSpec {
             name: "line-x".into(),
             serial: rtu2mqtt_modbus::transport::SerialSettings {
@@ -741,7 +741,8 @@ mod tests {
             }],
         };
         let (events_tx, mut events_rx) = mpsc::channel(16);
-        let (trigger, shutdown) = crate::shutdown::channel();
+        let shutdown = CancellationToken::new();
+        let trigger = shutdown.clone();
         let (handle, task) = spawn_line(spec, events_tx, shutdown);
 
         let event = tokio::time::timeout(Duration::from_secs(15), events_rx.recv())
@@ -765,7 +766,7 @@ mod tests {
             Ok(Ok(_))
         );
         assert!(failed);
-        trigger.fire();
+        trigger.cancel();
         task.await.unwrap();
 
         let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();

@@ -7,8 +7,8 @@ use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId};
 
 use super::Access;
 use crate::bus::DeviceSpec;
-use crate::profile::model::Behaviour;
-use crate::profile::{CommandPlan, DeviceState, Profile, Value};
+use rtu2mqtt_profile::model::Behaviour;
+use rtu2mqtt_profile::{CommandPlan, DeviceState, Profile, Value};
 
 /// The server's decision on a request before it reaches the line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -137,8 +137,8 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::profile::registry::built_in;
     use rtu2mqtt_modbus::Response;
+    use rtu2mqtt_profile::registry::built_in;
 
     fn dust_collector() -> DeviceSpec {
         DeviceSpec {

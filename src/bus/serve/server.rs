@@ -29,7 +29,7 @@ use super::places::{NoPlace, Place, Places, PLACE_GRACE, PLACE_WAIT};
 use super::policy::{self, Verdict};
 use super::{Access, ClientRequest, ServeFraming, ServeSpec};
 use crate::bus::DeviceSpec;
-use crate::shutdown::Shutdown;
+use tokio_util::sync::CancellationToken;
 
 /// Once a request has started, the rest of it must arrive within this time: a torn frame
 /// must not hold the connection's place forever.
@@ -78,7 +78,7 @@ pub async fn run(
     devices: Vec<DeviceSpec>,
     line: mpsc::Sender<ClientRequest>,
     counters: Arc<ServeCounters>,
-    mut shutdown: Shutdown,
+    shutdown: CancellationToken,
 ) {
     // A line restarted by a reload binds again while its old server may still be closing.
     let mut attempts = 0;
@@ -107,7 +107,7 @@ pub async fn run(
     loop {
         let accepted = tokio::select! {
             accepted = listener.accept() => accepted,
-            () = shutdown.fired() => break,
+            () = shutdown.cancelled() => break,
         };
         let (socket, peer) = match accepted {
             Ok(accepted) => accepted,
@@ -121,7 +121,7 @@ pub async fn run(
         let context = context.clone();
         let places = Arc::clone(&places);
         let max_clients = spec.max_clients;
-        let mut client_shutdown = shutdown.clone();
+        let client_shutdown = shutdown.clone();
         tokio::spawn(async move {
             let client = peer.to_string();
             let counters = Arc::clone(&context.counters);
@@ -130,7 +130,7 @@ pub async fn run(
             };
             let place = tokio::select! {
                 place = places.take(evicted) => place,
-                () = client_shutdown.fired() => return,
+                () = client_shutdown.cancelled() => return,
             };
             let mut place = match place {
                 Ok(place) => place,
@@ -148,7 +148,7 @@ pub async fn run(
                 end = serve_client(socket, &client, &context, &mut place) => {
                     tracing::info!(%client, "client disconnected: {end}");
                 }
-                () = client_shutdown.fired() => {}
+                () = client_shutdown.cancelled() => {}
             }
             drop(place);
         });

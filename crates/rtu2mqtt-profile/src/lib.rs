@@ -1,0 +1,656 @@
+//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or
+//! one of the built-in copies), validated completely at load, and then answers every question
+//! the rest of the gateway has about a device: which blocks to poll, how raw words become field
+//! values, which fields exist and how they are exposed, and how a command on a field becomes the
+//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
+//! [`registry`], which holds the built-in profiles, reads profile files and describes a profile
+//! for the `rtu2mqtt profiles` listing.
+//!
+//! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
+//! [`registers`], [`numeric`], [`text`], [`rejection`], [`publish`], [`field`], [`codec`],
+//! [`model`], [`format`](mod@format), [`compile`], then [`command`] and [`raw`] (planning and
+//! patching on the model); this file's [`Profile`] is what the rest of the crate sees.
+//! [`sunspec`] is the SunSpec model table and the profile written from a device's model chain.
+//!
+//! [`contract`] is the MQTT contract (topic names, the parse of a command topic, Home
+//! Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
+//! daemon's configuration check, discovery and bridge, and by the demo.
+
+pub mod bcd;
+pub mod codec;
+pub mod command;
+pub mod compile;
+pub mod contract;
+pub mod field;
+pub mod format;
+pub mod model;
+pub mod number;
+pub mod numeric;
+pub mod publish;
+pub mod raw;
+pub mod registers;
+pub mod registry;
+pub mod rejection;
+pub mod sunspec;
+pub mod text;
+pub mod value;
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use rtu2mqtt_modbus::{Request, Response};
+
+pub use codec::{BlockImage, FieldError, RawPatch};
+pub use command::{CommandPlan, Verification};
+pub use compile::{ProfileError, ProfileErrors};
+pub use field::{FieldInfo, FieldKind, HaHints, Identity};
+pub use model::{Limits, PollClass, ReadBlock};
+pub use publish::PublishRule;
+pub use rejection::Rejection;
+pub use value::Value;
+
+/// Last known decoded values of one device, by field name.
+pub type DeviceState = HashMap<String, Value>;
+
+/// A validated device profile.
+#[derive(Debug, Clone)]
+pub struct Profile {
+    // Shared with the command plans made from it.
+    pub(crate) inner: Arc<model::Compiled>,
+}
+
+/// One field's value from a block, or why it has none.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldReading {
+    pub field: String,
+    pub value: Result<Value, codec::FieldError>,
+}
+
+impl Profile {
+    /// Parses and validates a profile from TOML text; `source` (a path or `built-in NAME`)
+    /// prefixes the place of every problem.
+    pub fn from_toml(text: &str, source: &str) -> Result<Self, ProfileErrors> {
+        compile::compile(text, source).map(|compiled| Self {
+            inner: Arc::new(compiled),
+        })
+    }
+
+    /// The profile's name (`ruiwan-dust-collector`).
+    pub fn name(&self) -> &str {
+        &self.inner.name
+    }
+
+    pub fn manufacturer(&self) -> &str {
+        &self.inner.manufacturer
+    }
+
+    pub fn model(&self) -> &str {
+        &self.inner.model
+    }
+
+    pub fn description(&self) -> &str {
+        &self.inner.description
+    }
+
+    /// The address the device usually has (the air shower's fixed 0x81), if the profile says.
+    pub fn default_address(&self) -> Option<u8> {
+        self.inner.default_address
+    }
+
+    pub fn limits(&self) -> &Limits {
+        &self.inner.limits
+    }
+
+    pub fn fields(&self) -> &[FieldInfo] {
+        &self.inner.infos
+    }
+
+    pub fn field(&self, name: &str) -> Option<&FieldInfo> {
+        self.fields().iter().find(|f| f.name == name)
+    }
+
+    pub fn read_blocks(&self) -> &[ReadBlock] {
+        &self.inner.blocks
+    }
+
+    /// Names of the fields decoded from `read_blocks()[block]`.
+    pub fn block_fields(&self, block: usize) -> Vec<&str> {
+        self.inner
+            .defs
+            .iter()
+            .zip(&self.inner.infos)
+            .filter(|(def, _)| def.block == block)
+            .map(|(_, info)| info.name.as_str())
+            .collect()
+    }
+
+    /// Decodes the answer to `read_blocks()[block]` into its fields' values. An answer of the
+    /// wrong kind or length gives every field of the block an error; a bad field (invalid BCD)
+    /// gives an error for that field only. A `scale_by` field whose exponent lies in another
+    /// block is invalid this way: see [`Profile::decode_block_with`].
+    pub fn decode_block(&self, block: usize, answer: &Response) -> Vec<FieldReading> {
+        self.decode_block_with(block, answer, |_| None)
+    }
+
+    /// The blocks (other than `block`) holding fields whose exponent lies in `block`: their
+    /// values change when `block`'s answer does.
+    pub fn blocks_scaled_by(&self, block: usize) -> Vec<usize> {
+        let defs = &self.inner.defs;
+        let mut users: Vec<usize> = defs
+            .iter()
+            .filter(|def| def.block != block)
+            .filter(|def| def.scale_by.is_some_and(|e| defs[e].block == block))
+            .map(|def| def.block)
+            .collect();
+        users.sort_unstable();
+        users.dedup();
+        users
+    }
+
+    /// [`Profile::decode_block`], with `latest(b)` the latest answer to block `b` for the
+    /// exponents of `scale_by` fields that lie in other blocks (None: not read; such a field's
+    /// value is then invalid data).
+    pub fn decode_block_with<'a>(
+        &self,
+        block: usize,
+        answer: &Response,
+        latest: impl Fn(usize) -> Option<&'a Response>,
+    ) -> Vec<FieldReading> {
+        let Some(read) = self.inner.blocks.get(block) else {
+            return Vec::new();
+        };
+        let expected = read
+            .request
+            .read_span()
+            .map_or(0, |(_, quantity)| usize::from(quantity));
+        let image = command::image_of(answer, expected).filter(|image| {
+            matches!(
+                (image, self.inner.block_kinds[block].is_bits()),
+                (BlockImage::Bits(_), true) | (BlockImage::Words(_), false)
+            )
+        });
+        let inner = &self.inner;
+        let exponent_of = |index: usize, image: &BlockImage| {
+            inner.exponent_for(index, |exponent| {
+                let def = &inner.defs[exponent];
+                if def.block == block {
+                    return Some(def.codec.decode(image, def.offset));
+                }
+                let length = inner.blocks[def.block]
+                    .request
+                    .read_span()
+                    .map_or(0, |(_, quantity)| usize::from(quantity));
+                let other = command::image_of(latest(def.block)?, length)?;
+                Some(def.codec.decode(&other, def.offset))
+            })
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .enumerate()
+            .filter(|(_, (def, _))| def.block == block)
+            .map(|(index, (def, info))| FieldReading {
+                field: info.name.clone(),
+                value: match &image {
+                    Some(image) => {
+                        def.codec
+                            .decode_with(image, def.offset, &exponent_of(index, image))
+                    }
+                    None => Err(FieldError::Invalid(format!(
+                        "the answer does not fit block `{}`",
+                        read.name
+                    ))),
+                },
+            })
+            .collect()
+    }
+
+    /// Decodes the answer to any read inside one block (a whole block, one of its used runs,
+    /// or a command slot's read): the values of the fields that lie entirely inside the read.
+    /// Empty when no block of the profile contains the read.
+    pub fn decode_read(&self, request: &Request, answer: &Response) -> Vec<FieldReading> {
+        let Some((_, quantity)) = request.read_span() else {
+            return Vec::new();
+        };
+        let inner = &self.inner;
+        let Some((block, base)) = inner
+            .blocks
+            .iter()
+            .enumerate()
+            .find_map(|(index, block)| Some((index, block.request.offset_of(request)?)))
+        else {
+            return Vec::new();
+        };
+        let Some(part) = command::image_of(answer, usize::from(quantity)) else {
+            return Vec::new();
+        };
+        let inside = |def: &model::FieldDef| {
+            def.block == block
+                && def.offset >= base
+                && u32::from(def.offset) + u32::from(def.codec.width())
+                    <= u32::from(base) + u32::from(quantity)
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .enumerate()
+            .filter(|(_, (def, _))| inside(def))
+            .map(|(index, (def, info))| {
+                // An exponent is only taken from the same read.
+                let exponent = inner.exponent_for(index, |exponent| {
+                    let held = &inner.defs[exponent];
+                    inside(held).then(|| held.codec.decode(&part, held.offset - base))
+                });
+                FieldReading {
+                    field: info.name.clone(),
+                    value: def.codec.decode_with(&part, def.offset - base, &exponent),
+                }
+            })
+            .collect()
+    }
+
+    /// The fields a foreign master's `write` sets, with the values it gives them, found
+    /// through the profile's write frames (a write lands at a frame's write address, which need
+    /// not be its place in the read block). `None` when no write frame of the profile holds
+    /// every register or coil the write touches; the values of fields the write covers whole.
+    pub fn decode_write(&self, write: &Request) -> Option<Vec<FieldReading>> {
+        let (frame, start, image) = self.landing(write)?;
+        let quantity = match &image {
+            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
+            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
+            _ => return None,
+        };
+        let block = self.inner.blocks.get(frame.block)?;
+        let read = block
+            .request
+            .sub_read(frame.offset + (start - frame.address), quantity)?;
+        Some(self.decode_read(&read, &image))
+    }
+
+    /// The `scale_by` numbers whose exponent a device polled every `poll_interval` (its fast
+    /// blocks; zero is continuous polling at the profile's minimum) would read less often than
+    /// the number itself, as (number, exponent field). `check` refuses such a device: the
+    /// profile alone is judged at its own default interval.
+    pub fn exponents_read_too_rarely(&self, poll_interval: Duration) -> Vec<(String, String)> {
+        let inner = &self.inner;
+        let fast = if poll_interval.is_zero() {
+            inner.limits.min_poll_interval
+        } else {
+            poll_interval
+        };
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| {
+                let exponent = def.scale_by?;
+                let held = inner.blocks.get(inner.defs.get(exponent)?.block)?.class;
+                let user = inner.blocks.get(def.block)?.class;
+                if compile::polled_at_least_as_often(held, user, &inner.limits, fast) {
+                    return None;
+                }
+                Some((info.name.clone(), inner.infos.get(exponent)?.name.clone()))
+            })
+            .collect()
+    }
+
+    /// Every writable field a foreign master's `write` touches, whole or in part, found by
+    /// address through the fields' write frames: a raw write of one register of a two-register
+    /// value still writes that field (and its EEPROM).
+    pub fn fields_touched(&self, write: &Request) -> Vec<String> {
+        let (start, count, registers) = match write {
+            Request::WriteSingleRegister { address, .. } => (*address, 1, true),
+            Request::WriteMultipleRegisters { start, values } => (*start, values.len(), true),
+            Request::WriteSingleCoil { address, .. } => (*address, 1, false),
+            Request::WriteMultipleCoils { start, values } => (*start, values.len(), false),
+            _ => return Vec::new(),
+        };
+        let first = usize::from(start);
+        let end = first + count;
+        let inner = &self.inner;
+        inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| {
+                let frame = def.write.as_ref()?;
+                if matches!(frame.function, 6 | 16) != registers {
+                    return None;
+                }
+                let at =
+                    usize::from(frame.address) + usize::from(def.offset.checked_sub(frame.offset)?);
+                let width = usize::from(def.codec.width());
+                (at < end && first < at + width).then(|| info.name.clone())
+            })
+            .collect()
+    }
+
+    /// The write frame a foreign master's `write` lands on (the first of the profile's that
+    /// holds every register or coil it touches), the write's first address and its values.
+    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, u16, Response)> {
+        let (start, image, registers) = match write {
+            Request::WriteSingleRegister { address, value } => {
+                (*address, Response::HoldingRegisters(vec![*value]), true)
+            }
+            Request::WriteMultipleRegisters { start, values } => {
+                (*start, Response::HoldingRegisters(values.clone()), true)
+            }
+            Request::WriteSingleCoil { address, value } => {
+                (*address, Response::Coils(vec![*value]), false)
+            }
+            Request::WriteMultipleCoils { start, values } => {
+                (*start, Response::Coils(values.clone()), false)
+            }
+            _ => return None,
+        };
+        let quantity = match &image {
+            Response::HoldingRegisters(words) => u32::try_from(words.len()).ok()?,
+            Response::Coils(bits) => u32::try_from(bits.len()).ok()?,
+            _ => return None,
+        };
+        let inner = &self.inner;
+        let frames = inner
+            .defs
+            .iter()
+            .filter_map(|def| def.write.as_ref())
+            .chain(inner.named_frames.iter().map(|(_, frame)| frame));
+        let frame = frames
+            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == registers)
+            .find(|frame| {
+                start >= frame.address
+                    && u32::from(start) + quantity
+                        <= u32::from(frame.address) + u32::from(frame.count)
+            })?;
+        Some((frame, start, image))
+    }
+
+    /// Plans a foreign master's `write` as the fields it sets (`values`, command texts) written
+    /// through the very frame the write lands on, so that the device gets the frame a client
+    /// sent and not another one that would also rewrite other fields. Validated like a command
+    /// on the last known `state`; labelled by the frame's name when it is a shared one.
+    pub fn plan_foreign_write(
+        &self,
+        write: &Request,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let Some((frame, _, _)) = self.landing(write) else {
+            return Err(Rejection("the write lands on no write frame".to_string()));
+        };
+        let named = self
+            .inner
+            .named_frames
+            .iter()
+            .find(|(_, named)| named == frame)
+            .map(|(name, _)| name.as_str());
+        let label = match (values, named) {
+            ([(field, _)], _) => field,
+            (_, Some(name)) => name,
+            ([(field, _), ..], None) => field,
+            ([], _) => return Err(Rejection("the write sets no field".to_string())),
+        };
+        self.plan_frame(label, frame.clone(), values, state)
+    }
+
+    /// Validates a command (`text` as received on `…/set`) against the field's rules and the
+    /// last known state, and plans the bus slot that carries it out.
+    pub fn plan_command(
+        &self,
+        field: &str,
+        text: &str,
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let (index, target) = self.parse_target(field, text)?;
+        let Some(frame) = self.inner.defs[index].write.clone() else {
+            return Err(Rejection(format!("{field} is read-only")));
+        };
+        let targets = vec![(index, target)];
+        self.check_known_state(&targets, state)?;
+        Ok(CommandPlan::new(
+            Arc::clone(&self.inner),
+            field.to_string(),
+            frame,
+            targets,
+        ))
+    }
+
+    /// Plans several fields written together through one named `[[write_frames]]` entry in one
+    /// frame (the dust collector's `settings`: power on with gear and timers in one FC10). Bits
+    /// and words of the frame that no value names are written back as freshly read.
+    pub fn plan_group(
+        &self,
+        frame_name: &str,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let inner = &self.inner;
+        let frame = inner
+            .named_frames
+            .iter()
+            .find(|(name, _)| name == frame_name)
+            .map(|(_, frame)| frame.clone())
+            .ok_or_else(|| {
+                Rejection(format!(
+                    "unknown write frame `{frame_name}` for {}",
+                    inner.name
+                ))
+            })?;
+        self.plan_frame(frame_name, frame, values, state)
+    }
+
+    /// Plans `values` written together through `frame`, labelled `label`.
+    fn plan_frame(
+        &self,
+        frame_name: &str,
+        frame: model::WriteFrame,
+        values: &[(&str, &str)],
+        state: &DeviceState,
+    ) -> Result<CommandPlan, Rejection> {
+        let inner = &self.inner;
+        if values.is_empty() {
+            return Err(Rejection(format!("{frame_name}: no values given")));
+        }
+        let mut targets: Vec<(usize, Value)> = Vec::new();
+        for (field, text) in values {
+            let (index, target) = self.parse_target(field, text)?;
+            let def = &inner.defs[index];
+            let end = u32::from(def.offset) + u32::from(def.codec.width());
+            if def.block != frame.block
+                || def.offset < frame.offset
+                || end > u32::from(frame.offset) + u32::from(frame.count)
+            {
+                return Err(Rejection(format!(
+                    "{field} is not written by frame `{frame_name}`"
+                )));
+            }
+            if targets.iter().any(|(other, _)| *other == index) {
+                return Err(Rejection(format!("{field} is given twice")));
+            }
+            targets.push((index, target));
+        }
+        self.check_known_state(&targets, state)?;
+        Ok(CommandPlan::new(
+            Arc::clone(&self.inner),
+            frame_name.to_string(),
+            frame,
+            targets,
+        ))
+    }
+
+    /// Names of the profile's shared write frames (for group commands).
+    pub fn write_frame_names(&self) -> Vec<&str> {
+        self.inner
+            .named_frames
+            .iter()
+            .map(|(name, _)| name.as_str())
+            .collect()
+    }
+
+    /// How a field behaves when written (a state, a toggle, a button) and whether it is an
+    /// overlay (a view over bits other fields own); `None` for an unknown field.
+    pub fn write_behaviour(&self, field: &str) -> Option<(model::Behaviour, bool)> {
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)?;
+        let def = self.inner.defs.get(index)?;
+        Some((def.behaviour, def.overlay))
+    }
+
+    /// The field's index and the command text parsed for it; refuses unknown and read-only
+    /// fields.
+    fn parse_target(&self, field: &str, text: &str) -> Result<(usize, Value), Rejection> {
+        let inner = &self.inner;
+        let index = inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}` for {}", inner.name)))?;
+        let info = &inner.infos[index];
+        if !info.writable {
+            return Err(Rejection(format!("{field} is read-only")));
+        }
+        let def = &inner.defs[index];
+        let target = match codec::parse_command(info, text) {
+            Ok(value) => value,
+            Err(rejection) if def.also.is_empty() => return Err(rejection),
+            Err(rejection) => match number::integer(text) {
+                Some(value) if def.also.contains(&value) => Value::Int(i128::from(value)),
+                _ => {
+                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
+                    let or = format!(" or {}, got ", list.join(", "));
+                    return Err(Rejection(rejection.0.replacen(", got ", &or, 1)));
+                }
+            },
+        };
+        // Kinds and ranges are validated against the codec at load, so this only fails on a
+        // profile bug; refuse rather than write something else. A `scale_by` number is
+        // encoded in its slot, with the exponent read there.
+        if !def.codec.needs_exponent() {
+            def.codec
+                .encode(def.offset, &target)
+                .map_err(|why| Rejection(format!("{field}: {why}")))?;
+        }
+        Ok((index, target))
+    }
+
+    /// Judges forbidden combinations on the last known state with the command applied. Fields
+    /// not known yet are left to the fresh read in `CommandPlan::writes`.
+    fn check_known_state(
+        &self,
+        targets: &[(usize, Value)],
+        state: &DeviceState,
+    ) -> Result<(), Rejection> {
+        let inner = &self.inner;
+        let block = inner.defs[targets[0].0].block;
+        let mut image = command::empty_image(&inner.blocks[block].request);
+        let mut known = vec![false; inner.defs.len()];
+        for (i, other) in inner.defs.iter().enumerate() {
+            if other.block != block || other.overlay {
+                continue;
+            }
+            if let Some(patches) = state
+                .get(&inner.infos[i].name)
+                .and_then(|value| other.codec.encode(other.offset, value).ok())
+            {
+                image.apply(&patches);
+                known[i] = true;
+            }
+        }
+        let mut touched = Vec::new();
+        for (index, target) in targets {
+            let def = &inner.defs[*index];
+            if let Ok(patches) = def.codec.encode(def.offset, target) {
+                image.apply(&patches);
+            }
+            touched.extend(def.codec.footprint(def.offset));
+        }
+        for (index, target) in targets {
+            command::check_forbidden(inner, *index, target, |i| {
+                let other = &inner.defs[i];
+                let hit = other
+                    .codec
+                    .footprint(other.offset)
+                    .iter()
+                    .any(|(o, m)| touched.iter().any(|(to, tm)| o == to && m & tm != 0));
+                (known[i] || hit)
+                    .then(|| other.codec.decode(&image, other.offset).ok())
+                    .flatten()
+            })?;
+        }
+        Ok(())
+    }
+
+    /// The raw change that puts `value` into a field's place: the block index and the patches
+    /// to apply to that block's image. For simulators seeding plausible values and for tests;
+    /// the value must have the field's kind (e.g. from [`Profile::parse_value`]).
+    pub fn encode_value_raw(
+        &self,
+        field: &str,
+        value: &Value,
+    ) -> Result<(usize, Vec<RawPatch>), Rejection> {
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
+        let def = &self.inner.defs[index];
+        def.codec
+            .encode(def.offset, value)
+            .map(|patches| (def.block, patches))
+            .map_err(|why| Rejection(format!("{field}: {why}")))
+    }
+
+    /// Example commands as (field, value text): the ones the profile declares (`example = …` on
+    /// a field), or else one made up for its first writable field that holds a state, so that
+    /// every writable profile can show how it is commanded.
+    pub fn example_commands(&self) -> Vec<(&str, String)> {
+        let inner = &self.inner;
+        let declared: Vec<(&str, String)> = inner
+            .defs
+            .iter()
+            .zip(&inner.infos)
+            .filter_map(|(def, info)| Some((info.name.as_str(), def.example.clone()?)))
+            .collect();
+        if !declared.is_empty() {
+            return declared;
+        }
+        inner
+            .infos
+            .iter()
+            .filter(|info| info.writable)
+            .find_map(|info| Some((info.name.as_str(), made_up_example(&info.kind)?)))
+            .into_iter()
+            .collect()
+    }
+
+    /// Parses text into a value of the field's kind, with the same rules as commands, whether
+    /// or not the field is writable.
+    pub fn parse_value(&self, field: &str, text: &str) -> Result<Value, Rejection> {
+        let info = self
+            .field(field)
+            .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
+        codec::parse_command(info, text)
+    }
+}
+
+/// A valid command value for a field of this kind: a state to switch on, the top of a range, the
+/// last option (the first is usually the resting state: `off`, `manual`). None for buttons and
+/// text.
+fn made_up_example(kind: &FieldKind) -> Option<String> {
+    match kind {
+        FieldKind::Bool => Some("ON".to_string()),
+        FieldKind::Integer { max, .. } => Some(max.to_string()),
+        FieldKind::Decimal { max, precision, .. } => Some(format!(
+            "{max:.precision$}",
+            precision = usize::from(*precision)
+        )),
+        FieldKind::Enum { options } => options.last().cloned(),
+        FieldKind::Momentary | FieldKind::Text => None,
+    }
+}
