@@ -27,7 +27,7 @@ const MAX_DEFERRED: usize = 1024;
 /// while the driver keeps up: a gateway with a thousand devices announces them over seconds
 /// instead of building a hundred thousand messages in one turn of the loop that also serves
 /// the lines.
-pub const ANNOUNCE_BATCH: usize = 25;
+pub const ANNOUNCE_BATCH: usize = 50;
 
 /// What is still to be announced: a line's discovery document; a device's, and with
 /// `everything` its availability, every state and its JSON view.
@@ -180,6 +180,7 @@ impl Publisher {
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
         self.json_views.values_mut().for_each(JsonView::mark_stale);
+        self.cache.forget_all_published();
         self.announce(true);
         while let Some(kept) = self.deferred.pop_front() {
             self.out.push(Action::Publish(kept));
@@ -273,7 +274,7 @@ impl Publisher {
         self.announce(false);
     }
 
-    /// The gateway's discovery document, then each line's and each configured device's
+    /// The gateway's discovery document, then each configured device's and each line's
     /// announcement (with `everything`: the device's availability, states and JSON view too):
     /// the first [`ANNOUNCE_BATCH`] at once, the rest by [`Publisher::continue_announcing`].
     /// A device already waiting keeps what it was to get.
@@ -282,7 +283,6 @@ impl Publisher {
         if self.discovery {
             let (topic, document) = discovery::gateway_config(&self.topics);
             self.publish(topic, document.to_string(), true);
-            announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
         } else if !everything {
             return;
         }
@@ -306,6 +306,9 @@ impl Publisher {
                     device: device.clone(),
                 }),
         );
+        if self.discovery {
+            announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
+        }
         self.announcing = announcing;
         self.continue_announcing();
     }
@@ -351,6 +354,7 @@ impl Publisher {
 
     /// Discovery and every state again (after Home Assistant's birth message).
     pub fn reannounce(&mut self) {
+        self.cache.forget_all_published();
         self.announce(true);
     }
 

@@ -153,6 +153,7 @@ impl StateCache {
 
     /// Every known value, for the full republish after a (re)connect; recorded as published.
     pub fn republish_all(&mut self) -> Vec<StateUpdate> {
+        self.forget_all_published();
         let order = std::mem::take(&mut self.order);
         let updates = order
             .iter()
@@ -162,29 +163,41 @@ impl StateCache {
         updates
     }
 
-    /// Every known value of `device`, in the order of its field names; recorded as published.
+    /// The known values of `device` not published on this connection yet (every one after
+    /// [`StateCache::forget_all_published`]), in the order of their field names; recorded as
+    /// published.
     pub fn republish(&mut self, device: &str) -> Vec<StateUpdate> {
         let Some(cache) = self.devices.get_mut(device) else {
             return Vec::new();
         };
         let mut fields: Vec<&String> = cache.state.keys().collect();
         fields.sort();
-        let mut published = HashMap::new();
         let mut updates = Vec::new();
-        for field in fields
-            .into_iter()
-            .filter(|field| cache.state[*field].is_available())
-        {
-            let text = cache.state[field].to_text();
-            published.insert(field.clone(), text.clone());
+        for field in fields {
+            let value = &cache.state[field];
+            if !value.is_available() {
+                continue;
+            }
+            let text = value.to_text();
+            if cache.published.get(field) == Some(&text) {
+                continue;
+            }
+            cache.published.insert(field.clone(), text.clone());
             updates.push(StateUpdate {
                 device: device.to_string(),
                 field: field.clone(),
                 text,
             });
         }
-        cache.published = published;
         updates
+    }
+
+    /// A new connection: nothing is published on it yet, so each value goes out with its
+    /// device's next reading or in the device's turn, whichever comes first.
+    pub fn forget_all_published(&mut self) {
+        for cache in self.devices.values_mut() {
+            cache.published.clear();
+        }
     }
 }
 
