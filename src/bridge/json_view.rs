@@ -5,10 +5,8 @@
 //! Pure: the bridge passes the device's last known values and publishes the result. Keys are
 //! the field names in ascending order whatever map the values came from, so two documents with
 //! the same values are byte-identical (the bridge can skip publishing an unchanged view).
-//! [`JsonView`] keeps each field's JSON text, so that a reading that changed one value of a
-//! hundred renders that one value again, not the hundred.
-
-use std::collections::BTreeMap;
+//! [`JsonView`] keeps the document and changes it in place, so that a reading that changed
+//! one value of a hundred renders that one value again, not the hundred.
 
 use serde_json::{Map, Value as Json};
 
@@ -40,12 +38,16 @@ pub fn json_view_payload(state: &DeviceState) -> Vec<u8> {
     json_view(state).to_string().into_bytes()
 }
 
-/// A device's JSON view as its fields' JSON texts, in ascending order of field names.
+/// A device's JSON view kept as its document, changed in place: a reading that moved one
+/// value of a hundred renders that value and splices it in, and the view costs no more memory
+/// than its text. Field names are plain (lower-case letters, digits, `-`, `_`: the profile
+/// checks them), so each key is its name in quotes and the members are in the order of their
+/// names, as in [`json_view_payload`].
 #[derive(Debug, Default, Clone)]
 pub struct JsonView {
-    /// Field name → (the name as a JSON string, the value as JSON).
-    fields: BTreeMap<String, (String, String)>,
-    /// The payload of these values has not been published (or its publication failed).
+    /// The document (empty while no value is known).
+    text: String,
+    /// The document has not been published as it is (or its publication failed).
     stale: bool,
 }
 
@@ -53,20 +55,57 @@ impl JsonView {
     /// Takes `value` as `field`'s; true when the view changed.
     pub fn set(&mut self, field: &str, value: &Value) -> bool {
         let json = value.to_json().to_string();
-        let changed = match self.fields.get_mut(field) {
-            Some((_, known)) if *known == json => false,
-            Some((_, known)) => {
-                *known = json;
+        let key = Json::String(field.to_string()).to_string();
+        let changed = match self.place_of(field) {
+            Place::Value(range) if self.text[range.clone()] == json => false,
+            Place::Value(range) => {
+                self.text.replace_range(range, &json);
                 true
             }
-            None => {
-                let key = Json::String(field.to_string()).to_string();
-                self.fields.insert(field.to_string(), (key, json));
+            Place::Before(at) => {
+                self.text.insert_str(at, &format!("{key}:{json},"));
+                true
+            }
+            Place::Last => {
+                let at = self.text.len() - 1;
+                self.text.insert_str(at, &format!(",{key}:{json}"));
+                true
+            }
+            Place::Empty => {
+                self.text = format!("{{{key}:{json}}}");
                 true
             }
         };
         self.stale |= changed;
         changed
+    }
+
+    /// Where `field` is in the document, or where it goes. A member ends where the next one
+    /// starts (`,"` outside a string: inside one a quote is escaped) or at the closing brace.
+    fn place_of(&self, field: &str) -> Place {
+        if self.text.is_empty() {
+            return Place::Empty;
+        }
+        let bytes = self.text.as_bytes();
+        let last = self.text.len() - 1;
+        let mut start = 1;
+        loop {
+            let end = self.text[start..last]
+                .find(",\"")
+                .map_or(last, |at| start + at);
+            // The key: from its opening quote to the next quote not escaped.
+            let mut key_end = start + 1;
+            while key_end < end && bytes[key_end] != b'"' {
+                key_end += if bytes[key_end] == b'\\' { 2 } else { 1 };
+            }
+            let name = &self.text[start + 1..key_end.min(end)];
+            match name.cmp(field) {
+                std::cmp::Ordering::Equal => return Place::Value(key_end + 2..end),
+                std::cmp::Ordering::Greater => return Place::Before(start),
+                std::cmp::Ordering::Less if end == last => return Place::Last,
+                std::cmp::Ordering::Less => start = end + 1,
+            }
+        }
     }
 
     /// The view must be published again even though its values did not change.
@@ -77,33 +116,25 @@ impl JsonView {
     /// The payload to publish when the view changed since it was last taken (or was marked
     /// stale); None when it holds nothing or was published as it is.
     pub fn take_payload(&mut self) -> Option<String> {
-        if !self.stale || self.fields.is_empty() {
+        if !self.stale || self.text.is_empty() {
             return None;
         }
         self.stale = false;
-        Some(self.payload())
+        Some(self.text.clone())
     }
+}
 
-    /// The document: byte for byte [`json_view_payload`] of the same values.
-    pub fn payload(&self) -> String {
-        let length: usize = self
-            .fields
-            .values()
-            .map(|(key, json)| key.len() + json.len() + 2)
-            .sum();
-        let mut text = String::with_capacity(length + 2);
-        text.push('{');
-        for (index, (key, json)) in self.fields.values().enumerate() {
-            if index > 0 {
-                text.push(',');
-            }
-            text.push_str(key);
-            text.push(':');
-            text.push_str(json);
-        }
-        text.push('}');
-        text
-    }
+/// Where a field is in a view's document.
+#[derive(Debug)]
+enum Place {
+    /// Its value's text.
+    Value(std::ops::Range<usize>),
+    /// Not there: its member goes at this offset, before the first one named after it.
+    Before(usize),
+    /// Not there, named after every member.
+    Last,
+    /// The document is empty.
+    Empty,
 }
 
 #[cfg(test)]
@@ -123,7 +154,9 @@ mod tests {
                 },
             ),
             ("power", Value::Bool(true)),
-            ("mode \"eco\"", Value::Enum("auto".into())),
+            ("mode", Value::Enum("auto".into())),
+            ("a", Value::Text("x,\"y\":1".into())),
+            ("zz", Value::Int(-3)),
             ("energy", Value::Int(18_446_744_073_709_551_614)),
             ("humidity", Value::Unavailable),
         ];
@@ -155,6 +188,41 @@ mod tests {
         assert!(second.contains("\"temperature\":22.0"), "{second}");
         view.mark_stale();
         assert_eq!(view.take_payload(), Some(second));
+    }
+
+    #[test]
+    fn values_set_first_last_between_and_again_keep_the_document_of_the_state() {
+        let mut state = DeviceState::new();
+        let mut view = JsonView::default();
+        let steps = [
+            ("m", Value::Int(1)),
+            ("m", Value::Int(22)),
+            ("c", Value::Text("a,\"b\":{".into())),
+            ("x", Value::Bool(false)),
+            ("f", Value::Unavailable),
+            ("c", Value::Text(String::new())),
+            ("a-1", Value::Int(7)),
+            (
+                "x",
+                Value::Decimal {
+                    scaled: 5,
+                    precision: 1,
+                },
+            ),
+            ("z_9", Value::Enum("open".into())),
+            ("f", Value::Int(0)),
+            ("a-1", Value::Int(-70)),
+        ];
+        for (field, value) in steps {
+            view.set(field, &value);
+            state.insert(field.to_string(), value);
+            assert_eq!(
+                view.take_payload()
+                    .unwrap_or_else(|| view.text.clone())
+                    .as_bytes(),
+                json_view_payload(&state).as_slice()
+            );
+        }
     }
 
     #[test]
