@@ -151,6 +151,9 @@ pub struct Core {
     history: Option<HistoryStats>,
     /// The driver does not keep up with what it is asked to publish: announcing waits.
     overloaded: bool,
+    /// The documents of the last announcements have left the driver's outbox (they wait
+    /// behind state and outcomes): the next may be built.
+    announce_room: bool,
     /// Publishes refused for their size, as the driver last told it.
     oversized_refused: u64,
 }
@@ -180,6 +183,7 @@ impl Core {
             rng,
             history: None,
             overloaded: false,
+            announce_room: true,
             oversized_refused: 0,
         }
     }
@@ -253,6 +257,12 @@ impl Core {
     /// Tells the core how many publishes the packet limit has refused, for the statistics.
     pub fn set_oversized_refused(&mut self, refused: u64) {
         self.oversized_refused = refused;
+    }
+
+    /// Tells the core whether the discovery documents announced last have left the driver's
+    /// outbox: announcing goes on only then, so that documents never pile up there.
+    pub fn set_announce_room(&mut self, room: bool) {
+        self.announce_room = room;
     }
 
     /// Tells the core whether the driver keeps up with what it is asked to publish.
@@ -389,7 +399,7 @@ impl Core {
         if self.reannounce_at.is_some_and(|at| at <= now) {
             self.reannounce_at = None;
             self.publisher.reannounce();
-        } else if !self.overloaded {
+        } else if !self.overloaded && self.announce_room {
             self.publisher.continue_announcing();
         }
         self.publisher.reassert_due(now);

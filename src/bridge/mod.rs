@@ -50,6 +50,7 @@ use self::history::{is_history, HistoryLane, REPLAY_ROOM};
 use self::metrics::BridgeStats;
 use self::mqtt::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::outbox::{Lane, Outbox, Request};
+use self::publisher::ANNOUNCE_BATCH;
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
 use tokio_util::sync::CancellationToken;
@@ -249,6 +250,7 @@ impl Bridge {
                     self.history_tick(now);
                     let lines = &self.lines;
                     self.core.set_oversized_refused(self.packet_limit.refused());
+                    self.core.set_announce_room(self.outbox.resend_len() < ANNOUNCE_BATCH);
                     let actions = self.core.on_tick(now, || line_stats(lines));
                     self.execute(actions);
                     self.counters_tx.send_replace(self.core.counters(now));
