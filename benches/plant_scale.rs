@@ -6,7 +6,8 @@
 //! journal on.
 //!
 //! For each N it prints the start-up (gateway started → every device's first value on MQTT),
-//! the gateway's CPU (% of one core) and memory (RssAnon, Private_Dirty, Pss) in steady state,
+//! the gateway's CPU (% of one core) and memory (`Anonymous` and `Pss` from smaps_rollup, with
+//! RssAnon and Private_Dirty beside them) in steady state,
 //! the MQTT messages per second the broker received from it, and the poll lateness measured at
 //! the simulator (time between a block's successive requests beyond 1 s; p50, p99, skipped
 //! polls). At the largest N it then stops mosquitto for an outage, starts it again on the same
@@ -14,7 +15,7 @@
 //! those that reached a subscriber on the history stream, live and replayed, and the lateness
 //! during the outage and the replay.
 //!
-//! Run: `cargo bench --bench plant_scale` (about 12 minutes after the build). Environment:
+//! Run: `cargo bench --bench plant_scale` (about eight minutes after the build). Environment:
 //! `PLANT_SCALE_DEVICES=10,100,1000` (the device counts), `PLANT_SCALE_WARMUP=20` and
 //! `PLANT_SCALE_WINDOW=60` (seconds after start-up before and of the steady-state window),
 //! `PLANT_SCALE_OUTAGE=60` (seconds; `0` skips the outage), `PLANT_SCALE_GATEWAY=path` (another
