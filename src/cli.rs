@@ -184,7 +184,7 @@ mod tests {
             .collect();
         assert_eq!(
             commands,
-            ["run", "check", "scan", "read", "sunspec", "profiles", "health", "help"]
+            ["run", "check", "scan", "read", "sunspec", "profiles", "health"]
         );
     }
 

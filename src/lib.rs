@@ -27,11 +27,12 @@
 //! - [`history`]: what was measured while the broker was away: `document` (the history stream's
 //!   `{"ts","values"}`), `record` (length + CRC-32 per record, a damaged part skipped), `journal`
 //!   (append-only segment files, bounded, crash-safe). File I/O only.
-//! - [`bridge`]: the only plain-MQTT user. `core` (every decision, no I/O: events in, actions
-//!   out; `desk` the command desk from arrival to result, `publisher` the state cache and what is
-//!   published from it), the driver (client, channels, loop), `mqtt` (connection, back-off),
-//!   `tls`, `payload`, `state`, `commands`, `discovery` (Home Assistant; `entity_naming`),
-//!   `json_view`, `history` (journal or publish, the paced replay), `metrics` and `prometheus`.
+//! - [`bridge`]: the only plain-MQTT user, in three parts: `core` (every decision, no I/O:
+//!   events in, actions out; `desk` the command desk from arrival to result, `publisher` the
+//!   state cache and what is published from it, `discovery`, `guard`, `json_view`, `payload`,
+//!   `state`, `command_book`), `driver` (the task that carries the actions out: `connection`,
+//!   `outbox`, `tls`, `history_stream`) and `observers` (`statistics` documents, the
+//!   `prometheus` endpoint).
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
 //!   `metrics`, `figures`, `session_interface`, `session` (the pure edge-node rules) and its
 //!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.

@@ -19,7 +19,9 @@ use std::time::Duration;
 use anyhow::Context as _;
 use tokio::sync::{broadcast, mpsc, oneshot};
 
-use crate::bridge::{self, mqtt, prometheus, Bridge, BridgeHealth};
+use crate::bridge::driver::connection;
+use crate::bridge::observers::prometheus;
+use crate::bridge::{self, Bridge, BridgeHealth};
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::{self, Config};
 use crate::health;
@@ -83,10 +85,10 @@ pub async fn run_gateway(
         }
     }
     // Everything that can fail comes before the lines start: TLS files, the metrics port.
-    let mqtt = mqtt::connect(&config.mqtt).context("MQTT client")?;
+    let mqtt = connection::connect(&config.mqtt).context("MQTT client")?;
     let node = sparkplug::session_for(&config);
     if let Some((_, node_mqtt)) = &node {
-        mqtt::options(node_mqtt, &node_mqtt.topics()).context("Sparkplug MQTT client")?;
+        connection::options(node_mqtt, &node_mqtt.topics()).context("Sparkplug MQTT client")?;
     }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(

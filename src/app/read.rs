@@ -36,8 +36,8 @@ pub fn read_request(function: u8, start: u16, quantity: u16) -> anyhow::Result<R
 /// A gateway (or another rtu2mqtt command on this very port) holding `path` open, as
 /// `pid N (command line)`. Exclusive access (TIOCEXCL) does not stop root, so the holder is
 /// looked for in /proc as well: an rtu2mqtt process with the port open that is a gateway
-/// (`run`, `demo`) or names the port on its command line. (Other rtu2mqtt processes may hold it
-/// only by inheritance.)
+/// (`rtu2mqtt run`, the demo `rtu2mqtt-demo`) or names the port on its command line
+/// (`rtu2mqtt-demo simulate`). (Other rtu2mqtt processes may hold it only by inheritance.)
 fn rtu2mqtt_holder(path: &Path) -> Option<String> {
     let target = std::fs::canonicalize(path).ok()?;
     let own = std::process::id().to_string();
@@ -47,19 +47,20 @@ fn rtu2mqtt_holder(path: &Path) -> Option<String> {
             continue;
         }
         let comm = std::fs::read_to_string(entry.path().join("comm")).unwrap_or_default();
-        if comm.trim() != "rtu2mqtt" {
-            continue;
-        }
+        let demo = match comm.trim() {
+            "rtu2mqtt" => false,
+            "rtu2mqtt-demo" => true,
+            _ => continue,
+        };
         let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
         let args: Vec<String> = cmdline
             .split(|&b| b == 0)
             .map(|arg| String::from_utf8_lossy(arg).into_owned())
             .collect();
-        let concerned = args.iter().skip(1).any(|arg| {
-            arg == "run"
-                || arg == "demo"
-                || std::fs::canonicalize(arg).is_ok_and(|named| named == target)
-        });
+        let concerned = (demo && !args.iter().any(|arg| arg == "simulate"))
+            || args.iter().skip(1).any(|arg| {
+                arg == "run" || std::fs::canonicalize(arg).is_ok_and(|named| named == target)
+            });
         if !concerned {
             continue;
         }

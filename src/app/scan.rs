@@ -38,8 +38,8 @@ use anyhow::{bail, Context as _};
 use super::read::{read_request, Target};
 use crate::cli::{parse_parity, ScanArgs};
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{self, WireCounters};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_modbus::{Error as LinkError, WireCounters};
 use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
 /// What one address answered at one serial setting.
@@ -130,8 +130,8 @@ async fn probe(
     Ok(match master.transact(address, request, timeout).await {
         Ok(Ok(_)) => Probe::Answered(format!("FC{function:02} ok")),
         Ok(Err(code)) => Probe::Answered(format!("FC{function:02} {code}")),
-        Err(master::Error::Timeout(_)) => Probe::Silent,
-        Err(master::Error::PortGone(fault)) => return Err(fault).context("serial port"),
+        Err(LinkError::Timeout(_)) => Probe::Silent,
+        Err(LinkError::PortGone(fault)) => return Err(fault).context("serial port"),
         Err(other) => Probe::Garbled(other.to_string()),
     })
 }
@@ -248,8 +248,7 @@ async fn run_scan(
             // (an answer from before may still be on it).
             // A line that never falls silent is probed all the same: the probes report what
             // they hear.
-            if let Err(master::Error::PortGone(fault)) =
-                master.wait_until_quiet(OPENING_PATIENCE).await
+            if let Err(LinkError::PortGone(fault)) = master.wait_until_quiet(OPENING_PATIENCE).await
             {
                 return Err(fault).context("serial port");
             }

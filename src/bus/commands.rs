@@ -19,7 +19,7 @@ use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
 use super::{Command, CommandFailure, CommandOutcome};
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::PortFault;
+use rtu2mqtt_modbus::PortFault;
 use rtu2mqtt_profile::{CommandPlan, Verification};
 
 /// Pause between two read-backs of a command whose device is still moving.

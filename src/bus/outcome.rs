@@ -3,8 +3,8 @@
 //! `Display` is the detail the bridge reports; a command's whole outcome reads as words in the
 //! line's log. Nothing here runs frames.
 
-use rtu2mqtt_modbus::master::{Error as MasterError, PortFault};
 use rtu2mqtt_modbus::ExceptionCode;
+use rtu2mqtt_modbus::{Error as MasterError, PortFault};
 
 use super::transaction::Failure;
 

@@ -4,7 +4,7 @@
 //! device's health. Decoding and reporting are the line's.
 
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Response};
 use rtu2mqtt_profile::ReadBlock;
 

@@ -13,7 +13,7 @@
 use std::time::Instant;
 
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{Error as MasterError, PortFault};
+use rtu2mqtt_modbus::{Error as MasterError, PortFault};
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 use rtu2mqtt_profile::{CommandPlan, Verification};
 

@@ -4,7 +4,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt_modbus::master::WireCounters;
+use rtu2mqtt_modbus::WireCounters;
 
 /// Counters and latencies of one device.
 #[derive(Debug, PartialEq)]

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use tracing::Instrument;
 
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{Error as MasterError, PortFault, Reply};
+use rtu2mqtt_modbus::{Error as MasterError, PortFault, Reply};
 use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
 use super::stats::DeviceStats;

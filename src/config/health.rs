@@ -14,7 +14,7 @@ pub const DEFAULT_STATUS_FILE: &str = "/run/rtu2mqtt/health";
 /// How the health machinery behaves. Deserializable so that the configuration can carry it as
 /// a `[health]` table; every key has a default.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default)]
 pub struct HealthSettings {
     /// Where the status file is written; `None` (an empty string in TOML) writes none.
     #[serde(with = "optional_path")]

@@ -10,7 +10,6 @@ use super::Problem;
 
 /// The table as written.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawHistory {
     /// A directory the gateway owns (the systemd unit's `StateDirectory`).
     pub path: PathBuf,
@@ -74,6 +73,9 @@ pub fn check(raw: &RawHistory) -> Result<HistoryConfig, Vec<Problem>> {
 }
 
 /// `"64MiB"`, `"500KB"`, `"1GiB"`, `"4096"` (bytes) in bytes; None when it is not a size.
+///
+/// Whole numbers with these units only, never past `u64`. A size crate would take more than
+/// the message names: `byte-unit` reads `"64Mb"` as megabits unless told to ignore case.
 pub fn parse_size(text: &str) -> Option<u64> {
     let text = text.trim();
     let digits = text
@@ -143,6 +145,14 @@ mod tests {
                 "history.max_age: must be at least 1m",
             ]
         );
-        assert!(toml::from_str::<RawHistory>("path = \"/x\"\nmaxsize = \"1MiB\"").is_err());
+        let misspelt = "[mqtt]\nurl = \"mqtt://x\"\nclient_id = \"e\"\n\
+                        [history]\npath = \"/x\"\nmaxsize = \"1MiB\"";
+        let problems = crate::config::load::load_str(misspelt)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            problems.contains("history.maxsize: unknown key, did you mean `max_size`?"),
+            "{problems}"
+        );
     }
 }

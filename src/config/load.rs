@@ -1,16 +1,17 @@
-//! Reading the configuration: the TOML file, then `RTU2MQTT__SECTION__KEY` environment
-//! overrides (the `config` crate's layering), into [`RawConfig`] through the strict reading of
-//! `tree`. Every unknown key, missing required key and wrongly typed value is reported with
+//! Loading the configuration: the TOML file, then `RTU2MQTT__SECTION__KEY` environment
+//! overrides, layered into one tree by the `config` crate, then read into [`RawConfig`] by
+//! `read`. Every unknown key, missing required key and wrongly typed value is reported with
 //! its place, in our words; a problem in a value from the environment names its variable. No
 //! validation beyond types here.
 
 use std::collections::HashMap;
 use std::path::Path;
 
-use config::{Environment, File, FileFormat, ValueKind};
+use config::{Environment, File, FileFormat};
 
+use super::deserialize::{read_leniently, Loaded};
 use super::schema::RawConfig;
-use super::tree::{self, Declared, Node, Step};
+use super::tree::Tree;
 use super::{Problem, Problems};
 
 /// Environment variables that override file keys start with this (`RTU2MQTT__MQTT__PASSWORD`).
@@ -39,30 +40,6 @@ pub fn load_file_with_env(
     env: Option<HashMap<String, String>>,
 ) -> Result<RawConfig, Problems> {
     load_file_lenient(path, env)?.strict()
-}
-
-/// What reading found: every problem of the reading stage (unknown keys, wrong types, missing
-/// keys), and the configuration read without the offending keys and values (with stand-ins
-/// for required ones) when that is possible, so that validation can report the problems
-/// elsewhere too.
-#[derive(Debug)]
-pub struct Loaded {
-    pub raw: Option<RawConfig>,
-    pub problems: Vec<Problem>,
-}
-
-impl Loaded {
-    /// The configuration, or every problem of the reading stage.
-    pub fn strict(self) -> Result<RawConfig, Problems> {
-        match self.raw {
-            Some(raw) if self.problems.is_empty() => Ok(raw),
-            Some(_) => Err(Problems(self.problems)),
-            None if self.problems.is_empty() => {
-                Err(Problems::one("", "the configuration cannot be read"))
-            }
-            None => Err(Problems(self.problems)),
-        }
-    }
 }
 
 /// Like [`load_file_with_env`], but a problem of the reading stage does not end the reading
@@ -199,102 +176,21 @@ fn layer_and_read(
     builder: config::ConfigBuilder<config::builder::DefaultState>,
     vars: HashMap<String, String>,
 ) -> Result<Loaded, Problems> {
-    let from_env: Vec<String> = env_overrides(&vars).into_iter().map(|o| o.place).collect();
-    // No `try_parsing`: a password such as `1e5` must stay text; the reading types
-    // environment text by the key it sets.
+    let env_text: HashMap<String, String> = env_overrides(&vars)
+        .into_iter()
+        .filter_map(|o| Some((o.place, vars.get(&o.variable)?.clone())))
+        .collect();
+    // Environment text typed by its look (`10` an integer, `true` a boolean); the reading
+    // types it again by the key it sets where the look was wrong (a password `1e5` is text).
     let environment = Environment::with_prefix(ENV_PREFIX)
         .separator(ENV_SEPARATOR)
+        .try_parsing(true)
         .source(Some(vars.into_iter().collect()));
     let merged = builder
         .add_source(environment)
         .build()
         .map_err(|error| Problems::one("", error.to_string().trim_end()))?;
-    Ok(read_leniently(to_node(merged.cache, "", &from_env)))
-}
-
-/// The layered value as a [`Node`]; text at a place in `from_env` came from the environment.
-fn to_node(value: config::Value, place: &str, from_env: &[String]) -> Node {
-    let wide =
-        |number: i128| i64::try_from(number).map_or(Node::Float(number as f64), Node::Integer);
-    match value.kind {
-        ValueKind::Nil => Node::StandIn,
-        ValueKind::Boolean(value) => Node::Bool(value),
-        ValueKind::I64(number) => Node::Integer(number),
-        ValueKind::I128(number) => wide(number),
-        ValueKind::U64(number) => wide(i128::from(number)),
-        ValueKind::U128(number) => i128::try_from(number).map_or(Node::Float(number as f64), wide),
-        ValueKind::Float(number) => Node::Float(number),
-        ValueKind::String(text) => Node::Text {
-            from_env: from_env.iter().any(|env_place| env_place == place),
-            text,
-        },
-        ValueKind::Table(table) => {
-            let mut entries: Vec<(String, Node)> = table
-                .into_iter()
-                .map(|(key, value)| {
-                    let inner = if place.is_empty() {
-                        key.clone()
-                    } else {
-                        format!("{place}.{key}")
-                    };
-                    (key, to_node(value, &inner, from_env))
-                })
-                .collect();
-            entries.sort_by(|a, b| a.0.cmp(&b.0));
-            Node::Table(entries)
-        }
-        ValueKind::Array(items) => Node::List(
-            items
-                .into_iter()
-                .enumerate()
-                .map(|(index, item)| to_node(item, &format!("{place}[{index}]"), from_env))
-                .collect(),
-        ),
-    }
-}
-
-/// Reads [`RawConfig`] from `tree` again and again, each time taking out the value the
-/// previous reading stopped at (an unknown key, a wrong value) or standing in for a missing
-/// one, until it reads: every problem of the reading stage is reported, and the rest can still
-/// be validated (an unknown key must not hide an address out of range elsewhere). Problems
-/// are listed table by table in the order the structs declare their keys, unknown keys first.
-fn read_leniently(mut tree: Node) -> Loaded {
-    let declared = Declared::default();
-    let mut found: Vec<(Vec<Step>, Problem)> = Vec::new();
-    let mut stood_in: Vec<Vec<Step>> = Vec::new();
-    let raw = loop {
-        let fault = match tree::read::<RawConfig>(&tree, &declared) {
-            Ok(raw) => break Some(raw),
-            Err(fault) => fault,
-        };
-        let in_stand_in = stood_in.iter().any(|place| fault.place.starts_with(place));
-        let reported = found.iter().any(|(place, _)| *place == fault.place);
-        // A stand-in's own keys, and a required key whose wrong value was taken out, are
-        // already accounted for.
-        let quiet = fault.missing && (in_stand_in || reported);
-        if !quiet {
-            let problem = Problem::new(tree::place_text(&fault.place), fault.reason);
-            found.push((fault.place.clone(), problem));
-        }
-        let progressed = if fault.missing {
-            stood_in.push(fault.place.clone());
-            tree.stand_in(&fault.place)
-        } else {
-            if matches!(fault.place.last(), Some(Step::Index(_))) {
-                // An item of a list is not taken out but stood in for (see `Node::remove`).
-                stood_in.push(fault.place.clone());
-            }
-            !in_stand_in && tree.remove(&fault.place)
-        };
-        if !progressed {
-            break None;
-        }
-    };
-    found.sort_by_cached_key(|(place, _)| declared.order(place));
-    Loaded {
-        raw,
-        problems: found.into_iter().map(|(_, problem)| problem).collect(),
-    }
+    Ok(read_leniently(Tree::new(merged.cache, env_text)))
 }
 
 #[cfg(test)]

@@ -1,7 +1,8 @@
 //! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
-//! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) read strictly with every
-//! problem placed ([`tree`]), and complete validation ([`validate`]) that runs every section's
-//! checks and names the place of every problem before anything is opened. Each section is
+//! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) into one typed [`tree`], read
+//! by serde strictly with every problem placed ([`deserialize`]), and complete validation
+//! ([`validate`]) that runs every section's checks and names the place of every problem before
+//! anything is opened. Each section is
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
@@ -11,6 +12,7 @@
 //! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
 //! profiles, and the MQTT and gateway settings, all checked.
 
+pub mod deserialize;
 pub mod devices;
 pub mod gateway;
 pub mod health;
@@ -35,9 +37,9 @@ use rtu2mqtt_profile::contract::Topics;
 
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use history::HistoryConfig;
+pub use schema::keys_of;
 pub use schema::SparkplugSettings;
 pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
-pub use tree::keys_of;
 
 /// A validated gateway configuration.
 #[derive(Debug, Clone)]
@@ -195,7 +197,7 @@ pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
 
 /// Validates what reading found. Problems of the reading stage come first; validation of the
 /// rest follows, leaving out problems at a place the reading stage already reported.
-fn validate_loaded(loaded: load::Loaded, base: &Path) -> Result<Config, Problems> {
+fn validate_loaded(loaded: deserialize::Loaded, base: &Path) -> Result<Config, Problems> {
     let Some(raw) = &loaded.raw else {
         return Err(Problems(loaded.problems));
     };

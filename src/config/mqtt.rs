@@ -213,6 +213,10 @@ pub struct BrokerEndpoint {
 }
 
 /// Parses `mqtt://host[:port]` / `mqtts://host[:port]` (IPv6 hosts in brackets).
+///
+/// By hand, not with the `url` crate: splitting a scheme, a host and a port is all it takes,
+/// while `url` brings its IDNA and Unicode tables into the edge build and words its errors
+/// without the port the user wrote.
 pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
     // Every message shows the URL with any password masked: it goes to the journal.
     let shown_url = masked_url(url);

@@ -1,22 +1,76 @@
 //! The configuration file as written: these serde structs are the one declaration of every
 //! key (name, type, default, required or not); reading, the list of keys and the reference's
-//! test derive from them. Every table denies unknown keys, durations are humantime strings
+//! test derive from them, and [`shape_at`] says where each struct sits. Unknown keys are
+//! refused by the reading (`read`), which lists them all; durations are humantime strings
 //! (`"300ms"`), addresses plain integers (TOML accepts `0x81`). Nothing here is checked beyond
 //! its type; `validate` turns it into the gateway's settings.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
+use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
 use super::health::HealthSettings;
 use super::history::RawHistory;
+use super::tree::Step;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_profile::publish::RawPublish;
 
+/// The keys the serde struct `T` declares, in order (`#[derive(Deserialize)]` names them).
+pub fn keys_of<T: DeserializeOwned>() -> &'static [&'static str] {
+    serde_aux::serde_introspection::serde_introspect::<T>()
+}
+
+/// What the file holds at a place: a table (a struct, with its keys), a list of tables (a
+/// `Vec` of structs), or a value of another kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    Table(&'static [&'static str]),
+    ListOfTables,
+    Value,
+}
+
+/// Where each struct sits in the file. serde reads a struct from a list as well (its keys by
+/// position), so the reading needs to know where a list must not be (`mqtt = ["mqtt://h", "e"]`).
+pub fn shape_at(place: &[Step]) -> Shape {
+    // An item of a list is `[]` whatever its index.
+    let steps: Vec<&str> = place
+        .iter()
+        .map(|step| match step {
+            Step::Key(key) => key.as_str(),
+            Step::Index(_) => "[]",
+        })
+        .collect();
+    let keys = match steps.as_slice() {
+        ["lines"] | ["lines", "[]", "devices"] => return Shape::ListOfTables,
+        [] => keys_of::<RawConfig>(),
+        ["mqtt"] | ["sparkplug", "mqtt"] => keys_of::<RawMqtt>(),
+        ["gateway"] => keys_of::<RawGateway>(),
+        ["health"] => keys_of::<HealthSettings>(),
+        ["lines", "[]"] => keys_of::<RawLine>(),
+        ["lines", "[]", "rs485"] => keys_of::<RawRs485>(),
+        ["lines", "[]", "serve"] => keys_of::<RawServe>(),
+        ["lines", "[]", "devices", "[]"] => keys_of::<RawDevice>(),
+        ["lines", "[]", "devices", "[]", "publish"] => keys_of::<RawPublish>(),
+        ["sparkplug"] => keys_of::<SparkplugSettings>(),
+        ["history"] => keys_of::<RawHistory>(),
+        _ => return Shape::Value,
+    };
+    Shape::Table(keys)
+}
+
+/// The keys of the table at `place` (none where no table goes): for naming an unknown key's
+/// neighbours and listing problems in the order of the declaration.
+pub fn keys_at(place: &[Step]) -> &'static [&'static str] {
+    match shape_at(place) {
+        Shape::Table(keys) => keys,
+        Shape::ListOfTables | Shape::Value => &[],
+    }
+}
+
 /// The whole file.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawConfig {
     pub mqtt: RawMqtt,
     #[serde(default)]
@@ -36,7 +90,6 @@ pub struct RawConfig {
 
 /// `[mqtt]`.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawMqtt {
     /// `mqtt://host:port` or `mqtts://host:port`.
     pub url: String,
@@ -66,7 +119,6 @@ pub struct RawMqtt {
 
 /// `[gateway]`: behaviour of the bridge.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawGateway {
     /// How long a command for an offline device waits before it expires.
     #[serde(default = "default_command_ttl", with = "humantime_serde")]
@@ -104,7 +156,6 @@ impl Default for RawGateway {
 
 /// `[[lines]]`.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawLine {
     pub name: String,
     /// A serial port; exactly one of `port` and `url` is set.
@@ -152,7 +203,6 @@ pub struct RawLine {
 
 /// `[sparkplug]`: the Sparkplug B edge node's identity and, optionally, a broker of its own.
 #[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct SparkplugSettings {
     /// The Sparkplug group.
     pub group_id: String,
@@ -167,7 +217,6 @@ pub struct SparkplugSettings {
 
 /// `[lines.rs485]`.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawRs485 {
     #[serde(default = "default_true")]
     pub rts_on_send: bool,
@@ -179,7 +228,6 @@ pub struct RawRs485 {
 
 /// `[lines.serve]`.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawServe {
     /// `modbus-tcp://host:port` (Modbus TCP) or `tcp://host:port` (RTU frames over TCP).
     pub listen: String,
@@ -195,7 +243,6 @@ pub struct RawServe {
 
 /// `[[lines.devices]]`.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct RawDevice {
     pub name: String,
     /// A built-in profile name or a path to a profile file (relative to the config file).
@@ -253,4 +300,32 @@ fn default_offline_after() -> u32 {
 }
 fn default_broadcast_turnaround() -> Duration {
     Duration::from_millis(200)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_keys_are_the_structs_declaration() {
+        assert_eq!(
+            keys_of::<RawDevice>(),
+            ["name", "profile", "address", "poll_interval", "publish"]
+        );
+        assert_eq!(
+            keys_of::<RawRs485>(),
+            ["rts_on_send", "delay_before_send", "delay_after_send"]
+        );
+        assert!(keys_of::<String>().is_empty());
+        let device = [
+            Step::Key("lines".into()),
+            Step::Index(2),
+            Step::Key("devices".into()),
+            Step::Index(0),
+        ];
+        assert_eq!(keys_at(&device), keys_of::<RawDevice>());
+        assert!(keys_at(&[Step::Key("colour".into())]).is_empty());
+        assert_eq!(shape_at(&device[..3]), Shape::ListOfTables);
+        assert_eq!(shape_at(&[Step::Key("lines".into())]), Shape::ListOfTables);
+    }
 }

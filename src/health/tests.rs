@@ -291,7 +291,12 @@ fn settings_deserialize_with_defaults() {
     assert_eq!(parsed.status_file, Some(PathBuf::from(DEFAULT_STATUS_FILE)));
     let none: HealthSettings = toml::from_str("status_file = \"\"").unwrap();
     assert_eq!(none.status_file, None);
-    assert!(toml::from_str::<HealthSettings>("stall = \"1s\"").is_err());
+    // An unknown key is refused where the configuration is read, with its place.
+    let misspelt = "[mqtt]\nurl = \"mqtt://x\"\nclient_id = \"e\"\n[health]\nstall = \"1s\"";
+    let problems = crate::config::load::load_str(misspelt)
+        .unwrap_err()
+        .to_string();
+    assert!(problems.contains("health.stall: unknown key"), "{problems}");
 }
 
 #[test]

@@ -22,7 +22,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::bridge::mqtt::{
+use crate::bridge::driver::connection::{
     client, connect_went_out, options, Backoff, PacketLimit, MAX_INCOMING_PACKET, REQUEST_QUEUE,
 };
 
@@ -37,7 +37,7 @@ pub use crate::config::sparkplug::{
 };
 pub use crate::config::SparkplugSettings;
 pub use session::{
-    Action, HistoricalValues, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+    Action, ExternalCommand, HistoricalValues, NodeMetricSpec, Session, SessionSettings,
 };
 
 /// How long a device's DBIRTH waits for the fields its first poll did not bring (blocks read
@@ -98,7 +98,7 @@ pub use crate::bridge::core::CommandReport;
 #[derive(Debug)]
 pub struct NodeLinks {
     pub line_events: broadcast::Receiver<LineEvent>,
-    pub commands: mpsc::Sender<SparkplugCommand>,
+    pub commands: mpsc::Sender<ExternalCommand>,
     pub reports: mpsc::Receiver<CommandReport>,
     /// Values of the declared gateway figures ([`session::NodeMetricSpec`]).
     pub node_values: mpsc::Receiver<Vec<(String, protobuf::MetricValue)>>,
@@ -296,7 +296,7 @@ fn end_session(client: &AsyncClient, session: &mut Session) {
 /// connection (the host went offline).
 async fn carry_out(
     client: &AsyncClient,
-    commands: &mpsc::Sender<SparkplugCommand>,
+    commands: &mpsc::Sender<ExternalCommand>,
     packet_limit: &mut PacketLimit,
     actions: Vec<Action>,
 ) -> bool {

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use super::metrics::{DeviceMetrics, Refusal};
 use super::protobuf::{DataType, Metric, MetricValue, Payload};
 pub use super::session_interface::{
-    Action, Delivery, HistoricalValues, NodeMetricSpec, SessionSettings, SparkplugCommand, Will,
+    Action, Delivery, ExternalCommand, HistoricalValues, NodeMetricSpec, SessionSettings, Will,
     BD_SEQ, DEVICES, DEVICES_ONLINE, HISTORY_QUEUE, NAMESPACE, REBIRTH, VERSION,
 };
 use crate::bus::{LineEvent, Origin};
@@ -530,7 +530,7 @@ impl Session {
         let mut republish = Vec::new();
         for metric in &payload.metrics {
             match self.devices[index].metrics.command_text(metric) {
-                Ok((def, text)) => actions.push(Action::Command(SparkplugCommand {
+                Ok((def, text)) => actions.push(Action::Command(ExternalCommand {
                     device: device.to_string(),
                     field: def.name.clone(),
                     text,
@@ -1126,12 +1126,12 @@ mod tests {
         assert_eq!(
             actions,
             [
-                Action::Command(SparkplugCommand {
+                Action::Command(ExternalCommand {
                     device: "dust".into(),
                     field: "gear".into(),
                     text: "8".into()
                 }),
-                Action::Command(SparkplugCommand {
+                Action::Command(ExternalCommand {
                     device: "dust".into(),
                     field: "power".into(),
                     text: "OFF".into()

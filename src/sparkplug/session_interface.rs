@@ -22,7 +22,7 @@ pub const VERSION: &str = "Properties/Software Version";
 
 /// A DCMD metric turned into a command for the gateway's validated command path: the field
 /// and the command text as `…/set` would carry it (`ON`, `8`, `12.5`, `opening`).
-pub use crate::bridge::core::ExternalCommand as SparkplugCommand;
+pub use crate::bridge::core::ExternalCommand;
 
 /// MQTT delivery of a publish.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,7 +44,7 @@ pub enum Action {
     /// End the MQTT connection gracefully (the NDEATH was published just before).
     Disconnect,
     /// Hand a command to the gateway's command path.
-    Command(SparkplugCommand),
+    Command(ExternalCommand),
     /// A host's command refused here: nothing reaches the bus (for the log and the outcome
     /// record).
     Refused {

@@ -13,65 +13,27 @@ use nix::sys::signal::{kill, Signal};
 use rtu2mqtt_sim::{self as sim, SeedPlant};
 use rumqttc::QoS;
 use support::child::{self, KillOnDrop};
-use support::{fast_config, Gateway, Mosquitto, PlantConfig, TestClient};
+use support::{Mosquitto, PlantBench, PlantConfig, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
 
-struct Bench {
-    broker: Mosquitto,
-    plant: SeedPlant,
-    observer: TestClient,
-    gateway: Option<Gateway>,
-}
-
-impl Bench {
-    /// Broker (with `broker_extra`), plant, an observer of `plant/#` and `observe`, and the
-    /// gateway as `client_id`, every device online.
-    async fn start(
-        broker_extra: &str,
-        client_id: &str,
-        config: PlantConfig<'_>,
-        observe: &[&str],
-    ) -> Bench {
-        let broker = Mosquitto::start_with(broker_extra.to_string());
-        let plant = SeedPlant::spawn(false).unwrap();
-        sim::lock(&plant.dust_collector).set_power(true);
-        let mut observer = TestClient::connect(broker.port, &format!("{client_id}-observer")).await;
-        observer.subscribe("plant/#").await;
-        for filter in observe {
-            observer.subscribe(filter).await;
-        }
-        let text = config.text(&broker, &plant, client_id);
-        let gateway = Some(Gateway::start(fast_config(&text)).await);
-        let mut bench = Bench {
-            broker,
-            plant,
-            observer,
-            gateway,
-        };
-        for device in ["dust_collector", "air_shower", "valve"] {
-            bench
-                .wait_text(&format!("plant/{device}/availability"), "online")
-                .await;
-        }
-        bench
+/// The plant bench with `broker_extra`, the gateway as `<name>-gw` configured by `config`, and
+/// the observer on `observe` as well as `plant/#`; the dust collector runs.
+async fn start(
+    broker_extra: &str,
+    name: &str,
+    config: PlantConfig<'_>,
+    observe: &[&str],
+) -> PlantBench {
+    let mut setup = PlantBench::setup(name)
+        .broker_extra(broker_extra)
+        .prepare(|plant| sim::lock(&plant.dust_collector).set_power(true))
+        .config(move |broker, plant, client_id| config.text(broker, plant, client_id));
+    for filter in observe {
+        setup = setup.observe(filter);
     }
-
-    async fn wait_text(&mut self, topic: &str, text: &str) {
-        let text = text.to_string();
-        self.observer
-            .wait_for(topic, ANSWER, move |m| m.text() == text)
-            .await;
-    }
-
-    async fn stop(mut self) {
-        if let Some(gateway) = self.gateway.take() {
-            gateway.stop().await;
-        }
-        drop(self.plant);
-        drop(self.broker);
-    }
+    setup.start().await
 }
 
 /// The retained message on `topic` as a new subscriber gets it (None when there is none).
@@ -85,7 +47,7 @@ async fn retained(port: u16, id: &str, topic: &str) -> Option<String> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_command_of_a_three_client_qos0_flood_gets_exactly_one_outcome() {
     // A stock mosquitto: its queue bound for a subscriber that falls behind is not reached.
-    let mut bench = Bench::start("", "flood3-gw", PlantConfig::default(), &[]).await;
+    let mut bench = start("", "flood3", PlantConfig::default(), &[]).await;
     const CLIENTS: usize = 3;
     const EACH: usize = 1_000;
     let result_topic = "plant/dust_collector/gear/result";
@@ -167,7 +129,7 @@ async fn every_command_of_a_three_client_qos0_flood_gets_exactly_one_outcome() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn five_identical_commands_within_10_ms_get_five_outcomes() {
-    let mut bench = Bench::start("", "five-gw", PlantConfig::default(), &[]).await;
+    let mut bench = start("", "five", PlantConfig::default(), &[]).await;
     let result_topic = "plant/dust_collector/gear/result";
     bench.observer.forget();
     let started = Instant::now();
@@ -214,7 +176,7 @@ async fn five_identical_commands_within_10_ms_get_five_outcomes() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_command_for_an_unknown_device_is_rejected_naming_the_configured_ones() {
-    let mut bench = Bench::start("", "unknown-gw", PlantConfig::default(), &[]).await;
+    let mut bench = start("", "unknown", PlantConfig::default(), &[]).await;
     bench
         .observer
         .publish("plant/dust_colector/gear/set", "5", false)
@@ -241,7 +203,7 @@ async fn statistics_are_published_at_start_and_when_home_assistant_comes_online(
         ..PlantConfig::default()
     };
     let stats = "plant/gateway/stats-gw/stats";
-    let mut bench = Bench::start("", "stats-gw", config, &[]).await;
+    let mut bench = start("", "stats", config, &[]).await;
     let first = bench.observer.next_on(stats, Duration::from_secs(5)).await;
     assert!(first.json().is_object(), "{}", first.text());
     bench.observer.settle(Duration::from_millis(300)).await;
@@ -263,7 +225,7 @@ async fn statistics_are_published_at_start_and_when_home_assistant_comes_online(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_gateway_sets_its_overwritten_topics_right() {
-    let mut bench = Bench::start("", "guard-gw", PlantConfig::default(), &[]).await;
+    let mut bench = start("", "guard", PlantConfig::default(), &[]).await;
     bench.wait_text("plant/dust_collector/power", "ON").await;
     let gear = sim::lock(&bench.plant.dust_collector).gear().to_string();
     bench.wait_text("plant/dust_collector/gear", &gear).await;

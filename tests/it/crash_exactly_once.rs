@@ -11,9 +11,9 @@ use crate::support;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt_sim::{self as sim, SeedPlant};
+use rtu2mqtt_sim as sim;
 use support::child::{self, KillOnDrop};
-use support::{Mosquitto, PlantConfig, TestClient};
+use support::{PlantBench, PlantConfig, TestClient};
 
 /// Generous bound for a busy 2-core machine: it only runs out when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -36,17 +36,18 @@ enum KillAt {
     ResultPublished,
 }
 
+/// The plant bench without a gateway in the test's runtime: the gateway is `rtu2mqtt run`, a
+/// child process the test kills; its configuration, status file and log live in `dir`.
 struct Bench {
-    broker: Mosquitto,
-    plant: SeedPlant,
+    base: PlantBench,
     dir: tempfile::TempDir,
-    observer: TestClient,
 }
 
 impl Bench {
     fn spawn_gateway(&self) -> KillOnDrop {
         let config = self.dir.path().join("config.toml");
-        let text = PlantConfig::default().text(&self.broker, &self.plant, "crash-gw");
+        let text =
+            PlantConfig::default().text(&self.base.broker, &self.base.plant, &self.base.client_id);
         std::fs::write(&config, text).expect("write config");
         let mut command = child::gateway_run(&config);
         command
@@ -65,12 +66,13 @@ impl Bench {
 
     /// Starts the gateway and waits until both seed devices on line-a are online again.
     async fn start_gateway(&mut self) -> KillOnDrop {
-        self.observer.drain();
-        self.observer.forget();
+        self.base.observer.drain();
+        self.base.observer.forget();
         let daemon = self.spawn_gateway();
         for device in ["dust_collector", "air_shower"] {
             let topic = format!("plant/{device}/availability");
             let online = self
+                .base
                 .observer
                 .try_wait_for(&topic, ANSWER, |m| m.text() == "online")
                 .await;
@@ -83,11 +85,11 @@ impl Bench {
     }
 
     fn voice_presses(&self) -> u32 {
-        sim::lock(&self.plant.air_shower).voice_presses()[0]
+        sim::lock(&self.base.plant.air_shower).voice_presses()[0]
     }
 
     fn gear(&self) -> u16 {
-        sim::lock(&self.plant.dust_collector).gear()
+        sim::lock(&self.base.plant.dust_collector).gear()
     }
 
     /// Waits (polling the simulator every millisecond) until `done` holds.
@@ -112,13 +114,14 @@ impl Bench {
         match at {
             KillAt::Received => {}
             KillAt::Cleared => {
-                self.observer
+                self.base
+                    .observer
                     .wait_for(set, ANSWER, |m| m.payload.is_empty())
                     .await;
             }
             KillAt::Written => self.until("the write", effect).await,
             KillAt::ResultPublished => {
-                self.observer.next_on(result, ANSWER).await;
+                self.base.observer.next_on(result, ANSWER).await;
             }
         }
         drop(daemon);
@@ -126,7 +129,7 @@ impl Bench {
 
     /// The retained message on `topic` as a new subscriber gets it.
     async fn retained(&self, topic: &str) -> Option<String> {
-        let mut client = TestClient::connect(self.broker.port, "crash-late").await;
+        let mut client = TestClient::connect(self.base.broker.port, "crash-late").await;
         client.subscribe(topic).await;
         client.settle(Duration::from_millis(300)).await;
         client.on(topic).iter().find(|m| m.retain).map(|m| m.text())
@@ -135,17 +138,15 @@ impl Bench {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn each_action_runs_at_most_once_and_each_state_is_reached_whatever_the_crash() {
-    let broker = Mosquitto::start();
-    let plant = SeedPlant::spawn(false).unwrap();
-    sim::lock(&plant.dust_collector).set_power(true);
-    let mut observer = TestClient::connect(broker.port, "crash-observer").await;
-    observer.subscribe("plant/#").await;
-    let sender = TestClient::connect(broker.port, "crash-sender").await;
+    let base = PlantBench::setup("crash")
+        .prepare(|plant| sim::lock(&plant.dust_collector).set_power(true))
+        .without_gateway()
+        .start()
+        .await;
+    let sender = TestClient::connect(base.broker.port, "crash-sender").await;
     let mut bench = Bench {
-        broker,
-        plant,
+        base,
         dir: tempfile::tempdir().expect("temp dir"),
-        observer,
     };
     let mut daemon = bench.start_gateway().await;
 
@@ -157,8 +158,8 @@ async fn each_action_runs_at_most_once_and_each_state_is_reached_whatever_the_cr
         KillAt::ResultPublished,
     ] {
         let before = bench.voice_presses();
-        bench.observer.drain();
-        bench.observer.forget();
+        bench.base.observer.drain();
+        bench.base.observer.forget();
         sender.publish(VOICE_SET, "PRESS", true).await;
         bench
             .kill_at(daemon, at, VOICE_SET, VOICE_RESULT, move |b| {
@@ -184,8 +185,8 @@ async fn each_action_runs_at_most_once_and_each_state_is_reached_whatever_the_cr
         (KillAt::Written, 4),
         (KillAt::ResultPublished, 9),
     ] {
-        bench.observer.drain();
-        bench.observer.forget();
+        bench.base.observer.drain();
+        bench.base.observer.forget();
         sender.publish(GEAR_SET, gear.to_string(), true).await;
         bench
             .kill_at(daemon, at, GEAR_SET, GEAR_RESULT, move |b| b.gear() == gear)
@@ -194,6 +195,7 @@ async fn each_action_runs_at_most_once_and_each_state_is_reached_whatever_the_cr
         let state = "plant/dust_collector/gear";
         let text = gear.to_string();
         bench
+            .base
             .observer
             .wait_for(state, ANSWER, move |m| m.text() == text)
             .await;

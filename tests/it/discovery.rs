@@ -13,16 +13,18 @@ use rand::SeedableRng;
 use serde_json::{json, Value as Json};
 
 use rtu2mqtt::app::{run_gateway, Hooks};
-use rtu2mqtt::bridge::discovery::{
+use rtu2mqtt::bridge::core::discovery::{
     all_configs, device_config, device_config_from_fields, device_config_with_state,
     gateway_config, identity_update, is_stale_config, line_config, platform_for, reannounce_delay,
     removal, unique_id_collisions, Platform, CLOCK_TO_SECONDS, REANNOUNCE_DELAY, RESULT_EVENT,
     RESULT_EVENT_TEMPLATE,
 };
-use rtu2mqtt::bridge::json_view::{json_view, json_view_payload};
-use rtu2mqtt::bridge::metrics::{line_stats_json, prometheus_text, stats_json, BridgeStats};
-use rtu2mqtt::bridge::payload::{CommandResult, Outcome};
-use rtu2mqtt::bridge::state::StateUpdate;
+use rtu2mqtt::bridge::core::json_view::{json_view, json_view_payload};
+use rtu2mqtt::bridge::core::payload::{CommandResult, Outcome};
+use rtu2mqtt::bridge::core::state::StateUpdate;
+use rtu2mqtt::bridge::observers::statistics::{
+    line_stats_json, prometheus_text, stats_json, BridgeStats,
+};
 use rtu2mqtt::bus::LineStats;
 use rtu2mqtt_profile::contract::{is_ha_online, json_view_topic, Topics};
 use rtu2mqtt_profile::{

@@ -9,7 +9,7 @@ use std::time::Duration;
 use rtu2mqtt::config::Config;
 use rtu2mqtt_sim::{self as sim, SeedPlant};
 use support::hex::{self, writes};
-use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use support::{Gateway, Mosquitto, PlantBench, PlantConfig, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -38,94 +38,23 @@ fn fast(text: &str) -> Config {
     support::fast_config(text)
 }
 
-/// The plant, a broker, the gateway and a client subscribed to everything under `plant/`.
-struct Harness {
-    broker: Mosquitto,
-    plant: SeedPlant,
-    client: TestClient,
-    gateway: Option<Gateway>,
-    client_id: String,
-    extra: String,
+/// The plant, a broker, the gateway and an observer of `plant/#`; `extra`: more `[gateway]`
+/// keys; `prepare` sets the simulated devices up before the gateway starts.
+async fn start_with(name: &str, extra: &str, prepare: impl FnOnce(&SeedPlant)) -> PlantBench {
+    let extra = extra.to_string();
+    PlantBench::setup(name)
+        .prepare(prepare)
+        .config(move |broker, plant, client_id| plant_config(broker, plant, client_id, &extra))
+        .start()
+        .await
 }
 
-impl Harness {
-    async fn start(name: &str) -> Harness {
-        Harness::start_with(name, "", |_| {}).await
-    }
+async fn start(name: &str) -> PlantBench {
+    start_with(name, "", |_| {}).await
+}
 
-    /// `extra`: more `[gateway]` keys; `prepare` sets the simulated devices up before the
-    /// gateway starts.
-    async fn start_with(name: &str, extra: &str, prepare: impl FnOnce(&SeedPlant)) -> Harness {
-        let broker = Mosquitto::start();
-        let plant = SeedPlant::spawn(false).unwrap();
-        prepare(&plant);
-        let mut client = TestClient::connect(broker.port, &format!("{name}-observer")).await;
-        client.subscribe("plant/#").await;
-        let mut harness = Harness {
-            broker,
-            plant,
-            client,
-            gateway: None,
-            client_id: format!("{name}-gw"),
-            extra: extra.to_string(),
-        };
-        harness.start_gateway().await;
-        for device in ["dust_collector", "air_shower", "valve"] {
-            harness
-                .wait_text(&format!("plant/{device}/availability"), "online")
-                .await;
-        }
-        harness
-    }
-
-    async fn start_gateway(&mut self) {
-        let text = plant_config(&self.broker, &self.plant, &self.client_id, &self.extra);
-        self.gateway = Some(Gateway::start(fast(&text)).await);
-    }
-
-    async fn stop_gateway(&mut self) {
-        if let Some(gateway) = self.gateway.take() {
-            gateway.stop().await;
-        }
-    }
-
-    async fn wait_text(&mut self, topic: &str, text: &str) -> Message {
-        let text = text.to_string();
-        self.client
-            .wait_for(topic, ANSWER, move |m| m.text() == text)
-            .await
-    }
-
-    /// Publishes a command and returns its result JSON.
-    async fn command(&mut self, device: &str, field: &str, payload: &[u8]) -> serde_json::Value {
-        self.client
-            .publish(
-                &format!("plant/{device}/{field}/set"),
-                payload.to_vec(),
-                false,
-            )
-            .await;
-        self.result(device, field).await
-    }
-
-    /// Waits for `text` on `topic` published from now on (not one seen earlier).
-    async fn wait_new_text(&mut self, topic: &str, text: &str) -> Message {
-        let text = text.to_string();
-        self.client
-            .wait_for_new(topic, ANSWER, move |m| m.text() == text)
-            .await
-    }
-
-    async fn result(&mut self, device: &str, field: &str) -> serde_json::Value {
-        self.client
-            .next_on(&format!("plant/{device}/{field}/result"), ANSWER)
-            .await
-            .json()
-    }
-
-    fn frames(&self, line: &sim::VirtualLine) -> Vec<Vec<u8>> {
-        line.journal().frames()
-    }
+fn frames(line: &sim::VirtualLine) -> Vec<Vec<u8>> {
+    line.journal().frames()
 }
 
 fn assert_sent(frames: &[Vec<u8>], golden: &str) {
@@ -142,7 +71,7 @@ fn outcome(result: &serde_json::Value) -> &str {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_field_of_the_seed_devices_is_published_with_its_value() {
-    let mut h = Harness::start_with("fields", "json_view = true", |plant| {
+    let mut h = start_with("fields", "json_view = true", |plant| {
         let mut dust = sim::lock(&plant.dust_collector);
         dust.set_power(true);
         drop(dust);
@@ -151,7 +80,7 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     })
     .await;
     // A late subscriber sees the retained state of every field of every device.
-    h.client.settle(Duration::from_secs(2)).await;
+    h.observer.settle(Duration::from_secs(2)).await;
     let mut late = TestClient::connect(h.broker.port, "fields-late").await;
     late.subscribe("plant/+/+").await;
     late.settle(Duration::from_secs(2)).await;
@@ -212,7 +141,7 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     assert_eq!(value("plant/valve/mode"), "manual");
     // The JSON view: every value of a device in one retained object, typed.
     let view = h
-        .client
+        .observer
         .wait_for("plant/valve", ANSWER, |m| {
             // Early views hold the blocks read so far; wait for the live block too.
             m.json()["opening"].is_number() && m.json()["jammed"].is_boolean()
@@ -232,16 +161,16 @@ async fn every_field_of_the_seed_devices_is_published_with_its_value() {
     // Statistics go out every second, a summary and one document per line; a later line
     // document counts the polls.
     let stats_topic = format!("plant/gateway/{}/stats", h.client_id);
-    h.client
+    h.observer
         .wait_for(&format!("{stats_topic}/line-a"), ANSWER, |m| {
             m.json()["transactions"].as_u64().unwrap_or(0) > 0
         })
         .await;
-    let stats = h.client.next_on(&stats_topic, ANSWER).await.json();
+    let stats = h.observer.next_on(&stats_topic, ANSWER).await.json();
     assert_eq!(stats["devices_total"], 3, "{stats}");
     assert_eq!(stats["lines_total"], 2, "{stats}");
     let line_b = h
-        .client
+        .observer
         .next_on(&format!("{stats_topic}/line-b"), ANSWER)
         .await
         .json();
@@ -254,7 +183,7 @@ async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
     let dir = tempfile::tempdir().unwrap();
     let frame_log = dir.path().join("frames.log");
     let extra = format!("frame_log = \"{}\"", frame_log.display());
-    let mut h = Harness::start_with("gear8", &extra, |plant| {
+    let mut h = start_with("gear8", &extra, |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
@@ -262,7 +191,7 @@ async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
     let result = h.command("dust_collector", "gear", b"8").await;
     assert_eq!(result["outcome"], "applied", "{result}");
     assert_eq!(result["value"], "8");
-    assert_sent(&h.frames(&h.plant.line_a), "01 06 10 02 00 08 2D 0C");
+    assert_sent(&frames(&h.plant.line_a), "01 06 10 02 00 08 2D 0C");
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
     h.wait_text("plant/dust_collector/gear", "8").await;
     h.stop_gateway().await;
@@ -278,7 +207,7 @@ async fn gear_8_goes_out_as_the_golden_frame_and_is_applied() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gear_3_in_standby_is_not_applied() {
-    let mut h = Harness::start_with("standby", "", |plant| {
+    let mut h = start_with("standby", "", |plant| {
         let mut dust = sim::lock(&plant.dust_collector);
         dust.set_power(false);
     })
@@ -288,23 +217,20 @@ async fn gear_3_in_standby_is_not_applied() {
     let result = h.command("dust_collector", "gear", b"5").await;
     assert_eq!(result["outcome"], "not_applied", "{result}");
     assert!(!result["detail"].as_str().unwrap_or("").is_empty());
-    assert!(!writes(&h.frames(&h.plant.line_a), DUST).is_empty());
+    assert!(!writes(&frames(&h.plant.line_a), DUST).is_empty());
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 3);
     h.stop_gateway().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn air_shower_commands_respect_the_coil_rules() {
-    let mut h = Harness::start("shower").await;
+    let mut h = start("shower").await;
     h.wait_text("plant/air_shower/light", "OFF").await;
 
     // Light ON with all coils off: the document's frame.
     let result = h.command("air_shower", "light", b"ON").await;
     assert_eq!(result["outcome"], "applied", "{result}");
-    assert_sent(
-        &h.frames(&h.plant.line_a),
-        "81 0F 00 00 00 0C 02 00 01 45 B6",
-    );
+    assert_sent(&frames(&h.plant.line_a), "81 0F 00 00 00 0C 02 00 01 45 B6");
 
     // Strong wind while breeze is on: rejected, nothing written.
     sim::lock(&h.plant.air_shower).set_coil(COIL_BREEZE, true);
@@ -317,7 +243,7 @@ async fn air_shower_commands_respect_the_coil_rules() {
         "{result}"
     );
     assert_eq!(
-        writes(&h.frames(&h.plant.line_a), SHOWER),
+        writes(&frames(&h.plant.line_a), SHOWER),
         Vec::<String>::new()
     );
     sim::lock(&h.plant.air_shower).set_coil(COIL_BREEZE, false);
@@ -336,7 +262,7 @@ async fn air_shower_commands_respect_the_coil_rules() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn valve_setpoint_lands_as_packed_bcd() {
-    let mut h = Harness::start("valve").await;
+    let mut h = start("valve").await;
     let result = h.command("valve", "setpoint", b"45.67").await;
     assert_eq!(result["outcome"], "applied", "{result}");
     let (integer, fraction) = {
@@ -351,18 +277,18 @@ async fn valve_setpoint_lands_as_packed_bcd() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_retained_command_runs_once_is_cleared_and_is_not_replayed() {
-    let mut h = Harness::start_with("retained", "", |plant| {
+    let mut h = start_with("retained", "", |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
     h.wait_text("plant/dust_collector/power", "ON").await;
-    h.client
+    h.observer
         .publish("plant/dust_collector/gear/set", b"7".to_vec(), true)
         .await;
     let result = h.result("dust_collector", "gear").await;
     assert_eq!(outcome(&result), "applied", "{result}");
     // The gateway clears it: an empty retained message on the same topic.
-    h.client
+    h.observer
         .wait_for("plant/dust_collector/gear/set", ANSWER, |m| {
             m.payload.is_empty()
         })
@@ -378,12 +304,9 @@ async fn a_retained_command_runs_once_is_cleared_and_is_not_replayed() {
     h.start_gateway().await;
     h.wait_new_text("plant/dust_collector/availability", "online")
         .await;
-    h.client.settle(Duration::from_secs(2)).await;
-    assert_eq!(
-        writes(&h.frames(&h.plant.line_a), DUST),
-        Vec::<String>::new()
-    );
-    assert!(h.client.on("plant/dust_collector/gear/result").is_empty());
+    h.observer.settle(Duration::from_secs(2)).await;
+    assert_eq!(writes(&frames(&h.plant.line_a), DUST), Vec::<String>::new());
+    assert!(h.observer.on("plant/dust_collector/gear/result").is_empty());
     h.stop_gateway().await;
 }
 
@@ -444,12 +367,12 @@ async fn a_retained_command_waiting_at_start_runs_exactly_once() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
-    let mut h = Harness::start_with("silent", "command_ttl = \"60s\"", |plant| {
+    let mut h = start_with("silent", "command_ttl = \"60s\"", |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
-    h.client.drain();
-    h.client
+    h.observer.drain();
+    h.observer
         .received
         .retain(|m| m.topic != "plant/air_shower/availability");
     h.plant.line_a.faults().silence(DUST, true);
@@ -468,15 +391,15 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
     );
     // The air shower on the same line stays online.
     assert!(h
-        .client
+        .observer
         .on("plant/air_shower/availability")
         .iter()
         .all(|m| m.text() == "online"));
 
-    h.client
+    h.observer
         .publish("plant/dust_collector/gear/set", b"4".to_vec(), false)
         .await;
-    h.client
+    h.observer
         .publish("plant/dust_collector/gear/set", b"6".to_vec(), false)
         .await;
     // The older one is superseded while waiting.
@@ -487,8 +410,8 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
         .as_str()
         .unwrap_or("")
         .contains("superseded"));
-    h.client.settle(Duration::from_secs(1)).await;
-    assert!(h.client.on("plant/dust_collector/gear/result").is_empty());
+    h.observer.settle(Duration::from_secs(1)).await;
+    assert!(h.observer.on("plant/dust_collector/gear/result").is_empty());
 
     h.plant.line_a.faults().silence(DUST, false);
     h.wait_new_text("plant/dust_collector/availability", "online")
@@ -502,10 +425,10 @@ async fn a_silent_device_goes_offline_and_its_command_runs_when_it_returns() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_command_for_a_device_offline_past_its_time_to_live_expires() {
-    let mut h = Harness::start_with("ttl", "command_ttl = \"2s\"", |_| {}).await;
+    let mut h = start_with("ttl", "command_ttl = \"2s\"", |_| {}).await;
     h.plant.line_b.faults().silence(VALVE, true);
     h.wait_new_text("plant/valve/availability", "offline").await;
-    h.client
+    h.observer
         .publish("plant/valve/opening/set", b"30".to_vec(), true)
         .await;
     let result = h.result("valve", "opening").await;
@@ -514,11 +437,11 @@ async fn a_command_for_a_device_offline_past_its_time_to_live_expires() {
         result["detail"].as_str().unwrap_or("").contains("offline"),
         "{result}"
     );
-    h.client
+    h.observer
         .wait_for("plant/valve/opening/set", ANSWER, |m| m.payload.is_empty())
         .await;
     assert_eq!(
-        writes(&h.frames(&h.plant.line_b), VALVE),
+        writes(&frames(&h.plant.line_b), VALVE),
         Vec::<String>::new()
     );
     h.stop_gateway().await;
@@ -526,7 +449,7 @@ async fn a_command_for_a_device_offline_past_its_time_to_live_expires() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work() {
-    let mut h = Harness::start_with("brokerkill", "", |plant| {
+    let mut h = start_with("brokerkill", "", |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
@@ -580,12 +503,12 @@ async fn the_broker_killed_and_restarted_gets_the_state_back_and_commands_work()
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_payloads_are_rejected_without_a_frame() {
-    let mut h = Harness::start_with("bad", "max_payload = 64", |plant| {
+    let mut h = start_with("bad", "max_payload = 64", |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
     h.wait_text("plant/dust_collector/power", "ON").await;
-    h.client.settle(Duration::from_millis(500)).await;
+    h.observer.settle(Duration::from_millis(500)).await;
     h.plant.line_a.journal().clear();
     let huge = vec![b'9'; 5000];
     let cases: Vec<(&str, &str, Vec<u8>, &str)> = vec![
@@ -618,7 +541,7 @@ async fn bad_payloads_are_rejected_without_a_frame() {
     assert_eq!(result["value"], " banana\r\n", "{result}");
     // A retained payload far over the limit (but under the client's packet bound) is
     // rejected and cleared, so it does not come back after every reconnect.
-    h.client
+    h.observer
         .publish(
             "plant/dust_collector/pulse_interval/set",
             vec![b'7'; 300_000],
@@ -627,17 +550,17 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         .await;
     let result = h.result("dust_collector", "pulse_interval").await;
     assert_eq!(outcome(&result), "rejected", "{result}");
-    h.client
+    h.observer
         .wait_for("plant/dust_collector/pulse_interval/set", ANSWER, |m| {
             m.payload.is_empty()
         })
         .await;
     // A command for a device that is not configured is rejected, naming the configured ones;
     // a topic that is not of our shape gets nothing back. Nothing happens on the lines.
-    h.client
+    h.observer
         .publish("plant/intruder/gear/set", b"1".to_vec(), false)
         .await;
-    h.client
+    h.observer
         .publish("plant/dust_collector/gear/set/x", b"1".to_vec(), false)
         .await;
     let unknown = h.result("intruder", "gear").await;
@@ -647,19 +570,19 @@ async fn bad_payloads_are_rejected_without_a_frame() {
         detail.contains("dust_collector") && detail.contains("valve"),
         "{detail}"
     );
-    h.client.settle(Duration::from_secs(1)).await;
+    h.observer.settle(Duration::from_secs(1)).await;
     assert!(h
-        .client
+        .observer
         .on("plant/dust_collector/gear/set/x/result")
         .is_empty());
     assert!(
-        h.client.on("plant/intruder/gear/result").is_empty(),
+        h.observer.on("plant/intruder/gear/result").is_empty(),
         "one result"
     );
     for writes_on in [
-        writes(&h.frames(&h.plant.line_a), DUST),
-        writes(&h.frames(&h.plant.line_a), SHOWER),
-        writes(&h.frames(&h.plant.line_b), VALVE),
+        writes(&frames(&h.plant.line_a), DUST),
+        writes(&frames(&h.plant.line_a), SHOWER),
+        writes(&frames(&h.plant.line_b), VALVE),
     ] {
         assert_eq!(writes_on, Vec::<String>::new());
     }
@@ -671,11 +594,11 @@ async fn bad_payloads_are_rejected_without_a_frame() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_clean_stop_announces_offline() {
-    let mut h = Harness::start("stop").await;
+    let mut h = start("stop").await;
     let status = format!("plant/gateway/{}/status", h.client_id);
     h.wait_text(&status, "online").await;
-    h.client.drain();
-    h.client.forget();
+    h.observer.drain();
+    h.observer.forget();
     h.stop_gateway().await;
     h.wait_text(&status, "offline").await;
     for device in ["dust_collector", "air_shower", "valve"] {
@@ -832,20 +755,20 @@ async fn http_get(port: u16, path: &str) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
-    let mut h = Harness::start_with("flood", "", |plant| {
+    let mut h = start_with("flood", "", |plant| {
         sim::lock(&plant.dust_collector).set_power(true);
     })
     .await;
     h.wait_text("plant/dust_collector/power", "ON").await;
-    h.client.settle(Duration::from_millis(500)).await;
-    h.client.forget();
+    h.observer.settle(Duration::from_millis(500)).await;
+    h.observer.forget();
     h.plant.line_a.journal().clear();
     const COMMANDS: usize = 200;
     let flood_started = std::time::Instant::now();
     for index in 0..COMMANDS {
         // Ends on 7; consecutive commands always differ.
         let gear = (index + 7) % 10 + 1;
-        h.client
+        h.observer
             .publish(
                 "plant/dust_collector/gear/set",
                 gear.to_string().into_bytes(),
@@ -854,7 +777,7 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
             .await;
     }
     let last = h
-        .client
+        .observer
         .wait_for("plant/dust_collector/gear/result", ANSWER * 2, |m| {
             m.json()["value"] == "7" && m.json()["outcome"] != "superseded"
         })
@@ -866,20 +789,20 @@ async fn a_command_flood_is_bounded_and_the_newest_command_wins() {
         flood_started.elapsed()
     );
     assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 7);
-    h.client.settle(Duration::from_secs(1)).await;
-    let results = h.client.on("plant/dust_collector/gear/result");
+    h.observer.settle(Duration::from_secs(1)).await;
+    let results = h.observer.on("plant/dust_collector/gear/result");
     // Every command has exactly one result: run, or superseded while it waited.
     assert_eq!(results.len() + 1, COMMANDS);
     assert!(results
         .iter()
         .all(|m| ["applied", "superseded"].contains(&outcome(&m.json()))));
     // Newest wins: far fewer writes than commands, and the line kept polling the air shower.
-    let frames = h.frames(&h.plant.line_a);
+    let frames = frames(&h.plant.line_a);
     let gear_writes = writes(&frames, DUST).len();
     assert!(gear_writes < COMMANDS / 2, "{gear_writes} writes");
     assert!(frames.iter().any(|f| f[0] == SHOWER));
     assert!(h
-        .client
+        .observer
         .on("plant/air_shower/availability")
         .iter()
         .all(|m| m.text() == "online"));

@@ -13,7 +13,7 @@ use serde_json::{json, Value as Json};
 use rtu2mqtt::bus::serve::places::PLACE_WAIT;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_sim::{self as sim, SeedPlant};
-use support::{free_port, hex, Gateway, Mosquitto, PlantConfig, TestClient};
+use support::{free_port, hex, Mosquitto, PlantBench, PlantConfig};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -48,17 +48,12 @@ fn served_config(
     )
 }
 
+/// The plant bench with one line served to Modbus TCP clients on `port`.
 struct Harness {
-    _broker: Mosquitto,
-    plant: SeedPlant,
-    mqtt: TestClient,
-    gateway: Gateway,
+    base: PlantBench,
     port: u16,
-    client_id: String,
     /// The served line.
     line: &'static str,
-    /// Asks for a reload of the configuration file (when started reloadable).
-    reload: Option<(tokio::sync::mpsc::Sender<()>, tempfile::TempDir)>,
 }
 
 impl Harness {
@@ -73,49 +68,30 @@ impl Harness {
     }
 
     /// The seed plant with the line of `device` served; its configuration read from a file
-    /// that [`Harness::reload`] reloads when `reloadable`.
+    /// that the bench reloads when `reloadable`.
     async fn start_with(name: &str, serve: &str, device: &str, reloadable: bool) -> Harness {
-        let broker = Mosquitto::start();
-        let plant = SeedPlant::spawn(false).unwrap();
-        sim::lock(&plant.dust_collector).set_power(true);
-        let mut mqtt = TestClient::connect(broker.port, &format!("{name}-observer")).await;
-        mqtt.subscribe("plant/#").await;
         let port = free_port();
-        let client_id = format!("{name}-gw");
         let serve = if serve.contains("listen") {
             serve.replace("{port}", &port.to_string())
         } else {
             format!("listen = \"modbus-tcp://127.0.0.1:{port}\"\n{serve}")
         };
-        let text = served_config(&broker, &plant, &client_id, &serve, device);
-        let (gateway, reload) = if reloadable {
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("rtu2mqtt.toml");
-            std::fs::write(&path, &text).unwrap();
-            let (gateway, reload) =
-                Gateway::start_reloadable(support::fast_config(&text), path).await;
-            (gateway, Some((reload, dir)))
-        } else {
-            (Gateway::start(support::fast_config(&text)).await, None)
-        };
-        for device in ["dust_collector", "air_shower", "valve"] {
-            let topic = format!("plant/{device}/availability");
-            mqtt.wait_for(&topic, ANSWER, |m| m.text() == "online")
-                .await;
+        let mut setup = PlantBench::setup(name)
+            .prepare(|plant| sim::lock(&plant.dust_collector).set_power(true))
+            .config(|broker, plant, client_id| {
+                served_config(broker, plant, client_id, &serve, device)
+            });
+        if reloadable {
+            setup = setup.reloadable();
         }
         Harness {
-            _broker: broker,
-            plant,
-            mqtt,
-            gateway,
+            base: setup.start().await,
             port,
-            client_id,
             line: if device == "valve" {
                 "line-b"
             } else {
                 "line-a"
             },
-            reload,
         }
     }
 
@@ -157,7 +133,8 @@ impl Harness {
     }
 
     fn frames(&self) -> Vec<String> {
-        self.plant
+        self.base
+            .plant
             .line_a
             .journal()
             .frames()
@@ -168,8 +145,9 @@ impl Harness {
 
     /// The next statistics document whose figures of the served line satisfy `accept`.
     async fn line_stats(&mut self, accept: impl Fn(&Json) -> bool) -> Json {
-        let topic = format!("plant/gateway/{}/stats/{}", self.client_id, self.line);
-        self.mqtt
+        let topic = format!("plant/gateway/{}/stats/{}", self.base.client_id, self.line);
+        self.base
+            .observer
             .wait_for(&topic, ANSWER, |m| accept(&m.json()))
             .await
             .json()
@@ -246,7 +224,7 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
 
     // Reads equal the device's registers: the words the device put on the wire for that
     // read (the fan spins up, so the table moves between reads).
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([
             ["read", DUST, 0x1000, 6],
@@ -254,17 +232,17 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         ]))
         .await;
     let answered: Vec<Json> =
-        register_answers(&h.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
+        register_answers(&h.base.plant.line_a, &[DUST, 0x03, 0x10, 0x00, 0x00, 0x06]);
     assert!(
         answered.contains(&answers[0]),
         "{answers:?} not in {answered:?}"
     );
-    let gear = sim::lock(&h.plant.dust_collector).gear();
+    let gear = sim::lock(&h.base.plant.dust_collector).gear();
     assert_eq!(answers[0]["registers"][1], gear, "{answers:?}");
     assert_eq!(answers[1], json!({ "registers": [gear] }), "{answers:?}");
 
     // A gear write lands on the line byte for byte and on MQTT.
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let answers = h.client(json!([["write", DUST, 0x1002, 8]])).await;
     assert_eq!(answers, vec![json!({ "written": true })]);
     assert!(
@@ -272,12 +250,14 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         "{:?}",
         h.frames()
     );
-    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
-    h.mqtt
+    assert_eq!(sim::lock(&h.base.plant.dust_collector).gear(), 8);
+    h.base
+        .observer
         .wait_for("plant/dust_collector/gear", ANSWER, |m| m.text() == "8")
         .await;
     let result = h
-        .mqtt
+        .base
+        .observer
         .next_on("plant/dust_collector/gear/result", ANSWER)
         .await
         .json();
@@ -286,7 +266,7 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
 
     // Gear 11, the read-only fan speed, a read outside the blocks and an unknown unit are
     // refused with no frame on the line.
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([
             ["write", DUST, 0x1002, 11],
@@ -305,10 +285,10 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         .filter(|frame| !frame.starts_with("01 03") && !frame.starts_with("81 01"))
         .collect();
     assert!(writes.is_empty(), "frames besides polls: {writes:?}");
-    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 8);
+    assert_eq!(sim::lock(&h.base.plant.dust_collector).gear(), 8);
 
     // A configured device that does not answer: 0x0B after the timeout and retries.
-    h.plant.line_a.faults().silence(SHOWER, true);
+    h.base.plant.line_a.faults().silence(SHOWER, true);
     let answers = h.client(json!([["coils", SHOWER, 0, 3]])).await;
     assert_eq!(answers, vec![exception(0x0B)]);
 
@@ -318,13 +298,13 @@ async fn profile_access_reads_the_devices_and_writes_only_what_the_profile_allow
         .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 8)
         .await;
     assert_eq!(stats["client_refusals"], 4, "{stats}");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn read_only_access_refuses_every_write_with_exception_01() {
     let h = Harness::start("serve-ro", "access = \"read-only\"").await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([
             ["write", DUST, 0x1002, 8],
@@ -338,19 +318,20 @@ async fn read_only_access_refuses_every_write_with_exception_01() {
         "{:?}",
         h.frames()
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside_t3_5() {
     let mut h = Harness::start("serve-three", "access = \"profile\"").await;
     let idle = timed_reads(h.port, 20).await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let started = Instant::now();
     let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 15]);
     let commands = async {
         for gear in [4, 5, 6] {
-            h.mqtt
+            h.base
+                .observer
                 .publish("plant/dust_collector/gear/set", gear.to_string(), false)
                 .await;
             tokio::time::sleep(Duration::from_millis(200)).await;
@@ -376,11 +357,11 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
     }
     // The last command wins on the device, and polls went on between the clients' reads.
     let deadline = Instant::now() + ANSWER;
-    while sim::lock(&h.plant.dust_collector).gear() != 6 && Instant::now() < deadline {
+    while sim::lock(&h.base.plant.dust_collector).gear() != 6 && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 6);
-    let records = h.plant.line_a.journal().requests();
+    assert_eq!(sim::lock(&h.base.plant.dust_collector).gear(), 6);
+    let records = h.base.plant.line_a.journal().requests();
     assert!(
         records.iter().any(|r| r.frame.starts_with(&[SHOWER, 0x01])),
         "the air shower was never polled while the clients read"
@@ -408,7 +389,7 @@ async fn three_clients_and_mqtt_commands_share_the_line_without_a_request_inside
         records.len(),
         wire.as_secs_f64() / elapsed.as_secs_f64() * 100.0
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -417,7 +398,8 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     // A first poll of the block is in the cache once the device is online.
     let block = [DUST, 0x03, 0x10, 0x00, 0x00, 0x06];
     let on_line = |h: &Harness| {
-        h.plant
+        h.base
+            .plant
             .line_a
             .journal()
             .frames()
@@ -431,7 +413,7 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
     let answers = h.client(reads).await;
     let polls_meanwhile = on_line(&h) - before;
     // Every answer is one the device itself gave a poll, word for word.
-    let polled: Vec<Json> = register_answers(&h.plant.line_a, &block);
+    let polled: Vec<Json> = register_answers(&h.base.plant.line_a, &block);
     for answer in &answers {
         assert!(polled.contains(answer), "{answer} was never polled");
     }
@@ -455,7 +437,7 @@ async fn the_cache_answers_reads_of_a_young_poll_without_the_bus() {
         stats["client_requests"].as_u64().unwrap_or(0) >= 30,
         "{stats}"
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 /// The register words of the device's answers on `line` to requests that start with
@@ -501,7 +483,7 @@ async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
     let mut h = Harness::start_serving("serve-linear", "cache = \"1h\"", "valve").await;
     // The identity block (0x00–0x0A, every register mapped) is polled whole once at start.
     let identity = [VALVE, 0x03, 0x00, 0x00, 0x00, 0x0B];
-    let polled = polled_answers(&h.plant.line_b, &identity).await;
+    let polled = polled_answers(&h.base.plant.line_b, &identity).await;
     let words = polled[0]["registers"]
         .as_array()
         .cloned()
@@ -509,7 +491,7 @@ async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
     assert_eq!(words.len(), 11, "{polled:?}");
 
     // Two parts of it (serial number; versions and baud code) come from the poll: no frame.
-    h.plant.line_b.journal().clear();
+    h.base.plant.line_b.journal().clear();
     let parts = json!([["read", VALVE, 0x01, 7], ["read", VALVE, 0x08, 3]]);
     let cached = h.client(parts.clone()).await;
     assert_eq!(cached[0], json!({ "registers": words[1..8] }), "{cached:?}");
@@ -519,7 +501,8 @@ async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
         "{cached:?}"
     );
     let on_the_line = |h: &Harness| -> Vec<String> {
-        h.plant
+        h.base
+            .plant
             .line_b
             .journal()
             .frames()
@@ -537,11 +520,15 @@ async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
 
     // A command slot makes the cache forget the valve: the same parts now go to the device,
     // whose answers on the wire are the words the cache gave.
-    h.mqtt
+    h.base
+        .observer
         .publish("plant/valve/mode/set", "manual".to_string(), false)
         .await;
-    h.mqtt.next_on("plant/valve/mode/result", ANSWER).await;
-    h.plant.line_b.journal().clear();
+    h.base
+        .observer
+        .next_on("plant/valve/mode/result", ANSWER)
+        .await;
+    h.base.plant.line_b.journal().clear();
     let read = h.client(parts).await;
     assert_eq!(read, cached);
     assert_eq!(
@@ -553,18 +540,18 @@ async fn the_cache_cuts_a_part_from_a_block_the_valve_reads_linearly() {
         [VALVE, 0x03, 0x00, 0x08, 0x00, 0x03],
     ]
     .iter()
-    .flat_map(|request| register_answers(&h.plant.line_b, request))
+    .flat_map(|request| register_answers(&h.base.plant.line_b, request))
     .collect();
     assert_eq!(wire, cached);
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_part_of_the_dust_collectors_block_always_goes_to_the_device() {
     let mut h = Harness::start("serve-offset", "cache = \"1h\"").await;
     let block = [DUST, 0x03, 0x10, 0x00, 0x00, 0x06];
-    polled_answers(&h.plant.line_a, &block).await;
-    h.plant.line_a.journal().clear();
+    polled_answers(&h.base.plant.line_a, &block).await;
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([
             ["read", DUST, 0x1000, 6],
@@ -574,13 +561,13 @@ async fn a_part_of_the_dust_collectors_block_always_goes_to_the_device() {
     // The whole block from the cache, its part from the device: its frame is on the line
     // and the client got the device's own answer to it.
     let part = [DUST, 0x03, 0x10, 0x01, 0x00, 0x02];
-    let from_device = register_answers(&h.plant.line_a, &part);
+    let from_device = register_answers(&h.base.plant.line_a, &part);
     assert_eq!(from_device, [answers[1].clone()], "{answers:?}");
     let stats = h
         .line_stats(|line| line["client_requests"].as_u64().unwrap_or(0) >= 2)
         .await;
     assert_eq!(stats["cache_hits"], 1, "{stats}");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 /// Reads until the server closes the connection (Ok) or `limit` passes (Err).
@@ -669,9 +656,9 @@ async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
     // Nothing of it reached the line, and the next client is served.
     let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
     assert_eq!(reads[0]["registers"].as_array().map(Vec::len), Some(6));
-    let garbage = h.plant.line_a.journal().discarded_bytes();
+    let garbage = h.base.plant.line_a.journal().discarded_bytes();
     assert_eq!(garbage, 0);
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 /// Requests the flooding client writes without waiting for an answer.
@@ -736,7 +723,7 @@ fn assert_others_kept_their_service(
 async fn a_flooding_client_gets_busy_answers_while_others_and_the_polls_keep_their_turns() {
     use tokio::io::AsyncWriteExt;
     let mut h = Harness::start("serve-flood", "cache = \"0s\"").await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let started = Instant::now();
     let flood = async {
         let stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
@@ -751,7 +738,7 @@ async fn a_flooding_client_gets_busy_answers_while_others_and_the_polls_keep_the
     let reads = json!(vec![json!(["read", DUST, 0x1000, 6]); 10]);
     let (flooded, polite, timed) = tokio::join!(flood, h.client(reads), timed_reads(h.port, 20));
     let elapsed = started.elapsed();
-    let records = h.plant.line_a.journal().requests();
+    let records = h.base.plant.line_a.journal().requests();
 
     // Every request of the flood is answered, in order: the device's block or 06 (busy).
     let transactions: Vec<u16> = flooded.iter().map(|(t, _)| *t).collect();
@@ -786,7 +773,7 @@ async fn a_flooding_client_gets_busy_answers_while_others_and_the_polls_keep_the
          {worst:?}); the air shower's longest poll gap {gap:?}; stats {stats}",
         mean(&timed)
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 /// Anonymous memory of this process (the gateway runs in it), in KiB.
@@ -853,7 +840,7 @@ async fn a_client_that_never_reads_is_closed_and_its_place_freed_while_others_ar
         closed_within(&mut third, PLACE_WAIT + Duration::from_secs(2)).await,
         Ok(())
     );
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let deafness = async {
         let outcome = write_without_reading(&mut deaf, Duration::from_secs(90)).await;
         (outcome, rss_anon_kib())
@@ -866,7 +853,7 @@ async fn a_client_that_never_reads_is_closed_and_its_place_freed_while_others_ar
             latencies,
         )
     };
-    let records = h.plant.line_a.journal().requests();
+    let records = h.base.plant.line_a.journal().requests();
     let (worst, gap) = assert_others_kept_their_service(&latencies, &records);
     // Its place is free again: a new client is served while the polite one stays connected.
     let reads = h.client(json!([["read", DUST, 0x1000, 6]])).await;
@@ -883,7 +870,7 @@ async fn a_client_that_never_reads_is_closed_and_its_place_freed_while_others_ar
         "{written} bytes taken from a client that never reads"
     );
     assert!(grown < 64 << 10, "memory grew {grown} KiB");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -915,7 +902,7 @@ async fn rtu_over_tcp_with_raw_access_passes_any_unit_to_the_line() {
     );
 
     // A unit not on the line goes to the line as asked, and gets 0x0B when nothing answers.
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let frame = codec::encode_request(5, &block).unwrap();
     stream.write_all(&frame).await.unwrap();
     let mut answer = [0u8; 5];
@@ -925,11 +912,11 @@ async fn rtu_over_tcp_with_raw_access_passes_any_unit_to_the_line() {
         .unwrap();
     assert_eq!(answer[..3], [5, 0x83, 0x0B], "{}", hex::encode(&answer));
     assert!(
-        h.plant.line_a.journal().frames().contains(&frame),
+        h.base.plant.line_a.journal().frames().contains(&frame),
         "{:?}",
         h.frames()
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 const PIPELINE_CLIENT: &str = concat!(
@@ -973,7 +960,7 @@ fn count_of(rounds: &[Vec<Json>], answer: &Json) -> usize {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pipelined_gear_writes_keep_the_gear_write_interval_on_the_wire() {
     let mut h = Harness::start("serve-gear-interval", "access = \"profile\"").await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     // Eight gear writes at once, every 250 ms for 3.5 s: the gear is written at most once a
     // second (`min_write_interval = "1s"`), every other write is answered 06 at once.
     let writes = json!((3..=10)
@@ -982,7 +969,7 @@ async fn pipelined_gear_writes_keep_the_gear_write_interval_on_the_wire() {
     let started = Instant::now();
     let rounds = h.pipelined(14, Duration::from_millis(250), writes).await;
     let elapsed = started.elapsed();
-    let on_wire = frames_starting(&h.plant.line_a, &[DUST, 0x06, 0x10, 0x02]);
+    let on_wire = frames_starting(&h.base.plant.line_a, &[DUST, 0x06, 0x10, 0x02]);
     let gaps = gaps(&on_wire);
     eprintln!(
         "figure: 8 pipelined gear writes every 250 ms for {elapsed:?}: {} written, {} answered 06; \
@@ -1022,7 +1009,7 @@ async fn pipelined_gear_writes_keep_the_gear_write_interval_on_the_wire() {
         .line_stats(|line| line["client_busy"].as_u64().unwrap_or(0) >= 100)
         .await;
     assert_eq!(stats["client_refusals"], 0, "{stats}");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 /// The valve's setpoint `value` (whole units) as the two packed-BCD registers a client writes
@@ -1042,7 +1029,7 @@ const SETPOINT_WRITE: [u8; 4] = [VALVE, 0x06, 0x00, 0xB2];
 async fn pipelined_setpoint_writes_keep_the_setpoint_write_interval_on_the_wire() {
     let h =
         Harness::start_serving("serve-setpoint-interval", "access = \"profile\"", "valve").await;
-    h.plant.line_b.journal().clear();
+    h.base.plant.line_b.journal().clear();
     // Eight setpoint writes at once, every second for 12 s: the valve's EEPROM setpoint is
     // written at most once in 10 s.
     let writes = json!((0..8)
@@ -1051,7 +1038,7 @@ async fn pipelined_setpoint_writes_keep_the_setpoint_write_interval_on_the_wire(
     let started = Instant::now();
     let rounds = h.pipelined(13, Duration::from_secs(1), writes).await;
     let elapsed = started.elapsed();
-    let on_wire = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    let on_wire = frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE);
     let gaps = gaps(&on_wire);
     let written = count_of(&rounds, &json!({ "written": true }));
     eprintln!(
@@ -1065,16 +1052,16 @@ async fn pipelined_setpoint_writes_keep_the_setpoint_write_interval_on_the_wire(
     assert_eq!(on_wire.len(), 2, "{on_wire:?}");
     assert!(gaps[0] >= Duration::from_secs(10), "{on_wire:?}");
     // Each write is the setpoint's two registers, nothing more.
-    let fractions = frames_starting(&h.plant.line_b, &[VALVE, 0x06, 0x00, 0xB3]);
+    let fractions = frames_starting(&h.base.plant.line_b, &[VALVE, 0x06, 0x00, 0xB3]);
     assert_eq!(fractions.len(), 2, "{fractions:?}");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval() {
     let mut h =
         Harness::start_serving("serve-mixed-interval", "access = \"profile\"", "valve").await;
-    h.plant.line_b.journal().clear();
+    h.base.plant.line_b.journal().clear();
     // A client writes the setpoint; an MQTT command for it a second later waits for the
     // interval, then runs.
     let answers = h
@@ -1087,11 +1074,13 @@ async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval()
         .await;
     assert_eq!(answers, vec![json!({ "written": true })]);
     tokio::time::sleep(Duration::from_secs(1)).await;
-    h.mqtt
+    h.base
+        .observer
         .publish("plant/valve/setpoint/set", "42".to_string(), false)
         .await;
     let result = h
-        .mqtt
+        .base
+        .observer
         .wait_for(
             "plant/valve/setpoint/result",
             Duration::from_secs(30),
@@ -1100,7 +1089,7 @@ async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval()
         .await
         .json();
     assert_eq!(result["outcome"], "applied", "{result}");
-    let on_wire = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    let on_wire = frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE);
     assert_eq!(on_wire.len(), 2, "{on_wire:?}");
     let client_then_command = on_wire[1].0 - on_wire[0].0;
     assert!(
@@ -1123,7 +1112,7 @@ async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval()
     let answered_in = asked.elapsed();
     assert_eq!(answers, vec![exception(6)]);
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let after = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    let after = frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE);
     assert_eq!(after.len(), 2, "{after:?}");
     // Once the interval is over, the client's write goes through.
     let free_at = on_wire[1].0 + Duration::from_secs(10);
@@ -1140,7 +1129,7 @@ async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval()
         ]]))
         .await;
     assert_eq!(answers, vec![json!({ "written": true })]);
-    let last = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    let last = frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE);
     assert_eq!(last.len(), 3, "{last:?}");
     assert!(last[2].0 - last[1].0 >= Duration::from_secs(10), "{last:?}");
     eprintln!(
@@ -1149,13 +1138,13 @@ async fn a_client_write_then_a_command_and_the_reverse_keep_the_write_interval()
          connection included); the next write {:?} after the command's",
         last[2].0 - last[1].0
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_vendors_whole_frames_land_on_the_wire_as_the_vendor_documents_them() {
     let h = Harness::start("serve-vendor-frames", "access = \"profile\"").await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     // The air shower: light and buzzer on, the rest 0 (the voice buttons not pressed, the
     // emergency stop left alone).
     let light_and_buzzer = [0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 0, 0];
@@ -1169,15 +1158,15 @@ async fn the_vendors_whole_frames_land_on_the_wire_as_the_vendor_documents_them(
         .filter(|frame| frame.starts_with("81 0F"))
         .collect();
     assert_eq!(writes, ["81 0F 00 00 00 0C 02 00 03 C4 77"]);
-    let coils = sim::lock(&h.plant.air_shower).coils();
+    let coils = sim::lock(&h.base.plant.air_shower).coils();
     assert!(coils[8] && coils[9], "{coils:?}");
     assert!(!coils[0], "the emergency stop was touched: {coils:?}");
 
     // The dust collector's FC10 example: power on, pulse cleaning on, gear 5, PV 2, SV 10.
     // The status word's internal bits ("internal use, writing forbidden") are written back as
     // the device holds them: on a device that holds none, the frame is the vendor's.
-    sim::lock(&h.plant.dust_collector).set_internal_bits(0);
-    h.plant.line_a.journal().clear();
+    sim::lock(&h.base.plant.dust_collector).set_internal_bits(0);
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([[
             "write_registers",
@@ -1196,11 +1185,11 @@ async fn the_vendors_whole_frames_land_on_the_wire_as_the_vendor_documents_them(
         writes,
         ["01 10 10 00 00 04 08 03 00 00 05 00 02 00 0A 25 38"]
     );
-    assert_eq!(sim::lock(&h.plant.dust_collector).gear(), 5);
+    assert_eq!(sim::lock(&h.base.plant.dust_collector).gear(), 5);
     // The simulator's own internal bits (0x2040) stay as they are.
-    sim::lock(&h.plant.dust_collector).set_internal_bits(0x2040);
+    sim::lock(&h.base.plant.dust_collector).set_internal_bits(0x2040);
     tokio::time::sleep(Duration::from_secs(2)).await;
-    h.plant.line_a.journal().clear();
+    h.base.plant.line_a.journal().clear();
     let answers = h
         .client(json!([[
             "write_registers",
@@ -1219,7 +1208,7 @@ async fn the_vendors_whole_frames_land_on_the_wire_as_the_vendor_documents_them(
         writes,
         ["01 10 10 00 00 04 08 23 40 00 05 00 02 00 0A 66 E4"]
     );
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1304,7 +1293,7 @@ async fn seven_slow_connections_do_not_keep_a_fresh_client_out() {
     );
     assert_eq!(served, fresh);
     assert!(fresh >= 8, "{fresh}");
-    h.gateway.stop().await;
+    h.base.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1316,7 +1305,7 @@ async fn a_write_interval_survives_a_reload_that_restarts_the_line() {
         true,
     )
     .await;
-    h.plant.line_b.journal().clear();
+    h.base.plant.line_b.journal().clear();
     let answers = h
         .client(json!([[
             "write_registers",
@@ -1326,18 +1315,18 @@ async fn a_write_interval_survives_a_reload_that_restarts_the_line() {
         ]]))
         .await;
     assert_eq!(answers, vec![json!({ "written": true })]);
-    let written = frames_starting(&h.plant.line_b, &SETPOINT_WRITE);
+    let written = frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE);
     assert_eq!(written.len(), 1, "{written:?}");
     // The file polls every second where the running configuration polled every 300 ms: the
     // reload restarts both lines, and line-b's new task polls at the new cadence.
-    let Some((reload, _dir)) = &h.reload else {
+    let Some((reload, _dir)) = &h.base.reload else {
         panic!("started reloadable")
     };
     reload.send(()).await.unwrap();
     let opening = [VALVE, 0x03, 0x00, 0x74];
     let deadline = Instant::now() + ANSWER;
     loop {
-        let polls = frames_starting(&h.plant.line_b, &opening);
+        let polls = frames_starting(&h.base.plant.line_b, &opening);
         let slow = gaps(&polls[polls.len().saturating_sub(3)..])
             .iter()
             .all(|gap| *gap >= Duration::from_millis(900));
@@ -1358,6 +1347,9 @@ async fn a_write_interval_survives_a_reload_that_restarts_the_line() {
         ]]))
         .await;
     assert_eq!(answers, vec![exception(6)]);
-    assert_eq!(frames_starting(&h.plant.line_b, &SETPOINT_WRITE).len(), 1);
-    h.gateway.stop().await;
+    assert_eq!(
+        frames_starting(&h.base.plant.line_b, &SETPOINT_WRITE).len(),
+        1
+    );
+    h.base.stop().await;
 }

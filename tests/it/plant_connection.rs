@@ -12,7 +12,7 @@ use crate::support;
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use rtu2mqtt::bridge::mqtt::MAX_OUTGOING_PACKET;
+use rtu2mqtt::bridge::driver::connection::MAX_OUTGOING_PACKET;
 use support::{free_port, Gateway, Mosquitto, TestClient};
 
 const LINES: usize = 1_000;

@@ -1046,7 +1046,7 @@ async fn commands_fail_with_the_exception_code_or_after_the_retries() {
             assert!(
                 matches!(
                     cause,
-                    CommandFailure::NoAnswer(rtu2mqtt_modbus::master::Error::Timeout(_))
+                    CommandFailure::NoAnswer(rtu2mqtt_modbus::Error::Timeout(_))
                 ),
                 "{cause:?}"
             );

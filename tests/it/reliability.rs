@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use rtu2mqtt::bus::stats::LineStats;
 use rtu2mqtt_sim::{self as sim, air_shower, Faults, Occurrence, SeedPlant};
-use support::{Gateway, Mosquitto, PlantConfig, TestClient};
+use support::{PlantBench, PlantConfig, TestClient};
 
 /// How long any single expected message may take before the test fails.
 const ANSWER: Duration = Duration::from_secs(15);
@@ -42,34 +42,25 @@ const STILL_FIELDS: [&str; 12] = [
 
 /// The plant, a broker, the gateway (retries 1, offline after 2 failed polls, 150 ms response
 /// timeout, polled every 300 ms) and an observer subscribed to `plant/#`.
-struct Bench {
-    broker: Mosquitto,
-    plant: SeedPlant,
-    observer: TestClient,
-    gateway: Option<Gateway>,
-    client_id: String,
-    gateway_keys: String,
+/// The plant bench as `<name>-gw` with `gateway_keys`, one retry and offline after two
+/// failures; the air shower's door lock, tunnel extension and filter alarm on, the dust
+/// collector running.
+async fn start(name: &str, gateway_keys: &str) -> PlantBench {
+    on_plant(name, gateway_keys, || {
+        SeedPlant::spawn(false).expect("seed plant")
+    })
+    .await
 }
 
-impl Bench {
-    async fn start(name: &str, gateway_keys: &str) -> Bench {
-        Bench::on_plant(name, gateway_keys, || {
-            SeedPlant::spawn(false).expect("seed plant")
-        })
-        .await
-    }
-
-    /// Like [`Bench::start`] on a plant built by `make_plant`. The broker is started first:
-    /// a child process started after the plant would inherit the ptys' master ends and keep
-    /// an unplugged line open.
-    async fn on_plant(
-        name: &str,
-        gateway_keys: &str,
-        make_plant: impl FnOnce() -> SeedPlant,
-    ) -> Bench {
-        let broker = Mosquitto::start();
-        let plant = make_plant();
-        {
+/// Like [`start`] on a plant built by `make_plant`.
+async fn on_plant(
+    name: &str,
+    gateway_keys: &str,
+    make_plant: impl FnOnce() -> SeedPlant,
+) -> PlantBench {
+    PlantBench::setup(name)
+        .plant(make_plant)
+        .prepare(|plant| {
             let mut shower = sim::lock(&plant.air_shower);
             for coil in [
                 air_shower::FRONT_DOOR_LOCK,
@@ -78,68 +69,48 @@ impl Bench {
             ] {
                 shower.set_coil(coil, true);
             }
-        }
-        sim::lock(&plant.dust_collector).set_power(true);
-        let mut observer = TestClient::connect(broker.port, &format!("{name}-observer")).await;
-        observer.subscribe("plant/#").await;
-        let mut bench = Bench {
-            broker,
-            plant,
-            observer,
-            gateway: None,
-            client_id: format!("{name}-gw"),
-            gateway_keys: gateway_keys.to_string(),
-        };
-        bench.start_gateway().await;
-        for device in ["dust_collector", "air_shower", "valve"] {
-            bench.wait_availability(device, "online").await;
-        }
-        bench
-    }
+            drop(shower);
+            sim::lock(&plant.dust_collector).set_power(true);
+        })
+        .config(|broker, plant, client_id| {
+            PlantConfig {
+                gateway: gateway_keys,
+                explicit_serial: true,
+                line_keys: "retries = 1\noffline_after = 2",
+                ..PlantConfig::default()
+            }
+            .text(broker, plant, client_id)
+        })
+        .start()
+        .await
+}
 
-    /// A bench with `faults` on the dust collector's answers (line A), set once the still
-    /// fields' truth and line A's statistics from before them are taken (both returned with
-    /// the bench).
-    async fn with_dust_collector_fault(
-        name: &str,
-        faults: Faults,
-    ) -> (Bench, BTreeMap<String, String>, LineStats) {
-        let mut bench = Bench::start(name, "").await;
-        let truth = bench.still_truth().await;
-        let before = bench.line_stats(0);
-        bench.plant.line_a.faults().set(Faults {
-            target: Some(DUST),
-            ..faults
-        });
-        (bench, truth, before)
-    }
+/// A bench with `faults` on the dust collector's answers (line A), set once the still
+/// fields' truth and line A's statistics from before them are taken (both returned with
+/// the bench).
+async fn with_dust_collector_fault(
+    name: &str,
+    faults: Faults,
+) -> (PlantBench, BTreeMap<String, String>, LineStats) {
+    let mut bench = start(name, "").await;
+    let truth = bench.still_truth().await;
+    let before = bench.line_stats(0);
+    bench.plant.line_a.faults().set(Faults {
+        target: Some(DUST),
+        ..faults
+    });
+    (bench, truth, before)
+}
 
-    async fn start_gateway(&mut self) {
-        let text = PlantConfig {
-            gateway: &self.gateway_keys,
-            explicit_serial: true,
-            line_keys: "retries = 1\noffline_after = 2",
-            ..PlantConfig::default()
-        }
-        .text(&self.broker, &self.plant, &self.client_id);
-        self.gateway = Some(Gateway::start(support::fast_config(&text)).await);
-    }
+/// What these tests read from the plant bench beyond what every bench offers.
+trait Reliability {
+    async fn time_until_availability(&mut self, device: &str, text: &'static str) -> Duration;
+    fn line_stats(&self, index: usize) -> LineStats;
+    async fn still_truth(&mut self) -> BTreeMap<String, String>;
+    fn count_against(&self, truth: &BTreeMap<String, String>) -> (usize, Vec<String>);
+}
 
-    async fn stop(mut self) {
-        if let Some(gateway) = self.gateway.take() {
-            gateway.stop().await;
-        }
-    }
-
-    /// Waits for `device`'s availability to read `text` (the retained copy counts).
-    async fn wait_availability(&mut self, device: &str, text: &'static str) {
-        self.observer
-            .wait_for(&format!("plant/{device}/availability"), ANSWER, |m| {
-                m.text() == text
-            })
-            .await;
-    }
-
+impl Reliability for PlantBench {
     /// Waits for a change of `device`'s availability to `text` published from now on, and
     /// returns how long it took.
     async fn time_until_availability(&mut self, device: &str, text: &'static str) -> Duration {
@@ -228,7 +199,7 @@ fn device_stats<'a>(stats: &'a LineStats, name: &str) -> &'a rtu2mqtt::bus::stat
 /// first answered probe.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f1_a_silent_device_goes_offline_and_comes_back_in_bounded_time() {
-    let mut bench = Bench::start("rel-f1", "").await;
+    let mut bench = start("rel-f1", "").await;
     bench.observer.settle(Duration::from_millis(500)).await;
     bench.observer.forget();
     bench.plant.line_a.faults().silence(DUST, true);
@@ -283,8 +254,7 @@ fn plant_with_linked_line_a(directory: &std::path::Path) -> SeedPlant {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f13_an_unplugged_port_takes_its_devices_offline_and_a_replug_brings_them_back() {
     let directory = tempfile::tempdir().expect("temp dir");
-    let mut bench =
-        Bench::on_plant("rel-f13", "", || plant_with_linked_line_a(directory.path())).await;
+    let mut bench = on_plant("rel-f13", "", || plant_with_linked_line_a(directory.path())).await;
     bench.observer.settle(Duration::from_millis(500)).await;
     bench.observer.forget();
 
@@ -375,7 +345,7 @@ fn keep_changing_the_measured_value(
 /// a valve value the test keeps changing).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f3_f4_f5_broken_answers_never_publish_a_wrong_value() {
-    let mut bench = Bench::start("rel-f3", "").await;
+    let mut bench = start("rel-f3", "").await;
     let truth = bench.still_truth().await;
     let before = [bench.line_stats(0), bench.line_stats(1)];
     let faults = Faults {
@@ -453,7 +423,7 @@ async fn f3_f4_f5_broken_answers_never_publish_a_wrong_value() {
 /// and no wrong value reaches the broker.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f6_a_rogue_answer_from_another_address_is_never_stored() {
-    let (mut bench, truth, before) = Bench::with_dust_collector_fault(
+    let (mut bench, truth, before) = with_dust_collector_fault(
         "rel-f6",
         Faults {
             wrong_address: Occurrence::probability(0.5),
@@ -492,7 +462,7 @@ async fn f6_a_rogue_answer_from_another_address_is_never_stored() {
 /// keeps its values right; on time again, the device is back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f2_a_late_answer_is_never_taken_for_the_next_one() {
-    let (mut bench, truth, before) = Bench::with_dust_collector_fault(
+    let (mut bench, truth, before) = with_dust_collector_fault(
         "rel-f2",
         Faults {
             delay: Duration::from_millis(150).mul_f64(1.3),
@@ -543,7 +513,7 @@ async fn f2_a_late_answer_is_never_taken_for_the_next_one() {
 /// applied once it is back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f17_a_restarted_broker_gets_the_state_back_and_a_waiting_command_runs() {
-    let mut bench = Bench::start("rel-f17", "").await;
+    let mut bench = start("rel-f17", "").await;
     let truth = bench.still_truth().await;
     let gear_before = sim::lock(&bench.plant.dust_collector).gear();
     let gear_wanted = if gear_before == 6 { 7 } else { 6 };
@@ -618,7 +588,7 @@ async fn f17_a_restarted_broker_gets_the_state_back_and_a_waiting_command_runs()
 /// is written.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn f17_every_command_gets_exactly_one_outcome_across_a_broker_restart() {
-    let mut bench = Bench::start("rel-f17-outcomes", "command_ttl = \"60s\"").await;
+    let mut bench = start("rel-f17-outcomes", "command_ttl = \"60s\"").await;
     bench.observer.settle(Duration::from_millis(300)).await;
     bench.plant.line_a.faults().silence(DUST, true);
     bench
@@ -652,7 +622,7 @@ async fn f17_every_command_gets_exactly_one_outcome_across_a_broker_restart() {
     let mut outcomes: BTreeMap<(String, String), Vec<String>> = BTreeMap::new();
     let superseded_expected: usize = commands.iter().map(|(_, v)| v.len() - 1).sum();
     let deadline = Instant::now() + ANSWER;
-    let collect = |bench: &mut Bench, outcomes: &mut BTreeMap<_, Vec<String>>| {
+    let collect = |bench: &mut PlantBench, outcomes: &mut BTreeMap<_, Vec<String>>| {
         bench.observer.drain();
         for message in std::mem::take(&mut bench.observer.received) {
             let Some(field) = message

@@ -8,13 +8,13 @@ use crate::support;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rtu2mqtt::bridge::mqtt::{publish_packet_size, PacketLimit};
+use rtu2mqtt::bridge::driver::connection::{publish_packet_size, PacketLimit};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
 use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
 use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
-    run, CommandReport, NodeLinks, NodeMetricSpec, Session, SessionSettings, SparkplugCommand,
+    run, CommandReport, ExternalCommand, NodeLinks, NodeMetricSpec, Session, SessionSettings,
 };
 use rtu2mqtt_profile::{registry, Value};
 use rumqttc::QoS;
@@ -111,7 +111,7 @@ fn command(name: &str, datatype: DataType, value: MetricValue) -> Vec<u8> {
 
 struct Node {
     events: broadcast::Sender<LineEvent>,
-    commands: mpsc::Receiver<SparkplugCommand>,
+    commands: mpsc::Receiver<ExternalCommand>,
     reports: mpsc::Sender<CommandReport>,
     node_values: mpsc::Sender<Vec<(String, MetricValue)>>,
     trigger: CancellationToken,
@@ -274,7 +274,7 @@ async fn the_edge_node_lives_and_dies_by_the_sparkplug_rules() {
     let handed = tokio::time::timeout(WAIT, node.commands.recv()).await;
     assert_eq!(
         handed.ok().flatten(),
-        Some(SparkplugCommand {
+        Some(ExternalCommand {
             device: "dust".into(),
             field: "gear".into(),
             text: "8".into()

@@ -97,7 +97,7 @@ mod tests {
             .get_subcommands()
             .map(|command| command.get_name().to_string())
             .collect();
-        assert_eq!(commands, ["simulate", "help"]);
+        assert_eq!(commands, ["simulate"]);
         let plain = Cli::try_parse_from(["rtu2mqtt-demo", "--log", "--port", "1884"]);
         let plain = plain.expect("the demo's own flags parse");
         assert!(plain.command.is_none() && plain.demo.log && plain.demo.port == 1884);

@@ -37,3 +37,4 @@ pub struct ReadmeDoctests;
 
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 pub use link_core::Transact;
+pub use outcome::{Error, PortFault, Reply, WireCounters};

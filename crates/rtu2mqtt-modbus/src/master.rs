@@ -32,7 +32,7 @@ use super::link_core::{Ask, Direction, LinkCore, Transact};
 use super::outcome::reply_of;
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
-pub use super::outcome::{Error, PortFault, Reply, WireCounters};
+use super::outcome::{Error, Reply, WireCounters};
 use super::timing::LineTiming;
 use super::transport::Port;
 

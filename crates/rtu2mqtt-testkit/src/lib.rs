@@ -4,6 +4,8 @@
 //!   killed on drop, restartable on the same port), a small rumqttc client that records what it
 //!   receives ([`TestClient`]), and the gateway over the simulated seed plant ([`PlantConfig`],
 //!   [`Gateway`]: its configuration, started and stopped by a test).
+//! - [`plant_bench`]: the broker + plant + gateway bench most end-to-end tests stand on
+//!   ([`PlantBench`]).
 //! - [`child`]: the workspace's binaries as child processes, killed and reaped on drop.
 //! - [`command`]: a command's refusal by a profile, for asserting the same words as the gateway.
 //! - [`hex`]: frames as hex text.
@@ -12,7 +14,10 @@
 pub mod child;
 pub mod command;
 pub mod hex;
+pub mod plant_bench;
 pub mod pysparkplug;
+
+pub use plant_bench::{PlantBench, PlantSetup, PLANT_ANSWER, SEED_DEVICES};
 
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;

@@ -4,15 +4,18 @@
 
 use std::time::Instant;
 
-use super::{ClientWrite, Line};
+use super::Line;
 use crate::bus::commands::{Pending, SlotLink};
 use crate::bus::device::DeviceRuntime;
 use crate::bus::serve::policy;
+use crate::bus::serve::served_side::{
+    block_overlaps, client_answer, echo, written_span, ClientCount, ClientWrite,
+};
 use crate::bus::serve::{Access, ClientRequest};
 use crate::bus::transaction::{Exchange, Failure};
-use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent};
-use rtu2mqtt_modbus::master::Reply;
-use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
+use crate::bus::{Command, CommandOutcome, LineEvent};
+use rtu2mqtt_modbus::Reply;
+use rtu2mqtt_modbus::{ExceptionCode, Request};
 
 /// Client requests: the cache, the profile's write planning, and the exchange on the line.
 impl Line {
@@ -26,17 +29,13 @@ impl Line {
         let device = self.devices.iter().position(|d| d.spec.address == unit);
         let access = self.spec.serve.as_ref().map_or(Access::Raw, |s| s.access);
         if let Some(device) = device {
-            if let Some(answer) = self.cache.lookup(device, &request, Instant::now()) {
-                if let Some(counters) = &self.serve_counters {
-                    counters
-                        .cache_hits
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                }
+            if let Some(answer) = self.served.cache.lookup(device, &request, Instant::now()) {
+                self.served.count(ClientCount::CacheHit);
                 let _ = reply.send(Ok(answer));
                 return;
             }
             if !request.is_read() {
-                self.cache.forget(device);
+                self.served.cache.forget(device);
                 if access == Access::Profile {
                     let answer = self.run_client_write(device, &client, &request).await;
                     let _ = reply.send(answer);
@@ -126,16 +125,6 @@ impl Line {
         }
     }
 
-    /// The port is closed: waiting clients are told the device cannot be reached rather than
-    /// left to time out.
-    pub(super) fn fail_client_requests(&mut self) {
-        while let Some(request) = self.clients.try_take() {
-            let _ = request
-                .reply
-                .send(Err(ExceptionCode::GatewayTargetFailedToRespond));
-        }
-    }
-
     /// A client's write under `profile` access: planned by the device's profile on its known
     /// state (a refusal sends nothing), then run as a command slot whose reads are published.
     pub(super) async fn run_client_write(
@@ -153,11 +142,7 @@ impl Line {
             Ok(planned) => planned,
             Err(code) => {
                 tracing::info!(%client, device = %name, ?write, "client write refused: {code}");
-                if let Some(counters) = &self.serve_counters {
-                    counters
-                        .refusals
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                }
+                self.served.count(ClientCount::Refusal);
                 return Err(code);
             }
         };
@@ -179,8 +164,7 @@ impl Line {
                 .join(","),
             client: client.to_string(),
         };
-        let id = self.next_client_command;
-        self.next_client_command += 1;
+        let id = self.served.next_command_id();
         let pending = Pending {
             command: Command {
                 id,
@@ -225,7 +209,7 @@ impl Line {
                     .await;
             }
             None => {
-                self.settling_client_writes.insert(id, write_record);
+                self.served.settling(id, write_record);
             }
         }
         answer
@@ -254,11 +238,7 @@ impl Line {
         };
         tracing::info!(%client, device = %name, ?fields, wait = ?until - now,
             "client write refused: the write interval runs (06, busy)");
-        if let Some(counters) = &self.serve_counters {
-            counters
-                .busy
-                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        }
+        self.served.count(ClientCount::Busy);
         Err(ExceptionCode::ServerDeviceBusy)
     }
 
@@ -283,72 +263,4 @@ impl Line {
         })
         .await;
     }
-}
-
-/// What the client of a write is answered for its command's outcome.
-fn client_answer(outcome: &CommandOutcome, write: &Request) -> Reply {
-    match outcome {
-        CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. } => {
-            echo(write).ok_or(ExceptionCode::IllegalFunction)
-        }
-        CommandOutcome::Rejected { .. } => Err(ExceptionCode::IllegalDataValue),
-        CommandOutcome::Failed {
-            cause: CommandFailure::Exception(code),
-        } => Err(*code),
-        CommandOutcome::Failed { .. } => Err(ExceptionCode::GatewayTargetFailedToRespond),
-    }
-}
-
-/// Where a write lands: (holding registers rather than coils, first address, count).
-fn written_span(write: &Request) -> Option<(bool, u16, u16)> {
-    let count = |len: usize| u16::try_from(len).ok();
-    match write {
-        Request::WriteSingleCoil { address, .. } => Some((false, *address, 1)),
-        Request::WriteSingleRegister { address, .. } => Some((true, *address, 1)),
-        Request::WriteMultipleCoils { start, values } => {
-            Some((false, *start, count(values.len())?))
-        }
-        Request::WriteMultipleRegisters { start, values } => {
-            Some((true, *start, count(values.len())?))
-        }
-        _ => None,
-    }
-}
-
-/// Whether the read `block` reads any item of `(registers, start, count)`.
-fn block_overlaps(block: &Request, (registers, start, count): (bool, u16, u16)) -> bool {
-    let same_table = match block {
-        Request::ReadHoldingRegisters { .. } => registers,
-        Request::ReadCoils { .. } => !registers,
-        _ => false,
-    };
-    let Some((first, len)) = block.read_span() else {
-        return false;
-    };
-    let (first, end) = (u32::from(first), u32::from(first) + u32::from(len));
-    let (start, stop) = (u32::from(start), u32::from(start) + u32::from(count));
-    same_table && start < end && first < stop
-}
-
-/// The normal answer to a write: the device echoes what it was asked.
-fn echo(write: &Request) -> Option<Response> {
-    Some(match write {
-        Request::WriteSingleRegister { address, value } => Response::WriteSingleRegister {
-            address: *address,
-            value: *value,
-        },
-        Request::WriteSingleCoil { address, value } => Response::WriteSingleCoil {
-            address: *address,
-            value: *value,
-        },
-        Request::WriteMultipleRegisters { start, values } => Response::WriteMultipleRegisters {
-            start: *start,
-            quantity: u16::try_from(values.len()).ok()?,
-        },
-        Request::WriteMultipleCoils { start, values } => Response::WriteMultipleCoils {
-            start: *start,
-            quantity: u16::try_from(values.len()).ok()?,
-        },
-        _ => return None,
-    })
 }

@@ -6,9 +6,10 @@ use std::time::{Instant, SystemTime};
 
 use tokio::sync::mpsc;
 
-use super::{slot_link, Line, CLIENT_COMMAND_IDS};
+use super::{slot_link, Line};
 use crate::bus::commands::{Finished, Pending, Settle, SlotReport};
 use crate::bus::device::Values;
+use crate::bus::serve::served_side::FIRST_CLIENT_COMMAND_ID;
 use crate::bus::slot::SeenReads;
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 
@@ -177,7 +178,7 @@ impl Line {
         } = report;
         let now = Instant::now();
         // The command can have changed what a poll read: clients read the device again.
-        self.cache.forget(device);
+        self.served.cache.forget(device);
         if contact {
             if let Some(change) = self.scheduler.record_contact(device, now) {
                 self.availability_changed(device, change).await;
@@ -250,9 +251,9 @@ impl Line {
             arrived,
             outcome,
         } = finished;
-        if id >= CLIENT_COMMAND_IDS {
+        if id >= FIRST_CLIENT_COMMAND_ID {
             // A client's write whose device settled after its client was answered.
-            if let Some(write) = self.settling_client_writes.remove(&id) {
+            if let Some(write) = self.served.settled(id) {
                 self.client_write_finished(write, outcome).await;
             }
             return;

@@ -39,7 +39,8 @@ use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SE
 use super::report::Report;
 use super::reporter;
 use super::scheduler::{Due, PollOutcome, Scheduler};
-use super::serve::queue::{BlockCache, ClientQueue, CLIENT_QUEUE};
+use super::serve::queue::{BlockCache, CLIENT_QUEUE};
+use super::serve::served_side::ServedSide;
 use super::serve::server::{self, ServeCounters};
 use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
@@ -48,9 +49,9 @@ use super::{
     WriteClock,
 };
 use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::master::{PortFault, WireCounters};
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::transport::TransportError;
+use rtu2mqtt_modbus::{PortFault, WireCounters};
 use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
 
@@ -66,9 +67,6 @@ pub const DEVICE_MARGIN: Duration = Duration::from_millis(80);
 pub const HEARTBEAT: Duration = Duration::from_secs(1);
 /// Bus load is measured over this sliding window.
 pub const LOAD_WINDOW: Duration = Duration::from_secs(10);
-/// Ids of the commands a client's write becomes start here, far above any the bridge uses:
-/// their ends answer the client and never reach the bridge.
-const CLIENT_COMMAND_IDS: u64 = 1 << 63;
 
 /// Starts the task that owns `spec`'s port, with a write clock of its own.
 pub fn spawn_line(
@@ -128,8 +126,7 @@ pub fn spawn_line_with_clock(
     let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
     line.refreshes = Some(refresh_rx);
     line.writes = writes;
-    line.clients = ClientQueue::new(clients);
-    line.serve_counters = counters;
+    line.served.serve(clients, counters);
     let task = tokio::spawn(line.run().instrument(span));
     (handle, task)
 }
@@ -179,28 +176,10 @@ struct Line {
     turnaround: Turnaround,
     last_published: Instant,
     shutdown: CancellationToken,
-    /// Requests from the line's server (none when the line is not served).
-    clients: ClientQueue,
-    /// The last slot was a client's: a due poll goes before the next one.
-    client_went_last: bool,
-    /// Polled blocks that clients' reads are answered from.
-    cache: BlockCache,
-    serve_counters: Option<Arc<ServeCounters>>,
-    next_client_command: u64,
-    /// Clients' writes still settling on their device, by command id: their end is published
-    /// when the read-back settles.
-    settling_client_writes: std::collections::HashMap<u64, ClientWrite>,
+    /// What the line keeps of the clients of its server (nothing waits when not served).
+    served: ServedSide,
     /// When the fields with a write interval were last written, by any source.
     writes: WriteClock,
-}
-
-/// A client's write as its outcome is published.
-#[derive(Debug)]
-struct ClientWrite {
-    device: String,
-    field: String,
-    value: String,
-    client: String,
 }
 
 impl Line {
@@ -262,12 +241,7 @@ impl Line {
             turnaround: Turnaround::default(),
             last_published: now,
             shutdown,
-            clients: ClientQueue::new(None),
-            client_went_last: false,
-            cache,
-            serve_counters: None,
-            next_client_command: CLIENT_COMMAND_IDS,
-            settling_client_writes: std::collections::HashMap::new(),
+            served: ServedSide::new(cache),
             writes: WriteClock::new(),
             spec,
         }
@@ -286,7 +260,7 @@ impl Line {
                     self.open_link(now).await;
                 } else {
                     self.fail_queued(&CommandFailure::PortReopening).await;
-                    self.fail_client_requests();
+                    self.served.fail_waiting();
                     self.wait(Some(self.reopen.at())).await;
                 }
                 continue;
@@ -307,15 +281,12 @@ impl Line {
                 continue;
             }
             // Clients after commands, before polls; a due poll between two client slots.
-            if self.scheduler.queued_commands() == 0 && !self.client_went_last {
-                if let Some(request) = self.clients.try_take() {
-                    self.client_went_last = true;
-                    self.run_client(request).await;
-                    self.publish_stats();
-                    continue;
-                }
+            let commands_queued = self.scheduler.queued_commands() > 0;
+            if let Some(request) = self.served.take_turn(commands_queued) {
+                self.run_client(request).await;
+                self.publish_stats();
+                continue;
             }
-            self.client_went_last = false;
             self.accept_refreshes();
             let next_settle = self.commands.next_due();
             match self.scheduler.next_due(now) {
@@ -333,7 +304,7 @@ impl Line {
                     self.run_poll(device, block, 1).await;
                     self.publish_stats();
                 }
-                Due::Wait(_) | Due::Idle if self.clients.is_waiting() => {}
+                Due::Wait(_) | Due::Idle if self.served.is_waiting() => {}
                 Due::Wait(until) => {
                     let until = next_settle.map_or(until, |s| s.min(until));
                     self.wait(Some(until)).await;
@@ -399,7 +370,7 @@ impl Line {
                 self.take_received(received).await;
             }
             asked = refresh, if refreshes_open => self.refresh(asked),
-            () = self.clients.arrival() => {}
+            () = self.served.arrival() => {}
             () = self.shutdown.cancelled() => {}
         }
         if self.last_published.elapsed() >= HEARTBEAT {
@@ -531,7 +502,7 @@ impl Line {
         runtime.stats.online = online;
         if !online {
             runtime.forget_answers();
-            self.cache.forget(device);
+            self.served.cache.forget(device);
         }
         if online {
             tracing::info!(device = %runtime.spec.name, "device online");
@@ -571,8 +542,13 @@ impl Line {
                     let whole = !runtime.read_by_parts.get(block).copied().unwrap_or(false);
                     if whole {
                         // Only what the device itself answered may answer a client.
-                        self.cache
-                            .store(device, block, &read.request, answer, Instant::now());
+                        self.served.cache.store(
+                            device,
+                            block,
+                            &read.request,
+                            answer,
+                            Instant::now(),
+                        );
                     }
                     unchanged = runtime.answer_unchanged(block, answer);
                     if !unchanged {
@@ -623,14 +599,7 @@ impl Line {
             stats.turnaround_worst = Some(worst);
         }
         stats.set_devices(self.devices.iter().map(|d| &d.stats));
-        if let Some(counters) = &self.serve_counters {
-            use std::sync::atomic::Ordering::Relaxed;
-            stats.client_requests = counters.requests.load(Relaxed);
-            stats.cache_hits = counters.cache_hits.load(Relaxed);
-            stats.client_refusals = counters.refusals.load(Relaxed);
-            stats.client_busy = counters.busy.load(Relaxed);
-            stats.client_evicted = counters.evicted.load(Relaxed);
-        }
+        self.served.fill_stats(stats);
         self.last_published = now;
         // Copied into the published snapshot in place: no allocation per transaction.
         self.stats_tx

@@ -4,19 +4,22 @@
 //!
 //! [`policy`] decides, without I/O, what a request may do under the line's [`Access`];
 //! [`server`] accepts clients and frames their requests, [`places`] decides who holds the
-//! `max_clients` places; [`queue`] is the line task's side of
-//! the requests' channel and the cache of polled blocks it answers reads from.
+//! `max_clients` places; [`queue`] is the line task's side of the requests' channel and the
+//! cache of polled blocks it answers reads from, and `served_side` is everything a line task
+//! keeps of its clients (their turn, the cache, counters, settling writes, the answers' rules).
+//! The line task runs their requests as slots (`bus::line`'s `client_requests`).
 
 pub mod places;
 pub mod policy;
 pub(crate) mod queue;
+pub(crate) mod served_side;
 pub mod server;
 
 use std::time::Duration;
 
 use tokio::sync::oneshot;
 
-use rtu2mqtt_modbus::master::Reply;
+use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{Request, SlaveId};
 
 /// Connections a server takes when `max_clients` is not set.

@@ -21,8 +21,8 @@ use tokio::net::{TcpListener, TcpSocket, TcpStream};
 use tokio::sync::{mpsc, oneshot};
 
 use rtu2mqtt_modbus::codec::{self, DecodeError};
-use rtu2mqtt_modbus::master::Reply;
 use rtu2mqtt_modbus::mbap::{self, Header};
+use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, FunctionCode, Request, SlaveId};
 
 use super::places::{NoPlace, Place, Places, PLACE_GRACE, PLACE_WAIT};

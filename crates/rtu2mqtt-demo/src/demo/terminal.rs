@@ -1,19 +1,11 @@
-//! The one question the demo asks the terminal: its size (the TIOCGWINSZ ioctl on stdout).
+//! The one question the demo asks the terminal: its size on stdout.
 
-/// Columns and rows of the terminal on stdout (100 × 40 when unknown).
+/// Columns and rows of the terminal on stdout (100 × 40 when unknown or too small to draw on).
 pub(super) fn terminal_size() -> (usize, usize) {
-    nix::ioctl_read_bad!(window_size, libc::TIOCGWINSZ, libc::winsize);
-    let mut size = libc::winsize {
-        ws_row: 0,
-        ws_col: 0,
-        ws_xpixel: 0,
-        ws_ypixel: 0,
-    };
-    // SAFETY: TIOCGWINSZ writes one `winsize` into the struct we own; a failure leaves it zero.
-    let result = unsafe { window_size(libc::STDOUT_FILENO, &mut size) };
-    match result {
-        Ok(_) if size.ws_col >= 40 && size.ws_row >= 10 => {
-            (usize::from(size.ws_col), usize::from(size.ws_row))
+    use terminal_size::{terminal_size_of, Height, Width};
+    match terminal_size_of(std::io::stdout()) {
+        Some((Width(columns), Height(rows))) if columns >= 40 && rows >= 10 => {
+            (usize::from(columns), usize::from(rows))
         }
         _ => (100, 40),
     }

@@ -3,8 +3,8 @@
 //! reload) with the time passed in, and returns the [`Action`]s to carry out (publish,
 //! subscribe, hand a command to a line, report). Nothing here touches the network, a channel
 //! or the clock, and its one random choice (the delay before re-announcing discovery) comes
-//! from the generator it is given, so equal inputs give equal actions; the driver in
-//! [`super`] owns the I/O and only executes what it is told.
+//! from the generator it is given, so equal inputs give equal actions; the driver
+//! (`bridge::driver`) owns the I/O and only executes what it is told.
 //!
 //! The core routes each event to its two halves: the [`CommandDesk`] (commands from arrival
 //! to result) and the [`Publisher`] (the state cache and what is published from it, results
@@ -13,22 +13,40 @@
 //! Commands from outside the plain topics (a Sparkplug DCMD, [`Core::on_external_command`])
 //! go through the same desk, with their results on `…/result` too, and their end reported
 //! back ([`Action::Report`]).
+//!
+//! Its parts: [`desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
+//! and a result says), [`publisher`] with [`state`] and [`json_view`] (the published state),
+//! [`discovery`] with [`entity_naming`] (Home Assistant), [`guard`] (our retained topics
+//! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
+
+pub mod action;
+pub mod bridge_device;
+pub mod command_book;
+pub mod desk;
+pub mod discovery;
+mod entity_naming;
+pub mod guard;
+pub mod json_view;
+pub mod payload;
+pub mod publisher;
+pub mod state;
+#[cfg(test)]
+mod tests;
 
 use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rumqttc::QoS;
 
-use super::desk::{CommandDesk, SetMessage};
-use super::discovery;
-use super::metrics::{self, BridgeStats, HistoryStats};
-use super::publisher::Publisher;
+use self::desk::{CommandDesk, SetMessage};
+use self::publisher::Publisher;
+use crate::bridge::observers::statistics::{self, BridgeStats, HistoryStats};
 use crate::bus::{Command, LineEvent, LineStats, Origin};
 use crate::config::{Config, GatewayOptions};
 use rtu2mqtt_profile::contract::{is_ha_online, Topics};
 
-pub use super::action::{Action, CommandReport, HistoryEntry, Publish};
-pub use super::device::BridgeDevice;
+pub use self::action::{Action, CommandReport, HistoryEntry, Publish};
+pub use self::bridge_device::BridgeDevice;
 
 /// A command that did not come from a plain `…/set` topic (a Sparkplug DCMD): the field and
 /// the command text as `…/set` would carry it (`ON`, `8`, `12.5`).
@@ -411,11 +429,11 @@ impl Core {
             // read the last documents at once instead of waiting up to a statistics interval.
             // One document per line, so that none grows with the number of lines.
             let lines = line_stats();
-            let summary = metrics::stats_json(&lines, &self.counters(now));
+            let summary = statistics::stats_json(&lines, &self.counters(now));
             let topic = self.publisher.topics().gateway_stats_topic();
             self.publisher.publish(topic, summary.to_string(), true);
             for line in &lines {
-                let document = metrics::line_stats_json(line);
+                let document = statistics::line_stats_json(line);
                 let topic = self.publisher.topics().line_stats_topic(&line.line);
                 self.publisher.publish(topic, document.to_string(), true);
             }

@@ -9,9 +9,7 @@ use rand::SeedableRng;
 use rumqttc::QoS;
 use serde_json::Value as Json;
 
-use super::core::{
-    Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming,
-};
+use super::{Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming};
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
 use rtu2mqtt_profile::contract::Topics;
@@ -174,7 +172,7 @@ fn each_bus_outcome_is_published_then_the_retained_command_cleared() {
         ),
         (
             CommandOutcome::Failed {
-                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::master::Error::Timeout(
+                cause: CommandFailure::NoAnswer(rtu2mqtt_modbus::Error::Timeout(
                     Duration::from_millis(300),
                 )),
             },

@@ -11,7 +11,7 @@ use std::time::{Instant, SystemTime};
 use rumqttc::QoS;
 
 use super::action::{Action, HistoryEntry, Publish};
-use super::device::{self, BridgeDevice, Devices};
+use super::bridge_device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::guard::{TopicGuard, Verdict};
 use super::json_view::JsonView;
@@ -91,7 +91,7 @@ impl Publisher {
         line_names: Vec<String>,
         devices: Vec<BridgeDevice>,
     ) -> Self {
-        // The Last Will the MQTT connection registers (crate::bridge::mqtt::options).
+        // The Last Will the MQTT connection registers (crate::bridge::driver::connection::options).
         let guard = TopicGuard::with_own_will(&topics.gateway_status_topic(), OFFLINE);
         Publisher {
             topics,
@@ -100,7 +100,7 @@ impl Publisher {
             history,
             line_names,
             cache: StateCache::new(devices.iter().map(|d| d.name.as_str())),
-            devices: device::by_name(devices),
+            devices: bridge_device::by_name(devices),
             connected: false,
             deferred: VecDeque::new(),
             json_views: HashMap::new(),
@@ -619,7 +619,7 @@ impl Publisher {
             .collect();
         self.cache
             .reconfigure(devices.iter().map(|device| device.name.as_str()));
-        self.devices = device::by_name(devices);
+        self.devices = bridge_device::by_name(devices);
         self.line_names = line_names;
         self.publish_discovery();
         for device in added {

@@ -599,7 +599,7 @@ const LINE_SENSORS: &[(&str, &str, Option<&str>, &str)] = &[
 
 /// The gateway's own discovery document: a `status` connectivity sensor on the gateway status
 /// topic, and from the statistics summary on `<prefix>/gateway/<client_id>/stats`
-/// ([`super::metrics::stats_json`]) the number of devices online, waiting commands and
+/// ([`crate::bridge::observers::statistics::stats_json`]) the number of devices online, waiting commands and
 /// uptime. It is what every device's `via_device` points at. Each line's sensors are in a
 /// document of their own ([`line_config`]), so this one is the same size whatever the number
 /// of lines.
@@ -664,7 +664,7 @@ pub fn gateway_config(ctx: &Topics) -> (String, Json) {
 
 /// One line's sensors on the gateway device, on [`Topics::line_config_topic`]: its bus load
 /// and counters from the line's statistics document on `<prefix>/gateway/<client_id>/stats/<line>`
-/// ([`super::metrics::line_stats_json`]). Home Assistant puts them on the gateway device,
+/// ([`crate::bridge::observers::statistics::line_stats_json`]). Home Assistant puts them on the gateway device,
 /// whose identifier they name; their unique ids are the gateway's, as when they were in its
 /// own document.
 pub fn line_config(ctx: &Topics, line: &str) -> (String, Json) {

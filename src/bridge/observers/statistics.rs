@@ -531,7 +531,7 @@ fn device_json(device: &DeviceStats) -> Json {
 /// (its name), its counters, `bus_load_percent`, latencies in milliseconds and
 /// `devices.<device>`. Latencies never measured are `null`. Its size depends on the line's
 /// devices alone (at most 247), never on the number of lines. The gateway's Home Assistant
-/// line sensors read these keys (see [`super::discovery::gateway_config`]).
+/// line sensors read these keys (see [`crate::bridge::core::discovery::gateway_config`]).
 pub fn line_stats_json(line: &LineStats) -> Json {
     let devices: Map<String, Json> = line
         .devices
@@ -568,7 +568,7 @@ pub fn line_stats_json(line: &LineStats) -> Json {
 /// (`uptime_seconds`, `devices_online`, `devices_total`, `lines_total`, `lines_open`, `mqtt`,
 /// `commands`, `history`). Each line's figures are in their own document
 /// ([`line_stats_json`]), so this one stays the same size at any scale. The gateway's Home
-/// Assistant sensors read these keys (see [`super::discovery::gateway_config`]).
+/// Assistant sensors read these keys (see [`crate::bridge::core::discovery::gateway_config`]).
 pub fn stats_json(lines: &[LineStats], bridge: &BridgeStats) -> Json {
     let all_devices = lines.iter().flat_map(|line| line.devices.iter());
     let devices_total = all_devices.clone().count();

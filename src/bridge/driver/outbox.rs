@@ -10,7 +10,7 @@ use std::collections::{HashMap, VecDeque};
 
 use rumqttc::QoS;
 
-use super::core::Publish;
+use crate::bridge::core::Publish;
 
 /// Entries held at most; beyond, the oldest re-send, then the oldest entry, is dropped (and
 /// reported by [`Outbox::push`]).

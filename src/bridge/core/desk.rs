@@ -11,10 +11,10 @@ use std::time::{Duration, Instant};
 use rumqttc::QoS;
 
 use super::action::{Action, CommandReport};
-use super::commands::{Admission, CommandBook, TrackedCommand};
-use super::metrics::BridgeStats;
+use super::command_book::{Admission, CommandBook, TrackedCommand};
 use super::payload::{self, decode_command, CommandPayload, CommandResult, Outcome};
 use super::publisher::Publisher;
+use crate::bridge::observers::statistics::BridgeStats;
 use crate::bus::{Command, CommandOutcome};
 use rtu2mqtt_profile::CommandPlan;
 

@@ -37,7 +37,7 @@ pub enum Action {
         filter: String,
     },
     /// Hand `command` to line number `line`; report a refusal with
-    /// [`super::core::Core::on_send_failed`].
+    /// [`super::Core::on_send_failed`].
     Send {
         line: usize,
         command: Command,

@@ -12,8 +12,8 @@ use std::time::{Instant, SystemTime};
 use rumqttc::QoS;
 use tokio::sync::mpsc;
 
-use super::action::{HistoryEntry, Publish};
-use super::metrics::HistoryStats;
+use crate::bridge::core::action::{HistoryEntry, Publish};
+use crate::bridge::observers::statistics::HistoryStats;
 use crate::config::HistoryConfig;
 use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};

@@ -23,7 +23,7 @@ use rumqttc::{
 };
 use tokio::sync::{mpsc, watch};
 
-use super::history::is_history;
+use super::history_stream::is_history;
 use crate::config::MqttSettings;
 use rtu2mqtt_profile::contract::{Topics, OFFLINE};
 
@@ -79,7 +79,7 @@ pub enum LinkEvent {
     /// acknowledged.
     Closed { unacknowledged: Vec<Publish> },
     /// A history publish the writer did not hand to the client because the link was down.
-    Unsent(super::core::Publish),
+    Unsent(crate::bridge::core::Publish),
 }
 
 /// The size of a PUBLISH packet on `topic` with `payload_len` bytes of payload, as rumqttc
