@@ -45,6 +45,8 @@ pub struct Memory {
     pub rss_anon_kib: u64,
     /// Private_Dirty from /proc/<pid>/smaps_rollup: pages only this process has written.
     pub private_dirty_kib: u64,
+    /// Anonymous from /proc/<pid>/smaps_rollup: resident anonymous pages (heap, stacks).
+    pub anonymous_kib: u64,
     /// Pss from /proc/<pid>/smaps_rollup: resident pages, shared ones divided among users.
     pub pss_kib: u64,
     pub threads: u64,
@@ -56,6 +58,7 @@ impl Memory {
         Memory {
             rss_anon_kib: self.rss_anon_kib.max(other.rss_anon_kib),
             private_dirty_kib: self.private_dirty_kib.max(other.private_dirty_kib),
+            anonymous_kib: self.anonymous_kib.max(other.anonymous_kib),
             pss_kib: self.pss_kib.max(other.pss_kib),
             threads: self.threads.max(other.threads),
         }
@@ -108,6 +111,7 @@ impl GatewayProcess {
         Ok(Memory {
             rss_anon_kib: proc_field(&status, "RssAnon:"),
             private_dirty_kib: proc_field(&rollup, "Private_Dirty:"),
+            anonymous_kib: proc_field(&rollup, "Anonymous:"),
             pss_kib: proc_field(&rollup, "Pss:"),
             threads: proc_field(&status, "Threads:"),
         })

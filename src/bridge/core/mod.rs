@@ -167,6 +167,11 @@ pub struct Core {
     rng: StdRng,
     /// The history journal's health, as the driver last told it.
     history: Option<HistoryStats>,
+    /// The driver does not keep up with what it is asked to publish: announcing waits.
+    overloaded: bool,
+    /// The documents of the last announcements have left the driver's outbox (they wait
+    /// behind state and outcomes): the next may be built.
+    announce_room: bool,
     /// Publishes refused for their size, as the driver last told it.
     oversized_refused: u64,
 }
@@ -195,6 +200,8 @@ impl Core {
             stats_interval: options.stats_interval,
             rng,
             history: None,
+            overloaded: false,
+            announce_room: true,
             oversized_refused: 0,
         }
     }
@@ -254,6 +261,12 @@ impl Core {
         self.publisher.on_published(publish, sent);
     }
 
+    /// The driver handed a publish to the client (the same as [`Core::on_published`] with
+    /// `sent`, without the publish).
+    pub fn on_handed(&mut self) {
+        self.publisher.on_handed();
+    }
+
     /// Tells the core the history journal's health, for the statistics.
     pub fn set_history_stats(&mut self, stats: HistoryStats) {
         self.history = Some(stats);
@@ -264,8 +277,15 @@ impl Core {
         self.oversized_refused = refused;
     }
 
+    /// Tells the core whether the discovery documents announced last have left the driver's
+    /// outbox: announcing goes on only then, so that documents never pile up there.
+    pub fn set_announce_room(&mut self, room: bool) {
+        self.announce_room = room;
+    }
+
     /// Tells the core whether the driver keeps up with what it is asked to publish.
     pub fn set_overloaded(&mut self, overloaded: bool) {
+        self.overloaded = overloaded;
         self.desk.set_overloaded(overloaded);
     }
 
@@ -397,6 +417,8 @@ impl Core {
         if self.reannounce_at.is_some_and(|at| at <= now) {
             self.reannounce_at = None;
             self.publisher.reannounce();
+        } else if !self.overloaded && self.announce_room {
+            self.publisher.continue_announcing();
         }
         self.publisher.reassert_due(now);
         self.publisher.audit_turn(now);

@@ -14,7 +14,7 @@ use super::action::{Action, HistoryEntry, Publish};
 use super::bridge_device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::guard::{TopicGuard, Verdict};
-use super::json_view;
+use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
 use crate::history::document;
 use rtu2mqtt_profile::contract::{availability_word, Topics, OFFLINE, ONLINE};
@@ -22,6 +22,20 @@ use rtu2mqtt_profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
 const MAX_DEFERRED: usize = 1024;
+/// Lines and devices announced at once (discovery documents; after a connect also each
+/// device's availability, every state and the JSON view), and then as many on each tick
+/// while the driver keeps up: a gateway with a thousand devices announces them over seconds
+/// instead of building a hundred thousand messages in one turn of the loop that also serves
+/// the lines.
+pub(crate) const ANNOUNCE_BATCH: usize = 50;
+
+/// What is still to be announced: a line's discovery document; a device's, and with
+/// `everything` its availability, every state and its JSON view.
+#[derive(Debug)]
+enum Announcement {
+    Line(String),
+    Device { device: String, everything: bool },
+}
 
 /// A topic this gateway owns and defends.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -56,8 +70,10 @@ pub(crate) struct Publisher {
     cache: StateCache,
     /// Results and clears that wait for the next connection.
     deferred: VecDeque<Publish>,
-    /// Last JSON view payload per topic, to skip unchanged ones.
-    json_views: HashMap<String, Vec<u8>>,
+    /// Each device's JSON view by its topic, with whether it changed since it was published.
+    json_views: HashMap<String, JsonView>,
+    /// Devices still to be announced, in configuration order.
+    announcing: VecDeque<Announcement>,
     /// The status, availability and state topics this gateway defends.
     guard: TopicGuard,
     counters: PublishCounters,
@@ -88,6 +104,7 @@ impl Publisher {
             connected: false,
             deferred: VecDeque::new(),
             json_views: HashMap::new(),
+            announcing: VecDeque::new(),
             guard,
             counters: PublishCounters::default(),
             out: Vec::new(),
@@ -162,20 +179,9 @@ impl Publisher {
             self.subscribe(self.topics.line_config_filter());
         }
         self.publish(self.topics.gateway_status_topic(), ONLINE.to_string(), true);
-        self.publish_discovery();
-        for device in self.cache.devices().to_vec() {
-            let word = availability_word(self.cache.is_online(&device));
-            let topic = self.topics.availability_topic(&device);
-            self.publish(topic, word.to_string(), true);
-        }
-        let updates = self.cache.republish_all();
-        self.publish_state(updates);
-        if self.json_view {
-            self.json_views.clear();
-            for device in self.cache.devices().to_vec() {
-                self.publish_json_view(&device);
-            }
-        }
+        self.json_views.values_mut().for_each(JsonView::mark_stale);
+        self.cache.forget_all_published();
+        self.announce(true);
         while let Some(kept) = self.deferred.pop_front() {
             self.out.push(Action::Publish(kept));
         }
@@ -183,19 +189,28 @@ impl Publisher {
 
     pub(crate) fn disconnected(&mut self) {
         self.connected = false;
+        // The next connection announces every device again.
+        self.announcing.clear();
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
     pub(crate) fn on_published(&mut self, publish: Publish, sent: bool) {
         if sent {
-            self.counters.published += 1;
+            self.on_handed();
             return;
         }
         self.counters.publish_failures += 1;
-        self.json_views.remove(&publish.topic);
+        if let Some(view) = self.json_views.get_mut(&publish.topic) {
+            view.mark_stale();
+        }
         if publish.keep {
             self.keep(publish);
         }
+    }
+
+    /// A publish handed to the client.
+    pub(crate) fn on_handed(&mut self) {
+        self.counters.published += 1;
     }
 
     fn subscribe(&mut self, filter: String) {
@@ -254,61 +269,109 @@ impl Publisher {
     }
 
     /// Home Assistant device-based discovery: the gateway's own document, then one per
-    /// configured device.
+    /// configured device (see [`Publisher::announce`]).
     pub(crate) fn publish_discovery(&mut self) {
-        if !self.discovery {
+        self.announce(false);
+    }
+
+    /// The gateway's discovery document, then each configured device's and each line's
+    /// announcement (with `everything`: the device's availability, states and JSON view too):
+    /// the first [`ANNOUNCE_BATCH`] at once, the rest by [`Publisher::continue_announcing`].
+    /// A device already waiting keeps what it was to get.
+    fn announce(&mut self, everything: bool) {
+        let mut announcing = VecDeque::new();
+        if self.discovery {
+            let (topic, document) = discovery::gateway_config(&self.topics);
+            self.publish(topic, document.to_string(), true);
+        } else if !everything {
             return;
         }
-        // Each document is serialized as soon as it is built: a JSON tree is several times
-        // the size of its text, and a gateway with hundreds of devices would otherwise hold
-        // all of their trees at once.
-        let (topic, document) = discovery::gateway_config(&self.topics);
-        let mut payloads = vec![(topic, document.to_string())];
-        for line in &self.line_names {
-            let (topic, document) = discovery::line_config(&self.topics, line);
-            payloads.push((topic, document.to_string()));
+        let waiting_everything: std::collections::HashSet<&str> = self
+            .announcing
+            .iter()
+            .filter_map(|announcement| match announcement {
+                Announcement::Device {
+                    device,
+                    everything: true,
+                } => Some(device.as_str()),
+                _ => None,
+            })
+            .collect();
+        announcing.extend(
+            self.cache
+                .devices()
+                .iter()
+                .map(|device| Announcement::Device {
+                    everything: everything || waiting_everything.contains(device.as_str()),
+                    device: device.clone(),
+                }),
+        );
+        if self.discovery {
+            announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
         }
-        for device in self.cache.devices() {
-            if let Some(entry) = self.devices.get(device) {
+        self.announcing = announcing;
+        self.continue_announcing();
+    }
+
+    /// The next [`ANNOUNCE_BATCH`] lines or devices still to be announced. Each discovery
+    /// document is built when it is published, from the device's state then (its identity
+    /// fields).
+    pub(crate) fn continue_announcing(&mut self) {
+        if !self.connected {
+            return;
+        }
+        for _ in 0..ANNOUNCE_BATCH {
+            let (device, everything) = match self.announcing.pop_front() {
+                None => return,
+                Some(Announcement::Line(line)) => {
+                    let (topic, document) = discovery::line_config(&self.topics, &line);
+                    self.publish(topic, document.to_string(), true);
+                    continue;
+                }
+                Some(Announcement::Device { device, everything }) => (device, everything),
+            };
+            if let Some(entry) = self.devices.get(&device).filter(|_| self.discovery) {
                 let (topic, document) = discovery::device_config_with_state(
                     &self.topics,
-                    device,
+                    &device,
                     &entry.profile,
-                    self.cache.state(device),
+                    self.cache.state(&device),
                 );
-                payloads.push((topic, document.to_string()));
+                self.publish(topic, document.to_string(), true);
             }
-        }
-        for (topic, payload) in payloads {
-            self.publish(topic, payload, true);
+            if everything {
+                let word = availability_word(self.cache.is_online(&device));
+                let topic = self.topics.availability_topic(&device);
+                self.publish(topic, word.to_string(), true);
+                let updates = self.cache.republish(&device);
+                self.publish_state(updates);
+                if self.json_view {
+                    self.publish_json_view(&device);
+                }
+            }
         }
     }
 
     /// Discovery and every state again (after Home Assistant's birth message).
     pub(crate) fn reannounce(&mut self) {
-        self.publish_discovery();
-        let updates = self.cache.republish_all();
-        self.publish_state(updates);
+        self.cache.forget_all_published();
+        self.announce(true);
     }
 
     /// The device's JSON view on `<prefix>/<device>`, when it changed.
     fn publish_json_view(&mut self, device: &str) {
-        let Some(state) = self.cache.state(device) else {
+        if !self.connected {
+            return;
+        }
+        let topic = self.topics.json_view_topic(device);
+        let Some(payload) = self
+            .json_views
+            .get_mut(&topic)
+            .and_then(JsonView::take_payload)
+        else {
             return;
         };
-        if state.is_empty() {
-            return;
-        }
-        let payload = json_view::json_view_payload(state);
-        let topic = self.topics.json_view_topic(device);
-        if self.json_views.get(&topic) == Some(&payload) {
-            return;
-        }
-        // Retained JSON is bytes of valid UTF-8 (serde_json output).
-        let text = String::from_utf8_lossy(&payload).into_owned();
-        if self.publish(topic.clone(), text, true) {
-            self.json_views.insert(topic, payload);
-        }
+        self.publish(topic, payload, true);
     }
 
     /// A line's fresh values of `device`, read at `read_at`: the state that changed, the
@@ -326,10 +389,24 @@ impl Publisher {
         if self.history {
             self.history_entry(device, &values, read_at, again);
         }
+        if let Some(known) = self.cache.state(device).filter(|_| self.json_view) {
+            let view = self
+                .json_views
+                .entry(self.topics.json_view_topic(device))
+                .or_default();
+            // Only what moved is rendered again.
+            for (field, value) in &values {
+                if known.get(field) != Some(value) {
+                    view.set(field, value);
+                }
+            }
+            if again && self.connected {
+                view.mark_stale();
+            }
+        }
         if again && self.connected {
             self.cache
                 .forget_published(device, values.iter().map(|(field, _)| field.as_str()));
-            self.json_views.remove(&self.topics.json_view_topic(device));
         }
         let updates = self.cache.update(device, values, self.connected);
         if let Some((topic, document)) = self

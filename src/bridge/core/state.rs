@@ -153,29 +153,51 @@ impl StateCache {
 
     /// Every known value, for the full republish after a (re)connect; recorded as published.
     pub fn republish_all(&mut self) -> Vec<StateUpdate> {
+        self.forget_all_published();
+        let order = std::mem::take(&mut self.order);
+        let updates = order
+            .iter()
+            .flat_map(|device| self.republish(device))
+            .collect();
+        self.order = order;
+        updates
+    }
+
+    /// The known values of `device` not published on this connection yet (every one after
+    /// [`StateCache::forget_all_published`]), in the order of their field names; recorded as
+    /// published.
+    pub fn republish(&mut self, device: &str) -> Vec<StateUpdate> {
+        let Some(cache) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let mut fields: Vec<&String> = cache.state.keys().collect();
+        fields.sort();
         let mut updates = Vec::new();
-        for device in &self.order {
-            let Some(cache) = self.devices.get_mut(device) else {
+        for field in fields {
+            let value = &cache.state[field];
+            if !value.is_available() {
                 continue;
-            };
-            let mut fields: Vec<&String> = cache.state.keys().collect();
-            fields.sort();
-            let mut published = HashMap::new();
-            for field in fields
-                .into_iter()
-                .filter(|field| cache.state[*field].is_available())
-            {
-                let text = cache.state[field].to_text();
-                published.insert(field.clone(), text.clone());
-                updates.push(StateUpdate {
-                    device: device.clone(),
-                    field: field.clone(),
-                    text,
-                });
             }
-            cache.published = published;
+            let text = value.to_text();
+            if cache.published.get(field) == Some(&text) {
+                continue;
+            }
+            cache.published.insert(field.clone(), text.clone());
+            updates.push(StateUpdate {
+                device: device.to_string(),
+                field: field.clone(),
+                text,
+            });
         }
         updates
+    }
+
+    /// A new connection: nothing is published on it yet, so each value goes out with its
+    /// device's next reading or in the device's turn, whichever comes first.
+    pub fn forget_all_published(&mut self) {
+        for cache in self.devices.values_mut() {
+            cache.published.clear();
+        }
     }
 }
 

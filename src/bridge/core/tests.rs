@@ -350,14 +350,14 @@ fn connecting_subscribes_announces_and_sends_discovery() {
         vec![
             "plant/gateway/edge1/status",
             "homeassistant/device/edge1_gateway/config",
-            "homeassistant/device/edge1_gateway/a/config",
             "homeassistant/device/edge1_valve/config",
             "plant/valve/availability",
+            "homeassistant/device/edge1_gateway/a/config",
         ]
     );
     assert!(published.iter().all(|p| p.2), "all retained");
     assert_eq!(published[0].1, "online");
-    assert_eq!(published[4].1, "offline", "the valve has not answered yet");
+    assert_eq!(published[3].1, "offline", "the valve has not answered yet");
 }
 
 #[test]
@@ -1311,4 +1311,94 @@ fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
             .collect::<Vec<_>>(),
         [r#"{"ts":"2026-12-02T15:01:01.000Z","values":{"opening":40}}"#]
     );
+}
+
+// ----- announcing many devices -----
+
+/// A gateway of 60 valves and one line announces 50 of them on the connect and the rest on
+/// the next tick (the valves first, then the line): discovery, availability, every state and
+/// the JSON view of each valve; a value that moves before its device's turn is published at
+/// once, and not again in the turn.
+#[test]
+fn many_devices_are_announced_a_batch_per_tick() {
+    let now = Instant::now();
+    let profile = Arc::new(registry::built_in("wuzhou-valve").unwrap());
+    let names: Vec<String> = (0..60).map(|n| format!("valve{n:02}")).collect();
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: true,
+            options: GatewayOptions {
+                json_view: true,
+                ..options()
+            },
+            history: false,
+            line_names: vec!["a".to_string()],
+            devices: names
+                .iter()
+                .map(|name| BridgeDevice {
+                    name: name.clone(),
+                    profile: Arc::clone(&profile),
+                    line: 0,
+                })
+                .collect(),
+        },
+        now,
+        seeded(),
+    );
+    let opening = |value: i128| rtu2mqtt_profile::Value::Int(value);
+    // Known before the connection: the first connect republishes it in each device's turn.
+    for name in &names {
+        core.on_line_event(
+            LineEvent::Values {
+                device: name.clone(),
+                values: vec![("opening".to_string(), opening(40))],
+                read_at: std::time::SystemTime::UNIX_EPOCH,
+                origin: Origin::Poll,
+            },
+            now,
+        );
+    }
+    let announced = |actions: &[Action], kind: &str| -> Vec<String> {
+        publishes(actions)
+            .into_iter()
+            .map(|p| p.0)
+            .filter(|topic| match kind {
+                "config" => topic.starts_with("homeassistant/device/edge1_valve"),
+                "opening" => topic.ends_with("/opening"),
+                _ => topic.starts_with("plant/valve") && topic.matches('/').count() == 1,
+            })
+            .collect()
+    };
+    let first = core.on_connected();
+    assert_eq!(announced(&first, "config").len(), 50);
+    assert_eq!(announced(&first, "opening").len(), 50);
+    assert_eq!(announced(&first, "view").len(), 50);
+    assert!(publishes(&first)
+        .iter()
+        .any(|p| p.0 == "homeassistant/device/edge1_gateway/config"));
+    // valve59 moves before its turn: published at once, not again in its turn.
+    let moved = core.on_line_event(
+        LineEvent::Values {
+            device: "valve59".to_string(),
+            values: vec![("opening".to_string(), opening(41))],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
+        },
+        now,
+    );
+    assert_eq!(announced(&moved, "opening"), ["plant/valve59/opening"]);
+    let second = core.on_tick(now, Vec::new);
+    assert_eq!(announced(&second, "config").len(), 10);
+    assert_eq!(
+        announced(&second, "config")[0],
+        "homeassistant/device/edge1_valve50/config"
+    );
+    assert_eq!(announced(&second, "opening").len(), 9, "valve59's is out");
+    assert!(publishes(&second)
+        .iter()
+        .any(|p| p.0 == "homeassistant/device/edge1_gateway/a/config"));
+    let quiet = core.on_tick(now + Duration::from_millis(250), Vec::new);
+    assert!(announced(&quiet, "config").is_empty());
+    assert!(announced(&quiet, "opening").is_empty());
 }

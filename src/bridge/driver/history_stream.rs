@@ -19,10 +19,13 @@ use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};
 use rtu2mqtt_profile::contract::{Topics, HISTORY};
 
-/// Records replayed per tick at most (with the bridge's 250 ms tick, 2,000 a second).
-pub(crate) const REPLAY_BATCH: usize = 500;
-/// Replay waits while the outbox holds more than this: live values and results go first.
-pub(crate) const REPLAY_ROOM: usize = 256;
+/// Records replayed per tick at most (with the bridge's 250 ms tick, 4,000 a second). While
+/// the journal holds records, what is read meanwhile is journaled behind them: the replay has
+/// to outrun a plant whose every device changes every second, or it never ends.
+pub(crate) const REPLAY_BATCH: usize = 1000;
+/// Replay takes what the outbox holds beyond this as room already taken: live values and
+/// results go first.
+pub(crate) const REPLAY_ROOM: usize = 1250;
 
 /// The journal and the replay.
 #[derive(Debug)]

@@ -28,6 +28,7 @@ use tokio::sync::{mpsc, watch};
 use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryLane, REPLAY_ROOM};
 use self::outbox::{Lane, Outbox, Request};
+use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
 };
@@ -231,6 +232,7 @@ impl Bridge {
                     self.history_tick(now);
                     let lines = &self.lines;
                     self.core.set_oversized_refused(self.packet_limit.refused());
+                    self.core.set_announce_room(self.outbox.resend_len() < ANNOUNCE_BATCH);
                     let actions = self.core.on_tick(now, || line_stats(lines));
                     self.execute(actions);
                     self.counters_tx.send_replace(self.core.counters(now));
@@ -451,11 +453,11 @@ impl Bridge {
     /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
     fn lane_of(&self, publish: &Publish) -> Lane {
         let topics = self.core.topics();
-        if topics.is_stats_topic(&publish.topic)
-            || publish
-                .topic
-                .starts_with(&format!("{}/", topics.discovery_prefix))
-        {
+        let discovery = publish
+            .topic
+            .strip_prefix(topics.discovery_prefix.as_str())
+            .is_some_and(|rest| rest.starts_with('/'));
+        if discovery || topics.is_stats_topic(&publish.topic) {
             Lane::Resend
         } else {
             Lane::Urgent
@@ -472,8 +474,8 @@ impl Bridge {
                 break;
             };
             self.in_writer.fetch_add(1, Ordering::SeqCst);
-            if let Request::Publish(publish) = &request {
-                self.core.on_published(publish.clone(), true);
+            if let Request::Publish(_) = &request {
+                self.core.on_handed();
             }
             permit.send(request);
         }
@@ -492,8 +494,8 @@ impl Bridge {
 
     fn note_handed(&mut self, request: &Request) {
         self.in_writer.fetch_add(1, Ordering::SeqCst);
-        if let Request::Publish(publish) = request {
-            self.core.on_published(publish.clone(), true);
+        if let Request::Publish(_) = request {
+            self.core.on_handed();
         }
     }
 

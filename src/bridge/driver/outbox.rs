@@ -57,6 +57,11 @@ impl Outbox {
         self.control.len() + self.urgent.len() + self.resend.len()
     }
 
+    /// Entries of the [`Lane::Resend`] lane waiting (discovery documents, statistics).
+    pub(crate) fn resend_len(&self) -> usize {
+        self.resend.len()
+    }
+
     pub(crate) fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -8,8 +8,7 @@
 //! Why mio-serial under an `AsyncFd` and not tokio-serial: tokio-serial registers the port for
 //! read and write readiness, but a frame is written whole (a few bytes into a kernel buffer of
 //! kilobytes) and its end awaited with tcdrain, so write readiness would only wake the line's
-//! task for nothing. The port is registered for read interest alone (and even that is lifted
-//! while the rest of an answer cannot be there yet).
+//! task for nothing. The port is registered for read interest alone.
 
 use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
