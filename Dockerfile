@@ -31,14 +31,14 @@ COPY Cargo.toml Cargo.lock ./
 COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
 COPY crates/rtu2mqtt-profile/Cargo.toml crates/rtu2mqtt-profile/
 COPY crates/rtu2mqtt-sim/Cargo.toml crates/rtu2mqtt-sim/
-COPY crates/rtu2mqtt-testkit/Cargo.toml crates/rtu2mqtt-testkit/
-COPY crates/rtu2mqtt-demo/Cargo.toml crates/rtu2mqtt-demo/
+COPY testkit/Cargo.toml testkit/
+COPY demo/Cargo.toml demo/
 COPY docker/placeholder-sources.sh docker/
 RUN sh docker/placeholder-sources.sh \
  && target=$(rustc -vV | sed -n 's/^host: //p') \
  && RUSTFLAGS="-C target-feature=+crt-static" \
     cargo build --release --locked -p rtu2mqtt --target "$target" \
- && rm -rf src benches tests crates/*/src "target/$target/release/rtu2mqtt"* \
+ && rm -rf src benches tests crates/*/src demo/src testkit/src "target/$target/release/rtu2mqtt"* \
            "target/$target/release/deps/rtu2mqtt-"* "target/$target/release/deps/librtu2mqtt-"* \
            "target/$target/release/deps/librtu2mqtt_modbus-"* \
            "target/$target/release/deps/librtu2mqtt_profile-"* \

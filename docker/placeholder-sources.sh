@@ -7,11 +7,11 @@ set -eu
 mkdir -p src benches tests
 echo 'fn main() {}' > src/main.rs
 : > src/lib.rs
-for crate in crates/*/; do
+for crate in crates/*/ demo/ testkit/; do
   mkdir -p "${crate}src"
   : > "${crate}src/lib.rs"
 done
-echo 'fn main() {}' > crates/rtu2mqtt-demo/src/main.rs
+echo 'fn main() {}' > demo/src/main.rs
 for bench in $(sed -n '/^\[\[bench\]\]/,/^name/ s/^name = "\(.*\)"$/\1/p' Cargo.toml); do
   echo 'fn main() {}' > "benches/$bench.rs"
 done

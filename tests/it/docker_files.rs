@@ -268,7 +268,11 @@ fn the_dependency_layer_copies_what_it_runs_and_its_placeholders_satisfy_the_man
     let members = std::fs::read_dir(root.join("crates"))
         .expect("the workspace's crates")
         .flatten()
-        .map(|entry| format!("crates/{}/Cargo.toml", entry.file_name().to_string_lossy()));
+        .map(|entry| format!("crates/{}/Cargo.toml", entry.file_name().to_string_lossy()))
+        .chain([
+            "demo/Cargo.toml".to_string(),
+            "testkit/Cargo.toml".to_string(),
+        ]);
     for manifest in ["Cargo.toml".to_string(), "Cargo.lock".to_string()]
         .into_iter()
         .chain(members)

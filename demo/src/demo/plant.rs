@@ -9,7 +9,7 @@ use super::endpoint::{BrokerEndpoint, Placement};
 use rtu2mqtt::config::{self, Config};
 
 /// The seed plant's configuration, compiled in so that the demo runs from anywhere.
-pub(super) const EXAMPLE_CONFIG: &str = include_str!("../../../../config/rtu2mqtt.toml");
+pub(super) const EXAMPLE_CONFIG: &str = include_str!("../../../config/rtu2mqtt.toml");
 
 /// The demo gateway's MQTT client id (and gateway id in topics).
 pub(super) const DEMO_CLIENT_ID: &str = "rtu2mqtt-demo";

@@ -16,8 +16,7 @@ pub fn decode_with_pysparkplug<'a>(
         .map(|(topic, payload)| json!({ "topic": topic, "hex": super::hex::encode(payload) }))
         .collect();
     // The script lives with the workspace's interop scripts, two levels above this crate.
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/sparkplug_decode.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/interop/sparkplug_decode.py");
     let mut child = Command::new("python3")
         .arg(&script)
         .stdin(Stdio::piped())
