@@ -68,7 +68,7 @@ impl<'a> PlantSetup<'a> {
     }
 
     /// The configuration is written to a file and the gateway reloads it on
-    /// [`PlantBench::reload`], as SIGHUP does for `rtu2mqtt run`.
+    /// the bench's `reload` sender, as SIGHUP does for `rtu2mqtt run`.
     pub fn reloadable(mut self) -> Self {
         self.reloadable = true;
         self
@@ -166,15 +166,6 @@ impl PlantBench {
         if let Some(gateway) = self.gateway.take() {
             gateway.stop().await;
         }
-    }
-
-    /// Writes `text` as the configuration and has the gateway reload it.
-    pub async fn reload(&mut self, text: &str) {
-        let (reload, dir) = self.reload.as_ref().expect("a reloadable bench");
-        std::fs::write(dir.path().join("rtu2mqtt.toml"), text)
-            .expect("the configuration is written");
-        reload.send(()).await.expect("the gateway takes reloads");
-        self.config_text = text.to_string();
     }
 
     /// Waits for `text` on `topic` (a retained copy seen earlier counts).

@@ -4,9 +4,8 @@
 
 use std::time::Instant;
 
-use super::Line;
-use crate::bus::commands::{Pending, SlotLink};
-use crate::bus::device::DeviceRuntime;
+use super::{slot_link, Line};
+use crate::bus::commands::Pending;
 use crate::bus::serve::policy;
 use crate::bus::serve::served_side::{
     block_overlaps, client_answer, echo, written_span, ClientCount, ClientWrite,
@@ -174,16 +173,16 @@ impl Line {
             arrived: Instant::now(),
         };
         let attempts = self.attempts();
-        let (Some(DeviceRuntime { spec, stats, .. }), Some(master)) =
-            (self.devices.get_mut(device), self.master.as_mut())
-        else {
-            return Err(ExceptionCode::GatewayTargetFailedToRespond);
-        };
-        let link = SlotLink {
-            exchange: Exchange::for_device(&self.spec.name, spec, self.timeout, &self.turnaround),
-            master,
-            stats,
+        let Some(link) = slot_link(
+            &mut self.devices,
+            self.master.as_mut(),
+            &self.spec.name,
+            self.timeout,
+            &self.turnaround,
+            device,
             attempts,
+        ) else {
+            return Err(ExceptionCode::GatewayTargetFailedToRespond);
         };
         let mut report = self.commands.run(link, device, pending).await;
         if report.wrote {
