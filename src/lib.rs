@@ -28,13 +28,13 @@
 //!   `{"ts","values"}`), `record` (length + CRC-32 per record, a damaged part skipped), `journal`
 //!   (append-only segment files, bounded, crash-safe). File I/O only.
 //! - [`bridge`]: the only plain-MQTT user, in three parts: `core` (every decision, no I/O:
-//!   events in, actions out; `desk` the command desk from arrival to result, `publisher` the
-//!   state cache and what is published from it, `discovery`, `guard`, `json_view`, `payload`,
+//!   events in, actions out; `command_desk` the command desk from arrival to result, `publisher` the
+//!   state cache and what is published from it, `discovery`, `topic_guard`, `json_view`, `payload`,
 //!   `state`, `command_book`), `driver` (the task that carries the actions out: `connection`,
 //!   `outbox`, `tls`, `history_stream`) and `observers` (`statistics` documents, the
 //!   `prometheus` endpoint).
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
-//!   `metrics`, `figures`, `session_interface`, `session` (the pure edge-node rules) and its
+//!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its
 //!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.
 //! - [`cli`]: the command line (clap); parses, does nothing else.
 //! - [`app`]: wiring: `run`/[`app::run_gateway`] (lines, bridge, Sparkplug node, health, reload

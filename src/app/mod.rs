@@ -189,7 +189,7 @@ impl NodeWiring {
         // One sample in flight: a slow node gets the next, fresher one.
         let (values_tx, values_rx) = mpsc::channel(1);
         let stats = lines.iter().map(|line| line.stats_rx.clone()).collect();
-        tokio::spawn(sparkplug::figures::feed(
+        tokio::spawn(sparkplug::node_metrics::feed(
             stats,
             values_tx,
             self.stats_interval,

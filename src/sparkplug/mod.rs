@@ -1,6 +1,6 @@
 //! The gateway as a Sparkplug B 3.0 edge node, beside the plain topics. [`protobuf`] is the
 //! protobuf payload, [`metrics`] turns profile fields into typed metrics and command metrics
-//! back into command text, [`figures`] turns line statistics into node metrics, [`session`] is
+//! back into command text, [`node_metrics`] turns line statistics into node metrics, [`session`] is
 //! the pure edge node state machine. This module makes the session for a configuration
 //! (the `[sparkplug]` settings are `crate::config`'s) and holds the thin driver ([`run`]) that owns
 //! the node's own MQTT connection (its Last Will is the NDEATH, so it cannot share the plain
@@ -11,8 +11,8 @@
 //! historical DDATA once their device is born in the session.
 
 pub mod bd_seq;
-pub(crate) mod figures;
 pub mod metrics;
+pub(crate) mod node_metrics;
 pub mod protobuf;
 pub mod session;
 pub mod session_interface;
@@ -74,7 +74,7 @@ pub fn session_for(config: &Config) -> Option<(Session, MqttSettings)> {
         primary_host_id: sparkplug.identity.primary_host_id.clone(),
         devices,
         version: env!("CARGO_PKG_VERSION").to_string(),
-        node_metrics: figures::node_metric_specs(&lines),
+        node_metrics: node_metrics::node_metric_specs(&lines),
     };
     let first_bd_seq = bd_seq::BdSeqStore::for_config(config).map_or(0, |store| store.load());
     let session = Session::new(settings, first_bd_seq).with_birth_wait(BIRTH_WAIT);

@@ -14,31 +14,31 @@
 //! go through the same desk, with their results on `…/result` too, and their end reported
 //! back ([`Action::Report`]).
 //!
-//! Its parts: [`desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
+//! Its parts: [`command_desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
 //! and a result says), [`publisher`] with [`state`] and [`json_view`] (the published state),
-//! [`discovery`] with [`entity_naming`] (Home Assistant), [`guard`] (our retained topics
+//! [`discovery`] with [`entity_naming`] (Home Assistant), [`topic_guard`] (our retained topics
 //! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
 
 pub(crate) mod action;
 pub(crate) mod bridge_device;
 pub(crate) mod command_book;
-pub(crate) mod desk;
+pub(crate) mod command_desk;
 pub mod discovery;
 mod entity_naming;
-pub(crate) mod guard;
 pub mod json_view;
 pub mod payload;
 pub(crate) mod publisher;
 pub mod state;
 #[cfg(test)]
 mod tests;
+pub(crate) mod topic_guard;
 
 use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rumqttc::QoS;
 
-use self::desk::{CommandDesk, SetMessage};
+use self::command_desk::{CommandDesk, SetMessage};
 use self::publisher::Publisher;
 use crate::bridge::observers::statistics::{self, BridgeStats, HistoryStats};
 use crate::bus::{Command, LineEvent, LineStats, Origin};
@@ -151,7 +151,7 @@ impl CoreSettings {
 /// goes out on its own (statistics, the re-announcement after Home Assistant's birth).
 #[derive(Debug)]
 pub struct Core {
-    desk: CommandDesk,
+    commands: CommandDesk,
     publisher: Publisher,
     /// How often the statistics document goes out.
     stats_interval: Duration,
@@ -182,7 +182,7 @@ impl Core {
     pub fn new(settings: CoreSettings, now: Instant, rng: StdRng) -> Self {
         let options = settings.options;
         Core {
-            desk: CommandDesk::new(options.command_ttl, options.max_payload),
+            commands: CommandDesk::new(options.command_ttl, options.max_payload),
             publisher: Publisher::new(
                 settings.topics,
                 settings.discovery,
@@ -216,7 +216,7 @@ impl Core {
 
     /// Commands handed to a line whose end has not been reported yet.
     pub fn commands_on_bus(&self) -> usize {
-        self.desk.commands_on_bus()
+        self.commands.commands_on_bus()
     }
 
     /// The counters as shared: uptime and connection state filled in.
@@ -230,10 +230,10 @@ impl Core {
             published: published.published,
             publish_failures: published.publish_failures,
             topics_reasserted: published.topics_reasserted,
-            waiting_commands: self.desk.waiting() as u64,
+            waiting_commands: self.commands.waiting() as u64,
             history: self.history,
             oversized_refused: self.oversized_refused,
-            ..self.desk.counters().clone()
+            ..self.commands.counters().clone()
         }
     }
 
@@ -245,7 +245,7 @@ impl Core {
         self.mqtt_connects += 1;
         self.stats_due = true;
         self.publisher.connected();
-        self.desk.clear_again(&mut self.publisher);
+        self.commands.clear_again(&mut self.publisher);
         self.publisher.take()
     }
 
@@ -286,7 +286,7 @@ impl Core {
     /// Tells the core whether the driver keeps up with what it is asked to publish.
     pub fn set_overloaded(&mut self, overloaded: bool) {
         self.overloaded = overloaded;
-        self.desk.set_overloaded(overloaded);
+        self.commands.set_overloaded(overloaded);
     }
 
     // ----- line events -----
@@ -303,12 +303,14 @@ impl Core {
             LineEvent::Availability { device, online } => {
                 p.availability(&device, online);
                 if online {
-                    self.desk.dispatch_ready(p, now);
+                    self.commands.dispatch_ready(p, now);
                 }
             }
-            LineEvent::Written { device, fields, at } => self.desk.on_written(&device, &fields, at),
+            LineEvent::Written { device, fields, at } => {
+                self.commands.on_written(&device, &fields, at)
+            }
             LineEvent::CommandFinished { id, outcome, .. } => {
-                self.desk.on_finished(p, id, outcome, now)
+                self.commands.on_finished(p, id, outcome, now)
             }
             LineEvent::ClientWriteFinished {
                 device,
@@ -317,7 +319,7 @@ impl Core {
                 client,
                 outcome,
             } => self
-                .desk
+                .commands
                 .on_client_write(p, &device, &field, &value, &client, outcome),
         }
         p.take()
@@ -361,7 +363,7 @@ impl Core {
         }
         if let Some(device) = p.topics().device_of_availability_topic(topic) {
             if !p.devices().contains_key(device) && !message.payload.is_empty() {
-                self.desk.note_foreign(device);
+                self.commands.note_foreign(device);
             }
             return;
         }
@@ -383,7 +385,7 @@ impl Core {
             dup: message.dup,
             retain: message.retain,
         };
-        self.desk.on_set(p, set, now);
+        self.commands.on_set(p, set, now);
     }
 
     /// A command from outside the plain topics (a Sparkplug DCMD metric turned into command
@@ -391,7 +393,7 @@ impl Core {
     /// an [`Action::Report`] so the sender can show the device's true value after a refusal.
     pub fn on_external_command(&mut self, command: ExternalCommand, now: Instant) -> Vec<Action> {
         let p = &mut self.publisher;
-        self.desk
+        self.commands
             .on_external(p, &command.device, &command.field, &command.text, now);
         p.take()
     }
@@ -400,7 +402,7 @@ impl Core {
     /// on the next tick), or the line has stopped.
     pub fn on_send_failed(&mut self, command: Command, full: bool) -> Vec<Action> {
         let p = &mut self.publisher;
-        self.desk.on_send_failed(p, command, full);
+        self.commands.on_send_failed(p, command, full);
         p.take()
     }
 
@@ -413,7 +415,7 @@ impl Core {
         now: Instant,
         line_stats: impl FnOnce() -> Vec<LineStats>,
     ) -> Vec<Action> {
-        self.desk.on_tick(&mut self.publisher, now);
+        self.commands.on_tick(&mut self.publisher, now);
         if self.reannounce_at.is_some_and(|at| at <= now) {
             self.reannounce_at = None;
             self.publisher.reannounce();
@@ -477,14 +479,14 @@ impl Core {
             match devices.iter().find(|device| device.name == name) {
                 None => {
                     tracing::info!(device = %name, "device removed by the reload: clearing its retained topics");
-                    self.desk.forget_device(p, &name);
+                    self.commands.forget_device(p, &name);
                     p.forget_device(&old);
                 }
                 Some(kept) => p.clear_dropped_fields(&old, kept),
             }
         }
         p.reconfigure(line_names, devices);
-        self.desk.dispatch_ready(p, now);
+        self.commands.dispatch_ready(p, now);
         p.take()
     }
 
@@ -493,7 +495,7 @@ impl Core {
     /// The last words: every device and the gateway `offline`. Waiting commands stay retained
     /// in the broker for the next start.
     pub fn on_stop(&mut self) -> Vec<Action> {
-        self.desk.stop(&mut self.publisher);
+        self.commands.stop(&mut self.publisher);
         self.publisher.stop();
         self.publisher.take()
     }

@@ -768,7 +768,7 @@ fn an_overwritten_own_topic_is_set_right_and_own_echoes_are_not() {
     );
     assert!(other.is_empty());
     // The audit's window over: the valve's topics are left, and no longer judged.
-    let later = now + super::guard::AUDIT_WINDOW;
+    let later = now + super::topic_guard::AUDIT_WINDOW;
     let ended = core.on_tick(later, Vec::new);
     assert!(ended.iter().any(|action| matches!(
         action,

@@ -29,13 +29,13 @@ pub(crate) const REPLAY_ROOM: usize = 1250;
 
 /// The journal and the replay.
 #[derive(Debug)]
-pub(crate) struct HistoryLane {
+pub(crate) struct HistoryStream {
     topics: Topics,
     journal: Journal,
-    /// Where replayed records are handed on, once [`HistoryLane::forward_replays`] is called.
+    /// Where replayed records are handed on, once [`HistoryStream::forward_replays`] is called.
     forward: Option<mpsc::Sender<Record>>,
     /// Change sets newer than some still coming back from the writer after a lost
-    /// connection: journaled once those are ([`HistoryLane::release_held`]).
+    /// connection: journaled once those are ([`HistoryStream::release_held`]).
     held: Option<Vec<Record>>,
 }
 
@@ -48,10 +48,10 @@ pub(crate) fn is_history(topic: &str, retain: bool) -> bool {
             .is_some_and(|rest| rest.ends_with('/'))
 }
 
-impl HistoryLane {
+impl HistoryStream {
     /// Opens the journal of `config`, with what earlier runs left in it. A journal that
     /// cannot be written is no reason not to run: it says why once, keeps the newest records
-    /// in memory and is tried again until it can ([`HistoryLane::problem`]).
+    /// in memory and is tried again until it can ([`HistoryStream::problem`]).
     pub(crate) fn open(config: &HistoryConfig, topics: Topics) -> Self {
         let journal = Journal::open(config);
         let stats = journal.stats();
@@ -62,7 +62,7 @@ impl HistoryLane {
                 "history journal holds records of an earlier run: replayed after the connection"
             );
         }
-        HistoryLane {
+        HistoryStream {
             topics,
             journal,
             forward: None,
@@ -101,7 +101,7 @@ impl HistoryLane {
     }
 
     /// From now on change sets wait in memory, behind `queued` (those the outbox held), until
-    /// [`HistoryLane::release_held`].
+    /// [`HistoryStream::release_held`].
     pub(crate) fn hold(&mut self, queued: Vec<Publish>) {
         let records: Vec<Record> = queued
             .into_iter()
@@ -218,13 +218,13 @@ mod tests {
     use crate::history::document::document;
     use rtu2mqtt_profile::Value;
 
-    fn lane(dir: &std::path::Path) -> HistoryLane {
+    fn stream(dir: &std::path::Path) -> HistoryStream {
         let config = HistoryConfig {
             path: dir.to_path_buf(),
             max_size: 1 << 20,
             max_age: Duration::from_secs(7 * 24 * 3600),
         };
-        HistoryLane::open(&config, Topics::new("gw", "plant"))
+        HistoryStream::open(&config, Topics::new("gw", "plant"))
     }
 
     /// The change set of `gear` read at second `n` (recent, so that `max_age` keeps it).
@@ -239,8 +239,9 @@ mod tests {
         }
     }
 
-    fn replayed_gears(lane: &mut HistoryLane) -> Vec<String> {
-        lane.replay(100)
+    fn replayed_gears(stream: &mut HistoryStream) -> Vec<String> {
+        stream
+            .replay(100)
             .into_iter()
             .map(|publish| {
                 let values = crate::history::document::values_of(&publish.payload);
@@ -252,33 +253,33 @@ mod tests {
     #[test]
     fn what_comes_back_is_journaled_before_what_was_queued_behind_it() {
         let dir = tempfile::tempdir().expect("dir");
-        let mut lane = lane(dir.path());
+        let mut stream = stream(dir.path());
         // 1 and 2 went to the client, 3 was still in the outbox, when the link went down.
         let handed: Vec<Publish> = [1, 2]
             .iter()
-            .filter_map(|&n| lane.route(entry(n), true))
+            .filter_map(|&n| stream.route(entry(n), true))
             .collect();
-        let queued = lane.route(entry(3), true).into_iter().collect();
+        let queued = stream.route(entry(3), true).into_iter().collect();
         // The client gives back 1; the outbox's 3 is held; 4 is read meanwhile.
-        lane.take_back(&handed[0].topic, handed[0].payload.as_bytes());
-        lane.hold(queued);
-        assert_eq!(lane.route(entry(4), false), None);
+        stream.take_back(&handed[0].topic, handed[0].payload.as_bytes());
+        stream.hold(queued);
+        assert_eq!(stream.route(entry(4), false), None);
         // The writer gives back 2 later.
-        lane.take_back(&handed[1].topic, handed[1].payload.as_bytes());
-        lane.release_held();
-        assert_eq!(replayed_gears(&mut lane), ["1", "2", "3", "4"]);
+        stream.take_back(&handed[1].topic, handed[1].payload.as_bytes());
+        stream.release_held();
+        assert_eq!(replayed_gears(&mut stream), ["1", "2", "3", "4"]);
     }
 
     #[test]
     fn what_is_not_a_history_publish_of_this_gateway_is_not_journaled() {
         let dir = tempfile::tempdir().expect("dir");
-        let mut lane = lane(dir.path());
-        lane.take_back(
+        let mut stream = stream(dir.path());
+        stream.take_back(
             "other/dust/history",
             b"{\"ts\":\"2026-12-02T15:00:01.123Z\",\"values\":{}}",
         );
-        lane.take_back("plant/dust/history", b"not a document");
-        assert!(lane.replay(100).is_empty());
+        stream.take_back("plant/dust/history", b"not a document");
+        assert!(stream.replay(100).is_empty());
     }
 
     #[test]

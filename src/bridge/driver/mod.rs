@@ -26,8 +26,8 @@ use rumqttc::AsyncClient;
 use tokio::sync::{mpsc, watch};
 
 use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
-use self::history_stream::{is_history, HistoryLane, REPLAY_ROOM};
-use self::outbox::{Lane, Outbox, Request};
+use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
+use self::outbox::{Outbox, Request, Urgency};
 use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
@@ -100,7 +100,7 @@ pub struct Bridge {
     /// The running lines' statistics for the metrics endpoint (replaced by a reload).
     line_stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
     /// The history stream's journal and replay (`[history]`).
-    history: Option<HistoryLane>,
+    history: Option<HistoryStream>,
     /// Requests handed to the writer that it has not finished with.
     in_writer: Arc<AtomicUsize>,
     /// Asks the event loop task to give back what rumqttc holds and end (a stop whose
@@ -163,7 +163,7 @@ impl Bridge {
             history: config
                 .history
                 .as_ref()
-                .map(|history| HistoryLane::open(history, config.mqtt.topics())),
+                .map(|history| HistoryStream::open(history, config.mqtt.topics())),
             in_writer,
             give_back,
             packet_limit: PacketLimit::new(MAX_OUTGOING_PACKET, "plain"),
@@ -333,8 +333,8 @@ impl Bridge {
                     if !self.admits(&publish) {
                         continue;
                     }
-                    let lane = self.lane_of(&publish);
-                    if let Some(dropped) = self.outbox.push(publish, lane) {
+                    let urgency = self.urgency_of(&publish);
+                    if let Some(dropped) = self.outbox.push(publish, urgency) {
                         self.on_dropped(dropped);
                     }
                 }
@@ -428,7 +428,7 @@ impl Bridge {
                 if !fits {
                     continue;
                 }
-                if let Some(dropped) = self.outbox.push(publish, Lane::Urgent) {
+                if let Some(dropped) = self.outbox.push(publish, Urgency::Urgent) {
                     self.on_dropped(dropped);
                 }
             }
@@ -451,16 +451,16 @@ impl Bridge {
     }
 
     /// Discovery documents and statistics are sent again anyway: they yield to outcomes.
-    fn lane_of(&self, publish: &Publish) -> Lane {
+    fn urgency_of(&self, publish: &Publish) -> Urgency {
         let topics = self.core.topics();
         let discovery = publish
             .topic
             .strip_prefix(topics.discovery_prefix.as_str())
             .is_some_and(|rest| rest.starts_with('/'));
         if discovery || topics.is_stats_topic(&publish.topic) {
-            Lane::Resend
+            Urgency::Resend
         } else {
-            Lane::Urgent
+            Urgency::Urgent
         }
     }
 

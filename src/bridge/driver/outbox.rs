@@ -27,7 +27,7 @@ pub(crate) enum Request {
 
 /// How urgent a publish is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Lane {
+pub(crate) enum Urgency {
     /// Outcomes, clears, state, availability.
     Urgent,
     /// Documents the core sends again anyway (discovery, statistics).
@@ -57,7 +57,7 @@ impl Outbox {
         self.control.len() + self.urgent.len() + self.resend.len()
     }
 
-    /// Entries of the [`Lane::Resend`] lane waiting (discovery documents, statistics).
+    /// Entries of [`Urgency::Resend`] waiting (discovery documents, statistics).
     pub(crate) fn resend_len(&self) -> usize {
         self.resend.len()
     }
@@ -76,7 +76,7 @@ impl Outbox {
     }
 
     /// Queues `publish`; returns what had to be dropped to stay within [`MAX_OUTBOX`].
-    pub(crate) fn push(&mut self, publish: Publish, lane: Lane) -> Option<Publish> {
+    pub(crate) fn push(&mut self, publish: Publish, urgency: Urgency) -> Option<Publish> {
         if publish.retain {
             if let Some(queued) = self.retained.get_mut(&publish.topic) {
                 let keep = queued.keep || publish.keep;
@@ -96,9 +96,9 @@ impl Outbox {
         } else {
             Entry::Once(publish)
         };
-        match lane {
-            Lane::Urgent => self.urgent.push_back(entry),
-            Lane::Resend => self.resend.push_back(entry),
+        match urgency {
+            Urgency::Urgent => self.urgent.push_back(entry),
+            Urgency::Resend => self.resend.push_back(entry),
         }
         dropped
     }
@@ -210,10 +210,13 @@ mod tests {
     #[test]
     fn control_first_then_urgent_then_resends_and_newest_retained_wins_in_place() {
         let mut outbox = Outbox::default();
-        outbox.push(publish("ha/config", "{}", true, false), Lane::Resend);
-        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
-        outbox.push(publish("p/a/gear/result", "r1", false, true), Lane::Urgent);
-        outbox.push(publish("p/a/gear", "4", true, false), Lane::Urgent);
+        outbox.push(publish("ha/config", "{}", true, false), Urgency::Resend);
+        outbox.push(publish("p/a/gear", "3", true, false), Urgency::Urgent);
+        outbox.push(
+            publish("p/a/gear/result", "r1", false, true),
+            Urgency::Urgent,
+        );
+        outbox.push(publish("p/a/gear", "4", true, false), Urgency::Urgent);
         outbox.push_control(Request::Subscribe {
             filter: "p/+/+/set".to_string(),
             qos: QoS::AtLeastOnce,
@@ -234,14 +237,14 @@ mod tests {
     #[test]
     fn a_subscription_in_turn_keeps_its_place_behind_earlier_publishes() {
         let mut outbox = Outbox::default();
-        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
+        outbox.push(publish("p/a/gear", "3", true, false), Urgency::Urgent);
         outbox.push_in_turn(Request::Subscribe {
             filter: "p/a/+".to_string(),
             qos: QoS::AtLeastOnce,
         });
         // A newer payload for a topic queued before takes the older one's place.
-        outbox.push(publish("p/a/gear", "4", true, false), Lane::Urgent);
-        outbox.push(publish("p/a/power", "ON", true, false), Lane::Urgent);
+        outbox.push(publish("p/a/gear", "4", true, false), Urgency::Urgent);
+        outbox.push(publish("p/a/power", "ON", true, false), Urgency::Urgent);
         outbox.push_in_turn(Request::Unsubscribe {
             filter: "p/a/+".to_string(),
         });
@@ -260,10 +263,13 @@ mod tests {
     #[test]
     fn a_lost_connection_keeps_outcomes_and_clears_only() {
         let mut outbox = Outbox::default();
-        outbox.push(publish("p/a/gear", "3", true, false), Lane::Urgent);
-        outbox.push(publish("p/a/gear/result", "r1", false, true), Lane::Urgent);
-        outbox.push(publish("p/a/gear/set", "", true, true), Lane::Urgent);
-        outbox.push(publish("ha/config", "{}", true, false), Lane::Resend);
+        outbox.push(publish("p/a/gear", "3", true, false), Urgency::Urgent);
+        outbox.push(
+            publish("p/a/gear/result", "r1", false, true),
+            Urgency::Urgent,
+        );
+        outbox.push(publish("p/a/gear/set", "", true, true), Urgency::Urgent);
+        outbox.push(publish("ha/config", "{}", true, false), Urgency::Resend);
         assert_eq!(outbox.on_disconnect(), 2);
         assert_eq!(
             topics_in_order(&mut outbox),
@@ -282,7 +288,7 @@ mod tests {
             keep: true,
         };
         for topic in ["a/history", "a/result", "b/history"] {
-            outbox.push(once(topic), Lane::Urgent);
+            outbox.push(once(topic), Urgency::Urgent);
         }
         let taken = outbox.take_where(|publish| publish.topic.ends_with("history"));
         let topics: Vec<&str> = taken.iter().map(|p| p.topic.as_str()).collect();
