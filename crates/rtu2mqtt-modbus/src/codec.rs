@@ -11,13 +11,13 @@ use super::crc::{append_crc, carried_and_computed};
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 
 /// Most registers one read may ask for.
-pub const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
 /// Most bits (coils or discrete inputs) one read may ask for.
-pub const MAX_READ_BITS: u16 = 2000;
+pub(crate) const MAX_READ_BITS: u16 = 2000;
 /// Most registers one FC10 write may carry.
-pub const MAX_WRITE_REGISTERS: u16 = 123;
+pub(crate) const MAX_WRITE_REGISTERS: u16 = 123;
 /// Most coils one FC0F write may carry.
-pub const MAX_WRITE_COILS: u16 = 1968;
+pub(crate) const MAX_WRITE_COILS: u16 = 1968;
 /// Longest RTU frame the serial-line specification allows.
 pub const MAX_FRAME_LEN: usize = 256;
 
@@ -62,7 +62,7 @@ pub enum Answer {
 }
 
 /// Length of an exception answer frame: address, function | 0x80, code, CRC.
-pub const EXCEPTION_FRAME_LEN: usize = 5;
+pub(crate) const EXCEPTION_FRAME_LEN: usize = 5;
 
 /// Bytes needed to carry `bits` bits, eight to a byte.
 fn bit_bytes(bits: usize) -> usize {
@@ -117,7 +117,7 @@ fn check_quantity(function: FunctionCode, quantity: usize, max: u16) -> Result<(
 }
 
 /// Checks a request's quantity against the specification's limits.
-pub fn validate_request(request: &Request) -> Result<(), EncodeError> {
+fn validate_request(request: &Request) -> Result<(), EncodeError> {
     let function = request.function();
     match request {
         Request::ReadCoils { quantity, .. } | Request::ReadDiscreteInputs { quantity, .. } => {

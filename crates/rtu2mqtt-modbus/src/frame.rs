@@ -199,7 +199,7 @@ impl Request {
     }
 
     /// Data bytes of the normal answer to a read (`None` for writes).
-    pub fn answer_data_len(&self) -> Option<usize> {
+    pub(crate) fn answer_data_len(&self) -> Option<usize> {
         let (_, quantity) = self.read_span()?;
         let quantity = usize::from(quantity);
         Some(match self {

@@ -27,7 +27,7 @@ pub mod crc;
 pub mod frame;
 pub mod frame_log;
 pub mod link;
-pub mod outcome;
+mod outcome;
 pub mod serial;
 pub mod tcp;
 pub mod timing;

@@ -109,7 +109,7 @@ pub struct WireCounters {
 
 impl WireCounters {
     /// Counts how one transaction ended (every link counts the same way).
-    pub fn count(&mut self, result: &Result<Reply, Error>) {
+    pub(crate) fn count(&mut self, result: &Result<Reply, Error>) {
         match result {
             Ok(Ok(_)) => {}
             Ok(Err(_)) => self.exceptions += 1,

@@ -46,22 +46,22 @@ impl std::fmt::Display for CharFormat {
 
 impl CharFormat {
     /// Bits of one character: one start bit, the data bits, a parity bit if any, stop bits.
-    pub fn bits_per_char(&self) -> u32 {
+    pub(crate) fn bits_per_char(&self) -> u32 {
         let parity = if self.parity == Parity::None { 0 } else { 1 };
         1 + u32::from(self.data_bits) + parity + u32::from(self.stop_bits)
     }
 }
 
 /// Above this rate the specification fixes t1.5 and t3.5 instead of scaling them.
-pub const FIXED_TIMING_ABOVE_BAUD: u32 = 19_200;
+pub(crate) const FIXED_TIMING_ABOVE_BAUD: u32 = 19_200;
 /// t1.5 above 19200 baud.
-pub const FIXED_T1_5: Duration = Duration::from_micros(750);
+pub(crate) const FIXED_T1_5: Duration = Duration::from_micros(750);
 /// t3.5 above 19200 baud.
-pub const FIXED_T3_5: Duration = Duration::from_micros(1750);
+pub(crate) const FIXED_T3_5: Duration = Duration::from_micros(1750);
 /// Allowance in [`LineTiming::default_response_timeout`] for what is neither wire time nor the
 /// device: USB serial adapters hand received bytes over in 1–16 ms latency-timer batches and a
 /// busy host schedules late.
-pub const HOST_LATENCY_ALLOWANCE: Duration = Duration::from_millis(20);
+pub(crate) const HOST_LATENCY_ALLOWANCE: Duration = Duration::from_millis(20);
 
 /// The timing of one serial line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,7 +70,7 @@ pub struct LineTiming {
     /// Time of one character (start + data + parity + stop bits).
     pub char_time: Duration,
     /// Longest gap allowed between two characters of one frame.
-    pub t1_5: Duration,
+    pub(crate) t1_5: Duration,
     /// Silence that ends a frame; the line is never driven sooner after the last byte.
     pub t3_5: Duration,
 }

@@ -16,11 +16,11 @@ use crate::frame::{FunctionCode, Request, SlaveId};
 
 /// Default bound on the bytes [`AnswerFramer::poll`] drops while looking for one answer: a
 /// whole frame's worth.
-pub const DEFAULT_MAX_SKIP: usize = MAX_FRAME_LEN;
+pub(crate) const DEFAULT_MAX_SKIP: usize = MAX_FRAME_LEN;
 
 /// Where the bytes received so far stand, as [`AnswerFramer::frame`] sees them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Framing {
+pub(crate) enum Framing {
     /// Not enough bytes to tell: `needed` in all are expected (a line gives up at its gap
     /// limit).
     NeedMore { needed: usize },
@@ -75,7 +75,7 @@ impl AnswerFramer {
     }
 
     /// As [`AnswerFramer::new`], dropping at most `max_skip` bytes in [`AnswerFramer::poll`].
-    pub fn with_max_skip(slave: SlaveId, request: &Request, max_skip: usize) -> Self {
+    pub(crate) fn with_max_skip(slave: SlaveId, request: &Request, max_skip: usize) -> Self {
         AnswerFramer {
             slave,
             request: request.clone(),
@@ -89,7 +89,7 @@ impl AnswerFramer {
     /// adapter is known to echo (`echo_announced`: its echo is stripped before framing), an
     /// echo of `sent` is recognised; single writes excepted, whose answer is a copy of the
     /// request.
-    pub fn on_serial_line(
+    pub(crate) fn on_serial_line(
         slave: SlaveId,
         request: &Request,
         sent: &[u8],
@@ -107,13 +107,13 @@ impl AnswerFramer {
     }
 
     /// Bytes dropped so far by [`AnswerFramer::poll`].
-    pub fn skipped(&self) -> usize {
+    pub(crate) fn skipped(&self) -> usize {
         self.skipped
     }
 
     /// Where `received` stands as our answer; what to do next is the caller's (drop the
     /// echo, the noise or the foreign frame and ask again, or wait for more).
-    pub fn frame(&self, received: &[u8]) -> Framing {
+    pub(crate) fn frame(&self, received: &[u8]) -> Framing {
         if let Some(sent) = &self.echo_watch {
             if received.starts_with(sent) {
                 return Framing::Echo(sent.len());

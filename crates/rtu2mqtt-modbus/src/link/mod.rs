@@ -3,14 +3,14 @@
 //! the same transactions, counters and frame log on each; only this enum knows which it is.
 
 pub mod answer_framing;
-pub mod shared;
+pub(crate) mod shared;
 
 use std::io::Write;
 use std::time::Duration;
 
 use super::frame::Request;
 use super::outcome::{Error, Reply, WireCounters};
-use crate::link::shared::{Ask, LinkCore, Transact};
+use crate::link::shared::{Ask, Exchange, LinkCore};
 use crate::serial::master::Master;
 use crate::tcp::masters::{ModbusTcpMaster, RawTcpMaster};
 
@@ -57,7 +57,7 @@ impl Link {
     }
 }
 
-impl Transact for Link {
+impl Exchange for Link {
     fn core(&self) -> &LinkCore {
         match self {
             Link::Serial(master) => master.core(),

@@ -28,7 +28,7 @@ use crate::clock::PreciseTimer;
 use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
 use crate::frame::{FunctionCode, Request, SlaveId};
 use crate::link::answer_framing::{AnswerFramer, Framing};
-use crate::link::shared::{Ask, Direction, LinkCore, Transact};
+use crate::link::shared::{Ask, Direction, Exchange, LinkCore};
 use crate::outcome::reply_of;
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
@@ -42,7 +42,7 @@ use crate::timing::LineTiming;
 /// inside a good answer; twice that leaves as much again for a busy host and a device that
 /// pauses mid-answer. Only a really truncated answer pays for it, once. Lines at very low baud
 /// rates use at least t3.5.
-pub const DEFAULT_BYTE_TIMEOUT: Duration = Duration::from_millis(32);
+pub(crate) const DEFAULT_BYTE_TIMEOUT: Duration = Duration::from_millis(32);
 
 /// Per-line behaviour of the master.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -138,7 +138,7 @@ impl Master {
     }
 
     /// The gap between two bytes of one answer beyond which it is declared truncated.
-    pub fn inter_char_timeout(&self) -> Duration {
+    pub(crate) fn inter_char_timeout(&self) -> Duration {
         self.options
             .inter_char_timeout
             .unwrap_or(DEFAULT_BYTE_TIMEOUT.max(self.timing.t3_5))
@@ -188,15 +188,6 @@ impl Master {
 
     pub fn counters(&self) -> WireCounters {
         self.core.counters()
-    }
-
-    pub fn timing(&self) -> LineTiming {
-        self.timing
-    }
-
-    /// The port's path or label, for logs.
-    pub fn port_path(&self) -> &str {
-        self.port.path()
     }
 
     /// Waits until the line has been silent for t3.5 (and until `guard`, a late-answer guard,
@@ -496,7 +487,7 @@ impl Master {
     }
 }
 
-impl Transact for Master {
+impl Exchange for Master {
     fn core(&self) -> &LinkCore {
         &self.core
     }

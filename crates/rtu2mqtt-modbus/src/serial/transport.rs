@@ -184,12 +184,6 @@ impl Port {
         &self.path
     }
 
-    /// True when the port is a pseudo-terminal (tests, simulators, socat bridges): the kernel
-    /// ignores or refuses line settings there, and nothing is sent at a real baud rate.
-    pub fn is_pseudo_terminal(&self) -> bool {
-        self.pseudo_terminal
-    }
-
     fn apply_format(&mut self, baud: u32, format: CharFormat) -> Result<(), TransportError> {
         let data_bits = match format.data_bits {
             5 => DataBits::Five,
@@ -394,7 +388,7 @@ impl Port {
     }
 
     /// Takes every byte already waiting in the receive buffer without waiting for more.
-    pub fn take_pending(&mut self) -> io::Result<Vec<u8>> {
+    pub(crate) fn take_pending(&mut self) -> io::Result<Vec<u8>> {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
         loop {
@@ -448,11 +442,6 @@ impl Port {
             }
         }
         Ok(())
-    }
-
-    /// Discards pending input, returning how many bytes were thrown away.
-    pub fn discard_input(&mut self) -> io::Result<usize> {
-        self.take_pending().map(|bytes| bytes.len())
     }
 }
 
@@ -597,7 +586,7 @@ mod tests {
         let (near, far) = SerialStream::pair().unwrap();
         let mut near = Port::from_stream(near, &settings(Parity::Even)).unwrap();
         let mut far = Port::from_stream(far, &settings(Parity::None)).unwrap();
-        assert!(near.is_pseudo_terminal() && far.is_pseudo_terminal());
+        assert!(near.pseudo_terminal && far.pseudo_terminal);
         let sent = near.write_frame(&[0x01, 0x03, 0x10, 0x00]).await.unwrap();
         let mut buf = [0u8; 16];
         let mut got = Vec::new();
@@ -629,11 +618,11 @@ mod tests {
         let mut discarded = 0;
         let give_up = Instant::now() + Duration::from_secs(5);
         while discarded < 7 && Instant::now() < give_up {
-            discarded += far.discard_input().unwrap();
+            discarded += far.take_pending().unwrap().len();
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
         assert_eq!(discarded, 7);
-        assert_eq!(far.discard_input().unwrap(), 0);
+        assert_eq!(far.take_pending().unwrap().len(), 0);
     }
 
     #[tokio::test(flavor = "current_thread")]

@@ -21,7 +21,7 @@ use crate::clock::PreciseTimer;
 use crate::codec::{self, Answer, DecodeError};
 use crate::frame::{Request, SlaveId};
 use crate::link::answer_framing::{AnswerFramer, Framed};
-use crate::link::shared::{Ask, Direction, LinkCore, Transact};
+use crate::link::shared::{Ask, Direction, Exchange, LinkCore};
 use crate::outcome::{reply_of, Error, PortFault, Reply};
 use crate::tcp::mbap::{self, Matched, MbapError};
 use crate::timing::LineTiming;
@@ -315,7 +315,7 @@ impl RawTcpMaster {
 
     /// Sends `request` to address 0; nothing answers. The line is then kept silent for the
     /// request's wire time and the broadcast turnaround.
-    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let frame = codec::encode_request(0, request)?;
         self.connection.ensure().await?;
@@ -349,7 +349,7 @@ impl RawTcpMaster {
 
     /// Waits until the link's own t3.5 spacing after the last answer has passed
     /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]).
-    pub async fn wait_until_quiet(&mut self) {
+    pub(crate) async fn wait_until_quiet(&mut self) {
         self.timer.sleep_until(self.next_send_at).await;
     }
 
@@ -400,7 +400,7 @@ impl RawTcpMaster {
     }
 }
 
-impl Transact for RawTcpMaster {
+impl Exchange for RawTcpMaster {
     fn core(&self) -> &LinkCore {
         &self.connection.core
     }
@@ -499,7 +499,7 @@ impl ModbusTcpMaster {
 
     /// Sends `request` to unit 0 (broadcast) and waits the broadcast turnaround; nothing
     /// answers.
-    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let transaction = self.take_transaction();
         let adu = mbap::encode_request(transaction, 0, request)?;
@@ -550,7 +550,7 @@ impl ModbusTcpMaster {
     }
 }
 
-impl Transact for ModbusTcpMaster {
+impl Exchange for ModbusTcpMaster {
     fn core(&self) -> &LinkCore {
         &self.connection.core
     }

@@ -14,18 +14,16 @@ use crate::frame::{Request, SlaveId};
 /// Bytes of the MBAP header.
 pub const HEADER_LEN: usize = 7;
 /// The only protocol id Modbus defines.
-pub const PROTOCOL_ID: u16 = 0;
+pub(crate) const PROTOCOL_ID: u16 = 0;
 /// Longest PDU (function code and data) Modbus allows.
-pub const MAX_PDU_LEN: usize = 253;
-/// Longest ADU: header plus the longest PDU.
-pub const MAX_ADU_LEN: usize = HEADER_LEN + MAX_PDU_LEN;
+pub(crate) const MAX_PDU_LEN: usize = 253;
 
 /// The MBAP header. `length` counts the unit id and the PDU that follow it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
     pub transaction: u16,
-    pub protocol: u16,
-    pub length: u16,
+    pub(crate) protocol: u16,
+    pub(crate) length: u16,
     pub unit: u8,
 }
 
@@ -47,7 +45,7 @@ pub enum MbapError {
 }
 
 impl Header {
-    pub fn encode(&self) -> [u8; HEADER_LEN] {
+    pub(crate) fn encode(&self) -> [u8; HEADER_LEN] {
         let [t0, t1] = self.transaction.to_be_bytes();
         let [p0, p1] = self.protocol.to_be_bytes();
         let [l0, l1] = self.length.to_be_bytes();
