@@ -27,10 +27,9 @@ pub(crate) const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 /// last stretch before the deadline (a spin that looks at the reactor on every turn) shaves a
 /// little off the overshoot for a system call per turn, which cost a large share of a
 /// transaction's CPU time (`cargo bench --bench peer_compare`, docs/performance.md). Without a
-/// timerfd the tokio
-/// timer sleeps until [`SPIN_WINDOW`] before the deadline and the rest is yielded away
-/// (`tokio::task::yield_now`), so other tasks keep running even on a current_thread runtime
-/// and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with
+/// timerfd the tokio timer sleeps until 1.5 ms before the deadline (its 1 ms rounding and a
+/// little scheduling slack) and the rest is yielded away (`tokio::task::yield_now`), so other
+/// tasks keep running even on a current_thread runtime and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with
 /// a plain `tokio::time::sleep_until` (docs/performance.md).
 pub async fn sleep_until_precise(deadline: Instant) {
     PreciseTimer::default().sleep_until(deadline).await;

@@ -5,7 +5,7 @@
 //! for reads, 5 bytes for an exception).
 //!
 //! Pure byte work, no I/O and no clock: the serial master decides *when* to read and asks
-//! [`AnswerFramer::frame`] *what* the bytes are after every read; a raw RTU stream without
+//! `AnswerFramer::frame` *what* the bytes are after every read; a raw RTU stream without
 //! silences (a serial device server's TCP socket) uses [`AnswerFramer::poll`], which drops
 //! what cannot be the answer, up to a bound, and leaves the bytes behind the answer in the
 //! buffer; a Modbus TCP link checks the RTU frame of an MBAP-framed answer with `frame`.
@@ -48,13 +48,19 @@ pub enum Framed {
     /// The answer (normal or exception), taken off the front of the buffer after `skipped`
     /// bytes of garbage.
     Answer {
+        /// The decoded answer, checked against the request.
         answer: Answer,
+        /// Its RTU frame as received, CRC included (for the frame log).
         frame: Vec<u8>,
+        /// Bytes dropped before it.
         skipped: usize,
     },
     /// More than the bound of bytes were dropped without finding the answer: the stream is
     /// out of step (the caller fails the transaction and flushes or reconnects).
-    OutOfStep { skipped: usize },
+    OutOfStep {
+        /// Bytes dropped, more than the framer's bound.
+        skipped: usize,
+    },
 }
 
 /// Frames the answer to one request sent to one device.

@@ -14,11 +14,15 @@ use crate::link::shared::{Ask, Exchange, LinkCore};
 use crate::serial::master::Master;
 use crate::tcp::masters::{ModbusTcpMaster, RawTcpMaster};
 
-/// One line's open link.
+/// One line's open link, whichever of the three it is. It runs transactions through
+/// [`Transact::transact`](crate::Transact::transact).
 #[derive(Debug)]
 pub enum Link {
+    /// A serial port (`/dev/ttyUSB0`, a pty), with the serial-line specification's timing.
     Serial(Master),
+    /// A serial device server's TCP stream carrying raw RTU frames (`tcp://`).
     RawTcp(RawTcpMaster),
+    /// A Modbus TCP gateway (`modbus-tcp://`).
     ModbusTcp(ModbusTcpMaster),
 }
 
@@ -47,6 +51,7 @@ impl Link {
         }
     }
 
+    /// The link's counters since it was opened.
     pub fn counters(&self) -> WireCounters {
         self.core().counters()
     }

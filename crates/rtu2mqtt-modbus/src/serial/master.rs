@@ -53,7 +53,7 @@ pub struct MasterOptions {
     pub broadcast_turnaround: Duration,
     /// The byte timeout: the longest silence between two bytes of one answer before it is
     /// declared truncated, and the silence a new master listens for before its first request.
-    /// `None`: [`DEFAULT_BYTE_TIMEOUT`] (at least t3.5).
+    /// `None`: 32 ms, or t3.5 where that is longer (below about 1100 baud).
     pub inter_char_timeout: Option<Duration>,
     /// After a timeout, how long the line is watched for the late answer before the next
     /// request to the same address goes out (counted from the timeout). `None`: the timed-out
@@ -113,6 +113,9 @@ impl std::fmt::Debug for Master {
 }
 
 impl Master {
+    /// The master of the line on `port`, whose silences follow `timing` (computed from the
+    /// line's configured format, also on a pseudo-terminal that ignores it). The first
+    /// request waits until the line has been silent for the byte timeout.
     pub fn new(port: Port, timing: LineTiming, options: MasterOptions) -> Self {
         let core = LinkCore::new(port.path().to_string());
         Master {
@@ -186,6 +189,7 @@ impl Master {
         self.wait_for_silence(None, patience).await
     }
 
+    /// The master's counters since it was made.
     pub fn counters(&self) -> WireCounters {
         self.core.counters()
     }

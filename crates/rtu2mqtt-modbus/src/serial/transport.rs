@@ -24,40 +24,64 @@ use crate::timing::{CharFormat, Parity};
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Rs485Settings {
+    /// RTS is driven high while sending (`true`, most transceivers) or low (`false`).
     pub rts_on_send: bool,
+    /// How long RTS is switched before the first bit goes out. The kernel takes whole
+    /// milliseconds; finer parts are dropped.
     pub delay_before_send: Duration,
+    /// How long RTS is held after the last bit before the transceiver is released, in whole
+    /// milliseconds as before.
     pub delay_after_send: Duration,
 }
 
 /// Everything needed to open one line.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SerialSettings {
+    /// The device to open (`/dev/ttyUSB0`, `/dev/serial/by-id/…`, a pty's `/dev/pts/N`); it
+    /// also names the port in logs and errors.
     pub path: String,
+    /// Bits per second.
     pub baud: u32,
+    /// Data bits, parity and stop bits.
     pub format: CharFormat,
+    /// The kernel's RS485 mode, for a UART that drives the transceiver itself; `None` leaves
+    /// the port as it is (a USB adapter switches its transceiver on its own).
     pub rs485: Option<Rs485Settings>,
 }
 
+/// Why a serial port could not be opened as configured.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
+    /// The port could not be opened: missing (an adapter not plugged in yet), busy (another
+    /// program holds it), or not permitted. Worth trying again later.
     #[error("cannot open {path}: {source}")]
     Open {
+        /// The path that was opened.
         path: String,
+        /// The system's error.
         source: std::io::Error,
     },
     /// The path exists but is no serial port (a regular file, a directory, `/dev/null`): no
     /// amount of waiting fixes that, unlike a missing path or a port that is busy.
     #[error("{path} is not a serial port (not a terminal device): {source}")]
     NotATerminal {
+        /// The path that was opened.
         path: String,
+        /// The system's error.
         source: std::io::Error,
     },
+    /// A real port (not a pseudo-terminal) refused a line setting, or accepted it and reads
+    /// back another value: the adapter cannot run the line as configured.
     #[error("{path}: {setting} refused by the port: {source}")]
     SettingRefused {
+        /// The port's path.
         path: String,
+        /// The setting: `baud rate`, `data bits`, `parity`, `stop bits` or `rs485 mode`.
         setting: &'static str,
+        /// The system's error.
         source: std::io::Error,
     },
+    /// The opened port could not be registered with the runtime's reactor.
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
 }

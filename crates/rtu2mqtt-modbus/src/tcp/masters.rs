@@ -36,6 +36,7 @@ pub enum TcpKind {
 }
 
 impl TcpKind {
+    /// The url scheme that names this kind: `tcp` or `modbus-tcp`.
     pub fn scheme(self) -> &'static str {
         match self {
             TcpKind::RawRtu => "tcp",
@@ -47,16 +48,32 @@ impl TcpKind {
 /// Why a line's `url` is not usable.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UrlError {
+    /// No `://` in the url, which it carries.
     #[error("{0:?} has no scheme: use tcp://host:port or modbus-tcp://host:port")]
     NoScheme(String),
+    /// A scheme other than `tcp` or `modbus-tcp`.
     #[error("unknown scheme {scheme:?} in {url:?}: use tcp:// or modbus-tcp://")]
-    UnknownScheme { url: String, scheme: String },
+    UnknownScheme {
+        /// The url as given.
+        url: String,
+        /// Its scheme.
+        scheme: String,
+    },
+    /// Nothing between `://` and the port (or an IPv6 host without its closing `]`).
     #[error("{0:?} has no host")]
     NoHost(String),
+    /// No port number after the host.
     #[error("{0:?} has no port number (such as tcp://10.0.0.5:4001)")]
     NoPort(String),
+    /// The port is not a number from 1 to 65535.
     #[error("{url:?}: port {port:?} is not 1–65535")]
-    BadPort { url: String, port: String },
+    BadPort {
+        /// The url as given.
+        url: String,
+        /// The text where the port number should be.
+        port: String,
+    },
+    /// A path, user, query or fragment after the host and port.
     #[error("{0:?}: give only host and port")]
     ExtraParts(String),
 }
@@ -64,6 +81,7 @@ pub enum UrlError {
 /// A parsed `tcp://host:port` or `modbus-tcp://host:port`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TcpEndpoint {
+    /// What the stream carries, from the scheme.
     pub kind: TcpKind,
     /// `host:port` as `TcpStream::connect` takes it (IPv6 hosts in brackets).
     pub address: String,
@@ -300,6 +318,8 @@ pub struct RawTcpMaster {
 
 impl RawTcpMaster {
     /// Connects to the device server. `timing` is the server's serial side (baud, parity).
+    /// An error is the connection's failure (refused, no route, no answer within the connect
+    /// timeout).
     pub async fn connect(
         endpoint: TcpEndpoint,
         options: TcpOptions,
@@ -483,6 +503,8 @@ pub struct ModbusTcpMaster {
 }
 
 impl ModbusTcpMaster {
+    /// Connects to the gateway. An error is the connection's failure (refused, no route, no
+    /// answer within the connect timeout).
     pub async fn connect(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Self> {
         Ok(ModbusTcpMaster {
             connection: Connection::open(endpoint, options).await?,
