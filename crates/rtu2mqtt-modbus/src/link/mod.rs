@@ -56,7 +56,10 @@ impl Link {
         self.core().counters()
     }
 
-    /// Writes every frame to `writer` (the frame log).
+    /// Writes one text line per frame sent or heard, `<unix time with µs> <tx|rx> <hex>`, to
+    /// `writer` (the frame log, for bug reports: [`crate::frame_log::FrameLog::writer`]). The
+    /// write happens on the line's own task, so `writer` must not block. A write error stops
+    /// the recording with a warning.
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
         self.core_mut().record_frames_to(writer);
     }

@@ -76,7 +76,9 @@ impl Default for MasterOptions {
     }
 }
 
-/// Runs transactions on one line.
+/// The master of one serial line: runs one RTU transaction at a time on its [`Port`] through
+/// [`Transact::transact`](crate::Transact::transact), with the silences, answer framing and
+/// late-answer handling this module describes.
 pub struct Master {
     port: Port,
     timing: LineTiming,

@@ -94,7 +94,9 @@ const WRITE_PATIENCE: Duration = Duration::from_secs(1);
 /// How often a write that found the transmit buffer full tries again.
 const WRITE_RETRY: Duration = Duration::from_millis(1);
 
-/// An open serial line.
+/// An open serial port, registered with the tokio reactor of the runtime that opened it: it
+/// writes a frame and tells when its last bit left, and reads with deadlines. A
+/// [`Master`](crate::serial::master::Master) runs transactions on it.
 pub struct Port {
     /// Registered with the reactor for reading only. The transmit side signals "writable" each
     /// time the driver moves bytes out (on a pty: each time the other end reads), and with
@@ -204,7 +206,7 @@ impl Port {
     }
 
     /// The path (or label) the port was opened with.
-    pub fn path(&self) -> &str {
+    pub(crate) fn path(&self) -> &str {
         &self.path
     }
 
@@ -372,7 +374,8 @@ impl Port {
 
     /// Writes `frame` and waits until the transmit buffer has drained (tcdrain), returning the
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
-    /// On a pseudo-terminal the instant the write returned.
+    /// On a pseudo-terminal the instant the write returned. An error means the port failed,
+    /// or took no byte for a second (a pty whose other end stopped reading).
     pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
         // No `flush()`: mio-serial's flush is a blocking tcdrain, which would stall the runtime
         // for the frame's whole wire time. The drain is awaited below on the blocking pool.
@@ -397,7 +400,9 @@ impl Port {
     }
 
     /// Reads what has arrived into `buf`, waiting until `deadline` for at least one byte.
-    /// `Ok(None)` when the deadline passed first; the instant is when the bytes were seen.
+    /// `Ok(Some((count, seen)))`: `count` bytes at the start of `buf`, seen at `seen`;
+    /// `Ok(None)` when the deadline passed first. An error means the port is gone (EOF: the
+    /// other end of a pty closed, a USB adapter was unplugged) or failed.
     pub async fn read_until(
         &mut self,
         buf: &mut [u8],
