@@ -12,17 +12,21 @@
 //! tokio-serial does the same `write_all` and `read` with the same deadlines.
 //!
 //! Printed per transaction, for each transport: CPU (utime + stime of the child process from
-//! `getrusage`, µs), wake-ups (the child's voluntary context switches: each is the runtime's
-//! thread going to sleep in `epoll_wait` and being woken), the transaction's time (request
-//! written → last answer byte read, p50 and p95), and, when `strace` is installed, the system
-//! calls and `epoll_wait` calls per transaction (`strace -f -c` of two child runs of different
-//! lengths, the difference divided by the difference of their transactions, so that opening
-//! and setting up cost nothing). Each figure is the median over the rounds, with the range.
+//! `getrusage`, µs) and the share of it the runtime was busy (tokio's
+//! `worker_total_busy_duration`, wall time, so a loaded machine's preemptions inflate it),
+//! wake-ups (tokio's `worker_park_count`: each park of the runtime's thread in `epoll_wait`
+//! ends in one), context switches, the transaction's time (request written → last answer byte
+//! read, p50 and p95), and, when `strace` is installed, the system calls per transaction and
+//! how often `epoll_wait` returned with write readiness alone (`strace -f` of two child runs of
+//! different lengths, the difference divided by the difference of their transactions, so that
+//! opening and setting up count for nothing). Each figure is the median over the rounds, with
+//! the range; the comparison is the median of the rounds' differences (the two transports of
+//! one round ran back to back, under the same load), with how many rounds went each way.
 //!
-//! Rounds: 5, or `TRANSPORT_INTEREST_ROUNDS`; transactions per round and transport: 300, or
+//! Rounds: 7, or `TRANSPORT_INTEREST_ROUNDS`; transactions per round and transport: 300, or
 //! `TRANSPORT_INTEREST_TRANSACTIONS`. Which transport goes first alternates from round to round.
-//! Prints figures; asserts nothing. Run: `cargo bench --bench transport_interest` (about 1 min
-//! after the build).
+//! Prints figures; asserts nothing. Run: `cargo bench --bench transport_interest` (about 3 min
+//! after the build; docs/performance.md, "Read interest alone").
 
 use std::collections::BTreeMap;
 use std::io;
@@ -56,7 +60,7 @@ const READ_BLOCK: Request = Request::ReadHoldingRegisters {
 const WARM_UP: usize = 10;
 /// How long one answer is awaited: its wire time is 18 ms.
 const ANSWER_TIMEOUT: Duration = Duration::from_millis(200);
-const DEFAULT_ROUNDS: usize = 5;
+const DEFAULT_ROUNDS: usize = 7;
 const DEFAULT_TRANSACTIONS: usize = 300;
 /// The shorter of the two runs under strace; the longer one has this many more transactions.
 const STRACE_BASE: usize = 50;
@@ -185,6 +189,12 @@ struct ChildFigures {
     cpu: Duration,
     voluntary_switches: u64,
     involuntary_switches: u64,
+    /// Times the runtime's thread parked waiting for events (tokio's `worker_park_count`):
+    /// each park ends in a wake-up.
+    parks: u64,
+    /// Time the runtime's thread spent running tasks and handling events (tokio's
+    /// `worker_total_busy_duration`), the user-space share of the work.
+    busy: Duration,
     p50: Duration,
     p95: Duration,
 }
@@ -194,18 +204,29 @@ impl ChildFigures {
         self.cpu.as_secs_f64() * 1e6 / self.transactions.max(1) as f64
     }
 
-    fn wake_ups_per_transaction(&self) -> f64 {
+    fn switches_per_transaction(&self) -> f64 {
         self.voluntary_switches as f64 / self.transactions.max(1) as f64
+    }
+
+    fn parks_per_transaction(&self) -> f64 {
+        self.parks as f64 / self.transactions.max(1) as f64
+    }
+
+    fn busy_per_transaction_us(&self) -> f64 {
+        self.busy.as_secs_f64() * 1e6 / self.transactions.max(1) as f64
     }
 
     fn to_line(&self) -> String {
         format!(
-            "transactions={} failed={} cpu_us={} nvcsw={} nivcsw={} p50_us={} p95_us={}",
+            "transactions={} failed={} cpu_us={} nvcsw={} nivcsw={} parks={} busy_us={} \
+             p50_us={} p95_us={}",
             self.transactions,
             self.failed,
             self.cpu.as_micros(),
             self.voluntary_switches,
             self.involuntary_switches,
+            self.parks,
+            self.busy.as_micros(),
             self.p50.as_micros(),
             self.p95.as_micros()
         )
@@ -224,6 +245,8 @@ impl ChildFigures {
                 "cpu_us" => figures.cpu = Duration::from_micros(number),
                 "nvcsw" => figures.voluntary_switches = number,
                 "nivcsw" => figures.involuntary_switches = number,
+                "parks" => figures.parks = number,
+                "busy_us" => figures.busy = Duration::from_micros(number),
                 "p50_us" => figures.p50 = Duration::from_micros(number),
                 "p95_us" => figures.p95 = Duration::from_micros(number),
                 _ => bail!("unknown figure {key:?} in {line:?}"),
@@ -400,9 +423,19 @@ fn print_figures(figures: &[ChildFigures]) {
         spread(figures, ChildFigures::cpu_per_transaction_us),
     );
     line(
-        "wake-ups per transaction (voluntary context switches)",
+        "  of it the runtime busy (tokio worker_total_busy_duration)",
+        " µs",
+        spread(figures, ChildFigures::busy_per_transaction_us),
+    );
+    line(
+        "wake-ups per transaction (tokio worker_park_count)",
         "",
-        spread(figures, ChildFigures::wake_ups_per_transaction),
+        spread(figures, ChildFigures::parks_per_transaction),
+    );
+    line(
+        "voluntary context switches per transaction",
+        "",
+        spread(figures, ChildFigures::switches_per_transaction),
     );
     line(
         "involuntary context switches per transaction",
@@ -425,20 +458,31 @@ fn print_figures(figures: &[ChildFigures]) {
 }
 
 fn compare(ours: &[ChildFigures], theirs: &[ChildFigures]) {
-    let (our_cpu, ..) = spread(ours, ChildFigures::cpu_per_transaction_us);
-    let (their_cpu, ..) = spread(theirs, ChildFigures::cpu_per_transaction_us);
-    let (our_wakes, ..) = spread(ours, ChildFigures::wake_ups_per_transaction);
-    let (their_wakes, ..) = spread(theirs, ChildFigures::wake_ups_per_transaction);
-    let (our_p50, ..) = spread(ours, |f| f.p50.as_secs_f64() * 1e3);
-    let (their_p50, ..) = spread(theirs, |f| f.p50.as_secs_f64() * 1e3);
-    println!(
-        "\nread interest alone, against read + write: CPU {:+.2} µs per transaction ({:+.1} %), \
-         wake-ups {:+.2} per transaction, transaction time p50 {:+.3} ms",
-        our_cpu - their_cpu,
-        (our_cpu - their_cpu) / their_cpu.max(f64::EPSILON) * 100.0,
-        our_wakes - their_wakes,
-        our_p50 - their_p50
-    );
+    // Paired by round: the two ran one after the other, under the same load.
+    let paired = |figure: fn(&ChildFigures) -> f64| {
+        let mut differences: Vec<f64> = ours
+            .iter()
+            .zip(theirs)
+            .map(|(ours, theirs)| figure(ours) - figure(theirs))
+            .collect();
+        differences.sort_by(f64::total_cmp);
+        let median = differences
+            .get(differences.len() / 2)
+            .copied()
+            .unwrap_or_default();
+        let lower = differences.iter().filter(|d| **d < 0.0).count();
+        (median, lower, differences.len())
+    };
+    println!("\nread interest alone against read + write, the median of the rounds' differences:");
+    let (cpu, lower, rounds) = paired(ChildFigures::cpu_per_transaction_us);
+    println!("  CPU per transaction {cpu:+.2} µs (lower in {lower} of {rounds} rounds)");
+    let (busy, lower, _) = paired(ChildFigures::busy_per_transaction_us);
+    println!("  runtime busy per transaction {busy:+.2} µs (lower in {lower} of {rounds} rounds)");
+    let (parks, lower, _) = paired(ChildFigures::parks_per_transaction);
+    println!("  wake-ups per transaction {parks:+.2} (fewer in {lower} of {rounds} rounds)");
+    let (p50, _, _) = paired(|f| f.p50.as_secs_f64() * 1e3);
+    let (p95, _, _) = paired(|f| f.p95.as_secs_f64() * 1e3);
+    println!("  transaction time p50 {p50:+.3} ms, p95 {p95:+.3} ms");
 }
 
 /// The child: measures `transactions` through one transport and prints its figures as one line.
@@ -547,10 +591,15 @@ async fn measure(link: &mut Link, transactions: usize) -> anyhow::Result<ChildFi
     let mut times = Vec::with_capacity(transactions);
     let mut failed = 0;
     let mut quiet_at = Instant::now() + Duration::from_millis(50);
+    let metrics = tokio::runtime::Handle::current().metrics();
     let mut start = usage()?;
+    let mut start_parks = 0;
+    let mut start_busy = Duration::ZERO;
     for index in 0..WARM_UP + transactions {
         if index == WARM_UP {
             start = usage()?;
+            start_parks = metrics.worker_park_count(0);
+            start_busy = metrics.worker_total_busy_duration(0);
         }
         tokio::time::sleep_until(quiet_at).await;
         answer.clear();
@@ -577,6 +626,11 @@ async fn measure(link: &mut Link, transactions: usize) -> anyhow::Result<ChildFi
         }
     }
     let end = usage()?;
+    let metrics = tokio::runtime::Handle::current().metrics();
+    let (parks, busy) = (
+        metrics.worker_park_count(0),
+        metrics.worker_total_busy_duration(0),
+    );
     times.sort();
     let percentile = |percent: usize| {
         times
@@ -590,6 +644,8 @@ async fn measure(link: &mut Link, transactions: usize) -> anyhow::Result<ChildFi
         cpu: end.0.saturating_sub(start.0),
         voluntary_switches: end.1.saturating_sub(start.1),
         involuntary_switches: end.2.saturating_sub(start.2),
+        parks: parks.saturating_sub(start_parks),
+        busy: busy.saturating_sub(start_busy),
         p50: percentile(50),
         p95: percentile(95),
     })
