@@ -21,7 +21,7 @@
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
 pub mod bcd;
-pub mod codec;
+mod codec;
 mod command;
 mod compile;
 pub mod contract;
@@ -49,7 +49,7 @@ pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Verification};
 pub use compile::{ProfileError, ProfileErrors};
 pub use field::{FieldInfo, FieldKind, HaHints, Identity};
-pub use model::{Limits, PollClass, ReadBlock};
+pub use model::{Behaviour, Limits, PollClass, ReadBlock};
 pub use publish::PublishRule;
 pub use rejection::Rejection;
 pub use value::Value;

@@ -90,7 +90,7 @@ pub enum Behaviour {
 
 /// What a block holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BlockKind {
+pub(crate) enum BlockKind {
     Coils,
     DiscreteInputs,
     HoldingRegisters,
@@ -98,51 +98,51 @@ pub enum BlockKind {
 }
 
 impl BlockKind {
-    pub fn is_bits(self) -> bool {
+    pub(crate) fn is_bits(self) -> bool {
         matches!(self, Self::Coils | Self::DiscreteInputs)
     }
 
-    pub fn is_writable(self) -> bool {
+    pub(crate) fn is_writable(self) -> bool {
         matches!(self, Self::Coils | Self::HoldingRegisters)
     }
 }
 
 /// One write frame: the device addresses written and the block offsets they mirror.
 #[derive(Debug, Clone, PartialEq)]
-pub struct WriteFrame {
-    pub function: u8,
-    pub address: u16,
-    pub block: usize,
-    pub offset: u16,
-    pub count: u16,
+pub(crate) struct WriteFrame {
+    pub(crate) function: u8,
+    pub(crate) address: u16,
+    pub(crate) block: usize,
+    pub(crate) offset: u16,
+    pub(crate) count: u16,
 }
 
 /// A compiled field.
 #[derive(Debug, Clone, PartialEq)]
-pub struct FieldDef {
-    pub block: usize,
-    pub offset: u16,
-    pub codec: FieldCodec,
-    pub write: Option<WriteFrame>,
-    pub behaviour: Behaviour,
-    pub settle_window: Option<Duration>,
+pub(crate) struct FieldDef {
+    pub(crate) block: usize,
+    pub(crate) offset: u16,
+    pub(crate) codec: FieldCodec,
+    pub(crate) write: Option<WriteFrame>,
+    pub(crate) behaviour: Behaviour,
+    pub(crate) settle_window: Option<Duration>,
     /// (field index, value): when all hold on a read-back, the device has stopped moving and a
     /// value that still differs is final (not applied) before the settle window ends.
-    pub settle_until: Vec<(usize, Value)>,
-    pub overlay: bool,
+    pub(crate) settle_until: Vec<(usize, Value)>,
+    pub(crate) overlay: bool,
     /// Integers accepted besides the range (the valve's 255 = alarm disabled).
-    pub also: Vec<i64>,
+    pub(crate) also: Vec<i64>,
     /// The profile's example command value for this field, checked at load.
-    pub example: Option<String>,
+    pub(crate) example: Option<String>,
     /// The field holding the power of ten this number is multiplied by (`scale_by`).
-    pub scale_by: Option<usize>,
+    pub(crate) scale_by: Option<usize>,
 }
 
 impl Compiled {
     /// The exponent field `index` is read or written with: [`Exponent::None`] without
     /// `scale_by`; otherwise the exponent field's value as `read` gives it (None: it was not
     /// read with the value).
-    pub fn exponent_for(
+    pub(crate) fn exponent_for(
         &self,
         index: usize,
         read: impl FnOnce(usize) -> Option<Result<Value, FieldError>>,
@@ -156,45 +156,31 @@ impl Compiled {
             Some(Err(error)) => Exponent::from_value(Err(error.to_string())),
         }
     }
-
-    /// The exponent of field `index` from `image`, a whole image of its exponent's block, when
-    /// that is `block`.
-    pub fn exponent_in(
-        &self,
-        index: usize,
-        block: usize,
-        image: &super::codec::BlockImage,
-    ) -> Exponent {
-        self.exponent_for(index, |exponent| {
-            let def = &self.defs[exponent];
-            (def.block == block).then(|| def.codec.decode(image, def.offset))
-        })
-    }
 }
 
 /// A compiled forbidden combination.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Forbidden {
+pub(crate) struct Forbidden {
     /// (field index, value that must hold).
-    pub when: Vec<(usize, Value)>,
-    pub reason: String,
+    pub(crate) when: Vec<(usize, Value)>,
+    pub(crate) reason: String,
 }
 
 /// The compiled, validated form of a profile.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Compiled {
-    pub name: String,
-    pub manufacturer: String,
-    pub model: String,
-    pub description: String,
-    pub default_address: Option<u8>,
-    pub limits: Limits,
-    pub blocks: Vec<ReadBlock>,
-    pub block_kinds: Vec<BlockKind>,
+pub(crate) struct Compiled {
+    pub(crate) name: String,
+    pub(crate) manufacturer: String,
+    pub(crate) model: String,
+    pub(crate) description: String,
+    pub(crate) default_address: Option<u8>,
+    pub(crate) limits: Limits,
+    pub(crate) blocks: Vec<ReadBlock>,
+    pub(crate) block_kinds: Vec<BlockKind>,
     /// Parallel to `infos`.
-    pub defs: Vec<FieldDef>,
-    pub infos: Vec<FieldInfo>,
-    pub forbidden: Vec<Forbidden>,
+    pub(crate) defs: Vec<FieldDef>,
+    pub(crate) infos: Vec<FieldInfo>,
+    pub(crate) forbidden: Vec<Forbidden>,
     /// The `[[write_frames]]` by name, in file order.
-    pub named_frames: Vec<(String, WriteFrame)>,
+    pub(crate) named_frames: Vec<(String, WriteFrame)>,
 }

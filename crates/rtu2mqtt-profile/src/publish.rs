@@ -11,7 +11,7 @@ use super::number::DecimalText;
 use super::value::Value;
 
 /// The shortest heartbeat: a value republished more often than this floods the broker.
-pub const MIN_MAX_INTERVAL: Duration = Duration::from_secs(1);
+const MIN_MAX_INTERVAL: Duration = Duration::from_secs(1);
 /// Most decimals a deadband may have.
 const MAX_DECIMALS: u8 = 9;
 
@@ -134,7 +134,7 @@ impl PublishRule {
     }
 
     /// A deadband is set (it only applies to numbers).
-    pub fn has_deadband(&self) -> bool {
+    fn has_deadband(&self) -> bool {
         self.deadband.is_some() || self.deadband_percent.is_some()
     }
 

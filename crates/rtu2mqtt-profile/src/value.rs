@@ -49,7 +49,7 @@ impl Value {
 
     /// The same value, numbers compared by magnitude whatever their precision (`1.50` is
     /// `1.5`, a `scale_by` read-back at its exponent's places is the commanded value).
-    pub fn same_number(&self, other: &Value) -> bool {
+    pub(crate) fn same_number(&self, other: &Value) -> bool {
         let as_fraction = |value: &Value| match value {
             Self::Int(integer) => Some((*integer, 0u8)),
             Self::Decimal { scaled, precision } => Some((*scaled, *precision)),
