@@ -21,8 +21,12 @@ use super::Value;
 /// Why a field has no value in a block answer.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum FieldError {
+    /// A `bcd` field's register (the raw word here) holds a nibble above 9.
     #[error("invalid BCD digit in {0:#06x}")]
     InvalidBcd(u16),
+    /// Any other reason, as a sentence: an answer shorter than the block, text that is not
+    /// valid in its `encoding`, a raw value no number of the codec stands for, a `scale_by`
+    /// exponent that was not read or is out of range.
     #[error("{0}")]
     Invalid(String),
 }
@@ -94,15 +98,20 @@ pub(crate) enum FieldCodec {
 /// `bits`. For coil blocks `mask` is 1 and `bits` 0 or 1.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RawPatch {
+    /// The register or coil changed, counted from the block's start.
     pub offset: u16,
+    /// The bits of that register the field owns (`0xFFFF` for a whole register, 1 for a coil).
     pub mask: u16,
+    /// The new value of the bits in `mask`; bits outside `mask` are ignored.
     pub bits: u16,
 }
 
 /// The raw data of a block: words or bits.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum BlockImage {
+    /// A holding- or input-register block (FC 03/04): one word per register.
     Words(Vec<u16>),
+    /// A coil or discrete-input block (FC 01/02): one bool per coil, `true` when on.
     Bits(Vec<bool>),
 }
 

@@ -19,6 +19,8 @@ use rtu2mqtt_modbus::{Request, Response};
 /// What a read-back says about a command.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Verification {
+    /// The read-back shows every commanded value (numbers compared by magnitude, so `1.50`
+    /// is `1.5`).
     Applied,
     /// The device acknowledged but shows something else.
     NotApplied(String),

@@ -1,24 +1,49 @@
-//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or
-//! one of the built-in copies), validated completely at load, and then answers every question
-//! the rest of the gateway has about a device: which blocks to poll, how raw words become field
-//! values, which fields exist and how they are exposed, and how a command on a field becomes the
-//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
-//! [`registry`], which holds the built-in profiles, reads profile files and describes a profile
-//! for the `rtu2mqtt profiles` listing.
+//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A
+//! [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or one of the built-in copies),
+//! validated completely at load, and then answers every question the rest of the gateway has
+//! about a device: which blocks to poll, how raw words become field values, which fields exist
+//! and how they are exposed, and how a command on a field becomes the frames of one bus slot.
+//! Everything here is pure (no I/O, no clock, no tokio) except [`registry`], which reads
+//! profile files.
 //!
-//! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
-//! [`registers`], [`numeric`], [`text`], [`rejection`], [`publish`], [`field`], [`codec`],
-//! [`model`], [`format`](mod@format), [`compile`], then [`command`] and [`raw`] (planning and
-//! patching on the model); this file's [`Profile`] is what the rest of the crate sees.
-//! [`sunspec`] is the SunSpec model table and the profile written from a device's model chain.
+//! # What the crate offers
 //!
-//! [`contract`] is the MQTT contract (topic names, the parse of a command topic, Home
-//! Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
-//! daemon's configuration check, discovery and bridge, and by the demo.
+//! At the root: [`Profile`] and what its questions answer with: the fields ([`FieldInfo`],
+//! [`FieldKind`], [`HaHints`], [`Identity`]), the blocks ([`ReadBlock`], [`PollClass`],
+//! [`Limits`]), decoded values ([`FieldReading`], [`Value`], [`FieldError`], [`DeviceState`]),
+//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), when a value is
+//! published ([`PublishRule`]), a profile's problems ([`ProfileErrors`], [`ProfileError`]) and
+//! the raw images a simulated device keeps ([`BlockImage`], [`RawPatch`]). The public modules:
+//!
+//! - [`registry`]: the built-in profiles, loading a profile by name or path, the listing of
+//!   `rtu2mqtt profiles`.
+//! - [`contract`]: the MQTT contract (topic names, the parse of a command topic, Home
+//!   Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
+//!   daemon's configuration check, discovery and bridge, and by the demo.
+//! - [`publish`]: the `publish` table as written ([`publish::RawPublish`], which the
+//!   daemon's configuration also reads) and its exact amounts.
+//! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
+//! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
+//! - [`model`]: the public parts of the compiled profile, the same types as at the root.
+//!
+//! # Inside
+//!
+//! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
+//! payloads and commands), `value`, `registers` (word and byte order), `numeric` (the number
+//! codecs), `text` (text encodings), `rejection`, `publish`, `field`, `codec` (every field
+//! codec and command parsing), `model`, `format` (the file's serde types), `compile` (file to
+//! model, with every problem), then `command` (a command as one bus slot's plan) and `raw`
+//! (simulated block images patched through the write frames); this file's [`Profile`] is what
+//! the rest of the crate sees, and `sunspec` stands apart.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
-// prints with `{:?}`, the 2018 idioms.
-#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+// prints with `{:?}`, every public item says what it is, the 2018 idioms.
+#![warn(
+    unreachable_pub,
+    missing_debug_implementations,
+    missing_docs,
+    rust_2018_idioms
+)]
 
 pub mod bcd;
 mod codec;
@@ -67,7 +92,10 @@ pub struct Profile {
 /// One field's value from a block, or why it has none.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FieldReading {
+    /// The field's `name` in the profile (its MQTT topic's last level).
     pub field: String,
+    /// The decoded value, or why the answer holds none for this field (invalid BCD, an answer
+    /// that does not fit the block, a `scale_by` exponent that was not read).
     pub value: Result<Value, codec::FieldError>,
 }
 
@@ -85,14 +113,17 @@ impl Profile {
         &self.inner.name
     }
 
+    /// The maker as the profile's `device.manufacturer` names it (Home Assistant's `mf`).
     pub fn manufacturer(&self) -> &str {
         &self.inner.manufacturer
     }
 
+    /// The device model from `device.model` (Home Assistant's `mdl`).
     pub fn model(&self) -> &str {
         &self.inner.model
     }
 
+    /// The free text of `device.description`; empty when the profile has none.
     pub fn description(&self) -> &str {
         &self.inner.description
     }
@@ -102,18 +133,24 @@ impl Profile {
         self.inner.default_address
     }
 
+    /// The `[line]` section: line defaults, the address range and the device's transaction
+    /// limits, with the defaults filled in.
     pub fn limits(&self) -> &Limits {
         &self.inner.limits
     }
 
+    /// Every field in the order of the file's `[[fields]]`.
     pub fn fields(&self) -> &[FieldInfo] {
         &self.inner.infos
     }
 
+    /// The field named `name`; `None` when the profile has no such field.
     pub fn field(&self, name: &str) -> Option<&FieldInfo> {
         self.fields().iter().find(|f| f.name == name)
     }
 
+    /// The `[[blocks]]` the device is polled with, in file order; a block's index here is the
+    /// `block` every other method takes.
     pub fn read_blocks(&self) -> &[ReadBlock] {
         &self.inner.blocks
     }

@@ -1,8 +1,8 @@
 //! The compiled, validated form of a profile: line limits, read blocks, fields with their codecs
-//! and write frames, forbidden combinations. Built only by [`super::compile`]; read by decoding
-//! and command planning, which can therefore trust it without re-checking. The parts the rest of
-//! the crate sees ([`ReadBlock`], [`PollClass`], [`Limits`]) are re-exported by the profile
-//! module.
+//! and write frames, forbidden combinations. Built only by the crate's compiler (`compile`); read by decoding
+//! and command planning, which can therefore trust it without re-checking. The parts users see
+//! ([`ReadBlock`], [`PollClass`], [`Limits`], [`Behaviour`]) are public and re-exported at the
+//! crate's root; the rest is the crate's own.
 
 use std::ops::RangeInclusive;
 use std::time::Duration;
@@ -45,9 +45,11 @@ impl std::fmt::Display for PollClass {
 /// One read request the device is polled with.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ReadBlock {
+    /// The block's `name`, which fields and write frames refer to.
     pub name: String,
-    /// A read request (FC 01–04).
+    /// A read request (FC 01–04) from the block's `function`, `start` and `count`.
     pub request: Request,
+    /// How often it is read, from its `poll` key (default `fast`).
     pub class: PollClass,
     /// The (offset, length) runs of the block that fields use, in coils or registers. When the
     /// device refuses the merged block (exception 02), the line reads these runs one by one and
@@ -61,17 +63,32 @@ pub struct ReadBlock {
 /// Line defaults and device limits from the profile.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
+    /// `line.address_range`: the station addresses the device can be set to (default 1–247).
     pub address_range: RangeInclusive<u8>,
+    /// `line.min_poll_interval`: the device's shortest poll interval; a device configured
+    /// faster is refused (default 100 ms).
     pub min_poll_interval: Duration,
+    /// `line.poll_interval`: the poll interval when the configuration gives none (default
+    /// `min_poll_interval`).
     pub default_poll_interval: Duration,
+    /// `line.slow_interval`: the period of `poll = "slow"` blocks (default 60 s).
     pub slow_interval: Duration,
-    /// Quiet time after power-up (gateway start) before the first transaction.
+    /// `line.startup_delay`: quiet time after power-up (gateway start) before the first
+    /// transaction (default none).
     pub startup_delay: Duration,
+    /// `line.baud`: the baud rate (bit/s) of a line whose configuration gives none (default
+    /// 9600).
     pub default_baud: u32,
+    /// `line.parity`: the parity of a line whose configuration gives none (default none; 8
+    /// data bits and 1 stop bit always).
     pub default_parity: Parity,
+    /// `line.max_read_registers`: most registers one FC 03/04 read may ask (default 125).
     pub max_read_registers: u16,
+    /// `line.max_write_registers`: most registers one FC 10 write may carry (default 123).
     pub max_write_registers: u16,
+    /// `line.max_read_bits`: most coils or inputs one FC 01/02 read may ask (default 2000).
     pub max_read_bits: u16,
+    /// `line.max_write_bits`: most coils one FC 0F write may carry (default 1968).
     pub max_write_bits: u16,
 }
 

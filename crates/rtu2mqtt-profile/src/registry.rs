@@ -53,17 +53,33 @@ fn all_built_in() -> impl Iterator<Item = &'static (&'static str, &'static str)>
 /// Why a profile could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
+    /// A name without `/` or `.toml` names no built-in profile.
     #[error(
         "no built-in profile `{name}` (built-in: {known}); a profile file path must end in .toml"
     )]
-    UnknownBuiltIn { name: String, known: String },
+    UnknownBuiltIn {
+        /// The name asked for.
+        name: String,
+        /// The built-in names, comma-separated, for the message.
+        known: String,
+    },
+    /// A listing argument (`rtu2mqtt profiles NAME`) is no built-in name and no readable file.
     #[error("`{name}` is neither a built-in profile (built-in: {known}) nor a profile file")]
-    NeitherBuiltInNorFile { name: String, known: String },
+    NeitherBuiltInNorFile {
+        /// The argument as given.
+        name: String,
+        /// The built-in names, comma-separated, for the message.
+        known: String,
+    },
+    /// The profile file could not be read (missing, unreadable, not UTF-8).
     #[error("cannot read profile {path}: {source}")]
     Read {
+        /// The path as shown to the user (relative paths already joined to their base).
         path: String,
+        /// What the file system said.
         source: std::io::Error,
     },
+    /// The text was read but is not a valid profile: every problem with its place.
     #[error("{0}")]
     Invalid(#[from] ProfileErrors),
 }

@@ -25,7 +25,9 @@ pub const END_ID: u16 = 0xFFFF;
 /// One point of a model (or of its repeating group).
 #[derive(Debug, Clone, Deserialize)]
 pub struct Point {
+    /// The specification's point name (`PhVphA`, `W_SF`), unique within its model or group.
     pub name: String,
+    /// The specification's point type (`uint16`, `int32`, `sunssf`, `string`, `pad`, …).
     #[serde(rename = "type")]
     pub kind: String,
     /// Registers.
@@ -50,20 +52,26 @@ enum ScaleFactor {
 /// A repeating group (model 160's modules).
 #[derive(Debug, Clone, Deserialize)]
 pub struct Group {
+    /// The group's name in the specification (`module`).
     pub name: String,
+    /// The points of one repeat, in register order.
     pub points: Vec<Point>,
 }
 
 /// One SunSpec model.
 #[derive(Debug, Clone, Deserialize)]
 pub struct Model {
+    /// The model id, the value of its `ID` register (1 common, 103 three-phase inverter).
     pub id: u16,
+    /// The specification's model name (`inverter_three_phase`).
     pub name: String,
+    /// The name people read (`Inverter (Three Phase)`).
     pub label: String,
     /// The field-name prefix in a written profile (`inverter`, `meter`).
     pub prefix: String,
     /// The fixed part, `ID` and `L` first.
     pub points: Vec<Point>,
+    /// The group repeated after the fixed part (model 160's modules), if the model has one.
     #[serde(default)]
     pub repeating: Option<Group>,
 }
@@ -207,6 +215,7 @@ fn ha_of(units: &str, kind: &str) -> Option<(&'static str, &'static str)> {
 /// One model as found on a device.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FoundModel {
+    /// The value of its `ID` register.
     pub id: u16,
     /// Address of its `ID` register.
     pub address: u16,
@@ -226,10 +235,15 @@ impl FoundModel {
 pub struct Chain {
     /// The base: the address of "SunS".
     pub base: u16,
+    /// The models after the marker, in address order, up to the end id.
     pub models: Vec<FoundModel>,
+    /// The common model's `Mn` (empty without a common model).
     pub manufacturer: String,
+    /// The common model's `Md`.
     pub model: String,
+    /// The common model's `SN`.
     pub serial: String,
+    /// The common model's `Vr` (the firmware version).
     pub version: String,
 }
 
@@ -244,8 +258,11 @@ pub fn text_of(words: &[u16]) -> String {
 /// How a written profile talks to the device.
 #[derive(Debug, Clone)]
 pub struct LineChoice {
+    /// The baud rate (bit/s) the device answered at: the profile's `line.baud`.
     pub baud: u32,
+    /// `none`, `even` or `odd`: the profile's `line.parity`.
     pub parity: &'static str,
+    /// The station address it answered at: the profile's `line.default_address`.
     pub address: u8,
 }
 

@@ -3,16 +3,20 @@
 /// A field value.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Value {
+    /// A bit, coil or momentary field: `ON` (true) or `OFF` as text.
     Bool(bool),
     /// An integer; wide enough for every 64-bit register value, signed or not, with an offset.
     Int(i128),
     /// A fixed-point number: `scaled / 10^precision`, kept exact (BCD 12.34 is 1234, 2).
     Decimal {
+        /// The value times `10^precision`.
         scaled: i128,
+        /// Digits after the decimal point, kept when shown (`12.30` stays `12.30`).
         precision: u8,
     },
     /// An enumeration word (`opening`).
     Enum(String),
+    /// The text of a `string` or `bytes` field, as shown (`SN1234`, `0A1B2C`, `1:02:03`).
     Text(String),
     /// The device reports that it has no value here: the raw value is one of the field's
     /// `invalid` marks (SunSpec's "not implemented"), or its exponent is. Never published as a
