@@ -157,11 +157,16 @@ impl Profile {
 
     /// Names of the fields decoded from `read_blocks()[block]`.
     pub fn block_fields(&self, block: usize) -> Vec<&str> {
+        self.field_names_where(|def| def.block == block)
+    }
+
+    /// Names of the fields whose compiled definition passes `keep`, in file order.
+    fn field_names_where(&self, keep: impl Fn(&model::FieldDef) -> bool) -> Vec<&str> {
         self.inner
             .defs
             .iter()
             .zip(&self.inner.infos)
-            .filter(|(def, _)| def.block == block)
+            .filter(|(def, _)| keep(def))
             .map(|(_, info)| info.name.as_str())
             .collect()
     }

@@ -412,51 +412,49 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_float_in_its_four_layouts() {
-        // 123.456 as an IEEE 754 single is 0x42F6E979 (the worked example of many vendors'
-        // "float byte order" pages): ABCD, CDAB, BADC, DCBA.
-        let images: [[u16; 2]; 4] = [
-            [0x42F6, 0xE979],
-            [0xE979, 0x42F6],
-            [0xF642, 0x79E9],
-            [0x79E9, 0xF642],
-        ];
+    /// 123.456 as `ty` decodes from and encodes to `images`, given in the order of `LAYOUTS`.
+    fn decimal_in_each_layout(ty: NumberType, images: [&[u16]; 4]) {
+        let value = Value::Decimal {
+            scaled: 123_456,
+            precision: 3,
+        };
         for (layout, words) in LAYOUTS.into_iter().zip(images) {
-            let f32_codec = codec(NumberType::F32, layout, 3);
-            assert_eq!(text(f32_codec.decode(&words, &Exponent::None)), "123.456");
-            let value = Value::Decimal {
-                scaled: 123_456,
-                precision: 3,
-            };
+            let float_codec = codec(ty, layout, 3);
+            assert_eq!(text(float_codec.decode(words, &Exponent::None)), "123.456");
             assert_eq!(
-                f32_codec.encode(&value, &Exponent::None),
+                float_codec.encode(&value, &Exponent::None),
                 Ok(words.to_vec())
             );
         }
     }
 
     #[test]
+    fn a_float_in_its_four_layouts() {
+        // 123.456 as an IEEE 754 single is 0x42F6E979 (the worked example of many vendors'
+        // "float byte order" pages): ABCD, CDAB, BADC, DCBA.
+        decimal_in_each_layout(
+            NumberType::F32,
+            [
+                &[0x42F6, 0xE979],
+                &[0xE979, 0x42F6],
+                &[0xF642, 0x79E9],
+                &[0x79E9, 0xF642],
+            ],
+        );
+    }
+
+    #[test]
     fn a_double_in_its_four_layouts() {
         // 123.456 as an IEEE 754 double is 0x405EDD2F1A9FBE77.
-        let images: [[u16; 4]; 4] = [
-            [0x405E, 0xDD2F, 0x1A9F, 0xBE77],
-            [0xBE77, 0x1A9F, 0xDD2F, 0x405E],
-            [0x5E40, 0x2FDD, 0x9F1A, 0x77BE],
-            [0x77BE, 0x9F1A, 0x2FDD, 0x5E40],
-        ];
-        for (layout, words) in LAYOUTS.into_iter().zip(images) {
-            let f64_codec = codec(NumberType::F64, layout, 3);
-            assert_eq!(text(f64_codec.decode(&words, &Exponent::None)), "123.456");
-            let value = Value::Decimal {
-                scaled: 123_456,
-                precision: 3,
-            };
-            assert_eq!(
-                f64_codec.encode(&value, &Exponent::None),
-                Ok(words.to_vec())
-            );
-        }
+        decimal_in_each_layout(
+            NumberType::F64,
+            [
+                &[0x405E, 0xDD2F, 0x1A9F, 0xBE77],
+                &[0xBE77, 0x1A9F, 0xDD2F, 0x405E],
+                &[0x5E40, 0x2FDD, 0x9F1A, 0x77BE],
+                &[0x77BE, 0x9F1A, 0x2FDD, 0x5E40],
+            ],
+        );
     }
 
     #[test]

@@ -399,33 +399,32 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             n += 1;
         }
         used_prefixes.push(prefix.clone());
-        // Every point with its address and field name, ID and L left out.
-        let mut points: Vec<(u16, String, &Point, String)> = Vec::new();
-        let mut address = found.address;
-        for point in &def.points {
-            if point.name != "ID" && point.name != "L" {
-                points.push((
-                    address,
-                    format!("{prefix}_{}", snake(&point.name)),
-                    point,
-                    prefix.clone(),
-                ));
-            }
+        // Every point after ID and L with its address and field name; a repeat's names carry
+        // the group's name and number.
+        let model_prefix = prefix.as_str();
+        let fixed = def
+            .points
+            .iter()
+            .skip(2)
+            .map(|point| (prefix.clone(), point));
+        let repeated = def.repeating.iter().flat_map(|group| {
+            (1..=repeats).flat_map(move |index| {
+                let group_prefix = format!("{model_prefix}_{}{index}", snake(&group.name));
+                group
+                    .points
+                    .iter()
+                    .map(move |point| (group_prefix.clone(), point))
+            })
+        });
+        let mut points: Vec<(u16, String, &Point)> = Vec::new();
+        let mut address = found.body();
+        for (name_prefix, point) in fixed.chain(repeated) {
+            points.push((
+                address,
+                format!("{name_prefix}_{}", snake(&point.name)),
+                point,
+            ));
             address += point.size;
-        }
-        if let Some(group) = &def.repeating {
-            for index in 1..=repeats {
-                let group_prefix = format!("{prefix}_{}{index}", snake(&group.name));
-                for point in &group.points {
-                    points.push((
-                        address,
-                        format!("{group_prefix}_{}", snake(&point.name)),
-                        point,
-                        prefix.clone(),
-                    ));
-                    address += point.size;
-                }
-            }
         }
         // Blocks of at most MAX_BLOCK registers, never splitting a point.
         let poll = if matches!(found.id, 1 | 120) {
@@ -434,7 +433,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             "fast"
         };
         let mut blocks: Vec<(u16, u16)> = Vec::new();
-        for (address, _, point, _) in &points {
+        for (address, _, point) in &points {
             match blocks.last_mut() {
                 Some((start, count)) if address + point.size - *start <= MAX_BLOCK => {
                     *count = address + point.size - *start;
@@ -454,7 +453,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             let _ = writeln!(out, "start = {start}");
             let _ = writeln!(out, "count = {count}");
             let _ = writeln!(out, "poll = \"{poll}\"\n");
-            for (address, field, point, sf_prefix) in &points {
+            for (address, field, point) in &points {
                 if address < start || *address >= start + count {
                     continue;
                 }
@@ -463,7 +462,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
                 };
                 match &point.sf {
                     Some(ScaleFactor::Point(sf)) => {
-                        let _ = write!(codec, r#", scale_by = "{sf_prefix}_{}""#, snake(sf));
+                        let _ = write!(codec, r#", scale_by = "{prefix}_{}""#, snake(sf));
                     }
                     Some(ScaleFactor::Fixed(exponent)) if *exponent != 0 => {
                         let _ = write!(codec, ", scale = 1e{exponent}");
