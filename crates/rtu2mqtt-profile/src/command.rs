@@ -362,7 +362,8 @@ impl CommandPlan {
         Ok(frame_requests(frame, &image))
     }
 
-    /// Reads that verify the command.
+    /// Reads that verify the command, made right after the writes; their answers go to
+    /// [`CommandPlan::verify`].
     pub fn readback(&self) -> &[Request] {
         &self.readback
     }

@@ -53,7 +53,7 @@ pub struct HaHints {
     pub unit: Option<String>,
     /// `ha.icon` (`mdi:fan`).
     pub icon: Option<String>,
-    /// `config` or `diagnostic`.
+    /// `ha.entity_category`: `config` or `diagnostic`; None for a primary entity.
     pub entity_category: Option<String>,
 }
 

@@ -82,7 +82,8 @@ pub use value::Value;
 /// Last known decoded values of one device, by field name.
 pub type DeviceState = HashMap<String, Value>;
 
-/// A validated device profile.
+/// A validated device profile: made by [`Profile::from_toml`] or [`registry`], never
+/// invalid, and cheap to clone (the compiled form is shared, also with its command plans).
 #[derive(Debug, Clone)]
 pub struct Profile {
     // Shared with the command plans made from it.
@@ -124,7 +125,7 @@ impl Profile {
     }
 
     /// The free text of `device.description`; empty when the profile has none.
-    pub fn description(&self) -> &str {
+    pub(crate) fn description(&self) -> &str {
         &self.inner.description
     }
 

@@ -94,7 +94,7 @@ pub fn library_names() -> Vec<&'static str> {
     LIBRARY.iter().map(|(name, _)| *name).collect()
 }
 
-/// A built-in profile by name.
+/// A built-in profile by name; [`LoadError::UnknownBuiltIn`] for a name that is not built in.
 pub fn built_in(name: &str) -> Result<Profile, LoadError> {
     let (_, text) = all_built_in()
         .find(|(known, _)| *known == name)
@@ -105,7 +105,8 @@ pub fn built_in(name: &str) -> Result<Profile, LoadError> {
     Ok(Profile::from_toml(text, &format!("built-in {name}"))?)
 }
 
-/// Loads a profile file.
+/// Loads a profile file: [`LoadError::Read`] when it cannot be read, [`LoadError::Invalid`]
+/// with every problem when it is not a valid profile.
 pub fn load_file(path: &Path) -> Result<Profile, LoadError> {
     let text = std::fs::read_to_string(path).map_err(|source| LoadError::Read {
         path: path.display().to_string(),

@@ -30,7 +30,7 @@ pub struct Point {
     /// The specification's point type (`uint16`, `int32`, `sunssf`, `string`, `pad`, …).
     #[serde(rename = "type")]
     pub kind: String,
-    /// Registers.
+    /// Its length in registers.
     pub size: u16,
     /// The scale factor: a point's name, or a fixed exponent.
     #[serde(default)]
@@ -58,7 +58,7 @@ pub struct Group {
     pub points: Vec<Point>,
 }
 
-/// One SunSpec model.
+/// One SunSpec information model of the table: its points in register order.
 #[derive(Debug, Clone, Deserialize)]
 pub struct Model {
     /// The model id, the value of its `ID` register (1 common, 103 three-phase inverter).
@@ -135,7 +135,7 @@ fn source() -> &'static str {
     &table().source
 }
 
-/// A known model by id.
+/// The table's model with this id; `None` for a model `rtu2mqtt sunspec` does not know.
 pub fn model(id: u16) -> Option<&'static Model> {
     table().models.iter().find(|m| m.id == id)
 }
@@ -298,8 +298,8 @@ fn quoted(text: &str) -> String {
 const MAX_BLOCK: u16 = 125;
 
 /// The TOML text of a profile reading every known model of `chain` (unknown models are listed
-/// in a comment and skipped). Nameplate models (1, 120) are read once (at start, after an outage, on refresh), the rest
-/// fast.
+/// in a comment and skipped). Nameplate models (1, 120) are read once (at start, after an
+/// outage, on refresh), the rest fast.
 pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
     let mut out = String::new();
     let known: Vec<&FoundModel> = chain

@@ -1,6 +1,7 @@
 //! A decoded field value and its text and JSON forms (the MQTT payload contract).
 
-/// A field value.
+/// A field's value as decoded from the device or parsed from a command; its text form is the
+/// MQTT payload.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Value {
     /// A bit, coil or momentary field: `ON` (true) or `OFF` as text.
