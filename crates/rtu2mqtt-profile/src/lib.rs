@@ -304,17 +304,13 @@ impl Profile {
     /// not be its place in the read block). `None` when no write frame of the profile holds
     /// every register or coil the write touches; the values of fields the write covers whole.
     pub fn decode_write(&self, write: &Request) -> Option<Vec<FieldReading>> {
-        let (frame, start, image) = self.landing(write)?;
-        let quantity = match &image {
-            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
-            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
-            _ => return None,
-        };
+        let (frame, written) = self.landing(write)?;
+        let quantity = u16::try_from(written.count).ok()?;
         let block = self.inner.blocks.get(frame.block)?;
         let read = block
             .request
-            .sub_read(frame.offset + (start - frame.address), quantity)?;
-        Some(self.decode_read(&read, &image))
+            .sub_read(frame.offset + (written.start - frame.address), quantity)?;
+        Some(self.decode_read(&read, &written.values))
     }
 
     /// The `scale_by` numbers whose exponent a device polled every `poll_interval` (its fast
@@ -348,15 +344,11 @@ impl Profile {
     /// address through the fields' write frames: a raw write of one register of a two-register
     /// value still writes that field (and its EEPROM).
     pub fn fields_touched(&self, write: &Request) -> Vec<String> {
-        let (start, count, registers) = match write {
-            Request::WriteSingleRegister { address, .. } => (*address, 1, true),
-            Request::WriteMultipleRegisters { start, values } => (*start, values.len(), true),
-            Request::WriteSingleCoil { address, .. } => (*address, 1, false),
-            Request::WriteMultipleCoils { start, values } => (*start, values.len(), false),
-            _ => return Vec::new(),
+        let Some(written) = Written::of(write) else {
+            return Vec::new();
         };
-        let first = usize::from(start);
-        let end = first + count;
+        let first = usize::from(written.start);
+        let end = first + written.count;
         let inner = &self.inner;
         inner
             .defs
@@ -364,7 +356,7 @@ impl Profile {
             .zip(&inner.infos)
             .filter_map(|(def, info)| {
                 let frame = def.write.as_ref()?;
-                if matches!(frame.function, 6 | 16) != registers {
+                if matches!(frame.function, 6 | 16) != written.registers {
                     return None;
                 }
                 let at =
@@ -376,28 +368,11 @@ impl Profile {
     }
 
     /// The write frame a foreign master's `write` lands on (the first of the profile's that
-    /// holds every register or coil it touches), the write's first address and its values.
-    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, u16, Response)> {
-        let (start, image, registers) = match write {
-            Request::WriteSingleRegister { address, value } => {
-                (*address, Response::HoldingRegisters(vec![*value]), true)
-            }
-            Request::WriteMultipleRegisters { start, values } => {
-                (*start, Response::HoldingRegisters(values.clone()), true)
-            }
-            Request::WriteSingleCoil { address, value } => {
-                (*address, Response::Coils(vec![*value]), false)
-            }
-            Request::WriteMultipleCoils { start, values } => {
-                (*start, Response::Coils(values.clone()), false)
-            }
-            _ => return None,
-        };
-        let quantity = match &image {
-            Response::HoldingRegisters(words) => u32::try_from(words.len()).ok()?,
-            Response::Coils(bits) => u32::try_from(bits.len()).ok()?,
-            _ => return None,
-        };
+    /// holds every register or coil it touches), and what the write sets.
+    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, Written)> {
+        let written = Written::of(write)?;
+        let start = u32::from(written.start);
+        let end = start + u32::try_from(written.count).ok()?;
         let inner = &self.inner;
         let frames = inner
             .defs
@@ -405,13 +380,12 @@ impl Profile {
             .filter_map(|def| def.write.as_ref())
             .chain(inner.named_frames.iter().map(|(_, frame)| frame));
         let frame = frames
-            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == registers)
+            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == written.registers)
             .find(|frame| {
-                start >= frame.address
-                    && u32::from(start) + quantity
-                        <= u32::from(frame.address) + u32::from(frame.count)
+                let address = u32::from(frame.address);
+                start >= address && end <= address + u32::from(frame.count)
             })?;
-        Some((frame, start, image))
+        Some((frame, written))
     }
 
     /// Plans a foreign master's `write` as the fields it sets (`values`, command texts) written
@@ -424,7 +398,7 @@ impl Profile {
         values: &[(&str, &str)],
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
-        let Some((frame, _, _)) = self.landing(write) else {
+        let Some((frame, _)) = self.landing(write) else {
             return Err(Rejection("the write lands on no write frame".to_string()));
         };
         let named = self
@@ -683,6 +657,54 @@ impl Profile {
             .field(field)
             .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
         codec::parse_command(info, text)
+    }
+}
+
+/// What a foreign master's write sets: where, how many registers or coils, and their values
+/// as the answer to a read of the same place would hold them.
+struct Written {
+    /// The first address written.
+    start: u16,
+    /// Registers or coils written.
+    count: usize,
+    /// Registers (FC 06/10), else coils (FC 05/0F).
+    registers: bool,
+    /// The values, as `HoldingRegisters` or `Coils`.
+    values: Response,
+}
+
+impl Written {
+    /// `write`'s values; None for a request that writes nothing.
+    fn of(write: &Request) -> Option<Self> {
+        Some(match write {
+            Request::WriteSingleRegister { address, value } => {
+                Self::registers(*address, vec![*value])
+            }
+            Request::WriteMultipleRegisters { start, values } => {
+                Self::registers(*start, values.clone())
+            }
+            Request::WriteSingleCoil { address, value } => Self::coils(*address, vec![*value]),
+            Request::WriteMultipleCoils { start, values } => Self::coils(*start, values.clone()),
+            _ => return None,
+        })
+    }
+
+    fn registers(start: u16, words: Vec<u16>) -> Self {
+        Self {
+            start,
+            count: words.len(),
+            registers: true,
+            values: Response::HoldingRegisters(words),
+        }
+    }
+
+    fn coils(start: u16, bits: Vec<bool>) -> Self {
+        Self {
+            start,
+            count: bits.len(),
+            registers: false,
+            values: Response::Coils(bits),
+        }
     }
 }
 
