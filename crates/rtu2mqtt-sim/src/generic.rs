@@ -13,8 +13,7 @@ use std::time::Instant;
 
 use super::{Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
-use rtu2mqtt_profile::codec::RawPatch;
-use rtu2mqtt_profile::{FieldKind, Profile, ReadBlock};
+use rtu2mqtt_profile::{FieldKind, Profile, RawPatch, ReadBlock};
 
 /// The four Modbus tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
