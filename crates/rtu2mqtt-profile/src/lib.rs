@@ -24,7 +24,6 @@
 //!   daemon's configuration also reads) and its exact amounts.
 //! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
 //! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
-//! - [`model`]: the public parts of the compiled profile, the same types as at the root.
 //!
 //! # Inside
 //!
@@ -52,7 +51,7 @@ mod compile;
 pub mod contract;
 mod field;
 mod format;
-pub mod model;
+mod model;
 mod number;
 mod numeric;
 pub mod publish;
