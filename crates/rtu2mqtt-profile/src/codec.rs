@@ -16,7 +16,7 @@ use super::numeric::{at_precision, Exponent, NumberCodec, NumberError, NumberTyp
 use super::registers::ByteOrder;
 use super::rejection::Rejection;
 use super::text::{self, Encoding};
-use super::Value;
+use crate::value::Value;
 
 /// Why a field has no value in a block answer.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -13,7 +13,7 @@ use super::codec::{BlockImage, RawPatch};
 use super::model::{Behaviour, Compiled, WriteFrame};
 use super::numeric::Exponent;
 use super::rejection::Rejection;
-use super::Value;
+use crate::value::Value;
 use rtu2mqtt_modbus::{Request, Response};
 
 /// What a read-back says about a command.

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use super::publish::PublishRule;
-use super::Value;
+use crate::value::Value;
 
 /// What a field is, for payloads, commands and Home Assistant.
 #[derive(Debug, Clone, PartialEq)]
