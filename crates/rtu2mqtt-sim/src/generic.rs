@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use super::{Reply, SimDevice};
+use super::device::{Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 use rtu2mqtt_profile::{FieldKind, Profile, RawPatch, ReadBlock};
 
