@@ -107,12 +107,14 @@ fn rtu_shape(text: &str) -> anyhow::Result<Option<(usize, u8)>> {
     if text == "0" {
         return Ok(None);
     }
-    let shape = text.split_once(['x', 'X', '×']).and_then(|(lines, per_line)| {
-        Some((
-            lines.trim().parse::<usize>().ok()?,
-            per_line.trim().parse::<u8>().ok()?,
-        ))
-    });
+    let shape = text
+        .split_once(['x', 'X', '×'])
+        .and_then(|(lines, per_line)| {
+            Some((
+                lines.trim().parse::<usize>().ok()?,
+                per_line.trim().parse::<u8>().ok()?,
+            ))
+        });
     match shape {
         Some((0, _)) | Some((_, 0)) => Ok(None),
         Some((lines, per_line)) if per_line <= 247 => Ok(Some((lines, per_line))),
@@ -311,14 +313,12 @@ async fn run(devices: usize, settings: &Settings, outage: Option<Duration>) -> a
 /// The RS485 row: `lines` byte-paced lines of `per_line` moving SDM120 meters each.
 async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Result<Row> {
     let devices = lines * usize::from(per_line);
-    let profile = rtu2mqtt_profile::registry::load(rtu_plant::PROFILE, None)
-        .map_err(|e| anyhow::anyhow!("profile {}: {e}", rtu_plant::PROFILE))?;
+    let profile = rtu_plant::profile()?;
     let interval = profile.limits().default_poll_interval;
     let round = rtu_plant::round_wire_time(&profile, per_line);
     println!(
-        "\n— {devices} devices: {lines} RS485 lines × {per_line} {} meters, {} baud 8N1, \
-         answers byte by byte —",
-        rtu_plant::PROFILE,
+        "\n— {devices} devices: {lines} RS485 lines × {per_line} Eastron SDM120 meters, {} baud \
+         8N1, answers byte by byte —",
         rtu_plant::BAUD
     );
     println!(
@@ -326,8 +326,9 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
          (expected bus load {:.1} %, the slow block's {:.1} % included)",
         round.as_secs_f64(),
         interval.as_secs(),
-        100.0 * (round.as_secs_f64() / interval.as_secs_f64().max(0.001)
-            + rtu_plant::slow_share(&profile, per_line)),
+        100.0
+            * (round.as_secs_f64() / interval.as_secs_f64().max(0.001)
+                + rtu_plant::slow_share(&profile, per_line)),
         100.0 * rtu_plant::slow_share(&profile, per_line)
     );
     let files = tempfile::tempdir()?;
@@ -509,6 +510,7 @@ fn write_rtu_config(
     plant: &RtuPlant,
     interval: Duration,
 ) -> anyhow::Result<PathBuf> {
+    std::fs::write(dir.join("sdm120.toml"), rtu_plant::profile_text())?;
     let mut config = format!(
         "[mqtt]\nurl = \"mqtt://127.0.0.1:{broker_port}\"\nclient_id = \"{CLIENT_ID}\"\n\
          prefix = \"plant\"\ndiscovery = true\n\n[gateway]\njson_view = true\n\n\
@@ -525,10 +527,9 @@ fn write_rtu_config(
         for address in 1..=plant.per_line {
             let _ = write!(
                 config,
-                "[[lines.devices]]\nname = \"{}\"\nprofile = \"{}\"\naddress = {address}\n\
-                 poll_interval = \"{}ms\"\n\n",
+                "[[lines.devices]]\nname = \"{}\"\nprofile = \"sdm120.toml\"\n\
+                 address = {address}\npoll_interval = \"{}ms\"\n\n",
                 device_name(plant.device_index(line, address)),
-                rtu_plant::PROFILE,
                 interval.as_millis()
             );
         }

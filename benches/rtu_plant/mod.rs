@@ -19,8 +19,20 @@ use crate::wire_bench::{wire_load, EIGHT_N_ONE};
 
 /// The lines' baud rate (8N1).
 pub const BAUD: u32 = 9600;
-/// The built-in profile the meters are polled with.
-pub const PROFILE: &str = "eastron-sdm120";
+/// The meters' profile: the built-in SDM120 profile, whose meters come set to 2400 baud.
+const SDM120_PROFILE: &str = include_str!("../../config/profiles/eastron-sdm120.toml");
+
+/// The built-in SDM120 profile as it stands for meters set to the lines' baud rate on their
+/// display (the SDM120 runs at up to 9600), so that the gateway polls them without warning
+/// that the line differs from the profile's rate.
+pub fn profile_text() -> String {
+    SDM120_PROFILE.replace("baud = 2400", &format!("baud = {BAUD}"))
+}
+
+pub fn profile() -> anyhow::Result<Profile> {
+    Profile::from_toml(&profile_text(), "eastron-sdm120 at 9600 baud")
+        .map_err(|e| anyhow::anyhow!("the SDM120 profile: {e:?}"))
+}
 
 /// `lines` pseudo-terminals with `per_line` meters each (addresses 1, 2, …), served until
 /// dropped.
@@ -110,7 +122,6 @@ impl RtuPlant {
             })
             .collect()
     }
-
 }
 
 impl Drop for RtuPlant {
@@ -161,7 +172,9 @@ pub fn slow_share(profile: &Profile, devices: u8) -> f64 {
 }
 
 fn transaction_time(timing: &LineTiming, request: &ModbusRequest) -> Duration {
-    timing.frame_time(request.frame_len()) + timing.frame_time(request.answer_len()) + timing.t3_5 * 2
+    timing.frame_time(request.frame_len())
+        + timing.frame_time(request.answer_len())
+        + timing.t3_5 * 2
 }
 
 /// An SDM120 from the device library's register map whose readings move with the clock: its
