@@ -44,7 +44,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
-use gateway_process::{GatewayProcess, Memory};
+use gateway_process::{cpu_time_of, GatewayProcess, Memory};
 use rtu_plant::RtuPlant;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use scale_sim::{Lateness, ScalePlant, POINTS};
@@ -147,6 +147,8 @@ struct Row {
     shape: Option<(usize, u8)>,
     start_up: Option<Duration>,
     cpu_percent: f64,
+    /// This process's CPU over the window: the simulators and the counting subscriber.
+    bench_cpu_percent: f64,
     memory: Memory,
     messages_per_second: f64,
     by_kind: Vec<(String, f64)>,
@@ -189,7 +191,7 @@ impl Row {
             format!("{:.1} % ({:.1} %)", mean * 100.0, highest * 100.0)
         };
         format!(
-            "{:>12} {:>9} {:>7.2} {:>10.2} {:>10.2} {:>9.0} {:>9} {:>13} {:>8} {:>15}   ({} requests; RssAnon {:.2} MiB, Private_Dirty {:.2} MiB; {} threads;{kinds})",
+            "{:>12} {:>9} {:>7.2} {:>10.2} {:>10.2} {:>9.0} {:>9} {:>13} {:>8} {:>15}   ({} requests; RssAnon {:.2} MiB, Private_Dirty {:.2} MiB; {} threads; simulators and subscriber {:.2} % CPU;{kinds})",
             devices,
             self.start_up
                 .map_or("never".into(), |d| format!("{:.2} s", d.as_secs_f64())),
@@ -205,6 +207,7 @@ impl Row {
             self.memory.rss_anon_kib as f64 / 1024.0,
             self.memory.private_dirty_kib as f64 / 1024.0,
             self.memory.threads,
+            self.bench_cpu_percent,
         )
     }
 }
@@ -218,6 +221,7 @@ struct Steady {
     from: Instant,
     to: Instant,
     cpu_percent: f64,
+    bench_cpu_percent: f64,
     memory: Memory,
     by_kind: Vec<(String, f64)>,
 }
@@ -244,6 +248,7 @@ async fn steady_state(
     tokio::time::sleep(settings.warm_up).await;
 
     let cpu_before = gateway.cpu_time()?;
+    let bench_cpu_before = cpu_time_of("self")?;
     let counts_before = counter.counts();
     let from = Instant::now();
     let mut memory = Memory::default();
@@ -254,6 +259,7 @@ async fn steady_state(
     let to = Instant::now();
     let seconds = (to - from).as_secs_f64();
     let cpu = (gateway.cpu_time()? - cpu_before).as_secs_f64() / seconds;
+    let bench_cpu = (cpu_time_of("self")? - bench_cpu_before).as_secs_f64() / seconds;
     let counts_after = counter.counts();
     let mut by_kind: Vec<(String, f64)> = counts_after
         .iter()
@@ -269,6 +275,7 @@ async fn steady_state(
             from,
             to,
             cpu_percent: cpu * 100.0,
+            bench_cpu_percent: bench_cpu * 100.0,
             memory,
             by_kind,
         },
@@ -295,6 +302,7 @@ async fn run(devices: usize, settings: &Settings, outage: Option<Duration>) -> a
         shape: None,
         start_up,
         cpu_percent: steady.cpu_percent,
+        bench_cpu_percent: steady.bench_cpu_percent,
         memory: steady.memory,
         messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
         by_kind: steady.by_kind,
@@ -346,6 +354,7 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
         shape: Some((lines, per_line)),
         start_up,
         cpu_percent: steady.cpu_percent,
+        bench_cpu_percent: steady.bench_cpu_percent,
         memory: steady.memory,
         messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
         by_kind: steady.by_kind,
