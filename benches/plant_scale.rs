@@ -9,9 +9,9 @@
 //! - **RS485** (`rtu_plant`): L lines × D Eastron SDM120 energy meters (8 × 32 unless told), each
 //!   line a pseudo-terminal at 9600 8N1 whose answers are released byte by byte at the
 //!   character rate, the meters' readings moving as a loaded meter's do; the gateway polls them
-//!   with the built-in `eastron-sdm120` profile (two blocks of 38 and 10 input registers every
-//!   cycle, one of 4 every minute) at the profile's interval of 10 s, which is printed beside the
-//!   wire time of one round of a line's meters.
+//!   with the built-in `eastron-sdm120` profile, its baud rate set to the lines' (two blocks of
+//!   38 and 10 input registers every cycle, one of 4 every minute), at the profile's interval
+//!   of 10 s, which is printed beside the wire time of one round of a line's meters.
 //!
 //! For each row it prints the start-up (gateway started → every device's first value on MQTT),
 //! the gateway's CPU (% of one core) and memory (`Anonymous` and `Pss` from smaps_rollup, with
@@ -19,7 +19,9 @@
 //! broker received from it, and the poll lateness measured where the requests arrive, at the
 //! simulators (time between a block's successive requests beyond its interval; p50, p99,
 //! skipped polls); for the RS485 row also each line's bus load (wire time of the requests,
-//! answers and t3.5 silences over the window; mean and highest of the lines). At the largest
+//! answers and t3.5 silences over the window; mean and highest of the lines) and the requests
+//! that came sooner than t3.5 after the line's last byte or onto an answer. The CPU of this
+//! process (the simulators and the counting subscriber) is printed beside. At the largest
 //! N it then stops mosquitto for an outage, starts it again on the same port and counts the
 //! values the gateway measured (served changes at the simulator) against those that reached a
 //! subscriber on the history stream, live and replayed, and the lateness during the outage and
@@ -153,8 +155,8 @@ struct Row {
     messages_per_second: f64,
     by_kind: Vec<(String, f64)>,
     lateness: Lateness,
-    /// Each line's bus load over the window (RS485 only).
-    bus_loads: Vec<f64>,
+    /// The lines' wires over the window (RS485 only).
+    wire: Option<rtu_plant::Wire>,
 }
 
 impl Row {
@@ -183,15 +185,22 @@ impl Row {
             Some((lines, per_line)) => format!("{} ({lines}×{per_line})", self.devices),
             None => self.devices.to_string(),
         };
-        let bus_load = if self.bus_loads.is_empty() {
-            "-".to_string()
-        } else {
-            let mean = self.bus_loads.iter().sum::<f64>() / self.bus_loads.len() as f64;
-            let highest = self.bus_loads.iter().copied().fold(0.0, f64::max);
-            format!("{:.1} % ({:.1} %)", mean * 100.0, highest * 100.0)
+        let (bus_load, timing) = match &self.wire {
+            Some(wire) if !wire.loads.is_empty() => {
+                let mean = wire.loads.iter().sum::<f64>() / wire.loads.len() as f64;
+                let highest = wire.loads.iter().copied().fold(0.0, f64::max);
+                (
+                    format!("{:.1} % ({:.1} %)", mean * 100.0, highest * 100.0),
+                    format!(
+                        " {} requests sooner than t3.5, {} onto an answer;",
+                        wire.early, wire.onto_answer
+                    ),
+                )
+            }
+            _ => ("-".to_string(), String::new()),
         };
         format!(
-            "{:>12} {:>9} {:>7.2} {:>10.2} {:>10.2} {:>9.0} {:>9} {:>13} {:>8} {:>15}   ({} requests; RssAnon {:.2} MiB, Private_Dirty {:.2} MiB; {} threads; simulators and subscriber {:.2} % CPU;{kinds})",
+            "{:>12} {:>9} {:>7.2} {:>10.2} {:>10.2} {:>9.0} {:>9} {:>13} {:>8} {:>15}   ({} requests; RssAnon {:.2} MiB, Private_Dirty {:.2} MiB; {} threads; simulators and subscriber {:.2} % CPU;{timing}{kinds})",
             devices,
             self.start_up
                 .map_or("never".into(), |d| format!("{:.2} s", d.as_secs_f64())),
@@ -307,7 +316,7 @@ async fn run(devices: usize, settings: &Settings, outage: Option<Duration>) -> a
         messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
         by_kind: steady.by_kind,
         lateness,
-        bus_loads: Vec::new(),
+        wire: None,
     };
     if let Some(outage) = outage {
         println!("{}", row.line());
@@ -359,7 +368,7 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
         messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
         by_kind: steady.by_kind,
         lateness: Lateness::of(&requests, steady.from, steady.to, interval),
-        bus_loads: plant.bus_loads(steady.from, steady.to),
+        wire: Some(plant.wire(steady.from, steady.to)),
     };
     gateway.stop();
     drop(plant);

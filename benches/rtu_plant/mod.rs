@@ -104,23 +104,29 @@ impl RtuPlant {
         requests
     }
 
-    /// Each line's load between `from` and `to`: the wire time of its requests and answers
-    /// and the two t3.5 silences of each transaction, over the window's length.
-    pub fn bus_loads(&self, from: Instant, to: Instant) -> Vec<f64> {
+    /// What the lines' wires carried between `from` and `to`.
+    pub fn wire(&self, from: Instant, to: Instant) -> Wire {
         let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
         let window = to.saturating_duration_since(from).as_secs_f64().max(0.001);
-        self.lines
-            .iter()
-            .map(|line| {
-                let records: Vec<_> = line
-                    .journal()
-                    .requests()
-                    .into_iter()
-                    .filter(|r| r.arrived >= from && r.arrived < to)
-                    .collect();
-                wire_load(&records, &timing, None).busy.as_secs_f64() / window
-            })
-            .collect()
+        let mut wire = Wire::default();
+        for line in &self.lines {
+            let records: Vec<_> = line
+                .journal()
+                .requests()
+                .into_iter()
+                .filter(|r| r.arrived >= from && r.arrived < to)
+                .collect();
+            let load = wire_load(&records, &timing, None);
+            wire.loads.push(load.busy.as_secs_f64() / window);
+            wire.early += load.early;
+            // Only a line's first request ever has no silence before it; the window starts
+            // long after it.
+            wire.onto_answer += records
+                .iter()
+                .filter(|r| r.silence_before.is_none())
+                .count();
+        }
+        wire
     }
 }
 
@@ -133,6 +139,18 @@ impl Drop for RtuPlant {
             runtime.shutdown_background();
         }
     }
+}
+
+/// The lines' wires over a window.
+#[derive(Debug, Default)]
+pub struct Wire {
+    /// Each line's load: the wire time of its requests and answers and the two t3.5
+    /// silences of each transaction, over the window's length.
+    pub loads: Vec<f64>,
+    /// Requests sooner than t3.5 after the line's last byte, on all lines.
+    pub early: usize,
+    /// Requests that reached a meter while an answer was still going out, on all lines.
+    pub onto_answer: usize,
 }
 
 /// The first registers of the blocks a profile polls every cycle.
