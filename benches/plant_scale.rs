@@ -160,6 +160,27 @@ struct Row {
 }
 
 impl Row {
+    /// The row of `devices` from their start-up, the steady-state window and the lateness in it.
+    fn measured(
+        devices: usize,
+        start_up: Option<Duration>,
+        steady: Steady,
+        lateness: Lateness,
+    ) -> Row {
+        Row {
+            devices,
+            shape: None,
+            start_up,
+            cpu_percent: steady.cpu_percent,
+            bench_cpu_percent: steady.bench_cpu_percent,
+            memory: steady.memory,
+            messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
+            by_kind: steady.by_kind,
+            lateness,
+            wire: None,
+        }
+    }
+
     fn header() -> String {
         format!(
             "{:>12} {:>9} {:>7} {:>10} {:>10} {:>9} {:>9} {:>13} {:>8} {:>15}",
@@ -306,18 +327,7 @@ async fn run(devices: usize, settings: &Settings, outage: Option<Duration>) -> a
         let requests = plant.log.requests.lock().map_err(poisoned)?;
         Lateness::of(&requests, steady.from, steady.to, POLL_INTERVAL)
     };
-    let row = Row {
-        devices,
-        shape: None,
-        start_up,
-        cpu_percent: steady.cpu_percent,
-        bench_cpu_percent: steady.bench_cpu_percent,
-        memory: steady.memory,
-        messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
-        by_kind: steady.by_kind,
-        lateness,
-        wire: None,
-    };
+    let row = Row::measured(devices, start_up, steady, lateness);
     if let Some(outage) = outage {
         println!("{}", row.line());
         broker_outage(&mut broker, &mut gateway, &plant, &counter, outage).await?;
@@ -358,17 +368,11 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
 
     let (start_up, steady) = steady_state(&gateway, &counter, started, settings).await?;
     let requests = plant.requests(&rtu_plant::fast_blocks(&profile), steady.to);
+    let lateness = Lateness::of(&requests, steady.from, steady.to, interval);
     let row = Row {
-        devices,
         shape: Some((lines, per_line)),
-        start_up,
-        cpu_percent: steady.cpu_percent,
-        bench_cpu_percent: steady.bench_cpu_percent,
-        memory: steady.memory,
-        messages_per_second: steady.by_kind.iter().map(|(_, rate)| rate).sum(),
-        by_kind: steady.by_kind,
-        lateness: Lateness::of(&requests, steady.from, steady.to, interval),
         wire: Some(plant.wire(steady.from, steady.to)),
+        ..Row::measured(devices, start_up, steady, lateness)
     };
     gateway.stop();
     drop(plant);
@@ -500,12 +504,7 @@ fn write_config(dir: &Path, broker_port: u16, plant: &ScalePlant) -> anyhow::Res
         );
     }
     std::fs::write(dir.join("scale-meter.toml"), profile)?;
-    let mut config = format!(
-        "[mqtt]\nurl = \"mqtt://127.0.0.1:{broker_port}\"\nclient_id = \"{CLIENT_ID}\"\n\
-         prefix = \"plant\"\ndiscovery = true\n\n[gateway]\njson_view = true\n\n\
-         [health]\nstatus_file = \"\"\n\n[history]\npath = \"{}\"\n\n",
-        dir.join("history").display()
-    );
+    let mut config = gateway_sections(dir, broker_port);
     for (index, addr) in plant.addrs.iter().enumerate() {
         let _ = write!(
             config,
@@ -529,12 +528,7 @@ fn write_rtu_config(
     interval: Duration,
 ) -> anyhow::Result<PathBuf> {
     std::fs::write(dir.join("sdm120.toml"), rtu_plant::profile_text())?;
-    let mut config = format!(
-        "[mqtt]\nurl = \"mqtt://127.0.0.1:{broker_port}\"\nclient_id = \"{CLIENT_ID}\"\n\
-         prefix = \"plant\"\ndiscovery = true\n\n[gateway]\njson_view = true\n\n\
-         [health]\nstatus_file = \"\"\n\n[history]\npath = \"{}\"\n\n",
-        dir.join("history").display()
-    );
+    let mut config = gateway_sections(dir, broker_port);
     for (line, served) in plant.lines.iter().enumerate() {
         let _ = write!(
             config,
@@ -555,6 +549,17 @@ fn write_rtu_config(
     let path = dir.join("rtu2mqtt.toml");
     std::fs::write(&path, config)?;
     Ok(path)
+}
+
+/// The configuration's sections before its lines, the same for every plant: MQTT with Home
+/// Assistant discovery, the JSON view, the history journal in `dir`, no status file.
+fn gateway_sections(dir: &Path, broker_port: u16) -> String {
+    format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{broker_port}\"\nclient_id = \"{CLIENT_ID}\"\n\
+         prefix = \"plant\"\ndiscovery = true\n\n[gateway]\njson_view = true\n\n\
+         [health]\nstatus_file = \"\"\n\n[history]\npath = \"{}\"\n\n",
+        dir.join("history").display()
+    )
 }
 
 fn device_name(index: usize) -> String {

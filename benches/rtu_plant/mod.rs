@@ -166,27 +166,24 @@ pub fn fast_blocks(profile: &Profile) -> Vec<u16> {
 /// One polling round of `devices` meters on the wire: each fast block's request and answer,
 /// each followed by t3.5.
 pub fn round_wire_time(profile: &Profile, devices: u8) -> Duration {
-    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
-    let one_device: Duration = profile
-        .read_blocks()
-        .iter()
-        .filter(|block| block.class == PollClass::Fast)
-        .map(|block| transaction_time(&timing, &block.request))
-        .sum();
-    one_device * u32::from(devices)
+    wire_time_of_class(profile, PollClass::Fast) * u32::from(devices)
 }
 
 /// The slow blocks' share of the wire: their transactions over the profile's slow interval.
 pub fn slow_share(profile: &Profile, devices: u8) -> f64 {
+    let slow = profile.limits().slow_interval.as_secs_f64().max(0.001);
+    (wire_time_of_class(profile, PollClass::Slow) * u32::from(devices)).as_secs_f64() / slow
+}
+
+/// The wire time of one meter's reads of the blocks of `class`.
+fn wire_time_of_class(profile: &Profile, class: PollClass) -> Duration {
     let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
-    let one_device: Duration = profile
+    profile
         .read_blocks()
         .iter()
-        .filter(|block| block.class == PollClass::Slow)
+        .filter(|block| block.class == class)
         .map(|block| transaction_time(&timing, &block.request))
-        .sum();
-    let slow = profile.limits().slow_interval.as_secs_f64().max(0.001);
-    (one_device * u32::from(devices)).as_secs_f64() / slow
+        .sum()
 }
 
 fn transaction_time(timing: &LineTiming, request: &ModbusRequest) -> Duration {
