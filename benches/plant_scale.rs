@@ -19,8 +19,9 @@
 //! broker received from it, and the poll lateness measured where the requests arrive, at the
 //! simulators (time between a block's successive requests beyond its interval; p50, p99,
 //! skipped polls); for the RS485 row also each line's bus load (wire time of the requests,
-//! answers and t3.5 silences over the window; mean and highest of the lines) and the requests
-//! that came sooner than t3.5 after the line's last byte or onto an answer. The CPU of this
+//! answers and t3.5 silences over the window; mean and highest of the lines), the transactions
+//! per second with the gateway's CPU time per transaction, and the requests that came sooner
+//! than t3.5 after the line's last byte or onto an answer. The CPU of this
 //! process (the simulators and the counting subscriber) is printed beside. At the largest
 //! N it then stops mosquitto for an outage, starts it again on the same port and counts the
 //! values the gateway measured (served changes at the simulator) against those that reached a
@@ -213,8 +214,12 @@ impl Row {
                 (
                     format!("{:.1} % ({:.1} %)", mean * 100.0, highest * 100.0),
                     format!(
-                        " {} requests sooner than t3.5, {} onto an answer;",
-                        wire.early, wire.onto_answer
+                        " {:.1} transactions/s, {:.0} µs of gateway CPU each; {} requests \
+                         sooner than t3.5, {} onto an answer;",
+                        wire.transactions_per_second,
+                        self.cpu_percent * 1e4 / wire.transactions_per_second.max(0.001),
+                        wire.early,
+                        wire.onto_answer
                     ),
                 )
             }

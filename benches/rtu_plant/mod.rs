@@ -119,6 +119,7 @@ impl RtuPlant {
                 .collect();
             let load = wire_load(&records, &timing, None);
             wire.loads.push(load.busy.as_secs_f64() / window);
+            wire.transactions_per_second += records.len() as f64 / window;
             wire.early += load.early;
             // Only a line's first request ever has no silence before it; the window starts
             // long after it.
@@ -153,6 +154,8 @@ pub struct Wire {
     /// Each line's load: the wire time of its requests and answers and the two t3.5
     /// silences of each transaction, over the window's length.
     pub loads: Vec<f64>,
+    /// Requests on all lines, per second of the window.
+    pub transactions_per_second: f64,
     /// Requests sooner than t3.5 after the line's last byte, on all lines.
     pub early: usize,
     /// Requests that reached a meter while an answer was still going out, on all lines.
