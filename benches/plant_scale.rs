@@ -21,12 +21,12 @@
 //! skipped polls); for the RS485 row also each line's bus load (wire time of the requests,
 //! answers and t3.5 silences over the window; mean and highest of the lines), the transactions
 //! per second with the gateway's CPU time per transaction, and the requests that came sooner
-//! than t3.5 after the line's last byte or onto an answer. The CPU of this
-//! process (the simulators and the counting subscriber) is printed beside. At the largest
-//! N it then stops mosquitto for an outage, starts it again on the same port and counts the
-//! values the gateway measured (served changes at the simulator) against those that reached a
-//! subscriber on the history stream, live and replayed, and the lateness during the outage and
-//! the replay. The RS485 row runs after the Modbus TCP rows.
+//! than t3.5 after the line's last byte or onto an answer. The CPU of this process (the
+//! simulators and the counting subscriber) is printed beside. At the largest N it then stops
+//! mosquitto for an outage, starts it again on the same port and counts the values the gateway
+//! measured (served changes at the simulator) against those that reached a subscriber on the
+//! history stream, live and replayed, and the lateness during the outage and the replay. The
+//! RS485 row runs after the Modbus TCP rows.
 //!
 //! Run: `cargo bench --bench plant_scale` (about ten minutes after the build). Environment:
 //! `PLANT_SCALE_DEVICES=10,100,1000` (the Modbus TCP device counts; `0` runs none),
