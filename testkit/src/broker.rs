@@ -25,7 +25,7 @@ impl Mosquitto {
         Mosquitto::start_with(String::new())
     }
 
-    /// Like [`start`] with more configuration; listeners it adds must use
+    /// Like [`Mosquitto::start`] with more configuration; listeners it adds must use
     /// `per_listener_settings`-style settings of their own.
     pub fn start_with(extra: String) -> Mosquitto {
         let port = free_port();
@@ -40,7 +40,7 @@ impl Mosquitto {
         broker
     }
 
-    /// A broker that is not running yet (its port chosen): start it with [`restart`].
+    /// A broker that is not running yet (its port chosen): start it with [`Mosquitto::restart`].
     pub fn not_started() -> Mosquitto {
         Mosquitto {
             port: free_port(),

@@ -132,7 +132,7 @@ impl TestClient {
             })
     }
 
-    /// Like [`wait_for`] but None on timeout.
+    /// Like [`TestClient::wait_for`] but None on timeout.
     pub async fn try_wait_for(
         &mut self,
         topic: &str,
@@ -161,7 +161,7 @@ impl TestClient {
         }
     }
 
-    /// Like [`wait_for`], ignoring what arrived on `topic` before this call (a state change
+    /// Like [`TestClient::wait_for`], ignoring what arrived on `topic` before this call (a state change
     /// that has to happen from now on, not one seen at start-up).
     pub async fn wait_for_new(
         &mut self,
