@@ -325,25 +325,28 @@ fn strace_available() -> bool {
         .is_ok_and(|output| output.status.success())
 }
 
-fn syscalls_per_transaction(transport: Transport, port: &Path) -> anyhow::Result<Syscalls> {
+/// What `trace` wrote of a short and a long child run (`STRACE_EXTRA` transactions apart),
+/// each read by `read`: their difference is what the extra transactions cost.
+fn traced_runs<T>(
+    transport: Transport,
+    port: &Path,
+    trace: Trace,
+    read: impl Fn(&str) -> anyhow::Result<T>,
+) -> anyhow::Result<(T, T)> {
     let directory = tempfile::tempdir()?;
-    let mut counts = Vec::new();
-    for transactions in [STRACE_BASE, STRACE_BASE + STRACE_EXTRA] {
-        let summary = directory.path().join(format!("strace-{transactions}"));
-        run_child(
-            transport,
-            port,
-            transactions,
-            Some((Trace::Summary, &summary)),
-        )?;
-        counts.push(strace_counts(&std::fs::read_to_string(&summary)?)?);
-    }
-    let [short, long] = &counts[..] else {
-        bail!("two traced runs");
+    let run = |transactions: usize| -> anyhow::Result<T> {
+        let file = directory.path().join(format!("trace-{transactions}"));
+        run_child(transport, port, transactions, Some((trace, &file)))?;
+        read(&std::fs::read_to_string(&file)?)
     };
+    Ok((run(STRACE_BASE)?, run(STRACE_BASE + STRACE_EXTRA)?))
+}
+
+fn syscalls_per_transaction(transport: Transport, port: &Path) -> anyhow::Result<Syscalls> {
+    let (short, long) = traced_runs(transport, port, Trace::Summary, strace_counts)?;
     let per_transaction = |name: &str| {
         let calls = |counts: &BTreeMap<String, u64>| counts.get(name).copied().unwrap_or(0) as f64;
-        (calls(long) - calls(short)) / STRACE_EXTRA as f64
+        (calls(&long) - calls(&short)) / STRACE_EXTRA as f64
     };
     let by_name = long
         .keys()
@@ -360,26 +363,13 @@ fn syscalls_per_transaction(transport: Transport, port: &Path) -> anyhow::Result
 /// Returns of `epoll_wait` per transaction that carried write readiness alone (a wake-up for
 /// nothing: no task waits to write), from two traced runs of different lengths.
 fn write_alone_wake_ups(transport: Transport, port: &Path) -> anyhow::Result<f64> {
-    let directory = tempfile::tempdir()?;
-    let mut counts = Vec::new();
-    for transactions in [STRACE_BASE, STRACE_BASE + STRACE_EXTRA] {
-        let log = directory.path().join(format!("epoll-{transactions}"));
-        run_child(
-            transport,
-            port,
-            transactions,
-            Some((Trace::EpollEvents, &log)),
-        )?;
-        let returns = std::fs::read_to_string(&log)?;
-        let write_alone = returns
+    let write_alone = |returns: &str| -> anyhow::Result<f64> {
+        Ok(returns
             .lines()
             .filter(|line| line.contains("EPOLLOUT") && !line.contains("EPOLLIN"))
-            .count();
-        counts.push(write_alone as f64);
-    }
-    let [short, long] = counts[..] else {
-        bail!("two traced runs");
+            .count() as f64)
     };
+    let (short, long) = traced_runs(transport, port, Trace::EpollEvents, write_alone)?;
     Ok((long - short) / STRACE_EXTRA as f64)
 }
 
@@ -411,49 +401,43 @@ fn spread(figures: &[ChildFigures], figure: impl Fn(&ChildFigures) -> f64) -> (f
     (median, low, high)
 }
 
+/// A printed figure: its name, its unit and how it is read from a child's figures.
+type FigureRow = (&'static str, &'static str, fn(&ChildFigures) -> f64);
+
 fn print_figures(figures: &[ChildFigures]) {
     let failed: usize = figures.iter().map(|f| f.failed).sum();
     let done: usize = figures.iter().map(|f| f.transactions).sum();
-    let line = |name: &str, unit: &str, (median, low, high): (f64, f64, f64)| {
-        println!("  {name}: {median:.2}{unit} (rounds {low:.2}–{high:.2})");
-    };
-    line(
-        "CPU per transaction",
-        " µs",
-        spread(figures, ChildFigures::cpu_per_transaction_us),
-    );
-    line(
-        "  of it the runtime busy (tokio worker_total_busy_duration)",
-        " µs",
-        spread(figures, ChildFigures::busy_per_transaction_us),
-    );
-    line(
-        "wake-ups per transaction (tokio worker_park_count)",
-        "",
-        spread(figures, ChildFigures::parks_per_transaction),
-    );
-    line(
-        "voluntary context switches per transaction",
-        "",
-        spread(figures, ChildFigures::switches_per_transaction),
-    );
-    line(
-        "involuntary context switches per transaction",
-        "",
-        spread(figures, |f| {
+    let rows: [FigureRow; 7] = [
+        (
+            "CPU per transaction",
+            " µs",
+            ChildFigures::cpu_per_transaction_us,
+        ),
+        (
+            "  of it the runtime busy (tokio worker_total_busy_duration)",
+            " µs",
+            ChildFigures::busy_per_transaction_us,
+        ),
+        (
+            "wake-ups per transaction (tokio worker_park_count)",
+            "",
+            ChildFigures::parks_per_transaction,
+        ),
+        (
+            "voluntary context switches per transaction",
+            "",
+            ChildFigures::switches_per_transaction,
+        ),
+        ("involuntary context switches per transaction", "", |f| {
             f.involuntary_switches as f64 / f.transactions.max(1) as f64
         }),
-    );
-    line(
-        "transaction time p50",
-        " ms",
-        spread(figures, |f| f.p50.as_secs_f64() * 1e3),
-    );
-    line(
-        "transaction time p95",
-        " ms",
-        spread(figures, |f| f.p95.as_secs_f64() * 1e3),
-    );
+        ("transaction time p50", " ms", |f| f.p50.as_secs_f64() * 1e3),
+        ("transaction time p95", " ms", |f| f.p95.as_secs_f64() * 1e3),
+    ];
+    for (name, unit, figure) in rows {
+        let (median, low, high) = spread(figures, figure);
+        println!("  {name}: {median:.2}{unit} (rounds {low:.2}–{high:.2})");
+    }
     println!("  failed transactions: {failed} of {done}");
 }
 
