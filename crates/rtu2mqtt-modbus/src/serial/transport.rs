@@ -10,9 +10,10 @@
 //! kilobytes) and its end awaited with tcdrain, so no task ever waits to write, and each
 //! "writable" signal (on a pty: each time the other end reads) would only wake the runtime's
 //! thread for nothing. The port is registered for read interest alone. Measured against
-//! tokio-serial running the same transactions, that saves the runtime one wake-up in about
-//! twenty per transaction, and no CPU time or latency that the measurement can tell apart:
-//! the figures and their command are in docs/performance.md ("Read interest alone").
+//! tokio-serial running the same transactions, that saves the runtime one wake-up per
+//! transaction and the kernel's share of the CPU it costs, with the same timing; a small
+//! saving, seen only on a quiet machine. The figures and their command are in
+//! docs/performance.md ("Read interest alone").
 
 use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
