@@ -22,8 +22,8 @@ use super::faults::{random_bytes, FaultHandle, Occurrence};
 use super::journal::Journal;
 use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
+use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
-use rtu2mqtt_modbus::link::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::tcp::mbap;
 use tokio_util::sync::CancellationToken;
 

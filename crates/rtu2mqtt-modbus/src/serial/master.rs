@@ -24,12 +24,12 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
+use crate::answer_framing::{AnswerFramer, Framing};
 use crate::clock::PreciseTimer;
 use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
 use crate::frame::{FunctionCode, Request, SlaveId};
-use crate::link::answer_framing::{AnswerFramer, Framing};
-use crate::link::shared::{Ask, Direction, Exchange, LinkCore};
 use crate::outcome::reply_of;
+use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
 use crate::outcome::{Error, Reply, WireCounters};

@@ -17,14 +17,14 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
+use crate::answer_framing::{AnswerFramer, Framed};
 use crate::clock::PreciseTimer;
 use crate::codec::{self, Answer, DecodeError};
 use crate::frame::{Request, SlaveId};
-use crate::link::answer_framing::{AnswerFramer, Framed};
-use crate::link::shared::{Ask, Direction, Exchange, LinkCore};
 use crate::outcome::{reply_of, Error, PortFault, Reply};
 use crate::tcp::mbap::{self, Matched, MbapError};
 use crate::timing::LineTiming;
+use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 
 /// What a TCP line's stream carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -2,17 +2,14 @@
 //! stream ([`RawTcpMaster`]) or a Modbus TCP gateway ([`ModbusTcpMaster`]). The line task runs
 //! the same transactions, counters and frame log on each; only this enum knows which it is.
 
-pub mod answer_framing;
-pub(crate) mod shared;
-
 use std::io::Write;
 use std::time::Duration;
 
 use super::frame::Request;
 use super::outcome::{Error, Reply, WireCounters};
-use crate::link::shared::{Ask, Exchange, LinkCore};
 use crate::serial::master::Master;
 use crate::tcp::masters::{ModbusTcpMaster, RawTcpMaster};
+use crate::transaction::{Ask, Exchange, LinkCore};
 
 /// One line's open link, whichever of the three it is. It runs transactions through
 /// [`Transact::transact`](crate::Transact::transact).
