@@ -42,8 +42,6 @@ const SPARKPLUG_COMMANDS: usize = 64;
 const SPARKPLUG_REPLAYED: usize = 1024;
 /// How long the Sparkplug node gets to publish its NDEATH after the bridge has stopped.
 const SPARKPLUG_STOP_GRACE: Duration = Duration::from_secs(5);
-/// How long the lines get to finish their transaction after the bridge has stopped.
-const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 
 /// What a caller gets once everything has started.
 #[derive(Debug, Clone)]

@@ -11,10 +11,10 @@
 //! a change there is logged as needing a restart and not applied.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use super::LINE_STOP_GRACE;
 use crate::bridge::core::BridgeDevice;
 use crate::bridge::Reconfiguration;
 use crate::bus::{spawn_line_with_clock, LineEvent, LineHandle, LineSpec, LineStats, WriteClock};
@@ -155,6 +155,9 @@ impl LineSet {
         stop_lines(self.lines).await;
     }
 }
+
+/// How long the lines get to finish their transaction after the bridge has stopped.
+const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
 
 /// Stops `lines` and waits for each (bounded by [`LINE_STOP_GRACE`]).
 async fn stop_lines(lines: Vec<RunningLine>) {

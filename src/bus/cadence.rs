@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use rtu2mqtt_profile::PollClass;
 
-use super::DeviceSpec;
+use super::device_spec::DeviceSpec;
 
 /// One block of a device's poll plan.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -14,10 +14,10 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tracing::Instrument;
 
+use super::outcome::{Command, CommandFailure, CommandOutcome};
 use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
-use super::{Command, CommandFailure, CommandOutcome};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::PortFault;
 use rtu2mqtt_profile::{CommandPlan, Verification};

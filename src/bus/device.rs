@@ -7,8 +7,8 @@
 use rtu2mqtt_modbus::Response;
 use rtu2mqtt_profile::{DeviceState, Value};
 
+use super::device_spec::DeviceSpec;
 use super::stats::DeviceStats;
-use super::DeviceSpec;
 
 /// Decoded values of a device, by field name, ready for a `LineEvent::Values`.
 pub(crate) type Values = Vec<(String, Value)>;

@@ -7,8 +7,32 @@ use rtu2mqtt_modbus::ExceptionCode;
 use rtu2mqtt_modbus::{Error as MasterError, PortFault};
 
 use super::transaction::Failure;
+use rtu2mqtt_profile::CommandPlan;
 
-/// The cause carried by [`super::CommandOutcome::Failed`].
+/// How a command ended on the bus.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CommandOutcome {
+    /// Written, and the read-back shows the value.
+    Applied { detail: String },
+    /// Acknowledged, but the read-back differs.
+    NotApplied { detail: String },
+    /// Refused by the profile's rules on the fresh state: nothing written.
+    Rejected { detail: String },
+    /// An exception answer, no answer after the retries, or the port is gone.
+    Failed { cause: CommandFailure },
+}
+
+/// A command for the line's queue. Its end comes back as [`LineEvent::CommandFinished`] with
+/// the same `id`, on the line's events channel.
+#[derive(Debug)]
+pub struct Command {
+    /// Chosen by the sender; the line only echoes it.
+    pub id: u64,
+    pub device: String,
+    pub plan: CommandPlan,
+}
+
+/// The cause carried by [`CommandOutcome::Failed`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CommandFailure {
     /// The device answered with an exception: it is there and refused.
@@ -65,7 +89,7 @@ impl std::fmt::Display for CommandFailure {
 
 /// `applied: read-back confirms the value`, `failed: device answered exception 02 (…)`: how the
 /// line's log says how a command ended.
-impl std::fmt::Display for super::CommandOutcome {
+impl std::fmt::Display for CommandOutcome {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::Applied { detail } => write!(f, "applied: {detail}"),
@@ -84,11 +108,11 @@ mod tests {
 
     #[test]
     fn outcomes_read_as_words() {
-        let applied = crate::bus::CommandOutcome::Applied {
+        let applied = CommandOutcome::Applied {
             detail: "read-back confirms the value".to_string(),
         };
         assert_eq!(applied.to_string(), "applied: read-back confirms the value");
-        let failed = crate::bus::CommandOutcome::Failed {
+        let failed = CommandOutcome::Failed {
             cause: CommandFailure::PortNotOpen,
         };
         assert_eq!(failed.to_string(), "failed: the port is not open");

@@ -19,7 +19,7 @@ use rtu2mqtt_modbus::serial::transport::{Port, TransportError};
 use rtu2mqtt_modbus::tcp::masters::{ModbusTcpMaster, RawTcpMaster, TcpKind};
 use rtu2mqtt_modbus::timing::LineTiming;
 
-use super::{LineSpec, Transport};
+use super::line_spec::{LineSpec, Transport};
 
 /// Waits between attempts: the first one, doubling up to the longest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -14,7 +14,8 @@ use std::collections::HashMap;
 use std::time::{Instant, SystemTime};
 
 use super::device::Values;
-use super::{DeviceSpec, LineEvent, Origin};
+use super::device_spec::DeviceSpec;
+use super::event::{LineEvent, Origin};
 use rtu2mqtt_profile::{PublishRule, Value};
 
 /// The publishing state of one line's devices.

@@ -7,8 +7,8 @@ use std::time::{Instant, SystemTime};
 
 use tokio::sync::mpsc;
 
+use super::event::LineEvent;
 use super::report::Report;
-use super::LineEvent;
 use tokio_util::sync::CancellationToken;
 
 /// Events a line may be ahead of its reporter by (the reporter hands them on at once).

@@ -18,10 +18,10 @@ use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 use rtu2mqtt_profile::{CommandPlan, Verification};
 
 use super::outcome::CommandFailure;
+use super::outcome::CommandOutcome;
 use super::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};
 use super::stats::DeviceStats;
 use super::transaction::{Exchange, Failure};
-use super::CommandOutcome;
 
 /// How a slot ended.
 #[derive(Debug)]

@@ -12,8 +12,8 @@ use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::{Error as MasterError, PortFault, Reply};
 use rtu2mqtt_modbus::{Request, SlaveId, Transact};
 
+use super::device_spec::DeviceSpec;
 use super::stats::DeviceStats;
-use super::DeviceSpec;
 
 /// Why an exchange gave no answer from the device. A device's exception answer is not a
 /// failure: it comes back as the `Err` of a [`Reply`].

@@ -6,13 +6,14 @@ use std::time::Instant;
 
 use super::Line;
 use crate::bus::commands::Pending;
+use crate::bus::event::LineEvent;
+use crate::bus::outcome::{Command, CommandOutcome};
 use crate::bus::serve::policy;
 use crate::bus::serve::served_side::{
     block_overlaps, client_answer, echo, written_span, ClientCount, ClientWrite,
 };
 use crate::bus::serve::{Access, ClientRequest};
 use crate::bus::transaction::{Exchange, Failure};
-use crate::bus::{Command, CommandOutcome, LineEvent};
 use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Request};
 

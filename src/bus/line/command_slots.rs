@@ -9,9 +9,10 @@ use tokio::sync::mpsc;
 use super::Line;
 use crate::bus::commands::{Finished, Pending, Settle, SlotReport};
 use crate::bus::device::Values;
+use crate::bus::event::{LineEvent, Origin};
+use crate::bus::outcome::{Command, CommandFailure, CommandOutcome};
 use crate::bus::serve::served_side::FIRST_CLIENT_COMMAND_ID;
 use crate::bus::slot::SeenReads;
-use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 
 /// Commands: taking them in, running their slots and carrying out what the slots report.
 impl Line {

@@ -34,6 +34,9 @@ use super::availability::{HealthChange, HealthPolicy};
 use super::cadence::DevicePlan;
 use super::commands::{CommandSlots, Pending, SlotLink};
 use super::device::{DeviceRuntime, Values};
+use super::event::{LineEvent, Origin};
+use super::line_spec::{LineSpec, Transport};
+use super::outcome::{Command, CommandFailure};
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;
@@ -42,18 +45,27 @@ use super::scheduler::{Due, PollOutcome, Scheduler};
 use super::serve::queue::{BlockCache, CLIENT_QUEUE};
 use super::serve::served_side::ServedSide;
 use super::serve::server::{self, ServeCounters};
+use super::stats::LineStats;
 use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
-use super::{
-    Command, CommandFailure, LineEvent, LineHandle, LineSpec, LineStats, Origin, Transport,
-    WriteClock,
-};
+use super::write_clock::WriteClock;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::serial::transport::TransportError;
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_modbus::{PortFault, WireCounters};
 use rtu2mqtt_profile::Profile;
 use tokio_util::sync::CancellationToken;
+
+/// The bridge's handle on a running line.
+#[derive(Debug, Clone)]
+pub struct LineHandle {
+    pub name: String,
+    pub command_tx: mpsc::Sender<Command>,
+    /// Refresh requests, by device name: each of the device's blocks is read in the line's next
+    /// slots and what changed is reported.
+    pub refresh_tx: mpsc::Sender<String>,
+    pub stats_rx: watch::Receiver<LineStats>,
+}
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
 pub(crate) const COMMAND_QUEUE: usize = 64;
@@ -706,7 +718,7 @@ mod tests {
             byte_timeout: None,
             frame_log: None,
             serve: None,
-            devices: vec![super::super::DeviceSpec {
+            devices: vec![crate::bus::device_spec::DeviceSpec {
                 name: "valve".into(),
                 address: 1,
                 profile: Arc::new(profile),

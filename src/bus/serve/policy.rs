@@ -6,7 +6,7 @@
 use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId};
 
 use super::Access;
-use crate::bus::DeviceSpec;
+use crate::bus::device_spec::DeviceSpec;
 use rtu2mqtt_profile::Behaviour;
 use rtu2mqtt_profile::{CommandPlan, DeviceState, Profile, Value};
 

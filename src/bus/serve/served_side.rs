@@ -13,8 +13,8 @@ use tokio::sync::mpsc;
 use super::queue::{BlockCache, ClientQueue};
 use super::server::ServeCounters;
 use super::ClientRequest;
+use crate::bus::outcome::{CommandFailure, CommandOutcome};
 use crate::bus::stats::LineStats;
-use crate::bus::{CommandFailure, CommandOutcome};
 use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 

@@ -28,7 +28,7 @@ use rtu2mqtt_modbus::{ExceptionCode, FunctionCode, Request, SlaveId};
 use super::places::{NoPlace, Place, Places, PLACE_GRACE, PLACE_WAIT};
 use super::policy::{self, Verdict};
 use super::{Access, ClientRequest, ServeFraming, ServeSpec};
-use crate::bus::DeviceSpec;
+use crate::bus::device_spec::DeviceSpec;
 use tokio_util::sync::CancellationToken;
 
 /// Once a request has started, the rest of it must arrive within this time: a torn frame

@@ -1,0 +1,66 @@
+//! One configured line with its devices, as the bus takes it from the configuration: what it
+//! talks through ([`Transport`]), its timing and retry settings, and the server of other
+//! masters it may carry.
+
+use std::time::Duration;
+
+use rtu2mqtt_modbus::serial::transport::SerialSettings;
+use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
+
+use super::device_spec::DeviceSpec;
+use super::serve;
+
+/// What a line talks through.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Transport {
+    /// The serial port at [`LineSpec::serial`]'s path.
+    Serial,
+    /// A serial device server (`tcp://`: raw RTU, timed by [`LineSpec::serial`]'s baud and
+    /// format) or a Modbus TCP gateway (`modbus-tcp://`).
+    Tcp {
+        endpoint: TcpEndpoint,
+        options: TcpOptions,
+        /// Added to the default response timeout for the network's round trip.
+        network_allowance: Duration,
+    },
+}
+
+impl Transport {
+    /// How `check` and the logs name it.
+    pub fn describe(&self, serial: &SerialSettings) -> String {
+        match self {
+            Transport::Serial => format!("serial port {}", serial.path),
+            Transport::Tcp { endpoint, .. } => match endpoint.kind {
+                TcpKind::RawRtu => format!("serial device server {} (raw RTU)", endpoint.url()),
+                TcpKind::ModbusTcp => format!("Modbus TCP gateway {}", endpoint.url()),
+            },
+        }
+    }
+}
+
+/// One configured line with its devices.
+#[derive(Debug, Clone)]
+pub struct LineSpec {
+    pub name: String,
+    /// The serial port and its character format. On a TCP line `path` holds the url (for logs)
+    /// and baud and format time the server's serial side.
+    pub serial: SerialSettings,
+    pub transport: Transport,
+    /// None: derived from baud and the longest expected answer plus a device margin.
+    pub response_timeout: Option<Duration>,
+    /// Retries after a failed transaction (timeout, CRC, truncated answer).
+    pub retries: u32,
+    /// Consecutive failed polls after which a device is reported offline.
+    pub offline_after: u32,
+    /// The adapter echoes what it sends.
+    pub echo: bool,
+    /// Silence after a broadcast write.
+    pub broadcast_turnaround: Duration,
+    /// Longest pause inside an answer (None: the master's default).
+    pub byte_timeout: Option<Duration>,
+    /// Record every frame of the line here (`gateway.frame_log`).
+    pub frame_log: Option<rtu2mqtt_modbus::frame_log::FrameLog>,
+    pub devices: Vec<DeviceSpec>,
+    /// The line served to other Modbus masters (`[lines.serve]`; none: not served).
+    pub serve: Option<serve::ServeSpec>,
+}
