@@ -191,6 +191,7 @@ impl Publisher {
         self.connected = false;
         // The next connection announces every device again.
         self.announcing.clear();
+        self.cache.clear_awaiting_turns();
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
@@ -309,13 +310,19 @@ impl Publisher {
         if self.discovery {
             announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
         }
+        for announcement in &announcing {
+            if let Announcement::Device { device, everything } = announcement {
+                self.cache.set_awaiting_turn(device, *everything);
+            }
+        }
         self.announcing = announcing;
         self.continue_announcing();
     }
 
     /// The next [`ANNOUNCE_BATCH`] lines or devices still to be announced. Each discovery
     /// document is built when it is published, from the device's state then (its identity
-    /// fields).
+    /// fields). A device announced with `everything` publishes nothing of its own before its
+    /// turn: what it read by then goes out in the turn, each field once.
     pub(crate) fn continue_announcing(&mut self) {
         if !self.connected {
             return;
@@ -404,7 +411,9 @@ impl Publisher {
                 view.mark_stale();
             }
         }
-        if again && self.connected {
+        // A device waiting for its turn is published in full then.
+        let publishing = self.connected && !self.cache.awaits_turn(device);
+        if again && publishing {
             self.cache
                 .forget_published(device, values.iter().map(|(field, _)| field.as_str()));
         }
@@ -426,7 +435,7 @@ impl Publisher {
             self.publish(topic, document.to_string(), true);
         }
         self.publish_state(updates);
-        if self.json_view {
+        if self.json_view && publishing {
             self.publish_json_view(device);
         }
     }
@@ -560,9 +569,7 @@ impl Publisher {
             Guarded::Availability(device) => {
                 Some(availability_word(self.cache.is_online(device)).to_string())
             }
-            Guarded::State(device, field) => {
-                self.cache.published_text(device, field).map(str::to_string)
-            }
+            Guarded::State(device, field) => self.cache.published_text(device, field),
         }
     }
 

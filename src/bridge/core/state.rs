@@ -2,6 +2,8 @@
 //! planned against), availability, and what has been published, so that state goes out on
 //! change, in full after every (re)connect, and in full when a device comes back online.
 //! Bounded by the configuration: only configured devices are kept, one value per field.
+//! What was published is kept as the value, not its text: a poll compares values, and the text
+//! is rendered only for what goes out.
 
 use std::collections::HashMap;
 
@@ -10,12 +12,15 @@ use rtu2mqtt_profile::{DeviceState, Value};
 #[derive(Debug, Default)]
 struct DeviceCache {
     state: DeviceState,
-    /// Text last handed to MQTT per field.
-    published: HashMap<String, String>,
+    /// Value last handed to MQTT per field.
+    published: HashMap<String, Value>,
     /// None until the line has said anything about the device.
     online: Option<bool>,
     /// Publish every field with the next values (the device just came back).
     republish_next: bool,
+    /// The device's turn to be published in full is still to come
+    /// ([`StateCache::set_awaiting_turn`]): its values are kept, not published one by one.
+    awaiting_turn: bool,
 }
 
 /// Latest values and availability of the configured devices.
@@ -61,11 +66,35 @@ impl StateCache {
     }
 
     /// The text last handed to MQTT for this field, if any.
-    pub fn published_text(&self, device: &str, field: &str) -> Option<&str> {
+    pub fn published_text(&self, device: &str, field: &str) -> Option<String> {
         self.devices
             .get(device)
             .and_then(|cache| cache.published.get(field))
-            .map(String::as_str)
+            .map(Value::to_text)
+    }
+
+    /// Whether `device`'s values wait for its turn to be published in full.
+    pub fn awaits_turn(&self, device: &str) -> bool {
+        self.devices
+            .get(device)
+            .is_some_and(|cache| cache.awaiting_turn)
+    }
+
+    /// Marks `device` as waiting (or no longer waiting) for its turn to be published in full
+    /// ([`StateCache::republish`]): until then [`StateCache::update`] keeps its values without
+    /// publishing them, so that a connection's first values of a thousand devices go out in
+    /// their devices' turns rather than all at once, and each field once, with its newest value.
+    pub fn set_awaiting_turn(&mut self, device: &str, awaiting: bool) {
+        if let Some(cache) = self.devices.get_mut(device) {
+            cache.awaiting_turn = awaiting;
+        }
+    }
+
+    /// No device waits for its turn any more (the connection is gone).
+    pub fn clear_awaiting_turns(&mut self) {
+        for cache in self.devices.values_mut() {
+            cache.awaiting_turn = false;
+        }
     }
 
     pub fn is_online(&self, device: &str) -> bool {
@@ -75,10 +104,10 @@ impl StateCache {
             .unwrap_or(false)
     }
 
-    /// Stores fresh values. When `connected`, returns the fields to publish (changed ones, or
-    /// all of them right after the device came back) and records them as published. A value
-    /// the device marks unavailable is kept (the JSON view shows it as `null`) but never
-    /// published: the field's topic keeps the last value it had.
+    /// Stores fresh values. When `connected` and the device does not wait for its turn, returns
+    /// the fields to publish (changed ones, or all of them right after the device came back) and
+    /// records them as published. A value the device marks unavailable is kept (the JSON view
+    /// shows it as `null`) but never published: the field's topic keeps the last value it had.
     pub fn update(
         &mut self,
         device: &str,
@@ -89,21 +118,21 @@ impl StateCache {
             return Vec::new();
         };
         let mut updates = Vec::new();
+        let publishing = connected && !cache.awaiting_turn;
         let everything = cache.republish_next;
         for (field, value) in values {
-            let text = value.to_text();
-            let changed = everything || cache.published.get(&field) != Some(&text);
-            if connected && value.is_available() && changed {
-                cache.published.insert(field.clone(), text.clone());
+            let changed = everything || cache.published.get(&field) != Some(&value);
+            if publishing && value.is_available() && changed {
+                cache.published.insert(field.clone(), value.clone());
                 updates.push(StateUpdate {
                     device: device.to_string(),
+                    text: value.to_text(),
                     field: field.clone(),
-                    text,
                 });
             }
             cache.state.insert(field, value);
         }
-        if connected {
+        if publishing {
             cache.republish_next = false;
         }
         updates
@@ -165,11 +194,16 @@ impl StateCache {
 
     /// The known values of `device` not published on this connection yet (every one after
     /// [`StateCache::forget_all_published`]), in the order of their field names; recorded as
-    /// published.
+    /// published. This is the device's turn: it no longer waits for it, and every value it
+    /// has is published now, so the device coming back needs no second round.
     pub fn republish(&mut self, device: &str) -> Vec<StateUpdate> {
         let Some(cache) = self.devices.get_mut(device) else {
             return Vec::new();
         };
+        cache.awaiting_turn = false;
+        if !cache.state.is_empty() {
+            cache.republish_next = false;
+        }
         let mut fields: Vec<&String> = cache.state.keys().collect();
         fields.sort();
         let mut updates = Vec::new();
@@ -178,15 +212,14 @@ impl StateCache {
             if !value.is_available() {
                 continue;
             }
-            let text = value.to_text();
-            if cache.published.get(field) == Some(&text) {
+            if cache.published.get(field) == Some(value) {
                 continue;
             }
-            cache.published.insert(field.clone(), text.clone());
+            cache.published.insert(field.clone(), value.clone());
             updates.push(StateUpdate {
                 device: device.to_string(),
                 field: field.clone(),
-                text,
+                text: value.to_text(),
             });
         }
         updates
@@ -268,11 +301,41 @@ mod tests {
         let marked = vec![("power".to_string(), Value::Unavailable)];
         assert!(cache.update("meter", marked, true).is_empty());
         assert_eq!(cache.state("meter").unwrap()["power"], Value::Unavailable);
-        assert_eq!(cache.published_text("meter", "power"), Some("1500"));
+        assert_eq!(
+            cache.published_text("meter", "power").as_deref(),
+            Some("1500")
+        );
         assert!(cache.republish_all().is_empty());
         // The value coming back is published again.
         let back = cache.update("meter", values(&[("power", 1500)]), true);
         assert_eq!(fields(&back), ["power"]);
+    }
+
+    #[test]
+    fn a_device_awaiting_its_turn_is_published_in_it_once() {
+        let mut cache = StateCache::new(["dust"]);
+        cache.set_online("dust", true);
+        cache.set_awaiting_turn("dust", true);
+        assert!(cache
+            .update("dust", values(&[("gear", 5)]), true)
+            .is_empty());
+        assert!(cache
+            .update("dust", values(&[("gear", 6)]), true)
+            .is_empty());
+        let turn = cache.republish("dust");
+        assert_eq!(fields(&turn), ["gear"]);
+        assert_eq!(turn[0].text, "6");
+        assert!(!cache.awaits_turn("dust"));
+        // Its coming online went out in the turn: the same value is not sent again.
+        assert!(cache
+            .update("dust", values(&[("gear", 6)]), true)
+            .is_empty());
+        let moved = cache.update("dust", values(&[("gear", 7)]), true);
+        assert_eq!(fields(&moved), ["gear"]);
+        // A lost connection ends every wait.
+        cache.set_awaiting_turn("dust", true);
+        cache.clear_awaiting_turns();
+        assert!(!cache.awaits_turn("dust"));
     }
 
     #[test]
