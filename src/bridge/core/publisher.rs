@@ -28,6 +28,9 @@ const MAX_DEFERRED: usize = 1024;
 /// instead of building a hundred thousand messages in one turn of the loop that also serves
 /// the lines.
 pub(crate) const ANNOUNCE_BATCH: usize = 50;
+/// Lines and devices announced between two ticks, once the driver's outbox has taken the
+/// last ones ([`super::Core::on_announce_room`]).
+pub(crate) const ANNOUNCE_ON_ROOM: usize = 10;
 
 /// What is still to be announced: a line's discovery document; a device's, and with
 /// `everything` its availability, every state and its JSON view.
@@ -324,10 +327,21 @@ impl Publisher {
     /// fields). A device announced with `everything` publishes nothing of its own before its
     /// turn: what it read by then goes out in the turn, each field once.
     pub(crate) fn continue_announcing(&mut self) {
+        self.continue_announcing_up_to(ANNOUNCE_BATCH);
+    }
+
+    /// Lines or devices wait to be announced on the connection.
+    pub(crate) fn is_announcing(&self) -> bool {
+        self.connected && !self.announcing.is_empty()
+    }
+
+    /// The next `count` lines or devices still to be announced (see
+    /// [`Publisher::continue_announcing`]).
+    pub(crate) fn continue_announcing_up_to(&mut self, count: usize) {
         if !self.connected {
             return;
         }
-        for _ in 0..ANNOUNCE_BATCH {
+        for _ in 0..count {
             let (device, everything) = match self.announcing.pop_front() {
                 None => return,
                 Some(Announcement::Line(line)) => {
