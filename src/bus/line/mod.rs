@@ -38,7 +38,7 @@ use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;
 use super::reporter;
-use super::scheduler::{Due, PollOutcome, Scheduler};
+use super::scheduler::{poll_phase, Due, PollOutcome, Scheduler};
 use super::serve::queue::{BlockCache, CLIENT_QUEUE};
 use super::serve::served_side::ServedSide;
 use super::serve::server::{self, ServeCounters};
@@ -195,11 +195,21 @@ impl Line {
         let timeout = spec
             .response_timeout
             .unwrap_or_else(|| default_response_timeout(&spec, &timing));
-        let plans = spec.devices.iter().map(DevicePlan::for_device).collect();
-        let scheduler = Scheduler::new(
+        let plans: Vec<DevicePlan> = spec.devices.iter().map(DevicePlan::for_device).collect();
+        // A plant has Modbus TCP devices by the hundred, each on a line of its own: their
+        // polls are spread over the interval. A serial port's first poll is not put off.
+        let phase = match spec.transport {
+            Transport::Tcp { .. } => {
+                let shortest = plans.iter().map(|plan| plan.poll_interval).min();
+                shortest.map_or(Duration::ZERO, |interval| poll_phase(&spec.name, interval))
+            }
+            Transport::Serial => Duration::ZERO,
+        };
+        let scheduler = Scheduler::phased(
             plans,
             HealthPolicy::with_offline_after(spec.offline_after),
             now,
+            phase,
         );
         let devices: Vec<DeviceRuntime> = std::mem::take(&mut spec.devices)
             .into_iter()
