@@ -2,7 +2,7 @@
 //! [`rtu2mqtt_modbus::serial::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
-//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll;
+//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] (a [`command_queue`]) and run before the next poll;
 //! refresh requests (a device's every block read at once) on [`LineHandle::refresh_tx`], served
 //! after the commands and ahead of the polls.
 //! A line with a [`serve::ServeSpec`] also serves other Modbus masters through [`serve`]: their
@@ -12,6 +12,7 @@
 
 pub mod availability;
 pub mod cadence;
+pub mod command_queue;
 mod commands;
 pub(crate) mod device;
 pub(crate) mod line;
@@ -196,7 +197,7 @@ pub struct Command {
 #[derive(Debug, Clone)]
 pub struct LineHandle {
     pub name: String,
-    pub command_tx: mpsc::Sender<Command>,
+    pub command_tx: command_queue::CommandSender,
     /// Refresh requests, by device name: each of the device's blocks is read in the line's next
     /// slots and what changed is reported.
     pub refresh_tx: mpsc::Sender<String>,

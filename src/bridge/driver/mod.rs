@@ -360,9 +360,9 @@ impl Bridge {
                     let refused = match self.lines.get(line) {
                         Some(handle) => match handle.command_tx.try_send(command) {
                             Ok(()) => None,
-                            Err(mpsc::error::TrySendError::Full(command)) => Some((command, true)),
+                            Err(mpsc::error::TrySendError::Full(command)) => Some((*command, true)),
                             Err(mpsc::error::TrySendError::Closed(command)) => {
-                                Some((command, false))
+                                Some((*command, false))
                             }
                         },
                         None => Some((command, false)),

@@ -32,6 +32,7 @@ mod command_slots;
 
 use super::availability::{HealthChange, HealthPolicy};
 use super::cadence::DevicePlan;
+use super::command_queue::{command_queue, CommandReceiver};
 use super::commands::{CommandSlots, Pending, SlotLink};
 use super::device::{DeviceRuntime, Values};
 use super::poll::{self, PollContext};
@@ -87,7 +88,7 @@ pub fn spawn_line_with_clock(
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
     let now = Instant::now();
-    let (command_tx, command_rx) = mpsc::channel(COMMAND_QUEUE);
+    let (command_tx, command_rx) = command_queue(COMMAND_QUEUE);
     let (refresh_tx, refresh_rx) = mpsc::channel(REFRESH_QUEUE);
     let (stats_tx, stats_rx) = watch::channel(LineStats::new(&spec.name, &names, now));
     let handle = LineHandle {
@@ -127,7 +128,7 @@ pub fn spawn_line_with_clock(
     line.refreshes = Some(refresh_rx);
     line.writes = writes;
     line.served.serve(clients, counters);
-    let task = tokio::spawn(line.run().instrument(span));
+    let task = tokio::spawn(Box::new(line).run().instrument(span));
     (handle, task)
 }
 
@@ -186,7 +187,7 @@ impl Line {
     fn new(
         mut spec: LineSpec,
         events_tx: mpsc::Sender<LineEvent>,
-        command_rx: mpsc::Receiver<Command>,
+        command_rx: CommandReceiver,
         stats_tx: watch::Sender<LineStats>,
         shutdown: CancellationToken,
         now: Instant,
@@ -261,7 +262,9 @@ impl Line {
         self.spec.retries.saturating_add(1)
     }
 
-    async fn run(mut self) {
+    /// The line's loop. The line is boxed: an async fn keeps its arguments in its future beside
+    /// the state of each await, and a plant of a thousand lines holds a thousand of these.
+    async fn run(mut self: Box<Self>) {
         while !self.shutdown.is_cancelled() {
             let now = Instant::now();
             self.accept_commands(now).await;
@@ -275,25 +278,28 @@ impl Line {
                 }
                 continue;
             }
+            // Command, settle and client slots are rare beside polls and their futures are the
+            // largest: each is boxed while it runs, so that the line's own future, which a plant
+            // of a thousand lines holds a thousand times, is sized for a poll.
             // What the line does next is chosen once it is free, so that a command arriving
             // during the silence goes ahead of the poll that would otherwise have been chosen
             // at its start.
             self.quiet_unless_command().await;
             let now = Instant::now();
             if let Some(settle) = self.commands.take_due_settle(now) {
-                self.run_settle(settle).await;
+                Box::pin(self.run_settle(settle)).await;
                 self.publish_stats();
                 continue;
             }
             if let Some((device, pending)) = self.commands.take_due_held(now) {
-                self.run_command(device, pending).await;
+                Box::pin(self.run_command(device, pending)).await;
                 self.publish_stats();
                 continue;
             }
             // Clients after commands, before polls; a due poll between two client slots.
             let commands_queued = self.scheduler.queued_commands() > 0;
             if let Some(request) = self.served.take_turn(commands_queued) {
-                self.run_client(request).await;
+                Box::pin(self.run_client(request)).await;
                 self.publish_stats();
                 continue;
             }
@@ -301,7 +307,7 @@ impl Line {
             let next_settle = self.commands.next_due();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
-                    self.run_command(device, command).await;
+                    Box::pin(self.run_command(device, command)).await;
                     self.publish_stats();
                 }
                 Due::Poll { device, block } => {
