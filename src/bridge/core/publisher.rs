@@ -102,7 +102,7 @@ impl Publisher {
             json_view,
             history,
             line_names,
-            cache: StateCache::new(devices.iter().map(|d| d.name.as_str())),
+            cache: StateCache::with_profiles(devices.iter().map(|d| (d.name.as_str(), &d.profile))),
             devices: bridge_device::by_name(devices),
             connected: false,
             deferred: VecDeque::new(),
@@ -356,7 +356,7 @@ impl Publisher {
                     &self.topics,
                     &device,
                     &entry.profile,
-                    self.cache.state(&device),
+                    self.cache.state(&device).as_ref(),
                 );
                 self.publish(topic, document.to_string(), true);
             }
@@ -410,7 +410,7 @@ impl Publisher {
         if self.history {
             self.history_entry(device, &values, read_at, again);
         }
-        if let Some(known) = self.cache.state(device).filter(|_| self.json_view) {
+        if let Some(known) = self.cache.known(device).filter(|_| self.json_view) {
             let view = self
                 .json_views
                 .entry(self.topics.json_view_topic(device))
@@ -436,13 +436,13 @@ impl Publisher {
             .devices
             .get(device)
             .filter(|_| self.discovery)
-            .and_then(|entry| {
-                discovery::identity_update(
+            .filter(|entry| discovery::identity_changed(device, &entry.profile, &updates))
+            .map(|entry| {
+                discovery::device_config_with_state(
                     &self.topics,
                     device,
                     &entry.profile,
-                    self.cache.state(device),
-                    &updates,
+                    self.cache.state(device).as_ref(),
                 )
             })
         {
@@ -462,7 +462,7 @@ impl Publisher {
         read_at: SystemTime,
         again: bool,
     ) {
-        let known = self.cache.state(device);
+        let known = self.cache.known(device);
         if known.is_none() && !self.devices.contains_key(device) {
             return;
         }
@@ -644,8 +644,11 @@ impl Publisher {
             .filter(|device| !self.devices.contains_key(&device.name))
             .map(|device| device.name.clone())
             .collect();
-        self.cache
-            .reconfigure(devices.iter().map(|device| device.name.as_str()));
+        self.cache.reconfigure(
+            devices
+                .iter()
+                .map(|device| (device.name.as_str(), &device.profile)),
+        );
         self.devices = bridge_device::by_name(devices);
         self.line_names = line_names;
         self.publish_discovery();

@@ -2,18 +2,51 @@
 //! planned against), availability, and what has been published, so that state goes out on
 //! change, in full after every (re)connect, and in full when a device comes back online.
 //! Bounded by the configuration: only configured devices are kept, one value per field.
-//! What was published is kept as the value, not its text: a poll compares values, and the text
-//! is rendered only for what goes out.
+//! A device keeps its values in the order of its profile's fields, found by name through an
+//! index its profile's devices share, instead of a map of its own; what was published is kept
+//! as the value, not its text: a poll compares values, and the text is rendered only for what
+//! goes out.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
-use rtu2mqtt_profile::{DeviceState, Value};
+use rtu2mqtt_profile::{DeviceState, Profile, Value};
+
+/// Where a device keeps each field: a slot per field name. Built once per profile and shared
+/// by its devices; a field the profile does not have gets a slot in the device's own copy.
+#[derive(Debug, Default, Clone)]
+struct FieldSlots {
+    by_name: HashMap<String, usize>,
+}
+
+impl FieldSlots {
+    fn of(profile: &Profile) -> Self {
+        let by_name = profile
+            .fields()
+            .iter()
+            .enumerate()
+            .map(|(slot, field)| (field.name.clone(), slot))
+            .collect();
+        FieldSlots { by_name }
+    }
+
+    fn get(&self, field: &str) -> Option<usize> {
+        self.by_name.get(field).copied()
+    }
+}
+
+/// One field of a device: its latest value and the value last handed to MQTT.
+#[derive(Debug, Default, Clone)]
+struct FieldEntry {
+    value: Option<Value>,
+    published: Option<Value>,
+}
 
 #[derive(Debug, Default)]
 struct DeviceCache {
-    state: DeviceState,
-    /// Value last handed to MQTT per field.
-    published: HashMap<String, Value>,
+    slots: Arc<FieldSlots>,
+    /// Per slot of `slots`.
+    fields: Vec<FieldEntry>,
     /// None until the line has said anything about the device.
     online: Option<bool>,
     /// Publish every field with the next values (the device just came back).
@@ -21,6 +54,70 @@ struct DeviceCache {
     /// The device's turn to be published in full is still to come
     /// ([`StateCache::set_awaiting_turn`]): its values are kept, not published one by one.
     awaiting_turn: bool,
+}
+
+impl DeviceCache {
+    fn new(slots: Arc<FieldSlots>) -> Self {
+        DeviceCache {
+            fields: vec![FieldEntry::default(); slots.by_name.len()],
+            slots,
+            ..DeviceCache::default()
+        }
+    }
+
+    fn entry(&self, field: &str) -> Option<&FieldEntry> {
+        self.slots.get(field).and_then(|slot| self.fields.get(slot))
+    }
+
+    /// The field's entry, given a slot if the device has none for it yet.
+    fn entry_mut(&mut self, field: &str) -> &mut FieldEntry {
+        let slot = match self.slots.get(field) {
+            Some(slot) => slot,
+            None => {
+                let slot = self.fields.len();
+                Arc::make_mut(&mut self.slots)
+                    .by_name
+                    .insert(field.to_string(), slot);
+                slot
+            }
+        };
+        if slot >= self.fields.len() {
+            self.fields.resize_with(slot + 1, FieldEntry::default);
+        }
+        &mut self.fields[slot]
+    }
+
+    /// The same device on `slots` (a reload's profile): each value moves to its field's slot
+    /// there, fields the new slots do not have are dropped.
+    fn moved_to(mut self, slots: Arc<FieldSlots>) -> Self {
+        if Arc::ptr_eq(&self.slots, &slots) {
+            return self;
+        }
+        let mut fields = vec![FieldEntry::default(); slots.by_name.len()];
+        for (name, &old) in &self.slots.by_name {
+            let entry = self.fields.get_mut(old).map(std::mem::take);
+            if let (Some(new), Some(entry)) = (slots.get(name), entry) {
+                if let Some(place) = fields.get_mut(new) {
+                    *place = entry;
+                }
+            }
+        }
+        DeviceCache {
+            slots,
+            fields,
+            ..self
+        }
+    }
+}
+
+/// The known values of one device, looked up by field name.
+#[derive(Debug, Clone, Copy)]
+pub struct Known<'c>(&'c DeviceCache);
+
+impl<'c> Known<'c> {
+    pub fn get(&self, field: &str) -> Option<&'c Value> {
+        self.0.entry(field).and_then(|entry| entry.value.as_ref())
+    }
 }
 
 /// Latest values and availability of the configured devices.
@@ -39,7 +136,22 @@ pub struct StateUpdate {
     pub text: String,
 }
 
+/// The shared slots of each profile among `devices`, by the profile's address.
+fn slots_by_profile<'a>(
+    devices: impl IntoIterator<Item = &'a Arc<Profile>>,
+) -> HashMap<*const Profile, Arc<FieldSlots>> {
+    let mut shared = HashMap::new();
+    for profile in devices {
+        shared
+            .entry(Arc::as_ptr(profile))
+            .or_insert_with(|| Arc::new(FieldSlots::of(profile)));
+    }
+    shared
+}
+
 impl StateCache {
+    /// A cache of `devices` whose fields are not known beforehand (each gets its slots as its
+    /// values arrive).
     pub fn new<'a>(devices: impl IntoIterator<Item = &'a str>) -> Self {
         let mut cache = StateCache::default();
         for name in devices {
@@ -47,6 +159,27 @@ impl StateCache {
             cache
                 .devices
                 .insert(name.to_string(), DeviceCache::default());
+        }
+        cache
+    }
+
+    /// A cache of `devices` (name and profile, in configuration order), each with a slot for
+    /// every field of its profile.
+    pub fn with_profiles<'a>(
+        devices: impl IntoIterator<Item = (&'a str, &'a Arc<Profile>)>,
+    ) -> Self {
+        let devices: Vec<(&str, &Arc<Profile>)> = devices.into_iter().collect();
+        let shared = slots_by_profile(devices.iter().map(|(_, profile)| *profile));
+        let mut cache = StateCache::default();
+        for (name, profile) in devices {
+            let slots = shared
+                .get(&Arc::as_ptr(profile))
+                .cloned()
+                .unwrap_or_default();
+            cache.order.push(name.to_string());
+            cache
+                .devices
+                .insert(name.to_string(), DeviceCache::new(slots));
         }
         cache
     }
@@ -60,16 +193,33 @@ impl StateCache {
         &self.order
     }
 
-    /// The last known values of `device` (empty when unknown).
-    pub fn state(&self, device: &str) -> Option<&DeviceState> {
-        self.devices.get(device).map(|cache| &cache.state)
+    /// The last known values of `device`, for looking fields up (None when it is not
+    /// configured).
+    pub fn known(&self, device: &str) -> Option<Known<'_>> {
+        self.devices.get(device).map(Known)
+    }
+
+    /// The last known values of `device` as a state (None when it is not configured).
+    pub fn state(&self, device: &str) -> Option<DeviceState> {
+        let cache = self.devices.get(device)?;
+        let state = cache
+            .slots
+            .by_name
+            .iter()
+            .filter_map(|(name, &slot)| {
+                let value = cache.fields.get(slot)?.value.clone()?;
+                Some((name.clone(), value))
+            })
+            .collect();
+        Some(state)
     }
 
     /// The text last handed to MQTT for this field, if any.
     pub fn published_text(&self, device: &str, field: &str) -> Option<String> {
         self.devices
             .get(device)
-            .and_then(|cache| cache.published.get(field))
+            .and_then(|cache| cache.entry(field))
+            .and_then(|entry| entry.published.as_ref())
             .map(Value::to_text)
     }
 
@@ -121,16 +271,20 @@ impl StateCache {
         let publishing = connected && !cache.awaiting_turn;
         let everything = cache.republish_next;
         for (field, value) in values {
-            let changed = everything || cache.published.get(&field) != Some(&value);
+            let entry = cache.entry_mut(&field);
+            let changed = everything || entry.published.as_ref() != Some(&value);
             if publishing && value.is_available() && changed {
-                cache.published.insert(field.clone(), value.clone());
+                entry.published = Some(value.clone());
+                let text = value.to_text();
+                entry.value = Some(value);
                 updates.push(StateUpdate {
                     device: device.to_string(),
-                    text: value.to_text(),
-                    field: field.clone(),
+                    field,
+                    text,
                 });
+            } else {
+                entry.value = Some(value);
             }
-            cache.state.insert(field, value);
         }
         if publishing {
             cache.republish_next = false;
@@ -147,7 +301,11 @@ impl StateCache {
     ) {
         if let Some(cache) = self.devices.get_mut(device) {
             for field in fields {
-                cache.published.remove(field);
+                if let Some(slot) = cache.slots.get(field) {
+                    if let Some(entry) = cache.fields.get_mut(slot) {
+                        entry.published = None;
+                    }
+                }
             }
         }
     }
@@ -166,13 +324,26 @@ impl StateCache {
         changed
     }
 
-    /// The configured devices after a reload, in their new order: devices that stay keep what
-    /// is known about them, new ones start unknown, removed ones are forgotten.
-    pub fn reconfigure<'a>(&mut self, devices: impl IntoIterator<Item = &'a str>) {
+    /// The configured devices (name and profile) after a reload, in their new order: devices
+    /// that stay keep what is known about the fields their profile still has, new ones start
+    /// unknown, removed ones are forgotten.
+    pub fn reconfigure<'a>(
+        &mut self,
+        devices: impl IntoIterator<Item = (&'a str, &'a Arc<Profile>)>,
+    ) {
+        let devices: Vec<(&str, &Arc<Profile>)> = devices.into_iter().collect();
+        let shared = slots_by_profile(devices.iter().map(|(_, profile)| *profile));
         let mut kept = HashMap::new();
         let mut order = Vec::new();
-        for name in devices {
-            let cache = self.devices.remove(name).unwrap_or_default();
+        for (name, profile) in devices {
+            let slots = shared
+                .get(&Arc::as_ptr(profile))
+                .cloned()
+                .unwrap_or_default();
+            let cache = match self.devices.remove(name) {
+                Some(cache) => cache.moved_to(slots),
+                None => DeviceCache::new(slots),
+            };
             kept.insert(name.to_string(), cache);
             order.push(name.to_string());
         }
@@ -201,25 +372,33 @@ impl StateCache {
             return Vec::new();
         };
         cache.awaiting_turn = false;
-        if !cache.state.is_empty() {
+        if cache.fields.iter().any(|entry| entry.value.is_some()) {
             cache.republish_next = false;
         }
-        let mut fields: Vec<&String> = cache.state.keys().collect();
+        let slots = Arc::clone(&cache.slots);
+        let mut fields: Vec<(&String, usize)> = slots
+            .by_name
+            .iter()
+            .map(|(name, &slot)| (name, slot))
+            .collect();
         fields.sort();
         let mut updates = Vec::new();
-        for field in fields {
-            let value = &cache.state[field];
-            if !value.is_available() {
+        for (field, slot) in fields {
+            let Some(entry) = cache.fields.get_mut(slot) else {
+                continue;
+            };
+            let Some(value) = entry.value.as_ref().filter(|value| value.is_available()) else {
+                continue;
+            };
+            if entry.published.as_ref() == Some(value) {
                 continue;
             }
-            if cache.published.get(field) == Some(value) {
-                continue;
-            }
-            cache.published.insert(field.clone(), value.clone());
+            let text = value.to_text();
+            entry.published = Some(value.clone());
             updates.push(StateUpdate {
                 device: device.to_string(),
                 field: field.clone(),
-                text: value.to_text(),
+                text,
             });
         }
         updates
@@ -229,7 +408,9 @@ impl StateCache {
     /// device's next reading or in the device's turn, whichever comes first.
     pub fn forget_all_published(&mut self) {
         for cache in self.devices.values_mut() {
-            cache.published.clear();
+            for entry in &mut cache.fields {
+                entry.published = None;
+            }
         }
     }
 }
@@ -276,6 +457,10 @@ mod tests {
             .update("dust", values(&[("gear", 6)]), true)
             .is_empty());
         assert_eq!(cache.state("dust").unwrap()["gear"], Value::Int(6));
+        assert_eq!(
+            cache.known("dust").unwrap().get("gear"),
+            Some(&Value::Int(6))
+        );
     }
 
     #[test]
@@ -336,6 +521,31 @@ mod tests {
         cache.set_awaiting_turn("dust", true);
         cache.clear_awaiting_turns();
         assert!(!cache.awaits_turn("dust"));
+    }
+
+    #[test]
+    fn devices_of_a_profile_share_its_slots_and_keep_their_values_across_a_reload() {
+        let profile = Arc::new(rtu2mqtt_profile::registry::built_in("wuzhou-valve").unwrap());
+        let mut cache = StateCache::with_profiles([("v1", &profile), ("v2", &profile)]);
+        let first = cache.update("v1", values(&[("opening", 40)]), true);
+        assert_eq!(fields(&first), ["opening"]);
+        assert!(Arc::ptr_eq(
+            &cache.devices["v1"].slots,
+            &cache.devices["v2"].slots
+        ));
+        assert_eq!(cache.known("v2").unwrap().get("opening"), None);
+        // A reload loads the profile again: the value stays, and is not published again.
+        let reloaded = Arc::new(rtu2mqtt_profile::registry::built_in("wuzhou-valve").unwrap());
+        cache.reconfigure([("v1", &reloaded)]);
+        assert_eq!(
+            cache.known("v1").unwrap().get("opening"),
+            Some(&Value::Int(40))
+        );
+        assert!(cache
+            .update("v1", values(&[("opening", 40)]), true)
+            .is_empty());
+        assert!(!cache.contains("v2"));
+        assert_eq!(cache.devices(), ["v1"]);
     }
 
     #[test]
