@@ -57,7 +57,7 @@ impl EmbeddedBroker {
 
 /// rumqttd's configuration, built in code: one MQTT 3.1.1 listener on loopback. (rumqttd 0.20
 /// offers no `TCP_NODELAY` setting for the connections it accepts; the gateway's own sockets
-/// set it, see [`crate::bridge::driver::connection::client`].)
+/// set it, in `rtu2mqtt::bridge::driver::connection::client`.)
 pub fn broker_config(port: u16) -> Config {
     let connections = ConnectionSettings {
         // Time a client has to send CONNECT after the TCP connection opens.

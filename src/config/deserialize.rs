@@ -11,9 +11,9 @@ use std::fmt;
 use serde::de;
 use serde_value::{Value, ValueDeserializer};
 
+use super::problem::{Problem, Problems};
 use super::schema::{keys_at, shape_at, RawConfig, Shape};
 use super::tree::{place_text, Step, Tree};
-use super::{Problem, Problems};
 
 /// What reading found: every problem of the reading stage (unknown keys, wrong types, missing
 /// keys), and the configuration read without the offending keys and values (with stand-ins

@@ -10,8 +10,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::names::{invalid_name, is_valid_name, shown, MAX_NAME_LEN};
+use super::problem::Problem;
 use super::schema::RawDevice;
-use super::Problem;
 use crate::bus::DeviceSpec;
 use rtu2mqtt_profile::contract::reserved_name_problem;
 use rtu2mqtt_profile::{Profile, PublishRule};

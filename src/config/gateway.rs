@@ -2,11 +2,23 @@
 //! where metrics are served, the frame log's directory and the largest command payload.
 
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use super::problem::Problem;
 use super::schema::RawGateway;
-use super::{GatewayOptions, Problem};
+
+/// Per-gateway behaviour of the bridge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatewayOptions {
+    pub command_ttl: Duration,
+    pub json_view: bool,
+    pub stats_interval: Duration,
+    pub metrics_listen: Option<SocketAddr>,
+    pub frame_log: Option<PathBuf>,
+    pub allow_raw_writes: bool,
+    pub max_payload: usize,
+}
 
 /// Largest accepted command payload limit (a command is a word or a number).
 const MAX_PAYLOAD_LIMIT: usize = 64 * 1024;

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::Problem;
+use super::problem::Problem;
 
 /// The table as written.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]

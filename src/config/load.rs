@@ -10,9 +10,9 @@ use std::path::Path;
 use config::{Environment, File, FileFormat};
 
 use super::deserialize::{read_leniently, Loaded};
+use super::problem::{Problem, Problems};
 use super::schema::RawConfig;
 use super::tree::Tree;
-use super::{Problem, Problems};
 
 /// Environment variables that override file keys start with this (`RTU2MQTT__MQTT__PASSWORD`).
 pub const ENV_PREFIX: &str = "RTU2MQTT";

@@ -6,11 +6,13 @@
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
-//! the quoting they share. [`poll_plan`] computes each line's poll plan and bus load from the wire
-//! timing, for validation and `rtu2mqtt check`.
+//! the quoting they share, [`problem`] what a problem is. [`poll_plan`] computes each line's
+//! poll plan and bus load from the wire timing, for validation and `rtu2mqtt check`.
 //!
-//! What leaves this module is a [`Config`]: the bus's [`LineSpec`]s with their resolved
-//! profiles, and the MQTT and gateway settings, all checked.
+//! What leaves this module is a [`Config`] (declared beside the validation that builds it):
+//! the bus's [`LineSpec`](crate::bus::LineSpec)s with their resolved profiles, and the MQTT
+//! ([`MqttSettings`], in [`mqtt`]) and gateway ([`GatewayOptions`], in [`gateway`]) settings,
+//! all checked.
 
 pub(crate) mod deserialize;
 pub(crate) mod devices;
@@ -22,155 +24,23 @@ pub mod load;
 pub mod mqtt;
 pub(crate) mod names;
 pub mod poll_plan;
+pub(crate) mod problem;
 pub mod schema;
 pub(crate) mod sparkplug;
 pub(crate) mod tree;
 pub(crate) mod validate;
 
-use std::fmt;
-use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::path::Path;
 
-use crate::bus::LineSpec;
-use rtu2mqtt_profile::contract::Topics;
-
+pub use gateway::GatewayOptions;
 pub use health::{HealthSettings, DEFAULT_STATUS_FILE};
 pub use history::HistoryConfig;
+pub use mqtt::{MqttSettings, TlsSettings};
+pub use problem::{Problem, Problems};
 pub use schema::keys_of;
 pub use schema::SparkplugSettings;
 pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
-
-/// A validated gateway configuration.
-#[derive(Debug, Clone)]
-pub struct Config {
-    pub mqtt: MqttSettings,
-    pub gateway: GatewayOptions,
-    pub health: HealthSettings,
-    pub lines: Vec<LineSpec>,
-    /// The Sparkplug B edge node, when `[sparkplug]` is present.
-    pub sparkplug: Option<SparkplugConfig>,
-    /// The journal and the history stream, when `[history]` is present.
-    pub history: Option<HistoryConfig>,
-    /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
-    pub warnings: Vec<Problem>,
-}
-
-/// How to reach the broker, checked.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MqttSettings {
-    pub host: String,
-    pub port: u16,
-    /// Present for `mqtts://`.
-    pub tls: Option<TlsSettings>,
-    pub client_id: String,
-    /// Topic prefix (`plant`).
-    pub prefix: String,
-    pub username: Option<String>,
-    /// From the file, the environment or `password_file`.
-    pub password: Option<String>,
-    pub keep_alive: Duration,
-    pub clean_session: bool,
-    pub inflight: u16,
-    pub discovery: bool,
-    pub discovery_prefix: String,
-}
-
-impl MqttSettings {
-    /// The topics and Home Assistant names of this gateway.
-    pub fn topics(&self) -> Topics {
-        Topics::new(&self.client_id, &self.prefix).with_discovery_prefix(&self.discovery_prefix)
-    }
-}
-
-/// TLS files (checked to exist; read when connecting).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TlsSettings {
-    /// The CA bundle the broker's certificate is verified against; None: the system's trust
-    /// store.
-    pub ca_file: Option<PathBuf>,
-    /// Client certificate and key.
-    pub client_auth: Option<(PathBuf, PathBuf)>,
-}
-
-/// Per-gateway behaviour of the bridge.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GatewayOptions {
-    pub command_ttl: Duration,
-    pub json_view: bool,
-    pub stats_interval: Duration,
-    pub metrics_listen: Option<SocketAddr>,
-    pub frame_log: Option<PathBuf>,
-    pub allow_raw_writes: bool,
-    pub max_payload: usize,
-}
-
-/// One problem with its place in the file (`lines[0].devices[1].address`).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Problem {
-    /// Empty when the problem is about the whole file.
-    pub place: String,
-    pub reason: String,
-    /// The environment variable that set the value, when the problem lies in an override.
-    pub variable: Option<String>,
-}
-
-impl Problem {
-    pub fn new(place: impl Into<String>, reason: impl Into<String>) -> Self {
-        Problem {
-            place: place.into(),
-            reason: reason.into(),
-            variable: None,
-        }
-    }
-}
-
-impl fmt::Display for Problem {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if let Some(variable) = &self.variable {
-            if self.place.is_empty() || self.place == *variable {
-                write!(f, "{variable} (environment): {}", self.reason)
-            } else {
-                write!(
-                    f,
-                    "{variable} (environment, {}): {}",
-                    self.place, self.reason
-                )
-            }
-        } else if self.place.is_empty() {
-            write!(f, "{}", self.reason)
-        } else {
-            write!(f, "{}: {}", self.place, self.reason)
-        }
-    }
-}
-
-/// Every problem found in a configuration.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Problems(pub Vec<Problem>);
-
-impl Problems {
-    pub fn one(place: impl Into<String>, reason: impl Into<String>) -> Self {
-        Problems(vec![Problem::new(place, reason)])
-    }
-}
-
-impl fmt::Display for Problems {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let count = self.0.len();
-        write!(
-            f,
-            "{count} problem{} in the configuration:",
-            if count == 1 { "" } else { "s" }
-        )?;
-        for problem in &self.0 {
-            write!(f, "\n  - {problem}")?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for Problems {}
+pub use validate::Config;
 
 /// Reads, overrides from the environment and validates the configuration at `path`.
 /// A problem in a value set from the environment names its variable, not the file.

@@ -12,9 +12,47 @@ use rustls::pki_types::CertificateDer;
 use rustls::RootCertStore;
 
 use super::names::{shown, MAX_NAME_LEN};
+use super::problem::Problem;
 use super::schema::RawMqtt;
-use super::{MqttSettings, Problem, TlsSettings};
+use rtu2mqtt_profile::contract::Topics;
 use rtu2mqtt_profile::contract::MAX_TOPIC_LEN;
+
+/// How to reach the broker, checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttSettings {
+    pub host: String,
+    pub port: u16,
+    /// Present for `mqtts://`.
+    pub tls: Option<TlsSettings>,
+    pub client_id: String,
+    /// Topic prefix (`plant`).
+    pub prefix: String,
+    pub username: Option<String>,
+    /// From the file, the environment or `password_file`.
+    pub password: Option<String>,
+    pub keep_alive: Duration,
+    pub clean_session: bool,
+    pub inflight: u16,
+    pub discovery: bool,
+    pub discovery_prefix: String,
+}
+
+impl MqttSettings {
+    /// The topics and Home Assistant names of this gateway.
+    pub fn topics(&self) -> Topics {
+        Topics::new(&self.client_id, &self.prefix).with_discovery_prefix(&self.discovery_prefix)
+    }
+}
+
+/// TLS files (checked to exist; read when connecting).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsSettings {
+    /// The CA bundle the broker's certificate is verified against; None: the system's trust
+    /// store.
+    pub ca_file: Option<PathBuf>,
+    /// Client certificate and key.
+    pub client_auth: Option<(PathBuf, PathBuf)>,
+}
 
 /// Topic prefixes (`plant`, `site1/plant`).
 const MAX_PREFIX_LEN: usize = 128;

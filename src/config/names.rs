@@ -2,7 +2,7 @@
 //! lines and devices (they become topic levels, so they stay short) and a user's value quoted
 //! in a message, cut short so that a huge value never becomes a huge log line.
 
-use super::Problem;
+use super::problem::Problem;
 use rtu2mqtt_profile::contract;
 
 /// Longest part of a user's value quoted in a message; longer ones are cut and their length

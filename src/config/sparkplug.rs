@@ -7,8 +7,9 @@
 use std::path::Path;
 
 use super::mqtt::validate_mqtt_section;
+use super::mqtt::MqttSettings;
+use super::problem::Problem;
 use super::schema::SparkplugSettings;
-use super::{MqttSettings, Problem};
 
 /// Appended to the plain connection's client id when the node shares its broker: two
 /// connections with one client id would take each other over.

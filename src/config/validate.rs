@@ -8,13 +8,33 @@
 use std::path::Path;
 
 use super::gateway::validate_gateway;
+use super::gateway::GatewayOptions;
 use super::health::validate_health;
+use super::health::HealthSettings;
+use super::history::HistoryConfig;
 use super::lines::validate_lines;
 use super::mqtt::validate_mqtt;
+use super::mqtt::MqttSettings;
+use super::problem::{Problem, Problems};
 use super::schema::RawConfig;
 use super::sparkplug::validate_sparkplug;
-use super::{Config, MqttSettings, Problem, Problems};
+use super::sparkplug::SparkplugConfig;
 use crate::bus::LineSpec;
+
+/// A validated gateway configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub mqtt: MqttSettings,
+    pub gateway: GatewayOptions,
+    pub health: HealthSettings,
+    pub lines: Vec<LineSpec>,
+    /// The Sparkplug B edge node, when `[sparkplug]` is present.
+    pub sparkplug: Option<SparkplugConfig>,
+    /// The journal and the history stream, when `[history]` is present.
+    pub history: Option<HistoryConfig>,
+    /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
+    pub warnings: Vec<Problem>,
+}
 
 /// Validates `raw`; profile paths are relative to `base`.
 pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems> {

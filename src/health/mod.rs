@@ -40,11 +40,7 @@ pub use assess::{
 };
 pub use status_file::{check_status_file, wall_clock_ms, write_status_file};
 pub use systemd::{notify_ready, notify_stopping, systemd_watchdog_period, watchdog_period_from};
-pub use watchdog::{ExitFn, MqttProbe, Watchdog, WatchdogHandle, STUCK_GRACE};
-
-/// Exit status of a process ended by its own watchdog (EX_SOFTWARE): `Restart=on-failure` and
-/// Docker's `restart: unless-stopped` both restart it.
-pub const EXIT_STUCK: i32 = 70;
+pub use watchdog::{ExitFn, MqttProbe, Watchdog, WatchdogHandle, EXIT_STUCK, STUCK_GRACE};
 
 /// How long readiness waits for the first broker connection: an unreachable broker must not
 /// hold up the start (the daemon polls and reconnects without it).

@@ -9,13 +9,16 @@ use tokio::sync::watch;
 use super::assess::{assess, status_line, LoopSnapshot};
 use super::status_file::{wall_clock_ms, write_status_file};
 use super::systemd::systemd_watchdog_period;
-use super::EXIT_STUCK;
 use crate::bus::LineStats;
 use crate::config::HealthSettings;
 use tokio_util::sync::CancellationToken;
 
 /// The watchdog's last step when a loop is stuck (the process's exit, in production).
 pub type ExitFn = Box<dyn FnOnce(i32) + Send>;
+
+/// Exit status of a process ended by its own watchdog (EX_SOFTWARE): `Restart=on-failure` and
+/// Docker's `restart: unless-stopped` both restart it.
+pub const EXIT_STUCK: i32 = 70;
 
 /// How long a stuck process gets for a clean stop before the watchdog ends it.
 pub const STUCK_GRACE: Duration = Duration::from_secs(5);

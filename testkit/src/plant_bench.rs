@@ -9,7 +9,9 @@ use rtu2mqtt_sim::SeedPlant;
 use serde_json::Value as Json;
 use tokio::sync::mpsc;
 
-use crate::{fast_config, Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use crate::broker::Mosquitto;
+use crate::client::{Message, TestClient};
+use crate::gateway::{fast_config, Gateway, PlantConfig};
 
 /// How long a bench waits for what the gateway publishes: it only runs out when something is
 /// broken, even on a busy 2-core machine.

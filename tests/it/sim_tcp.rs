@@ -6,8 +6,8 @@ use crate::support::child;
 
 use std::time::Duration;
 
+use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{decode_answer, encode_request, Answer};
-use rtu2mqtt_modbus::link::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::tcp::mbap;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::{Request, Response};

@@ -18,7 +18,7 @@ use tokio::time::Instant;
 /// How long before the deadline a tokio timer must end to cover its 1 ms rounding plus a little
 /// scheduling slack. Code that listens with a tokio timeout before a precise deadline stops
 /// listening this long before it.
-pub const SPIN_WINDOW: Duration = Duration::from_micros(1500);
+pub(crate) const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 
 /// Waits until `deadline`, overshooting as little as the host allows.
 ///
@@ -27,10 +27,9 @@ pub const SPIN_WINDOW: Duration = Duration::from_micros(1500);
 /// last stretch before the deadline (a spin that looks at the reactor on every turn) shaves a
 /// little off the overshoot for a system call per turn, which cost a large share of a
 /// transaction's CPU time (`cargo bench --bench peer_compare`, docs/performance.md). Without a
-/// timerfd the tokio
-/// timer sleeps until [`SPIN_WINDOW`] before the deadline and the rest is yielded away
-/// (`tokio::task::yield_now`), so other tasks keep running even on a current_thread runtime
-/// and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with
+/// timerfd the tokio timer sleeps until 1.5 ms before the deadline (its 1 ms rounding and a
+/// little scheduling slack) and the rest is yielded away (`tokio::task::yield_now`), so other
+/// tasks keep running even on a current_thread runtime and no thread is blocked. `cargo bench --bench timer_overshoot` compares the overshoot with
 /// a plain `tokio::time::sleep_until` (docs/performance.md).
 pub async fn sleep_until_precise(deadline: Instant) {
     PreciseTimer::default().sleep_until(deadline).await;
@@ -42,7 +41,7 @@ pub async fn sleep_until_precise(deadline: Instant) {
 /// A wait dropped before its end (a `select!` that took another branch) leaves the timer armed;
 /// the next wait re-arms it, and a stale expiry is read away as `EAGAIN`.
 #[derive(Debug, Default)]
-pub struct PreciseTimer {
+pub(crate) struct PreciseTimer {
     timer: Option<AsyncFd<Timer>>,
     /// No timerfd could be had: the tokio timer stands in from then on.
     unavailable: bool,
@@ -51,7 +50,7 @@ pub struct PreciseTimer {
 impl PreciseTimer {
     /// Waits until `deadline`, overshooting as little as the host allows (see
     /// [`sleep_until_precise`]).
-    pub async fn sleep_until(&mut self, deadline: Instant) {
+    pub(crate) async fn sleep_until(&mut self, deadline: Instant) {
         let now = Instant::now();
         if deadline <= now {
             return;
@@ -141,11 +140,6 @@ fn new_timerfd() -> std::io::Result<AsyncFd<Timer>> {
         .map_err(std::io::Error::from)
 }
 
-/// [`sleep_until_precise`] for a duration from now.
-pub async fn sleep_precise(duration: Duration) {
-    sleep_until_precise(Instant::now() + duration).await;
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,7 +194,7 @@ mod tests {
             }
             ticks
         });
-        sleep_precise(Duration::from_millis(3)).await;
+        sleep_until_precise(Instant::now() + Duration::from_millis(3)).await;
         assert!(ticker.is_finished());
         assert_eq!(ticker.await.ok(), Some(3));
     }

@@ -11,14 +11,15 @@ use super::crc::{append_crc, carried_and_computed};
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 
 /// Most registers one read may ask for.
-pub const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
 /// Most bits (coils or discrete inputs) one read may ask for.
-pub const MAX_READ_BITS: u16 = 2000;
+pub(crate) const MAX_READ_BITS: u16 = 2000;
 /// Most registers one FC10 write may carry.
-pub const MAX_WRITE_REGISTERS: u16 = 123;
+pub(crate) const MAX_WRITE_REGISTERS: u16 = 123;
 /// Most coils one FC0F write may carry.
-pub const MAX_WRITE_COILS: u16 = 1968;
-/// Longest RTU frame the serial-line specification allows.
+pub(crate) const MAX_WRITE_COILS: u16 = 1968;
+/// Longest RTU frame the serial-line specification allows, in bytes: address, a PDU of at
+/// most 253 bytes, CRC.
 pub const MAX_FRAME_LEN: usize = 256;
 
 /// Coil value on the wire for ON in FC05.
@@ -29,16 +30,51 @@ const COIL_OFF: u16 = 0x0000;
 /// Why bytes are not the expected answer. Callers match on it to count and log.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum DecodeError {
+    /// The frame starts with another device's address: not the answer to our request.
     #[error("answer from address {found}, expected {expected}")]
-    WrongAddress { expected: SlaveId, found: SlaveId },
+    WrongAddress {
+        /// The address the request went to.
+        expected: SlaveId,
+        /// The address the frame carries.
+        found: SlaveId,
+    },
+    /// The frame answers another function (or is no exception of ours).
     #[error("answer with function {found:#04x}, expected {expected:#04x}")]
-    WrongFunction { expected: u8, found: u8 },
+    WrongFunction {
+        /// The request's function code.
+        expected: u8,
+        /// The function byte of the frame.
+        found: u8,
+    },
+    /// A read answer's byte count is not the one the request's quantity calls for.
     #[error("byte count {found}, expected {expected}")]
-    WrongByteCount { expected: usize, found: usize },
+    WrongByteCount {
+        /// Data bytes the request asked for.
+        expected: usize,
+        /// Data bytes the answer announces.
+        found: usize,
+    },
+    /// The CRC carried in the last two bytes is not the CRC of the bytes before them: a
+    /// byte was corrupted on the line.
     #[error("bad CRC {found:#06x}, computed {computed:#06x}")]
-    BadCrc { computed: u16, found: u16 },
+    BadCrc {
+        /// The CRC of the frame's bytes as received.
+        computed: u16,
+        /// The CRC the frame carries.
+        found: u16,
+    },
+    /// The frame ended before its expected length.
     #[error("truncated frame: {got} of {needed} bytes")]
-    Truncated { needed: usize, got: usize },
+    Truncated {
+        /// Bytes the frame should have.
+        needed: usize,
+        /// Bytes there are.
+        got: usize,
+    },
+    /// Anything else that cannot be read as the frame expected, with what was wrong: a
+    /// function this codec does not frame, a write's answer that does not echo the request,
+    /// a coil value other than 0xFF00 or 0x0000, a quantity outside the specification's
+    /// limits in a request.
     #[error("malformed frame: {0}")]
     Malformed(&'static str),
 }
@@ -46,10 +82,15 @@ pub enum DecodeError {
 /// Why a request cannot be put on the wire.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum EncodeError {
+    /// The request asks for no item, or for more than one frame of its function may carry
+    /// (125 registers or 2000 bits read, 123 registers or 1968 coils written).
     #[error("{function:?}: quantity {quantity} outside 1..={max}")]
     QuantityOutOfRange {
+        /// The request's function.
         function: FunctionCode,
+        /// Items (coils or registers) the request asks for.
         quantity: usize,
+        /// Most items the function allows.
         max: u16,
     },
 }
@@ -57,12 +98,14 @@ pub enum EncodeError {
 /// A decoded answer: a device's exception is an answer, not a transport error.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Answer {
+    /// The normal answer, checked against the request.
     Normal(Response),
+    /// The device's exception answer (function | 0x80) with its code.
     Exception(ExceptionCode),
 }
 
 /// Length of an exception answer frame: address, function | 0x80, code, CRC.
-pub const EXCEPTION_FRAME_LEN: usize = 5;
+pub(crate) const EXCEPTION_FRAME_LEN: usize = 5;
 
 /// Bytes needed to carry `bits` bits, eight to a byte.
 fn bit_bytes(bits: usize) -> usize {
@@ -117,7 +160,7 @@ fn check_quantity(function: FunctionCode, quantity: usize, max: u16) -> Result<(
 }
 
 /// Checks a request's quantity against the specification's limits.
-pub fn validate_request(request: &Request) -> Result<(), EncodeError> {
+fn validate_request(request: &Request) -> Result<(), EncodeError> {
     let function = request.function();
     match request {
         Request::ReadCoils { quantity, .. } | Request::ReadDiscreteInputs { quantity, .. } => {
@@ -355,8 +398,9 @@ fn parse_coil_word(word: u16) -> Result<bool, DecodeError> {
     }
 }
 
-/// Server side: the total length of the request frame that starts with `head`, once enough of
-/// it has arrived to know (None: need more bytes; Err: not a request this codec can frame).
+/// Server side: the total length in bytes of the request frame that starts with `head`, once
+/// enough of it has arrived to know (`Ok(None)`: need more bytes; `Err`: an unsupported
+/// function code, not a request this codec can frame).
 pub fn request_frame_len(head: &[u8]) -> Result<Option<usize>, DecodeError> {
     let Some(&code) = head.get(1) else {
         return Ok(None);
@@ -371,7 +415,9 @@ pub fn request_frame_len(head: &[u8]) -> Result<Option<usize>, DecodeError> {
     }
 }
 
-/// Server side: decodes a complete request frame.
+/// Server side: decodes a complete request frame into the address it was sent to and the
+/// request. An error says why the bytes are no request a device should carry out: too short
+/// ([`DecodeError::Truncated`]), a bad CRC, or a malformed or unsupported PDU.
 pub fn decode_request(frame: &[u8]) -> Result<(SlaveId, Request), DecodeError> {
     let needed = match request_frame_len(frame)? {
         Some(needed) => needed,

@@ -5,20 +5,31 @@
 /// 0 for broadcast.
 pub type SlaveId = u8;
 
-/// The function codes this gateway speaks.
+/// The function codes this crate frames, each with its number in the application protocol
+/// specification (the first byte of a PDU).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum FunctionCode {
+    /// 0x01: reads 1–2000 contiguous coils (read-write bits).
     ReadCoils = 0x01,
+    /// 0x02: reads 1–2000 contiguous discrete inputs (read-only bits).
     ReadDiscreteInputs = 0x02,
+    /// 0x03: reads 1–125 contiguous holding registers (read-write 16-bit words).
     ReadHoldingRegisters = 0x03,
+    /// 0x04: reads 1–125 contiguous input registers (read-only 16-bit words).
     ReadInputRegisters = 0x04,
+    /// 0x05: sets one coil on or off; the answer echoes the request.
     WriteSingleCoil = 0x05,
+    /// 0x06: writes one holding register; the answer echoes the request.
     WriteSingleRegister = 0x06,
+    /// 0x0F: sets 1–1968 contiguous coils; the answer repeats start and quantity.
     WriteMultipleCoils = 0x0F,
+    /// 0x10: writes 1–123 contiguous holding registers; the answer repeats start and quantity.
     WriteMultipleRegisters = 0x10,
 }
 
 impl FunctionCode {
+    /// The function of code `code`; `None` for a code this crate does not frame (another
+    /// function, or an exception answer's `code | 0x80`).
     pub fn from_u8(code: u8) -> Option<Self> {
         Some(match code {
             0x01 => Self::ReadCoils,
@@ -33,6 +44,7 @@ impl FunctionCode {
         })
     }
 
+    /// The code as it goes on the wire.
     pub fn value(self) -> u8 {
         self as u8
     }
@@ -41,20 +53,31 @@ impl FunctionCode {
 /// An exception code from a device's exception answer (function | 0x80).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ExceptionCode {
+    /// 0x01: the device does not support the function.
     IllegalFunction,
+    /// 0x02: an address in the request's span does not exist on the device.
     IllegalDataAddress,
+    /// 0x03: a value in the request (a quantity, a written value) is not allowed.
     IllegalDataValue,
+    /// 0x04: the device failed while carrying the request out.
     ServerDeviceFailure,
+    /// 0x05: the device took the request and needs long to carry it out; ask again later.
     Acknowledge,
+    /// 0x06: the device is busy with a long command; send the request again later.
     ServerDeviceBusy,
+    /// 0x08: the device found a parity error in its own memory (file records).
     MemoryParityError,
+    /// 0x0A: a gateway has no path to the addressed device (misconfigured or overloaded).
     GatewayPathUnavailable,
+    /// 0x0B: a gateway got no answer from the addressed device.
     GatewayTargetFailedToRespond,
     /// A code outside the specification's list, kept as sent.
     Other(u8),
 }
 
 impl ExceptionCode {
+    /// The exception of code `code` (the byte after `function | 0x80`); a code outside the
+    /// specification's list is kept as [`ExceptionCode::Other`].
     pub fn from_u8(code: u8) -> Self {
         match code {
             0x01 => Self::IllegalFunction,
@@ -70,6 +93,7 @@ impl ExceptionCode {
         }
     }
 
+    /// The code as it goes on the wire.
     pub fn value(self) -> u8 {
         match self {
             Self::IllegalFunction => 0x01,
@@ -104,20 +128,72 @@ impl std::fmt::Display for ExceptionCode {
     }
 }
 
-/// A request PDU. Quantities are the number of coils or registers.
+/// A request PDU, one variant per [`FunctionCode`]. Addresses are the PDU's 0-based
+/// addresses (register 40001 of a vendor's table is `start: 0` of
+/// [`Request::ReadHoldingRegisters`]); quantities count coils or registers, not bytes.
+/// [`crate::codec::encode_request`] refuses quantities outside the specification's limits.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Request {
-    ReadCoils { start: u16, quantity: u16 },
-    ReadDiscreteInputs { start: u16, quantity: u16 },
-    ReadHoldingRegisters { start: u16, quantity: u16 },
-    ReadInputRegisters { start: u16, quantity: u16 },
-    WriteSingleCoil { address: u16, value: bool },
-    WriteSingleRegister { address: u16, value: u16 },
-    WriteMultipleCoils { start: u16, values: Vec<bool> },
-    WriteMultipleRegisters { start: u16, values: Vec<u16> },
+    /// FC01: `quantity` coils from `start`.
+    ReadCoils {
+        /// Address of the first coil.
+        start: u16,
+        /// Coils to read, 1–2000.
+        quantity: u16,
+    },
+    /// FC02: `quantity` discrete inputs from `start`.
+    ReadDiscreteInputs {
+        /// Address of the first discrete input.
+        start: u16,
+        /// Inputs to read, 1–2000.
+        quantity: u16,
+    },
+    /// FC03: `quantity` holding registers from `start`.
+    ReadHoldingRegisters {
+        /// Address of the first register.
+        start: u16,
+        /// Registers to read, 1–125.
+        quantity: u16,
+    },
+    /// FC04: `quantity` input registers from `start`.
+    ReadInputRegisters {
+        /// Address of the first register.
+        start: u16,
+        /// Registers to read, 1–125.
+        quantity: u16,
+    },
+    /// FC05: the coil at `address` set on (`true`, sent as 0xFF00) or off (0x0000).
+    WriteSingleCoil {
+        /// Address of the coil.
+        address: u16,
+        /// On or off.
+        value: bool,
+    },
+    /// FC06: `value` written to the holding register at `address`.
+    WriteSingleRegister {
+        /// Address of the register.
+        address: u16,
+        /// The word written.
+        value: u16,
+    },
+    /// FC0F: `values` written to the coils from `start` on, one coil each (1–1968).
+    WriteMultipleCoils {
+        /// Address of the first coil.
+        start: u16,
+        /// On or off for each coil, first coil first.
+        values: Vec<bool>,
+    },
+    /// FC10: `values` written to the holding registers from `start` on (1–123 words).
+    WriteMultipleRegisters {
+        /// Address of the first register.
+        start: u16,
+        /// The words written, first register first.
+        values: Vec<u16>,
+    },
 }
 
 impl Request {
+    /// The function code this request is sent with.
     pub fn function(&self) -> FunctionCode {
         match self {
             Self::ReadCoils { .. } => FunctionCode::ReadCoils,
@@ -199,7 +275,7 @@ impl Request {
     }
 
     /// Data bytes of the normal answer to a read (`None` for writes).
-    pub fn answer_data_len(&self) -> Option<usize> {
+    pub(crate) fn answer_data_len(&self) -> Option<usize> {
         let (_, quantity) = self.read_span()?;
         let quantity = usize::from(quantity);
         Some(match self {
@@ -223,18 +299,46 @@ impl Request {
 /// bits (the padding bits of the last byte are dropped).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Response {
+    /// FC01's answer: the coils read, first address first (`true`: on).
     Coils(Vec<bool>),
+    /// FC02's answer: the discrete inputs read, first address first.
     DiscreteInputs(Vec<bool>),
+    /// FC03's answer: the holding registers read, first address first.
     HoldingRegisters(Vec<u16>),
+    /// FC04's answer: the input registers read, first address first.
     InputRegisters(Vec<u16>),
-    WriteSingleCoil { address: u16, value: bool },
-    WriteSingleRegister { address: u16, value: u16 },
-    WriteMultipleCoils { start: u16, quantity: u16 },
-    WriteMultipleRegisters { start: u16, quantity: u16 },
+    /// FC05's answer: the device's echo of the coil written.
+    WriteSingleCoil {
+        /// Address of the coil.
+        address: u16,
+        /// The state it was set to.
+        value: bool,
+    },
+    /// FC06's answer: the device's echo of the register written.
+    WriteSingleRegister {
+        /// Address of the register.
+        address: u16,
+        /// The word written.
+        value: u16,
+    },
+    /// FC0F's answer: which coils were written.
+    WriteMultipleCoils {
+        /// Address of the first coil written.
+        start: u16,
+        /// Coils written.
+        quantity: u16,
+    },
+    /// FC10's answer: which registers were written.
+    WriteMultipleRegisters {
+        /// Address of the first register written.
+        start: u16,
+        /// Registers written.
+        quantity: u16,
+    },
 }
 
 impl Response {
-    /// The register words of a register read answer.
+    /// The register words of a register read answer; `None` for any other answer.
     pub fn registers(&self) -> Option<&[u16]> {
         match self {
             Self::HoldingRegisters(words) | Self::InputRegisters(words) => Some(words),
@@ -242,7 +346,7 @@ impl Response {
         }
     }
 
-    /// The bits of a coil or discrete-input read answer.
+    /// The bits of a coil or discrete-input read answer; `None` for any other answer.
     pub fn bits(&self) -> Option<&[bool]> {
         match self {
             Self::Coils(bits) | Self::DiscreteInputs(bits) => Some(bits),

@@ -60,12 +60,8 @@ impl FrameLog {
         })
     }
 
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     /// Records dropped so far because the writer had fallen behind.
-    pub fn dropped(&self) -> u64 {
+    fn dropped(&self) -> u64 {
         self.queue.dropped.load(Ordering::Relaxed)
     }
 

@@ -4,33 +4,42 @@
 //!
 //! - Pure, no I/O and no tokio: [`frame`] (the types with the specification's names and their
 //!   arithmetic), [`crc`], [`codec`] (byte work), [`timing`] (character time, t1.5, t3.5, the
-//!   response timeout), [`outcome`] (how a transaction ends: [`Reply`], [`Error`],
-//!   [`WireCounters`]).
-//! - [`serial`]: the RS485 line: `transport` (the serial port, the only code here that touches
-//!   one) and `master` (one RTU transaction at a time with the serial-line specification's
-//!   timing).
-//! - [`tcp`]: the TCP masters in `masters` (a serial device server's raw RTU stream, or Modbus
-//!   TCP through [`tcp::mbap`]).
-//! - [`link`]: what a line holds, whichever of the three it is; `link::answer_framing` is the
-//!   one framer of their answers and `link::shared` what they share (the transaction wrapper,
-//!   counters, frame recorder, late-answer guard).
+//!   response timeout), `outcome` (how a transaction ends: [`Reply`], [`Error`],
+//!   [`WireCounters`], re-exported here).
+//! - What every link shares: [`answer_framing`] (the one framer of their answers) and
+//!   `transaction` (the [`Transact`] wrapper, re-exported here, with the counters, frame
+//!   recorder and late-answer guard inside the crate), so that the three links frame, count,
+//!   record and guard alike.
+//! - [`serial`]: the RS485 line: [`serial::transport`] (the serial port, the only code here
+//!   that touches one) and [`serial::master`] (one RTU transaction at a time with the
+//!   serial-line specification's timing).
+//! - [`tcp`]: the TCP masters in [`tcp::masters`] (a serial device server's raw RTU stream, or
+//!   Modbus TCP through [`tcp::mbap`]).
+//! - [`link`]: what a line holds, whichever of the three it is ([`link::Link`]).
 //! - [`clock`]: the precise wait the line's silences need; [`frame_log`]: the frames of every
 //!   line written to one file from a thread of its own.
 
-// Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
-// prints with `{:?}`, the 2018 idioms.
-#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+// Kept true on every build, as in the daemon: `pub` is the crate's surface and each public item
+// says what it is, every public type prints with `{:?}`, the 2018 idioms.
+#![warn(
+    unreachable_pub,
+    missing_docs,
+    missing_debug_implementations,
+    rust_2018_idioms
+)]
 
+pub mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;
 pub mod frame;
 pub mod frame_log;
 pub mod link;
-pub mod outcome;
+mod outcome;
 pub mod serial;
 pub mod tcp;
 pub mod timing;
+mod transaction;
 
 // The README's example compiles as a doctest.
 #[doc = include_str!("../README.md")]
@@ -38,5 +47,5 @@ pub mod timing;
 pub struct ReadmeDoctests;
 
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
-pub use link::shared::Transact;
 pub use outcome::{Error, PortFault, Reply, WireCounters};
+pub use transaction::Transact;

@@ -16,12 +16,23 @@ pub type Reply = Result<Response, ExceptionCode>;
 /// (see [`Reply`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum Error {
+    /// No answer (not its first byte, or not its end) within the response timeout, which
+    /// it carries. The device may be off the line, at another address or baud rate.
     #[error("no answer within {0:?}")]
     Timeout(Duration),
+    /// An answer of the expected length came whose CRC does not match: a byte was corrupted
+    /// on the line (noise, a missing terminator, two devices at one address).
     #[error("bad CRC")]
     Crc,
+    /// The answer stopped short: a silence longer than the byte timeout (or the connection's
+    /// end) came before its last byte.
     #[error("truncated answer ({got} of {needed} bytes)")]
-    Truncated { needed: usize, got: usize },
+    Truncated {
+        /// Bytes the answer should have had.
+        needed: usize,
+        /// Bytes that came.
+        got: usize,
+    },
     /// From the wrong address or function, with the wrong byte count, or malformed.
     #[error("unexpected answer: {0}")]
     UnexpectedReply(DecodeError),
@@ -70,6 +81,7 @@ pub(crate) fn reply_of(answer: Answer) -> Reply {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{message}")]
 pub struct PortFault {
+    /// What kind of failure the system reported (`UnexpectedEof` for a port that closed).
     pub kind: std::io::ErrorKind,
     message: String,
 }
@@ -83,14 +95,21 @@ impl From<std::io::Error> for PortFault {
     }
 }
 
-/// Wire-level counters kept by every link (monotonic).
+/// Wire-level counters kept by every link since it was opened; each only grows. A line that
+/// reopens its link adds the old link's counters to the new one's (`+`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct WireCounters {
+    /// Requests sent, broadcasts included.
     pub requests: u64,
+    /// Transactions that ended in [`Error::Timeout`].
     pub timeouts: u64,
+    /// Transactions that ended in [`Error::Crc`].
     pub crc_errors: u64,
+    /// Transactions that ended in [`Error::Truncated`] or [`Error::ConnectionLost`].
     pub truncated: u64,
+    /// Transactions that ended in [`Error::UnexpectedReply`].
     pub unexpected: u64,
+    /// Exception answers: the device answered, with an [`ExceptionCode`].
     pub exceptions: u64,
     /// Answers (or parts) that arrived after their request's timeout.
     pub late_answers: u64,
@@ -109,7 +128,7 @@ pub struct WireCounters {
 
 impl WireCounters {
     /// Counts how one transaction ended (every link counts the same way).
-    pub fn count(&mut self, result: &Result<Reply, Error>) {
+    pub(crate) fn count(&mut self, result: &Result<Reply, Error>) {
         match result {
             Ok(Ok(_)) => {}
             Ok(Err(_)) => self.exceptions += 1,

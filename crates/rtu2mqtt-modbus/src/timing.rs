@@ -4,12 +4,17 @@
 
 use std::time::Duration;
 
+/// The parity bit of each character. The serial-line specification's default is even parity;
+/// without parity it asks for two stop bits, though many devices ship with 8N1.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "serde", derive(serde::Deserialize, serde::Serialize))]
 #[cfg_attr(feature = "serde", serde(rename_all = "lowercase"))]
 pub enum Parity {
+    /// No parity bit.
     None,
+    /// A parity bit making the count of ones even.
     Even,
+    /// A parity bit making the count of ones odd.
     Odd,
 }
 
@@ -27,8 +32,11 @@ impl std::fmt::Display for Parity {
 /// Bits of one character on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CharFormat {
+    /// Data bits per character: 8 for Modbus RTU (5–7 only for other protocols).
     pub data_bits: u8,
+    /// The parity bit, if any.
     pub parity: Parity,
+    /// Stop bits: 1 or 2 (any value above 1 opens the port with 2).
     pub stop_bits: u8,
 }
 
@@ -46,32 +54,36 @@ impl std::fmt::Display for CharFormat {
 
 impl CharFormat {
     /// Bits of one character: one start bit, the data bits, a parity bit if any, stop bits.
-    pub fn bits_per_char(&self) -> u32 {
+    pub(crate) fn bits_per_char(&self) -> u32 {
         let parity = if self.parity == Parity::None { 0 } else { 1 };
         1 + u32::from(self.data_bits) + parity + u32::from(self.stop_bits)
     }
 }
 
 /// Above this rate the specification fixes t1.5 and t3.5 instead of scaling them.
-pub const FIXED_TIMING_ABOVE_BAUD: u32 = 19_200;
+pub(crate) const FIXED_TIMING_ABOVE_BAUD: u32 = 19_200;
 /// t1.5 above 19200 baud.
-pub const FIXED_T1_5: Duration = Duration::from_micros(750);
+pub(crate) const FIXED_T1_5: Duration = Duration::from_micros(750);
 /// t3.5 above 19200 baud.
-pub const FIXED_T3_5: Duration = Duration::from_micros(1750);
+pub(crate) const FIXED_T3_5: Duration = Duration::from_micros(1750);
 /// Allowance in [`LineTiming::default_response_timeout`] for what is neither wire time nor the
 /// device: USB serial adapters hand received bytes over in 1–16 ms latency-timer batches and a
 /// busy host schedules late.
-pub const HOST_LATENCY_ALLOWANCE: Duration = Duration::from_millis(20);
+pub(crate) const HOST_LATENCY_ALLOWANCE: Duration = Duration::from_millis(20);
 
-/// The timing of one serial line.
+/// The timing of one serial line, from its baud rate and character format
+/// ([`LineTiming::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LineTiming {
+    /// Bits per second (at least 1).
     pub baud: u32,
     /// Time of one character (start + data + parity + stop bits).
     pub char_time: Duration,
-    /// Longest gap allowed between two characters of one frame.
-    pub t1_5: Duration,
-    /// Silence that ends a frame; the line is never driven sooner after the last byte.
+    /// Longest gap allowed between two characters of one frame: 1.5 character times, 750 µs
+    /// above 19200 baud.
+    pub(crate) t1_5: Duration,
+    /// Silence that ends a frame; the line is never driven sooner after the last byte: 3.5
+    /// character times, 1.75 ms above 19200 baud.
     pub t3_5: Duration,
 }
 
@@ -106,8 +118,9 @@ impl LineTiming {
 
     /// A response timeout for a device whose longest answer is `longest_answer_bytes`: the
     /// answer's wire time, the device's own turnaround `device_margin` (from its document or
-    /// measured), t3.5 and [`HOST_LATENCY_ALLOWANCE`]. Measured from the instant our request
-    /// left the transmit buffer to the last byte of the answer.
+    /// measured), t3.5 and 20 ms for the host (USB serial adapters hand received bytes over in
+    /// 1–16 ms latency-timer batches, and a busy host schedules late). Measured from the
+    /// instant our request left the transmit buffer to the last byte of the answer.
     pub fn default_response_timeout(
         &self,
         longest_answer_bytes: usize,

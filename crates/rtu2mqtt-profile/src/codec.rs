@@ -16,13 +16,17 @@ use super::numeric::{at_precision, Exponent, NumberCodec, NumberError, NumberTyp
 use super::registers::ByteOrder;
 use super::rejection::Rejection;
 use super::text::{self, Encoding};
-use super::Value;
+use crate::value::Value;
 
 /// Why a field has no value in a block answer.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum FieldError {
+    /// A `bcd` field's register (the raw word here) holds a nibble above 9.
     #[error("invalid BCD digit in {0:#06x}")]
     InvalidBcd(u16),
+    /// Any other reason, as a sentence: an answer shorter than the block, text that is not
+    /// valid in its `encoding`, a raw value no number of the codec stands for, a `scale_by`
+    /// exponent that was not read or is out of range.
     #[error("{0}")]
     Invalid(String),
 }
@@ -30,7 +34,7 @@ pub enum FieldError {
 /// How a byte string is shown.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum ByteFormat {
+pub(crate) enum ByteFormat {
     /// Two upper-case hex digits per byte (`0A1B2C`).
     #[default]
     Hex,
@@ -41,7 +45,7 @@ pub enum ByteFormat {
 /// Which bytes of each register a byte string takes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum ByteSource {
+pub(crate) enum ByteSource {
     /// The low byte only (the "Char" registers of many Chinese devices).
     #[default]
     Low,
@@ -51,7 +55,7 @@ pub enum ByteSource {
 
 /// A compiled field codec.
 #[derive(Debug, Clone, PartialEq)]
-pub enum FieldCodec {
+pub(crate) enum FieldCodec {
     /// One bit of a word; `invert`: ON when the bit is 0.
     Bit { bit: u8, invert: bool },
     /// `width` bits from `bit` upwards, as an integer or, with options, an enumeration
@@ -94,15 +98,20 @@ pub enum FieldCodec {
 /// `bits`. For coil blocks `mask` is 1 and `bits` 0 or 1.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RawPatch {
+    /// The register or coil changed, counted from the block's start.
     pub offset: u16,
+    /// The bits of that register the field owns (`0xFFFF` for a whole register, 1 for a coil).
     pub mask: u16,
+    /// The new value of the bits in `mask`; bits outside `mask` are ignored.
     pub bits: u16,
 }
 
 /// The raw data of a block: words or bits.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum BlockImage {
+    /// A holding- or input-register block (FC 03/04): one word per register.
     Words(Vec<u16>),
+    /// A coil or discrete-input block (FC 01/02): one bool per coil, `true` when on.
     Bits(Vec<bool>),
 }
 
@@ -178,7 +187,7 @@ fn to_bcd(value: i128) -> Result<u16, String> {
 
 impl FieldCodec {
     /// Registers or coils the field covers.
-    pub fn width(&self) -> u16 {
+    pub(crate) fn width(&self) -> u16 {
         match self {
             Self::Bit { .. } | Self::Bits { .. } | Self::Coil { .. } | Self::Char => 1,
             Self::Coils { width, .. } => u16::from(*width),
@@ -189,21 +198,21 @@ impl FieldCodec {
     }
 
     /// True for codecs of coil / discrete-input blocks.
-    pub fn is_bit_codec(&self) -> bool {
+    pub(crate) fn is_bit_codec(&self) -> bool {
         matches!(self, Self::Coil { .. } | Self::Coils { .. })
     }
 
-    pub fn is_writable(&self) -> bool {
+    pub(crate) fn is_writable(&self) -> bool {
         !matches!(self, Self::Bytes { .. } | Self::Text { .. })
     }
 
     /// True for a `scale_by` number: it is read and written with its exponent field's value.
-    pub fn needs_exponent(&self) -> bool {
+    pub(crate) fn needs_exponent(&self) -> bool {
         matches!(self, Self::Number(number) if number.scaled_by_exponent)
     }
 
     /// The bits the field occupies: (block offset, mask) for each register or coil.
-    pub fn footprint(&self, offset: u16) -> Vec<(u16, u16)> {
+    pub(crate) fn footprint(&self, offset: u16) -> Vec<(u16, u16)> {
         match self {
             Self::Bit { bit, .. } => vec![(offset, 1 << bit)],
             Self::Bits { bit, width, .. } => {
@@ -221,7 +230,7 @@ impl FieldCodec {
     /// The smallest change a number of this codec can make: one raw count (`scale = 5` → 5,
     /// `decimals = 1, scale = 0.5` → 0.5, BCD with two fraction digits → 0.01). None for
     /// fields that are not numbers (booleans, enumerations, text).
-    pub fn step(&self) -> Option<Value> {
+    pub(crate) fn step(&self) -> Option<Value> {
         let last_place = |decimals: u8, counts: i128| {
             if decimals == 0 {
                 Value::Int(counts)
@@ -248,7 +257,7 @@ impl FieldCodec {
     }
 
     /// The kind and widest range the codec can represent.
-    pub fn natural_kind(&self) -> FieldKind {
+    pub(crate) fn natural_kind(&self) -> FieldKind {
         match self {
             Self::Bit { .. } | Self::Coil { .. } => FieldKind::Bool,
             Self::Bits { width, options, .. } | Self::Coils { width, options } => {
@@ -282,13 +291,13 @@ impl FieldCodec {
 
     /// Decodes the field at `offset` of a block image (a `scale_by` number has no exponent
     /// this way and is invalid data: see [`FieldCodec::decode_with`]).
-    pub fn decode(&self, image: &BlockImage, offset: u16) -> Result<Value, FieldError> {
+    pub(crate) fn decode(&self, image: &BlockImage, offset: u16) -> Result<Value, FieldError> {
         self.decode_with(image, offset, &Exponent::None)
     }
 
     /// Decodes the field at `offset` of a block image; `exponent` is what the field's
     /// `scale_by` field read in the same answer.
-    pub fn decode_with(
+    pub(crate) fn decode_with(
         &self,
         image: &BlockImage,
         offset: u16,
@@ -395,12 +404,12 @@ impl FieldCodec {
 
     /// The raw change that writes `value` into the field's place (`offset` block-relative).
     /// The value must already have the field's kind (see [`parse_command`]).
-    pub fn encode(&self, offset: u16, value: &Value) -> Result<Vec<RawPatch>, String> {
+    pub(crate) fn encode(&self, offset: u16, value: &Value) -> Result<Vec<RawPatch>, String> {
         self.encode_with(offset, value, &Exponent::None)
     }
 
     /// [`FieldCodec::encode`] for a value read back with `exponent` (a `scale_by` number).
-    pub fn encode_with(
+    pub(crate) fn encode_with(
         &self,
         offset: u16,
         value: &Value,
@@ -538,7 +547,7 @@ fn format_limit(value: f64, precision: u8) -> String {
 }
 
 /// `decimal` or `decimals`, as a count calls for.
-pub fn decimals_word(precision: u8) -> &'static str {
+pub(crate) fn decimals_word(precision: u8) -> &'static str {
     if precision == 1 {
         "decimal"
     } else {
@@ -552,7 +561,7 @@ pub fn decimals_word(precision: u8) -> &'static str {
 /// Integers and decimals are numbers as [`super::number`] defines them, read exactly: an
 /// integer takes no decimals other than zeros (`8.0`), a decimal at most the field's precision
 /// (`12.340` for two decimals, never `12.345`, at any magnitude).
-pub fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
+pub(crate) fn parse_command(info: &FieldInfo, text: &str) -> Result<Value, Rejection> {
     let name = &info.name;
     let trimmed = text.trim();
     // Numbers are shown as sent (`got 11`), anything else quoted (`got "abc"`), shortened.

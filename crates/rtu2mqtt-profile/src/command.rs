@@ -13,12 +13,14 @@ use super::codec::{BlockImage, RawPatch};
 use super::model::{Behaviour, Compiled, WriteFrame};
 use super::numeric::Exponent;
 use super::rejection::Rejection;
-use super::Value;
+use crate::value::Value;
 use rtu2mqtt_modbus::{Request, Response};
 
 /// What a read-back says about a command.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Verification {
+    /// The read-back shows every commanded value (numbers compared by magnitude, so `1.50`
+    /// is `1.5`).
     Applied,
     /// The device acknowledged but shows something else.
     NotApplied(String),
@@ -360,7 +362,8 @@ impl CommandPlan {
         Ok(frame_requests(frame, &image))
     }
 
-    /// Reads that verify the command.
+    /// Reads that verify the command, made right after the writes; their answers go to
+    /// [`CommandPlan::verify`].
     pub fn readback(&self) -> &[Request] {
         &self.readback
     }

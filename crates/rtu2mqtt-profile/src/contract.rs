@@ -22,14 +22,14 @@ pub const AVAILABILITY: &str = "availability";
 /// The last level of a device's history stream (`<prefix>/<device>/history`).
 pub const HISTORY: &str = "history";
 /// The last level of a device's refresh request (`<prefix>/<device>/refresh`).
-pub const REFRESH: &str = "refresh";
+const REFRESH: &str = "refresh";
 
 /// Names a device or a field must not have: every word the contract itself uses as a topic
 /// level next to device and field names. A field `availability` would publish its values on
 /// the device's availability topic; `set` and `result` are the command and outcome levels;
 /// `gateway` holds the gateway's own `status` and `stats`; `history` is the history stream;
 /// `refresh` asks for a device's every block to be read.
-pub const RESERVED_NAMES: &[&str] = &[
+const RESERVED_NAMES: &[&str] = &[
     "availability",
     GATEWAY_DEVICE,
     HISTORY,
@@ -57,7 +57,7 @@ pub fn reserved_name_problem(name: &str) -> Option<String> {
 pub const DEFAULT_DISCOVERY_PREFIX: &str = "homeassistant";
 
 /// Home Assistant announces itself with `online` on this topic (under the discovery prefix).
-pub const HA_STATUS_SUFFIX: &str = "status";
+const HA_STATUS_SUFFIX: &str = "status";
 
 /// Longest command topic looked at; anything longer is dropped unparsed.
 pub const MAX_TOPIC_LEN: usize = 512;

@@ -1,33 +1,57 @@
-//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or
-//! one of the built-in copies), validated completely at load, and then answers every question
-//! the rest of the gateway has about a device: which blocks to poll, how raw words become field
-//! values, which fields exist and how they are exposed, and how a command on a field becomes the
-//! frames of one bus slot. Everything here is pure (no I/O, no clock, no tokio) except
-//! [`registry`], which holds the built-in profiles, reads profile files and describes a profile
-//! for the `rtu2mqtt profiles` listing.
+//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A
+//! [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or one of the built-in copies),
+//! validated completely at load, and then answers every question the rest of the gateway has
+//! about a device: which blocks to poll, how raw words become field values, which fields exist
+//! and how they are exposed, and how a command on a field becomes the frames of one bus slot.
+//! Everything here is pure (no I/O, no clock, no tokio) except [`registry`], which reads
+//! profile files.
 //!
-//! Inside, a module only uses those before it in this order: [`bcd`], [`number`], [`value`],
-//! [`registers`], [`numeric`], [`text`], [`rejection`], [`publish`], [`field`], [`codec`],
-//! [`model`], [`format`](mod@format), [`compile`], then [`command`] and [`raw`] (planning and
-//! patching on the model); this file's [`Profile`] is what the rest of the crate sees.
-//! [`sunspec`] is the SunSpec model table and the profile written from a device's model chain.
+//! # What the crate offers
 //!
-//! [`contract`] is the MQTT contract (topic names, the parse of a command topic, Home
-//! Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
-//! daemon's configuration check, discovery and bridge, and by the demo.
+//! At the root: [`Profile`] and what its questions answer with: the fields ([`FieldInfo`],
+//! [`FieldKind`], [`HaHints`], [`Identity`]), the blocks ([`ReadBlock`], [`PollClass`],
+//! [`Limits`]), decoded values ([`FieldReading`], [`Value`], [`FieldError`], [`DeviceState`]),
+//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), when a value is
+//! published ([`PublishRule`]), a profile's problems ([`ProfileErrors`], [`ProfileError`]) and
+//! the raw images a simulated device keeps ([`BlockImage`], [`RawPatch`]). The public modules:
+//!
+//! - [`registry`]: the built-in profiles, loading a profile by name or path, the listing of
+//!   `rtu2mqtt profiles`.
+//! - [`contract`]: the MQTT contract (topic names, the parse of a command topic, Home
+//!   Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
+//!   daemon's configuration check, discovery and bridge, and by the demo.
+//! - [`publish`]: the `publish` table as written ([`publish::RawPublish`], which the
+//!   daemon's configuration also reads) and its exact amounts.
+//! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
+//! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
+//!
+//! # Inside
+//!
+//! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
+//! payloads and commands), `value`, `registers` (word and byte order), `numeric` (the number
+//! codecs), `text` (text encodings), `rejection`, `publish`, `field`, `codec` (every field
+//! codec and command parsing), `model`, `format` (the file's serde types), `compile` (file to
+//! model, with every problem), then `command` (a command as one bus slot's plan) and `raw`
+//! (simulated block images patched through the write frames); this file's [`Profile`] is what
+//! the rest of the crate sees, and `sunspec` stands apart.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
-// prints with `{:?}`, the 2018 idioms.
-#![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
+// prints with `{:?}`, every public item says what it is, the 2018 idioms.
+#![warn(
+    unreachable_pub,
+    missing_debug_implementations,
+    missing_docs,
+    rust_2018_idioms
+)]
 
 pub mod bcd;
-pub mod codec;
+mod codec;
 mod command;
 mod compile;
 pub mod contract;
 mod field;
 mod format;
-pub mod model;
+mod model;
 mod number;
 mod numeric;
 pub mod publish;
@@ -49,7 +73,7 @@ pub use codec::{BlockImage, FieldError, RawPatch};
 pub use command::{CommandPlan, Verification};
 pub use compile::{ProfileError, ProfileErrors};
 pub use field::{FieldInfo, FieldKind, HaHints, Identity};
-pub use model::{Limits, PollClass, ReadBlock};
+pub use model::{Behaviour, Limits, PollClass, ReadBlock};
 pub use publish::PublishRule;
 pub use rejection::Rejection;
 pub use value::Value;
@@ -57,7 +81,8 @@ pub use value::Value;
 /// Last known decoded values of one device, by field name.
 pub type DeviceState = HashMap<String, Value>;
 
-/// A validated device profile.
+/// A validated device profile: made by [`Profile::from_toml`] or [`registry`], never
+/// invalid, and cheap to clone (the compiled form is shared, also with its command plans).
 #[derive(Debug, Clone)]
 pub struct Profile {
     // Shared with the command plans made from it.
@@ -67,7 +92,10 @@ pub struct Profile {
 /// One field's value from a block, or why it has none.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FieldReading {
+    /// The field's `name` in the profile (its MQTT topic's last level).
     pub field: String,
+    /// The decoded value, or why the answer holds none for this field (invalid BCD, an answer
+    /// that does not fit the block, a `scale_by` exponent that was not read).
     pub value: Result<Value, codec::FieldError>,
 }
 
@@ -85,15 +113,18 @@ impl Profile {
         &self.inner.name
     }
 
+    /// The maker as the profile's `device.manufacturer` names it (Home Assistant's `mf`).
     pub fn manufacturer(&self) -> &str {
         &self.inner.manufacturer
     }
 
+    /// The device model from `device.model` (Home Assistant's `mdl`).
     pub fn model(&self) -> &str {
         &self.inner.model
     }
 
-    pub fn description(&self) -> &str {
+    /// The free text of `device.description`; empty when the profile has none.
+    pub(crate) fn description(&self) -> &str {
         &self.inner.description
     }
 
@@ -102,29 +133,40 @@ impl Profile {
         self.inner.default_address
     }
 
+    /// The `[line]` section: line defaults, the address range and the device's transaction
+    /// limits, with the defaults filled in.
     pub fn limits(&self) -> &Limits {
         &self.inner.limits
     }
 
+    /// Every field in the order of the file's `[[fields]]`.
     pub fn fields(&self) -> &[FieldInfo] {
         &self.inner.infos
     }
 
+    /// The field named `name`; `None` when the profile has no such field.
     pub fn field(&self, name: &str) -> Option<&FieldInfo> {
         self.fields().iter().find(|f| f.name == name)
     }
 
+    /// The `[[blocks]]` the device is polled with, in file order; a block's index here is the
+    /// `block` every other method takes.
     pub fn read_blocks(&self) -> &[ReadBlock] {
         &self.inner.blocks
     }
 
     /// Names of the fields decoded from `read_blocks()[block]`.
     pub fn block_fields(&self, block: usize) -> Vec<&str> {
+        self.field_names_where(|def| def.block == block)
+    }
+
+    /// Names of the fields whose compiled definition passes `keep`, in file order.
+    fn field_names_where(&self, keep: impl Fn(&model::FieldDef) -> bool) -> Vec<&str> {
         self.inner
             .defs
             .iter()
             .zip(&self.inner.infos)
-            .filter(|(def, _)| def.block == block)
+            .filter(|(def, _)| keep(def))
             .map(|(_, info)| info.name.as_str())
             .collect()
     }
@@ -261,17 +303,13 @@ impl Profile {
     /// not be its place in the read block). `None` when no write frame of the profile holds
     /// every register or coil the write touches; the values of fields the write covers whole.
     pub fn decode_write(&self, write: &Request) -> Option<Vec<FieldReading>> {
-        let (frame, start, image) = self.landing(write)?;
-        let quantity = match &image {
-            Response::HoldingRegisters(words) => u16::try_from(words.len()).ok()?,
-            Response::Coils(bits) => u16::try_from(bits.len()).ok()?,
-            _ => return None,
-        };
+        let (frame, written) = self.landing(write)?;
+        let quantity = u16::try_from(written.count).ok()?;
         let block = self.inner.blocks.get(frame.block)?;
         let read = block
             .request
-            .sub_read(frame.offset + (start - frame.address), quantity)?;
-        Some(self.decode_read(&read, &image))
+            .sub_read(frame.offset + (written.start - frame.address), quantity)?;
+        Some(self.decode_read(&read, &written.values))
     }
 
     /// The `scale_by` numbers whose exponent a device polled every `poll_interval` (its fast
@@ -305,15 +343,11 @@ impl Profile {
     /// address through the fields' write frames: a raw write of one register of a two-register
     /// value still writes that field (and its EEPROM).
     pub fn fields_touched(&self, write: &Request) -> Vec<String> {
-        let (start, count, registers) = match write {
-            Request::WriteSingleRegister { address, .. } => (*address, 1, true),
-            Request::WriteMultipleRegisters { start, values } => (*start, values.len(), true),
-            Request::WriteSingleCoil { address, .. } => (*address, 1, false),
-            Request::WriteMultipleCoils { start, values } => (*start, values.len(), false),
-            _ => return Vec::new(),
+        let Some(written) = Written::of(write) else {
+            return Vec::new();
         };
-        let first = usize::from(start);
-        let end = first + count;
+        let first = usize::from(written.start);
+        let end = first + written.count;
         let inner = &self.inner;
         inner
             .defs
@@ -321,7 +355,7 @@ impl Profile {
             .zip(&inner.infos)
             .filter_map(|(def, info)| {
                 let frame = def.write.as_ref()?;
-                if matches!(frame.function, 6 | 16) != registers {
+                if matches!(frame.function, 6 | 16) != written.registers {
                     return None;
                 }
                 let at =
@@ -333,28 +367,11 @@ impl Profile {
     }
 
     /// The write frame a foreign master's `write` lands on (the first of the profile's that
-    /// holds every register or coil it touches), the write's first address and its values.
-    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, u16, Response)> {
-        let (start, image, registers) = match write {
-            Request::WriteSingleRegister { address, value } => {
-                (*address, Response::HoldingRegisters(vec![*value]), true)
-            }
-            Request::WriteMultipleRegisters { start, values } => {
-                (*start, Response::HoldingRegisters(values.clone()), true)
-            }
-            Request::WriteSingleCoil { address, value } => {
-                (*address, Response::Coils(vec![*value]), false)
-            }
-            Request::WriteMultipleCoils { start, values } => {
-                (*start, Response::Coils(values.clone()), false)
-            }
-            _ => return None,
-        };
-        let quantity = match &image {
-            Response::HoldingRegisters(words) => u32::try_from(words.len()).ok()?,
-            Response::Coils(bits) => u32::try_from(bits.len()).ok()?,
-            _ => return None,
-        };
+    /// holds every register or coil it touches), and what the write sets.
+    fn landing(&self, write: &Request) -> Option<(&model::WriteFrame, Written)> {
+        let written = Written::of(write)?;
+        let start = u32::from(written.start);
+        let end = start + u32::try_from(written.count).ok()?;
         let inner = &self.inner;
         let frames = inner
             .defs
@@ -362,13 +379,12 @@ impl Profile {
             .filter_map(|def| def.write.as_ref())
             .chain(inner.named_frames.iter().map(|(_, frame)| frame));
         let frame = frames
-            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == registers)
+            .filter(|frame| matches!(frame.function, 0x06 | 0x10) == written.registers)
             .find(|frame| {
-                start >= frame.address
-                    && u32::from(start) + quantity
-                        <= u32::from(frame.address) + u32::from(frame.count)
+                let address = u32::from(frame.address);
+                start >= address && end <= address + u32::from(frame.count)
             })?;
-        Some((frame, start, image))
+        Some((frame, written))
     }
 
     /// Plans a foreign master's `write` as the fields it sets (`values`, command texts) written
@@ -381,7 +397,7 @@ impl Profile {
         values: &[(&str, &str)],
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
-        let Some((frame, _, _)) = self.landing(write) else {
+        let Some((frame, _)) = self.landing(write) else {
             return Err(Rejection("the write lands on no write frame".to_string()));
         };
         let named = self
@@ -640,6 +656,54 @@ impl Profile {
             .field(field)
             .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
         codec::parse_command(info, text)
+    }
+}
+
+/// What a foreign master's write sets: where, how many registers or coils, and their values
+/// as the answer to a read of the same place would hold them.
+struct Written {
+    /// The first address written.
+    start: u16,
+    /// Registers or coils written.
+    count: usize,
+    /// Registers (FC 06/10), else coils (FC 05/0F).
+    registers: bool,
+    /// The values, as `HoldingRegisters` or `Coils`.
+    values: Response,
+}
+
+impl Written {
+    /// `write`'s values; None for a request that writes nothing.
+    fn of(write: &Request) -> Option<Self> {
+        Some(match write {
+            Request::WriteSingleRegister { address, value } => {
+                Self::registers(*address, vec![*value])
+            }
+            Request::WriteMultipleRegisters { start, values } => {
+                Self::registers(*start, values.clone())
+            }
+            Request::WriteSingleCoil { address, value } => Self::coils(*address, vec![*value]),
+            Request::WriteMultipleCoils { start, values } => Self::coils(*start, values.clone()),
+            _ => return None,
+        })
+    }
+
+    fn registers(start: u16, words: Vec<u16>) -> Self {
+        Self {
+            start,
+            count: words.len(),
+            registers: true,
+            values: Response::HoldingRegisters(words),
+        }
+    }
+
+    fn coils(start: u16, bits: Vec<bool>) -> Self {
+        Self {
+            start,
+            count: bits.len(),
+            registers: false,
+            values: Response::Coils(bits),
+        }
     }
 }
 

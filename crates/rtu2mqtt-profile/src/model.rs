@@ -1,8 +1,8 @@
 //! The compiled, validated form of a profile: line limits, read blocks, fields with their codecs
-//! and write frames, forbidden combinations. Built only by [`super::compile`]; read by decoding
-//! and command planning, which can therefore trust it without re-checking. The parts the rest of
-//! the crate sees ([`ReadBlock`], [`PollClass`], [`Limits`]) are re-exported by the profile
-//! module.
+//! and write frames, forbidden combinations. Built only by the crate's compiler (`compile`); read by decoding
+//! and command planning, which can therefore trust it without re-checking. The parts users see
+//! ([`ReadBlock`], [`PollClass`], [`Limits`], [`Behaviour`]) are public and re-exported at the
+//! crate's root; the rest is the crate's own.
 
 use std::ops::RangeInclusive;
 use std::time::Duration;
@@ -45,9 +45,11 @@ impl std::fmt::Display for PollClass {
 /// One read request the device is polled with.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ReadBlock {
+    /// The block's `name`, which fields and write frames refer to.
     pub name: String,
-    /// A read request (FC 01–04).
+    /// A read request (FC 01–04) from the block's `function`, `start` and `count`.
     pub request: Request,
+    /// How often it is read, from its `poll` key (default `fast`).
     pub class: PollClass,
     /// The (offset, length) runs of the block that fields use, in coils or registers. When the
     /// device refuses the merged block (exception 02), the line reads these runs one by one and
@@ -61,17 +63,32 @@ pub struct ReadBlock {
 /// Line defaults and device limits from the profile.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
+    /// `line.address_range`: the station addresses the device can be set to (default 1–247).
     pub address_range: RangeInclusive<u8>,
+    /// `line.min_poll_interval`: the device's shortest poll interval; a device configured
+    /// faster is refused (default 100 ms).
     pub min_poll_interval: Duration,
+    /// `line.poll_interval`: the poll interval when the configuration gives none (default
+    /// `min_poll_interval`).
     pub default_poll_interval: Duration,
+    /// `line.slow_interval`: the period of `poll = "slow"` blocks (default 60 s).
     pub slow_interval: Duration,
-    /// Quiet time after power-up (gateway start) before the first transaction.
+    /// `line.startup_delay`: quiet time after power-up (gateway start) before the first
+    /// transaction (default none).
     pub startup_delay: Duration,
+    /// `line.baud`: the baud rate (bit/s) of a line whose configuration gives none (default
+    /// 9600).
     pub default_baud: u32,
+    /// `line.parity`: the parity of a line whose configuration gives none (default none; 8
+    /// data bits and 1 stop bit always).
     pub default_parity: Parity,
+    /// `line.max_read_registers`: most registers one FC 03/04 read may ask (default 125).
     pub max_read_registers: u16,
+    /// `line.max_write_registers`: most registers one FC 10 write may carry (default 123).
     pub max_write_registers: u16,
+    /// `line.max_read_bits`: most coils or inputs one FC 01/02 read may ask (default 2000).
     pub max_read_bits: u16,
+    /// `line.max_write_bits`: most coils one FC 0F write may carry (default 1968).
     pub max_write_bits: u16,
 }
 
@@ -90,7 +107,7 @@ pub enum Behaviour {
 
 /// What a block holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BlockKind {
+pub(crate) enum BlockKind {
     Coils,
     DiscreteInputs,
     HoldingRegisters,
@@ -98,51 +115,51 @@ pub enum BlockKind {
 }
 
 impl BlockKind {
-    pub fn is_bits(self) -> bool {
+    pub(crate) fn is_bits(self) -> bool {
         matches!(self, Self::Coils | Self::DiscreteInputs)
     }
 
-    pub fn is_writable(self) -> bool {
+    pub(crate) fn is_writable(self) -> bool {
         matches!(self, Self::Coils | Self::HoldingRegisters)
     }
 }
 
 /// One write frame: the device addresses written and the block offsets they mirror.
 #[derive(Debug, Clone, PartialEq)]
-pub struct WriteFrame {
-    pub function: u8,
-    pub address: u16,
-    pub block: usize,
-    pub offset: u16,
-    pub count: u16,
+pub(crate) struct WriteFrame {
+    pub(crate) function: u8,
+    pub(crate) address: u16,
+    pub(crate) block: usize,
+    pub(crate) offset: u16,
+    pub(crate) count: u16,
 }
 
 /// A compiled field.
 #[derive(Debug, Clone, PartialEq)]
-pub struct FieldDef {
-    pub block: usize,
-    pub offset: u16,
-    pub codec: FieldCodec,
-    pub write: Option<WriteFrame>,
-    pub behaviour: Behaviour,
-    pub settle_window: Option<Duration>,
+pub(crate) struct FieldDef {
+    pub(crate) block: usize,
+    pub(crate) offset: u16,
+    pub(crate) codec: FieldCodec,
+    pub(crate) write: Option<WriteFrame>,
+    pub(crate) behaviour: Behaviour,
+    pub(crate) settle_window: Option<Duration>,
     /// (field index, value): when all hold on a read-back, the device has stopped moving and a
     /// value that still differs is final (not applied) before the settle window ends.
-    pub settle_until: Vec<(usize, Value)>,
-    pub overlay: bool,
+    pub(crate) settle_until: Vec<(usize, Value)>,
+    pub(crate) overlay: bool,
     /// Integers accepted besides the range (the valve's 255 = alarm disabled).
-    pub also: Vec<i64>,
+    pub(crate) also: Vec<i64>,
     /// The profile's example command value for this field, checked at load.
-    pub example: Option<String>,
+    pub(crate) example: Option<String>,
     /// The field holding the power of ten this number is multiplied by (`scale_by`).
-    pub scale_by: Option<usize>,
+    pub(crate) scale_by: Option<usize>,
 }
 
 impl Compiled {
     /// The exponent field `index` is read or written with: [`Exponent::None`] without
     /// `scale_by`; otherwise the exponent field's value as `read` gives it (None: it was not
     /// read with the value).
-    pub fn exponent_for(
+    pub(crate) fn exponent_for(
         &self,
         index: usize,
         read: impl FnOnce(usize) -> Option<Result<Value, FieldError>>,
@@ -156,45 +173,31 @@ impl Compiled {
             Some(Err(error)) => Exponent::from_value(Err(error.to_string())),
         }
     }
-
-    /// The exponent of field `index` from `image`, a whole image of its exponent's block, when
-    /// that is `block`.
-    pub fn exponent_in(
-        &self,
-        index: usize,
-        block: usize,
-        image: &super::codec::BlockImage,
-    ) -> Exponent {
-        self.exponent_for(index, |exponent| {
-            let def = &self.defs[exponent];
-            (def.block == block).then(|| def.codec.decode(image, def.offset))
-        })
-    }
 }
 
 /// A compiled forbidden combination.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Forbidden {
+pub(crate) struct Forbidden {
     /// (field index, value that must hold).
-    pub when: Vec<(usize, Value)>,
-    pub reason: String,
+    pub(crate) when: Vec<(usize, Value)>,
+    pub(crate) reason: String,
 }
 
 /// The compiled, validated form of a profile.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Compiled {
-    pub name: String,
-    pub manufacturer: String,
-    pub model: String,
-    pub description: String,
-    pub default_address: Option<u8>,
-    pub limits: Limits,
-    pub blocks: Vec<ReadBlock>,
-    pub block_kinds: Vec<BlockKind>,
+pub(crate) struct Compiled {
+    pub(crate) name: String,
+    pub(crate) manufacturer: String,
+    pub(crate) model: String,
+    pub(crate) description: String,
+    pub(crate) default_address: Option<u8>,
+    pub(crate) limits: Limits,
+    pub(crate) blocks: Vec<ReadBlock>,
+    pub(crate) block_kinds: Vec<BlockKind>,
     /// Parallel to `infos`.
-    pub defs: Vec<FieldDef>,
-    pub infos: Vec<FieldInfo>,
-    pub forbidden: Vec<Forbidden>,
+    pub(crate) defs: Vec<FieldDef>,
+    pub(crate) infos: Vec<FieldInfo>,
+    pub(crate) forbidden: Vec<Forbidden>,
     /// The `[[write_frames]]` by name, in file order.
-    pub named_frames: Vec<(String, WriteFrame)>,
+    pub(crate) named_frames: Vec<(String, WriteFrame)>,
 }

@@ -11,14 +11,14 @@ use super::value::Value;
 /// Which byte of a register an 8-bit codec takes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum BytePlace {
+pub(crate) enum BytePlace {
     High,
     Low,
 }
 
 /// Register number types.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum NumberType {
+pub(crate) enum NumberType {
     U8(BytePlace),
     I8(BytePlace),
     U16,
@@ -33,7 +33,7 @@ pub enum NumberType {
 
 impl NumberType {
     /// Registers the number covers.
-    pub fn registers(self) -> u16 {
+    pub(crate) fn registers(self) -> u16 {
         match self {
             Self::U8(_) | Self::I8(_) | Self::U16 | Self::I16 => 1,
             Self::U32 | Self::I32 | Self::F32 => 2,
@@ -41,7 +41,7 @@ impl NumberType {
         }
     }
 
-    pub fn is_float(self) -> bool {
+    pub(crate) fn is_float(self) -> bool {
         matches!(self, Self::F32 | Self::F64)
     }
 
@@ -54,7 +54,7 @@ impl NumberType {
     }
 
     /// The raw integers the type holds; None for floats.
-    pub fn raw_range(self) -> Option<(i128, i128)> {
+    pub(crate) fn raw_range(self) -> Option<(i128, i128)> {
         Some(match self {
             Self::U8(_) => (0, i128::from(u8::MAX)),
             Self::I8(_) => (i128::from(i8::MIN), i128::from(i8::MAX)),
@@ -70,7 +70,7 @@ impl NumberType {
 
     /// The raw bits of `value` (an integer of the type's range, written signed or unsigned:
     /// `-32768` and `0x8000` are the same i16 mark). None when it fits neither way.
-    pub fn raw_bits_of(self, value: i128) -> Option<u64> {
+    pub(crate) fn raw_bits_of(self, value: i128) -> Option<u64> {
         let (min, max) = self.raw_range()?;
         let unsigned_max = (1i128 << self.bits()) - 1;
         let signed_min = -(1i128 << (self.bits() - 1));
@@ -81,7 +81,7 @@ impl NumberType {
     }
 
     /// The mask of the register bits an 8-bit codec owns; the whole register otherwise.
-    pub fn mask(self) -> u16 {
+    pub(crate) fn mask(self) -> u16 {
         match self {
             Self::U8(BytePlace::High) | Self::I8(BytePlace::High) => 0xFF00,
             Self::U8(BytePlace::Low) | Self::I8(BytePlace::Low) => 0x00FF,
@@ -92,7 +92,7 @@ impl NumberType {
 
 /// The exponent a `scale_by` field is read or written with, as the exponent field read it.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Exponent {
+pub(crate) enum Exponent {
     /// The field has no `scale_by`.
     None,
     /// A power of ten, -10…10.
@@ -108,7 +108,7 @@ pub(crate) const EXPONENTS: std::ops::RangeInclusive<i8> = -10..=10;
 
 impl Exponent {
     /// The exponent a `scale_by` field's value is read with, from its exponent field's value.
-    pub fn from_value(value: Result<&Value, String>) -> Self {
+    pub(crate) fn from_value(value: Result<&Value, String>) -> Self {
         match value {
             Ok(Value::Unavailable) => Self::Unavailable,
             Ok(Value::Int(power)) => match i8::try_from(*power) {
@@ -123,7 +123,7 @@ impl Exponent {
 
 /// Why a numeric field has no value.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum NumberError {
+pub(crate) enum NumberError {
     /// The raw value is one of the field's `invalid` marks, or its exponent's.
     Unavailable,
     Invalid(String),
@@ -131,19 +131,19 @@ pub enum NumberError {
 
 /// A compiled numeric codec.
 #[derive(Debug, Clone, PartialEq)]
-pub struct NumberCodec {
-    pub ty: NumberType,
-    pub layout: RegisterLayout,
+pub(crate) struct NumberCodec {
+    pub(crate) ty: NumberType,
+    pub(crate) layout: RegisterLayout,
     /// Places shown (before any exponent).
-    pub decimals: u8,
+    pub(crate) decimals: u8,
     /// Units of the last shown place one raw count is worth (`decimals` 1, `scale` 0.5 → 5).
-    pub factor: i64,
+    pub(crate) factor: i64,
     /// Added after scaling, in units of the last shown place.
-    pub offset: i128,
+    pub(crate) offset: i128,
     /// Raw bits that mean "no value" (`0x8000`).
-    pub invalid: Vec<u64>,
+    pub(crate) invalid: Vec<u64>,
     /// The value is multiplied by 10^exponent, the exponent read from another field.
-    pub scaled_by_exponent: bool,
+    pub(crate) scaled_by_exponent: bool,
 }
 
 fn pow10(places: u8) -> i128 {
@@ -167,7 +167,7 @@ fn nearest_at_places(float: f64, places: u8) -> Option<i128> {
     let product = float * POWERS.get(usize::from(places))?;
     let fraction = product - product.floor();
     let ulp = product.abs() * f64::EPSILON;
-    if !(product.abs() < 4_503_599_627_370_496.0) || (fraction - 0.5).abs() <= ulp {
+    if product.abs() >= 4_503_599_627_370_496.0 || (fraction - 0.5).abs() <= ulp {
         return None;
     }
     // In range of an i128 and a whole number: the cast is exact.
@@ -181,7 +181,7 @@ fn pow10_checked(places: u8) -> Option<i128> {
 impl NumberCodec {
     /// The most decimals a value of this codec can have: its own, plus ten for a `scale_by`
     /// field read with exponent -10.
-    pub fn max_precision(&self) -> u8 {
+    pub(crate) fn max_precision(&self) -> u8 {
         if self.scaled_by_exponent {
             self.decimals + EXPONENTS.start().unsigned_abs()
         } else {
@@ -222,7 +222,7 @@ impl NumberCodec {
     }
 
     /// Decodes the field's registers; `exponent` is what its `scale_by` field read.
-    pub fn decode(&self, words: &[u16], exponent: &Exponent) -> Result<Value, NumberError> {
+    pub(crate) fn decode(&self, words: &[u16], exponent: &Exponent) -> Result<Value, NumberError> {
         let bits = self.raw_bits(words);
         if self.invalid.contains(&bits) {
             return Err(NumberError::Unavailable);
@@ -293,7 +293,7 @@ impl NumberCodec {
     }
 
     /// The registers (in the order written) that hold `value`, read back with `exponent`.
-    pub fn encode(&self, value: &Value, exponent: &Exponent) -> Result<Vec<u16>, String> {
+    pub(crate) fn encode(&self, value: &Value, exponent: &Exponent) -> Result<Vec<u16>, String> {
         let power = self.power(exponent).map_err(|error| match error {
             NumberError::Unavailable => "the exponent field reads unavailable".to_string(),
             NumberError::Invalid(why) => why,
@@ -435,51 +435,49 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_float_in_its_four_layouts() {
-        // 123.456 as an IEEE 754 single is 0x42F6E979 (the worked example of many vendors'
-        // "float byte order" pages): ABCD, CDAB, BADC, DCBA.
-        let images: [[u16; 2]; 4] = [
-            [0x42F6, 0xE979],
-            [0xE979, 0x42F6],
-            [0xF642, 0x79E9],
-            [0x79E9, 0xF642],
-        ];
+    /// 123.456 as `ty` decodes from and encodes to `images`, given in the order of `LAYOUTS`.
+    fn decimal_in_each_layout(ty: NumberType, images: [&[u16]; 4]) {
+        let value = Value::Decimal {
+            scaled: 123_456,
+            precision: 3,
+        };
         for (layout, words) in LAYOUTS.into_iter().zip(images) {
-            let f32_codec = codec(NumberType::F32, layout, 3);
-            assert_eq!(text(f32_codec.decode(&words, &Exponent::None)), "123.456");
-            let value = Value::Decimal {
-                scaled: 123_456,
-                precision: 3,
-            };
+            let float_codec = codec(ty, layout, 3);
+            assert_eq!(text(float_codec.decode(words, &Exponent::None)), "123.456");
             assert_eq!(
-                f32_codec.encode(&value, &Exponent::None),
+                float_codec.encode(&value, &Exponent::None),
                 Ok(words.to_vec())
             );
         }
     }
 
     #[test]
+    fn a_float_in_its_four_layouts() {
+        // 123.456 as an IEEE 754 single is 0x42F6E979 (the worked example of many vendors'
+        // "float byte order" pages): ABCD, CDAB, BADC, DCBA.
+        decimal_in_each_layout(
+            NumberType::F32,
+            [
+                &[0x42F6, 0xE979],
+                &[0xE979, 0x42F6],
+                &[0xF642, 0x79E9],
+                &[0x79E9, 0xF642],
+            ],
+        );
+    }
+
+    #[test]
     fn a_double_in_its_four_layouts() {
         // 123.456 as an IEEE 754 double is 0x405EDD2F1A9FBE77.
-        let images: [[u16; 4]; 4] = [
-            [0x405E, 0xDD2F, 0x1A9F, 0xBE77],
-            [0xBE77, 0x1A9F, 0xDD2F, 0x405E],
-            [0x5E40, 0x2FDD, 0x9F1A, 0x77BE],
-            [0x77BE, 0x9F1A, 0x2FDD, 0x5E40],
-        ];
-        for (layout, words) in LAYOUTS.into_iter().zip(images) {
-            let f64_codec = codec(NumberType::F64, layout, 3);
-            assert_eq!(text(f64_codec.decode(&words, &Exponent::None)), "123.456");
-            let value = Value::Decimal {
-                scaled: 123_456,
-                precision: 3,
-            };
-            assert_eq!(
-                f64_codec.encode(&value, &Exponent::None),
-                Ok(words.to_vec())
-            );
-        }
+        decimal_in_each_layout(
+            NumberType::F64,
+            [
+                &[0x405E, 0xDD2F, 0x1A9F, 0xBE77],
+                &[0xBE77, 0x1A9F, 0xDD2F, 0x405E],
+                &[0x5E40, 0x2FDD, 0x9F1A, 0x77BE],
+                &[0x77BE, 0x9F1A, 0x2FDD, 0x5E40],
+            ],
+        );
     }
 
     #[test]

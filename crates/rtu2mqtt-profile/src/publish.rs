@@ -11,7 +11,7 @@ use super::number::DecimalText;
 use super::value::Value;
 
 /// The shortest heartbeat: a value republished more often than this floods the broker.
-pub const MIN_MAX_INTERVAL: Duration = Duration::from_secs(1);
+const MIN_MAX_INTERVAL: Duration = Duration::from_secs(1);
 /// Most decimals a deadband may have.
 const MAX_DECIMALS: u8 = 9;
 
@@ -40,7 +40,7 @@ pub struct Amount {
 
 impl Amount {
     /// `text` (plain decimal notation) as an amount; None when negative, not a number, with
-    /// more than [`MAX_DECIMALS`] decimals or too large.
+    /// more than nine decimals or too large for 64 bits once scaled.
     pub fn parse(text: &str) -> Option<Amount> {
         let number = DecimalText::parse(text)?;
         let decimals = (0..=MAX_DECIMALS).find(|&d| number.scaled(d).is_ok())?;
@@ -72,9 +72,17 @@ impl std::fmt::Display for Amount {
 /// change at once, as without settings).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct PublishRule {
+    /// `deadband`: a number is published when it moved more than this, in the field's own
+    /// unit, from the last published value.
     pub deadband: Option<Amount>,
+    /// `deadband_percent`: a number is published when it moved more than this percentage of
+    /// the last published value.
     pub deadband_percent: Option<Amount>,
+    /// `min_interval`: at most one publication per interval; the newest value goes out when
+    /// it ends.
     pub min_interval: Option<Duration>,
+    /// `max_interval`: the value is published again, unchanged, after this long without a
+    /// publication (a heartbeat, at least one second).
     pub max_interval: Option<Duration>,
 }
 
@@ -134,7 +142,7 @@ impl PublishRule {
     }
 
     /// A deadband is set (it only applies to numbers).
-    pub fn has_deadband(&self) -> bool {
+    fn has_deadband(&self) -> bool {
         self.deadband.is_some() || self.deadband_percent.is_some()
     }
 

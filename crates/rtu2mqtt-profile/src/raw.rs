@@ -163,22 +163,12 @@ impl Profile {
 
     /// Names of the toggle fields (write 1 flips the state), for simulators.
     pub fn toggle_fields(&self) -> Vec<&str> {
-        self.fields_with(Behaviour::Toggle)
+        self.field_names_where(|def| def.behaviour == Behaviour::Toggle)
     }
 
     /// Names of the momentary fields (buttons), for simulators.
     pub fn momentary_fields(&self) -> Vec<&str> {
-        self.fields_with(Behaviour::Momentary)
-    }
-
-    fn fields_with(&self, behaviour: Behaviour) -> Vec<&str> {
-        self.inner
-            .defs
-            .iter()
-            .zip(&self.inner.infos)
-            .filter(|(def, _)| def.behaviour == behaviour)
-            .map(|(_, info)| info.name.as_str())
-            .collect()
+        self.field_names_where(|def| def.behaviour == Behaviour::Momentary)
     }
 }
 

@@ -8,7 +8,7 @@ use serde::Deserialize;
 /// Order of the registers of a multi-register value.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum WordOrder {
+pub(crate) enum WordOrder {
     /// The first register holds the highest word (Modbus's own order, most devices).
     #[default]
     HighFirst,
@@ -19,7 +19,7 @@ pub enum WordOrder {
 /// Order of the two bytes inside each register.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum ByteOrder {
+pub(crate) enum ByteOrder {
     /// The high byte comes first on the wire (Modbus's own order).
     #[default]
     HighFirst,
@@ -29,14 +29,14 @@ pub enum ByteOrder {
 
 /// The layout of a number over `registers` registers.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct RegisterLayout {
-    pub words: WordOrder,
-    pub bytes: ByteOrder,
+pub(crate) struct RegisterLayout {
+    pub(crate) words: WordOrder,
+    pub(crate) bytes: ByteOrder,
 }
 
 impl RegisterLayout {
     /// The number's bits from its registers as read (`words.len()` is 1, 2 or 4).
-    pub fn join(self, words: &[u16]) -> u64 {
+    pub(crate) fn join(self, words: &[u16]) -> u64 {
         let swap = |word: u16| match self.bytes {
             ByteOrder::HighFirst => word,
             ByteOrder::LowFirst => word.swap_bytes(),
@@ -50,7 +50,7 @@ impl RegisterLayout {
 
     /// The registers, in the order they are read and written, that hold the lowest
     /// `16 × count` bits of `bits`.
-    pub fn split(self, bits: u64, count: u16) -> Vec<u16> {
+    pub(crate) fn split(self, bits: u64, count: u16) -> Vec<u16> {
         let mut words: Vec<u16> = (0..count)
             .rev()
             .map(|i| (bits >> (16 * u32::from(i))) as u16)

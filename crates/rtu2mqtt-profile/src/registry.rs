@@ -53,17 +53,33 @@ fn all_built_in() -> impl Iterator<Item = &'static (&'static str, &'static str)>
 /// Why a profile could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
+    /// A name without `/` or `.toml` names no built-in profile.
     #[error(
         "no built-in profile `{name}` (built-in: {known}); a profile file path must end in .toml"
     )]
-    UnknownBuiltIn { name: String, known: String },
+    UnknownBuiltIn {
+        /// The name asked for.
+        name: String,
+        /// The built-in names, comma-separated, for the message.
+        known: String,
+    },
+    /// A listing argument (`rtu2mqtt profiles NAME`) is no built-in name and no readable file.
     #[error("`{name}` is neither a built-in profile (built-in: {known}) nor a profile file")]
-    NeitherBuiltInNorFile { name: String, known: String },
+    NeitherBuiltInNorFile {
+        /// The argument as given.
+        name: String,
+        /// The built-in names, comma-separated, for the message.
+        known: String,
+    },
+    /// The profile file could not be read (missing, unreadable, not UTF-8).
     #[error("cannot read profile {path}: {source}")]
     Read {
+        /// The path as shown to the user (relative paths already joined to their base).
         path: String,
+        /// What the file system said.
         source: std::io::Error,
     },
+    /// The text was read but is not a valid profile: every problem with its place.
     #[error("{0}")]
     Invalid(#[from] ProfileErrors),
 }
@@ -78,7 +94,7 @@ pub fn library_names() -> Vec<&'static str> {
     LIBRARY.iter().map(|(name, _)| *name).collect()
 }
 
-/// A built-in profile by name.
+/// A built-in profile by name; [`LoadError::UnknownBuiltIn`] for a name that is not built in.
 pub fn built_in(name: &str) -> Result<Profile, LoadError> {
     let (_, text) = all_built_in()
         .find(|(known, _)| *known == name)
@@ -89,7 +105,8 @@ pub fn built_in(name: &str) -> Result<Profile, LoadError> {
     Ok(Profile::from_toml(text, &format!("built-in {name}"))?)
 }
 
-/// Loads a profile file.
+/// Loads a profile file: [`LoadError::Read`] when it cannot be read, [`LoadError::Invalid`]
+/// with every problem when it is not a valid profile.
 pub fn load_file(path: &Path) -> Result<Profile, LoadError> {
     let text = std::fs::read_to_string(path).map_err(|source| LoadError::Read {
         path: path.display().to_string(),

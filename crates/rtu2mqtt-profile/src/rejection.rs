@@ -4,4 +4,8 @@
 /// Why a command is refused: nothing is written.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
-pub struct Rejection(pub String);
+pub struct Rejection(
+    /// The reason, one sentence naming the field and what it accepts (`gear must be an
+    /// integer 1–10, got 11`).
+    pub String,
+);

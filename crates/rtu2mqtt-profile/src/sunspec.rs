@@ -25,24 +25,26 @@ pub const END_ID: u16 = 0xFFFF;
 /// One point of a model (or of its repeating group).
 #[derive(Debug, Clone, Deserialize)]
 pub struct Point {
+    /// The specification's point name (`PhVphA`, `W_SF`), unique within its model or group.
     pub name: String,
+    /// The specification's point type (`uint16`, `int32`, `sunssf`, `string`, `pad`, …).
     #[serde(rename = "type")]
     pub kind: String,
-    /// Registers.
+    /// Its length in registers.
     pub size: u16,
     /// The scale factor: a point's name, or a fixed exponent.
     #[serde(default)]
-    pub sf: Option<ScaleFactor>,
+    sf: Option<ScaleFactor>,
     #[serde(default)]
-    pub units: Option<String>,
+    units: Option<String>,
     #[serde(default)]
-    pub label: Option<String>,
+    label: Option<String>,
 }
 
 /// A point's `sf`: the name of a `sunssf` point of the same model, or a fixed exponent.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
-pub enum ScaleFactor {
+enum ScaleFactor {
     Point(String),
     Fixed(i8),
 }
@@ -50,20 +52,26 @@ pub enum ScaleFactor {
 /// A repeating group (model 160's modules).
 #[derive(Debug, Clone, Deserialize)]
 pub struct Group {
+    /// The group's name in the specification (`module`).
     pub name: String,
+    /// The points of one repeat, in register order.
     pub points: Vec<Point>,
 }
 
-/// One SunSpec model.
+/// One SunSpec information model of the table: its points in register order.
 #[derive(Debug, Clone, Deserialize)]
 pub struct Model {
+    /// The model id, the value of its `ID` register (1 common, 103 three-phase inverter).
     pub id: u16,
+    /// The specification's model name (`inverter_three_phase`).
     pub name: String,
+    /// The name people read (`Inverter (Three Phase)`).
     pub label: String,
     /// The field-name prefix in a written profile (`inverter`, `meter`).
     pub prefix: String,
     /// The fixed part, `ID` and `L` first.
     pub points: Vec<Point>,
+    /// The group repeated after the fixed part (model 160's modules), if the model has one.
     #[serde(default)]
     pub repeating: Option<Group>,
 }
@@ -123,23 +131,18 @@ fn table() -> &'static Table {
 }
 
 /// Where the table comes from (repository and commit).
-pub fn source() -> &'static str {
+fn source() -> &'static str {
     &table().source
 }
 
-/// A known model by id.
+/// The table's model with this id; `None` for a model `rtu2mqtt sunspec` does not know.
 pub fn model(id: u16) -> Option<&'static Model> {
     table().models.iter().find(|m| m.id == id)
 }
 
-/// Ids of every known model.
-pub fn known_ids() -> Vec<u16> {
-    table().models.iter().map(|m| m.id).collect()
-}
-
 /// The codec of a SunSpec point type, as a profile's inline table, with the type's "not
 /// implemented" raw value as `invalid`; `None` for types a profile does not read (`pad`).
-pub fn codec_of(point: &Point) -> Option<String> {
+fn codec_of(point: &Point) -> Option<String> {
     let text = match point.kind.as_str() {
         "uint16" | "enum16" | "bitfield16" | "count" => {
             r#"type = "u16", invalid = [0xFFFF]"#.to_string()
@@ -212,6 +215,7 @@ fn ha_of(units: &str, kind: &str) -> Option<(&'static str, &'static str)> {
 /// One model as found on a device.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FoundModel {
+    /// The value of its `ID` register.
     pub id: u16,
     /// Address of its `ID` register.
     pub address: u16,
@@ -231,10 +235,15 @@ impl FoundModel {
 pub struct Chain {
     /// The base: the address of "SunS".
     pub base: u16,
+    /// The models after the marker, in address order, up to the end id.
     pub models: Vec<FoundModel>,
+    /// The common model's `Mn` (empty without a common model).
     pub manufacturer: String,
+    /// The common model's `Md`.
     pub model: String,
+    /// The common model's `SN`.
     pub serial: String,
+    /// The common model's `Vr` (the firmware version).
     pub version: String,
 }
 
@@ -249,8 +258,11 @@ pub fn text_of(words: &[u16]) -> String {
 /// How a written profile talks to the device.
 #[derive(Debug, Clone)]
 pub struct LineChoice {
+    /// The baud rate (bit/s) the device answered at: the profile's `line.baud`.
     pub baud: u32,
+    /// `none`, `even` or `odd`: the profile's `line.parity`.
     pub parity: &'static str,
+    /// The station address it answered at: the profile's `line.default_address`.
     pub address: u8,
 }
 
@@ -286,8 +298,8 @@ fn quoted(text: &str) -> String {
 const MAX_BLOCK: u16 = 125;
 
 /// The TOML text of a profile reading every known model of `chain` (unknown models are listed
-/// in a comment and skipped). Nameplate models (1, 120) are read once (at start, after an outage, on refresh), the rest
-/// fast.
+/// in a comment and skipped). Nameplate models (1, 120) are read once (at start, after an
+/// outage, on refresh), the rest fast.
 pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
     let mut out = String::new();
     let known: Vec<&FoundModel> = chain
@@ -387,33 +399,32 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             n += 1;
         }
         used_prefixes.push(prefix.clone());
-        // Every point with its address and field name, ID and L left out.
-        let mut points: Vec<(u16, String, &Point, String)> = Vec::new();
-        let mut address = found.address;
-        for point in &def.points {
-            if point.name != "ID" && point.name != "L" {
-                points.push((
-                    address,
-                    format!("{prefix}_{}", snake(&point.name)),
-                    point,
-                    prefix.clone(),
-                ));
-            }
+        // Every point after ID and L with its address and field name; a repeat's names carry
+        // the group's name and number.
+        let model_prefix = prefix.as_str();
+        let fixed = def
+            .points
+            .iter()
+            .skip(2)
+            .map(|point| (prefix.clone(), point));
+        let repeated = def.repeating.iter().flat_map(|group| {
+            (1..=repeats).flat_map(move |index| {
+                let group_prefix = format!("{model_prefix}_{}{index}", snake(&group.name));
+                group
+                    .points
+                    .iter()
+                    .map(move |point| (group_prefix.clone(), point))
+            })
+        });
+        let mut points: Vec<(u16, String, &Point)> = Vec::new();
+        let mut address = found.body();
+        for (name_prefix, point) in fixed.chain(repeated) {
+            points.push((
+                address,
+                format!("{name_prefix}_{}", snake(&point.name)),
+                point,
+            ));
             address += point.size;
-        }
-        if let Some(group) = &def.repeating {
-            for index in 1..=repeats {
-                let group_prefix = format!("{prefix}_{}{index}", snake(&group.name));
-                for point in &group.points {
-                    points.push((
-                        address,
-                        format!("{group_prefix}_{}", snake(&point.name)),
-                        point,
-                        prefix.clone(),
-                    ));
-                    address += point.size;
-                }
-            }
         }
         // Blocks of at most MAX_BLOCK registers, never splitting a point.
         let poll = if matches!(found.id, 1 | 120) {
@@ -422,7 +433,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             "fast"
         };
         let mut blocks: Vec<(u16, u16)> = Vec::new();
-        for (address, _, point, _) in &points {
+        for (address, _, point) in &points {
             match blocks.last_mut() {
                 Some((start, count)) if address + point.size - *start <= MAX_BLOCK => {
                     *count = address + point.size - *start;
@@ -442,7 +453,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
             let _ = writeln!(out, "start = {start}");
             let _ = writeln!(out, "count = {count}");
             let _ = writeln!(out, "poll = \"{poll}\"\n");
-            for (address, field, point, sf_prefix) in &points {
+            for (address, field, point) in &points {
                 if address < start || *address >= start + count {
                     continue;
                 }
@@ -451,7 +462,7 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
                 };
                 match &point.sf {
                     Some(ScaleFactor::Point(sf)) => {
-                        let _ = write!(codec, r#", scale_by = "{sf_prefix}_{}""#, snake(sf));
+                        let _ = write!(codec, r#", scale_by = "{prefix}_{}""#, snake(sf));
                     }
                     Some(ScaleFactor::Fixed(exponent)) if *exponent != 0 => {
                         let _ = write!(codec, ", scale = 1e{exponent}");
@@ -533,14 +544,14 @@ mod tests {
         assert_eq!((mppt.fixed_len(), mppt.group_len()), (8, 20));
         assert_eq!(mppt.repeats(48), Some(2));
         assert_eq!(mppt.repeats(49), None);
-        assert_eq!(known_ids().len(), 17);
+        assert_eq!(table().models.len(), 17);
         assert!(source().contains("sunspec/models"), "{}", source());
     }
 
     #[test]
     fn every_point_type_has_a_codec_and_every_scale_factor_exists() {
-        for id in known_ids() {
-            let def = model(id).unwrap();
+        for def in &table().models {
+            let id = def.id;
             let group = def.repeating.iter().flat_map(|g| g.points.iter());
             for point in def.points.iter().chain(group) {
                 assert!(

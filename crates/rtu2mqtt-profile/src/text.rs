@@ -9,7 +9,7 @@ use super::registers::ByteOrder;
 /// How the bytes of a `string` field are read as text.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Encoding {
+pub(crate) enum Encoding {
     /// Seven-bit ASCII; any byte above 0x7F is invalid data.
     #[default]
     Ascii,

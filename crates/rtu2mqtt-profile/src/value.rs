@@ -1,18 +1,23 @@
 //! A decoded field value and its text and JSON forms (the MQTT payload contract).
 
-/// A field value.
+/// A field's value as decoded from the device or parsed from a command; its text form is the
+/// MQTT payload.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Value {
+    /// A bit, coil or momentary field: `ON` (true) or `OFF` as text.
     Bool(bool),
     /// An integer; wide enough for every 64-bit register value, signed or not, with an offset.
     Int(i128),
     /// A fixed-point number: `scaled / 10^precision`, kept exact (BCD 12.34 is 1234, 2).
     Decimal {
+        /// The value times `10^precision`.
         scaled: i128,
+        /// Digits after the decimal point, kept when shown (`12.30` stays `12.30`).
         precision: u8,
     },
     /// An enumeration word (`opening`).
     Enum(String),
+    /// The text of a `string` or `bytes` field, as shown (`SN1234`, `0A1B2C`, `1:02:03`).
     Text(String),
     /// The device reports that it has no value here: the raw value is one of the field's
     /// `invalid` marks (SunSpec's "not implemented"), or its exponent is. Never published as a
@@ -49,7 +54,7 @@ impl Value {
 
     /// The same value, numbers compared by magnitude whatever their precision (`1.50` is
     /// `1.5`, a `scale_by` read-back at its exponent's places is the commanded value).
-    pub fn same_number(&self, other: &Value) -> bool {
+    pub(crate) fn same_number(&self, other: &Value) -> bool {
         let as_fraction = |value: &Value| match value {
             Self::Int(integer) => Some((*integer, 0u8)),
             Self::Decimal { scaled, precision } => Some((*scaled, *precision)),

@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use super::{Addressing, Reply, SimDevice};
+use super::device::{Addressing, Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// The device's fixed address.

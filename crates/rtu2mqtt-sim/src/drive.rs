@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response};
 
-use super::{Reply, SimDevice};
+use super::device::{Reply, SimDevice};
 
 /// An FC03 read of `quantity` holding registers from `start`.
 pub(crate) fn read(device: &mut impl SimDevice, start: u16, quantity: u16, now: Instant) -> Reply {

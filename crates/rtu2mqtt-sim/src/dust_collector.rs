@@ -13,7 +13,7 @@
 
 use std::time::{Duration, Instant};
 
-use super::{Reply, SimDevice};
+use super::device::{Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 
 /// First register of the device's table.

@@ -11,6 +11,8 @@ use rand::Rng;
 
 use rtu2mqtt_modbus::frame::{ExceptionCode, SlaveId};
 
+use super::device::lock;
+
 /// When a fault strikes: the next `next` answers, and after those each answer with
 /// `probability` (0 = never, 1 = always).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -129,17 +131,17 @@ impl FaultHandle {
 
     /// A copy of the faults in force.
     pub fn get(&self) -> Faults {
-        super::lock(&self.inner).clone()
+        lock(&self.inner).clone()
     }
 
     /// Replaces the faults.
     pub fn set(&self, faults: Faults) {
-        *super::lock(&self.inner) = faults;
+        *lock(&self.inner) = faults;
     }
 
     /// Changes the faults in place: `faults.update(|f| f.drop = Occurrence::next(2))`.
     pub fn update(&self, change: impl FnOnce(&mut Faults)) {
-        change(&mut super::lock(&self.inner));
+        change(&mut lock(&self.inner));
     }
 
     /// Back to a healthy line.
@@ -159,20 +161,20 @@ impl FaultHandle {
     }
 
     pub fn is_silenced(&self, address: SlaveId) -> bool {
-        super::lock(&self.inner).silenced.contains(&address)
+        lock(&self.inner).silenced.contains(&address)
     }
 
     pub fn idle_garbage_every(&self) -> Option<Duration> {
-        super::lock(&self.inner).idle_garbage_every
+        lock(&self.inner).idle_garbage_every
     }
 
     pub fn echo(&self) -> bool {
-        super::lock(&self.inner).echo
+        lock(&self.inner).echo
     }
 
     /// Decides the faults of one answer from device `address`.
     pub fn for_answer(&self, address: SlaveId) -> AnswerFaults {
-        let mut faults = super::lock(&self.inner);
+        let mut faults = lock(&self.inner);
         if faults.target.is_some_and(|target| target != address) {
             return AnswerFaults::default();
         }

@@ -11,10 +11,9 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use super::{Reply, SimDevice};
+use super::device::{Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
-use rtu2mqtt_profile::codec::RawPatch;
-use rtu2mqtt_profile::{FieldKind, Profile, ReadBlock};
+use rtu2mqtt_profile::{FieldKind, Profile, RawPatch, ReadBlock};
 
 /// The four Modbus tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

@@ -8,6 +8,8 @@ use std::time::{Duration, Instant};
 
 use rtu2mqtt_modbus::frame::SlaveId;
 
+use super::device::lock;
+
 /// One frame received by the simulated line.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RequestRecord {
@@ -63,7 +65,7 @@ impl Journal {
     }
 
     pub(crate) fn record(&self, record: RequestRecord) {
-        let mut inner = super::lock(&self.inner);
+        let mut inner = lock(&self.inner);
         if inner.requests.len() == MAX_RECORDS {
             inner.requests.pop_front();
         }
@@ -72,21 +74,21 @@ impl Journal {
     }
 
     pub(crate) fn count_write(&self, address: SlaveId) {
-        *super::lock(&self.inner).writes.entry(address).or_insert(0) += 1;
+        *lock(&self.inner).writes.entry(address).or_insert(0) += 1;
     }
 
     pub(crate) fn count_discarded(&self, bytes: usize) {
-        super::lock(&self.inner).discarded_bytes += bytes;
+        lock(&self.inner).discarded_bytes += bytes;
     }
 
     /// The frames received so far (the last [`MAX_RECORDS`]).
     pub fn requests(&self) -> Vec<RequestRecord> {
-        super::lock(&self.inner).requests.iter().cloned().collect()
+        lock(&self.inner).requests.iter().cloned().collect()
     }
 
     /// The frames received so far, bytes only.
     pub fn frames(&self) -> Vec<Vec<u8>> {
-        super::lock(&self.inner)
+        lock(&self.inner)
             .requests
             .iter()
             .map(|r| r.frame.clone())
@@ -95,31 +97,27 @@ impl Journal {
 
     /// Takes the frames received so far out of the journal (counters stay).
     pub fn drain_requests(&self) -> Vec<RequestRecord> {
-        super::lock(&self.inner).requests.drain(..).collect()
+        lock(&self.inner).requests.drain(..).collect()
     }
 
     /// Frames received since the start (or the last [`Journal::clear`]), kept or not.
     pub fn request_count(&self) -> usize {
-        super::lock(&self.inner).total_requests
+        lock(&self.inner).total_requests
     }
 
     /// Write requests (CRC-valid, addressed to the device) the device received.
     pub fn writes_to(&self, address: SlaveId) -> u32 {
-        super::lock(&self.inner)
-            .writes
-            .get(&address)
-            .copied()
-            .unwrap_or(0)
+        lock(&self.inner).writes.get(&address).copied().unwrap_or(0)
     }
 
     /// Bytes received that did not make a frame (noise, truncated frames).
     pub fn discarded_bytes(&self) -> usize {
-        super::lock(&self.inner).discarded_bytes
+        lock(&self.inner).discarded_bytes
     }
 
     /// The smallest silence seen before a request (None before the second request).
     pub fn min_silence(&self) -> Option<Duration> {
-        super::lock(&self.inner)
+        lock(&self.inner)
             .requests
             .iter()
             .filter_map(|r| r.silence_before)
@@ -127,7 +125,7 @@ impl Journal {
     }
 
     pub fn clear(&self) {
-        *super::lock(&self.inner) = Inner::default();
+        *lock(&self.inner) = Inner::default();
     }
 
     /// Waits until at least `count` frames were received, or `timeout` passed; returns the

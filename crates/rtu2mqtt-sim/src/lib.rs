@@ -14,7 +14,7 @@
 //! - [`TcpSimulator`]: the same devices behind a TCP port, as a serial device server (raw RTU
 //!   frames) or a Modbus TCP gateway, with network faults of its own ([`TcpFaults`]).
 //!
-//! Modules: the devices `dust_collector`, `air_shower`, `valve` (written by hand), `generic`
+//! Modules: `device` (what a simulated device is), the devices `dust_collector`, `air_shower`, `valve` (written by hand), `generic`
 //! (from any profile), `library` (the device library's tables of `register_map` values) and
 //! `sunspec` (SunSpec maps); `server` (framing, `pace`, `faults`, `journal`; `drive` runs a
 //! device's clock), `wire` (frames on the simulator's side), `virtual_line` (a served pty),
@@ -47,6 +47,7 @@
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
 pub mod air_shower;
+mod device;
 #[cfg(test)]
 mod drive;
 pub mod dust_collector;
@@ -66,12 +67,8 @@ pub mod valve;
 pub mod virtual_line;
 pub mod wire;
 
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
-
-use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
-
 pub use air_shower::AirShower;
+pub use device::{lock, share, Addressing, Reply, SharedDevice, SimDevice};
 pub use dust_collector::DustCollector;
 pub use faults::{FaultHandle, Faults, Occurrence};
 pub use generic::GenericDevice;
@@ -86,80 +83,12 @@ pub use tcp::{Protocol, TcpFaultHandle, TcpFaults, TcpSimulator};
 pub use valve::Valve;
 pub use virtual_line::VirtualLine;
 
-/// What a device does with a request addressed to it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Reply {
-    Normal(Response),
-    Exception(ExceptionCode),
-    /// The device acted (or not) but sends nothing back.
-    Silent,
-}
-
-/// Whether a device takes a frame sent to `address`, and whether it answers it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Addressing {
-    /// Not for this device.
-    NotMine,
-    /// Act on it and answer (with the device's own address).
-    Answer,
-    /// Act on it without answering (broadcast).
-    ActSilently,
-}
-
-/// A device to put on a simulated line.
-pub trait SimDevice: Send {
-    /// The device's address (the one its answers carry).
-    fn address(&self) -> SlaveId;
-
-    /// How the device treats a frame sent to `address`. The default is standard Modbus:
-    /// its own address answered, broadcast 0 acted on silently.
-    fn addressing(&self, address: SlaveId) -> Addressing {
-        if address == self.address() {
-            Addressing::Answer
-        } else if address == 0 {
-            Addressing::ActSilently
-        } else {
-            Addressing::NotMine
-        }
-    }
-
-    /// Handles one decoded request at time `now`.
-    fn handle(&mut self, request: &Request, now: Instant) -> Reply;
-
-    /// Handles a CRC-valid request with a function code outside the decoded set.
-    fn handle_unknown_function(&mut self, _function: u8, _now: Instant) -> Reply {
-        Reply::Exception(ExceptionCode::IllegalFunction)
-    }
-
-    /// Protocol violations seen so far (writes that changed what must not be changed).
-    fn violations(&self) -> Vec<String> {
-        Vec::new()
-    }
-
-    /// A short name for logs.
-    fn kind(&self) -> &'static str;
-}
-
-/// A device shared between the line serving it and the test or demo inspecting it.
-pub type SharedDevice = Arc<Mutex<dyn SimDevice>>;
-
-/// Wraps a device for a line, keeping a typed handle: `let (dust, shared) = share(d)`.
-pub fn share<D: SimDevice + 'static>(device: D) -> (Arc<Mutex<D>>, SharedDevice) {
-    let typed = Arc::new(Mutex::new(device));
-    let shared: SharedDevice = typed.clone();
-    (typed, shared)
-}
-
-/// Locks a shared device even if a panicking holder poisoned the lock: the simulated state is
-/// plain data and stays usable.
-pub fn lock<D: ?Sized>(device: &Mutex<D>) -> std::sync::MutexGuard<'_, D> {
-    device
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
 #[cfg(test)]
 mod tests {
+    use std::time::Instant;
+
+    use rtu2mqtt_modbus::frame::{Request, Response};
+
     use super::*;
     use proptest::prelude::*;
 

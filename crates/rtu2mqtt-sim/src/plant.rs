@@ -4,7 +4,12 @@
 
 use std::sync::{Arc, Mutex};
 
-use super::{share, AirShower, DustCollector, ServeOptions, Valve, VirtualLine};
+use super::air_shower::AirShower;
+use super::device::share;
+use super::dust_collector::DustCollector;
+use super::server::ServeOptions;
+use super::valve::Valve;
+use super::virtual_line::VirtualLine;
 use rtu2mqtt_modbus::timing::Parity;
 
 /// The three seed devices on two served ptys, with typed handles on each device.

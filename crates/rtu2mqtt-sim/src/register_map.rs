@@ -4,7 +4,7 @@
 //! [`GenericDevice`] holding exactly those registers, so one simulator serves every library
 //! device and each device is a table, not code.
 
-use super::GenericDevice;
+use super::generic::GenericDevice;
 use rtu2mqtt_modbus::frame::SlaveId;
 
 /// The register table a value lives in.

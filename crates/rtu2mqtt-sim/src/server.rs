@@ -16,12 +16,12 @@ use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
+use super::device::{lock, Addressing, Reply, SharedDevice};
 use super::faults::{random_bytes, AnswerChunks, FaultHandle};
 use super::journal::{AnswerTiming, Journal, RequestRecord};
 use super::pace::Pace;
 use super::pty_settings::{garble, BaudWatch};
 use super::wire::{self, FrameLen, RequestError};
-use super::{lock, Addressing, Reply, SharedDevice};
 use rtu2mqtt_modbus::clock::sleep_until_precise;
 use rtu2mqtt_modbus::codec::{encode_answer, encode_exception, hex};
 use rtu2mqtt_modbus::frame::Request;
@@ -41,7 +41,7 @@ pub struct ServeOptions {
     /// When an answer's bytes are handed over (a pty delivers them instantly).
     pub pace: Pace,
     /// Garble the answers while the pty's baud rate, as the master set it, differs from the
-    /// line's: what a device hears at the wrong baud rate. Only a [`super::VirtualLine`] can
+    /// line's: what a device hears at the wrong baud rate. Only a [`VirtualLine`](super::virtual_line::VirtualLine) can
     /// look at its pty's settings; elsewhere this does nothing.
     pub enforce_baud: bool,
 }

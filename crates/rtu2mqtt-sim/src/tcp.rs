@@ -17,13 +17,13 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::task::JoinHandle;
 
+use super::device::{lock, SharedDevice};
 use super::faults::{random_bytes, FaultHandle, Occurrence};
 use super::journal::Journal;
 use super::server::{serve, ServeOptions};
 use super::wire::{self, FrameLen};
-use super::SharedDevice;
+use rtu2mqtt_modbus::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::codec::{self, MAX_FRAME_LEN};
-use rtu2mqtt_modbus::link::answer_framing::{AnswerFramer, Framed};
 use rtu2mqtt_modbus::tcp::mbap;
 use tokio_util::sync::CancellationToken;
 
@@ -62,7 +62,7 @@ impl Protocol {
     }
 }
 
-/// Faults of the network link, on top of the line's [`super::Faults`]. `Default` is healthy.
+/// Faults of the network link, on top of the line's [`Faults`](super::faults::Faults). `Default` is healthy.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TcpFaults {
     /// Half the answer is sent, then the connection is closed.
@@ -97,15 +97,15 @@ pub struct TcpFaultHandle {
 
 impl TcpFaultHandle {
     pub fn update(&self, change: impl FnOnce(&mut TcpFaults)) {
-        change(&mut super::lock(&self.inner));
+        change(&mut lock(&self.inner));
     }
 
     pub fn clear(&self) {
-        *super::lock(&self.inner) = TcpFaults::default();
+        *lock(&self.inner) = TcpFaults::default();
     }
 
     fn for_answer(&self) -> AnswerDecision {
-        let mut faults = super::lock(&self.inner);
+        let mut faults = lock(&self.inner);
         let mut rng = rand::thread_rng();
         let split = faults.split_answer.strike(&mut rng);
         let garbage = faults.garbage_before.strike(&mut rng);

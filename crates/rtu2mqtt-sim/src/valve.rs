@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-use super::{Addressing, Reply, SimDevice};
+use super::device::{Addressing, Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 use rtu2mqtt_profile::bcd;
 

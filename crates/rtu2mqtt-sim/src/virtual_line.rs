@@ -13,12 +13,12 @@ use std::path::{Path, PathBuf};
 use mio_serial::{SerialPort as _, SerialStream};
 use tokio::task::JoinHandle;
 
+use super::device::SharedDevice;
 use super::faults::FaultHandle;
 use super::journal::Journal;
 use super::pty_settings::BaudWatch;
 use super::serial_stream::AsyncSerial;
 use super::server::{serve_watching, ServeOptions};
-use super::SharedDevice;
 use tokio_util::sync::CancellationToken;
 
 /// The serving side of one plugged-in pty.

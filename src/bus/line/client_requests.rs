@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use super::{slot_link, Line};
+use super::Line;
 use crate::bus::commands::Pending;
 use crate::bus::serve::policy;
 use crate::bus::serve::served_side::{
@@ -172,19 +172,11 @@ impl Line {
             },
             arrived: Instant::now(),
         };
-        let attempts = self.attempts();
-        let Some(link) = slot_link(
-            &mut self.devices,
-            self.master.as_mut(),
-            &self.spec.name,
-            self.timeout,
-            &self.turnaround,
-            device,
-            attempts,
-        ) else {
+        let (link, commands) = self.slot_link(device);
+        let Some(link) = link else {
             return Err(ExceptionCode::GatewayTargetFailedToRespond);
         };
-        let mut report = self.commands.run(link, device, pending).await;
+        let mut report = commands.run(link, device, pending).await;
         if report.wrote {
             self.note_write(device, &planned.covered).await;
         }

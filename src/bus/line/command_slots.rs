@@ -6,7 +6,7 @@ use std::time::{Instant, SystemTime};
 
 use tokio::sync::mpsc;
 
-use super::{slot_link, Line};
+use super::Line;
 use crate::bus::commands::{Finished, Pending, Settle, SlotReport};
 use crate::bus::device::Values;
 use crate::bus::serve::served_side::FIRST_CLIENT_COMMAND_ID;
@@ -101,21 +101,13 @@ impl Line {
             .into_iter()
             .map(|(field, _)| field.to_string())
             .collect();
-        let attempts = self.attempts();
-        let Some(link) = slot_link(
-            &mut self.devices,
-            self.master.as_mut(),
-            &self.spec.name,
-            self.timeout,
-            &self.turnaround,
-            device,
-            attempts,
-        ) else {
+        let (link, commands) = self.slot_link(device);
+        let Some(link) = link else {
             let finished = pending.failed(CommandFailure::PortNotOpen);
             self.reply(device, finished).await;
             return;
         };
-        let report = self.commands.run(link, device, pending).await;
+        let report = commands.run(link, device, pending).await;
         if report.wrote {
             self.note_write(device, &fields).await;
         }
@@ -143,24 +135,16 @@ impl Line {
     }
 
     pub(super) async fn run_settle(&mut self, settle: Settle) {
-        let attempts = self.attempts();
         let device = settle.device();
-        let Some(link) = slot_link(
-            &mut self.devices,
-            self.master.as_mut(),
-            &self.spec.name,
-            self.timeout,
-            &self.turnaround,
-            device,
-            attempts,
-        ) else {
+        let (link, commands) = self.slot_link(device);
+        let Some(link) = link else {
             let finished = settle.finish(CommandOutcome::Failed {
                 cause: CommandFailure::PortNotOpen,
             });
             self.reply(device, finished).await;
             return;
         };
-        let report = self.commands.reread(link, settle).await;
+        let report = commands.reread(link, settle).await;
         self.carry_out(report).await;
     }
 

@@ -262,6 +262,31 @@ impl Line {
         self.spec.retries.saturating_add(1)
     }
 
+    /// What a command slot or a settle re-read of `device` talks through (`None` while the port
+    /// is closed, or the device is unknown), beside the command slots that drive it: one borrow
+    /// of the line split in two, so a slot can run while the link is held.
+    fn slot_link(&mut self, device: usize) -> (Option<SlotLink<'_>>, &mut CommandSlots) {
+        let attempts = self.attempts();
+        let Line {
+            spec,
+            devices,
+            timeout,
+            master,
+            commands,
+            turnaround,
+            ..
+        } = self;
+        let link = devices.get_mut(device).and_then(|runtime| {
+            Some(SlotLink {
+                exchange: Exchange::for_device(&spec.name, &runtime.spec, *timeout, turnaround),
+                master: master.as_mut()?,
+                stats: &mut runtime.stats,
+                attempts,
+            })
+        });
+        (link, commands)
+    }
+
     /// The line's loop. The line is boxed: an async fn keeps its arguments in its future beside
     /// the state of each await, and a plant of a thousand lines holds a thousand of these.
     async fn run(mut self: Box<Self>) {
@@ -635,26 +660,6 @@ impl Line {
         self.publish_stats();
         tracing::info!("line stopped");
     }
-}
-
-/// What a command slot or a settle re-read of `device` talks through; `None` while the port is
-/// closed (or the device is unknown).
-fn slot_link<'a>(
-    devices: &'a mut [DeviceRuntime],
-    master: Option<&'a mut Link>,
-    line: &'a str,
-    timeout: Duration,
-    turnaround: &'a Turnaround,
-    device: usize,
-    attempts: u32,
-) -> Option<SlotLink<'a>> {
-    let DeviceRuntime { spec, stats, .. } = devices.get_mut(device)?;
-    Some(SlotLink {
-        exchange: Exchange::for_device(line, spec, timeout, turnaround),
-        master: master?,
-        stats,
-        attempts,
-    })
 }
 
 #[cfg(test)]

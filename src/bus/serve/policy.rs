@@ -7,7 +7,7 @@ use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId};
 
 use super::Access;
 use crate::bus::DeviceSpec;
-use rtu2mqtt_profile::model::Behaviour;
+use rtu2mqtt_profile::Behaviour;
 use rtu2mqtt_profile::{CommandPlan, DeviceState, Profile, Value};
 
 /// The server's decision on a request before it reaches the line.

@@ -24,12 +24,12 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
+use crate::answer_framing::{AnswerFramer, Framing};
 use crate::clock::PreciseTimer;
 use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
 use crate::frame::{FunctionCode, Request, SlaveId};
-use crate::link::answer_framing::{AnswerFramer, Framing};
-use crate::link::shared::{Ask, Direction, LinkCore, Transact};
 use crate::outcome::reply_of;
+use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
 use crate::outcome::{Error, Reply, WireCounters};
@@ -42,7 +42,7 @@ use crate::timing::LineTiming;
 /// inside a good answer; twice that leaves as much again for a busy host and a device that
 /// pauses mid-answer. Only a really truncated answer pays for it, once. Lines at very low baud
 /// rates use at least t3.5.
-pub const DEFAULT_BYTE_TIMEOUT: Duration = Duration::from_millis(32);
+pub(crate) const DEFAULT_BYTE_TIMEOUT: Duration = Duration::from_millis(32);
 
 /// Per-line behaviour of the master.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -53,7 +53,7 @@ pub struct MasterOptions {
     pub broadcast_turnaround: Duration,
     /// The byte timeout: the longest silence between two bytes of one answer before it is
     /// declared truncated, and the silence a new master listens for before its first request.
-    /// `None`: [`DEFAULT_BYTE_TIMEOUT`] (at least t3.5).
+    /// `None`: 32 ms, or t3.5 where that is longer (below about 1100 baud).
     pub inter_char_timeout: Option<Duration>,
     /// After a timeout, how long the line is watched for the late answer before the next
     /// request to the same address goes out (counted from the timeout). `None`: the timed-out
@@ -76,7 +76,9 @@ impl Default for MasterOptions {
     }
 }
 
-/// Runs transactions on one line.
+/// The master of one serial line: runs one RTU transaction at a time on its [`Port`] through
+/// [`Transact::transact`](crate::Transact::transact), with the silences, answer framing and
+/// late-answer handling this module describes.
 pub struct Master {
     port: Port,
     timing: LineTiming,
@@ -113,6 +115,9 @@ impl std::fmt::Debug for Master {
 }
 
 impl Master {
+    /// The master of the line on `port`, whose silences follow `timing` (computed from the
+    /// line's configured format, also on a pseudo-terminal that ignores it). The first
+    /// request waits until the line has been silent for the byte timeout.
     pub fn new(port: Port, timing: LineTiming, options: MasterOptions) -> Self {
         let core = LinkCore::new(port.path().to_string());
         Master {
@@ -138,7 +143,7 @@ impl Master {
     }
 
     /// The gap between two bytes of one answer beyond which it is declared truncated.
-    pub fn inter_char_timeout(&self) -> Duration {
+    pub(crate) fn inter_char_timeout(&self) -> Duration {
         self.options
             .inter_char_timeout
             .unwrap_or(DEFAULT_BYTE_TIMEOUT.max(self.timing.t3_5))
@@ -186,17 +191,9 @@ impl Master {
         self.wait_for_silence(None, patience).await
     }
 
+    /// The master's counters since it was made.
     pub fn counters(&self) -> WireCounters {
         self.core.counters()
-    }
-
-    pub fn timing(&self) -> LineTiming {
-        self.timing
-    }
-
-    /// The port's path or label, for logs.
-    pub fn port_path(&self) -> &str {
-        self.port.path()
     }
 
     /// Waits until the line has been silent for t3.5 (and until `guard`, a late-answer guard,
@@ -496,7 +493,7 @@ impl Master {
     }
 }
 
-impl Transact for Master {
+impl Exchange for Master {
     fn core(&self) -> &LinkCore {
         &self.core
     }

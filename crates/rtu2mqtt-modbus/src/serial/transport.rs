@@ -7,8 +7,13 @@
 //!
 //! Why mio-serial under an `AsyncFd` and not tokio-serial: tokio-serial registers the port for
 //! read and write readiness, but a frame is written whole (a few bytes into a kernel buffer of
-//! kilobytes) and its end awaited with tcdrain, so write readiness would only wake the line's
-//! task for nothing. The port is registered for read interest alone.
+//! kilobytes) and its end awaited with tcdrain, so no task ever waits to write, and each
+//! "writable" signal (on a pty: each time the other end reads) would only wake the runtime's
+//! thread for nothing. The port is registered for read interest alone. Measured against
+//! tokio-serial running the same transactions, that saves the runtime one wake-up per
+//! transaction and the kernel's share of the CPU it costs, with the same timing; a small
+//! saving, seen only on a quiet machine. The figures and their command are in
+//! docs/performance.md ("Read interest alone").
 
 use std::io::{self, Read, Write};
 use std::os::fd::{AsRawFd, BorrowedFd};
@@ -24,40 +29,64 @@ use crate::timing::{CharFormat, Parity};
 /// Kernel RS485 mode (TIOCSRS485) for boards whose UART drives the transceiver.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Rs485Settings {
+    /// RTS is driven high while sending (`true`, most transceivers) or low (`false`).
     pub rts_on_send: bool,
+    /// How long RTS is switched before the first bit goes out. The kernel takes whole
+    /// milliseconds; finer parts are dropped.
     pub delay_before_send: Duration,
+    /// How long RTS is held after the last bit before the transceiver is released, in whole
+    /// milliseconds as before.
     pub delay_after_send: Duration,
 }
 
 /// Everything needed to open one line.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SerialSettings {
+    /// The device to open (`/dev/ttyUSB0`, `/dev/serial/by-id/…`, a pty's `/dev/pts/N`); it
+    /// also names the port in logs and errors.
     pub path: String,
+    /// Bits per second.
     pub baud: u32,
+    /// Data bits, parity and stop bits.
     pub format: CharFormat,
+    /// The kernel's RS485 mode, for a UART that drives the transceiver itself; `None` leaves
+    /// the port as it is (a USB adapter switches its transceiver on its own).
     pub rs485: Option<Rs485Settings>,
 }
 
+/// Why a serial port could not be opened as configured.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
+    /// The port could not be opened: missing (an adapter not plugged in yet), busy (another
+    /// program holds it), or not permitted. Worth trying again later.
     #[error("cannot open {path}: {source}")]
     Open {
+        /// The path that was opened.
         path: String,
+        /// The system's error.
         source: std::io::Error,
     },
     /// The path exists but is no serial port (a regular file, a directory, `/dev/null`): no
     /// amount of waiting fixes that, unlike a missing path or a port that is busy.
     #[error("{path} is not a serial port (not a terminal device): {source}")]
     NotATerminal {
+        /// The path that was opened.
         path: String,
+        /// The system's error.
         source: std::io::Error,
     },
+    /// A real port (not a pseudo-terminal) refused a line setting, or accepted it and reads
+    /// back another value: the adapter cannot run the line as configured.
     #[error("{path}: {setting} refused by the port: {source}")]
     SettingRefused {
+        /// The port's path.
         path: String,
+        /// The setting: `baud rate`, `data bits`, `parity`, `stop bits` or `rs485 mode`.
         setting: &'static str,
+        /// The system's error.
         source: std::io::Error,
     },
+    /// The opened port could not be registered with the runtime's reactor.
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
 }
@@ -70,12 +99,14 @@ const WRITE_PATIENCE: Duration = Duration::from_secs(1);
 /// How often a write that found the transmit buffer full tries again.
 const WRITE_RETRY: Duration = Duration::from_millis(1);
 
-/// An open serial line.
+/// An open serial port, registered with the tokio reactor of the runtime that opened it: it
+/// writes a frame and tells when its last bit left, and reads with deadlines. A
+/// [`Master`](crate::serial::master::Master) runs transactions on it.
 pub struct Port {
     /// Registered with the reactor for reading only. The transmit side signals "writable" each
     /// time the driver moves bytes out (on a pty: each time the other end reads), and with
-    /// write interest every such signal woke the runtime for nothing, about once per
-    /// transaction; writes never need the reactor (see [`Port::write_all`]).
+    /// write interest such a signal wakes the runtime for nothing (see the module's
+    /// documentation); writes never need the reactor (see [`Port::write_all`]).
     stream: AsyncFd<SerialStream>,
     path: String,
     pseudo_terminal: bool,
@@ -180,14 +211,8 @@ impl Port {
     }
 
     /// The path (or label) the port was opened with.
-    pub fn path(&self) -> &str {
+    pub(crate) fn path(&self) -> &str {
         &self.path
-    }
-
-    /// True when the port is a pseudo-terminal (tests, simulators, socat bridges): the kernel
-    /// ignores or refuses line settings there, and nothing is sent at a real baud rate.
-    pub fn is_pseudo_terminal(&self) -> bool {
-        self.pseudo_terminal
     }
 
     fn apply_format(&mut self, baud: u32, format: CharFormat) -> Result<(), TransportError> {
@@ -354,7 +379,8 @@ impl Port {
 
     /// Writes `frame` and waits until the transmit buffer has drained (tcdrain), returning the
     /// instant it drained: the last stop bit has left the UART, the line's silence starts then.
-    /// On a pseudo-terminal the instant the write returned.
+    /// On a pseudo-terminal the instant the write returned. An error means the port failed,
+    /// or took no byte for a second (a pty whose other end stopped reading).
     pub async fn write_frame(&mut self, frame: &[u8]) -> io::Result<Instant> {
         // No `flush()`: mio-serial's flush is a blocking tcdrain, which would stall the runtime
         // for the frame's whole wire time. The drain is awaited below on the blocking pool.
@@ -379,7 +405,9 @@ impl Port {
     }
 
     /// Reads what has arrived into `buf`, waiting until `deadline` for at least one byte.
-    /// `Ok(None)` when the deadline passed first; the instant is when the bytes were seen.
+    /// `Ok(Some((count, seen)))`: `count` bytes at the start of `buf`, seen at `seen`;
+    /// `Ok(None)` when the deadline passed first. An error means the port is gone (EOF: the
+    /// other end of a pty closed, a USB adapter was unplugged) or failed.
     pub async fn read_until(
         &mut self,
         buf: &mut [u8],
@@ -394,7 +422,7 @@ impl Port {
     }
 
     /// Takes every byte already waiting in the receive buffer without waiting for more.
-    pub fn take_pending(&mut self) -> io::Result<Vec<u8>> {
+    pub(crate) fn take_pending(&mut self) -> io::Result<Vec<u8>> {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
         loop {
@@ -448,11 +476,6 @@ impl Port {
             }
         }
         Ok(())
-    }
-
-    /// Discards pending input, returning how many bytes were thrown away.
-    pub fn discard_input(&mut self) -> io::Result<usize> {
-        self.take_pending().map(|bytes| bytes.len())
     }
 }
 
@@ -597,7 +620,7 @@ mod tests {
         let (near, far) = SerialStream::pair().unwrap();
         let mut near = Port::from_stream(near, &settings(Parity::Even)).unwrap();
         let mut far = Port::from_stream(far, &settings(Parity::None)).unwrap();
-        assert!(near.is_pseudo_terminal() && far.is_pseudo_terminal());
+        assert!(near.pseudo_terminal && far.pseudo_terminal);
         let sent = near.write_frame(&[0x01, 0x03, 0x10, 0x00]).await.unwrap();
         let mut buf = [0u8; 16];
         let mut got = Vec::new();
@@ -629,11 +652,11 @@ mod tests {
         let mut discarded = 0;
         let give_up = Instant::now() + Duration::from_secs(5);
         while discarded < 7 && Instant::now() < give_up {
-            discarded += far.discard_input().unwrap();
+            discarded += far.take_pending().unwrap().len();
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
         assert_eq!(discarded, 7);
-        assert_eq!(far.discard_input().unwrap(), 0);
+        assert_eq!(far.take_pending().unwrap().len(), 0);
     }
 
     #[tokio::test(flavor = "current_thread")]

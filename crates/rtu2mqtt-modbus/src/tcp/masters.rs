@@ -17,14 +17,14 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
+use crate::answer_framing::{AnswerFramer, Framed};
 use crate::clock::PreciseTimer;
 use crate::codec::{self, Answer, DecodeError};
 use crate::frame::{Request, SlaveId};
-use crate::link::answer_framing::{AnswerFramer, Framed};
-use crate::link::shared::{Ask, Direction, LinkCore, Transact};
 use crate::outcome::{reply_of, Error, PortFault, Reply};
 use crate::tcp::mbap::{self, Matched, MbapError};
 use crate::timing::LineTiming;
+use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 
 /// What a TCP line's stream carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,6 +36,7 @@ pub enum TcpKind {
 }
 
 impl TcpKind {
+    /// The url scheme that names this kind: `tcp` or `modbus-tcp`.
     pub fn scheme(self) -> &'static str {
         match self {
             TcpKind::RawRtu => "tcp",
@@ -47,16 +48,32 @@ impl TcpKind {
 /// Why a line's `url` is not usable.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UrlError {
+    /// No `://` in the url, which it carries.
     #[error("{0:?} has no scheme: use tcp://host:port or modbus-tcp://host:port")]
     NoScheme(String),
+    /// A scheme other than `tcp` or `modbus-tcp`.
     #[error("unknown scheme {scheme:?} in {url:?}: use tcp:// or modbus-tcp://")]
-    UnknownScheme { url: String, scheme: String },
+    UnknownScheme {
+        /// The url as given.
+        url: String,
+        /// Its scheme.
+        scheme: String,
+    },
+    /// Nothing between `://` and the port (or an IPv6 host without its closing `]`).
     #[error("{0:?} has no host")]
     NoHost(String),
+    /// No port number after the host.
     #[error("{0:?} has no port number (such as tcp://10.0.0.5:4001)")]
     NoPort(String),
+    /// The port is not a number from 1 to 65535.
     #[error("{url:?}: port {port:?} is not 1–65535")]
-    BadPort { url: String, port: String },
+    BadPort {
+        /// The url as given.
+        url: String,
+        /// The text where the port number should be.
+        port: String,
+    },
+    /// A path, user, query or fragment after the host and port.
     #[error("{0:?}: give only host and port")]
     ExtraParts(String),
 }
@@ -64,6 +81,7 @@ pub enum UrlError {
 /// A parsed `tcp://host:port` or `modbus-tcp://host:port`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TcpEndpoint {
+    /// What the stream carries, from the scheme.
     pub kind: TcpKind,
     /// `host:port` as `TcpStream::connect` takes it (IPv6 hosts in brackets).
     pub address: String,
@@ -300,6 +318,8 @@ pub struct RawTcpMaster {
 
 impl RawTcpMaster {
     /// Connects to the device server. `timing` is the server's serial side (baud, parity).
+    /// An error is the connection's failure (refused, no route, no answer within the connect
+    /// timeout).
     pub async fn connect(
         endpoint: TcpEndpoint,
         options: TcpOptions,
@@ -315,7 +335,7 @@ impl RawTcpMaster {
 
     /// Sends `request` to address 0; nothing answers. The line is then kept silent for the
     /// request's wire time and the broadcast turnaround.
-    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let frame = codec::encode_request(0, request)?;
         self.connection.ensure().await?;
@@ -349,7 +369,7 @@ impl RawTcpMaster {
 
     /// Waits until the link's own t3.5 spacing after the last answer has passed
     /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]).
-    pub async fn wait_until_quiet(&mut self) {
+    pub(crate) async fn wait_until_quiet(&mut self) {
         self.timer.sleep_until(self.next_send_at).await;
     }
 
@@ -400,7 +420,7 @@ impl RawTcpMaster {
     }
 }
 
-impl Transact for RawTcpMaster {
+impl Exchange for RawTcpMaster {
     fn core(&self) -> &LinkCore {
         &self.connection.core
     }
@@ -483,6 +503,8 @@ pub struct ModbusTcpMaster {
 }
 
 impl ModbusTcpMaster {
+    /// Connects to the gateway. An error is the connection's failure (refused, no route, no
+    /// answer within the connect timeout).
     pub async fn connect(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Self> {
         Ok(ModbusTcpMaster {
             connection: Connection::open(endpoint, options).await?,
@@ -499,7 +521,7 @@ impl ModbusTcpMaster {
 
     /// Sends `request` to unit 0 (broadcast) and waits the broadcast turnaround; nothing
     /// answers.
-    pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let transaction = self.take_transaction();
         let adu = mbap::encode_request(transaction, 0, request)?;
@@ -550,7 +572,7 @@ impl ModbusTcpMaster {
     }
 }
 
-impl Transact for ModbusTcpMaster {
+impl Exchange for ModbusTcpMaster {
     fn core(&self) -> &LinkCore {
         &self.connection.core
     }

@@ -14,40 +14,54 @@ use crate::frame::{Request, SlaveId};
 /// Bytes of the MBAP header.
 pub const HEADER_LEN: usize = 7;
 /// The only protocol id Modbus defines.
-pub const PROTOCOL_ID: u16 = 0;
+pub(crate) const PROTOCOL_ID: u16 = 0;
 /// Longest PDU (function code and data) Modbus allows.
-pub const MAX_PDU_LEN: usize = 253;
-/// Longest ADU: header plus the longest PDU.
-pub const MAX_ADU_LEN: usize = HEADER_LEN + MAX_PDU_LEN;
+pub(crate) const MAX_PDU_LEN: usize = 253;
 
 /// The MBAP header. `length` counts the unit id and the PDU that follow it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
+    /// Set by the master for each request, repeated by the server in its answer.
     pub transaction: u16,
-    pub protocol: u16,
-    pub length: u16,
+    pub(crate) protocol: u16,
+    pub(crate) length: u16,
+    /// The unit id: the RTU address of the device behind a gateway.
     pub unit: u8,
 }
 
 /// Why bytes are not a usable Modbus TCP ADU.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum MbapError {
+    /// The header's protocol id, which it carries, is not 0: not Modbus.
     #[error("protocol id {0}, expected 0")]
     Protocol(u16),
     /// The length field cannot describe a PDU (below 2 or above 254): the stream is out of
     /// step and must be reconnected.
     #[error("MBAP length {0} outside 2..=254")]
     Length(u16),
+    /// Fewer bytes than the header, or than the length it announces.
     #[error("truncated ADU: {got} of {needed} bytes")]
-    Truncated { needed: usize, got: usize },
+    Truncated {
+        /// Bytes the ADU should have.
+        needed: usize,
+        /// Bytes there are.
+        got: usize,
+    },
+    /// The answer carries another unit id than the request.
     #[error("answer from unit {found}, expected {expected}")]
-    WrongUnit { expected: SlaveId, found: SlaveId },
+    WrongUnit {
+        /// The unit the request went to.
+        expected: SlaveId,
+        /// The unit the answer carries.
+        found: SlaveId,
+    },
+    /// The PDU is not the answer to the request (see [`DecodeError`]).
     #[error("answer PDU: {0}")]
     Pdu(DecodeError),
 }
 
 impl Header {
-    pub fn encode(&self) -> [u8; HEADER_LEN] {
+    pub(crate) fn encode(&self) -> [u8; HEADER_LEN] {
         let [t0, t1] = self.transaction.to_be_bytes();
         let [p0, p1] = self.protocol.to_be_bytes();
         let [l0, l1] = self.length.to_be_bytes();
@@ -150,7 +164,10 @@ pub enum Matched {
     /// The answer to this transaction (normal or exception).
     Current(Answer),
     /// An answer to an earlier transaction (it timed out): to be discarded and counted.
-    Stale { transaction: u16 },
+    Stale {
+        /// The id the answer carries.
+        transaction: u16,
+    },
 }
 
 /// Master side: matches the complete answer `adu` against the request `request` sent to `unit`

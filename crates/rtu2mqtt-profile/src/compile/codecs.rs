@@ -2,6 +2,7 @@
 //! codecs' scale, offset and `invalid` marks checked to stay exact.
 
 use std::collections::HashSet;
+use std::ops::RangeInclusive;
 
 use super::problems::Problems;
 use crate::codec::FieldCodec;
@@ -213,41 +214,33 @@ fn build_number(
         );
         return None;
     }
-    let last_place = 10f64.powi(i32::from(decimals));
-    let whole = |value: f64| (value - value.round()).abs() <= 1e-6;
     let factor = match keys.scale {
         // Integers count the last shown place; a float is the value itself.
         None if ty.is_float() => 10i64.pow(u32::from(decimals)),
         None => 1,
-        Some(scale) => {
-            let counts = scale * last_place;
-            if !(counts.is_finite() && (1.0..=1e9).contains(&counts) && whole(counts)) {
-                problems.add(
-                    format!("{place}.codec.scale"),
-                    format!(
-                        "scale {scale} is not a positive whole number of the last shown \
-                         place with {decimals} decimals (raise `decimals`)"
-                    ),
-                );
-            }
-            counts.round() as i64
-        }
+        Some(scale) => last_place_counts(scale, decimals, 1.0..=1e9).unwrap_or_else(|| {
+            problems.add(
+                format!("{place}.codec.scale"),
+                format!(
+                    "scale {scale} is not a positive whole number of the last shown place with \
+                     {decimals} decimals (raise `decimals`)"
+                ),
+            );
+            0
+        }),
     };
     let offset = match keys.offset {
         None => 0,
-        Some(offset) => {
-            let counts = offset * last_place;
-            if !(counts.is_finite() && counts.abs() <= 1e15 && whole(counts)) {
-                problems.add(
-                    format!("{place}.codec.offset"),
-                    format!(
-                        "offset {offset} is not a whole number of the last shown place with \
-                         {decimals} decimals (raise `decimals`)"
-                    ),
-                );
-            }
-            counts.round() as i128
-        }
+        Some(offset) => last_place_counts(offset, decimals, -1e15..=1e15).unwrap_or_else(|| {
+            problems.add(
+                format!("{place}.codec.offset"),
+                format!(
+                    "offset {offset} is not a whole number of the last shown place with \
+                     {decimals} decimals (raise `decimals`)"
+                ),
+            );
+            0
+        }),
     };
     let invalid = invalid_marks(ty, keys, place, problems);
     check_register_keys(ty, keys, place, problems);
@@ -259,10 +252,18 @@ fn build_number(
         },
         decimals,
         factor,
-        offset,
+        offset: i128::from(offset),
         invalid,
         scaled_by_exponent: keys.scale_by.is_some(),
     })
+}
+
+/// `value` in units of the last place shown with `decimals` decimals, when that is a whole
+/// number within `counts` (to a millionth: `0.1` times ten is not exactly 1 in a float).
+fn last_place_counts(value: f64, decimals: u8, counts: RangeInclusive<f64>) -> Option<i64> {
+    let scaled = value * 10f64.powi(i32::from(decimals));
+    let whole = (scaled - scaled.round()).abs() <= 1e-6;
+    (scaled.is_finite() && counts.contains(&scaled) && whole).then(|| scaled.round() as i64)
 }
 
 /// The raw values of `invalid`, as the codec's raw bits: only integer codecs have them.

@@ -5,13 +5,19 @@
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{place}: {reason}")]
 pub struct ProfileError {
+    /// Where: the source (a file path or `built-in NAME`), then the line and column of a TOML
+    /// syntax error or the key path of a meaning error (`fields[3] (gear).write.address`).
     pub place: String,
+    /// What is wrong there, as a sentence.
     pub reason: String,
 }
 
-/// Every problem found in one profile.
+/// Every problem found in one profile, in the file's order; shown one problem a line.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub struct ProfileErrors(pub Vec<ProfileError>);
+pub struct ProfileErrors(
+    /// The problems; never empty when returned as an error.
+    pub Vec<ProfileError>,
+);
 
 impl std::fmt::Display for ProfileErrors {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

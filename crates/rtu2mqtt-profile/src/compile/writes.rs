@@ -34,28 +34,18 @@ fn check_write_function(
             true
         }
         (true, 15) => {
-            if count > limits.max_write_bits {
-                problems.add(
-                    place,
-                    format!(
-                        "{count} coils exceed the device's write limit {}",
-                        limits.max_write_bits
-                    ),
-                );
-            }
+            check_write_limit(count, limits.max_write_bits, "coils", place, problems);
             true
         }
         (false, 6) => true,
         (false, 16) => {
-            if count > limits.max_write_registers {
-                problems.add(
-                    place,
-                    format!(
-                        "{count} registers exceed the device's write limit {}",
-                        limits.max_write_registers
-                    ),
-                );
-            }
+            check_write_limit(
+                count,
+                limits.max_write_registers,
+                "registers",
+                place,
+                problems,
+            );
             true
         }
         _ => false,
@@ -69,6 +59,23 @@ fn check_write_function(
         problems.add(
             place,
             format!("write function {function} does not fit the block (use {allowed})"),
+        );
+    }
+}
+
+/// Refuses a multiple write of more `items` (coils or registers) than the device takes in one
+/// frame.
+fn check_write_limit(
+    count: u16,
+    limit: u16,
+    items: &str,
+    place: &str,
+    problems: &mut Problems<'_>,
+) {
+    if count > limit {
+        problems.add(
+            place,
+            format!("{count} {items} exceed the device's write limit {limit}"),
         );
     }
 }

@@ -5,7 +5,7 @@
 //! for reads, 5 bytes for an exception).
 //!
 //! Pure byte work, no I/O and no clock: the serial master decides *when* to read and asks
-//! [`AnswerFramer::frame`] *what* the bytes are after every read; a raw RTU stream without
+//! `AnswerFramer::frame` *what* the bytes are after every read; a raw RTU stream without
 //! silences (a serial device server's TCP socket) uses [`AnswerFramer::poll`], which drops
 //! what cannot be the answer, up to a bound, and leaves the bytes behind the answer in the
 //! buffer; a Modbus TCP link checks the RTU frame of an MBAP-framed answer with `frame`.
@@ -16,11 +16,11 @@ use crate::frame::{FunctionCode, Request, SlaveId};
 
 /// Default bound on the bytes [`AnswerFramer::poll`] drops while looking for one answer: a
 /// whole frame's worth.
-pub const DEFAULT_MAX_SKIP: usize = MAX_FRAME_LEN;
+pub(crate) const DEFAULT_MAX_SKIP: usize = MAX_FRAME_LEN;
 
 /// Where the bytes received so far stand, as [`AnswerFramer::frame`] sees them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Framing {
+pub(crate) enum Framing {
     /// Not enough bytes to tell: `needed` in all are expected (a line gives up at its gap
     /// limit).
     NeedMore { needed: usize },
@@ -48,13 +48,19 @@ pub enum Framed {
     /// The answer (normal or exception), taken off the front of the buffer after `skipped`
     /// bytes of garbage.
     Answer {
+        /// The decoded answer, checked against the request.
         answer: Answer,
+        /// Its RTU frame as received, CRC included (for the frame log).
         frame: Vec<u8>,
+        /// Bytes dropped before it.
         skipped: usize,
     },
     /// More than the bound of bytes were dropped without finding the answer: the stream is
     /// out of step (the caller fails the transaction and flushes or reconnects).
-    OutOfStep { skipped: usize },
+    OutOfStep {
+        /// Bytes dropped, more than the framer's bound.
+        skipped: usize,
+    },
 }
 
 /// Frames the answer to one request sent to one device.
@@ -75,7 +81,7 @@ impl AnswerFramer {
     }
 
     /// As [`AnswerFramer::new`], dropping at most `max_skip` bytes in [`AnswerFramer::poll`].
-    pub fn with_max_skip(slave: SlaveId, request: &Request, max_skip: usize) -> Self {
+    pub(crate) fn with_max_skip(slave: SlaveId, request: &Request, max_skip: usize) -> Self {
         AnswerFramer {
             slave,
             request: request.clone(),
@@ -89,7 +95,7 @@ impl AnswerFramer {
     /// adapter is known to echo (`echo_announced`: its echo is stripped before framing), an
     /// echo of `sent` is recognised; single writes excepted, whose answer is a copy of the
     /// request.
-    pub fn on_serial_line(
+    pub(crate) fn on_serial_line(
         slave: SlaveId,
         request: &Request,
         sent: &[u8],
@@ -107,13 +113,13 @@ impl AnswerFramer {
     }
 
     /// Bytes dropped so far by [`AnswerFramer::poll`].
-    pub fn skipped(&self) -> usize {
+    pub(crate) fn skipped(&self) -> usize {
         self.skipped
     }
 
     /// Where `received` stands as our answer; what to do next is the caller's (drop the
     /// echo, the noise or the foreign frame and ask again, or wait for more).
-    pub fn frame(&self, received: &[u8]) -> Framing {
+    pub(crate) fn frame(&self, received: &[u8]) -> Framing {
         if let Some(sent) = &self.echo_watch {
             if received.starts_with(sent) {
                 return Framing::Echo(sent.len());

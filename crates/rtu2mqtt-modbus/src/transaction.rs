@@ -16,7 +16,7 @@ use crate::outcome::{Error, Reply, WireCounters};
 
 /// Which way a recorded frame went.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Direction {
+pub(crate) enum Direction {
     /// Sent by this master.
     Tx,
     /// Heard on the line or the stream.
@@ -33,7 +33,7 @@ impl Direction {
 }
 
 /// The counters, the frame recorder and the late-answer guard of one link.
-pub struct LinkCore {
+pub(crate) struct LinkCore {
     /// The port's path or the url, for logs.
     label: String,
     counters: WireCounters,
@@ -66,11 +66,11 @@ impl LinkCore {
     }
 
     /// The port's path or the url, for logs.
-    pub fn label(&self) -> &str {
+    pub(crate) fn label(&self) -> &str {
         &self.label
     }
 
-    pub fn counters(&self) -> WireCounters {
+    pub(crate) fn counters(&self) -> WireCounters {
         self.counters
     }
 
@@ -81,7 +81,7 @@ impl LinkCore {
     /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (the frame
     /// log, for bug reports). The write happens on the link's own thread, so `writer` must not
     /// block (see [`crate::frame_log`]). A write error stops the recording with a warning.
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+    pub(crate) fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
         self.recorder = Some(writer);
     }
 
@@ -136,18 +136,19 @@ impl LinkCore {
 
 /// One transaction as a link is asked it.
 #[derive(Debug, Clone, Copy)]
-pub struct Ask<'a> {
+pub(crate) struct Ask<'a> {
     /// The device's address (the unit id on Modbus TCP).
-    pub slave: SlaveId,
-    pub request: &'a Request,
+    pub(crate) slave: SlaveId,
+    /// The request sent to it.
+    pub(crate) request: &'a Request,
     /// How long the answer is awaited.
-    pub timeout: Duration,
+    pub(crate) timeout: Duration,
 }
 
-/// A link that runs transactions: each transport exchanges the frames its own way, and
-/// [`Transact::transact`] counts how every transaction ended and arms the late-answer guard,
-/// the same way for all of them.
-pub trait Transact: Send {
+/// What each link implements its own way: the frames of one transaction, and where its
+/// counters, frame recorder and late-answer guard are kept. [`Transact`] wraps it for every
+/// link alike; callers never run an exchange without that accounting.
+pub(crate) trait Exchange: Send {
     /// The link's counters, frame recorder and late-answer guard.
     fn core(&self) -> &LinkCore;
 
@@ -157,29 +158,48 @@ pub trait Transact: Send {
     /// answer (`None`: the link tells late answers apart by itself).
     fn late_answer_guard(&self, timeout: Duration) -> Option<Duration>;
 
-    /// Request out, answer in: the transaction without its accounting (callers use
-    /// [`Transact::transact`]).
+    /// Request out, answer in: the transaction without its accounting.
     fn exchange(&mut self, ask: Ask<'_>) -> impl Future<Output = Result<Reply, Error>> + Send;
+}
 
-    /// One transaction: `request` to `slave` (the unit id on Modbus TCP), its answer within
-    /// `timeout`, counted and guarded.
+/// A link that runs Modbus transactions: [`Link`](crate::link::Link), or one of the links it
+/// holds ([`Master`](crate::serial::master::Master) on a serial port,
+/// [`RawTcpMaster`](crate::tcp::masters::RawTcpMaster),
+/// [`ModbusTcpMaster`](crate::tcp::masters::ModbusTcpMaster)). Every link counts how each
+/// transaction ended in its [`WireCounters`] and, after a timeout, guards the next request to
+/// the same address against the late answer, the same way.
+pub trait Transact: Send {
+    /// One transaction: `request` to `slave` (the unit id on Modbus TCP), its answer awaited
+    /// for `timeout` (from the end of the request on the wire to the last byte of the
+    /// answer).
+    ///
+    /// `Ok(Ok(_))` is the device's normal answer, `Ok(Err(_))` the exception it answered with
+    /// (it is there and has spoken), `Err(_)` why no answer was heard ([`Error`]: nothing was
+    /// sent for [`Error::InvalidRequest`] and [`Error::LineBusy`]).
     fn transact(
         &mut self,
         slave: SlaveId,
         request: &Request,
         timeout: Duration,
-    ) -> impl Future<Output = Result<Reply, Error>> + Send {
-        async move {
-            let ask = Ask {
-                slave,
-                request,
-                timeout,
-            };
-            let result = self.exchange(ask).await;
-            let guard = self.late_answer_guard(timeout);
-            self.core_mut().settle(slave, &result, guard);
-            result
-        }
+    ) -> impl Future<Output = Result<Reply, Error>> + Send;
+}
+
+impl<L: Exchange> Transact for L {
+    async fn transact(
+        &mut self,
+        slave: SlaveId,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Reply, Error> {
+        let ask = Ask {
+            slave,
+            request,
+            timeout,
+        };
+        let result = self.exchange(ask).await;
+        let guard = self.late_answer_guard(timeout);
+        self.core_mut().settle(slave, &result, guard);
+        result
     }
 }
 

@@ -2,23 +2,24 @@
 //! stream ([`RawTcpMaster`]) or a Modbus TCP gateway ([`ModbusTcpMaster`]). The line task runs
 //! the same transactions, counters and frame log on each; only this enum knows which it is.
 
-pub mod answer_framing;
-pub mod shared;
-
 use std::io::Write;
 use std::time::Duration;
 
 use super::frame::Request;
 use super::outcome::{Error, Reply, WireCounters};
-use crate::link::shared::{Ask, LinkCore, Transact};
 use crate::serial::master::Master;
 use crate::tcp::masters::{ModbusTcpMaster, RawTcpMaster};
+use crate::transaction::{Ask, Exchange, LinkCore};
 
-/// One line's open link.
+/// One line's open link, whichever of the three it is. It runs transactions through
+/// [`Transact::transact`](crate::Transact::transact).
 #[derive(Debug)]
 pub enum Link {
+    /// A serial port (`/dev/ttyUSB0`, a pty), with the serial-line specification's timing.
     Serial(Master),
+    /// A serial device server's TCP stream carrying raw RTU frames (`tcp://`).
     RawTcp(RawTcpMaster),
+    /// A Modbus TCP gateway (`modbus-tcp://`).
     ModbusTcp(ModbusTcpMaster),
 }
 
@@ -47,17 +48,21 @@ impl Link {
         }
     }
 
+    /// The link's counters since it was opened.
     pub fn counters(&self) -> WireCounters {
         self.core().counters()
     }
 
-    /// Writes every frame to `writer` (the frame log).
+    /// Writes one text line per frame sent or heard, `<unix time with µs> <tx|rx> <hex>`, to
+    /// `writer` (the frame log, for bug reports: [`crate::frame_log::FrameLog::writer`]). The
+    /// write happens on the line's own task, so `writer` must not block. A write error stops
+    /// the recording with a warning.
     pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
         self.core_mut().record_frames_to(writer);
     }
 }
 
-impl Transact for Link {
+impl Exchange for Link {
     fn core(&self) -> &LinkCore {
         match self {
             Link::Serial(master) => master.core(),
