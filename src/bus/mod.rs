@@ -204,4 +204,4 @@ pub struct LineHandle {
     pub stats_rx: watch::Receiver<LineStats>,
 }
 
-pub use line::{spawn_line, spawn_line_with_clock};
+pub use line::{spawn_line, spawn_line_in_phase, spawn_line_with_clock};

@@ -100,23 +100,34 @@ fn next_due_after(due: Instant, interval: Duration, started: Instant, now: Insta
 
 /// The longest a line's first polls are put off to spread the lines' polls over the second.
 pub const MAX_POLL_PHASE: Duration = Duration::from_secs(1);
-/// The phases lines are spread over: lines in one phase poll together, so each wake-up of the
-/// gateway still serves a group of them, while the groups leave the interval's first
+/// The most phases lines are spread over: lines in one phase poll together, so each wake-up
+/// of the gateway still serves a group of them, while the groups leave the interval's first
 /// millisecond to the few lines that share it.
-pub const POLL_PHASES: u32 = 20;
+pub const MAX_POLL_PHASES: u32 = 20;
+/// Lines that poll together in one phase: fewer lines than this all poll at once, with no
+/// phase to wait for.
+pub const LINES_PER_PHASE: usize = 50;
 
-/// Where in its poll interval a line of `name` polls: one of [`POLL_PHASES`] offsets evenly
-/// spaced below both the line's shortest poll interval and [`MAX_POLL_PHASE`], drawn from its
-/// name (FNV-1a), so stable. The many lines of a plant of Modbus TCP devices then do not all
-/// send their requests in the same millisecond of every second, which would make the last of
-/// them late.
-pub fn poll_phase(name: &str, shortest_interval: Duration) -> Duration {
+/// The phases `lines` lines are spread over: one per [`LINES_PER_PHASE`], at least one and at
+/// most [`MAX_POLL_PHASES`].
+pub fn poll_phases(lines: usize) -> u32 {
+    let phases = (lines / LINES_PER_PHASE).clamp(1, MAX_POLL_PHASES as usize);
+    u32::try_from(phases).unwrap_or(MAX_POLL_PHASES)
+}
+
+/// Where in its poll interval a line of `name` polls: one of `phases` offsets evenly spaced
+/// below both the line's shortest poll interval and [`MAX_POLL_PHASE`], drawn from its name
+/// (FNV-1a), so stable; zero with one phase. The many lines of a plant of Modbus TCP devices
+/// then do not all send their requests in the same millisecond of every second, which would
+/// make the last of them late.
+pub fn poll_phase(name: &str, shortest_interval: Duration, phases: u32) -> Duration {
+    let phases = phases.clamp(1, MAX_POLL_PHASES);
     let span = shortest_interval.min(MAX_POLL_PHASE);
     let hash = name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |hash, byte| {
         (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3)
     });
-    let phase = u32::try_from(hash % u64::from(POLL_PHASES)).unwrap_or(0);
-    span / POLL_PHASES * phase
+    let phase = u32::try_from(hash % u64::from(phases)).unwrap_or(0);
+    span / phases * phase
 }
 
 /// The scheduler of one line. `C` is whatever the line keeps per queued command.
@@ -587,15 +598,24 @@ mod tests {
     #[test]
     fn poll_phases_are_stable_within_their_bound_and_spread() {
         let second = Duration::from_secs(1);
-        assert_eq!(poll_phase("m0001", second), poll_phase("m0001", second));
-        assert_eq!(poll_phase("m0001", Duration::ZERO), Duration::ZERO);
-        assert!(poll_phase("m0001", 20 * MS) < 20 * MS);
-        assert!(poll_phase("m0001", Duration::from_secs(60)) < MAX_POLL_PHASE);
-        assert_eq!(poll_phase("m0001", second).as_millis() % 50, 0);
+        let twenty = poll_phases(1000);
+        assert_eq!(twenty, 20);
+        assert_eq!(poll_phases(10), 1);
+        assert_eq!(poll_phases(100), 2);
+        assert_eq!(poll_phases(100_000), MAX_POLL_PHASES);
+        assert_eq!(poll_phase("m0001", second, 1), Duration::ZERO);
+        assert_eq!(
+            poll_phase("m0001", second, twenty),
+            poll_phase("m0001", second, twenty)
+        );
+        assert_eq!(poll_phase("m0001", Duration::ZERO, twenty), Duration::ZERO);
+        assert!(poll_phase("m0001", 20 * MS, twenty) < 20 * MS);
+        assert!(poll_phase("m0001", Duration::from_secs(60), twenty) < MAX_POLL_PHASE);
+        assert_eq!(poll_phase("m0001", second, twenty).as_millis() % 50, 0);
         // A thousand lines named alike: every phase holds between half and twice its share.
-        let mut phases = [0usize; POLL_PHASES as usize];
+        let mut phases = [0usize; MAX_POLL_PHASES as usize];
         for n in 0..1000 {
-            let phase = poll_phase(&format!("m{n:04}"), second);
+            let phase = poll_phase(&format!("m{n:04}"), second, twenty);
             phases[(phase.as_millis() / 50) as usize] += 1;
         }
         assert!(

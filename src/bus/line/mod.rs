@@ -86,6 +86,18 @@ pub fn spawn_line_with_clock(
     shutdown: CancellationToken,
     writes: WriteClock,
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
+    spawn_line_in_phase(spec, events_tx, shutdown, writes, 1)
+}
+
+/// [`spawn_line_with_clock`] for a line among others: a TCP line polls at one of
+/// `poll_phases` phases of its interval ([`poll_phase`]; see [`super::scheduler::poll_phases`]).
+pub fn spawn_line_in_phase(
+    spec: LineSpec,
+    events_tx: mpsc::Sender<LineEvent>,
+    shutdown: CancellationToken,
+    writes: WriteClock,
+    poll_phases: u32,
+) -> (LineHandle, tokio::task::JoinHandle<()>) {
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
     let now = Instant::now();
     let (command_tx, command_rx) = command_queue(COMMAND_QUEUE);
@@ -124,7 +136,15 @@ pub fn spawn_line_with_clock(
         tokio::spawn(reporting.instrument(span.clone()));
         line_tx
     };
-    let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
+    let mut line = Line::new(
+        spec,
+        events_tx,
+        command_rx,
+        stats_tx,
+        shutdown,
+        now,
+        poll_phases,
+    );
     line.refreshes = Some(refresh_rx);
     line.writes = writes;
     line.served.serve(clients, counters);
@@ -191,6 +211,7 @@ impl Line {
         stats_tx: watch::Sender<LineStats>,
         shutdown: CancellationToken,
         now: Instant,
+        poll_phases: u32,
     ) -> Self {
         let timing = LineTiming::new(spec.serial.baud, spec.serial.format);
         let timeout = spec
@@ -202,7 +223,9 @@ impl Line {
         let phase = match spec.transport {
             Transport::Tcp { .. } => {
                 let shortest = plans.iter().map(|plan| plan.poll_interval).min();
-                shortest.map_or(Duration::ZERO, |interval| poll_phase(&spec.name, interval))
+                shortest.map_or(Duration::ZERO, |interval| {
+                    poll_phase(&spec.name, interval, poll_phases)
+                })
             }
             Transport::Serial => Duration::ZERO,
         };
