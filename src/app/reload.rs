@@ -17,7 +17,10 @@ use tokio::sync::{mpsc, watch};
 
 use crate::bridge::core::BridgeDevice;
 use crate::bridge::Reconfiguration;
-use crate::bus::{spawn_line_with_clock, LineEvent, LineHandle, LineSpec, LineStats, WriteClock};
+use crate::bus::scheduler::poll_phases;
+use crate::bus::{
+    spawn_line_in_phase, LineEvent, LineHandle, LineSpec, LineStats, Transport, WriteClock,
+};
 use crate::config::{self, Config};
 use rtu2mqtt_modbus::frame_log::FrameLog;
 use tokio_util::sync::CancellationToken;
@@ -48,6 +51,8 @@ pub(super) struct LineSet {
     /// The last writes of the fields with a write interval: a line a reload rebuilds keeps
     /// the intervals that were running.
     writes: WriteClock,
+    /// The phases the TCP lines poll in (by how many there are).
+    poll_phases: u32,
 }
 
 impl LineSet {
@@ -65,6 +70,7 @@ impl LineSet {
             frame_log,
             stats_tx: watch::channel(Vec::new()).0,
             writes: WriteClock::new(),
+            poll_phases: phases_for(specs),
         };
         for spec in specs {
             let line = set.spawn(spec.clone());
@@ -98,8 +104,13 @@ impl LineSet {
         let token = self.shutdown.child_token();
         let stop = token.clone();
         let events_tx = self.events_tx.clone();
-        let (handle, task) =
-            spawn_line_with_clock(spec.clone(), events_tx, token, self.writes.clone());
+        let (handle, task) = spawn_line_in_phase(
+            spec.clone(),
+            events_tx,
+            token,
+            self.writes.clone(),
+            self.poll_phases,
+        );
         RunningLine {
             spec,
             handle,
@@ -110,6 +121,7 @@ impl LineSet {
 
     /// Applies `specs` line by line; returns (kept, restarted, started, stopped) counts.
     async fn apply(&mut self, specs: &[LineSpec]) -> [usize; 4] {
+        self.poll_phases = phases_for(specs);
         let mut running: Vec<Option<RunningLine>> = self.lines.drain(..).map(Some).collect();
         let mut kept: Vec<Option<RunningLine>> = Vec::new();
         for spec in specs {
@@ -158,6 +170,16 @@ impl LineSet {
 
 /// How long the lines get to finish their transaction after the bridge has stopped.
 const LINE_STOP_GRACE: Duration = Duration::from_secs(5);
+
+/// The phases the TCP lines of `specs` poll in: a few lines poll at once, a plant of them in
+/// groups spread over the interval.
+fn phases_for(specs: &[LineSpec]) -> u32 {
+    let tcp_lines = specs
+        .iter()
+        .filter(|spec| matches!(spec.transport, Transport::Tcp { .. }))
+        .count();
+    poll_phases(tcp_lines)
+}
 
 /// Stops `lines` and waits for each (bounded by [`LINE_STOP_GRACE`]).
 async fn stop_lines(lines: Vec<RunningLine>) {

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tracing::Instrument;
 
+use super::command_queue::CommandReceiver;
 use super::outcome::{Command, CommandFailure, CommandOutcome};
 use super::slot::{self, SeenReads, SlotEnd, Stop};
 use super::stats::DeviceStats;
@@ -90,7 +91,7 @@ pub(super) struct SlotLink<'a> {
 /// The line's command queue and its settling commands.
 #[derive(Debug)]
 pub(super) struct CommandSlots {
-    queue: mpsc::Receiver<Command>,
+    queue: CommandReceiver,
     /// The sending side (the bridge) is still there.
     open: bool,
     settling: Vec<Settle>,
@@ -99,7 +100,7 @@ pub(super) struct CommandSlots {
 }
 
 impl CommandSlots {
-    pub(super) fn new(queue: mpsc::Receiver<Command>) -> Self {
+    pub(super) fn new(queue: CommandReceiver) -> Self {
         CommandSlots {
             queue,
             open: true,
@@ -350,7 +351,7 @@ mod tests {
 
     #[test]
     fn a_held_command_is_due_when_its_write_interval_ends() {
-        let (_commands, queue) = mpsc::channel(1);
+        let (_commands, queue) = super::super::command_queue::command_queue(1);
         let mut slots = CommandSlots::new(queue);
         let profile = built_in("ruiwan-dust-collector").unwrap();
         let plan = profile

@@ -2,7 +2,8 @@
 //! [`rtu2mqtt_modbus::serial::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
-//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] and run before the next poll;
+//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] (a [`command_queue`]) and run
+//! before the next poll;
 //! refresh requests (a device's every block read at once) on [`LineHandle::refresh_tx`], served
 //! after the commands and ahead of the polls.
 //! A line with a [`serve::ServeSpec`] also serves other Modbus masters through [`serve`]: their
@@ -12,6 +13,7 @@
 
 pub mod availability;
 pub mod cadence;
+pub mod command_queue;
 mod commands;
 pub(crate) mod device;
 pub(crate) mod device_spec;
@@ -37,4 +39,4 @@ pub use outcome::{Command, CommandFailure, CommandOutcome};
 pub use stats::LineStats;
 pub use write_clock::WriteClock;
 
-pub use line::{spawn_line, spawn_line_with_clock, LineHandle};
+pub use line::{spawn_line, spawn_line_in_phase, spawn_line_with_clock, LineHandle};

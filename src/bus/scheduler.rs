@@ -98,6 +98,38 @@ fn next_due_after(due: Instant, interval: Duration, started: Instant, now: Insta
     (started + interval).max(now)
 }
 
+/// The longest a line's first polls are put off to spread the lines' polls over the second.
+pub const MAX_POLL_PHASE: Duration = Duration::from_secs(1);
+/// The most phases lines are spread over: lines in one phase poll together, so each wake-up
+/// of the gateway still serves a group of them, while the groups leave the interval's first
+/// millisecond to the few lines that share it.
+pub const MAX_POLL_PHASES: u32 = 20;
+/// Lines that poll together in one phase: fewer lines than this all poll at once, with no
+/// phase to wait for.
+pub const LINES_PER_PHASE: usize = 50;
+
+/// The phases `lines` lines are spread over: one per [`LINES_PER_PHASE`], at least one and at
+/// most [`MAX_POLL_PHASES`].
+pub fn poll_phases(lines: usize) -> u32 {
+    let phases = (lines / LINES_PER_PHASE).clamp(1, MAX_POLL_PHASES as usize);
+    u32::try_from(phases).unwrap_or(MAX_POLL_PHASES)
+}
+
+/// Where in its poll interval a line of `name` polls: one of `phases` offsets evenly spaced
+/// below both the line's shortest poll interval and [`MAX_POLL_PHASE`], drawn from its name
+/// (FNV-1a), so stable; zero with one phase. The many lines of a plant of Modbus TCP devices
+/// then do not all send their requests in the same millisecond of every second, which would
+/// make the last of them late.
+pub fn poll_phase(name: &str, shortest_interval: Duration, phases: u32) -> Duration {
+    let phases = phases.clamp(1, MAX_POLL_PHASES);
+    let span = shortest_interval.min(MAX_POLL_PHASE);
+    let hash = name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |hash, byte| {
+        (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3)
+    });
+    let phase = u32::try_from(hash % u64::from(phases)).unwrap_or(0);
+    span / phases * phase
+}
+
 /// The scheduler of one line. `C` is whatever the line keeps per queued command.
 #[derive(Debug)]
 pub struct Scheduler<C> {
@@ -111,16 +143,28 @@ pub struct Scheduler<C> {
 impl<C> Scheduler<C> {
     /// A scheduler for `plans` (indexed like the line's devices) started at `start`.
     pub fn new(plans: Vec<DevicePlan>, policy: HealthPolicy, start: Instant) -> Self {
+        Self::phased(plans, policy, start, Duration::ZERO)
+    }
+
+    /// A scheduler whose first polls are due `phase` after each device is ready (see
+    /// [`poll_phase`]); commands and refreshes do not wait for it.
+    pub fn phased(
+        plans: Vec<DevicePlan>,
+        policy: HealthPolicy,
+        start: Instant,
+        phase: Duration,
+    ) -> Self {
         let devices = plans
             .into_iter()
             .map(|plan| {
                 let ready_at = start + plan.startup_delay;
+                let first_poll = ready_at + phase;
                 DeviceSlot {
-                    block_due: vec![Some(ready_at); plan.blocks.len()],
+                    block_due: vec![Some(first_poll); plan.blocks.len()],
                     refresh: vec![false; plan.blocks.len()],
                     refreshing: vec![false; plan.blocks.len()],
                     busy_count: vec![0; plan.blocks.len()],
-                    started: vec![ready_at; plan.blocks.len()],
+                    started: vec![first_poll; plan.blocks.len()],
                     plan,
                     ready_at,
                     health: DeviceHealth::new(policy),
@@ -520,6 +564,64 @@ mod tests {
             "the slow block kept its own cadence: {polls:?}"
         );
         assert!(polls[0].len() >= 11, "{polls:?}");
+    }
+
+    #[test]
+    fn a_phased_line_polls_first_at_its_phase_and_keeps_its_interval_after() {
+        let start = Instant::now();
+        let block = BlockPlan {
+            class: PollClass::Fast,
+            answer_bytes: 9,
+        };
+        let plan = DevicePlan {
+            blocks: vec![block.clone(), block.clone(), block],
+            poll_interval: 500 * MS,
+            slow_interval: 500 * MS,
+            startup_delay: Duration::ZERO,
+        };
+        let policy = HealthPolicy::with_offline_after(3);
+        let mut scheduler = Scheduler::phased(vec![plan], policy, start, 130 * MS);
+        assert_eq!(scheduler.next_due(start), Due::Wait(start + 130 * MS));
+        // A command does not wait for the phase.
+        scheduler.push_command(0, 7);
+        assert_eq!(
+            scheduler.next_due(start),
+            Due::Command {
+                device: 0,
+                command: 7
+            }
+        );
+        let polls = run(&mut scheduler, start, 1200 * MS, &[]);
+        assert_eq!(polls[0], vec![130 * MS, 630 * MS, 1130 * MS], "{polls:?}");
+    }
+
+    #[test]
+    fn poll_phases_are_stable_within_their_bound_and_spread() {
+        let second = Duration::from_secs(1);
+        let twenty = poll_phases(1000);
+        assert_eq!(twenty, 20);
+        assert_eq!(poll_phases(10), 1);
+        assert_eq!(poll_phases(100), 2);
+        assert_eq!(poll_phases(100_000), MAX_POLL_PHASES);
+        assert_eq!(poll_phase("m0001", second, 1), Duration::ZERO);
+        assert_eq!(
+            poll_phase("m0001", second, twenty),
+            poll_phase("m0001", second, twenty)
+        );
+        assert_eq!(poll_phase("m0001", Duration::ZERO, twenty), Duration::ZERO);
+        assert!(poll_phase("m0001", 20 * MS, twenty) < 20 * MS);
+        assert!(poll_phase("m0001", Duration::from_secs(60), twenty) < MAX_POLL_PHASE);
+        assert_eq!(poll_phase("m0001", second, twenty).as_millis() % 50, 0);
+        // A thousand lines named alike: every phase holds between half and twice its share.
+        let mut phases = [0usize; MAX_POLL_PHASES as usize];
+        for n in 0..1000 {
+            let phase = poll_phase(&format!("m{n:04}"), second, twenty);
+            phases[(phase.as_millis() / 50) as usize] += 1;
+        }
+        assert!(
+            phases.iter().all(|&count| (25..=100).contains(&count)),
+            "{phases:?}"
+        );
     }
 
     #[test]

@@ -150,6 +150,30 @@ fn pow10(places: u8) -> i128 {
     10i128.pow(u32::from(places))
 }
 
+/// `float` in units of the `places`-th decimal place, rounded from its exact decimal
+/// expansion (through its text at those places).
+fn exact_at_places(float: f64, places: u8) -> Option<i128> {
+    let text = format!("{float:.*}", usize::from(places));
+    super::number::DecimalText::parse(&text).and_then(|number| number.scaled(places).ok())
+}
+
+/// The same as [`exact_at_places`] without the text, where the product with the power of ten
+/// cannot round otherwise: it is off the exact product by at most half an ulp, so only a
+/// product within an ulp of a half (or too large for an ulp under one) is left to the text.
+fn nearest_at_places(float: f64, places: u8) -> Option<i128> {
+    const POWERS: [f64; 16] = [
+        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+    ];
+    let product = float * POWERS.get(usize::from(places))?;
+    let fraction = product - product.floor();
+    let ulp = product.abs() * f64::EPSILON;
+    if product.abs() >= 4_503_599_627_370_496.0 || (fraction - 0.5).abs() <= ulp {
+        return None;
+    }
+    // In range of an i128 and a whole number: the cast is exact.
+    Some(product.round() as i128)
+}
+
 fn pow10_checked(places: u8) -> Option<i128> {
     10i128.checked_pow(u32::from(places))
 }
@@ -250,9 +274,8 @@ impl NumberCodec {
         let (precision, multiplier) = self.shape(power);
         let out_of_range = || NumberError::Invalid(format!("out of range: {float}"));
         let counts = if i128::from(self.factor) == pow10(self.decimals) {
-            let text = format!("{float:.*}", usize::from(self.decimals));
-            super::number::DecimalText::parse(&text)
-                .and_then(|number| number.scaled(self.decimals).ok())
+            nearest_at_places(float, self.decimals)
+                .or_else(|| exact_at_places(float, self.decimals))
                 .ok_or_else(out_of_range)?
         } else {
             let product = (float * self.factor as f64).round();
@@ -610,6 +633,18 @@ mod tests {
         ]
     }
 
+    #[test]
+    fn a_float_near_a_half_at_its_places_is_rounded_from_its_text() {
+        // Exact halves (0.125 at two places) are left to the text's rounding.
+        assert_eq!(nearest_at_places(0.125, 2), None);
+        assert_eq!(nearest_at_places(-2.5, 0), None);
+        assert_eq!(exact_at_places(0.125, 2), Some(12));
+        assert_eq!(nearest_at_places(f64::from(123.456f32), 3), Some(123_456));
+        assert_eq!(nearest_at_places(-0.1, 1), Some(-1));
+        assert_eq!(nearest_at_places(1e300, 2), None);
+        assert_eq!(nearest_at_places(1.0, 16), None);
+    }
+
     proptest! {
         #[test]
         fn every_integer_codec_round_trips_its_registers(
@@ -638,6 +673,24 @@ mod tests {
             let mask = ty.mask();
             let expected: Vec<u16> = words.iter().map(|word| word & mask).collect();
             prop_assert_eq!(encoded, Ok(expected));
+        }
+
+        #[test]
+        fn floats_round_at_places_as_their_exact_expansion(
+            bits in any::<u64>(),
+            narrow in any::<u32>(),
+            ordinary in -1.0e7f64..1.0e7,
+            places in 0u8..=7,
+        ) {
+            let meter = f64::from(ordinary as f32);
+            for float in [f64::from_bits(bits), f64::from(f32::from_bits(narrow)), ordinary, meter] {
+                if !float.is_finite() {
+                    continue;
+                }
+                if let Some(fast) = nearest_at_places(float, places) {
+                    prop_assert_eq!(Some(fast), exact_at_places(float, places), "{} at {}", float, places);
+                }
+            }
         }
 
         #[test]

@@ -274,9 +274,8 @@ impl CommandDesk {
         // The one plan of the command: the profile refuses unknown and read-only fields and
         // values its rules forbid on the last known state. The line's slot recomputes the
         // writes from its fresh reads.
-        let empty = Default::default();
-        let state = p.cache().state(device).unwrap_or(&empty);
-        let plan = match entry.profile.plan_command(field, text, state) {
+        let state = p.cache().state(device).unwrap_or_default();
+        let plan = match entry.profile.plan_command(field, text, &state) {
             Ok(plan) => plan,
             Err(rejection) => {
                 self.reject_incoming(p, device, field, value, rejection.0, origin);

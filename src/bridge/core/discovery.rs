@@ -557,13 +557,19 @@ pub fn identity_update(
     state: Option<&DeviceState>,
     updates: &[StateUpdate],
 ) -> Option<(String, Json)> {
-    let identity_changed = updates.iter().any(|update| {
+    identity_changed(device, profile, updates)
+        .then(|| device_config_with_state(ctx, device, profile, state))
+}
+
+/// Whether `updates` change one of `device`'s identity fields (its discovery document then
+/// changes).
+pub fn identity_changed(device: &str, profile: &Profile, updates: &[StateUpdate]) -> bool {
+    updates.iter().any(|update| {
         update.device == device
             && profile
                 .field(&update.field)
                 .is_some_and(|field| field.identity.is_some())
-    });
-    identity_changed.then(|| device_config_with_state(ctx, device, profile, state))
+    })
 }
 
 /// Every discovery message of a gateway, ready to publish retained: the gateway's own document

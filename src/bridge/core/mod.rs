@@ -283,6 +283,23 @@ impl Core {
         self.announce_room = room;
     }
 
+    /// Lines or devices wait to be announced on the connection.
+    pub fn is_announcing(&self) -> bool {
+        self.publisher.is_announcing()
+    }
+
+    /// The driver's outbox has taken what was announced last: the next few lines or devices
+    /// are announced now rather than at the next tick (unless the driver does not keep up), so
+    /// that a connect's announcing goes as fast as the broker takes it while the outbox holds
+    /// little of it at any time.
+    pub fn on_announce_room(&mut self) -> Vec<Action> {
+        if !self.overloaded {
+            self.publisher
+                .continue_announcing_up_to(publisher::ANNOUNCE_ON_ROOM);
+        }
+        self.publisher.take()
+    }
+
     /// Tells the core whether the driver keeps up with what it is asked to publish.
     pub fn set_overloaded(&mut self, overloaded: bool) {
         self.overloaded = overloaded;

@@ -28,6 +28,9 @@ const MAX_DEFERRED: usize = 1024;
 /// instead of building a hundred thousand messages in one turn of the loop that also serves
 /// the lines.
 pub(crate) const ANNOUNCE_BATCH: usize = 50;
+/// Lines and devices announced between two ticks, once the driver's outbox has taken the
+/// last ones ([`super::Core::on_announce_room`]).
+pub(crate) const ANNOUNCE_ON_ROOM: usize = 10;
 
 /// What is still to be announced: a line's discovery document; a device's, and with
 /// `everything` its availability, every state and its JSON view.
@@ -99,7 +102,7 @@ impl Publisher {
             json_view,
             history,
             line_names,
-            cache: StateCache::new(devices.iter().map(|d| d.name.as_str())),
+            cache: StateCache::with_profiles(devices.iter().map(|d| (d.name.as_str(), &d.profile))),
             devices: bridge_device::by_name(devices),
             connected: false,
             deferred: VecDeque::new(),
@@ -191,6 +194,7 @@ impl Publisher {
         self.connected = false;
         // The next connection announces every device again.
         self.announcing.clear();
+        self.cache.clear_awaiting_turns();
     }
 
     /// The driver's report on one [`Action::Publish`]: `sent` when the client queued it.
@@ -309,18 +313,35 @@ impl Publisher {
         if self.discovery {
             announcing.extend(self.line_names.iter().cloned().map(Announcement::Line));
         }
+        for announcement in &announcing {
+            if let Announcement::Device { device, everything } = announcement {
+                self.cache.set_awaiting_turn(device, *everything);
+            }
+        }
         self.announcing = announcing;
         self.continue_announcing();
     }
 
     /// The next [`ANNOUNCE_BATCH`] lines or devices still to be announced. Each discovery
     /// document is built when it is published, from the device's state then (its identity
-    /// fields).
+    /// fields). A device announced with `everything` publishes nothing of its own before its
+    /// turn: what it read by then goes out in the turn, each field once.
     pub(crate) fn continue_announcing(&mut self) {
+        self.continue_announcing_up_to(ANNOUNCE_BATCH);
+    }
+
+    /// Lines or devices wait to be announced on the connection.
+    pub(crate) fn is_announcing(&self) -> bool {
+        self.connected && !self.announcing.is_empty()
+    }
+
+    /// The next `count` lines or devices still to be announced (see
+    /// [`Publisher::continue_announcing`]).
+    pub(crate) fn continue_announcing_up_to(&mut self, count: usize) {
         if !self.connected {
             return;
         }
-        for _ in 0..ANNOUNCE_BATCH {
+        for _ in 0..count {
             let (device, everything) = match self.announcing.pop_front() {
                 None => return,
                 Some(Announcement::Line(line)) => {
@@ -335,7 +356,7 @@ impl Publisher {
                     &self.topics,
                     &device,
                     &entry.profile,
-                    self.cache.state(&device),
+                    self.cache.state(&device).as_ref(),
                 );
                 self.publish(topic, document.to_string(), true);
             }
@@ -389,7 +410,7 @@ impl Publisher {
         if self.history {
             self.history_entry(device, &values, read_at, again);
         }
-        if let Some(known) = self.cache.state(device).filter(|_| self.json_view) {
+        if let Some(known) = self.cache.known(device).filter(|_| self.json_view) {
             let view = self
                 .json_views
                 .entry(self.topics.json_view_topic(device))
@@ -404,7 +425,9 @@ impl Publisher {
                 view.mark_stale();
             }
         }
-        if again && self.connected {
+        // A device waiting for its turn is published in full then.
+        let publishing = self.connected && !self.cache.awaits_turn(device);
+        if again && publishing {
             self.cache
                 .forget_published(device, values.iter().map(|(field, _)| field.as_str()));
         }
@@ -413,20 +436,20 @@ impl Publisher {
             .devices
             .get(device)
             .filter(|_| self.discovery)
-            .and_then(|entry| {
-                discovery::identity_update(
+            .filter(|entry| discovery::identity_changed(device, &entry.profile, &updates))
+            .map(|entry| {
+                discovery::device_config_with_state(
                     &self.topics,
                     device,
                     &entry.profile,
-                    self.cache.state(device),
-                    &updates,
+                    self.cache.state(device).as_ref(),
                 )
             })
         {
             self.publish(topic, document.to_string(), true);
         }
         self.publish_state(updates);
-        if self.json_view {
+        if self.json_view && publishing {
             self.publish_json_view(device);
         }
     }
@@ -439,7 +462,7 @@ impl Publisher {
         read_at: SystemTime,
         again: bool,
     ) {
-        let known = self.cache.state(device);
+        let known = self.cache.known(device);
         if known.is_none() && !self.devices.contains_key(device) {
             return;
         }
@@ -560,9 +583,7 @@ impl Publisher {
             Guarded::Availability(device) => {
                 Some(availability_word(self.cache.is_online(device)).to_string())
             }
-            Guarded::State(device, field) => {
-                self.cache.published_text(device, field).map(str::to_string)
-            }
+            Guarded::State(device, field) => self.cache.published_text(device, field),
         }
     }
 
@@ -623,8 +644,11 @@ impl Publisher {
             .filter(|device| !self.devices.contains_key(&device.name))
             .map(|device| device.name.clone())
             .collect();
-        self.cache
-            .reconfigure(devices.iter().map(|device| device.name.as_str()));
+        self.cache.reconfigure(
+            devices
+                .iter()
+                .map(|device| (device.name.as_str(), &device.profile)),
+        );
         self.devices = bridge_device::by_name(devices);
         self.line_names = line_names;
         self.publish_discovery();

@@ -1317,8 +1317,9 @@ fn a_heartbeat_publishes_state_json_view_and_history_even_when_unchanged() {
 
 /// A gateway of 60 valves and one line announces 50 of them on the connect and the rest on
 /// the next tick (the valves first, then the line): discovery, availability, every state and
-/// the JSON view of each valve; a value that moves before its device's turn is published at
-/// once, and not again in the turn.
+/// the JSON view of each valve; a value that moves before its device's turn waits for the
+/// turn and goes out once, with its newest value. When the driver's outbox has room before the
+/// tick, the next ten are announced at once.
 #[test]
 fn many_devices_are_announced_a_batch_per_tick() {
     let now = Instant::now();
@@ -1377,7 +1378,7 @@ fn many_devices_are_announced_a_batch_per_tick() {
     assert!(publishes(&first)
         .iter()
         .any(|p| p.0 == "homeassistant/device/edge1_gateway/config"));
-    // valve59 moves before its turn: published at once, not again in its turn.
+    // valve59 moves before its turn: kept for the turn, published once then.
     let moved = core.on_line_event(
         LineEvent::Values {
             device: "valve59".to_string(),
@@ -1387,14 +1388,37 @@ fn many_devices_are_announced_a_batch_per_tick() {
         },
         now,
     );
-    assert_eq!(announced(&moved, "opening"), ["plant/valve59/opening"]);
-    let second = core.on_tick(now, Vec::new);
-    assert_eq!(announced(&second, "config").len(), 10);
+    assert!(announced(&moved, "opening").is_empty());
+    assert!(announced(&moved, "view").is_empty());
+    // The driver's outbox has room before the tick: the next ten, valve50 to valve59, go now.
+    assert!(core.is_announcing());
+    let on_room = core.on_announce_room();
+    assert_eq!(announced(&on_room, "config").len(), 10);
     assert_eq!(
-        announced(&second, "config")[0],
+        announced(&on_room, "config")[0],
         "homeassistant/device/edge1_valve50/config"
     );
-    assert_eq!(announced(&second, "opening").len(), 9, "valve59's is out");
+    assert_eq!(announced(&on_room, "opening").len(), 10);
+    let valve59 = publishes(&on_room)
+        .into_iter()
+        .find(|p| p.0 == "plant/valve59/opening")
+        .map(|p| p.1);
+    assert_eq!(valve59.as_deref(), Some("41"), "the newest value, once");
+    let second = core.on_tick(now, Vec::new);
+    assert!(!core.is_announcing());
+    assert!(announced(&second, "config").is_empty());
+    assert!(announced(&second, "opening").is_empty());
+    // In its turn and after, the device publishes on change again.
+    let after = core.on_line_event(
+        LineEvent::Values {
+            device: "valve59".to_string(),
+            values: vec![("opening".to_string(), opening(42))],
+            read_at: std::time::SystemTime::UNIX_EPOCH,
+            origin: Origin::Poll,
+        },
+        now,
+    );
+    assert_eq!(announced(&after, "opening"), ["plant/valve59/opening"]);
     assert!(publishes(&second)
         .iter()
         .any(|p| p.0 == "homeassistant/device/edge1_gateway/a/config"));

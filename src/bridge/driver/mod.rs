@@ -50,6 +50,11 @@ pub const OVERLOAD_HIGH: usize = 5_000;
 pub const OVERLOAD_LOW: usize = 1_000;
 /// How long the writer waits before offering a history publish to a full client queue again.
 const HANDOVER_RETRY: Duration = Duration::from_millis(10);
+/// Outbox entries below which the next devices are announced between ticks.
+const ANNOUNCE_ROOM: usize = 1_000;
+/// Shortest time between two announcements between ticks: the pace is the broker's, within
+/// this bound.
+const ANNOUNCE_GAP: Duration = Duration::from_millis(20);
 /// Shortest time between two log lines about publishes the outbox had to drop.
 const DROP_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
@@ -108,6 +113,8 @@ pub struct Bridge {
     give_back: watch::Sender<bool>,
     /// Refuses what rumqttc would end the connection on.
     packet_limit: PacketLimit,
+    /// When devices were last announced between ticks.
+    announced_at: Option<Instant>,
 }
 
 impl Bridge {
@@ -167,6 +174,7 @@ impl Bridge {
             in_writer,
             give_back,
             packet_limit: PacketLimit::new(MAX_OUTGOING_PACKET, "plain"),
+            announced_at: None,
         };
         (
             bridge,
@@ -199,6 +207,7 @@ impl Bridge {
         loop {
             self.heartbeat_tx.send_replace(Instant::now());
             self.pump();
+            self.announce_on_room();
             let feed = self.link_up && !self.outbox.is_empty();
             let writer_tx = self.writer_tx.clone();
             tokio::select! {
@@ -351,9 +360,9 @@ impl Bridge {
                     let refused = match self.lines.get(line) {
                         Some(handle) => match handle.command_tx.try_send(command) {
                             Ok(()) => None,
-                            Err(mpsc::error::TrySendError::Full(command)) => Some((command, true)),
+                            Err(mpsc::error::TrySendError::Full(command)) => Some((*command, true)),
                             Err(mpsc::error::TrySendError::Closed(command)) => {
-                                Some((command, false))
+                                Some((*command, false))
                             }
                         },
                         None => Some((command, false)),
@@ -490,6 +499,30 @@ impl Bridge {
             self.core.set_overloaded(overloaded);
             tracing::debug!(waiting, overloaded, "MQTT outbox");
         }
+    }
+
+    /// Between ticks, the next devices are announced once the outbox has taken nearly all of
+    /// the last ones and no discovery documents pile up, at most every [`ANNOUNCE_GAP`]: the
+    /// republishing after a connect goes as fast as the broker takes it, and the outbox never
+    /// holds much of it.
+    fn announce_on_room(&mut self) {
+        let room = self.link_up
+            && self.outbox.len() < ANNOUNCE_ROOM
+            && self.outbox.resend_len() < ANNOUNCE_BATCH;
+        if !room || !self.core.is_announcing() {
+            return;
+        }
+        let now = Instant::now();
+        if self
+            .announced_at
+            .is_some_and(|at| now.saturating_duration_since(at) < ANNOUNCE_GAP)
+        {
+            return;
+        }
+        self.announced_at = Some(now);
+        let actions = self.core.on_announce_room();
+        self.execute(actions);
+        self.pump();
     }
 
     fn note_handed(&mut self, request: &Request) {

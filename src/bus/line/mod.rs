@@ -32,6 +32,7 @@ mod command_slots;
 
 use super::availability::{HealthChange, HealthPolicy};
 use super::cadence::DevicePlan;
+use super::command_queue::{command_queue, CommandReceiver, CommandSender};
 use super::commands::{CommandSlots, Pending, SlotLink};
 use super::device::{DeviceRuntime, Values};
 use super::event::{LineEvent, Origin};
@@ -41,7 +42,7 @@ use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;
 use super::reporter;
-use super::scheduler::{Due, PollOutcome, Scheduler};
+use super::scheduler::{poll_phase, Due, PollOutcome, Scheduler};
 use super::serve::queue::{BlockCache, CLIENT_QUEUE};
 use super::serve::served_side::ServedSide;
 use super::serve::server::{self, ServeCounters};
@@ -60,7 +61,7 @@ use tokio_util::sync::CancellationToken;
 #[derive(Debug, Clone)]
 pub struct LineHandle {
     pub name: String,
-    pub command_tx: mpsc::Sender<Command>,
+    pub command_tx: CommandSender,
     /// Refresh requests, by device name: each of the device's blocks is read in the line's next
     /// slots and what changed is reported.
     pub refresh_tx: mpsc::Sender<String>,
@@ -97,9 +98,21 @@ pub fn spawn_line_with_clock(
     shutdown: CancellationToken,
     writes: WriteClock,
 ) -> (LineHandle, tokio::task::JoinHandle<()>) {
+    spawn_line_in_phase(spec, events_tx, shutdown, writes, 1)
+}
+
+/// [`spawn_line_with_clock`] for a line among others: a TCP line polls at one of
+/// `poll_phases` phases of its interval ([`poll_phase`]; see [`super::scheduler::poll_phases`]).
+pub fn spawn_line_in_phase(
+    spec: LineSpec,
+    events_tx: mpsc::Sender<LineEvent>,
+    shutdown: CancellationToken,
+    writes: WriteClock,
+    poll_phases: u32,
+) -> (LineHandle, tokio::task::JoinHandle<()>) {
     let names: Vec<String> = spec.devices.iter().map(|d| d.name.clone()).collect();
     let now = Instant::now();
-    let (command_tx, command_rx) = mpsc::channel(COMMAND_QUEUE);
+    let (command_tx, command_rx) = command_queue(COMMAND_QUEUE);
     let (refresh_tx, refresh_rx) = mpsc::channel(REFRESH_QUEUE);
     let (stats_tx, stats_rx) = watch::channel(LineStats::new(&spec.name, &names, now));
     let handle = LineHandle {
@@ -135,11 +148,19 @@ pub fn spawn_line_with_clock(
         tokio::spawn(reporting.instrument(span.clone()));
         line_tx
     };
-    let mut line = Line::new(spec, events_tx, command_rx, stats_tx, shutdown, now);
+    let mut line = Line::new(
+        spec,
+        events_tx,
+        command_rx,
+        stats_tx,
+        shutdown,
+        now,
+        poll_phases,
+    );
     line.refreshes = Some(refresh_rx);
     line.writes = writes;
     line.served.serve(clients, counters);
-    let task = tokio::spawn(line.run().instrument(span));
+    let task = tokio::spawn(Box::new(line).run().instrument(span));
     (handle, task)
 }
 
@@ -198,20 +219,33 @@ impl Line {
     fn new(
         mut spec: LineSpec,
         events_tx: mpsc::Sender<LineEvent>,
-        command_rx: mpsc::Receiver<Command>,
+        command_rx: CommandReceiver,
         stats_tx: watch::Sender<LineStats>,
         shutdown: CancellationToken,
         now: Instant,
+        poll_phases: u32,
     ) -> Self {
         let timing = LineTiming::new(spec.serial.baud, spec.serial.format);
         let timeout = spec
             .response_timeout
             .unwrap_or_else(|| default_response_timeout(&spec, &timing));
-        let plans = spec.devices.iter().map(DevicePlan::for_device).collect();
-        let scheduler = Scheduler::new(
+        let plans: Vec<DevicePlan> = spec.devices.iter().map(DevicePlan::for_device).collect();
+        // A plant has Modbus TCP devices by the hundred, each on a line of its own: their
+        // polls are spread over the interval. A serial port's first poll is not put off.
+        let phase = match spec.transport {
+            Transport::Tcp { .. } => {
+                let shortest = plans.iter().map(|plan| plan.poll_interval).min();
+                shortest.map_or(Duration::ZERO, |interval| {
+                    poll_phase(&spec.name, interval, poll_phases)
+                })
+            }
+            Transport::Serial => Duration::ZERO,
+        };
+        let scheduler = Scheduler::phased(
             plans,
             HealthPolicy::with_offline_after(spec.offline_after),
             now,
+            phase,
         );
         let devices: Vec<DeviceRuntime> = std::mem::take(&mut spec.devices)
             .into_iter()
@@ -288,7 +322,9 @@ impl Line {
         (link, commands)
     }
 
-    async fn run(mut self) {
+    /// The line's loop. The line is boxed: an async fn keeps its arguments in its future beside
+    /// the state of each await, and a plant of a thousand lines holds a thousand of these.
+    async fn run(mut self: Box<Self>) {
         while !self.shutdown.is_cancelled() {
             let now = Instant::now();
             self.accept_commands(now).await;
@@ -302,25 +338,28 @@ impl Line {
                 }
                 continue;
             }
+            // Command, settle and client slots are rare beside polls and their futures are the
+            // largest: each is boxed while it runs, so that the line's own future, which a plant
+            // of a thousand lines holds a thousand times, is sized for a poll.
             // What the line does next is chosen once it is free, so that a command arriving
             // during the silence goes ahead of the poll that would otherwise have been chosen
             // at its start.
             self.quiet_unless_command().await;
             let now = Instant::now();
             if let Some(settle) = self.commands.take_due_settle(now) {
-                self.run_settle(settle).await;
+                Box::pin(self.run_settle(settle)).await;
                 self.publish_stats();
                 continue;
             }
             if let Some((device, pending)) = self.commands.take_due_held(now) {
-                self.run_command(device, pending).await;
+                Box::pin(self.run_command(device, pending)).await;
                 self.publish_stats();
                 continue;
             }
             // Clients after commands, before polls; a due poll between two client slots.
             let commands_queued = self.scheduler.queued_commands() > 0;
             if let Some(request) = self.served.take_turn(commands_queued) {
-                self.run_client(request).await;
+                Box::pin(self.run_client(request)).await;
                 self.publish_stats();
                 continue;
             }
@@ -328,7 +367,7 @@ impl Line {
             let next_settle = self.commands.next_due();
             match self.scheduler.next_due(now) {
                 Due::Command { device, command } => {
-                    self.run_command(device, command).await;
+                    Box::pin(self.run_command(device, command)).await;
                     self.publish_stats();
                 }
                 Due::Poll { device, block } => {
