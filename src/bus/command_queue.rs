@@ -5,7 +5,7 @@
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::{SendError, TryRecvError, TrySendError};
 
-use super::Command;
+use super::outcome::Command;
 
 /// A queue of `capacity` commands for one line.
 pub(crate) fn command_queue(capacity: usize) -> (CommandSender, CommandReceiver) {
