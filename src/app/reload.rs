@@ -1,6 +1,6 @@
 //! The running lines and the configuration reload (SIGHUP, `systemctl reload`).
 //!
-//! A reload runs what `rtu2mqtt check` runs ([`config::load`]); an invalid configuration is
+//! A reload runs what `rtu2mqtt check` runs ([`config::load()`]); an invalid configuration is
 //! refused with every problem logged and the running one kept. A valid one is applied per
 //! line: a line whose settings and devices are unchanged keeps its task (its polling never
 //! pauses); a changed line is stopped (its port released) before its new task starts; removed

@@ -24,7 +24,7 @@ pub enum LineEvent {
     /// A command's end, sent after the `Values` of the reads its slot made (so its state is
     /// out before its result).
     CommandFinished {
-        /// The [`Command::id`] it answers.
+        /// The [`Command::id`](super::outcome::Command::id) it answers.
         id: u64,
         device: String,
         outcome: CommandOutcome,

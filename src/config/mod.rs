@@ -1,5 +1,5 @@
 //! The gateway configuration: serde structs ([`schema`], the one declaration of every key),
-//! `config` layering (file < `RTU2MQTT__*` environment, [`load`]) into one typed [`tree`], read
+//! `config` layering (file < `RTU2MQTT__*` environment, [`load`](mod@load)) into one typed [`tree`], read
 //! by serde strictly with every problem placed ([`deserialize`]), and complete validation
 //! ([`validate`]) that runs every section's checks and names the place of every problem before
 //! anything is opened. Each section is
@@ -48,7 +48,7 @@ pub fn load(path: &Path) -> Result<Config, Problems> {
     load_with_env(path, load::process_environment()?)
 }
 
-/// Like [`load`] with an explicit environment (tests).
+/// Like [`load()`] with an explicit environment (tests).
 pub fn load_with_env(
     path: &Path,
     env: std::collections::HashMap<String, String>,

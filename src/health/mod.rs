@@ -1,7 +1,7 @@
 //! Process health: systemd readiness and watchdog pings, the status file behind
 //! `rtu2mqtt health`, and the internal watchdog that ends a stuck process.
 //!
-//! What enters: each line's [`LineStats`](crate::bus::LineStats) (its `heartbeat` is refreshed
+//! What enters: each line's [`crate::bus::LineStats`] (its `heartbeat` is refreshed
 //! on every turn of the line task), the MQTT loop's heartbeat and connection state (watch
 //! channels, handed over as an [`MqttProbe`]) and, with `[history]`, why the journal cannot be
 //! written while it cannot (a watch channel: the gateway is unhealthy meanwhile, but the

@@ -90,7 +90,7 @@ pub struct SessionSettings {
 
 /// A gateway figure published as a node metric (line statistics, bus load). Declared when the
 /// session is made, so it is part of every NBIRTH; its values arrive through
-/// [`Session::on_node_values`].
+/// [`Session::on_node_values`](super::session::Session::on_node_values).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodeMetricSpec {
     pub name: String,

@@ -119,7 +119,7 @@ pub struct Bridge {
 
 impl Bridge {
     /// The bridge for `config`'s devices on `lines` (one handle per configured line, in
-    /// order), using the client made by [`mqtt::connect`]. Its event loop starts connecting
+    /// order), using the client made by [`connection::connect`]. Its event loop starts connecting
     /// at once; what it reports waits for [`Bridge::run`].
     pub fn new(
         config: &Config,
