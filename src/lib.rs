@@ -31,7 +31,7 @@
 //!   events in, actions out; `command_desk` the command desk from arrival to result, `publisher` the
 //!   state cache and what is published from it, `discovery`, `topic_guard`, `json_view`, `payload`,
 //!   `state`, `command_book`), `driver` (the task that carries the actions out: `connection`,
-//!   `outbox`, `tls`, `history_stream`) and `observers` (`statistics` documents, the
+//!   `outbox`, `writer`, `tls`, `history_stream`) and `observers` (`statistics` documents, the
 //!   `prometheus` endpoint).
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
 //!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its

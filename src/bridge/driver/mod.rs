@@ -3,8 +3,8 @@
 //! task ([`connection`]); line events, values and command ends alike; a tick) and executes the
 //! actions it returns. Sends to lines are non-blocking `try_*`, so line events are always
 //! consumed (polling never stops because MQTT is down). What goes to MQTT waits in the
-//! [`outbox::Outbox`] and is handed to a writer task that awaits room in the client's short
-//! request queue: nothing is dropped because the client is busy, and when the outbox grows past
+//! [`outbox::Outbox`] and is handed to the [`writer`] task, which awaits room in the client's
+//! short request queue: nothing is dropped because the client is busy, and when the outbox grows past
 //! [`OVERLOAD_HIGH`] the core sheds incoming commands (each still gets its outcome) until it is
 //! back under [`OVERLOAD_LOW`]. With `[history]`, [`history_stream`] carries the history stream:
 //! published while the broker is there, journaled while it is away, replayed after. [`tls`] is
@@ -14,6 +14,7 @@ pub mod connection;
 pub(crate) mod history_stream;
 pub(crate) mod outbox;
 pub(crate) mod tls;
+mod writer;
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -28,6 +29,7 @@ use tokio::sync::{mpsc, watch};
 use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
 use self::outbox::{Outbox, Request, Urgency};
+use self::writer::spawn_writer;
 use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
@@ -48,8 +50,6 @@ const WRITER_QUEUE: usize = 32;
 pub const OVERLOAD_HIGH: usize = 5_000;
 /// Outbox entries below which commands are taken again.
 pub const OVERLOAD_LOW: usize = 1_000;
-/// How long the writer waits before offering a history publish to a full client queue again.
-const HANDOVER_RETRY: Duration = Duration::from_millis(10);
 /// Outbox entries below which the next devices are announced between ticks.
 const ANNOUNCE_ROOM: usize = 1_000;
 /// Shortest time between two announcements between ticks: the pace is the broker's, within
@@ -708,78 +708,6 @@ impl Bridge {
                     return;
                 }
             }
-        }
-    }
-}
-
-/// The writer task: hands each request to the client, waiting for room in its queue. A history
-/// publish is handed only while the link is up; otherwise it goes back to the bridge
-/// ([`LinkEvent::Unsent`]) to be journaled.
-fn spawn_writer(
-    client: AsyncClient,
-    mut requests: mpsc::Receiver<Request>,
-    (link, link_tx, in_writer): (LinkFlag, mpsc::Sender<LinkEvent>, Arc<AtomicUsize>),
-) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let mut client_gone = false;
-        while let Some(request) = requests.recv().await {
-            let result = match request {
-                // The client has ended (a stop): history publishes still go back for the
-                // journal, the rest has nowhere to go.
-                Request::Publish(publish)
-                    if client_gone && is_history(&publish.topic, publish.retain) =>
-                {
-                    let _ = link_tx.send(LinkEvent::Unsent(publish)).await;
-                    Ok(())
-                }
-                _ if client_gone => Ok(()),
-                Request::Publish(publish) if is_history(&publish.topic, publish.retain) => {
-                    hand_history(&client, publish, &link, &link_tx).await
-                }
-                Request::Publish(publish) => {
-                    client
-                        .publish(publish.topic, publish.qos, publish.retain, publish.payload)
-                        .await
-                }
-                Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
-                Request::Unsubscribe { filter } => client.unsubscribe(filter).await,
-                Request::Disconnect => client.disconnect().await,
-            };
-            in_writer.fetch_sub(1, Ordering::SeqCst);
-            if let Err(error) = result {
-                // Only when the event loop has ended (shutdown).
-                tracing::debug!(%error, "MQTT client gone");
-                client_gone = true;
-            }
-        }
-    })
-}
-
-/// One history publish to the client: offered while the link is up (never waiting inside the
-/// client's queue, where a lost connection would leave it to be sent ahead of older journaled
-/// records), given back once it is down.
-async fn hand_history(
-    client: &AsyncClient,
-    publish: Publish,
-    link: &LinkFlag,
-    link_tx: &mpsc::Sender<LinkEvent>,
-) -> Result<(), rumqttc::ClientError> {
-    loop {
-        if !link.load(Ordering::SeqCst) {
-            // Refused only when the bridge is gone (shutdown).
-            let _ = link_tx.send(LinkEvent::Unsent(publish)).await;
-            return Ok(());
-        }
-        let offered = client.try_publish(
-            publish.topic.clone(),
-            publish.qos,
-            publish.retain,
-            publish.payload.clone(),
-        );
-        match offered {
-            Ok(()) => return Ok(()),
-            Err(_) if !link_tx.is_closed() => tokio::time::sleep(HANDOVER_RETRY).await,
-            Err(error) => return Err(error),
         }
     }
 }
