@@ -104,8 +104,8 @@ pub const MAX_POLL_PHASE: Duration = Duration::from_secs(1);
 /// of the gateway still serves a group of them, while the groups leave the interval's first
 /// millisecond to the few lines that share it.
 pub const MAX_POLL_PHASES: u32 = 20;
-/// Lines that poll together in one phase: fewer lines than this all poll at once, with no
-/// phase to wait for.
+/// Lines that poll together in one phase: a plant of fewer than twice this many lines has one
+/// phase, and all its lines poll at once, with no phase to wait for.
 pub const LINES_PER_PHASE: usize = 50;
 
 /// The phases `lines` lines are spread over: one per [`LINES_PER_PHASE`], at least one and at

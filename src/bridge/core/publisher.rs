@@ -665,6 +665,10 @@ impl Publisher {
     /// left to clear.
     pub(crate) fn forget_device(&mut self, device: &BridgeDevice) {
         let name = device.name.as_str();
+        // An announcement still queued for it would publish on the topics cleared here.
+        self.announcing.retain(|announcement| {
+            !matches!(announcement, Announcement::Device { device, .. } if device == name)
+        });
         let mut cleared = Vec::new();
         for field in device.profile.fields() {
             cleared.push(self.topics.state_topic(name, &field.name));

@@ -90,9 +90,6 @@ impl DeviceCache {
     /// The same device on `slots` (a reload's profile): each value moves to its field's slot
     /// there, fields the new slots do not have are dropped.
     fn moved_to(mut self, slots: Arc<FieldSlots>) -> Self {
-        if Arc::ptr_eq(&self.slots, &slots) {
-            return self;
-        }
         let mut fields = vec![FieldEntry::default(); slots.by_name.len()];
         for (name, &old) in &self.slots.by_name {
             let entry = self.fields.get_mut(old).map(std::mem::take);

@@ -1426,3 +1426,86 @@ fn many_devices_are_announced_a_batch_per_tick() {
     assert!(announced(&quiet, "config").is_empty());
     assert!(announced(&quiet, "opening").is_empty());
 }
+
+/// Without discovery a connect still republishes each device's availability and state in its
+/// turn; a reload that removes a device whose turn has not come yet clears its topics, and
+/// nothing is published on them afterwards.
+#[test]
+fn a_device_removed_before_its_turn_is_not_announced_afterwards() {
+    let now = Instant::now();
+    let profile = Arc::new(registry::built_in("wuzhou-valve").unwrap());
+    let names: Vec<String> = (0..60).map(|n| format!("valve{n:02}")).collect();
+    let devices: Vec<BridgeDevice> = names
+        .iter()
+        .map(|name| BridgeDevice {
+            name: name.clone(),
+            profile: Arc::clone(&profile),
+            line: 0,
+        })
+        .collect();
+    let mut core = Core::new(
+        CoreSettings {
+            topics: Topics::new("edge1", "plant"),
+            discovery: false,
+            options: options(),
+            history: false,
+            line_names: vec!["a".to_string()],
+            devices: devices.clone(),
+        },
+        now,
+        seeded(),
+    );
+    for name in &names {
+        core.on_line_event(
+            LineEvent::Values {
+                device: name.clone(),
+                values: vec![("opening".to_string(), rtu2mqtt_profile::Value::Int(40))],
+                read_at: std::time::SystemTime::UNIX_EPOCH,
+                origin: Origin::Poll,
+            },
+            now,
+        );
+    }
+    let first = core.on_connected();
+    let topics_of = |actions: &[Action], device: &str| -> Vec<String> {
+        publishes(actions)
+            .into_iter()
+            .map(|p| p.0)
+            .filter(|topic| topic.starts_with(&format!("plant/{device}")))
+            .collect()
+    };
+    assert!(
+        topics_of(&first, "valve59").is_empty(),
+        "valve59's turn is later"
+    );
+    assert!(core.is_announcing());
+    // The reload keeps valve00 to valve58; valve59 is gone before its turn.
+    let kept: Vec<BridgeDevice> = devices[..59].to_vec();
+    let reload = core.on_reconfigure(vec!["a".to_string()], kept, now);
+    let cleared: Vec<(String, String, bool)> = publishes(&reload)
+        .into_iter()
+        .filter(|p| p.0 == "plant/valve59/availability")
+        .collect();
+    assert_eq!(
+        cleared,
+        [(
+            "plant/valve59/availability".to_string(),
+            String::new(),
+            true
+        )],
+        "its retained availability is cleared"
+    );
+    let mut later = Vec::new();
+    for _ in 0..4 {
+        later.extend(core.on_tick(now, Vec::new));
+    }
+    assert!(
+        topics_of(&later, "valve59").is_empty(),
+        "nothing goes out on a removed device's topics: {:?}",
+        topics_of(&later, "valve59")
+    );
+    assert!(
+        !topics_of(&later, "valve58").is_empty(),
+        "the kept ones get their turn"
+    );
+}

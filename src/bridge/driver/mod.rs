@@ -501,8 +501,9 @@ impl Bridge {
         }
     }
 
-    /// Between ticks, the next devices are announced once the outbox has taken nearly all of
-    /// the last ones and no discovery documents pile up, at most every [`ANNOUNCE_GAP`]: the
+    /// Between ticks, the next devices are announced once the outbox holds fewer than
+    /// [`ANNOUNCE_ROOM`] entries, fewer than [`ANNOUNCE_BATCH`] of them discovery documents,
+    /// at most every [`ANNOUNCE_GAP`]: the
     /// republishing after a connect goes as fast as the broker takes it, and the outbox never
     /// holds much of it.
     fn announce_on_room(&mut self) {
