@@ -28,6 +28,8 @@
 //! Prints figures; asserts nothing. Run: `cargo bench --bench transport_interest` (about 3 min
 //! after the build; docs/performance.md, "Read interest alone").
 
+mod wire_bench;
+
 use std::collections::BTreeMap;
 use std::io;
 use std::path::Path;
@@ -43,6 +45,7 @@ use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Request, SlaveId};
 use rtu2mqtt_sim::{share, DustCollector, Pace, ServeOptions, VirtualLine};
+use wire_bench::percentile;
 
 const BAUD: u32 = 9600;
 const EIGHT_N_ONE: CharFormat = CharFormat {
@@ -616,12 +619,6 @@ async fn measure(link: &mut Link, transactions: usize) -> anyhow::Result<ChildFi
         metrics.worker_total_busy_duration(0),
     );
     times.sort();
-    let percentile = |percent: usize| {
-        times
-            .get((times.len() * percent / 100).min(times.len().saturating_sub(1)))
-            .copied()
-            .unwrap_or_default()
-    };
     Ok(ChildFigures {
         transactions,
         failed,
@@ -630,7 +627,7 @@ async fn measure(link: &mut Link, transactions: usize) -> anyhow::Result<ChildFi
         involuntary_switches: end.2.saturating_sub(start.2),
         parks: parks.saturating_sub(start_parks),
         busy: busy.saturating_sub(start_busy),
-        p50: percentile(50),
-        p95: percentile(95),
+        p50: percentile(&times, 50),
+        p95: percentile(&times, 95),
     })
 }
