@@ -22,11 +22,14 @@ pub(crate) struct DeviceRuntime {
     pub read_by_parts: Vec<bool>,
     /// Per block: the last answer whose values went to the bridge while the device has been
     /// online. An equal answer decodes to the same values, so it is neither decoded nor sent
-    /// again: polling a device whose values do not move allocates nothing.
+    /// again (polling a device whose values do not move allocates nothing), and of an answer
+    /// that differs only the fields whose registers moved are.
     last_answers: Vec<Option<Response>>,
     /// Per block: its latest answer while the device is online, whatever it held: where the
     /// `scale_by` fields of other blocks find their exponents.
     latest_answers: Vec<Option<Response>>,
+    /// Per block: the other blocks holding fields scaled by an exponent in it.
+    scaled_blocks: Vec<Vec<usize>>,
 }
 
 impl DeviceRuntime {
@@ -36,6 +39,9 @@ impl DeviceRuntime {
             read_by_parts: vec![false; spec.profile.read_blocks().len()],
             last_answers: vec![None; spec.profile.read_blocks().len()],
             latest_answers: vec![None; spec.profile.read_blocks().len()],
+            scaled_blocks: (0..spec.profile.read_blocks().len())
+                .map(|block| spec.profile.blocks_scaled_by(block))
+                .collect(),
             spec,
         }
     }
@@ -70,25 +76,41 @@ impl DeviceRuntime {
     }
 
     /// Decodes `answer` to the device's read block `block` and adds its valid values to
-    /// `values`. An answer whose fields all decode is remembered (see
-    /// [`DeviceRuntime::answer_unchanged`]); one with invalid field data is decoded, counted
-    /// and logged each time.
-    pub(crate) fn decode_into(&mut self, block: usize, answer: &Response, values: &mut Values) {
-        let mut all_valid = true;
+    /// `values`: with [`Decode::Changes`], only those of the fields whose registers moved since
+    /// the block's remembered answer (every field when none is remembered or the device is not
+    /// online); with [`Decode::Every`], every field. An answer whose fields all decode is
+    /// remembered (see [`DeviceRuntime::answer_unchanged`]); one with invalid field data is
+    /// decoded, counted and logged each time.
+    pub(crate) fn decode_into(
+        &mut self,
+        block: usize,
+        answer: &Response,
+        decode: Decode,
+        values: &mut Values,
+    ) {
         let profile = self.spec.profile.clone();
         if let Some(latest) = self.latest_answers.get_mut(block) {
             if latest.as_ref() != Some(answer) {
-                // New exponents: the blocks they scale decode again even when unchanged.
-                for user in profile.blocks_scaled_by(block) {
+                // New exponents: the blocks they scale decode again in full.
+                for &user in self.scaled_blocks.get(block).into_iter().flatten() {
                     if let Some(last) = self.last_answers.get_mut(user) {
                         *last = None;
                     }
                 }
+                remember(latest, answer);
             }
-            *latest = Some(answer.clone());
         }
+        let previous = match decode {
+            Decode::Changes if self.stats.online => {
+                self.last_answers.get(block).and_then(Option::as_ref)
+            }
+            _ => None,
+        };
         let latest = |other: usize| self.latest_answers.get(other).and_then(Option::as_ref);
-        for reading in profile.decode_block_with(block, answer, latest) {
+        let readings = profile.decode_block_changes(block, answer, previous, latest);
+        let mut all_valid = true;
+        values.reserve(readings.len());
+        for reading in readings {
             match reading.value {
                 Ok(value) => values.push((reading.field, value)),
                 Err(error) => {
@@ -103,8 +125,36 @@ impl DeviceRuntime {
             }
         }
         if let Some(last) = self.last_answers.get_mut(block) {
-            *last = all_valid.then(|| answer.clone());
+            if all_valid {
+                remember(last, answer);
+            } else {
+                *last = None;
+            }
         }
+    }
+}
+
+/// Which of a block's fields [`DeviceRuntime::decode_into`] decodes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Decode {
+    /// Those whose registers moved: a poll, whose unchanged values the bridge already has.
+    Changes,
+    /// All of them: a command's reads, which go out whatever they hold.
+    Every,
+}
+
+/// Keeps `answer` in `slot`, reusing the slot's buffer when it holds one of the same kind.
+fn remember(slot: &mut Option<Response>, answer: &Response) {
+    match (slot.as_mut(), answer) {
+        (Some(Response::HoldingRegisters(kept)), Response::HoldingRegisters(words))
+        | (Some(Response::InputRegisters(kept)), Response::InputRegisters(words)) => {
+            kept.clone_from(words);
+        }
+        (Some(Response::Coils(kept)), Response::Coils(bits))
+        | (Some(Response::DiscreteInputs(kept)), Response::DiscreteInputs(bits)) => {
+            kept.clone_from(bits);
+        }
+        _ => *slot = Some(answer.clone()),
     }
 }
 
@@ -170,8 +220,118 @@ codec = { type = "u16", scale_by = "rating_sf" }
 
     fn decoded(runtime: &mut DeviceRuntime, block: usize, answer: &Response) -> Values {
         let mut values = Values::new();
-        runtime.decode_into(block, answer, &mut values);
+        runtime.decode_into(block, answer, Decode::Changes, &mut values);
         values
+    }
+
+    /// One block: a value, a value scaled by an exponent beside it, the exponent, a u32.
+    const METER: &str = r#"
+[device]
+name = "meter"
+manufacturer = "Test"
+model = "M1"
+
+[line]
+
+[[blocks]]
+name = "readings"
+function = 3
+start = 0
+count = 5
+
+[[fields]]
+name = "volts"
+block = "readings"
+offset = 0
+codec = { type = "u16" }
+
+[[fields]]
+name = "amps"
+block = "readings"
+offset = 1
+codec = { type = "u16", scale_by = "amps_sf" }
+
+[[fields]]
+name = "amps_sf"
+block = "readings"
+offset = 2
+codec = { type = "i16" }
+
+[[fields]]
+name = "energy"
+block = "readings"
+offset = 3
+codec = { type = "u32" }
+"#;
+
+    fn meter() -> DeviceRuntime {
+        let profile = Profile::from_toml(METER, "meter.toml").expect("valid profile");
+        let mut runtime = DeviceRuntime::new(DeviceSpec {
+            name: "meter".to_string(),
+            address: 1,
+            profile: Arc::new(profile),
+            poll_interval: Duration::from_millis(100),
+            publish: Default::default(),
+        });
+        runtime.stats.online = true;
+        runtime
+    }
+
+    fn names(values: &Values) -> Vec<&str> {
+        values.iter().map(|(field, _)| field.as_str()).collect()
+    }
+
+    fn readings(words: [u16; 5]) -> Response {
+        Response::HoldingRegisters(words.to_vec())
+    }
+
+    #[test]
+    fn a_poll_decodes_only_the_fields_whose_registers_moved() {
+        let mut runtime = meter();
+        let first = decoded(&mut runtime, 0, &readings([230, 15, 0xFFFF, 0, 7]));
+        assert_eq!(names(&first), ["volts", "amps", "amps_sf", "energy"]);
+        // The low word of the u32 alone moved.
+        let energy = decoded(&mut runtime, 0, &readings([230, 15, 0xFFFF, 0, 8]));
+        assert_eq!(energy, [("energy".to_string(), Value::Int(8))]);
+        // The exponent moved: the value it scales is decoded with it, though its register
+        // did not move.
+        let scaled = decoded(&mut runtime, 0, &readings([230, 15, 0xFFFE, 0, 8]));
+        assert_eq!(names(&scaled), ["amps", "amps_sf"]);
+        assert_eq!(
+            scaled[0].1,
+            Value::Decimal {
+                scaled: 15,
+                precision: 2
+            }
+        );
+        assert!(runtime.answer_unchanged(0, &readings([230, 15, 0xFFFE, 0, 8])));
+        assert_eq!(runtime.known_state().len(), 4);
+    }
+
+    #[test]
+    fn every_field_is_decoded_for_a_command_offline_or_after_invalid_data() {
+        let mut runtime = meter();
+        decoded(&mut runtime, 0, &readings([230, 15, 0xFFFF, 0, 7]));
+        let mut values = Values::new();
+        runtime.decode_into(
+            0,
+            &readings([231, 15, 0xFFFF, 0, 7]),
+            Decode::Every,
+            &mut values,
+        );
+        assert_eq!(names(&values), ["volts", "amps", "amps_sf", "energy"]);
+        // A device that is not online (coming back) sends what it holds in full.
+        runtime.stats.online = false;
+        let back = decoded(&mut runtime, 0, &readings([232, 15, 0xFFFF, 0, 7]));
+        assert_eq!(names(&back), ["volts", "amps", "amps_sf", "energy"]);
+        runtime.stats.online = true;
+        // An answer of another length fits no field: nothing is remembered, so the next
+        // answer is decoded in full.
+        let short = Response::HoldingRegisters(vec![232, 15]);
+        assert!(decoded(&mut runtime, 0, &short).is_empty());
+        assert_eq!(runtime.stats.field_errors, 4);
+        let again = decoded(&mut runtime, 0, &readings([232, 15, 0xFFFF, 0, 7]));
+        assert_eq!(names(&again), ["volts", "amps", "amps_sf", "energy"]);
     }
 
     #[test]

@@ -8,7 +8,9 @@ use super::outcome::CommandOutcome;
 /// What a line reports to the bridge.
 #[derive(Debug, Clone, PartialEq)]
 pub enum LineEvent {
-    /// Freshly decoded values of a device (every field of the blocks just read).
+    /// Freshly decoded values of a device: of a poll, the fields whose registers moved since
+    /// the block's last answer (every field of it after the device came online); of a
+    /// command's reads, every field of the blocks read.
     Values {
         device: String,
         values: Vec<(String, Value)>,

@@ -493,6 +493,32 @@ pub(crate) fn image_of(answer: &Response, expected_len: usize) -> Option<BlockIm
     (len >= expected_len).then_some(image)
 }
 
+/// True when `width` places from `offset` differ between two answers, or when the answers
+/// are not of one kind and length (nothing of one says what the other holds).
+pub(crate) fn places_differ(
+    answer: &Response,
+    previous: &Response,
+    offset: u16,
+    width: u16,
+) -> bool {
+    fn differ<T: PartialEq>(now: &[T], then: &[T], offset: u16, width: u16) -> bool {
+        let start = usize::from(offset);
+        let end = start + usize::from(width);
+        now.len() != then.len() || now.get(start..end) != then.get(start..end)
+    }
+    match (answer, previous) {
+        (Response::HoldingRegisters(now), Response::HoldingRegisters(then))
+        | (Response::InputRegisters(now), Response::InputRegisters(then)) => {
+            differ(now, then, offset, width)
+        }
+        (Response::Coils(now), Response::Coils(then))
+        | (Response::DiscreteInputs(now), Response::DiscreteInputs(then)) => {
+            differ(now, then, offset, width)
+        }
+        _ => true,
+    }
+}
+
 /// An all-zero image of the block `request` reads (an empty word image for a write).
 pub(crate) fn empty_image(request: &Request) -> BlockImage {
     request

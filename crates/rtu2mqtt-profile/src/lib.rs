@@ -203,6 +203,46 @@ impl Profile {
         answer: &Response,
         latest: impl Fn(usize) -> Option<&'a Response>,
     ) -> Vec<FieldReading> {
+        self.decode_fields_of(block, answer, latest, |_| true)
+    }
+
+    /// [`Profile::decode_block_with`], for only the fields whose places differ between `answer`
+    /// and `previous`, an earlier answer to the same block: the others would decode to what
+    /// they did from `previous`, provided every field decoded from it and the exponents in
+    /// other blocks are the same. A field scaled by an exponent in this block counts the
+    /// exponent's places as its own. Every field when `previous` is `None` or an answer of
+    /// another kind or length.
+    pub fn decode_block_changes<'a>(
+        &self,
+        block: usize,
+        answer: &Response,
+        previous: Option<&Response>,
+        latest: impl Fn(usize) -> Option<&'a Response>,
+    ) -> Vec<FieldReading> {
+        let Some(previous) = previous else {
+            return self.decode_block_with(block, answer, latest);
+        };
+        let defs = &self.inner.defs;
+        let moved = |def: &model::FieldDef| {
+            command::places_differ(answer, previous, def.offset, def.codec.width())
+        };
+        self.decode_fields_of(block, answer, latest, |def| {
+            moved(def)
+                || def
+                    .scale_by
+                    .map(|exponent| &defs[exponent])
+                    .is_some_and(|exponent| exponent.block == block && moved(exponent))
+        })
+    }
+
+    /// The readings of `block`'s fields that pass `keep`, decoded from `answer`.
+    fn decode_fields_of<'a>(
+        &self,
+        block: usize,
+        answer: &Response,
+        latest: impl Fn(usize) -> Option<&'a Response>,
+        keep: impl Fn(&model::FieldDef) -> bool,
+    ) -> Vec<FieldReading> {
         let Some(read) = self.inner.blocks.get(block) else {
             return Vec::new();
         };
@@ -236,7 +276,7 @@ impl Profile {
             .iter()
             .zip(&inner.infos)
             .enumerate()
-            .filter(|(_, (def, _))| def.block == block)
+            .filter(|(_, (def, _))| def.block == block && keep(def))
             .map(|(index, (def, info))| FieldReading {
                 field: info.name.clone(),
                 value: match &image {

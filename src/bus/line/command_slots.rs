@@ -8,7 +8,7 @@ use tokio::sync::mpsc;
 
 use super::Line;
 use crate::bus::commands::{Finished, Pending, Settle, SlotReport};
-use crate::bus::device::Values;
+use crate::bus::device::{Decode, Values};
 use crate::bus::event::{LineEvent, Origin};
 use crate::bus::outcome::{Command, CommandFailure, CommandOutcome};
 use crate::bus::serve::served_side::FIRST_CLIENT_COMMAND_ID;
@@ -207,7 +207,7 @@ impl Line {
             else {
                 continue;
             };
-            runtime.decode_into(block, answer, &mut values);
+            runtime.decode_into(block, answer, Decode::Every, &mut values);
             if let Some(flag) = covered.get_mut(block) {
                 *flag = true;
             }

@@ -34,7 +34,7 @@ use super::availability::{HealthChange, HealthPolicy};
 use super::cadence::DevicePlan;
 use super::command_queue::{command_queue, CommandReceiver, CommandSender};
 use super::commands::{CommandSlots, Pending, SlotLink};
-use super::device::{DeviceRuntime, Values};
+use super::device::{Decode, DeviceRuntime, Values};
 use super::event::{LineEvent, Origin};
 use super::line_spec::{LineSpec, Transport};
 use super::outcome::{Command, CommandFailure};
@@ -628,7 +628,7 @@ impl Line {
                     }
                     unchanged = runtime.answer_unchanged(block, answer);
                     if !unchanged {
-                        runtime.decode_into(block, answer, &mut values);
+                        runtime.decode_into(block, answer, Decode::Changes, &mut values);
                     }
                 }
                 poll::outcome(&reply, &runtime.spec.name, &read.name)
