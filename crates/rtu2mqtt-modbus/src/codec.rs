@@ -241,8 +241,55 @@ pub fn decode_answer(
     request: &Request,
     frame: &[u8],
 ) -> Result<Answer, DecodeError> {
+    decode_answer_with(slave, request, frame, Trailer::Crc)
+}
+
+/// [`decode_answer`] of an answer without a CRC: the unit id and the PDU of a Modbus TCP ADU,
+/// whose integrity TCP has checked. The lengths in its errors count no CRC.
+pub(crate) fn decode_unit_answer(
+    unit: SlaveId,
+    request: &Request,
+    frame: &[u8],
+) -> Result<Answer, DecodeError> {
+    decode_answer_with(unit, request, frame, Trailer::None)
+}
+
+/// Bytes of a serial frame's CRC.
+const CRC_LEN: usize = 2;
+
+/// What follows an answer's PDU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Trailer {
+    /// The CRC of a serial line's frame.
+    Crc,
+    /// Nothing: the frame came inside an ADU.
+    None,
+}
+
+impl Trailer {
+    /// Bytes the frame carries after its PDU.
+    fn len(self) -> usize {
+        match self {
+            Trailer::Crc => CRC_LEN,
+            Trailer::None => 0,
+        }
+    }
+
+    /// The length of a frame counted with a CRC (as [`Request::answer_len`] counts), counted
+    /// with this trailer.
+    fn frame_len(self, with_crc: usize) -> usize {
+        with_crc - CRC_LEN + self.len()
+    }
+}
+
+fn decode_answer_with(
+    slave: SlaveId,
+    request: &Request,
+    frame: &[u8],
+    trailer: Trailer,
+) -> Result<Answer, DecodeError> {
     let function = request.function().value();
-    let normal_len = request.answer_len();
+    let normal_len = trailer.frame_len(request.answer_len());
     let Some(&address) = frame.first() else {
         return Err(DecodeError::Truncated {
             needed: normal_len,
@@ -279,7 +326,7 @@ pub fn decode_answer(
         }
     }
     let needed = if is_exception {
-        EXCEPTION_FRAME_LEN
+        trailer.frame_len(EXCEPTION_FRAME_LEN)
     } else {
         normal_len
     };
@@ -292,11 +339,14 @@ pub fn decode_answer(
     if frame.len() > needed {
         return Err(DecodeError::Malformed("answer longer than expected"));
     }
-    check_crc(frame)?;
+    if trailer == Trailer::Crc {
+        check_crc(frame)?;
+    }
     if is_exception {
         return Ok(Answer::Exception(ExceptionCode::from_u8(frame[2])));
     }
-    decode_answer_pdu(request, frame).map(Answer::Normal)
+    let data_end = frame.len() - trailer.len();
+    decode_answer_pdu(request, &frame[..data_end]).map(Answer::Normal)
 }
 
 fn check_crc(frame: &[u8]) -> Result<(), DecodeError> {
@@ -310,9 +360,9 @@ fn check_crc(frame: &[u8]) -> Result<(), DecodeError> {
     }
 }
 
-/// The content of a normal answer of the right length and CRC.
+/// The content of a normal answer of the right length and integrity, `frame` without its CRC.
 fn decode_answer_pdu(request: &Request, frame: &[u8]) -> Result<Response, DecodeError> {
-    let data_end = frame.len() - 2;
+    let data_end = frame.len();
     let echo_mismatch = DecodeError::Malformed("write answer does not echo the request");
     Ok(match request {
         Request::ReadCoils { quantity, .. } => {

@@ -178,8 +178,15 @@ pub fn decode_answer(
     request: &Request,
     adu: &[u8],
 ) -> Result<Matched, MbapError> {
-    let (header, rtu) = adu_to_rtu(adu)?;
-    if adu.len() > header.adu_len() {
+    let header = Header::decode(adu)?;
+    let needed = header.adu_len();
+    if adu.len() < needed {
+        return Err(MbapError::Truncated {
+            needed,
+            got: adu.len(),
+        });
+    }
+    if adu.len() > needed {
         return Err(MbapError::Pdu(DecodeError::Malformed(
             "bytes after the ADU's length",
         )));
@@ -195,7 +202,8 @@ pub fn decode_answer(
             found: header.unit,
         });
     }
-    codec::decode_answer(unit, request, &rtu)
+    // The unit id ends the header: with the PDU after it, it is the frame without its CRC.
+    codec::decode_unit_answer(unit, request, &adu[HEADER_LEN - 1..needed])
         .map(Matched::Current)
         .map_err(MbapError::Pdu)
 }
@@ -298,6 +306,35 @@ mod tests {
             let (header, back) = adu_to_rtu(&adu).unwrap();
             prop_assert_eq!(header.transaction, transaction);
             prop_assert_eq!(back, rtu);
+        }
+
+        /// An answer inside an ADU decodes as the same answer on a serial line with its CRC
+        /// does; only the lengths in a truncation or length error count no CRC.
+        #[test]
+        fn an_adu_decodes_as_its_rtu_frame(
+            unit in 1u8..=3,
+            function in prop_oneof![Just(3u8), Just(0x83), Just(4), Just(6)],
+            count in prop_oneof![Just(12u8), any::<u8>()],
+            data in proptest::collection::vec(any::<u8>(), 0..=16),
+        ) {
+            let mut rtu = vec![unit, function, count];
+            rtu.extend_from_slice(&data);
+            append_crc(&mut rtu);
+            let adu = rtu_to_adu(9, &rtu).unwrap();
+            let by_adu = decode_answer(9, 1, &READ_DUST, &adu);
+            let by_rtu = codec::decode_answer(1, &READ_DUST, &rtu);
+            match (by_adu, by_rtu) {
+                (Ok(Matched::Current(adu)), Ok(rtu)) => prop_assert_eq!(adu, rtu),
+                (Err(MbapError::WrongUnit { found, .. }), Err(DecodeError::WrongAddress { .. })) => {
+                    prop_assert_eq!(found, unit)
+                }
+                (
+                    Err(MbapError::Pdu(DecodeError::Truncated { needed, got })),
+                    Err(DecodeError::Truncated { needed: rtu_needed, got: rtu_got }),
+                ) => prop_assert_eq!((needed + 2, got + 2), (rtu_needed, rtu_got)),
+                (Err(MbapError::Pdu(adu)), Err(rtu)) => prop_assert_eq!(adu, rtu),
+                (adu, rtu) => prop_assert!(false, "ADU {adu:?}, RTU {rtu:?}"),
+            }
         }
 
         #[test]
