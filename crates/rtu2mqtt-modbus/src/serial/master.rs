@@ -368,6 +368,8 @@ impl Master {
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
                     if due > Instant::now() {
+                        // Bytes that arrive meanwhile would each wake the runtime for nothing.
+                        self.port.stop_listening();
                         self.timer.sleep_until(due.min(wait_until)).await;
                     }
                 }

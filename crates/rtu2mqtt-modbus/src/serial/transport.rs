@@ -14,9 +14,14 @@
 //! transaction and the kernel's share of the CPU it costs, with the same timing; a small
 //! saving, seen only on a quiet machine. The figures and their command are in
 //! docs/performance.md ("Read interest alone").
+//!
+//! The registration is dropped while the master waits for the rest of an answer whose length
+//! it knows (`Port::stop_listening`): a UART or a pty signals each byte it receives, and
+//! each signal would wake the runtime's thread for a byte nobody reads yet. The next read
+//! registers the port again (docs/performance.md, "Beside the C++ peer, in one run").
 
 use std::io::{self, Read, Write};
-use std::os::fd::{AsRawFd, BorrowedFd};
+use std::os::fd::{AsRawFd, BorrowedFd, RawFd};
 use std::time::Duration;
 
 use mio_serial::{DataBits, SerialPort, SerialStream, StopBits};
@@ -103,13 +108,47 @@ const WRITE_RETRY: Duration = Duration::from_millis(1);
 /// writes a frame and tells when its last bit left, and reads with deadlines. A
 /// [`Master`](crate::serial::master::Master) runs transactions on it.
 pub struct Port {
-    /// Registered with the reactor for reading only. The transmit side signals "writable" each
-    /// time the driver moves bytes out (on a pty: each time the other end reads), and with
-    /// write interest such a signal wakes the runtime for nothing (see the module's
-    /// documentation); writes never need the reactor (see [`Port::write_all`]).
-    stream: AsyncFd<SerialStream>,
+    /// The port's registration with the reactor, for reading only, while the port listens
+    /// (see [`Port::stop_listening`]). The transmit side signals "writable" each time the
+    /// driver moves bytes out (on a pty: each time the other end reads), and with write
+    /// interest such a signal wakes the runtime for nothing (see the module's documentation);
+    /// writes never need the reactor (see [`Port::write_all`]). Declared before `stream`, so
+    /// that it is deregistered before the descriptor is closed.
+    listening: Option<AsyncFd<Descriptor>>,
+    /// Registered again, and the reactor has not reported on the port since: what it knows
+    /// of the bytes waiting comes only on its next turn, so the port itself is asked.
+    unheard: bool,
+    stream: SerialStream,
     path: String,
     pseudo_terminal: bool,
+}
+
+/// The port's descriptor as the reactor knows it; the [`SerialStream`] beside it owns it.
+struct Descriptor(RawFd);
+
+impl AsRawFd for Descriptor {
+    fn as_raw_fd(&self) -> RawFd {
+        self.0
+    }
+}
+
+/// The registration in `listening`, made for `fd` if there is none (`unheard` is set then).
+fn listening<'a>(
+    listening: &'a mut Option<AsyncFd<Descriptor>>,
+    unheard: &mut bool,
+    fd: RawFd,
+) -> io::Result<&'a AsyncFd<Descriptor>> {
+    match listening {
+        Some(registration) => Ok(registration),
+        None => {
+            // SAFETY: `fd` is the descriptor of the port's stream, open until the stream is
+            // dropped, which happens after this registration is (field order in `Port`).
+            let registration =
+                unsafe { AsyncFd::register_with_interest(Descriptor(fd), Interest::READABLE) }?;
+            *unheard = true;
+            Ok(listening.insert(registration))
+        }
+    }
 }
 
 impl std::fmt::Debug for Port {
@@ -191,15 +230,20 @@ impl Port {
             // Exclusive access is a safeguard, not a requirement for talking on the line.
             tracing::warn!(path = %path, %error, "cannot get exclusive access (TIOCEXCL)");
         }
-        // SAFETY: the AsyncFd owns the stream, whose descriptor stays open and the same until
-        // the AsyncFd is dropped. Needs the runtime's I/O driver.
-        let stream = unsafe { AsyncFd::register_with_interest(stream, Interest::READABLE) }
-            .map_err(io::Error::from)?;
         let mut port = Port {
+            listening: None,
+            unheard: false,
             stream,
             path,
             pseudo_terminal,
         };
+        // Registered at once (with the runtime's I/O driver), so that a failure to register
+        // is an error of the opening, not of the first read.
+        listening(
+            &mut port.listening,
+            &mut port.unheard,
+            port.stream.as_raw_fd(),
+        )?;
         if !pseudo_terminal {
             port.request_low_latency();
         }
@@ -237,33 +281,29 @@ impl Port {
                 "baud rate",
                 baud.to_string(),
                 self.stream
-                    .get_mut()
                     .set_baud_rate(baud)
-                    .and_then(|()| self.check(self.stream.get_ref().baud_rate()? == baud)),
+                    .and_then(|()| self.check(self.stream.baud_rate()? == baud)),
             ),
             (
                 "data bits",
                 format.data_bits.to_string(),
                 self.stream
-                    .get_mut()
                     .set_data_bits(data_bits)
-                    .and_then(|()| self.check(self.stream.get_ref().data_bits()? == data_bits)),
+                    .and_then(|()| self.check(self.stream.data_bits()? == data_bits)),
             ),
             (
                 "parity",
                 format.parity.to_string(),
                 self.stream
-                    .get_mut()
                     .set_parity(parity)
-                    .and_then(|()| self.check(self.stream.get_ref().parity()? == parity)),
+                    .and_then(|()| self.check(self.stream.parity()? == parity)),
             ),
             (
                 "stop bits",
                 format.stop_bits.to_string(),
                 self.stream
-                    .get_mut()
                     .set_stop_bits(stop_bits)
-                    .and_then(|()| self.check(self.stream.get_ref().stop_bits()? == stop_bits)),
+                    .and_then(|()| self.check(self.stream.stop_bits()? == stop_bits)),
             ),
         ];
         let mut not_applied = Vec::new();
@@ -421,15 +461,38 @@ impl Port {
         }
     }
 
-    /// Takes every byte already waiting in the receive buffer without waiting for more.
+    /// Stops the runtime hearing of bytes that arrive until the port is read again: for a
+    /// wait whose end is known (the rest of an answer of known length), during which each
+    /// byte would otherwise wake the runtime's thread for nothing (a UART or a pty signals
+    /// every byte it receives). The next read registers the port again, and hears what has
+    /// arrived meanwhile at once.
+    pub(crate) fn stop_listening(&mut self) {
+        self.listening = None;
+    }
+
+    /// Takes every byte already waiting in the receive buffer without waiting for more. Right
+    /// after the port was registered again it asks the port itself, since the reactor's news
+    /// of the bytes that arrived while it was not listening comes only on its next turn (a
+    /// read that finds nothing leaves the reactor to report the next byte, which it always
+    /// does: the port is registered for edges, and each arrival is one); otherwise the
+    /// reactor's readiness spares a read that would find nothing.
     pub(crate) fn take_pending(&mut self) -> io::Result<Vec<u8>> {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
+        let registration = listening(
+            &mut self.listening,
+            &mut self.unheard,
+            self.stream.as_raw_fd(),
+        )?;
+        let unheard = self.unheard;
+        let mut reader = &self.stream;
         loop {
-            match self
-                .stream
-                .try_io(Interest::READABLE, |mut stream| stream.read(&mut chunk))
-            {
+            let read = if unheard {
+                reader.read(&mut chunk)
+            } else {
+                registration.try_io(Interest::READABLE, |_| reader.read(&mut chunk))
+            };
+            match read {
                 Ok(0) => return Err(port_gone(&self.path)),
                 Ok(count) => pending.extend_from_slice(&chunk[..count]),
                 Err(error) if error.kind() == io::ErrorKind::WouldBlock => return Ok(pending),
@@ -440,10 +503,17 @@ impl Port {
     }
 
     /// Waits for received bytes and reads them into `buf`.
-    async fn read(&self, buf: &mut [u8]) -> io::Result<usize> {
+    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let registration = listening(
+            &mut self.listening,
+            &mut self.unheard,
+            self.stream.as_raw_fd(),
+        )?;
+        let mut reader = &self.stream;
         loop {
-            let mut ready = self.stream.readable().await?;
-            if let Ok(result) = ready.try_io(|stream| stream.get_ref().read(buf)) {
+            let mut ready = registration.readable().await?;
+            self.unheard = false;
+            if let Ok(result) = ready.try_io(|_| reader.read(buf)) {
                 return result;
             }
         }
@@ -456,7 +526,7 @@ impl Port {
         let give_up = Instant::now() + WRITE_PATIENCE;
         let mut rest = frame;
         while !rest.is_empty() {
-            match self.stream.get_ref().write(rest) {
+            match (&self.stream).write(rest) {
                 Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
                 Ok(count) => rest = &rest[count..],
                 Err(error) if error.kind() == io::ErrorKind::Interrupted => {}
