@@ -643,6 +643,33 @@ async fn a_byte_paced_answer_ends_with_its_last_byte() {
     }
 }
 
+/// An answer whose rest takes longer on the wire than the gap limit (38 registers: 81 bytes,
+/// 84 ms at 9600 against 32 ms), handed over byte by byte, with and without a pause inside it:
+/// read whole, never taken for truncated where the wait for its rest reaches the gap limit
+/// while the port is not being watched.
+#[tokio::test(flavor = "current_thread")]
+async fn a_long_byte_paced_answer_is_read_whole() {
+    const TRANSACTIONS: u16 = 3;
+    let registers = Request::ReadHoldingRegisters {
+        start: 0x0100,
+        quantity: 38,
+    };
+    for pause in [None, Some((40, Duration::from_millis(20)))] {
+        let script = vec![Act::BytePaced(pause); usize::from(TRANSACTIONS)];
+        let (mut master, device) = connect(script, MasterOptions::default());
+        for sequence in 1..=TRANSACTIONS {
+            let response = master.transact(DEVICE, &registers, TIMEOUT).await.unwrap();
+            assert_eq!(
+                response,
+                Ok(Response::HoldingRegisters(vec![sequence; 38])),
+                "pause {pause:?}"
+            );
+        }
+        assert_eq!(master.counters().truncated, 0, "pause {pause:?}");
+        assert_silences(&seen_by(device).await);
+    }
+}
+
 #[tokio::test(flavor = "current_thread")]
 async fn echo_is_stripped_when_configured() {
     let options = MasterOptions {

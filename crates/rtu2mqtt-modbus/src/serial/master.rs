@@ -300,7 +300,7 @@ impl Master {
         let gap_limit = self.inter_char_timeout();
         let mut received: Vec<u8> = Vec::new();
         let mut last_byte_at = drained_at;
-        // The answer's rest has had its one timed wait (see below).
+        // The answer's rest has had its last timed wait (see below).
         let mut rest_waited_for = false;
         let mut chunk = [0u8; MAX_FRAME_LEN];
         let framer = AnswerFramer::on_serial_line(slave, request, sent, self.options.echo);
@@ -357,16 +357,18 @@ impl Master {
                 last_byte_at + gap_limit
             };
             // Once the length is known (from the third byte on), the rest cannot be complete
-            // before its wire time: it is waited for in one go, not with a wake-up per byte.
-            // Only once: bytes still missing after it come a little after their wire time
-            // (a byte-paced line always lags by some microseconds), and their arrival wakes
-            // the read, so that the answer ends, and t3.5 starts, when its last byte came,
-            // not a character time later.
+            // before its wire time: it is waited for in one go, not with a wake-up per byte
+            // (a rest longer than the gap limit in steps of the limit, each from the bytes
+            // that came in the one before, so that a silence inside it is still noticed at
+            // the limit). Only until its wire time: bytes still missing then come a little
+            // after it (a byte-paced line always lags by some microseconds), and their
+            // arrival wakes the read, so that the answer ends, and t3.5 starts, when its last
+            // byte came, not a character time later.
             if let Framing::NeedMore { needed } = framing {
                 if received.len() >= 3 && !rest_waited_for {
-                    rest_waited_for = true;
                     let remaining = needed.saturating_sub(received.len());
                     let due = last_byte_at + self.timing.frame_time(remaining);
+                    rest_waited_for = due <= wait_until;
                     if due > Instant::now() {
                         // Bytes that arrive meanwhile would each wake the runtime for nothing.
                         self.port.stop_listening();

@@ -510,6 +510,19 @@ impl Port {
             self.stream.as_raw_fd(),
         )?;
         let mut reader = &self.stream;
+        if self.unheard {
+            // The reactor reports the bytes that came meanwhile only on its next turn, after
+            // a deadline that has passed (the end of a wait for an answer's rest) would have
+            // ended the read: the port is asked first.
+            match reader.read(buf) {
+                Err(error)
+                    if matches!(
+                        error.kind(),
+                        io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+                    ) => {}
+                result => return result,
+            }
+        }
         loop {
             let mut ready = registration.readable().await?;
             self.unheard = false;
