@@ -201,10 +201,11 @@ offset = 0
 codec = { type = "u16", scale_by = "rating_sf" }
 "#;
 
-    fn runtime() -> DeviceRuntime {
-        let profile = Profile::from_toml(PROFILE, "scaled.toml").expect("valid profile");
+    /// An online device named `name` with the profile `text`.
+    fn online(text: &str, name: &str) -> DeviceRuntime {
+        let profile = Profile::from_toml(text, &format!("{name}.toml")).expect("valid profile");
         let mut runtime = DeviceRuntime::new(DeviceSpec {
-            name: "scaled".to_string(),
+            name: name.to_string(),
             address: 1,
             profile: Arc::new(profile),
             poll_interval: Duration::from_millis(100),
@@ -212,6 +213,10 @@ codec = { type = "u16", scale_by = "rating_sf" }
         });
         runtime.stats.online = true;
         runtime
+    }
+
+    fn runtime() -> DeviceRuntime {
+        online(PROFILE, "scaled")
     }
 
     fn words(word: u16) -> Response {
@@ -265,16 +270,7 @@ codec = { type = "u32" }
 "#;
 
     fn meter() -> DeviceRuntime {
-        let profile = Profile::from_toml(METER, "meter.toml").expect("valid profile");
-        let mut runtime = DeviceRuntime::new(DeviceSpec {
-            name: "meter".to_string(),
-            address: 1,
-            profile: Arc::new(profile),
-            poll_interval: Duration::from_millis(100),
-            publish: Default::default(),
-        });
-        runtime.stats.online = true;
-        runtime
+        online(METER, "meter")
     }
 
     fn names(values: &Values) -> Vec<&str> {

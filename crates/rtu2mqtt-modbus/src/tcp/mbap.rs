@@ -129,9 +129,8 @@ pub fn rtu_to_adu(transaction: u16, rtu: &[u8]) -> Result<Vec<u8>, MbapError> {
     Ok(adu)
 }
 
-/// The header of the complete ADU `adu` and the RTU frame it carries (unit id as the address,
-/// CRC computed).
-pub fn adu_to_rtu(adu: &[u8]) -> Result<(Header, Vec<u8>), MbapError> {
+/// The header of `adu` and the ADU's length, which `adu` holds at least.
+fn whole_adu(adu: &[u8]) -> Result<(Header, usize), MbapError> {
     let header = Header::decode(adu)?;
     let needed = header.adu_len();
     if adu.len() < needed {
@@ -140,6 +139,13 @@ pub fn adu_to_rtu(adu: &[u8]) -> Result<(Header, Vec<u8>), MbapError> {
             got: adu.len(),
         });
     }
+    Ok((header, needed))
+}
+
+/// The header of the complete ADU `adu` and the RTU frame it carries (unit id as the address,
+/// CRC computed).
+pub fn adu_to_rtu(adu: &[u8]) -> Result<(Header, Vec<u8>), MbapError> {
+    let (header, needed) = whole_adu(adu)?;
     let mut rtu = Vec::with_capacity(usize::from(header.length) + 2);
     rtu.push(header.unit);
     rtu.extend_from_slice(&adu[HEADER_LEN..needed]);
@@ -178,14 +184,7 @@ pub fn decode_answer(
     request: &Request,
     adu: &[u8],
 ) -> Result<Matched, MbapError> {
-    let header = Header::decode(adu)?;
-    let needed = header.adu_len();
-    if adu.len() < needed {
-        return Err(MbapError::Truncated {
-            needed,
-            got: adu.len(),
-        });
-    }
+    let (header, needed) = whole_adu(adu)?;
     if adu.len() > needed {
         return Err(MbapError::Pdu(DecodeError::Malformed(
             "bytes after the ADU's length",
