@@ -199,7 +199,11 @@ async fn measure(
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
         byte_timeout: None,
-        frame_log: frame_log.map(FrameLog::create).transpose()?,
+        recorders: rtu2mqtt::bus::FrameRecorders {
+            log: frame_log.map(FrameLog::create).transpose()?,
+            live: None,
+        },
+        console: false,
         serve: None,
         devices: vec![DeviceSpec {
             name: "air_shower".into(),

@@ -72,6 +72,29 @@ pub fn parse_address(text: &str) -> Result<u8, String> {
     parsed.map_err(|_| format!("`{text}` is not an address 0–255 (decimal or 0x hex)"))
 }
 
+/// Parses `1-247`, `1,2,0x81` or a mix of both, in the order given, without repeats next to
+/// each other.
+pub fn parse_addresses(text: &str) -> Result<Vec<u8>, String> {
+    let mut addresses = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (first, last) = match part.split_once('-') {
+            Some((first, last)) => (parse_address(first.trim())?, parse_address(last.trim())?),
+            None => (parse_address(part)?, parse_address(part)?),
+        };
+        if first == 0 || first > last {
+            return Err(format!(
+                "address range `{part}`: expected FIRST-LAST within 1–255"
+            ));
+        }
+        addresses.extend(first..=last);
+    }
+    if addresses.is_empty() {
+        return Err(format!("no address to scan in `{text}`"));
+    }
+    addresses.dedup();
+    Ok(addresses)
+}
+
 /// Parses `none | even | odd`.
 pub fn parse_parity(text: &str) -> anyhow::Result<Parity> {
     match text.to_ascii_lowercase().as_str() {

@@ -37,6 +37,9 @@
 //!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its
 //!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.
 //! - [`cli`]: the command line (clap); parses, does nothing else.
+//! - [`web`]: the console in the browser and the metrics endpoint, one HTTP server: the plant
+//!   view pushed live, commands through the bridge like any MQTT client's, the lines' frames,
+//!   commissioning reads through the running lines' schedulers. Off unless configured.
 //! - [`app`]: wiring: `run`/[`app::run_gateway`] (lines, bridge, Sparkplug node, health, reload
 //!   on SIGHUP), `signals`, `check`, `profiles`, the commissioning tools `scan`, `read` and
 //!   `sunspec`, `logging`. No protocol logic.
@@ -59,3 +62,4 @@ pub mod config;
 pub mod health;
 pub mod history;
 pub mod sparkplug;
+pub mod web;

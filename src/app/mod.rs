@@ -20,13 +20,15 @@ use anyhow::Context as _;
 use tokio::sync::{broadcast, mpsc, oneshot};
 
 use crate::bridge::driver::connection;
-use crate::bridge::observers::prometheus;
+use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::{self, Bridge, BridgeHealth};
-use crate::bus::{LineEvent, LineHandle, LineStats};
+use crate::bus::{FrameRecorders, LineEvent, LineHandle, LineStats};
 use crate::config::{self, Config};
 use crate::health;
 use crate::sparkplug::{self, NodeLinks};
+use crate::web;
 use rtu2mqtt_modbus::frame_log::FrameLog;
+use rtu2mqtt_modbus::live_frames::LiveFrames;
 use tokio_util::sync::CancellationToken;
 
 /// Line events waiting for the bridge (the bridge consumes them at once; this absorbs bursts).
@@ -42,6 +44,10 @@ const SPARKPLUG_COMMANDS: usize = 64;
 const SPARKPLUG_REPLAYED: usize = 1024;
 /// How long the Sparkplug node gets to publish its NDEATH after the bridge has stopped.
 const SPARKPLUG_STOP_GRACE: Duration = Duration::from_secs(5);
+
+/// The console's commands and refreshes on their way into the bridge; more are refused with
+/// "busy" until it has taken some.
+const CONSOLE_MESSAGES: usize = 64;
 
 /// What a caller gets once everything has started.
 #[derive(Debug, Clone)]
@@ -74,15 +80,22 @@ pub async fn run_gateway(
     for warning in &config.warnings {
         tracing::warn!("configuration: {warning}");
     }
+    let mut recorders = FrameRecorders::default();
     if let Some(path) = &config.gateway.frame_log {
         let log = FrameLog::create(path)
             .with_context(|| format!("opening the frame log {}", path.display()))?;
         tracing::info!(path = %path.display(), "recording every frame");
-        for line in &mut config.lines {
-            line.frame_log = Some(log.clone());
-        }
+        recorders.log = Some(log);
     }
-    // Everything that can fail comes before the lines start: TLS files, the metrics port.
+    let console = config.web.is_some();
+    if console {
+        recorders.live = Some(LiveFrames::default());
+    }
+    for line in &mut config.lines {
+        line.recorders = recorders.clone();
+        line.console = console;
+    }
+    // Everything that can fail comes before the lines start: TLS files, the HTTP ports.
     let mqtt = connection::connect(&config.mqtt).context("MQTT client")?;
     let node = sparkplug::session_for(&config);
     if let Some((_, node_mqtt)) = &node {
@@ -90,16 +103,39 @@ pub async fn run_gateway(
     }
     let metrics_listener = match config.gateway.metrics_listen {
         Some(address) => Some(
-            prometheus::bind(address)
+            web::listener::Listener::bind(address, None)
                 .await
-                .with_context(|| format!("metrics endpoint on {address}"))?,
+                .context("the metrics endpoint (gateway.metrics_listen)")?,
         ),
+        None => None,
+    };
+    let console_listener = match &config.web {
+        Some(settings) => {
+            let listener = web::listener::Listener::bind(settings.listen, settings.tls.as_ref())
+                .await
+                .context("the console (web.listen)")?;
+            let scheme = if settings.tls.is_some() {
+                "https"
+            } else {
+                "http"
+            };
+            tracing::info!(
+                address = %format!("{scheme}://{}", settings.listen),
+                login = settings.token.is_some(),
+                "console listening"
+            );
+            Some((listener, settings.clone()))
+        }
         None => None,
     };
 
     let (events_tx, events_rx) = mpsc::channel(LINE_EVENTS);
-    let frame_log = config.lines.first().and_then(|line| line.frame_log.clone());
-    let lines = reload::LineSet::start(&config.lines, events_tx, shutdown.clone(), frame_log);
+    let lines = reload::LineSet::start(
+        &config.lines,
+        events_tx,
+        shutdown.clone(),
+        (recorders.clone(), console),
+    );
     let handles = lines.handles();
     let line_stats = lines.stats();
 
@@ -119,8 +155,27 @@ pub async fn run_gateway(
         None => (events_rx, None),
     };
     if let Some(listener) = metrics_listener {
-        let render = bridge.metrics_renderer();
-        tokio::spawn(prometheus::serve(listener, render, shutdown.clone()));
+        tokio::spawn(web::serve_metrics(
+            listener,
+            bridge.figures(),
+            shutdown.clone(),
+        ));
+    }
+    if let (Some((listener, settings)), Some(frames)) = (console_listener, recorders.live) {
+        let view = PlantView::new(&config.mqtt.prefix);
+        bridge.publish_into(view.clone());
+        let (messages, local_rx) = mpsc::channel(CONSOLE_MESSAGES);
+        bridge.accept_local_messages(local_rx);
+        let parts = web::ConsoleParts {
+            view,
+            figures: bridge.figures(),
+            health: bridge_health.clone(),
+            lines: handles.clone(),
+            messages,
+            frames,
+        };
+        let console = web::Console::new(&config, settings, parts);
+        tokio::spawn(web::serve(listener, console, shutdown.clone()));
     }
     let reconfigurations = bridge.reconfigurations();
     if let Some(ready_tx) = hooks.ready_tx {

@@ -22,7 +22,6 @@ use crate::bus::{
     spawn_line_in_phase, LineEvent, LineHandle, LineSpec, LineStats, Transport, WriteClock,
 };
 use crate::config::{self, Config};
-use rtu2mqtt_modbus::frame_log::FrameLog;
 use tokio_util::sync::CancellationToken;
 
 /// Where a reload reads its configuration, and the requests for one.
@@ -45,7 +44,10 @@ pub(super) struct LineSet {
     lines: Vec<RunningLine>,
     events_tx: mpsc::Sender<LineEvent>,
     shutdown: CancellationToken,
-    frame_log: Option<FrameLog>,
+    /// Where the lines' frames are recorded, and whether the console reads through them: the
+    /// same for a line a reload starts.
+    recorders: crate::bus::FrameRecorders,
+    console: bool,
     /// Every running line's statistics, for the watchdog.
     stats_tx: watch::Sender<Vec<watch::Receiver<LineStats>>>,
     /// The last writes of the fields with a write interval: a line a reload rebuilds keeps
@@ -61,13 +63,14 @@ impl LineSet {
         specs: &[LineSpec],
         events_tx: mpsc::Sender<LineEvent>,
         shutdown: CancellationToken,
-        frame_log: Option<FrameLog>,
+        (recorders, console): (crate::bus::FrameRecorders, bool),
     ) -> Self {
         let mut set = LineSet {
             lines: Vec::new(),
             events_tx,
             shutdown,
-            frame_log,
+            recorders,
+            console,
             stats_tx: watch::channel(Vec::new()).0,
             writes: WriteClock::new(),
             poll_phases: phases_for(specs),
@@ -99,7 +102,8 @@ impl LineSet {
     }
 
     fn spawn(&self, mut spec: LineSpec) -> RunningLine {
-        spec.frame_log = self.frame_log.clone();
+        spec.recorders = self.recorders.clone();
+        spec.console = self.console;
         tracing::info!(line = %spec.name, port = %spec.serial.path, devices = spec.devices.len(), "starting line");
         let token = self.shutdown.child_token();
         let stop = token.clone();

@@ -54,26 +54,7 @@ pub struct Found {
 
 /// Parses `1-247`, `1,2,0x81` or a mix of both.
 pub fn parse_addresses(text: &str) -> anyhow::Result<Vec<SlaveId>> {
-    let mut addresses = Vec::new();
-    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let (first, last) = match part.split_once('-') {
-            Some((first, last)) => (parse_one(first)?, parse_one(last)?),
-            None => (parse_one(part)?, parse_one(part)?),
-        };
-        if first == 0 || first > last {
-            bail!("address range `{part}`: expected FIRST-LAST within 1–255");
-        }
-        addresses.extend(first..=last);
-    }
-    if addresses.is_empty() {
-        bail!("no address to scan in `{text}`");
-    }
-    addresses.dedup();
-    Ok(addresses)
-}
-
-fn parse_one(text: &str) -> anyhow::Result<SlaveId> {
-    crate::cli::parse_address(text.trim()).map_err(anyhow::Error::msg)
+    crate::cli::parse_addresses(text).map_err(anyhow::Error::msg)
 }
 
 /// `8N1`, `8E1`: the character format a scan tries (8 data bits, 1 stop bit).

@@ -58,9 +58,34 @@ pub struct LineSpec {
     pub broadcast_turnaround: Duration,
     /// Longest pause inside an answer (None: the master's default).
     pub byte_timeout: Option<Duration>,
-    /// Record every frame of the line here (`gateway.frame_log`).
-    pub frame_log: Option<rtu2mqtt_modbus::frame_log::FrameLog>,
+    /// Where every frame of the line is recorded (`gateway.frame_log`, the console's view).
+    pub recorders: FrameRecorders,
+    /// The browser console may send its commissioning reads through the line's scheduler.
+    pub console: bool,
     pub devices: Vec<DeviceSpec>,
     /// The line served to other Modbus masters (`[lines.serve]`; none: not served).
     pub serve: Option<serve::ServeSpec>,
+}
+
+/// Where a line's frames are recorded: the frame log's file and the live view, either or both.
+#[derive(Debug, Clone, Default)]
+pub struct FrameRecorders {
+    /// `gateway.frame_log`.
+    pub log: Option<rtu2mqtt_modbus::frame_log::FrameLog>,
+    /// The console's live frame view.
+    pub live: Option<rtu2mqtt_modbus::live_frames::LiveFrames>,
+}
+
+impl FrameRecorders {
+    /// The writer for line `line`'s link; None when nothing records.
+    pub fn writer(&self, line: &str) -> Option<Box<dyn std::io::Write + Send>> {
+        let mut tee = rtu2mqtt_modbus::live_frames::Tee::default();
+        if let Some(log) = &self.log {
+            tee.push(Box::new(log.writer(line)));
+        }
+        if let Some(live) = &self.live {
+            tee.push(Box::new(live.writer(line)));
+        }
+        tee.into_writer()
+    }
 }

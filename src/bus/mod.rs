@@ -34,7 +34,7 @@ pub(crate) mod write_clock;
 
 pub use device_spec::DeviceSpec;
 pub use event::{LineEvent, Origin};
-pub use line_spec::{LineSpec, Transport};
+pub use line_spec::{FrameRecorders, LineSpec, Transport};
 pub use outcome::{Command, CommandFailure, CommandOutcome};
 pub use stats::LineStats;
 pub use write_clock::WriteClock;

@@ -136,8 +136,8 @@ pub(crate) async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Lin
             })?
         }
     };
-    if let Some(log) = &spec.frame_log {
-        link.record_frames_to(Box::new(log.writer(&spec.name)));
+    if let Some(writer) = spec.recorders.writer(&spec.name) {
+        link.record_frames_to(writer);
     }
     Ok(link)
 }

@@ -206,7 +206,8 @@ pub(super) fn validate_lines(
             broadcast_turnaround: raw.broadcast_turnaround,
             byte_timeout: raw.byte_timeout,
             // Opened by the daemon, not by validation.
-            frame_log: None,
+            recorders: Default::default(),
+            console: false,
             devices,
             serve,
         };

@@ -5,7 +5,7 @@
 //! anything is opened. Each section is
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
-//! (`[[lines.devices]]`), [`sparkplug`] and [`history`]; [`names`] holds the name rules and
+//! (`[[lines.devices]]`), [`sparkplug`], [`history`] and [`web`]; [`names`] holds the name rules and
 //! the quoting they share, [`problem`] what a problem is. [`poll_plan`] computes each line's
 //! poll plan and bus load from the wire timing, for validation and `rtu2mqtt check`.
 //!
@@ -29,6 +29,7 @@ pub mod schema;
 pub(crate) mod sparkplug;
 pub(crate) mod tree;
 pub(crate) mod validate;
+pub mod web;
 
 use std::path::Path;
 
@@ -41,6 +42,7 @@ pub use schema::keys_of;
 pub use schema::SparkplugSettings;
 pub use sparkplug::{SparkplugConfig, SparkplugIdentity};
 pub use validate::Config;
+pub use web::WebSettings;
 
 /// Reads, overrides from the environment and validates the configuration at `path`.
 /// A problem in a value set from the environment names its variable, not the file.

@@ -309,7 +309,7 @@ pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
 }
 
 /// Reads a password file that only its owner and group may read (mode 0640 or stricter).
-fn read_password_file(path: &Path) -> Result<String, String> {
+pub(super) fn read_password_file(path: &Path) -> Result<String, String> {
     use std::os::unix::fs::PermissionsExt;
     let meta = std::fs::metadata(path).map_err(|error| format!("{}: {error}", path.display()))?;
     let mode = meta.permissions().mode() & 0o777;
@@ -329,7 +329,7 @@ fn read_password_file(path: &Path) -> Result<String, String> {
     Ok(password)
 }
 
-fn resolve(base: &Path, path: &Path) -> PathBuf {
+pub(super) fn resolve(base: &Path, path: &Path) -> PathBuf {
     if path.is_absolute() {
         path.to_path_buf()
     } else {

@@ -14,6 +14,7 @@ use serde::Deserialize;
 use super::health::HealthSettings;
 use super::history::RawHistory;
 use super::tree::Step;
+use super::web::RawWeb;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_profile::publish::RawPublish;
 
@@ -55,6 +56,7 @@ pub fn shape_at(place: &[Step]) -> Shape {
         ["lines", "[]", "devices", "[]", "publish"] => keys_of::<RawPublish>(),
         ["sparkplug"] => keys_of::<SparkplugSettings>(),
         ["history"] => keys_of::<RawHistory>(),
+        ["web"] => keys_of::<RawWeb>(),
         _ => return Shape::Value,
     };
     Shape::Table(keys)
@@ -86,6 +88,9 @@ pub struct RawConfig {
     /// The journal of measured values and the history stream (off when absent).
     #[serde(default)]
     pub history: Option<RawHistory>,
+    /// The browser console (off when absent).
+    #[serde(default)]
+    pub web: Option<RawWeb>,
 }
 
 /// `[mqtt]`.

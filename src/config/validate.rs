@@ -1,6 +1,6 @@
 //! Complete validation of a [`RawConfig`]: every phase runs, each section checked by its own
 //! module ([`super::mqtt`], [`super::gateway`], [`super::health`], [`super::lines`] with
-//! [`super::devices`], [`super::sparkplug`], [`super::history`]), and every problem is collected
+//! [`super::devices`], [`super::sparkplug`], [`super::history`], [`super::web`]), and every problem is collected
 //! with its place; what no single section can see (Home Assistant ids across lines) is checked
 //! here. Nothing is opened (profile files and the password file are read, ports and the broker
 //! are not). The result is the bus's [`LineSpec`]s and the bridge's settings.
@@ -19,6 +19,7 @@ use super::problem::{Problem, Problems};
 use super::schema::RawConfig;
 use super::sparkplug::validate_sparkplug;
 use super::sparkplug::SparkplugConfig;
+use super::web::{validate_web, WebSettings};
 use crate::bus::LineSpec;
 
 /// A validated gateway configuration.
@@ -32,6 +33,8 @@ pub struct Config {
     pub sparkplug: Option<SparkplugConfig>,
     /// The journal and the history stream, when `[history]` is present.
     pub history: Option<HistoryConfig>,
+    /// The browser console, when `[web]` has a `listen` address.
+    pub web: Option<WebSettings>,
     /// Things that work but deserve attention (a `/dev/ttyUSB0` path, a pty ignoring parity).
     pub warnings: Vec<Problem>,
 }
@@ -66,6 +69,10 @@ pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems>
                 None
             }
         });
+    let web = raw
+        .web
+        .as_ref()
+        .and_then(|table| validate_web(table, base, &mut problems));
     if problems.is_empty() {
         if let (Some(mqtt), Some(gateway)) = (mqtt, gateway) {
             return Ok(Config {
@@ -73,6 +80,7 @@ pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems>
                 gateway,
                 sparkplug: sparkplug.flatten(),
                 history,
+                web,
                 health: raw.health.clone(),
                 lines,
                 warnings,

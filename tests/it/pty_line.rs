@@ -76,7 +76,8 @@ fn line_spec(name: &str, line: &VirtualLine, parity: Parity, devices: Vec<Device
         echo: false,
         broadcast_turnaround: Duration::from_millis(100),
         byte_timeout: None,
-        frame_log: None,
+        recorders: Default::default(),
+        console: false,
         serve: None,
         devices,
     }

@@ -17,7 +17,8 @@
 //!   Modbus TCP through [`tcp::mbap`]).
 //! - [`link`]: what a line holds, whichever of the three it is ([`link::Link`]).
 //! - [`clock`]: the precise wait the line's silences need; [`frame_log`]: the frames of every
-//!   line written to one file from a thread of its own.
+//!   line written to one file from a thread of its own; [`live_frames`]: the same records handed
+//!   to whoever watches them live.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface and each public item
 // says what it is, every public type prints with `{:?}`, the 2018 idioms.
@@ -35,6 +36,7 @@ pub mod crc;
 pub mod frame;
 pub mod frame_log;
 pub mod link;
+pub mod live_frames;
 mod outcome;
 pub mod serial;
 pub mod tcp;

@@ -34,6 +34,7 @@ use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
 };
+use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::observers::statistics::BridgeStats;
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
@@ -77,6 +78,43 @@ pub struct Reconfiguration {
     pub lines: Vec<LineHandle>,
 }
 
+/// A message handed to the bridge as if a client had published it on the broker (the console's
+/// commands and refreshes on `…/set` and `…/refresh`): the same rules, the same book.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LocalMessage {
+    pub topic: String,
+    pub payload: String,
+}
+
+/// What the bridge lets observers outside its loop read: the running lines' statistics and
+/// its own counters (both refreshed every tick), and, once asked for, the plant view.
+#[derive(Debug, Clone)]
+pub struct BridgeFigures {
+    pub lines: watch::Receiver<Vec<watch::Receiver<LineStats>>>,
+    pub counters: watch::Receiver<BridgeStats>,
+}
+
+impl BridgeFigures {
+    /// The running lines' statistics now.
+    pub fn line_stats(&self) -> Vec<LineStats> {
+        self.lines
+            .borrow()
+            .iter()
+            .map(|rx| rx.borrow().clone())
+            .collect()
+    }
+
+    /// The bridge's counters as of its last tick.
+    pub fn counters(&self) -> BridgeStats {
+        self.counters.borrow().clone()
+    }
+
+    /// The Prometheus exposition text of both.
+    pub fn prometheus_text(&self) -> String {
+        crate::bridge::observers::statistics::prometheus_text(&self.line_stats(), &self.counters())
+    }
+}
+
 /// The bridge task: the core and everything it must not touch itself.
 #[derive(Debug)]
 pub struct Bridge {
@@ -100,6 +138,11 @@ pub struct Bridge {
     history_problem_tx: watch::Sender<Option<String>>,
     /// Commands from outside the plain topics, and where their ends are reported.
     external: Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
+    /// Messages from local clients (the console), once [`Bridge::accept_local_messages`] was
+    /// called.
+    local: Option<mpsc::Receiver<LocalMessage>>,
+    /// Every message handed to the outbox is noted here too (the console), once asked for.
+    plant_view: Option<PlantView>,
     /// Reloads, once [`Bridge::reconfigurations`] has been asked for.
     reconfigure_rx: Option<mpsc::Receiver<Reconfiguration>>,
     /// The running lines' statistics for the metrics endpoint (replaced by a reload).
@@ -165,6 +208,8 @@ impl Bridge {
             connected_tx,
             history_problem_tx,
             external: None,
+            local: None,
+            plant_view: None,
             reconfigure_rx: None,
             line_stats_tx,
             history: config
@@ -194,6 +239,17 @@ impl Bridge {
         reports: mpsc::Sender<CommandReport>,
     ) {
         self.external = Some((commands, reports));
+    }
+
+    /// Also takes messages from `messages` as if they came from the broker (QoS 0, not
+    /// retained): the console's commands and refreshes.
+    pub fn accept_local_messages(&mut self, messages: mpsc::Receiver<LocalMessage>) {
+        self.local = Some(messages);
+    }
+
+    /// Notes every message handed to the outbox from now on in `view` as well.
+    pub fn publish_into(&mut self, view: PlantView) {
+        self.plant_view = Some(view);
     }
 
     /// Runs until `shutdown` fires, then announces `offline` and disconnects.
@@ -228,6 +284,21 @@ impl Bridge {
                     let actions = self.core.on_line_event(event, Instant::now());
                     self.execute(actions);
                 }
+                message = next_local(&mut self.local) => match message {
+                    Some(message) => {
+                        let incoming = Incoming {
+                            topic: &message.topic,
+                            payload: message.payload.as_bytes(),
+                            qos: rumqttc::QoS::AtMostOnce,
+                            pkid: 0,
+                            dup: false,
+                            retain: false,
+                        };
+                        let actions = self.core.on_message(incoming, Instant::now());
+                        self.execute(actions);
+                    }
+                    None => self.local = None,
+                },
                 command = next_external(&mut self.external) => match command {
                     Some(command) => {
                         let actions = self.core.on_external_command(command, Instant::now());
@@ -341,6 +412,9 @@ impl Bridge {
                 Action::Publish(publish) => {
                     if !self.admits(&publish) {
                         continue;
+                    }
+                    if let Some(view) = &self.plant_view {
+                        view.note(&publish.topic, &publish.payload);
                     }
                     let urgency = self.urgency_of(&publish);
                     if let Some(dropped) = self.outbox.push(publish, urgency) {
@@ -551,20 +625,13 @@ impl Bridge {
         self.core.on_published(publish, false);
     }
 
-    /// Renders the Prometheus text for the metrics endpoint from live line statistics (of the
-    /// lines running now, reloads included) and the bridge's counters (refreshed every tick).
-    pub fn metrics_renderer(&self) -> crate::bridge::observers::prometheus::Render {
-        let lines = self.line_stats_tx.subscribe();
-        let counters = self.counters_tx.subscribe();
-        Arc::new(move || {
-            let stats: Vec<LineStats> = lines
-                .borrow()
-                .iter()
-                .map(|rx| rx.borrow().clone())
-                .collect();
-            let bridge = counters.borrow().clone();
-            crate::bridge::observers::statistics::prometheus_text(&stats, &bridge)
-        })
+    /// The figures of the lines running now (reloads included) and the bridge's counters, for
+    /// the metrics endpoint and the console.
+    pub fn figures(&self) -> BridgeFigures {
+        BridgeFigures {
+            lines: self.line_stats_tx.subscribe(),
+            counters: self.counters_tx.subscribe(),
+        }
     }
 
     async fn stop(mut self, mut events_rx: mpsc::Receiver<LineEvent>) {
@@ -737,6 +804,14 @@ fn line_stats(lines: &[LineHandle]) -> Vec<LineStats> {
         .iter()
         .map(|line| line.stats_rx.borrow().clone())
         .collect()
+}
+
+/// The next local message; never ready when none are accepted.
+async fn next_local(local: &mut Option<mpsc::Receiver<LocalMessage>>) -> Option<LocalMessage> {
+    match local {
+        Some(messages) => messages.recv().await,
+        None => std::future::pending().await,
+    }
 }
 
 /// The next external command; never ready when none are accepted.

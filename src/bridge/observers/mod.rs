@@ -1,6 +1,6 @@
 //! What watches the bridge from outside its loop: [`statistics`] (the statistics documents and
-//! the Prometheus text, pure: snapshots in, JSON or text out) and [`prometheus`] (the HTTP
-//! endpoint that serves the text).
+//! the Prometheus text, pure: snapshots in, JSON or text out) and [`plant_view`] (the last
+//! message of every topic the bridge published, and each new one, for the console).
 
-pub(crate) mod prometheus;
+pub mod plant_view;
 pub mod statistics;

@@ -24,6 +24,7 @@ impl Line {
             client,
             unit,
             request,
+            probe,
             reply,
         } = slot;
         let device = self.devices.iter().position(|d| d.spec.address == unit);
@@ -63,7 +64,7 @@ impl Line {
             }
             _ => None,
         };
-        let attempts = self.attempts();
+        let attempts = if probe { 1 } else { self.attempts() };
         let Some(master) = self.master.as_mut() else {
             let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
             return;

@@ -46,6 +46,7 @@ use super::scheduler::{poll_phase, Due, PollOutcome, Scheduler};
 use super::serve::queue::{BlockCache, CLIENT_QUEUE};
 use super::serve::served_side::ServedSide;
 use super::serve::server::{self, ServeCounters};
+use super::serve::ClientRequest;
 use super::stats::LineStats;
 use super::stats::LoadWindow;
 use super::transaction::{Exchange, Failure, Turnaround};
@@ -66,6 +67,9 @@ pub struct LineHandle {
     /// slots and what changed is reported.
     pub refresh_tx: mpsc::Sender<String>,
     pub stats_rx: watch::Receiver<LineStats>,
+    /// Requests of other masters as slots of the line (the console's commissioning reads);
+    /// None unless the line was started for the console (`LineSpec::console`).
+    pub requests_tx: Option<mpsc::Sender<ClientRequest>>,
 }
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
@@ -115,28 +119,35 @@ pub fn spawn_line_in_phase(
     let (command_tx, command_rx) = command_queue(COMMAND_QUEUE);
     let (refresh_tx, refresh_rx) = mpsc::channel(REFRESH_QUEUE);
     let (stats_tx, stats_rx) = watch::channel(LineStats::new(&spec.name, &names, now));
+    let span = tracing::info_span!("line", line = %spec.name);
+    // The server's clients and the console share the line's one queue of requests.
+    let (client_tx, clients) = if spec.serve.is_some() || spec.console {
+        let (client_tx, client_rx) = mpsc::channel(CLIENT_QUEUE);
+        (Some(client_tx), Some(client_rx))
+    } else {
+        (None, None)
+    };
+    let counters = match (&spec.serve, &client_tx) {
+        (Some(serve), Some(client_tx)) => {
+            let counters = Arc::new(ServeCounters::default());
+            let server = server::run(
+                serve.clone(),
+                spec.devices.clone(),
+                client_tx.clone(),
+                Arc::clone(&counters),
+                shutdown.clone(),
+            );
+            tokio::spawn(server.instrument(span.clone()));
+            Some(counters)
+        }
+        _ => None,
+    };
     let handle = LineHandle {
         name: spec.name.clone(),
         command_tx,
         refresh_tx,
         stats_rx,
-    };
-    let span = tracing::info_span!("line", line = %spec.name);
-    let (clients, counters) = match &spec.serve {
-        Some(serve) => {
-            let (client_tx, client_rx) = mpsc::channel(CLIENT_QUEUE);
-            let counters = Arc::new(ServeCounters::default());
-            let server = server::run(
-                serve.clone(),
-                spec.devices.clone(),
-                client_tx,
-                Arc::clone(&counters),
-                shutdown.clone(),
-            );
-            tokio::spawn(server.instrument(span.clone()));
-            (Some(client_rx), Some(counters))
-        }
-        None => (None, None),
+        requests_tx: client_tx.filter(|_| spec.console),
     };
     // Fields with `publish` settings: the line's events pass its reporter on their way out.
     let report = Report::new(&spec.devices);
@@ -755,7 +766,8 @@ mod tests {
             echo: false,
             broadcast_turnaround: Duration::from_millis(200),
             byte_timeout: None,
-            frame_log: None,
+            recorders: Default::default(),
+            console: false,
             serve: None,
             devices: vec![crate::bus::device_spec::DeviceSpec {
                 name: "valve".into(),

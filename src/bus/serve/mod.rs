@@ -93,6 +93,8 @@ pub struct ClientRequest {
     pub client: String,
     pub unit: SlaveId,
     pub request: Request,
+    /// One attempt, no retry: a commissioning probe, where silence is an answer too.
+    pub probe: bool,
     /// Answered with the device's reply, or an exception the gateway gives in its place.
     pub reply: oneshot::Sender<Reply>,
 }

@@ -238,6 +238,7 @@ mod tests {
                 start: address,
                 quantity: 1,
             },
+            probe: false,
             reply,
         });
         assert!(sent.is_ok());

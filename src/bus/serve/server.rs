@@ -402,6 +402,7 @@ async fn to_the_line(
         client: client.to_string(),
         unit,
         request,
+        probe: false,
         reply: reply_tx,
     };
     context.line.send(slot).await.ok()?;
