@@ -111,7 +111,7 @@ fn read_request(function: u8, start: u16, quantity: u16) -> Option<Request> {
 fn answer_word(function: u8, reply: &Reply) -> String {
     match reply {
         Ok(_) => format!("FC{function:02} ok"),
-        Err(code) => format!("FC{function:02} exception {:02x} ({code})", code.value()),
+        Err(code) => format!("FC{function:02} {code}"),
     }
 }
 
@@ -275,7 +275,7 @@ pub async fn read(State(console): State<Arc<Console>>, Form(form): Form<ReadForm
         }
         Err(code) => ReadReport {
             request: described,
-            exception: Some(format!("exception {:02x}: {code}", code.value())),
+            exception: Some(format!("{code}")),
             registers: None,
             bits: None,
         },
@@ -376,7 +376,7 @@ pub async fn tryout(State(console): State<Arc<Console>>, Form(form): Form<Tryout
         let answer: Result<ModbusResponse, String> = match reply {
             Ok(response) => Ok(response),
             Err(code) if is_silence(code) => Err("no answer".to_string()),
-            Err(code) => Err(format!("exception {:02x}: {code}", code.value())),
+            Err(code) => Err(format!("{code}")),
         };
         let names = profile.block_fields(index);
         match answer {

@@ -114,7 +114,9 @@ pub struct FrameFilter {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FrameRow {
     pub line: String,
-    /// When the link recorded it, in microseconds since the Unix epoch.
+    /// When the link recorded it, as the frame log writes it (`<unix seconds>.<µs>`).
+    pub at: String,
+    /// The same in microseconds since the Unix epoch.
     pub at_us: u64,
     /// `tx` (the gateway's request) or `rx` (the answer).
     pub dir: String,
@@ -144,13 +146,14 @@ impl FrameDecoder {
     pub fn decode(&mut self, record: &str) -> Option<FrameRow> {
         let mut parts = record.split(' ');
         let (line, at, dir, hex) = (parts.next()?, parts.next()?, parts.next()?, parts.next()?);
-        let at_us: u64 = at.parse().ok()?;
+        let at_us = micros(at)?;
         let bytes = from_hex(hex)?;
         let (last_request, last_at) = self.lines.entry(line.to_string()).or_default();
         let gap_us = (*last_at > 0).then(|| at_us.saturating_sub(*last_at));
         *last_at = at_us;
         let mut row = FrameRow {
             line: line.to_string(),
+            at: at.to_string(),
             at_us,
             dir: dir.to_string(),
             hex: hex.to_ascii_lowercase(),
@@ -176,7 +179,7 @@ impl FrameDecoder {
                     Ok(Answer::Normal(response)) => row.summary = describe_response(&response),
                     Ok(Answer::Exception(code)) => {
                         row.exception = Some(code.value());
-                        row.summary = format!("exception {:02x}: {code}", code.value());
+                        row.summary = format!("{code}");
                     }
                     Err(error) => row.summary = format!("bad answer: {error}"),
                 },
@@ -185,6 +188,20 @@ impl FrameDecoder {
         }
         Some(row)
     }
+}
+
+/// `<seconds>.<six digits>` (the frame log's time) in microseconds.
+fn micros(text: &str) -> Option<u64> {
+    let (seconds, fraction) = text.split_once('.').unwrap_or((text, "0"));
+    if fraction.len() > 6 || !fraction.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    let fraction: u64 = format!("{fraction:0<6}").parse().ok()?;
+    seconds
+        .parse::<u64>()
+        .ok()?
+        .checked_mul(1_000_000)?
+        .checked_add(fraction)
 }
 
 fn from_hex(text: &str) -> Option<Vec<u8>> {
@@ -288,25 +305,31 @@ mod tests {
     fn a_request_and_its_answer_decode_with_their_gap() {
         let mut decoder = FrameDecoder::default();
         let tx = decoder
-            .decode("line-a 1000000 tx 010310000006c108")
+            .decode("line-a 1.000000 tx 010310000006C108")
             .unwrap();
         assert_eq!(tx.address, Some(1));
         assert_eq!(tx.function, Some(3));
         assert_eq!(tx.summary, "read holding 4096 (0x1000) ×6");
         assert_eq!(tx.gap_us, None);
+        let answer = rtu2mqtt_modbus::codec::encode_answer(
+            1,
+            &ModbusResponse::HoldingRegisters(vec![1, 2, 3, 4, 5, 6]),
+        );
+        let hex: String = answer.iter().map(|b| format!("{b:02X}")).collect();
         let rx = decoder
-            .decode("line-a 1020000 rx 0103040001000279f2")
+            .decode(&format!("line-a 1.020000 rx {hex}"))
             .unwrap();
         assert_eq!(rx.gap_us, Some(20_000));
-        assert!(rx.summary.starts_with("bad answer") || rx.summary.starts_with("2 registers"));
+        assert_eq!(rx.summary, "6 registers: 1 2 3 4 5 6");
+        assert_eq!(rx.hex, hex.to_lowercase());
     }
 
     #[test]
     fn an_exception_answer_is_named() {
         let mut decoder = FrameDecoder::default();
-        decoder.decode("l 1 tx 010310000006c108").unwrap();
+        decoder.decode("l 1.000001 tx 010310000006c108").unwrap();
         // 01 83 02 + CRC
-        let rx = decoder.decode("l 2 rx 018302c0f1").unwrap();
+        let rx = decoder.decode("l 1.000002 rx 018302c0f1").unwrap();
         assert_eq!(rx.exception, Some(2));
         assert!(rx.summary.starts_with("exception 02"), "{}", rx.summary);
     }
@@ -315,7 +338,8 @@ mod tests {
     fn records_of_another_shape_are_skipped() {
         let mut decoder = FrameDecoder::default();
         assert!(decoder.decode("frame-log 3 records dropped").is_none());
-        assert!(decoder.decode("l 1 tx 0g").is_none());
+        assert!(decoder.decode("l 1.0 tx 0g").is_none());
+        assert!(decoder.decode("l 1.1234567 tx 01").is_none());
         assert!(decoder.decode("").is_none());
     }
 }

@@ -2,6 +2,7 @@
 //!
 //! - [`broker`]: a real mosquitto on a free loopback port ([`Mosquitto`]: temporary config,
 //!   killed on drop, restartable on the same port).
+//! - [`browser`]: headless chromium driven through chromedriver, for the console ([`Browser`]).
 //! - [`client`]: a small rumqttc client that records what it receives ([`TestClient`]).
 //! - [`gateway`]: the gateway over the simulated seed plant ([`PlantConfig`], [`Gateway`]: its
 //!   configuration, started and stopped by a test).
@@ -13,6 +14,7 @@
 //! - [`pysparkplug`]: the Sparkplug B decoder written by others, run through Python.
 
 pub mod broker;
+pub mod browser;
 pub mod child;
 pub mod client;
 pub mod command;
@@ -22,6 +24,7 @@ pub mod plant_bench;
 pub mod pysparkplug;
 
 pub use broker::{free_port, Mosquitto, MOSQUITTO};
+pub use browser::Browser;
 pub use client::{Message, TestClient};
 pub use gateway::{fast_config, Gateway, PlantConfig};
 pub use plant_bench::{PlantBench, PlantSetup, PLANT_ANSWER, SEED_DEVICES};

@@ -12,6 +12,7 @@ mod calm_start;
 mod codec_props;
 mod commissioning;
 mod config_valid;
+mod console;
 mod crash_exactly_once;
 mod daemon_health;
 mod discovery;

@@ -187,7 +187,8 @@ function control(device, field) {
     outcome.textContent = `sending ${payload}…`;
     try {
       await post("/api/command", { topic, payload });
-      outcome.textContent = `${payload}: waiting for the outcome…`;
+      // The outcome may have come already (a quick device): then it stays.
+      if (outcome.dataset.pending) outcome.textContent = `${payload}: waiting for the outcome…`;
     } catch (error) {
       delete outcome.dataset.pending;
       outcome.className = "outcome rejected";
@@ -337,7 +338,7 @@ function framesPage() {
     state.frames = source;
     source.addEventListener("frame", (event) => {
       const frame = JSON.parse(event.data);
-      state.frameLog.push(`${frame.line} ${frame.at_us} ${frame.dir} ${frame.hex}`);
+      state.frameLog.push(`${frame.line} ${frame.at} ${frame.dir} ${frame.hex.toUpperCase()}`);
       if (state.frameLog.length > MAX_FRAME_LOG) state.frameLog.shift();
       if (state.framesPaused || !wanted(frame)) return;
       const time = new Date(frame.at_us / 1000);
