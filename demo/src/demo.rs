@@ -38,7 +38,7 @@ use self::cleanup::{clear_retained, Leftovers};
 use self::endpoint::{choose_broker, choose_placement, EMBEDDED_ORIGIN};
 use self::hints::{introduction, table_hints};
 use self::pacing::LogPacing;
-use self::plant::{demo_config, example_prefix};
+use self::plant::{console_socket, demo_config, example_prefix};
 use self::screen::{compose_screen, keep_log_line, remember_log_line};
 use self::terminal::terminal_size;
 use self::view::{log_line, DeviceOutline, PlantView};
@@ -73,12 +73,13 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
     // A running plant: the dust collector is switched on, so its settings can be changed
     // (in standby it acknowledges writes and ignores them, as the real one does).
     lock(&plant.dust_collector).set_power(true);
-    let config = demo_config(
+    let mut config = demo_config(
         &endpoint,
         &placement,
         &plant.line_a.path(),
         &plant.line_b.path(),
     )?;
+    let console_socket = console_socket(&mut config);
 
     let table = !log && std::io::stdout().is_terminal();
     let devices = config.lines.iter().flat_map(|line| &line.devices);
@@ -151,7 +152,11 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
         trigger.cancel();
     }
 
-    let mut gateway = tokio::spawn(run_gateway(config, shutdown.clone(), Hooks::default()));
+    let hooks = Hooks {
+        console_socket,
+        ..Hooks::default()
+    };
+    let mut gateway = tokio::spawn(run_gateway(config, shutdown.clone(), hooks));
     let started = Instant::now();
     let mut recent_log: VecDeque<String> = VecDeque::new();
     let mut dirty = true;

@@ -68,6 +68,9 @@ pub struct Hooks {
     pub ready_tx: Option<oneshot::Sender<Running>>,
     /// Where reloads come from (SIGHUP for `run`); none: the configuration is never reloaded.
     pub reload: Option<reload::ReloadSource>,
+    /// A socket already bound for the console at `web.listen` (the demo holds a free port
+    /// until the gateway takes it); none: the gateway binds `web.listen` itself.
+    pub console_socket: Option<std::net::TcpListener>,
 }
 
 /// Runs the gateway described by `config` until `shutdown` fires: the lines finish their
@@ -111,9 +114,11 @@ pub async fn run_gateway(
     };
     let console_listener = match &config.web {
         Some(settings) => {
-            let listener = web::listener::Listener::bind(settings.listen, settings.tls.as_ref())
-                .await
-                .context("the console (web.listen)")?;
+            let listener = match hooks.console_socket {
+                Some(socket) => web::listener::Listener::from_std(socket, settings.tls.as_ref()),
+                None => web::listener::Listener::bind(settings.listen, settings.tls.as_ref()).await,
+            }
+            .context("the console (web.listen)")?;
             let scheme = if settings.tls.is_some() {
                 "https"
             } else {
@@ -344,6 +349,7 @@ pub fn run(path: &Path) -> anyhow::Result<ExitCode> {
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
             reload,
+            console_socket: None,
         };
         let result = run_gateway(config, shutdown, hooks).await;
         announce_stop.abort();

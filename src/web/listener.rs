@@ -55,6 +55,19 @@ impl Listener {
         Ok(Listener { socket, tls })
     }
 
+    /// A socket bound already (by whoever picked the port), with `tls` as [`Listener::bind`].
+    pub fn from_std(
+        socket: std::net::TcpListener,
+        tls: Option<&(PathBuf, PathBuf)>,
+    ) -> anyhow::Result<Listener> {
+        let tls = tls.map(|(cert, key)| acceptor(cert, key)).transpose()?;
+        socket
+            .set_nonblocking(true)
+            .context("the console's socket")?;
+        let socket = TcpListener::from_std(socket).context("the console's socket")?;
+        Ok(Listener { socket, tls })
+    }
+
     /// The address bound (the port the kernel chose for `:0`).
     pub fn local_addr(&self) -> std::io::Result<SocketAddr> {
         self.socket.local_addr()

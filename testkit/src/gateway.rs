@@ -140,6 +140,7 @@ impl Gateway {
         let hooks = Hooks {
             ready_tx: Some(ready_tx),
             reload: Some(rtu2mqtt::app::reload::ReloadSource { path, requests }),
+            console_socket: None,
         };
         let task = tokio::spawn(run_gateway(config, shutdown, hooks));
         let running = tokio::time::timeout(GATEWAY_BOUND, ready_rx)

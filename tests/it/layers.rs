@@ -18,6 +18,7 @@ const LAYERS: &[&str] = &[
     "bridge",
     "sparkplug",
     "cli",
+    "web",
     "app",
 ];
 

@@ -50,6 +50,17 @@ pub(super) fn introduction(endpoint: &BrokerEndpoint, config: &Config) -> String
             devices.join(", ")
         ));
     }
+    if let Some(web) = &config.web {
+        let access = if web.token.is_some() {
+            ""
+        } else {
+            ", read-only"
+        };
+        text.push_str(&format!(
+            "The console: http://{}/ in a browser on this machine{access}.\n",
+            web.listen
+        ));
+    }
     text.push_str(&format!(
         "Try, in another terminal:\n  mosquitto_sub {options}-v -t '{prefix}/#'\n"
     ));

@@ -11,6 +11,9 @@ use rtu2mqtt::config::{self, Config};
 /// The seed plant's configuration, compiled in so that the demo runs from anywhere.
 pub(super) const EXAMPLE_CONFIG: &str = include_str!("../../../config/rtu2mqtt.toml");
 
+/// Ports tried for the console from the example's on.
+const CONSOLE_PORTS: u16 = 10;
+
 /// The demo gateway's MQTT client id (and gateway id in topics).
 pub(super) const DEMO_CLIENT_ID: &str = "rtu2mqtt-demo";
 
@@ -61,4 +64,27 @@ pub(super) fn demo_config(
         .warnings
         .retain(|warning| !warning.place.ends_with(".port"));
     Ok(config)
+}
+
+/// A socket for the console at the example's address, or the next free port after it (another
+/// demo may hold it), held from now on so that nothing takes it before the gateway starts;
+/// `config` is set to its address. None (and no console) when none of them is free.
+pub(super) fn console_socket(config: &mut Config) -> Option<std::net::TcpListener> {
+    let web = config.web.as_mut()?;
+    let base = web.listen;
+    let bound = (0..CONSOLE_PORTS).find_map(|step| {
+        let mut address = base;
+        address.set_port(base.port().checked_add(step)?);
+        std::net::TcpListener::bind(address).ok()
+    });
+    match bound.and_then(|socket| Some((socket.local_addr().ok()?, socket))) {
+        Some((address, socket)) => {
+            web.listen = address;
+            Some(socket)
+        }
+        None => {
+            config.web = None;
+            None
+        }
+    }
 }
