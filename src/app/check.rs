@@ -85,6 +85,15 @@ pub fn report(path: &Path, config: &Config) -> String {
                 .unwrap_or_default()
         );
     }
+    if let Some(web) = &config.web {
+        let scheme = if web.tls.is_some() { "https" } else { "http" };
+        let access = if web.token.is_some() {
+            "a login with the token; commands allowed"
+        } else {
+            "no login, loopback only, reads only"
+        };
+        let _ = writeln!(out, "console: {scheme}://{}/ ({access})", web.listen);
+    }
     if let Some(history) = &config.history {
         let _ = writeln!(
             out,

@@ -613,3 +613,111 @@ async fn a_console_without_a_token_only_reads_and_slow_clients_stall_nothing() {
     drop(slow);
     h.stop().await;
 }
+
+/// A self-signed certificate for 127.0.0.1 in `dir`: (certificate, key).
+fn self_signed(dir: &std::path::Path) -> (PathBuf, PathBuf) {
+    let (cert, key) = (dir.join("console.crt"), dir.join("console.key"));
+    let status = std::process::Command::new("openssl")
+        .args([
+            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj",
+        ])
+        .arg("/CN=127.0.0.1")
+        .args(["-addext", "subjectAltName=IP:127.0.0.1"])
+        // An end entity of its own, not a CA: rustls refuses a CA certificate as a server's.
+        .args(["-addext", "basicConstraints=critical,CA:FALSE"])
+        .args(["-addext", "extendedKeyUsage=serverAuth", "-keyout"])
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .expect("openssl runs");
+    assert!(status.success(), "openssl made no certificate");
+    (cert, key)
+}
+
+/// One HTTPS request trusting `cert`; the whole answer as text.
+async fn https(port: u16, cert: &std::path::Path, request: &str) -> String {
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::{CertificateDer, ServerName};
+    let mut roots = rustls::RootCertStore::empty();
+    for der in CertificateDer::pem_file_iter(cert).unwrap() {
+        roots.add(der.unwrap()).unwrap();
+    }
+    let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+    let config = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .unwrap()
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config));
+    let tcp = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    let name = ServerName::try_from("127.0.0.1").unwrap();
+    let mut stream = connector.connect(name, tcp).await.expect("a TLS session");
+    stream.write_all(request.as_bytes()).await.unwrap();
+    let mut answer = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(10), stream.read_to_end(&mut answer)).await;
+    String::from_utf8_lossy(&answer).into_owned()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_console_speaks_https_with_the_certificate_given() {
+    let certs = tempfile::tempdir().unwrap();
+    let (cert, key) = self_signed(certs.path());
+    let port = free_port();
+    let tls_keys = format!(
+        "cert_file = \"{}\"\nkey_file = \"{}\"\n",
+        cert.display(),
+        key.display()
+    );
+    let h = PlantBench::setup("console-tls")
+        .config(move |broker, plant, client_id| {
+            console_config(broker, plant, client_id, port, Some(TOKEN), None) + &tls_keys
+        })
+        .start()
+        .await;
+    let model = https(
+        port,
+        &cert,
+        &format!(
+            "GET /api/model HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\
+             Authorization: Bearer {TOKEN}\r\nConnection: close\r\n\r\n"
+        ),
+    )
+    .await;
+    assert!(model.starts_with("HTTP/1.1 200"), "{model}");
+    assert!(model.contains("\"dust_collector\""), "{model}");
+    // The session cookie is Secure over HTTPS, and the origin is https://.
+    let login = https(
+        port,
+        &cert,
+        &post(
+            port,
+            "/login",
+            Some(&format!("https://127.0.0.1:{port}")),
+            None,
+            &format!("token={TOKEN}"),
+        ),
+    )
+    .await;
+    let cookie = login
+        .lines()
+        .find(|line| line.starts_with("set-cookie: "))
+        .unwrap_or_else(|| panic!("no session: {login}"));
+    assert!(
+        cookie.contains("HttpOnly")
+            && cookie.contains("SameSite=Strict")
+            && cookie.contains("Secure"),
+        "{cookie}"
+    );
+    // Plain HTTP on the HTTPS port gets no page.
+    let plain = http(
+        port,
+        &format!("GET /api/model HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n"),
+    )
+    .await;
+    assert!(!plain.contains("dust_collector"), "{plain}");
+    h.stop().await;
+}
