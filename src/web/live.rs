@@ -1,5 +1,6 @@
 //! What the page is pushed, as server-sent events: the plant view (a `snapshot` of every
-//! topic's last message, then each `publish` as the bridge hands it out) and a line's frames
+//! topic's last message, then the messages the bridge hands out, those waiting together in one
+//! `publish`) and a line's frames
 //! (each decoded: address, function, registers, exception, time since the line's previous
 //! frame). A page that falls behind is sent a fresh snapshot, or told how many frames it
 //! missed; it never holds anything up. The number of open streams is bounded.
@@ -25,6 +26,8 @@ use rtu2mqtt_modbus::{Request, Response as ModbusResponse, SlaveId};
 
 /// Event streams open at once (pages of the console); more are refused with 503.
 pub const MAX_STREAMS: usize = 32;
+/// Messages sent in one event at the most.
+const BATCH: usize = 512;
 /// A comment line this often keeps proxies from closing a quiet stream.
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
@@ -88,7 +91,20 @@ pub async fn plant_events(State(console): State<Arc<Console>>) -> Response {
             return Some((Ok::<_, Infallible>(first), (None, news, console, place)));
         }
         let event = match news.recv().await {
-            Ok(published) => json_event("publish", &TopicMessage::of(&published)),
+            Ok(first) => {
+                // What else is waiting goes in the same event: one write, one wake-up of the
+                // page, however busy the plant.
+                let mut batch = vec![first];
+                while batch.len() < BATCH {
+                    match news.try_recv() {
+                        Ok(next) => batch.push(next),
+                        Err(_) => break,
+                    }
+                }
+                let messages: Vec<TopicMessage<'_>> =
+                    batch.iter().map(|m| TopicMessage::of(m)).collect();
+                json_event("publish", &messages)
+            }
             Err(RecvError::Lagged(_)) => snapshot_event(&console),
             Err(RecvError::Closed) => return None,
         };

@@ -82,10 +82,11 @@ function connectEvents() {
     refreshAllValues();
   });
   events.addEventListener("publish", (event) => {
-    const message = JSON.parse(event.data);
-    if (message.payload === "") state.values.delete(message.topic);
-    else state.values.set(message.topic, message);
-    showTopic(message.topic);
+    for (const message of JSON.parse(event.data)) {
+      if (message.payload === "") state.values.delete(message.topic);
+      else state.values.set(message.topic, message);
+      showTopic(message.topic);
+    }
   });
   events.onerror = () => {
     live.textContent = "reconnecting…";
@@ -93,25 +94,32 @@ function connectEvents() {
   };
 }
 
+// The elements showing each topic on the current page, found once per page.
+const shown = { values: new Map(), availability: new Map(), outcomes: new Map() };
+
+function indexPage() {
+  const index = (map, selector, key) => {
+    map.clear();
+    for (const node of document.querySelectorAll(selector)) {
+      const topic = key(node);
+      if (!map.has(topic)) map.set(topic, []);
+      map.get(topic).push(node);
+    }
+  };
+  index(shown.values, "[data-topic]", (n) => n.dataset.topic);
+  index(shown.availability, "[data-availability]", (n) => n.dataset.availability);
+  index(shown.outcomes, "[data-outcome-for]", (n) => n.dataset.outcomeFor.slice(0, -"/set".length) + "/result");
+}
+
 function showTopic(topic) {
   const message = state.values.get(topic);
-  for (const node of document.querySelectorAll("[data-topic]")) {
-    if (node.dataset.topic === topic) showValue(node, message);
-  }
-  if (topic.endsWith("/availability")) {
-    for (const node of document.querySelectorAll("[data-availability]")) {
-      if (node.dataset.availability === topic) showAvailability(node, message);
-    }
-  }
-  if (topic.endsWith("/result")) {
-    const commandTopic = topic.slice(0, -"/result".length) + "/set";
-    for (const node of document.querySelectorAll("[data-outcome-for]")) {
-      if (node.dataset.outcomeFor === commandTopic) showOutcome(node, message);
-    }
-  }
+  for (const node of shown.values.get(topic) || []) showValue(node, message);
+  for (const node of shown.availability.get(topic) || []) showAvailability(node, message);
+  for (const node of shown.outcomes.get(topic) || []) showOutcome(node, message);
 }
 
 function refreshAllValues() {
+  indexPage();
   for (const node of document.querySelectorAll("[data-topic]")) showValue(node, state.values.get(node.dataset.topic));
   for (const node of document.querySelectorAll("[data-availability]")) showAvailability(node, state.values.get(node.dataset.availability));
   for (const node of document.querySelectorAll("[data-outcome-for]")) {
@@ -146,7 +154,7 @@ function showOutcome(node, message) {
 }
 
 function tickAges() {
-  for (const node of document.querySelectorAll("[data-topic]")) {
+  for (const node of [...shown.values.values()].flat()) {
     const when = node.parentElement && node.parentElement.querySelector(".age");
     if (when && node.dataset.at) when.textContent = age(Number(node.dataset.at));
   }
@@ -162,6 +170,7 @@ function setPage(name, ...content) {
   }
   const page = document.getElementById("page");
   page.replaceChildren(...content);
+  indexPage();
 }
 
 function fieldRow(device, field, withControls) {
@@ -245,10 +254,40 @@ function deviceCard(device, withControls) {
     table);
 }
 
+// Above this many devices the plant page lists them folded, each drawn when opened: a plant
+// of a thousand meters would otherwise be a hundred thousand rows.
+const FOLD_ABOVE = 24;
+
+function foldedCard(device) {
+  const availability = el("span", { class: "badge off", "data-availability": `${state.model.prefix}/${device.name}/availability`, text: "unknown" });
+  const body = el("div");
+  const card = el("details", { class: "card device folded", "data-device": device.name },
+    el("summary", {}, el("span", { class: "name", text: device.name }), " ", availability,
+      el("span", { class: "meta", text: ` ${device.model} · ${device.line}, address ${device.address}` })),
+    body);
+  card.addEventListener("toggle", () => {
+    if (card.open && !body.firstChild) {
+      body.append(el("p", {}, el("a", { href: `#/device/${encodeURIComponent(device.name)}`, text: "Open the device" })),
+        el("table", { class: "fields" }, el("tbody", {}, device.fields.map((field) => fieldRow(device, field, false)))));
+      refreshAllValues();
+    }
+  });
+  return card;
+}
+
 function plantPage() {
   const devices = state.model.devices;
-  setPage("plant", el("h1", { text: "Plant" }),
-    devices.length ? el("div", { class: "grid" }, devices.map((d) => deviceCard(d, false)))
+  const folded = devices.length > FOLD_ABOVE;
+  const filter = folded ? el("input", { type: "search", placeholder: "Find a device", "aria-label": "Find a device" }) : null;
+  const cards = devices.map((d) => (folded ? foldedCard(d) : deviceCard(d, false)));
+  if (filter) {
+    filter.addEventListener("input", () => {
+      const wanted = filter.value.trim().toLowerCase();
+      for (const card of cards) card.hidden = wanted !== "" && !card.dataset.device.includes(wanted);
+    });
+  }
+  setPage("plant", el("h1", { text: "Plant" }), filter,
+    devices.length ? el("div", { class: folded ? "list" : "grid" }, cards)
       : el("p", { text: "No device is configured." }));
   refreshAllValues();
 }
