@@ -166,6 +166,7 @@ pub async fn run_gateway(
             shutdown.clone(),
         ));
     }
+    let mut console_layout = None;
     if let (Some((listener, settings)), Some(frames)) = (console_listener, recorders.live) {
         let view = PlantView::new(&config.mqtt.prefix);
         bridge.publish_into(view.clone());
@@ -175,7 +176,12 @@ pub async fn run_gateway(
             view,
             figures: bridge.figures(),
             health: bridge_health.clone(),
-            lines: handles.clone(),
+            layout: {
+                let (layout_tx, layout) =
+                    tokio::sync::watch::channel(web::Layout::of(&config, handles.clone()));
+                console_layout = Some(layout_tx);
+                layout
+            },
             messages,
             frames,
         };
@@ -197,6 +203,7 @@ pub async fn run_gateway(
         config,
         hooks.reload,
         reconfigurations,
+        console_layout,
         shutdown.clone(),
     ));
     bridge.run(events_rx, shutdown).await;

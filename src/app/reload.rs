@@ -11,6 +11,7 @@
 //! a change there is logged as needing a restart and not applied.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
@@ -229,12 +230,14 @@ fn bridge_devices(config: &Config) -> Vec<BridgeDevice> {
     crate::bridge::core::CoreSettings::from_config(config).devices
 }
 
-/// Serves reload requests until `shutdown` fires, then hands the lines back for the stop.
+/// Serves reload requests until `shutdown` fires, then hands the lines back for the stop; the
+/// console (when on) is told the plant of each configuration applied.
 pub(super) async fn serve(
     mut lines: LineSet,
     mut running: Config,
     mut source: Option<ReloadSource>,
     bridge: mpsc::Sender<Reconfiguration>,
+    console: Option<watch::Sender<Arc<crate::web::Layout>>>,
     shutdown: CancellationToken,
 ) -> LineSet {
     loop {
@@ -255,6 +258,9 @@ pub(super) async fn serve(
                     continue;
                 };
                 if let Some(config) = reload(&path, &running, &mut lines, &bridge).await {
+                    if let Some(console) = &console {
+                        console.send_replace(crate::web::Layout::of(&config, lines.handles()));
+                    }
                     running = config;
                 }
             }

@@ -162,6 +162,7 @@ pub async fn scan(State(console): State<Arc<Console>>, Form(form): Form<ScanForm
         }
         if !answers.is_empty() {
             let device = console
+                .layout()
                 .model
                 .devices
                 .iter()

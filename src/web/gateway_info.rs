@@ -135,7 +135,7 @@ pub async fn gateway(State(console): State<Arc<Console>>) -> Json<Json_> {
         "history_problem": history_problem,
         "status_topic": console.topics.gateway_status_topic(),
         "status": console.view.get(&console.topics.gateway_status_topic()).map(|p| p.payload),
-        "config": console.effective_config,
+        "config": console.layout().effective_config,
     }))
 }
 

@@ -84,32 +84,52 @@ pub async fn plant_events(State(console): State<Arc<Console>>) -> Response {
     };
     // Subscribed before the snapshot is taken: nothing falls between the two.
     let news = console.view.subscribe();
+    let mut layout = console.layout.clone();
+    layout.mark_unchanged();
     let first = snapshot_event(&console);
-    let state = (Some(first), news, console, place);
-    let events = stream::unfold(state, |(first, mut news, console, place)| async move {
-        if let Some(first) = first {
-            return Some((Ok::<_, Infallible>(first), (None, news, console, place)));
-        }
-        let event = match news.recv().await {
-            Ok(first) => {
-                // What else is waiting goes in the same event: one write, one wake-up of the
-                // page, however busy the plant.
-                let mut batch = vec![first];
-                while batch.len() < BATCH {
-                    match news.try_recv() {
-                        Ok(next) => batch.push(next),
-                        Err(_) => break,
-                    }
-                }
-                let messages: Vec<TopicMessage<'_>> =
-                    batch.iter().map(|m| TopicMessage::of(m)).collect();
-                json_event("publish", &messages)
+    let state = (Some(first), news, layout, console, place);
+    let events = stream::unfold(
+        state,
+        |(first, mut news, mut layout, console, place)| async move {
+            if let Some(first) = first {
+                return Some((
+                    Ok::<_, Infallible>(first),
+                    (None, news, layout, console, place),
+                ));
             }
-            Err(RecvError::Lagged(_)) => snapshot_event(&console),
-            Err(RecvError::Closed) => return None,
-        };
-        Some((Ok(event), (None, news, console, place)))
-    });
+            let next = tokio::select! {
+                next = news.recv() => next,
+                changed = layout.changed() => {
+                    // A reload: the page takes the new model (the gateway never drops the sender
+                    // while it serves).
+                    if changed.is_err() {
+                        return None;
+                    }
+                    let event = json_event("layout", &"reloaded");
+                    return Some((Ok(event), (None, news, layout, console, place)));
+                }
+            };
+            let event = match next {
+                Ok(first) => {
+                    // What else is waiting goes in the same event: one write, one wake-up of the
+                    // page, however busy the plant.
+                    let mut batch = vec![first];
+                    while batch.len() < BATCH {
+                        match news.try_recv() {
+                            Ok(next) => batch.push(next),
+                            Err(_) => break,
+                        }
+                    }
+                    let messages: Vec<TopicMessage<'_>> =
+                        batch.iter().map(|m| TopicMessage::of(m)).collect();
+                    json_event("publish", &messages)
+                }
+                Err(RecvError::Lagged(_)) => snapshot_event(&console),
+                Err(RecvError::Closed) => return None,
+            };
+            Some((Ok(event), (None, news, layout, console, place)))
+        },
+    );
     sse(events)
 }
 

@@ -37,7 +37,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use serde::Deserialize;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
 use crate::bridge::observers::plant_view::PlantView;
@@ -55,13 +55,11 @@ pub const MAX_BODY: usize = 256 * 1024;
 pub struct Console {
     pub settings: WebSettings,
     pub topics: Topics,
-    /// The devices and lines as configured (the page's model), and the configuration shown.
-    pub model: model::PlantModel,
-    pub effective_config: serde_json::Value,
+    /// The plant as configured now, following reloads.
+    pub layout: watch::Receiver<Arc<Layout>>,
     pub view: PlantView,
     pub figures: BridgeFigures,
     pub health: BridgeHealth,
-    pub lines: Vec<LineHandle>,
     /// The console's commands and refreshes, into the bridge.
     pub messages: mpsc::Sender<LocalMessage>,
     pub frames: LiveFrames,
@@ -73,29 +71,49 @@ pub struct Console {
     pub started: std::time::Instant,
 }
 
+/// The plant as configured: what the page draws, the configuration it shows and the running
+/// lines the commissioning reads go through. A reload makes a new one.
+#[derive(Debug)]
+pub struct Layout {
+    pub model: model::PlantModel,
+    pub effective_config: serde_json::Value,
+    pub lines: Vec<LineHandle>,
+}
+
+impl Layout {
+    /// The layout of `config` running on `lines`.
+    pub fn of(config: &Config, lines: Vec<LineHandle>) -> Arc<Layout> {
+        let read_only = config.web.as_ref().map_or(true, |web| web.token.is_none());
+        Arc::new(Layout {
+            model: model::PlantModel::of(config, read_only),
+            effective_config: gateway_info::effective_config(config),
+            lines,
+        })
+    }
+}
+
 /// Everything the console is built from.
 #[derive(Debug)]
 pub struct ConsoleParts {
     pub view: PlantView,
     pub figures: BridgeFigures,
     pub health: BridgeHealth,
-    pub lines: Vec<LineHandle>,
+    /// The plant as configured, and after each reload.
+    pub layout: watch::Receiver<Arc<Layout>>,
     pub messages: mpsc::Sender<LocalMessage>,
     pub frames: LiveFrames,
 }
 
 impl Console {
-    /// The console of `config` (whose `[web]` is `settings`).
+    /// The console of `config` (whose `[web]` is `settings`); its layout follows `parts`.
     pub fn new(config: &Config, settings: WebSettings, parts: ConsoleParts) -> Arc<Console> {
         Arc::new(Console {
             topics: config.mqtt.topics(),
-            model: model::PlantModel::of(config, settings.token.is_none()),
-            effective_config: gateway_info::effective_config(config),
             settings,
+            layout: parts.layout,
             view: parts.view,
             figures: parts.figures,
             health: parts.health,
-            lines: parts.lines,
             messages: parts.messages,
             frames: parts.frames,
             sessions: auth::Sessions::default(),
@@ -105,9 +123,15 @@ impl Console {
         })
     }
 
+    /// The plant as configured now.
+    pub fn layout(&self) -> Arc<Layout> {
+        Arc::clone(&self.layout.borrow())
+    }
+
     /// The running line named `name`.
-    pub fn line(&self, name: &str) -> Option<&LineHandle> {
-        self.lines.iter().find(|line| line.name == name)
+    pub fn line(&self, name: &str) -> Option<LineHandle> {
+        let layout = self.layout.borrow();
+        layout.lines.iter().find(|line| line.name == name).cloned()
     }
 }
 
@@ -249,7 +273,13 @@ async fn command(State(console): State<Arc<Console>>, Form(form): Form<CommandFo
 
 /// `POST /api/refresh`: every block of the device read in the line's next slots.
 async fn refresh(State(console): State<Arc<Console>>, Form(form): Form<RefreshForm>) -> Response {
-    if !console.model.devices.iter().any(|d| d.name == form.device) {
+    if !console
+        .layout()
+        .model
+        .devices
+        .iter()
+        .any(|d| d.name == form.device)
+    {
         return refusal(
             StatusCode::NOT_FOUND,
             format!("no device named {:?}", form.device),

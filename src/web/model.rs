@@ -154,5 +154,5 @@ impl PlantModel {
 
 /// `GET /api/model`.
 pub async fn serve_model(State(console): State<Arc<Console>>) -> Json<PlantModel> {
-    Json(console.model.clone())
+    Json(console.layout().model.clone())
 }

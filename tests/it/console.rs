@@ -721,3 +721,114 @@ async fn the_console_speaks_https_with_the_certificate_given() {
     assert!(!plain.contains("dust_collector"), "{plain}");
     h.stop().await;
 }
+
+/// A GET with the bearer token; the whole answer.
+async fn get(port: u16, path: &str) -> String {
+    http(
+        port,
+        &format!(
+            "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nAuthorization: Bearer {TOKEN}\r\n\
+             Connection: close\r\n\r\n"
+        ),
+    )
+    .await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_console_follows_a_reload() {
+    let port = free_port();
+    let mut h = PlantBench::setup("console-reload")
+        .config(move |broker, plant, client_id| {
+            console_config(broker, plant, client_id, port, Some(TOKEN), None)
+        })
+        .reloadable()
+        .start()
+        .await;
+    let model = get(port, "/api/model").await;
+    assert!(model.contains("\"valve\""), "{model}");
+    // The event stream a page holds, to see it told.
+    let mut events = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    let request = format!(
+        "GET /api/events HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nAuthorization: Bearer {TOKEN}\r\n\r\n"
+    );
+    events.write_all(request.as_bytes()).await.unwrap();
+
+    // line-b and its valve go; line-a is restarted with the dust collector alone.
+    let text = h.config_text.clone();
+    let without_b = text
+        .split("\n[[lines]]\nname = \"line-b\"")
+        .next()
+        .unwrap()
+        .to_string();
+    let cut_shower = without_b.replacen(
+        "\n[[lines.devices]]\nname = \"air_shower\"\nprofile = \"lixian-air-shower\"\naddress = 0x81\n",
+        "\n",
+        1,
+    );
+    assert_ne!(
+        cut_shower, without_b,
+        "the air shower's table is where it is expected"
+    );
+    let web = text[text.find("\n[web]").unwrap()..].to_string();
+    let (reload, dir) = h.reload.as_ref().unwrap();
+    std::fs::write(dir.path().join("rtu2mqtt.toml"), cut_shower + &web).unwrap();
+    reload.send(()).await.unwrap();
+
+    let give_up = Instant::now() + Duration::from_secs(15);
+    loop {
+        let model = get(port, "/api/model").await;
+        if !model.contains("\"valve\"") && !model.contains("\"air_shower\"") {
+            assert!(model.contains("\"dust_collector\""), "{model}");
+            break;
+        }
+        assert!(
+            Instant::now() < give_up,
+            "the console kept the old plant: {model}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut seen = Vec::new();
+    let give_up = Instant::now() + Duration::from_secs(10);
+    while !String::from_utf8_lossy(&seen).contains("event: layout") {
+        let mut buffer = [0u8; 4096];
+        let read = tokio::time::timeout(Duration::from_secs(1), events.read(&mut buffer)).await;
+        if let Ok(Ok(read)) = read {
+            seen.extend_from_slice(&buffer[..read]);
+        }
+        assert!(
+            Instant::now() < give_up,
+            "the page was not told of the reload"
+        );
+    }
+    // Commissioning goes through the new line task.
+    let origin = format!("http://127.0.0.1:{port}");
+    let cookie = login(port, TOKEN).await.unwrap();
+    let read = http(
+        port,
+        &post(
+            port,
+            "/api/read",
+            Some(&origin),
+            Some(&cookie),
+            "line=line-a&address=1&function=3&start=0x1000&count=6",
+        ),
+    )
+    .await;
+    assert!(read.starts_with("HTTP/1.1 200"), "{read}");
+    assert!(read.contains("\"registers\""), "{read}");
+    let gone = http(
+        port,
+        &post(
+            port,
+            "/api/scan",
+            Some(&origin),
+            Some(&cookie),
+            "line=line-b&addresses=1",
+        ),
+    )
+    .await;
+    assert!(gone.starts_with("HTTP/1.1 404"), "{gone}");
+    h.stop().await;
+}

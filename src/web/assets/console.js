@@ -88,6 +88,10 @@ function connectEvents() {
       showTopic(message.topic);
     }
   });
+  events.addEventListener("layout", async () => {
+    // The configuration was reloaded: devices may have come or gone.
+    try { state.model = await getJson("/api/model"); route(); } catch (_) { /* the next event retries */ }
+  });
   events.onerror = () => {
     live.textContent = "reconnecting…";
     live.className = "badge off";
