@@ -737,7 +737,7 @@ async fn get(port: u16, path: &str) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_console_follows_a_reload() {
     let port = free_port();
-    let mut h = PlantBench::setup("console-reload")
+    let h = PlantBench::setup("console-reload")
         .config(move |broker, plant, client_id| {
             console_config(broker, plant, client_id, port, Some(TOKEN), None)
         })
