@@ -85,6 +85,7 @@ fn configuration_reference_lists_every_key_and_no_other() {
         ("### `[gateway]`", gateway_keys),
         ("### `[health]`", health_keys),
         ("### `[history]`", history_keys),
+        ("### `[web]`", keys_of::<rtu2mqtt::config::web::RawWeb>()),
         ("### `[[lines]]`", line_keys),
         ("### `[[lines.devices]]`", device_keys),
         ("### `[lines.serve]`", keys_of::<RawServe>()),
