@@ -89,12 +89,13 @@ async fn run() -> anyhow::Result<()> {
         warm_up.as_secs()
     );
     let files = tempfile::tempdir()?;
-    let broker = Mosquitto::start();
     let plant = ScalePlant::spawn(devices).await?;
     let binary = rtu2mqtt_testkit::child::gateway_binary();
     let mut windows = Vec::new();
 
-    // 1. No console.
+    // 1. No console. Each gateway gets a broker of its own: one that kept the other's session
+    // and retained topics would make it start differently.
+    let broker = Mosquitto::start();
     let config = write_config(files.path(), &broker, &plant, None)?;
     let mut gateway = GatewayProcess::start(&binary, &config, "warn")?;
     tokio::time::sleep(warm_up).await;
@@ -102,6 +103,8 @@ async fn run() -> anyhow::Result<()> {
     gateway.stop();
 
     // 2–4. The console on: no browser, B browsers, none again.
+    drop(broker);
+    let broker = Mosquitto::start();
     let port = free_port();
     let config = write_config(files.path(), &broker, &plant, Some(port))?;
     let mut gateway = GatewayProcess::start(&binary, &config, "warn")?;

@@ -78,7 +78,7 @@ pub struct FrameRecorders {
 
 impl FrameRecorders {
     /// The writer for line `line`'s link; None when nothing records.
-    pub fn writer(&self, line: &str) -> Option<Box<dyn std::io::Write + Send>> {
+    pub fn writer(&self, line: &str) -> Option<Box<dyn rtu2mqtt_modbus::FrameSink>> {
         let mut tee = rtu2mqtt_modbus::live_frames::Tee::default();
         if let Some(log) = &self.log {
             tee.push(Box::new(log.writer(line)));

@@ -789,6 +789,8 @@ async fn out_of_spec_request_is_refused_before_the_wire() {
 #[derive(Clone, Default)]
 struct SharedBuffer(Arc<Mutex<Vec<u8>>>);
 
+impl rtu2mqtt_modbus::FrameSink for SharedBuffer {}
+
 impl Write for SharedBuffer {
     fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
         self.0.lock().unwrap().extend_from_slice(bytes);
@@ -846,6 +848,8 @@ proptest::proptest! {
 /// Instants at which the master wrote each `tx` line of its frame recording.
 #[derive(Clone, Default)]
 struct TxInstants(std::sync::Arc<std::sync::Mutex<Vec<Instant>>>);
+
+impl rtu2mqtt_modbus::FrameSink for TxInstants {}
 
 impl Write for TxInstants {
     fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {

@@ -119,6 +119,8 @@ pub struct LineFrameWriter {
     partial: String,
 }
 
+impl crate::FrameSink for LineFrameWriter {}
+
 impl Write for LineFrameWriter {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
         for piece in buf.split_inclusive(|&b| b == b'\n') {

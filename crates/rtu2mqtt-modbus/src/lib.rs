@@ -50,4 +50,4 @@ pub struct ReadmeDoctests;
 
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 pub use outcome::{Error, PortFault, Reply, WireCounters};
-pub use transaction::Transact;
+pub use transaction::{FrameSink, Transact};

@@ -2,7 +2,6 @@
 //! stream ([`RawTcpMaster`]) or a Modbus TCP gateway ([`ModbusTcpMaster`]). The line task runs
 //! the same transactions, counters and frame log on each; only this enum knows which it is.
 
-use std::io::Write;
 use std::time::Duration;
 
 use super::frame::Request;
@@ -57,7 +56,7 @@ impl Link {
     /// `writer` (the frame log, for bug reports: [`crate::frame_log::FrameLog::writer`]). The
     /// write happens on the line's own task, so `writer` must not block. A write error stops
     /// the recording with a warning.
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+    pub fn record_frames_to(&mut self, writer: Box<dyn crate::FrameSink>) {
         self.core_mut().record_frames_to(writer);
     }
 }

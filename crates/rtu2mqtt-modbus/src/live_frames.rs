@@ -8,6 +8,8 @@ use std::sync::Arc;
 
 use tokio::sync::broadcast;
 
+use crate::FrameSink;
+
 /// Records a slow watcher may fall behind by before it loses the oldest.
 const BACKLOG: usize = 1024;
 
@@ -55,6 +57,12 @@ pub struct LiveFrameWriter {
     partial: String,
 }
 
+impl FrameSink for LiveFrameWriter {
+    fn listening(&self) -> bool {
+        self.records.receiver_count() > 0
+    }
+}
+
 impl Write for LiveFrameWriter {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
         if self.records.receiver_count() == 0 {
@@ -84,7 +92,7 @@ impl Write for LiveFrameWriter {
 /// that fails is left out from then on, the others go on.
 #[derive(Default)]
 pub struct Tee {
-    writers: Vec<Box<dyn Write + Send>>,
+    writers: Vec<Box<dyn FrameSink>>,
 }
 
 impl std::fmt::Debug for Tee {
@@ -97,17 +105,23 @@ impl std::fmt::Debug for Tee {
 
 impl Tee {
     /// Adds a writer.
-    pub fn push(&mut self, writer: Box<dyn Write + Send>) {
+    pub fn push(&mut self, writer: Box<dyn FrameSink>) {
         self.writers.push(writer);
     }
 
     /// The one writer as itself, several behind the tee, none as None.
-    pub fn into_writer(mut self) -> Option<Box<dyn Write + Send>> {
+    pub fn into_writer(mut self) -> Option<Box<dyn FrameSink>> {
         match self.writers.len() {
             0 => None,
             1 => self.writers.pop(),
             _ => Some(Box::new(self)),
         }
+    }
+}
+
+impl FrameSink for Tee {
+    fn listening(&self) -> bool {
+        self.writers.iter().any(|writer| writer.listening())
     }
 }
 
@@ -154,6 +168,7 @@ mod tests {
     #[test]
     fn a_tee_writes_to_each_and_drops_a_failing_one() {
         struct Failing;
+        impl FrameSink for Failing {}
         impl Write for Failing {
             fn write(&mut self, _: &[u8]) -> io::Result<usize> {
                 Err(io::Error::other("disk gone"))

@@ -32,13 +32,24 @@ impl Direction {
     }
 }
 
+/// Where a link's frame records go (the frame log, the console's live view): one text line per
+/// frame, `<unix time with µs> <tx|rx> <hex>`, written on the link's own thread, so a sink
+/// must never block.
+pub trait FrameSink: Write + Send {
+    /// Whether a record would go anywhere now: while it would not, the link does not format
+    /// one (a live view nobody watches costs nothing).
+    fn listening(&self) -> bool {
+        true
+    }
+}
+
 /// The counters, the frame recorder and the late-answer guard of one link.
 pub(crate) struct LinkCore {
     /// The port's path or the url, for logs.
     label: String,
     counters: WireCounters,
     /// Receives one text line per frame, `<unix time with µs> <tx|rx> <hex>`.
-    recorder: Option<Box<dyn Write + Send>>,
+    recorder: Option<Box<dyn FrameSink>>,
     /// After a timeout: the address that timed out and until when its late answer is awaited
     /// before the next request to that address goes out.
     late_guard: Option<(SlaveId, Instant)>,
@@ -81,14 +92,14 @@ impl LinkCore {
     /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (the frame
     /// log, for bug reports). The write happens on the link's own thread, so `writer` must not
     /// block (see [`crate::frame_log`]). A write error stops the recording with a warning.
-    pub(crate) fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+    pub(crate) fn record_frames_to(&mut self, writer: Box<dyn FrameSink>) {
         self.recorder = Some(writer);
     }
 
     /// Logs a frame at debug level and hands it to the recorder, if any.
     pub(crate) fn record(&mut self, direction: Direction, bytes: &[u8]) {
         tracing::debug!(link = %self.label, frame = %codec::hex(bytes), "{}", direction.word());
-        let Some(writer) = self.recorder.as_mut() else {
+        let Some(writer) = self.recorder.as_mut().filter(|sink| sink.listening()) else {
             return;
         };
         let line = format!(
@@ -222,6 +233,8 @@ mod tests {
 
     #[derive(Clone, Default)]
     struct Lines(Arc<Mutex<Vec<u8>>>);
+
+    impl FrameSink for Lines {}
 
     impl Write for Lines {
         fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {

@@ -18,7 +18,6 @@
 //! After a timeout, the next request to the same address waits out a late-answer guard; the
 //! late answer, whenever it comes, is counted in `late_answers`.
 
-use std::io::Write;
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -138,7 +137,7 @@ impl Master {
 
     /// Writes one line per frame, `<unix time with µs> <tx|rx> <hex>`, to `writer` (for bug
     /// reports). A write error stops the recording with a warning.
-    pub fn record_frames_to(&mut self, writer: Box<dyn Write + Send>) {
+    pub fn record_frames_to(&mut self, writer: Box<dyn crate::FrameSink>) {
         self.core.record_frames_to(writer);
     }
 
