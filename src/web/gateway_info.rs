@@ -135,7 +135,8 @@ pub async fn gateway(State(console): State<Arc<Console>>) -> Json<Json_> {
         "history_problem": history_problem,
         "status_topic": console.topics.gateway_status_topic(),
         "status": console.view.get(&console.topics.gateway_status_topic()).map(|p| p.payload),
-        "config": console.layout().effective_config,
+        "config": serde_json::from_str::<Json_>(&console.layout().effective_config)
+            .unwrap_or(Json_::Null),
     }))
 }
 

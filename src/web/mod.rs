@@ -76,7 +76,9 @@ pub struct Console {
 #[derive(Debug)]
 pub struct Layout {
     pub model: model::PlantModel,
-    pub effective_config: serde_json::Value,
+    /// The configuration in effect as JSON text, secrets masked (kept as text: a tree of a
+    /// thousand lines' values would cost more than the page ever reads).
+    pub effective_config: String,
     pub lines: Vec<LineHandle>,
 }
 
@@ -86,7 +88,7 @@ impl Layout {
         let read_only = config.web.as_ref().map_or(true, |web| web.token.is_none());
         Arc::new(Layout {
             model: model::PlantModel::of(config, read_only),
-            effective_config: gateway_info::effective_config(config),
+            effective_config: gateway_info::effective_config(config).to_string(),
             lines,
         })
     }

@@ -12,7 +12,7 @@ use serde::Serialize;
 use super::Console;
 use crate::bridge::core::discovery::entity_name;
 use crate::config::Config;
-use rtu2mqtt_profile::{FieldInfo, FieldKind};
+use rtu2mqtt_profile::{FieldInfo, FieldKind, Profile};
 
 /// Everything the page needs to lay out the plant.
 #[derive(Debug, Clone, Serialize)]
@@ -24,6 +24,15 @@ pub struct PlantModel {
     pub gateway_id: String,
     pub lines: Vec<LineModel>,
     pub devices: Vec<DeviceModel>,
+    /// The profiles the devices use, each once (a plant of a thousand meters has one).
+    pub profiles: Vec<ProfileModel>,
+}
+
+/// One profile's fields, shared by the devices that use it.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProfileModel {
+    pub name: String,
+    pub fields: Vec<FieldModel>,
 }
 
 /// One line.
@@ -46,11 +55,11 @@ pub struct DeviceModel {
     pub name: String,
     pub line: String,
     pub address: u8,
-    pub profile: String,
+    /// Its profile's place in [`PlantModel::profiles`].
+    pub profile: usize,
     pub manufacturer: String,
     pub model: String,
     pub poll_interval_ms: u64,
-    pub fields: Vec<FieldModel>,
 }
 
 /// One field and its control.
@@ -114,21 +123,30 @@ impl PlantModel {
     /// The model of `config`'s lines and devices.
     pub fn of(config: &Config, read_only: bool) -> PlantModel {
         let mut devices = Vec::new();
+        let mut profiles: Vec<(Arc<Profile>, ProfileModel)> = Vec::new();
         let lines = config
             .lines
             .iter()
             .map(|line| {
                 for device in &line.devices {
                     let profile = &device.profile;
+                    let index = match profiles.iter().position(|(p, _)| Arc::ptr_eq(p, profile)) {
+                        Some(index) => index,
+                        None => {
+                            let fields = profile.fields().iter().map(FieldModel::of).collect();
+                            let name = profile.name().to_string();
+                            profiles.push((Arc::clone(profile), ProfileModel { name, fields }));
+                            profiles.len() - 1
+                        }
+                    };
                     devices.push(DeviceModel {
                         name: device.name.clone(),
                         line: line.name.clone(),
                         address: device.address,
-                        profile: profile.name().to_string(),
+                        profile: index,
                         manufacturer: profile.manufacturer().to_string(),
                         model: profile.model().to_string(),
                         poll_interval_ms: device.poll_interval.as_millis() as u64,
-                        fields: profile.fields().iter().map(FieldModel::of).collect(),
                     });
                 }
                 LineModel {
@@ -148,6 +166,7 @@ impl PlantModel {
             gateway_id: config.mqtt.client_id.clone(),
             lines,
             devices,
+            profiles: profiles.into_iter().map(|(_, model)| model).collect(),
         }
     }
 }

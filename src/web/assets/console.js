@@ -67,6 +67,17 @@ async function getJson(path) {
   return response.json();
 }
 
+// The model with each device's fields found in its profile (sent once per profile).
+async function loadModel() {
+  const model = await getJson("/api/model");
+  for (const device of model.devices) {
+    const profile = model.profiles[device.profile];
+    device.profile_name = profile ? profile.name : "";
+    device.fields = profile ? profile.fields : [];
+  }
+  return model;
+}
+
 // ----- the plant view, pushed -----
 
 function connectEvents() {
@@ -90,7 +101,7 @@ function connectEvents() {
   });
   events.addEventListener("layout", async () => {
     // The configuration was reloaded: devices may have come or gone.
-    try { state.model = await getJson("/api/model"); route(); } catch (_) { /* the next event retries */ }
+    try { state.model = await loadModel(); route(); } catch (_) { /* the next event retries */ }
   });
   events.onerror = () => {
     live.textContent = "reconnecting…";
@@ -553,7 +564,7 @@ function route() {
 }
 
 async function start() {
-  try { state.model = await getJson("/api/model"); }
+  try { state.model = await loadModel(); }
   catch (error) { document.getElementById("page").replaceChildren(el("p", { class: "error", text: `The gateway did not answer: ${error.message}` })); return; }
   document.getElementById("gateway-id").textContent = state.model.gateway_id;
   document.getElementById("logout").hidden = state.model.read_only;
