@@ -278,13 +278,14 @@ async fn reload(
     let mut config = match config::load(path) {
         Ok(config) => config,
         Err(problems) => {
-            for problem in &problems.0 {
+            let lines = problems.lines();
+            for problem in &lines {
                 tracing::error!(%problem, "reload: configuration problem");
             }
             tracing::error!(
                 path = %path.display(),
                 "reload refused ({} problem(s)): the running configuration is kept",
-                problems.0.len()
+                lines.len()
             );
             return None;
         }

@@ -53,18 +53,66 @@ impl Problems {
     }
 }
 
+impl Problems {
+    /// Each problem as one line: a reason of several lines (a profile's every problem, each
+    /// with its place in the profile) is that many problems at the same place.
+    pub fn lines(&self) -> Vec<String> {
+        self.0
+            .iter()
+            .flat_map(|problem| {
+                problem
+                    .reason
+                    .lines()
+                    .filter(|line| !line.trim().is_empty())
+                    .map(|line| {
+                        Problem {
+                            reason: line.trim().to_string(),
+                            ..problem.clone()
+                        }
+                        .to_string()
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+}
+
 impl fmt::Display for Problems {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let count = self.0.len();
+        let lines = self.lines();
+        let count = lines.len();
         write!(
             f,
             "{count} problem{} in the configuration:",
             if count == 1 { "" } else { "s" }
         )?;
-        for problem in &self.0 {
-            write!(f, "\n  - {problem}")?;
+        for line in &lines {
+            write!(f, "\n  - {line}")?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reason_of_several_lines_counts_and_shows_as_that_many_problems() {
+        let problems = Problems(vec![
+            Problem::new(
+                "lines[0].devices[0].profile",
+                "meter.toml: fields[0].codec: unknown type\nmeter.toml: fields[3].block: no block \"x\"\n",
+            ),
+            Problem::new("mqtt.url", "missing"),
+        ]);
+        assert_eq!(
+            problems.to_string(),
+            "3 problems in the configuration:\n\
+             \u{20}\u{20}- lines[0].devices[0].profile: meter.toml: fields[0].codec: unknown type\n\
+             \u{20}\u{20}- lines[0].devices[0].profile: meter.toml: fields[3].block: no block \"x\"\n\
+             \u{20}\u{20}- mqtt.url: missing"
+        );
     }
 }
 
