@@ -277,7 +277,7 @@ fn names_the_contract_uses_as_topic_levels_are_refused() {
         assert!(!ok, "field {field} accepted");
         assert!(
             stderr.contains("lines[0].devices[0].profile:")
-                && stderr.contains(&format!("field \"{field}\" is reserved")),
+                && stderr.contains(&format!("({field}).name: \"{field}\" is reserved")),
             "{stderr}"
         );
     }

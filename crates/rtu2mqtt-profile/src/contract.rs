@@ -46,11 +46,21 @@ const RESERVED_NAMES: &[&str] = &[
 /// on ids (`<client_id>_<device>_<field>`).
 pub const MAX_NAME_LEN: usize = 64;
 
-/// Why `name` cannot be a device or field name of the contract, if it cannot.
+/// Why `name` cannot be a device or field name of the contract, if it cannot, with a name
+/// to use instead.
 pub fn reserved_name_problem(name: &str) -> Option<String> {
+    RESERVED_NAMES.contains(&name).then(|| {
+        format!(
+            "{name:?} is reserved: the gateway uses it as a topic level of its own (reserved: \
+             {}); call it e.g. \"device_{name}\"",
+            RESERVED_NAMES.join(", ")
+        )
+    })
+}
+
+/// The names no device or field may have ([`reserved_name_problem`]).
+pub fn reserved_names() -> &'static [&'static str] {
     RESERVED_NAMES
-        .contains(&name)
-        .then(|| format!("{name:?} is reserved: the gateway uses it as a topic level of its own"))
 }
 
 /// The default Home Assistant discovery prefix.
@@ -361,6 +371,43 @@ impl Topics {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_field_with_a_reserved_name_is_refused_where_any_profile_is_read() {
+        for name in reserved_names() {
+            let text = format!(
+                "[device]\nname = \"x\"\nmanufacturer = \"m\"\nmodel = \"m\"\n\
+                 [line]\naddress_range = [1, 247]\n\
+                 [[blocks]]\nname = \"b\"\nfunction = 3\nstart = 0\ncount = 1\n\
+                 [[fields]]\nname = \"{name}\"\nblock = \"b\"\noffset = 0\ncodec = {{ type = \"u16\" }}\n"
+            );
+            let errors = crate::Profile::from_toml(&text, "p.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                errors.contains(&format!("fields[0] ({name}).name: \"{name}\" is reserved"))
+                    && errors.contains(&format!("call it e.g. \"device_{name}\"")),
+                "{errors}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_profile_format_lists_every_reserved_name() {
+        let doc = include_str!("../../../docs/profiles.md");
+        let section = doc
+            .split("### Reserved names")
+            .nth(1)
+            .and_then(|rest| rest.split("\n### ").next())
+            .unwrap_or_default();
+        let listed: Vec<&str> = section
+            .split('`')
+            .skip(1)
+            .step_by(2)
+            .take(RESERVED_NAMES.len())
+            .collect();
+        assert_eq!(listed, RESERVED_NAMES);
+    }
 
     #[test]
     fn contract_topics() {
