@@ -93,6 +93,8 @@ impl fmt::Display for Problems {
     }
 }
 
+impl std::error::Error for Problems {}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -116,4 +118,3 @@ mod tests {
     }
 }
 
-impl std::error::Error for Problems {}
