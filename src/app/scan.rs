@@ -40,7 +40,7 @@ use crate::cli::{parse_parity, ScanArgs};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Error as LinkError, WireCounters};
-use rtu2mqtt_modbus::{Request, SlaveId, Transact};
+use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId, Transact};
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -110,6 +110,9 @@ async fn probe(
     let function = request.function().value();
     Ok(match master.transact(address, request, timeout).await {
         Ok(Ok(_)) => Probe::Answered(format!("FC{function:02} ok")),
+        // A Modbus TCP gateway's answer in the device's place: nothing answered there.
+        Ok(Err(ExceptionCode::GatewayPathUnavailable))
+        | Ok(Err(ExceptionCode::GatewayTargetFailedToRespond)) => Probe::Silent,
         Ok(Err(code)) => Probe::Answered(format!("FC{function:02} {code}")),
         Err(LinkError::Timeout(_)) => Probe::Silent,
         Err(LinkError::PortGone(fault)) => return Err(fault).context("serial port"),
@@ -176,13 +179,27 @@ pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
     if interrupted {
         eprintln!("\nscan interrupted: partial results");
     }
+    let target = Target::of(args.link.port.as_deref(), args.link.url.as_deref())?;
+    let modbus_tcp = target.is_modbus_tcp()?;
+    let through = if modbus_tcp {
+        format!(
+            "through the Modbus TCP gateway {}",
+            args.link.url.as_deref().unwrap_or("")
+        )
+    } else {
+        let settings = args.baud.len() * parities.len();
+        format!(
+            "at {settings} serial setting{}",
+            if settings == 1 { "" } else { "s" }
+        )
+    };
     eprintln!(
-        "scanned {} addresses at {} setting(s) in {:.1} s",
+        "scanned {} address{} {through} in {:.1} s",
         addresses.len(),
-        args.baud.len() * parities.len(),
+        if addresses.len() == 1 { "" } else { "es" },
         started.elapsed().as_secs_f64()
     );
-    print!("{}", table(&found));
+    print!("{}", table(&found, modbus_tcp));
     if !garbled.is_empty() {
         println!("\ngarbled answers (something is there at another setting, or noise):");
         for line in &garbled {
@@ -311,11 +328,25 @@ fn record(
     }
 }
 
-/// The table of what answered where.
-pub fn table(found: &[Found]) -> String {
+/// The table of what answered where (behind a Modbus TCP gateway the serial setting is the
+/// gateway's own, not the scan's: it is left out).
+pub fn table(found: &[Found], modbus_tcp: bool) -> String {
     let mut out = String::new();
     if found.is_empty() {
         out.push_str("no device answered\n");
+        return out;
+    }
+    if modbus_tcp {
+        out.push_str("address     answers\n");
+        for device in found {
+            let _ = writeln!(
+                out,
+                "{:>3} ({:#04x})  {}",
+                device.address,
+                device.address,
+                device.answers.join("; ")
+            );
+        }
         return out;
     }
     out.push_str("address       baud  format  answers\n");
@@ -394,15 +425,21 @@ mod tests {
 
     #[test]
     fn table_lists_each_find() {
-        let text = table(&[Found {
+        let found = [Found {
             address: 0x81,
             baud: 19200,
             parity: Parity::None,
             answers: vec!["FC01 ok".into()],
-        }]);
+        }];
+        let text = table(&found, false);
         assert!(
             text.contains("129 (0x81)   19200  8N1     FC01 ok"),
             "{text}"
+        );
+        let behind_a_gateway = table(&found, true);
+        assert_eq!(
+            behind_a_gateway,
+            "address     answers\n129 (0x81)  FC01 ok\n"
         );
     }
 }

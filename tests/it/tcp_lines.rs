@@ -607,3 +607,77 @@ async fn scan_and_read_take_a_url_and_never_write() {
         );
     }
 }
+
+/// A Modbus TCP gateway in front of one device at unit 1: every other unit is answered with
+/// exception 0B (its target failed to respond), as real gateways do.
+async fn gateway_with_one_device() -> std::net::SocketAddr {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    tokio::spawn(async move {
+        while let Ok((mut stream, _)) = listener.accept().await {
+            tokio::spawn(async move {
+                let mut head = [0u8; 7];
+                while stream.read_exact(&mut head).await.is_ok() {
+                    let length = usize::from(u16::from_be_bytes([head[4], head[5]]));
+                    let mut pdu = vec![0u8; length.saturating_sub(1)];
+                    if stream.read_exact(&mut pdu).await.is_err() {
+                        return;
+                    }
+                    let (unit, function) = (head[6], pdu.first().copied().unwrap_or(0));
+                    let answer: Vec<u8> = if unit == 1 && function == 3 {
+                        vec![3, 2, 0x12, 0x34]
+                    } else {
+                        vec![function | 0x80, 0x0B]
+                    };
+                    let mut adu = vec![head[0], head[1], 0, 0];
+                    adu.extend_from_slice(&(answer.len() as u16 + 1).to_be_bytes());
+                    adu.push(unit);
+                    adu.extend_from_slice(&answer);
+                    if stream.write_all(&adu).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    address
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_behind_a_gateway_counts_only_real_answers_and_says_what_it_scanned() {
+    let gateway = gateway_with_one_device().await;
+    let url = format!("modbus-tcp://{gateway}");
+    let mut command = Command::new(child::gateway_binary());
+    command.args([
+        "scan",
+        "--url",
+        &url,
+        "--addresses",
+        "1-5",
+        "--timeout",
+        "300ms",
+    ]);
+    let output = child::output(command, Duration::from_secs(60))
+        .await
+        .expect("rtu2mqtt runs and ends");
+    let (out, err) = (
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr),
+    );
+    assert!(output.status.success(), "{out}{err}");
+    assert!(out.contains("  1 (0x01)  FC03 ok"), "{out}");
+    for absent in ["  2 (0x02)", "  3 (0x03)", "  5 (0x05)"] {
+        assert!(
+            !out.contains(absent),
+            "exception 0B counted as a device: {out}"
+        );
+    }
+    assert!(!out.contains("9600") && !out.contains("8N1"), "{out}");
+    assert!(
+        err.contains(&format!(
+            "scanned 5 addresses through the Modbus TCP gateway {url}"
+        )),
+        "{err}"
+    );
+}
