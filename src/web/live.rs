@@ -27,7 +27,9 @@ use rtu2mqtt_modbus::{Request, Response as ModbusResponse, SlaveId};
 /// Event streams open at once (pages of the console); more are refused with 503.
 pub const MAX_STREAMS: usize = 32;
 /// Messages sent in one event at the most.
-const BATCH: usize = 512;
+const BATCH: usize = 2048;
+/// How long a message waits for the ones right behind it, to go in one event with them.
+const GATHER: Duration = Duration::from_millis(40);
 /// A comment line this often keeps proxies from closing a quiet stream.
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
@@ -111,18 +113,22 @@ pub async fn plant_events(State(console): State<Arc<Console>>) -> Response {
             };
             let event = match next {
                 Ok(first) => {
-                    // What else is waiting goes in the same event: one write, one wake-up of the
-                    // page, however busy the plant.
-                    let mut batch = vec![first];
-                    while batch.len() < BATCH {
+                    // What else comes within a moment goes in the same event: one write, one
+                    // wake-up of the page, however busy the plant.
+                    tokio::time::sleep(GATHER).await;
+                    let mut batch = String::from("[");
+                    batch.push_str(&first);
+                    for _ in 1..BATCH {
                         match news.try_recv() {
-                            Ok(next) => batch.push(next),
+                            Ok(next) => {
+                                batch.push(',');
+                                batch.push_str(&next);
+                            }
                             Err(_) => break,
                         }
                     }
-                    let messages: Vec<TopicMessage<'_>> =
-                        batch.iter().map(|m| TopicMessage::of(m)).collect();
-                    json_event("publish", &messages)
+                    batch.push(']');
+                    Event::default().event("publish").data(batch)
                 }
                 Err(RecvError::Lagged(_)) => snapshot_event(&console),
                 Err(RecvError::Closed) => return None,

@@ -18,6 +18,10 @@ use tokio::sync::broadcast;
 /// Messages a slow watcher may fall behind by before it must take the whole view again.
 const BACKLOG: usize = 4096;
 
+/// A message as its watchers get it: its JSON text (`{"topic","payload","at_ms"}`), made once
+/// however many watch.
+pub type News = Arc<str>;
+
 /// One topic's last message.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Published {
@@ -110,7 +114,7 @@ pub struct PlantView {
     /// `<prefix>/`: only topics under it are kept.
     root: Arc<str>,
     last: Arc<Mutex<Last>>,
-    news: broadcast::Sender<Arc<Published>>,
+    news: broadcast::Sender<News>,
 }
 
 impl PlantView {
@@ -145,18 +149,12 @@ impl PlantView {
         let Some((first, rest)) = self.place(topic) else {
             return;
         };
-        let now = SystemTime::now();
-        if self.news.receiver_count() > 0 {
-            let published = Published {
-                topic: topic.to_string(),
-                payload: payload.to_string(),
-                at: now,
-            };
-            let _ = self.news.send(Arc::new(published));
-        }
-        let at_ms = now
+        let at_ms = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map_or(0, |since| since.as_millis() as u64);
+        if self.news.receiver_count() > 0 {
+            let _ = self.news.send(Arc::from(news_json(topic, payload, at_ms)));
+        }
         let mut last = self.last.lock().unwrap_or_else(PoisonError::into_inner);
         if payload.is_empty() {
             if let (Some(first), Some(rest)) = (last.firsts.find(first), last.rests.find(rest)) {
@@ -207,9 +205,14 @@ impl PlantView {
     }
 
     /// Every message from now on (subscribe, then take the snapshot, to miss none).
-    pub fn subscribe(&self) -> broadcast::Receiver<Arc<Published>> {
+    pub fn subscribe(&self) -> broadcast::Receiver<News> {
         self.news.subscribe()
     }
+}
+
+/// `{"topic":…,"payload":…,"at_ms":…}`.
+pub fn news_json(topic: &str, payload: &str, at_ms: u64) -> String {
+    serde_json::json!({ "topic": topic, "payload": payload, "at_ms": at_ms }).to_string()
 }
 
 #[cfg(test)]
@@ -231,7 +234,9 @@ mod tests {
         assert_eq!(all.len(), 1);
         assert_eq!(all[0].topic, "plant/valve/opening");
         assert_eq!(all[0].payload, "13");
-        assert_eq!(watcher.try_recv().unwrap().payload, "13");
+        let news: serde_json::Value = serde_json::from_str(&watcher.try_recv().unwrap()).unwrap();
+        assert_eq!(news["topic"], "plant/valve/opening");
+        assert_eq!(news["payload"], "13");
         assert!(watcher.try_recv().is_err());
         view.note("plant/valve/opening", "");
         assert!(view.get("plant/valve/opening").is_none());
