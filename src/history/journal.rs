@@ -5,8 +5,9 @@
 //! read again at start.
 //!
 //! Nothing on disk stops it: only regular files named `<sequence>.journal` that hold a
-//! segment are read (anything else of that name is skipped with a warning, never opened in a
-//! way that blocks or follows a link, never read past the largest segment), damage costs only
+//! segment are read (anything else of that name, whatever its number, is skipped with a
+//! warning, never opened in a way that blocks or follows a link, never read past the largest
+//! segment; an empty one is removed, with a warning too), damage costs only
 //! the damaged records ([`record::decode`]), and a sequence number near the top of its range
 //! renumbers the segments instead of running out. A journal that cannot be written (a full
 //! disk, a path that is no usable directory) is a pause: the newest records wait in memory
@@ -393,6 +394,15 @@ impl Journal {
                 );
             }
             if decoded.records.is_empty() {
+                // Nothing to replay. A whole header is a segment of ours begun and left empty;
+                // anything shorter (an empty file, a part of the header) may be a crash right
+                // after the file was made, or anybody's empty file: said, like every other
+                // file of that name that is no segment, whatever its number.
+                if bytes.len() < MAGIC.len() {
+                    tracing::warn!(path = %path.display(), bytes = bytes.len(),
+                        "history journal file without a header (an empty file, or a crash right \
+                         after it was made): no segment, removed");
+                }
                 let _ = fs::remove_file(&path);
                 continue;
             }

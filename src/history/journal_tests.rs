@@ -791,3 +791,141 @@ fn a_full_disk_is_a_pause_and_writing_resumes_by_itself() {
     drop(journal);
     drop(disk);
 }
+
+/// What the journal logs, captured for a test on its thread.
+#[derive(Clone, Default)]
+struct CapturedLog(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl Write for CapturedLog {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+impl<'a> tracing_subscriber::fmt::MakeWriter<'a> for CapturedLog {
+    type Writer = CapturedLog;
+
+    fn make_writer(&'a self) -> Self::Writer {
+        self.clone()
+    }
+}
+
+/// Runs `work` with what is logged on this thread captured; returns its result and the log.
+fn logged<T>(work: impl FnOnce() -> T) -> (T, String) {
+    let log = CapturedLog::default();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(log.clone())
+        .with_ansi(false)
+        .with_max_level(tracing::Level::INFO)
+        .finish();
+    let out = tracing::subscriber::with_default(subscriber, work);
+    let text = String::from_utf8_lossy(
+        &log.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner),
+    )
+    .into_owned();
+    (out, text)
+}
+
+/// What lies in the journal's directory beside its segments.
+#[derive(Debug, Clone, Copy)]
+enum Stray {
+    /// A regular file of bytes that are no segment.
+    Junk,
+    /// An empty file (as `touch` makes it).
+    Empty,
+    /// The first bytes of a segment's header, no more.
+    HeaderPart,
+    Fifo,
+    Directory,
+    Symlink,
+}
+
+impl Stray {
+    fn make(self, path: &Path) {
+        let made = match self {
+            Stray::Junk => fs::write(path, b"left here by someone else\n"),
+            Stray::Empty => fs::write(path, b""),
+            Stray::HeaderPart => fs::write(path, &MAGIC[..5]),
+            Stray::Fifo => {
+                fifo(path);
+                Ok(())
+            }
+            Stray::Directory => fs::create_dir(path),
+            Stray::Symlink => std::os::unix::fs::symlink("/dev/zero", path),
+        };
+        made.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    }
+
+    /// Whether the journal removes it (it holds nothing) rather than leaving it alone.
+    fn removed(self) -> bool {
+        matches!(self, Stray::Empty | Stray::HeaderPart)
+    }
+}
+
+#[test]
+fn every_stray_file_is_said_and_breaks_nothing_whatever_its_number() {
+    // Every kind at an ordinary number, at the largest one and in the upper half of the
+    // range (where a segment would make the journal number its segments anew).
+    let kinds = [
+        Stray::Junk,
+        Stray::Empty,
+        Stray::HeaderPart,
+        Stray::Fifo,
+        Stray::Directory,
+        Stray::Symlink,
+    ];
+    for (at, kind) in kinds.into_iter().enumerate() {
+        for name in [
+            format!("{:020}.journal", 5 + at),
+            "18446744073709551615.journal".to_string(),
+            "09223372036854775809.journal".to_string(),
+        ] {
+            let dir = made("strays");
+            write_segment(&dir, "00000000000000000001.journal", 0..3);
+            let path = dir.join(&name);
+            kind.make(&path);
+            let (replayed, log) = logged(|| {
+                let mut journal = open(&dir, 1 << 20);
+                for n in 3..6 {
+                    journal.append(&record(n), NOW);
+                }
+                assert_eq!(journal.problem(), None, "{kind:?} {name}");
+                let replayed = take_all(&mut journal, NOW);
+                (replayed, journal.stats())
+            });
+            let (replayed, stats) = replayed;
+            assert_eq!(
+                replayed,
+                (0..6).map(record).collect::<Vec<_>>(),
+                "{kind:?} {name}"
+            );
+            assert_eq!(
+                (stats.write_failures, stats.damaged),
+                (0, 0),
+                "{kind:?} {name}"
+            );
+            let warned = log
+                .lines()
+                .filter(|line| line.contains("WARN") && line.contains(&*path.to_string_lossy()))
+                .count();
+            assert_eq!(warned, 1, "{kind:?} {name} is said once:\n{log}");
+            assert!(!log.contains("renumbered"), "{kind:?} {name}:\n{log}");
+            assert_eq!(
+                fs::symlink_metadata(&path).is_ok(),
+                !kind.removed(),
+                "{kind:?} {name}"
+            );
+            let _ = fs::remove_dir_all(&dir);
+        }
+    }
+}

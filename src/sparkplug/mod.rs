@@ -23,8 +23,10 @@ use rumqttc::{AsyncClient, Event, LastWill, Outgoing, Packet, QoS};
 use tokio::sync::{broadcast, mpsc};
 
 use crate::bridge::driver::connection::{
-    client, connect_went_out, options, Backoff, PacketLimit, MAX_INCOMING_PACKET, REQUEST_QUEUE,
+    client, connect_went_out, options, take_held_events, Backoff, PacketLimit, MAX_INCOMING_PACKET,
+    REQUEST_QUEUE,
 };
+use crate::bridge::driver::oversized::{log_oversized, oversized, SubscriptionWatch};
 
 use crate::bus::LineEvent;
 use crate::config::{Config, MqttSettings};
@@ -121,6 +123,8 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
     let mut history_tick = tokio::time::interval(HISTORY_TICK);
     history_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut kept_bd_seq = bd_seq::Keeper::new(links.bd_seq_store.take());
+    // Which subscriptions go out and are acknowledged, across the node's connections.
+    let subscriptions = SubscriptionWatch::default();
     loop {
         let will = session.prepare_connect(now_millis());
         // Kept before the CONNECT that uses this one goes out, so a restart never repeats it.
@@ -142,6 +146,7 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 false,
             ));
         let (client, mut eventloop) = client(mqtt_options, REQUEST_QUEUE);
+        subscriptions.new_client();
         let mut closing = false;
         let mut connected_since = None;
         // Set when the node ends for good; bounds the wait for the Disconnect to go out.
@@ -155,16 +160,16 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
             };
             tokio::select! {
                 () = stop_wait => break,
-                polled = eventloop.poll() => match polled {
+                polled = eventloop.poll() => match polled.inspect(|event| subscriptions.seen(event)) {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
                         connected_since = Some(tokio::time::Instant::now());
                         tracing::info!(bd_seq = session.bd_seq(), "Sparkplug edge node connected");
                         let actions = session.on_connected(now_millis());
-                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                     }
                     Ok(Event::Incoming(Packet::Publish(publish))) => {
                         let actions = session.on_message(now_millis(), &publish.topic, &publish.payload);
-                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                     }
                     Ok(Event::Outgoing(Outgoing::Disconnect)) => {
                         let drain = async { while eventloop.poll().await.is_ok() {} };
@@ -173,6 +178,16 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                     }
                     Ok(_) => {}
                     Err(error) => {
+                        for event in take_held_events(&mut eventloop) {
+                            subscriptions.seen(&event);
+                        }
+                        // The node's session is always clean: a message too large to read
+                        // comes back only as a retained one, with a subscription.
+                        let oversized = oversized(&error);
+                        let blame = subscriptions.connection_ended(&[], oversized.is_some(), std::time::Instant::now());
+                        if let Some(size) = oversized {
+                            log_oversized("sparkplug", size, MAX_INCOMING_PACKET, &blame, false);
+                        }
                         // A connection that dies young (a client-id takeover, an auth refusal)
                         // keeps the back-off growing.
                         if connected_since.is_some_and(|since| since.elapsed() >= STABLE_CONNECTION) {
@@ -192,14 +207,14 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 event = links.line_events.recv(), if !closing => match event {
                     Ok(event) => {
                         let actions = session.on_line_event(now_millis(), &event);
-                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                     }
                     Err(broadcast::error::RecvError::Lagged(missed)) => {
                         // A device may have come or gone unseen: births tell the host the
                         // node's whole view again, the next polls bring the values.
                         tracing::warn!(missed, "Sparkplug: line events missed; rebirth");
                         let actions = session.rebirth(now_millis());
-                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                        closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                     }
                     Err(broadcast::error::RecvError::Closed) => {
                         closing = true;
@@ -209,18 +224,18 @@ pub async fn run(mut session: Session, mqtt: MqttSettings, mut links: NodeLinks)
                 },
                 Some(report) = links.reports.recv(), if !closing => {
                     let actions = session.on_command_outcome(now_millis(), &report.device, &report.field, report.applied);
-                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                 }
                 Some(values) = links.node_values.recv(), if !closing => {
                     let actions = session.on_node_values(now_millis(), &values);
-                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                 }
                 record = next_replayed(&mut links.replayed), if !closing => {
                     queue_replayed(&mut session, record);
                 }
                 _ = history_tick.tick(), if !closing && session.history_waiting() > 0 => {
                     let actions = session.history_batch(HISTORY_BATCH);
-                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, actions).await;
+                    closing |= carry_out(&client, &links.commands, &mut links.packet_limit, &subscriptions, actions).await;
                 }
                 () = links.shutdown.cancelled(), if !closing => {
                     closing = true;
@@ -298,6 +313,7 @@ async fn carry_out(
     client: &AsyncClient,
     commands: &mpsc::Sender<ExternalCommand>,
     packet_limit: &mut PacketLimit,
+    subscriptions: &SubscriptionWatch,
     actions: Vec<Action>,
 ) -> bool {
     let mut closing = false;
@@ -321,7 +337,12 @@ async fn carry_out(
                 }
             }
             Action::Subscribe { topic } => {
+                // One left out (it keeps bringing an oversized retained message) is not sent.
+                if !subscriptions.handing(&topic, std::time::Instant::now()) {
+                    continue;
+                }
                 if let Err(error) = client.try_subscribe(&topic, QoS::AtLeastOnce) {
+                    subscriptions.not_handed(&topic);
                     tracing::warn!(%error, %topic, "Sparkplug: subscribe dropped");
                 }
             }

@@ -70,6 +70,17 @@ impl Harness {
     /// The seed plant with the line of `device` served; its configuration read from a file
     /// that the bench reloads when `reloadable`.
     async fn start_with(name: &str, serve: &str, device: &str, reloadable: bool) -> Harness {
+        Harness::start_edited(name, serve, device, reloadable, |text| text).await
+    }
+
+    /// [`Harness::start_with`], the configuration text passed through `edit` first.
+    async fn start_edited(
+        name: &str,
+        serve: &str,
+        device: &str,
+        reloadable: bool,
+        edit: impl Fn(String) -> String,
+    ) -> Harness {
         let port = free_port();
         let serve = if serve.contains("listen") {
             serve.replace("{port}", &port.to_string())
@@ -79,7 +90,7 @@ impl Harness {
         let mut setup = PlantBench::setup(name)
             .prepare(|plant| sim::lock(&plant.dust_collector).set_power(true))
             .config(|broker, plant, client_id| {
-                served_config(broker, plant, client_id, &serve, device)
+                edit(served_config(broker, plant, client_id, &serve, device))
             });
         if reloadable {
             setup = setup.reloadable();
@@ -916,6 +927,184 @@ async fn rtu_over_tcp_with_raw_access_passes_any_unit_to_the_line() {
         "{:?}",
         h.frames()
     );
+    h.base.stop().await;
+}
+
+/// The broadcast turnaround of line-a in the broadcast tests: long, so that an answer that
+/// waited for it cannot pass for one given at once.
+const TURNAROUND: Duration = Duration::from_secs(1);
+
+/// line-a served as `serve`, with a broadcast turnaround of [`TURNAROUND`].
+async fn broadcast_harness(name: &str, serve: &str) -> Harness {
+    Harness::start_edited(name, serve, "dust_collector", false, |text| {
+        text.replacen(
+            "response_timeout = \"150ms\"\n",
+            &format!(
+                "response_timeout = \"150ms\"\nbroadcast_turnaround = \"{}ms\"\n",
+                TURNAROUND.as_millis()
+            ),
+            1,
+        )
+    })
+    .await
+}
+
+/// How much earlier than the turnaround the next frame may seem to arrive: the simulator
+/// stamps a frame when it reads its first byte, a little late at times under load.
+const STAMP_SLACK: Duration = Duration::from_millis(20);
+
+/// The frames line-a heard that are `frame` (spaced hex), with when each arrived, and the
+/// frame heard next after each.
+fn heard(h: &Harness, frame: &str) -> Vec<(Instant, Option<Instant>)> {
+    let requests = h.base.plant.line_a.journal().requests();
+    requests
+        .iter()
+        .enumerate()
+        .filter(|(_, record)| hex::encode(&record.frame) == frame)
+        .map(|(at, record)| {
+            (
+                record.arrived,
+                requests.get(at + 1).map(|next| next.arrived),
+            )
+        })
+        .collect()
+}
+
+/// Waits until line-a has heard frames for longer than the turnaround after `since`, so that
+/// what a broadcast was followed by is in the journal.
+async fn line_went_on(h: &Harness, since: Instant) {
+    let deadline = Instant::now() + ANSWER;
+    while !h
+        .base
+        .plant
+        .line_a
+        .journal()
+        .requests()
+        .iter()
+        .any(|record| record.arrived > since + TURNAROUND + Duration::from_millis(200))
+    {
+        assert!(
+            Instant::now() < deadline,
+            "line-a went quiet: {:?}",
+            h.frames()
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_clients_broadcast_goes_out_once_and_is_answered_at_once() {
+    use rtu2mqtt_modbus::tcp::mbap;
+    use rtu2mqtt_modbus::{codec, Request, Response};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let h = broadcast_harness("serve-broadcast", "access = \"raw\"").await;
+    h.base.plant.line_a.journal().clear();
+
+    // The dust collector's gear (0x1002 in its vendor's FC06 table) set to 9 on every device
+    // of the line, over a plain Modbus TCP socket: the line retries unanswered requests once.
+    let write = Request::WriteSingleRegister {
+        address: 0x1002,
+        value: 9,
+    };
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+        .await
+        .unwrap();
+    let asked = Instant::now();
+    stream
+        .write_all(&mbap::encode_request(7, 0, &write).unwrap())
+        .await
+        .unwrap();
+    // The MBAP header, then as many bytes as it says follow.
+    let mut answer = vec![0u8; 7];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    let rest = usize::from(u16::from_be_bytes([answer[4], answer[5]])).saturating_sub(1);
+    answer.resize(7 + rest, 0);
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer[7..]))
+        .await
+        .expect("the whole answer in time")
+        .unwrap();
+    let waited = asked.elapsed();
+    // The echo, as an answered write gets it, long before the turnaround is over.
+    let echo = Response::WriteSingleRegister {
+        address: 0x1002,
+        value: 9,
+    };
+    let expected = mbap::rtu_to_adu(7, &codec::encode_answer(0, &echo)).unwrap();
+    assert_eq!(hex::encode(&answer), hex::encode(&expected));
+    assert!(waited < TURNAROUND / 2, "answered after {waited:?}");
+    println!("broadcast answered after {waited:?} (turnaround {TURNAROUND:?})");
+
+    // pymodbus, writing 8 the same way, hears that it was written.
+    let answers = h.client(json!([["write", 0, 0x1002, 8]])).await;
+    assert_eq!(answers, [json!({"written": true})]);
+
+    // Each went out once, and the line was quiet for the turnaround after each.
+    line_went_on(&h, Instant::now()).await;
+    for frame in ["00 06 10 02 00 09 ED 1D", "00 06 10 02 00 08 2C DD"] {
+        let heard = heard(&h, frame);
+        assert_eq!(heard.len(), 1, "{frame} on the wire: {:?}", h.frames());
+        let (at, next) = heard[0];
+        let next = next.expect("the line went on");
+        assert!(
+            next - at >= TURNAROUND - STAMP_SLACK,
+            "{frame} followed after {:?}",
+            next - at
+        );
+    }
+    h.base.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broadcast_over_rtu_over_tcp_goes_out_once_and_gets_no_answer() {
+    use rtu2mqtt_modbus::{codec, Request};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let serve = "listen = \"tcp://127.0.0.1:{port}\"\naccess = \"raw\"";
+    let h = broadcast_harness("serve-rtu-broadcast", serve).await;
+    h.base.plant.line_a.journal().clear();
+    let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", h.port))
+        .await
+        .unwrap();
+
+    // A broadcast and right behind it a read of the dust collector's block, as an RTU master
+    // sends them: on the serial line nothing answers the broadcast, so the first bytes back
+    // are the read's answer.
+    let broadcast = hex::decode("00 06 10 02 00 09 ED 1D");
+    let block = Request::ReadHoldingRegisters {
+        start: 0x1000,
+        quantity: 6,
+    };
+    stream.write_all(&broadcast).await.unwrap();
+    stream
+        .write_all(&codec::encode_request(DUST, &block).unwrap())
+        .await
+        .unwrap();
+    let mut answer = [0u8; 17];
+    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    let decoded = codec::decode_answer(DUST, &block, &answer);
+    assert!(
+        matches!(decoded, Ok(codec::Answer::Normal(_))),
+        "{}: {decoded:?}",
+        hex::encode(&answer)
+    );
+    line_went_on(&h, Instant::now()).await;
+    let heard = heard(&h, "00 06 10 02 00 09 ED 1D");
+    assert_eq!(heard.len(), 1, "{:?}", h.frames());
+    let (at, next) = heard[0];
+    assert!(
+        next.is_some_and(|next| next - at >= TURNAROUND - STAMP_SLACK),
+        "{:?}",
+        h.frames()
+    );
+    // Nothing more comes on the connection.
+    let mut more = [0u8; 1];
+    let late = tokio::time::timeout(Duration::from_millis(500), stream.read(&mut more)).await;
+    assert!(late.is_err(), "bytes after the read's answer: {more:?}");
     h.base.stop().await;
 }
 

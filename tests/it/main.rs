@@ -26,6 +26,7 @@ mod library;
 mod line_server;
 mod logs;
 mod number_grammar;
+mod oversized_messages;
 mod plant_connection;
 mod profile_codecs;
 mod profiles_cli;

@@ -26,10 +26,22 @@ impl Link {
     /// Sends `request` to every device (address 0) and keeps the line quiet for the
     /// broadcast turnaround.
     pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+        self.broadcast_then(request, || {}).await
+    }
+
+    /// [`Link::broadcast`], calling `sent` as soon as the request is on its way and before
+    /// the turnaround: no device answers a broadcast, so there is nothing more to wait for
+    /// before whoever asked is told. It is sent once, never repeated: a broadcast has no
+    /// answer whose absence could call for another attempt.
+    pub async fn broadcast_then(
+        &mut self,
+        request: &Request,
+        sent: impl FnOnce() + Send,
+    ) -> Result<(), Error> {
         match self {
-            Link::Serial(master) => master.broadcast(request).await,
-            Link::RawTcp(master) => master.broadcast(request).await,
-            Link::ModbusTcp(master) => master.broadcast(request).await,
+            Link::Serial(master) => master.broadcast_then(request, sent).await,
+            Link::RawTcp(master) => master.broadcast_then(request, sent).await,
+            Link::ModbusTcp(master) => master.broadcast_then(request, sent).await,
         }
     }
 

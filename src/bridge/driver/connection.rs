@@ -10,7 +10,9 @@
 //! would otherwise drop them (a new session) or send them ahead of older journaled records.
 //! A publish larger than the outgoing packet limit is refused before it reaches rumqttc
 //! ([`PacketLimit`]): rumqttc would fail the whole connection on it, and send it again after
-//! every reconnect.
+//! every reconnect. An incoming packet larger than [`MAX_INCOMING_PACKET`] is refused by
+//! rumqttc unread, which ends the connection: it is made again, and [`super::oversized`] keeps
+//! the same packet from coming straight back.
 
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -24,6 +26,7 @@ use rumqttc::{
 use tokio::sync::{mpsc, watch};
 
 use super::history_stream::is_history;
+use super::oversized::{log_oversized, oversized, SubscriptionWatch};
 use crate::config::MqttSettings;
 use rtu2mqtt_profile::contract::{Topics, OFFLINE};
 
@@ -42,16 +45,16 @@ pub const BRIDGE_REQUEST_QUEUE: usize = 64;
 /// Connections that end within [`STABLE_CONNECTION`] in a row before a client-id clash is
 /// reported.
 const CLASH_SUSPECTED_AFTER: u32 = 3;
-/// Incoming packets above this end the connection in rumqttc (it reads a packet's length and
-/// gives up before reading its body), and the connection is lost *before* the message is
-/// acknowledged: a retained one comes back with every re-subscription and a QoS 1 one with
-/// every resumed persistent session, so any finite limit below the broker's lets one oversized
-/// `…/set` message cut the gateway off for good. The limit is therefore the largest packet MQTT
-/// can express (remaining length 268 435 455): every message the broker accepts is received,
-/// acknowledged, refused by the bridge's own `max_payload` and (when retained) cleared. The
-/// memory bound is the broker's maximum message size (mosquitto `message_size_limit` /
-/// `max_packet_size`), which deployments can lower; the bridge drops the payload at once.
-pub const MAX_INCOMING_PACKET: usize = 268_435_455;
+/// The largest incoming packet read (its remaining length; larger ones rumqttc refuses after
+/// reading their length, before their body, and ends the connection). What the gateway
+/// subscribes to is far smaller: commands (`gateway.max_payload`, at most 64 KiB, on a topic of
+/// at most 64 KiB), its own retained topics and Home Assistant configs (it sends nothing larger
+/// than [`MAX_OUTGOING_PACKET`]), Home Assistant's status (a word) and other integrations'
+/// configs (kilobytes). The limit is 16 times that, so that a command far over `max_payload` is
+/// still read, answered `rejected` and, when retained, cleared; the memory a message costs is
+/// bounded by it whatever the broker accepts. What is larger is refused unread (see
+/// [`super::oversized`]).
+pub const MAX_INCOMING_PACKET: usize = 16 * MAX_OUTGOING_PACKET;
 /// The largest packet the gateway sends. rumqttc checks every outgoing packet against it and
 /// ends the connection on one that is larger (keeping it to send again after the reconnect),
 /// so [`PacketLimit`] refuses such a publish before it is handed over. MQTT 3.1.1 has no way
@@ -285,13 +288,35 @@ impl Backoff {
     }
 }
 
-/// Polls `eventloop` until our Disconnect goes out or the bridge is gone.
+/// Takes what rumqttc read before a connection failed and would hand over only after the next
+/// ConnAck: it belongs to the connection that ended.
+pub fn take_held_events(eventloop: &mut EventLoop) -> Vec<Event> {
+    eventloop.state.events.drain(..).collect()
+}
+
+/// Takes the subscriptions rumqttc had taken and not sent out of what it would send on the
+/// next connection, in order: every connection subscribes anew.
+fn take_unsent_subscriptions(eventloop: &mut EventLoop) -> Vec<String> {
+    let mut filters = Vec::new();
+    eventloop.pending.retain(|request| match request {
+        rumqttc::Request::Subscribe(subscribe) => {
+            filters.extend(subscribe.filters.iter().map(|filter| filter.path.clone()));
+            false
+        }
+        _ => true,
+    });
+    filters
+}
+
+/// Polls `eventloop` until our Disconnect goes out or the bridge is gone. `subscriptions` is
+/// told what goes out and comes in (the writer hands the subscriptions through it).
 pub fn spawn_event_loop(
     mut eventloop: EventLoop,
     events_tx: mpsc::Sender<LinkEvent>,
     client_id: String,
     link: LinkFlag,
     mut give_back: watch::Receiver<bool>,
+    subscriptions: SubscriptionWatch,
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut backoff = Backoff::default();
@@ -300,6 +325,8 @@ pub fn spawn_event_loop(
         let mut reported_down = false;
         // Failed attempts since the link went down, for the log.
         let mut failed_attempts: u32 = 0;
+        // The session asked for; a connection after an oversized packet starts a clean one.
+        let clean_session = eventloop.mqtt_options.clean_session();
         loop {
             let polled = tokio::select! {
                 polled = eventloop.poll() => polled,
@@ -313,8 +340,12 @@ pub fn spawn_event_loop(
                     return;
                 }
             };
+            if let Ok(event) = &polled {
+                subscriptions.seen(event);
+            }
             let event = match polled {
                 Ok(Event::Incoming(Packet::ConnAck(connack))) => {
+                    eventloop.mqtt_options.set_clean_session(clean_session);
                     connected_since = Some(Instant::now());
                     reported_down = false;
                     failed_attempts = 0;
@@ -339,12 +370,35 @@ pub fn spawn_event_loop(
                 }
                 Ok(_) => continue,
                 Err(error) => {
+                    // Messages read before the failure go to the bridge first, as they came.
+                    for event in take_held_events(&mut eventloop) {
+                        subscriptions.seen(&event);
+                        if let Event::Incoming(Packet::Publish(publish)) = event {
+                            if events_tx.send(LinkEvent::Message(publish)).await.is_err() {
+                                return;
+                            }
+                        }
+                    }
+                    let unsent = take_unsent_subscriptions(&mut eventloop);
+                    let oversized = oversized(&error);
+                    let blame = subscriptions.connection_ended(
+                        &unsent,
+                        oversized.is_some(),
+                        Instant::now(),
+                    );
+                    if let Some(size) = oversized {
+                        // A message the broker keeps for a persistent session would come again
+                        // at once: that session is given up.
+                        eventloop.mqtt_options.set_clean_session(true);
+                        log_oversized("plain", size, MAX_INCOMING_PACKET, &blame, !clean_session);
+                    }
                     if let Some(since) = connected_since.take() {
                         let lived = since.elapsed();
                         if lived >= STABLE_CONNECTION {
                             backoff.reset();
                         }
-                        if clash.connection_ended(lived) {
+                        // A connection ended by what the broker sent is no client-id clash.
+                        if oversized.is_none() && clash.connection_ended(lived) {
                             tracing::error!(client_id = %client_id,
                                 "the broker keeps closing this gateway's connection right after it is made: \
                                  another client probably uses the same client id (each connection takes \

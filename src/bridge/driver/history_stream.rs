@@ -290,4 +290,127 @@ mod tests {
         assert!(!is_history("plant/dust_collector/prehistory", false));
         assert!(!is_history("history", false));
     }
+
+    /// A tmpfs of `size` on a fresh directory, unmounted when dropped; None where mounting is
+    /// not permitted.
+    struct SmallDisk(tempfile::TempDir);
+
+    impl SmallDisk {
+        fn mount(size: &str) -> Option<SmallDisk> {
+            let dir = tempfile::tempdir().ok()?;
+            let mounted = std::process::Command::new("mount")
+                .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+                .arg(dir.path())
+                .status()
+                .is_ok_and(|status| status.success());
+            mounted.then_some(SmallDisk(dir))
+        }
+
+        /// Takes all the room left.
+        fn fill(&self) -> std::path::PathBuf {
+            use std::io::Write;
+            let path = self.0.path().join("filler");
+            if let Ok(mut file) = std::fs::File::create(&path) {
+                while file.write_all(&[0xAA; 4096]).is_ok() {}
+                while file.write_all(&[0xAA; 1]).is_ok() {}
+            }
+            path
+        }
+    }
+
+    impl Drop for SmallDisk {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg(self.0.path())
+                .status();
+        }
+    }
+
+    /// The gears of what `replay(room)` hands out, until it hands out nothing.
+    fn replay_all(stream: &mut HistoryStream, room: usize) -> Vec<String> {
+        let mut gears = Vec::new();
+        loop {
+            let batch: Vec<String> = stream
+                .replay(room)
+                .into_iter()
+                .map(|publish| {
+                    let values = crate::history::document::values_of(&publish.payload);
+                    values.map_or(String::new(), |v| v[0].1.to_string())
+                })
+                .collect();
+            if batch.is_empty() {
+                return gears;
+            }
+            gears.extend(batch);
+        }
+    }
+
+    fn gears(range: std::ops::Range<u64>) -> Vec<String> {
+        range.map(|n| n.to_string()).collect()
+    }
+
+    #[test]
+    fn after_a_full_disk_a_later_outage_loses_nothing_whatever_waits_in_memory() {
+        let Some(disk) = SmallDisk::mount("64k") else {
+            eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+            return;
+        };
+        let mut stream = stream(&disk.0.path().join("history"));
+        let mut now = Instant::now();
+        let mut tick = |stream: &mut HistoryStream| {
+            now += Duration::from_secs(1);
+            stream.on_tick(now);
+        };
+        // An outage on a full disk: what is read waits in memory; room again, the journal
+        // is writable again and the broker's return replays it all.
+        let filler = disk.fill();
+        for n in 0..5 {
+            assert_eq!(stream.route(entry(n), false), None);
+        }
+        tick(&mut stream);
+        assert!(stream.problem().is_some());
+        std::fs::remove_file(&filler).expect("room again");
+        tick(&mut stream);
+        assert_eq!(stream.problem(), None);
+        assert_eq!(replay_all(&mut stream, 100), gears(0..5));
+
+        // The next outage: the first values go to disk until it is full again (what the
+        // segment's last page holds), then 16 wait in memory.
+        let failures = stream.stats(false).journal.write_failures;
+        let filler = disk.fill();
+        let mut n = 5;
+        while stream.problem().is_none() {
+            assert_eq!(stream.route(entry(n), false), None);
+            n += 1;
+            assert!(n < 1000, "the disk never filled");
+        }
+        let on_disk = n - 1 - 5;
+        for _ in 0..15 {
+            assert_eq!(stream.route(entry(n), false), None);
+            n += 1;
+        }
+        // The one that found the disk full and 15 behind it: 16 in memory.
+        assert_eq!(stream.stats(false).journal.write_failures - failures, 16);
+        // The broker comes back with those in memory: a little replayed (from disk), then
+        // room again and the journal written, then the rest; what is read meanwhile follows.
+        let mut replayed = replay_all_of(stream.replay(4));
+        std::fs::remove_file(&filler).expect("room again");
+        tick(&mut stream);
+        assert_eq!(stream.problem(), None);
+        assert_eq!(stream.route(entry(n), true), None, "behind the replay");
+        replayed.extend(replay_all(&mut stream, 3));
+        assert_eq!(replayed, gears(5..n + 1), "{on_disk} were on disk");
+        assert_eq!(stream.stats(true).journal.waiting, 0);
+        assert!(stream.route(entry(n + 1), true).is_some(), "live again");
+    }
+
+    fn replay_all_of(publishes: Vec<Publish>) -> Vec<String> {
+        publishes
+            .into_iter()
+            .map(|publish| {
+                let values = crate::history::document::values_of(&publish.payload);
+                values.map_or(String::new(), |v| v[0].1.to_string())
+            })
+            .collect()
+    }
 }

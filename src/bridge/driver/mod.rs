@@ -8,11 +8,13 @@
 //! [`OVERLOAD_HIGH`] the core sheds incoming commands (each still gets its outcome) until it is
 //! back under [`OVERLOAD_LOW`]. With `[history]`, [`history_stream`] carries the history stream:
 //! published while the broker is there, journaled while it is away, replayed after. [`tls`] is
-//! the `mqtts://` client configuration.
+//! the `mqtts://` client configuration. [`oversized`] keeps an incoming packet larger than the
+//! gateway reads from ending connection after connection.
 
 pub mod connection;
 pub(crate) mod history_stream;
 pub(crate) mod outbox;
+pub mod oversized;
 pub(crate) mod tls;
 mod writer;
 
@@ -29,6 +31,7 @@ use tokio::sync::{mpsc, watch};
 use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
 use self::outbox::{Outbox, Request, Urgency};
+use self::oversized::SubscriptionWatch;
 use self::writer::spawn_writer;
 use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
@@ -172,7 +175,13 @@ impl Bridge {
         let (link_tx, link_rx) = mpsc::channel(256);
         let link: LinkFlag = Arc::new(AtomicBool::new(false));
         let in_writer = Arc::new(AtomicUsize::new(0));
-        let writer_link = (Arc::clone(&link), link_tx.clone(), Arc::clone(&in_writer));
+        let subscriptions = SubscriptionWatch::default();
+        let writer_link = (
+            Arc::clone(&link),
+            link_tx.clone(),
+            Arc::clone(&in_writer),
+            subscriptions.clone(),
+        );
         let (give_back, give_back_rx) = watch::channel(false);
         let event_loop = connection::spawn_event_loop(
             eventloop,
@@ -180,6 +189,7 @@ impl Bridge {
             config.mqtt.client_id.clone(),
             link,
             give_back_rx,
+            subscriptions,
         );
         let now = Instant::now();
         let (heartbeat_tx, heartbeat) = watch::channel(now);

@@ -4,7 +4,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use rumqttc::AsyncClient;
 use tokio::sync::mpsc;
@@ -12,6 +12,7 @@ use tokio::sync::mpsc;
 use super::connection::{LinkEvent, LinkFlag};
 use super::history_stream::is_history;
 use super::outbox::Request;
+use super::oversized::SubscriptionWatch;
 use crate::bridge::core::Publish;
 
 /// How long the writer waits before offering a history publish to a full client queue again.
@@ -23,7 +24,12 @@ const HANDOVER_RETRY: Duration = Duration::from_millis(10);
 pub(super) fn spawn_writer(
     client: AsyncClient,
     mut requests: mpsc::Receiver<Request>,
-    (link, link_tx, in_writer): (LinkFlag, mpsc::Sender<LinkEvent>, Arc<AtomicUsize>),
+    (link, link_tx, in_writer, subscriptions): (
+        LinkFlag,
+        mpsc::Sender<LinkEvent>,
+        Arc<AtomicUsize>,
+        SubscriptionWatch,
+    ),
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut client_gone = false;
@@ -46,7 +52,14 @@ pub(super) fn spawn_writer(
                         .publish(publish.topic, publish.qos, publish.retain, publish.payload)
                         .await
                 }
-                Request::Subscribe { filter, qos } => client.subscribe(filter, qos).await,
+                // One left out (it keeps bringing an oversized retained message) is not sent.
+                Request::Subscribe { filter, qos } => {
+                    if subscriptions.handing(&filter, Instant::now()) {
+                        client.subscribe(filter, qos).await
+                    } else {
+                        Ok(())
+                    }
+                }
                 Request::Unsubscribe { filter } => client.unsubscribe(filter).await,
                 Request::Disconnect => client.disconnect().await,
             };

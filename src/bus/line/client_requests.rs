@@ -1,6 +1,7 @@
 //! The line task's served side: a client's request as a line slot. Reads come from the poll
 //! cache or the wire, writes are planned through the profile (or passed raw), kept to the
-//! fields' write intervals, and answered as the device answered.
+//! fields' write intervals, and answered as the device answered; a broadcast (unit 0) goes out
+//! once and is answered as soon as it is on the line.
 
 use std::time::Instant;
 
@@ -14,8 +15,11 @@ use crate::bus::serve::served_side::{
 };
 use crate::bus::serve::{Access, ClientRequest};
 use crate::bus::transaction::{Exchange, Failure};
-use rtu2mqtt_modbus::Reply;
+use rtu2mqtt_modbus::{Error as MasterError, Reply};
 use rtu2mqtt_modbus::{ExceptionCode, Request};
+
+/// The address every device on a line hears and none answers.
+const BROADCAST: u8 = 0;
 
 /// Client requests: the cache, the profile's write planning, and the exchange on the line.
 impl Line {
@@ -69,6 +73,38 @@ impl Line {
             let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
             return;
         };
+        if unit == BROADCAST {
+            // Every device hears address 0 and none answers it: there is no answer to wait
+            // for and none whose absence could call for another attempt. A write goes out
+            // once and its client is told at once what an answered write is told (the echo),
+            // while the line keeps its broadcast turnaround; a read could only time out, so
+            // it is answered 0B at once and never sent.
+            let Some(echoed) = echo(&request) else {
+                let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+                return;
+            };
+            let mut waiting = Some(reply);
+            let sent = master
+                .broadcast_then(&request, || {
+                    if let Some(reply) = waiting.take() {
+                        let _ = reply.send(Ok(echoed));
+                    }
+                })
+                .await;
+            tracing::debug!(%client, ?request, ?sent, "client broadcast on the line");
+            if let Some((device, fields)) = raw_write {
+                self.note_write(device, &fields).await;
+            }
+            if let Err(error) = sent {
+                if let Some(reply) = waiting {
+                    let _ = reply.send(Err(ExceptionCode::GatewayTargetFailedToRespond));
+                }
+                if let MasterError::PortGone(fault) = error {
+                    self.port_failed(fault).await;
+                }
+            }
+            return;
+        }
         let mut passer_by = crate::bus::stats::DeviceStats::new(&format!("unit {unit}"));
         let unknown = format!("unit {unit}");
         let (name, stats) = match device.and_then(|d| self.devices.get_mut(d)) {

@@ -1,7 +1,8 @@
 //! The listening side of a served line: accepts up to `max_clients` connections, frames each
 //! client's requests (Modbus TCP or RTU over TCP), answers what the [`policy`] refuses at once,
 //! and hands the rest to the line task, one request per client at a time, so clients take turns
-//! and none can fill the line's queue. Answers go back in the order the requests came. A client
+//! and none can fill the line's queue. Answers go back in the order the requests came (none to
+//! a broadcast in RTU framing, as on the serial line). A client
 //! may have [`PIPELINE`] requests waiting for the line; one that pipelines more gets exception
 //! 06 (server device busy) for them, and while [`HELD`] of its requests are unanswered its
 //! socket is not read, so a flood waits in the client's own buffers, not in the daemon.
@@ -329,6 +330,12 @@ async fn write_answer(socket: &mut OwnedWriteHalf, answered: Held) -> Result<(),
     let HeldState::Answered(reply) = answered.state else {
         return Ok(());
     };
+    // RTU over TCP is the serial line's own framing, where nothing ever answers address 0: a
+    // master that sent a broadcast listens for no answer, and one arriving would be taken
+    // for the answer to its next request.
+    if answered.transaction.is_none() && answered.unit == 0 {
+        return Ok(());
+    }
     let rtu = match &reply {
         Ok(response) => codec::encode_answer(answered.unit, response),
         Err(code) => codec::encode_exception(answered.unit, answered.function, *code),

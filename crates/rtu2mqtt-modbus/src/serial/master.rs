@@ -166,6 +166,16 @@ impl Master {
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
     /// for the turnaround delay.
     pub async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+        self.broadcast_then(request, || {}).await
+    }
+
+    /// [`Master::broadcast`], calling `sent` once the frame has left the port and before the
+    /// turnaround: nothing will answer, so whoever asked for it can be told at once.
+    pub async fn broadcast_then(
+        &mut self,
+        request: &Request,
+        sent: impl FnOnce() + Send,
+    ) -> Result<(), Error> {
         let frame = codec::encode_request(0, request)?;
         // Nothing answers a broadcast, so no late answer can be taken for its: no guard.
         let patience = self
@@ -174,6 +184,7 @@ impl Master {
             .max(Duration::from_secs(1));
         self.wait_for_silence(None, patience).await?;
         let drained_at = self.send(&frame).await?;
+        sent();
         self.timer
             .sleep_until(drained_at + self.options.broadcast_turnaround)
             .await;

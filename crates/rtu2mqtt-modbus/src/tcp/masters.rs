@@ -333,13 +333,19 @@ impl RawTcpMaster {
         })
     }
 
-    /// Sends `request` to address 0; nothing answers. The line is then kept silent for the
-    /// request's wire time and the broadcast turnaround.
-    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    /// Sends `request` to address 0; nothing answers. `sent` is called once the frame is
+    /// sent; the line is then kept silent for the request's wire time and the broadcast
+    /// turnaround.
+    pub(crate) async fn broadcast_then(
+        &mut self,
+        request: &Request,
+        sent: impl FnOnce() + Send,
+    ) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let frame = codec::encode_request(0, request)?;
         self.connection.ensure().await?;
         let sent_at = self.send(&frame).await?;
+        sent();
         self.next_send_at = sent_at + self.timing.frame_time(frame.len()) + turnaround;
         self.timer.sleep_until(self.next_send_at).await;
         Ok(())
@@ -519,15 +525,20 @@ impl ModbusTcpMaster {
         transaction
     }
 
-    /// Sends `request` to unit 0 (broadcast) and waits the broadcast turnaround; nothing
-    /// answers.
-    pub(crate) async fn broadcast(&mut self, request: &Request) -> Result<(), Error> {
+    /// Sends `request` to unit 0 (broadcast), calls `sent` and waits the broadcast
+    /// turnaround; nothing answers.
+    pub(crate) async fn broadcast_then(
+        &mut self,
+        request: &Request,
+        sent: impl FnOnce() + Send,
+    ) -> Result<(), Error> {
         let turnaround = self.connection.options.broadcast_turnaround;
         let transaction = self.take_transaction();
         let adu = mbap::encode_request(transaction, 0, request)?;
         self.connection.ensure().await?;
         self.drop_pending()?;
         self.send(&adu).await?;
+        sent();
         tokio::time::sleep(turnaround).await;
         Ok(())
     }
