@@ -59,7 +59,7 @@ async fn ask(
         probe,
         reply,
     };
-    if requests.send(slot).await.is_err() {
+    if requests.send(Box::new(slot)).await.is_err() {
         return Err(refusal(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("line {line} has stopped"),

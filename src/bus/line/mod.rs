@@ -69,7 +69,7 @@ pub struct LineHandle {
     pub stats_rx: watch::Receiver<LineStats>,
     /// Requests of other masters as slots of the line (the console's commissioning reads);
     /// None unless the line was started for the console (`LineSpec::console`).
-    pub requests_tx: Option<mpsc::Sender<ClientRequest>>,
+    pub requests_tx: Option<mpsc::Sender<Box<ClientRequest>>>,
 }
 
 /// Commands that may wait in a line's queue; the bridge waits when it is full.
@@ -370,7 +370,7 @@ impl Line {
             // Clients after commands, before polls; a due poll between two client slots.
             let commands_queued = self.scheduler.queued_commands() > 0;
             if let Some(request) = self.served.take_turn(commands_queued) {
-                Box::pin(self.run_client(request)).await;
+                Box::pin(self.run_client(*request)).await;
                 self.publish_stats();
                 continue;
             }

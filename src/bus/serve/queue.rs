@@ -17,18 +17,18 @@ pub(crate) const CLIENT_QUEUE: usize = 64;
 /// Requests from the line's server, if it has one.
 #[derive(Debug)]
 pub(crate) struct ClientQueue {
-    queue: Option<mpsc::Receiver<ClientRequest>>,
+    queue: Option<mpsc::Receiver<Box<ClientRequest>>>,
     /// One request taken while the line waited, served at the next free turn.
-    held: Option<ClientRequest>,
+    held: Option<Box<ClientRequest>>,
 }
 
 impl ClientQueue {
-    pub(crate) fn new(queue: Option<mpsc::Receiver<ClientRequest>>) -> Self {
+    pub(crate) fn new(queue: Option<mpsc::Receiver<Box<ClientRequest>>>) -> Self {
         ClientQueue { queue, held: None }
     }
 
     /// The next request, without waiting.
-    pub(crate) fn try_take(&mut self) -> Option<ClientRequest> {
+    pub(crate) fn try_take(&mut self) -> Option<Box<ClientRequest>> {
         if let Some(held) = self.held.take() {
             return Some(held);
         }

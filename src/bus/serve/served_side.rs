@@ -73,7 +73,7 @@ impl ServedSide {
     /// Takes the server's requests and counters (a served line).
     pub(crate) fn serve(
         &mut self,
-        requests: Option<mpsc::Receiver<ClientRequest>>,
+        requests: Option<mpsc::Receiver<Box<ClientRequest>>>,
         counters: Option<Arc<ServeCounters>>,
     ) {
         self.requests = ClientQueue::new(requests);
@@ -82,7 +82,7 @@ impl ServedSide {
 
     /// The next client's request when it is the clients' turn: no command queued, and the
     /// last slot not a client's (so a due poll goes between two client slots).
-    pub(crate) fn take_turn(&mut self, commands_queued: bool) -> Option<ClientRequest> {
+    pub(crate) fn take_turn(&mut self, commands_queued: bool) -> Option<Box<ClientRequest>> {
         if !commands_queued && !self.went_last {
             if let Some(request) = self.requests.try_take() {
                 self.went_last = true;
@@ -229,9 +229,9 @@ mod tests {
 
     use super::*;
 
-    fn request(tx: &mpsc::Sender<ClientRequest>, address: u16) -> oneshot::Receiver<Reply> {
+    fn request(tx: &mpsc::Sender<Box<ClientRequest>>, address: u16) -> oneshot::Receiver<Reply> {
         let (reply, answer) = oneshot::channel();
-        let sent = tx.try_send(ClientRequest {
+        let sent = tx.try_send(Box::new(ClientRequest {
             client: "test".to_string(),
             unit: 1,
             request: Request::ReadHoldingRegisters {
@@ -240,12 +240,12 @@ mod tests {
             },
             probe: false,
             reply,
-        });
+        }));
         assert!(sent.is_ok());
         answer
     }
 
-    fn served() -> (ServedSide, mpsc::Sender<ClientRequest>) {
+    fn served() -> (ServedSide, mpsc::Sender<Box<ClientRequest>>) {
         let (tx, rx) = mpsc::channel(8);
         let mut side = ServedSide::new(BlockCache::new(Duration::ZERO, std::iter::empty()));
         side.serve(Some(rx), Some(Arc::new(ServeCounters::default())));

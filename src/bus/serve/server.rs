@@ -69,7 +69,7 @@ struct Context {
     access: Access,
     framing: ServeFraming,
     devices: Arc<Vec<DeviceSpec>>,
-    line: mpsc::Sender<ClientRequest>,
+    line: mpsc::Sender<Box<ClientRequest>>,
     counters: Arc<ServeCounters>,
 }
 
@@ -77,7 +77,7 @@ struct Context {
 pub(crate) async fn run(
     spec: ServeSpec,
     devices: Vec<DeviceSpec>,
-    line: mpsc::Sender<ClientRequest>,
+    line: mpsc::Sender<Box<ClientRequest>>,
     counters: Arc<ServeCounters>,
     shutdown: CancellationToken,
 ) {
@@ -412,7 +412,7 @@ async fn to_the_line(
         probe: false,
         reply: reply_tx,
     };
-    context.line.send(slot).await.ok()?;
+    context.line.send(Box::new(slot)).await.ok()?;
     Some(reply_rx)
 }
 
