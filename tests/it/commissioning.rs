@@ -198,7 +198,7 @@ async fn a_full_range_scan_is_quick_and_finds_every_device() {
     // The figure the scan prints, and the wall time around it (process start included).
     let seconds: f64 = errors
         .lines()
-        .find_map(|line| line.strip_prefix("scanned 247 addresses at 1 setting(s) in "))
+        .find_map(|line| line.strip_prefix("scanned 247 addresses at 1 serial setting in "))
         .and_then(|rest| rest.strip_suffix(" s"))
         .and_then(|figure| figure.parse().ok())
         .unwrap_or_else(|| panic!("no duration printed: {errors}"));

@@ -173,7 +173,7 @@ start = 0x100
 count = 2
 
 [[fields]]
-name = "status"
+name = "running"
 block = "main"
 offset = 0
 codec = { type = "bit", bit = 1 }
@@ -220,9 +220,9 @@ fn the_base_test_profile_is_valid() {
 #[test]
 fn overlapping_fields_are_refused() {
     let text = format!(
-        "{BASE}\n[[fields]]\nname = \"status2\"\nblock = \"main\"\noffset = 0\ncodec = {{ type = \"bits\", bit = 0, width = 2 }}\n"
+        "{BASE}\n[[fields]]\nname = \"running2\"\nblock = \"main\"\noffset = 0\ncodec = {{ type = \"bits\", bit = 0, width = 2 }}\n"
     );
-    refused(&text, &["fields[3] (status2)", "overlaps field `status`"]);
+    refused(&text, &["fields[3] (running2)", "overlaps field `running`"]);
     let text = format!(
         "{BASE}\n[[fields]]\nname = \"wide\"\nblock = \"main\"\noffset = 1\ncodec = {{ type = \"u32\", word_order = \"high_first\" }}\n"
     );
@@ -315,7 +315,7 @@ fn other_mistakes_are_refused_with_their_place() {
         (
             "block = \"main\"\noffset = 0",
             "block = \"nope\"\noffset = 0",
-            &["fields[0] (status).block", "no block named `nope`"],
+            &["fields[0] (running).block", "no block named `nope`"],
         ),
         (
             "{ function = 6, address = 1 }",
@@ -325,7 +325,7 @@ fn other_mistakes_are_refused_with_their_place() {
         (
             "bit = 1 }",
             "bit = 16 }",
-            &["fields[0] (status).codec.bit", "0–15"],
+            &["fields[0] (running).codec.bit", "0–15"],
         ),
         (
             "[line]\n",
@@ -340,7 +340,7 @@ fn other_mistakes_are_refused_with_their_place() {
         (
             "bit = 1 }",
             "bit = 1 }\nalso = [3]",
-            &["fields[0] (status).also", "only integer"],
+            &["fields[0] (running).also", "only integer"],
         ),
         (
             "[line]\n",
@@ -349,7 +349,7 @@ fn other_mistakes_are_refused_with_their_place() {
         ),
         ("[line]\n", "[line]\nbaud = 9601\n", &["line.baud"]),
         (
-            "name = \"status\"",
+            "name = \"running\"",
             "name = \"Status\"",
             &["fields[0] (Status).name", "lower-case"],
         ),
@@ -421,16 +421,16 @@ fn behaviour_and_overlay_rules() {
 #[test]
 fn forbidden_combinations_are_checked() {
     let text = format!(
-        "{BASE}\n[[forbidden]]\nwhen = {{ status = \"ON\", ghost = \"ON\" }}\nreason = \"x\"\n"
+        "{BASE}\n[[forbidden]]\nwhen = {{ running = \"ON\", ghost = \"ON\" }}\nreason = \"x\"\n"
     );
     refused(
         &text,
         &["forbidden[0].when.ghost", "no field named `ghost`"],
     );
     let text = format!(
-        "{BASE}\n[[forbidden]]\nwhen = {{ status = \"maybe\", level = \"3\" }}\nreason = \"x\"\n"
+        "{BASE}\n[[forbidden]]\nwhen = {{ running = \"maybe\", level = \"3\" }}\nreason = \"x\"\n"
     );
-    refused(&text, &["forbidden[0].when.status", "ON or OFF"]);
+    refused(&text, &["forbidden[0].when.running", "ON or OFF"]);
 }
 
 #[test]
@@ -455,7 +455,7 @@ fn example_commands_are_checked_and_offered() {
             "codec = { type = \"bit\", bit = 1 }\n",
             "codec = { type = \"bit\", bit = 1 }\nexample = \"ON\"\n",
         ),
-        &["fields[0] (status).example", "only a writable field"],
+        &["fields[0] (running).example", "only a writable field"],
     );
     // The seed devices show the commands the demo suggests.
     for (name, expected) in [
@@ -480,10 +480,10 @@ fn settle_conditions_are_checked() {
             &format!("write = {{ function = 6, address = 1 }}\n{extra}\n"),
         )
     };
-    let good = with_level("settle_window = \"30s\"\nsettle_until = { status = \"OFF\" }");
+    let good = with_level("settle_window = \"30s\"\nsettle_until = { running = \"OFF\" }");
     assert!(Profile::from_toml(&good, "test.toml").is_ok());
     refused(
-        &with_level("settle_until = { status = \"OFF\" }"),
+        &with_level("settle_until = { running = \"OFF\" }"),
         &["fields[1] (level).settle_until", "needs a settle_window"],
     );
     refused(
@@ -491,8 +491,8 @@ fn settle_conditions_are_checked() {
         &["settle_until.ghost", "no field named `ghost`"],
     );
     refused(
-        &with_level("settle_window = \"30s\"\nsettle_until = { status = \"stopped\" }"),
-        &["settle_until.status", "ON or OFF"],
+        &with_level("settle_window = \"30s\"\nsettle_until = { running = \"stopped\" }"),
+        &["settle_until.running", "ON or OFF"],
     );
     refused(
         &with_level("settle_window = \"30s\"\nsettle_until = { level = \"3\" }"),
