@@ -160,28 +160,7 @@ fn write_config(
     plant: &ScalePlant,
     console: Option<u16>,
 ) -> anyhow::Result<PathBuf> {
-    let mut profile = String::from(
-        "[device]\nname = \"scale-meter\"\nmanufacturer = \"Bench\"\nmodel = \"100 f32 points\"\n\
-         description = \"Simulated meter of the scale bench\"\n\n[line]\naddress_range = [1, 247]\n\
-         min_poll_interval = \"1s\"\npoll_interval = \"1s\"\n\n",
-    );
-    let half = POINTS / 2;
-    for (block, start) in [("points_a", 0), ("points_b", 2 * half)] {
-        let _ = write!(
-            profile,
-            "[[blocks]]\nname = \"{block}\"\nfunction = 3\nstart = {start}\ncount = {}\n\n",
-            2 * half
-        );
-    }
-    for point in 0..POINTS {
-        let block = if point < half { "points_a" } else { "points_b" };
-        let _ = write!(
-            profile,
-            "[[fields]]\nname = \"p{point:03}\"\nblock = \"{block}\"\noffset = {}\n\
-             codec = {{ type = \"f32\", word_order = \"high_first\", decimals = 2 }}\n\n",
-            2 * (point % half)
-        );
-    }
+    let profile = scale_sim::profile_text(false);
     std::fs::write(dir.join("scale-meter.toml"), profile)?;
     let mut config = format!(
         "[mqtt]\nurl = \"{}\"\nclient_id = \"console-load\"\nprefix = \"plant\"\n\

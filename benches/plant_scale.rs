@@ -485,29 +485,7 @@ fn poisoned<T>(_: std::sync::PoisonError<T>) -> anyhow::Error {
 
 /// The profile of the simulated meter and the gateway's configuration; returns its path.
 fn write_config(dir: &Path, broker_port: u16, plant: &ScalePlant) -> anyhow::Result<PathBuf> {
-    let mut profile = String::from(
-        "[device]\nname = \"scale-meter\"\nmanufacturer = \"Bench\"\nmodel = \"100 f32 points\"\n\
-         description = \"Simulated meter of the scale bench\"\n\n[line]\naddress_range = [1, 247]\n\
-         min_poll_interval = \"1s\"\npoll_interval = \"1s\"\n\n",
-    );
-    let half = POINTS / 2;
-    for (block, start) in [("points_a", 0), ("points_b", 2 * half)] {
-        let _ = write!(
-            profile,
-            "[[blocks]]\nname = \"{block}\"\nfunction = 3\nstart = {start}\ncount = {}\n\n",
-            2 * half
-        );
-    }
-    for point in 0..POINTS {
-        let block = if point < half { "points_a" } else { "points_b" };
-        let _ = write!(
-            profile,
-            "[[fields]]\nname = \"p{point:03}\"\nblock = \"{block}\"\noffset = {}\n\
-             codec = {{ type = \"f32\", word_order = \"high_first\", decimals = 2 }}\n\
-             ha = {{ state_class = \"measurement\" }}\n\n",
-            2 * (point % half)
-        );
-    }
+    let profile = scale_sim::profile_text(true);
     std::fs::write(dir.join("scale-meter.toml"), profile)?;
     let mut config = gateway_sections(dir, broker_port);
     for (index, addr) in plant.addrs.iter().enumerate() {

@@ -95,6 +95,40 @@ impl ScalePlant {
     }
 }
 
+/// The profile of the simulated meter: `POINTS` `f32` points in two blocks of registers, with
+/// Home Assistant's `measurement` state class when `measured`.
+pub fn profile_text(measured: bool) -> String {
+    use std::fmt::Write as _;
+    let mut profile = String::from(
+        "[device]\nname = \"scale-meter\"\nmanufacturer = \"Bench\"\nmodel = \"100 f32 points\"\n\
+         description = \"Simulated meter of the scale bench\"\n\n[line]\naddress_range = [1, 247]\n\
+         min_poll_interval = \"1s\"\npoll_interval = \"1s\"\n\n",
+    );
+    let half = POINTS / 2;
+    for (block, start) in [("points_a", 0), ("points_b", 2 * half)] {
+        let _ = write!(
+            profile,
+            "[[blocks]]\nname = \"{block}\"\nfunction = 3\nstart = {start}\ncount = {}\n\n",
+            2 * half
+        );
+    }
+    let ha = if measured {
+        "ha = { state_class = \"measurement\" }\n"
+    } else {
+        ""
+    };
+    for point in 0..POINTS {
+        let block = if point < half { "points_a" } else { "points_b" };
+        let _ = write!(
+            profile,
+            "[[fields]]\nname = \"p{point:03}\"\nblock = \"{block}\"\noffset = {}\n\
+             codec = {{ type = \"f32\", word_order = \"high_first\", decimals = 2 }}\n{ha}\n",
+            2 * (point % half)
+        );
+    }
+    profile
+}
+
 /// How many times point `point` of `device` has changed by `at`.
 fn generation(device: u32, point: usize, at: Duration) -> u64 {
     // Point p changes when the clock passes p seconds (mod the period), shifted by a few

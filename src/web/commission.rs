@@ -204,6 +204,15 @@ pub struct ReadReport {
     pub bits: Option<Vec<bool>>,
 }
 
+/// A device's address from a form: 1–255, decimal or `0x` hex (0 is the broadcast, which no
+/// device answers).
+fn device_address(text: &str) -> Result<SlaveId, String> {
+    match crate::cli::parse_address(text.trim())? {
+        0 => Err("address 0 is the broadcast: nothing answers it".to_string()),
+        address => Ok(address),
+    }
+}
+
 /// A bus address as a manual writes it: decimal, or hex with `0x`.
 fn parse_register(text: &str) -> Result<u16, String> {
     let text = text.trim();
@@ -216,14 +225,8 @@ fn parse_register(text: &str) -> Result<u16, String> {
 
 /// `POST /api/read`: one read through the line, shown every way.
 pub async fn read(State(console): State<Arc<Console>>, Form(form): Form<ReadForm>) -> Response {
-    let address = match crate::cli::parse_address(form.address.trim()) {
-        Ok(address) if address > 0 => address,
-        Ok(_) => {
-            return refusal(
-                StatusCode::BAD_REQUEST,
-                "address 0 is the broadcast: nothing answers it",
-            )
-        }
+    let address = match device_address(&form.address) {
+        Ok(address) => address,
         Err(reason) => return refusal(StatusCode::BAD_REQUEST, reason),
     };
     let start = match parse_register(&form.start) {
@@ -338,14 +341,8 @@ fn verdict(text: &str) -> Result<Profile, Vec<String>> {
 /// `POST /api/tryout`: checks the pasted profile and reads its blocks once from the device,
 /// decoded as the gateway would publish them; the running configuration is not touched.
 pub async fn tryout(State(console): State<Arc<Console>>, Form(form): Form<TryoutForm>) -> Response {
-    let address = match crate::cli::parse_address(form.address.trim()) {
-        Ok(address) if address > 0 => address,
-        Ok(_) => {
-            return refusal(
-                StatusCode::BAD_REQUEST,
-                "address 0 is the broadcast: nothing answers it",
-            )
-        }
+    let address = match device_address(&form.address) {
+        Ok(address) => address,
         Err(reason) => return refusal(StatusCode::BAD_REQUEST, reason),
     };
     if console.line(&form.line).is_none() {
