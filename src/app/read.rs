@@ -263,6 +263,28 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
             );
         }
     }
+    if words.len() >= 4 {
+        let _ = writeln!(
+            out,
+            "\nfour      u64 (high word first)            i64                   f64  | u64 (low word first)             i64                   f64"
+        );
+        for (i, four) in words.windows(4).enumerate() {
+            let high_first = four.iter().fold(0u64, |acc, &w| (acc << 16) | u64::from(w));
+            let low_first = four
+                .iter()
+                .rev()
+                .fold(0u64, |acc, &w| (acc << 16) | u64::from(w));
+            let _ = writeln!(
+                out,
+                "{:#06x}    {high_first:>20}  {:>20}  {:>20}  | {low_first:>20}  {:>20}  {:>20}",
+                start.wrapping_add(i as u16),
+                high_first as i64,
+                float64(high_first),
+                low_first as i64,
+                float64(low_first),
+            );
+        }
+    }
     let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_be_bytes()).collect();
     let swapped: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
     let _ = writeln!(out, "\ntext (high byte first) \"{}\"", printable(&bytes));
@@ -309,6 +331,19 @@ fn float(bits: u32) -> String {
     }
 }
 
+/// An f64 from its bits, shown as [`float`] shows an f32.
+fn float64(bits: u64) -> String {
+    let value = f64::from_bits(bits);
+    let magnitude = value.abs();
+    if !value.is_finite() {
+        format!("{value:?}")
+    } else if magnitude != 0.0 && !(1e-4..1e12).contains(&magnitude) {
+        format!("{value:e}")
+    } else {
+        format!("{value}")
+    }
+}
+
 /// Printable ASCII as itself, anything else as `.`.
 fn printable(bytes: &[u8]) -> String {
     bytes
@@ -349,6 +384,25 @@ mod tests {
         assert!(
             text.contains("text (high byte first) \"AH...4..\""),
             "{text}"
+        );
+    }
+
+    #[test]
+    fn four_registers_read_as_64_bits_in_both_word_orders() {
+        // An energy counter of 65,538 Wh, high word first; and 2.5 as f64 (0x4004_0000_0000_0000).
+        let counter = render_registers(0, &[0x0000, 0x0000, 0x0001, 0x0002]);
+        assert!(
+            counter.contains("0x0000                   65538"),
+            "{counter}"
+        );
+        let swapped = render_registers(0, &[0x0002, 0x0001, 0x0000, 0x0000]);
+        assert!(swapped.contains("|                65538"), "{swapped}");
+        let float = render_registers(0, &[0x4004, 0x0000, 0x0000, 0x0000]);
+        assert!(float.contains("                   2.5  |"), "{float}");
+        let negative = render_registers(0, &[0xFFFF, 0xFFFF, 0xFFFF, 0xFFFE]);
+        assert!(
+            negative.contains("18446744073709551614                    -2"),
+            "{negative}"
         );
     }
 
