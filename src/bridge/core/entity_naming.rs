@@ -3,8 +3,21 @@
 
 use rtu2mqtt_profile::{FieldInfo, FieldKind};
 
-/// Words of field names that are abbreviations, written in capitals in a display name.
-const ACRONYMS: &[&str] = &["pid", "hepa", "crc", "id", "pv", "sv", "co2", "pm25", "rtu"];
+/// Words of field names that are abbreviations, written in capitals in a display name (also
+/// when a number follows them: `pv1` → `PV1`, `l2` → `L2`).
+const ACRONYMS: &[&str] = &[
+    "ac", "co2", "crc", "ct", "dc", "hepa", "id", "l", "pf", "pid", "pm25", "pt", "pv", "rtu",
+    "sv", "thd", "ups",
+];
+
+/// `word` is an abbreviation, alone or followed by a number.
+fn is_acronym(word: &str) -> bool {
+    ACRONYMS.contains(&word)
+        || word
+            .find(|c: char| c.is_ascii_digit())
+            .filter(|&at| at > 0 && word[at..].chars().all(|c| c.is_ascii_digit()))
+            .is_some_and(|at| ACRONYMS.contains(&&word[..at]))
+}
 
 /// A display name from a field name: `pulse_interval` → `Pulse interval`,
 /// `pid_invalid_flags` → `PID invalid flags` (see [`ACRONYMS`]).
@@ -14,7 +27,7 @@ pub fn display_name(field: &str) -> String {
         .filter(|word| !word.is_empty())
         .enumerate()
         .map(|(index, word)| {
-            if ACRONYMS.contains(&word) {
+            if is_acronym(word) {
                 word.to_uppercase()
             } else if index == 0 {
                 let mut chars = word.chars();
@@ -92,4 +105,22 @@ pub(super) fn default_entity_category(field: &FieldInfo) -> Option<&'static str>
 /// True for fields whose values are numbers.
 pub(super) fn is_numeric(kind: &FieldKind) -> bool {
     matches!(kind, FieldKind::Integer { .. } | FieldKind::Decimal { .. })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn abbreviations_keep_their_capitals_with_or_without_a_number() {
+        assert_eq!(display_name("ac_power"), "AC power");
+        assert_eq!(display_name("pv1_voltage"), "PV1 voltage");
+        assert_eq!(display_name("pv_power"), "PV power");
+        assert_eq!(display_name("voltage_l2"), "Voltage L2");
+        assert_eq!(display_name("thd_current_l3"), "THD current L3");
+        assert_eq!(display_name("pid_invalid_flags"), "PID invalid flags");
+        assert_eq!(display_name("pulse_interval"), "Pulse interval");
+        assert_eq!(display_name("level2"), "Level2");
+        assert_eq!(display_name("p001"), "P001");
+    }
 }
