@@ -31,8 +31,9 @@
 //!   events in, actions out; `command_desk` the command desk from arrival to result, `publisher` the
 //!   state cache and what is published from it, `discovery`, `topic_guard`, `json_view`, `payload`,
 //!   `state`, `command_book`), `driver` (the task that carries the actions out: `connection`,
-//!   `outbox`, `writer`, `tls`, `history_stream`, `oversized`) and `observers` (`statistics`
-//!   documents, the `prometheus` endpoint).
+//!   `outbox`, `writer`, `tls`, `history_stream`, `oversized`, `inputs`) and `observers`
+//!   (`statistics` documents and Prometheus text, `figures` where they are read, `plant_view`
+//!   what the console shows).
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
 //!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its
 //!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.

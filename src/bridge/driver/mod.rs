@@ -13,6 +13,7 @@
 
 pub mod connection;
 pub(crate) mod history_stream;
+mod inputs;
 pub(crate) mod outbox;
 pub mod oversized;
 pub(crate) mod tls;
@@ -30,6 +31,8 @@ use tokio::sync::{mpsc, watch};
 
 use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
+pub use self::inputs::LocalMessage;
+use self::inputs::{next_external, next_local};
 use self::outbox::{Outbox, Request, Urgency};
 use self::oversized::SubscriptionWatch;
 use self::writer::spawn_writer;
@@ -37,6 +40,7 @@ use crate::bridge::core::publisher::ANNOUNCE_BATCH;
 use crate::bridge::core::{
     Action, BridgeDevice, CommandReport, Core, CoreSettings, ExternalCommand, Incoming, Publish,
 };
+pub use crate::bridge::observers::figures::BridgeFigures;
 use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::observers::statistics::BridgeStats;
 use crate::bus::{LineEvent, LineHandle, LineStats};
@@ -79,43 +83,6 @@ pub struct BridgeHealth {
 pub struct Reconfiguration {
     pub devices: Vec<BridgeDevice>,
     pub lines: Vec<LineHandle>,
-}
-
-/// A message handed to the bridge as if a client had published it on the broker (the console's
-/// commands and refreshes on `…/set` and `…/refresh`): the same rules, the same book.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct LocalMessage {
-    pub topic: String,
-    pub payload: String,
-}
-
-/// What the bridge lets observers outside its loop read: the running lines' statistics and
-/// its own counters (both refreshed every tick), and, once asked for, the plant view.
-#[derive(Debug, Clone)]
-pub struct BridgeFigures {
-    pub lines: watch::Receiver<Vec<watch::Receiver<LineStats>>>,
-    pub counters: watch::Receiver<BridgeStats>,
-}
-
-impl BridgeFigures {
-    /// The running lines' statistics now.
-    pub fn line_stats(&self) -> Vec<LineStats> {
-        self.lines
-            .borrow()
-            .iter()
-            .map(|rx| rx.borrow().clone())
-            .collect()
-    }
-
-    /// The bridge's counters as of its last tick.
-    pub fn counters(&self) -> BridgeStats {
-        self.counters.borrow().clone()
-    }
-
-    /// The Prometheus exposition text of both.
-    pub fn prometheus_text(&self) -> String {
-        crate::bridge::observers::statistics::prometheus_text(&self.line_stats(), &self.counters())
-    }
 }
 
 /// The bridge task: the core and everything it must not touch itself.
@@ -814,22 +781,4 @@ fn line_stats(lines: &[LineHandle]) -> Vec<LineStats> {
         .iter()
         .map(|line| line.stats_rx.borrow().clone())
         .collect()
-}
-
-/// The next local message; never ready when none are accepted.
-async fn next_local(local: &mut Option<mpsc::Receiver<LocalMessage>>) -> Option<LocalMessage> {
-    match local {
-        Some(messages) => messages.recv().await,
-        None => std::future::pending().await,
-    }
-}
-
-/// The next external command; never ready when none are accepted.
-async fn next_external(
-    external: &mut Option<(mpsc::Receiver<ExternalCommand>, mpsc::Sender<CommandReport>)>,
-) -> Option<ExternalCommand> {
-    match external {
-        Some((commands, _)) => commands.recv().await,
-        None => std::future::pending().await,
-    }
 }
