@@ -349,7 +349,7 @@ async function linesPage() {
       return el("section", { class: "card", "data-line-stats": line.line },
         el("h2", { text: line.line }), el("p", { class: "meta", text: model ? `${model.link} · ${model.tcp ? "" : `${model.baud} ${model.format}`}` : "" }),
         el("table", { class: "figures" }, el("tbody", {}, rows)),
-        el("table", { class: "figures" }, el("thead", {}, el("tr", {}, ["device", "state", "latency", "worst", "timeouts/CRC/exceptions"].map((h) => el("th", { scope: "col", text: h })))), el("tbody", {}, devices)));
+        el("div", { class: "scroll" }, el("table", { class: "figures" }, el("thead", {}, el("tr", {}, ["device", "state", "latency", "worst", "timeouts / CRC / exc."].map((h) => el("th", { scope: "col", text: h })))), el("tbody", {}, devices))));
     }));
     const history = stats.gateway.history;
     journal.replaceChildren(history ? el("pre", { text: JSON.stringify(history, null, 2) }) : el("p", { text: "No journal: [history] is not configured." }));
@@ -397,7 +397,7 @@ function framesPage() {
       if (state.framesPaused || !wanted(frame)) return;
       const time = new Date(frame.at_us / 1000);
       const row = el("tr", { "data-line": frame.line, "data-hex": frame.hex, class: frame.exception !== null ? "exception" : frame.dir },
-        el("td", { text: `${time.toLocaleTimeString()}.${String(time.getMilliseconds()).padStart(3, "0")}` }),
+        el("td", { text: `${time.toLocaleTimeString([], { hour12: false })}.${String(time.getMilliseconds()).padStart(3, "0")}` }),
         el("td", { class: "num", text: frame.gap_us === null ? "" : (frame.gap_us / 1000).toFixed(2) }),
         el("td", { text: frame.line }), el("td", { text: frame.dir }),
         el("td", { class: "num", text: frame.address === null ? "" : String(frame.address) }),
