@@ -279,9 +279,9 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
                 "{:#06x}    {high_first:>20}  {:>20}  {:>20}  | {low_first:>20}  {:>20}  {:>20}",
                 start.wrapping_add(i as u16),
                 high_first as i64,
-                float64(high_first),
+                crate::web::decode::float(f64::from_bits(high_first)),
                 low_first as i64,
-                float64(low_first),
+                crate::web::decode::float(f64::from_bits(low_first)),
             );
         }
     }
@@ -325,19 +325,6 @@ fn float(bits: u32) -> String {
     if !value.is_finite() {
         format!("{value:?}")
     } else if magnitude != 0.0 && !(1e-4..1e9).contains(&magnitude) {
-        format!("{value:e}")
-    } else {
-        format!("{value}")
-    }
-}
-
-/// An f64 from its bits, shown as [`float`] shows an f32.
-fn float64(bits: u64) -> String {
-    let value = f64::from_bits(bits);
-    let magnitude = value.abs();
-    if !value.is_finite() {
-        format!("{value:?}")
-    } else if magnitude != 0.0 && !(1e-4..1e12).contains(&magnitude) {
         format!("{value:e}")
     } else {
         format!("{value}")

@@ -67,7 +67,9 @@ fn arranged(words: &[u16], order: &str) -> Vec<u8> {
         .collect()
 }
 
-fn float(value: f64) -> String {
+/// A float as a person reads it: plain for ordinary magnitudes, with an exponent for tiny or
+/// huge ones (registers that are no float show up as such), non-finite values by name.
+pub fn float(value: f64) -> String {
     if !value.is_finite() {
         return format!("{value:?}");
     }
