@@ -20,7 +20,7 @@ use tokio::sync::broadcast::error::RecvError;
 use tokio::sync::OwnedSemaphorePermit;
 
 use super::{refusal, Console};
-use crate::bridge::observers::plant_view::Published;
+use crate::bridge::observers::plant_view::news_json;
 use rtu2mqtt_modbus::codec::{decode_answer, decode_request, Answer};
 use rtu2mqtt_modbus::{Request, Response as ModbusResponse, SlaveId};
 
@@ -33,32 +33,24 @@ const GATHER: Duration = Duration::from_millis(40);
 /// A comment line this often keeps proxies from closing a quiet stream.
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
-/// One message as the page gets it.
-#[derive(Debug, Serialize)]
-pub struct TopicMessage<'a> {
-    pub topic: &'a str,
-    pub payload: &'a str,
-    /// When it was published, in milliseconds since the Unix epoch.
-    pub at_ms: u64,
-}
-
-impl<'a> TopicMessage<'a> {
-    fn of(published: &'a Published) -> Self {
-        TopicMessage {
-            topic: &published.topic,
-            payload: &published.payload,
-            at_ms: published
+/// Every topic's last message, each in the form of a `publish` event's messages
+/// ([`news_json`]), so that a page reads both alike.
+fn snapshot_event(console: &Console) -> Event {
+    let messages: Vec<String> = console
+        .view
+        .snapshot()
+        .iter()
+        .map(|published| {
+            let at_ms = published
                 .at
                 .duration_since(UNIX_EPOCH)
-                .map_or(0, |d| d.as_millis() as u64),
-        }
-    }
-}
-
-fn snapshot_event(console: &Console) -> Event {
-    let all = console.view.snapshot();
-    let messages: Vec<TopicMessage<'_>> = all.iter().map(TopicMessage::of).collect();
-    json_event("snapshot", &messages)
+                .map_or(0, |since| since.as_millis() as u64);
+            news_json(&published.topic, &published.payload, at_ms)
+        })
+        .collect();
+    Event::default()
+        .event("snapshot")
+        .data(format!("[{}]", messages.join(",")))
 }
 
 fn json_event(name: &str, body: &impl Serialize) -> Event {
