@@ -878,11 +878,14 @@ fn th_sensor_decodes_floats_in_both_word_orders() {
         ]
         .map(|(a, b)| (a.to_string(), b.to_string()))
     );
-    // A NaN float is an error for that field, not a number.
-    let answer = Response::InputRegisters(vec![0x7FC0, 0, 0x4262, 0xCCCD, 0, 0, 0, 0]);
-    let readings = profile.decode_block(0, &answer);
-    assert!(readings[0].value.is_err());
-    assert!(readings[1].value.is_ok());
+    // A NaN float is the device's "not available": no value, not a number and not an error;
+    // so are the infinities.
+    for nan_or_infinity in [0x7FC0, 0x7F80, 0xFF80] {
+        let answer = Response::InputRegisters(vec![nan_or_infinity, 0, 0x4262, 0xCCCD, 0, 0, 0, 0]);
+        let readings = profile.decode_block(0, &answer);
+        assert_eq!(readings[0].value, Ok(Value::Unavailable));
+        assert_eq!(readings[1].value.as_ref().map(Value::to_text), Ok("56.7".to_string()));
+    }
 }
 
 #[test]

@@ -10,6 +10,7 @@
 use serde::Deserialize;
 
 use super::bcd::{self, BcdError};
+use super::enumeration::EnumCodec;
 use super::field::{FieldInfo, FieldKind};
 use super::number::{self, DecimalText, ScaleError};
 use super::numeric::{at_precision, Exponent, NumberCodec, NumberError, NumberType, EXPONENTS};
@@ -92,6 +93,8 @@ pub(crate) enum FieldCodec {
         byte_order: ByteOrder,
         encoding: Encoding,
     },
+    /// A code over one or two whole registers, its codes named sparsely.
+    Enum(EnumCodec),
 }
 
 /// A change to a block image: at `offset` (block-relative), replace the bits in `mask` with
@@ -194,6 +197,7 @@ impl FieldCodec {
             Self::Number(number) => number.ty.registers(),
             Self::Bcd { .. } => 2,
             Self::Bytes { registers, .. } | Self::Text { registers, .. } => *registers,
+            Self::Enum(codes) => codes.registers,
         }
     }
 
@@ -242,7 +246,11 @@ impl FieldCodec {
             }
         };
         match self {
-            Self::Bit { .. } | Self::Coil { .. } | Self::Bytes { .. } | Self::Text { .. } => None,
+            Self::Bit { .. }
+            | Self::Coil { .. }
+            | Self::Bytes { .. }
+            | Self::Text { .. }
+            | Self::Enum(_) => None,
             Self::Bits { options, .. } | Self::Coils { options, .. } => {
                 options.is_empty().then_some(Value::Int(1))
             }
@@ -286,6 +294,9 @@ impl FieldCodec {
                 }
             }
             Self::Bytes { .. } | Self::Text { .. } => FieldKind::Text,
+            Self::Enum(codes) => FieldKind::Enum {
+                options: codes.names(),
+            },
         }
     }
 
@@ -396,6 +407,7 @@ impl FieldCodec {
                     }
                 })
                 .map_err(|error| FieldError::Invalid(error.to_string())),
+            Self::Enum(codes) => Ok(codes.decode(words)),
             Self::Coil { .. } | Self::Coils { .. } => Err(FieldError::Invalid(
                 "bit codec on a register block".to_string(),
             )),
@@ -482,6 +494,12 @@ impl FieldCodec {
                     word(1, 0xFFFF, to_bcd(scaled % divisor)?),
                 ])
             }
+            Self::Enum(codes) => Ok(codes
+                .encode(value)?
+                .into_iter()
+                .zip(0u16..)
+                .map(|(bits, rel)| word(rel, 0xFFFF, bits))
+                .collect()),
             Self::Bytes { .. } => Err("a byte string is read-only".to_string()),
             // The device side only (simulators seeding a model name): commands never get here,
             // a string having no write rule and no command kind.

@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::codec::{ByteFormat, ByteSource};
+use super::enumeration::UnknownCode;
 use super::model::Behaviour;
 use super::numeric::BytePlace;
 use super::publish::RawPublish;
@@ -272,6 +273,20 @@ pub(super) enum CodecSection {
         #[serde(default)]
         encoding: Encoding,
     },
+    /// A whole register (or two) holding a code; `values` names the codes (keys are the codes
+    /// as TOML keys: `0`, `3`, `0x10`).
+    Enum {
+        values: BTreeMap<String, String>,
+        #[serde(default = "one_register")]
+        registers: u16,
+        word_order: Option<WordOrder>,
+        #[serde(default)]
+        unknown: UnknownCode,
+    },
+}
+
+fn one_register() -> u16 {
+    1
 }
 
 impl CodecSection {
@@ -293,6 +308,15 @@ impl CodecSection {
     }
 }
 
+/// One entry of a number codec's `invalid` list, as written.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub(super) enum InvalidMark {
+    Integer(i64),
+    Float(f64),
+    Word(String),
+}
+
 /// The keys of the number codecs (`u8` … `f64`); which of them a type takes is checked by
 /// the compiler (`byte` only for 8-bit codecs, `word_order` only over several registers).
 #[derive(Debug, Default, Deserialize)]
@@ -304,9 +328,10 @@ pub(super) struct NumberSection {
     pub(super) scale: Option<f64>,
     /// Added after scaling; a whole number of the last shown place.
     pub(super) offset: Option<f64>,
-    /// Raw values that mean "no value" (`[0x8000]`), written unsigned or signed.
+    /// Values that mean "no value": raw integers (`[0x8000]`, written unsigned or signed) for
+    /// the integer codecs, values (`-1.0`, `"nan"`, `"inf"`, `"-inf"`) for the floats.
     #[serde(default)]
-    pub(super) invalid: Vec<i64>,
+    pub(super) invalid: Vec<InvalidMark>,
     /// A field of the same device holding the power of ten the value is multiplied by.
     pub(super) scale_by: Option<String>,
     pub(super) word_order: Option<WordOrder>,

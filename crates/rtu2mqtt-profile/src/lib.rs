@@ -48,6 +48,7 @@ pub mod bcd;
 mod codec;
 mod command;
 mod compile;
+pub mod enumeration;
 pub mod contract;
 mod field;
 mod format;

@@ -140,7 +140,7 @@ pub(crate) struct NumberCodec {
     pub(crate) factor: i64,
     /// Added after scaling, in units of the last shown place.
     pub(crate) offset: i128,
-    /// Raw bits that mean "no value" (`0x8000`).
+    /// Raw bits that mean "no value" (`0x8000`; a float's listed values as their bits).
     pub(crate) invalid: Vec<u64>,
     /// The value is multiplied by 10^exponent, the exponent read from another field.
     pub(crate) scaled_by_exponent: bool,
@@ -268,8 +268,10 @@ impl NumberCodec {
     /// A float as the nearest value at the shown places (the decimal expansion of the float
     /// itself, correctly rounded, not of a product that rounds twice).
     fn decode_float(&self, float: f64, power: i8) -> Result<Value, NumberError> {
+        // NaN (IEEE 754's "not available" of most meters) and the infinities are no value,
+        // whether or not the profile lists them.
         if !float.is_finite() {
-            return Err(NumberError::Invalid(format!("not a number: {float}")));
+            return Err(NumberError::Unavailable);
         }
         let (precision, multiplier) = self.shape(power);
         let out_of_range = || NumberError::Invalid(format!("out of range: {float}"));

@@ -6,7 +6,8 @@ use std::ops::RangeInclusive;
 
 use super::problems::Problems;
 use crate::codec::FieldCodec;
-use crate::format::{CodecSection, NumberSection};
+use crate::enumeration::EnumCodec;
+use crate::format::{CodecSection, InvalidMark, NumberSection};
 use crate::numeric::{BytePlace, NumberCodec, NumberType};
 use crate::registers::RegisterLayout;
 
@@ -109,7 +110,90 @@ pub(super) fn build_codec(
                 encoding: *encoding,
             }
         }
+        CodecSection::Enum {
+            values,
+            registers,
+            word_order,
+            unknown,
+        } => FieldCodec::Enum(build_enum(
+            values,
+            *registers,
+            *word_order,
+            *unknown,
+            place,
+            problems,
+        )?),
     })
+}
+
+/// An `enum` codec: one or two registers, each named code a number of that width, each name a
+/// lower-case word used once.
+fn build_enum(
+    values: &std::collections::BTreeMap<String, String>,
+    registers: u16,
+    word_order: Option<crate::registers::WordOrder>,
+    unknown: crate::enumeration::UnknownCode,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> Option<EnumCodec> {
+    let before = problems.count();
+    if !(1..=2).contains(&registers) {
+        problems.add(
+            format!("{place}.codec.registers"),
+            "an enum code is one register (a u16) or two (a u32)",
+        );
+        return None;
+    }
+    if registers == 1 && word_order.is_some() {
+        problems.add(
+            format!("{place}.codec.word_order"),
+            "`word_order` is for codes over two registers",
+        );
+    }
+    if values.is_empty() {
+        problems.add(
+            format!("{place}.codec.values"),
+            "an enum names at least one code: `values = { 0 = \"off\", 1 = \"on\" }`",
+        );
+    }
+    let largest = if registers == 1 {
+        u64::from(u16::MAX)
+    } else {
+        u64::from(u32::MAX)
+    };
+    let mut codes = Vec::new();
+    for (key, name) in values {
+        match parse_code(key).filter(|code| *code <= largest) {
+            Some(code) => codes.push((code as u32, name.clone())),
+            None => problems.add(
+                format!("{place}.codec.values"),
+                format!(
+                    "`{key}` is not a code of {registers} register(s) (a whole number 0–{largest})"
+                ),
+            ),
+        }
+    }
+    codes.sort_by_key(|(code, _)| *code);
+    let names: Vec<String> = codes.iter().map(|(_, name)| name.clone()).collect();
+    check_words(&names, "values", place, problems);
+    (problems.count() == before).then(|| EnumCodec {
+        registers,
+        layout: crate::registers::RegisterLayout {
+            words: word_order.unwrap_or_default(),
+            bytes: crate::registers::ByteOrder::HighFirst,
+        },
+        codes,
+        unknown,
+    })
+}
+
+/// A code as a TOML key spells it: decimal, or hex with `0x`.
+fn parse_code(key: &str) -> Option<u64> {
+    let key = key.trim();
+    match key.strip_prefix("0x").or_else(|| key.strip_prefix("0X")) {
+        Some(hex) => u64::from_str_radix(hex, 16).ok(),
+        None => key.parse().ok(),
+    }
 }
 
 /// A `bits` group lies inside one word.
@@ -175,6 +259,11 @@ fn check_options(options: &[String], width: u8, place: &str, problems: &mut Prob
             format!("{} options do not fit {width} bits", options.len()),
         );
     }
+    check_words(options, "options", place, problems);
+}
+
+/// The names of an enumeration (its `key`): lower-case words, no two alike.
+fn check_words(options: &[String], key: &str, place: &str, problems: &mut Problems<'_>) {
     let mut seen = HashSet::new();
     for option in options {
         if option.is_empty()
@@ -183,13 +272,13 @@ fn check_options(options: &[String], width: u8, place: &str, problems: &mut Prob
                 .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
         {
             problems.add(
-                format!("{place}.codec.options"),
+                format!("{place}.codec.{key}"),
                 format!("option `{option}` must be a lower-case word"),
             );
         }
         if !seen.insert(option) {
             problems.add(
-                format!("{place}.codec.options"),
+                format!("{place}.codec.{key}"),
                 format!("duplicate option `{option}`"),
             );
         }
@@ -266,7 +355,8 @@ fn last_place_counts(value: f64, decimals: u8, counts: RangeInclusive<f64>) -> O
     (scaled.is_finite() && counts.contains(&scaled) && whole).then(|| scaled.round() as i64)
 }
 
-/// The raw values of `invalid`, as the codec's raw bits: only integer codecs have them.
+/// The raw bits the `invalid` marks stand for: an integer codec's raw values, a float's values
+/// (NaN and the infinities are "no value" whether listed or not).
 fn invalid_marks(
     ty: NumberType,
     keys: &NumberSection,
@@ -275,22 +365,75 @@ fn invalid_marks(
 ) -> Vec<u64> {
     let mut invalid = Vec::new();
     for mark in &keys.invalid {
-        match ty.raw_bits_of(i128::from(*mark)) {
-            Some(bits) => invalid.push(bits),
-            None if ty.is_float() => {
-                problems.add(
-                    format!("{place}.codec.invalid"),
-                    "only integer codecs have invalid raw values (a float's is NaN)",
-                );
-                break;
+        let bits = match (mark, ty) {
+            (InvalidMark::Word(word), _) if ty.is_float() && is_non_finite_word(word) => {
+                continue;
             }
+            (InvalidMark::Integer(value), NumberType::F32) => float_bits_f32(*value as f64),
+            (InvalidMark::Float(value), NumberType::F32) => float_bits_f32(*value),
+            (InvalidMark::Integer(value), NumberType::F64) => float_bits_f64(*value as f64),
+            (InvalidMark::Float(value), NumberType::F64) => float_bits_f64(*value),
+            (InvalidMark::Integer(value), _) => ty.raw_bits_of(i128::from(*value)).map(|bits| vec![bits]),
+            (InvalidMark::Float(_), _) => None,
+            (InvalidMark::Word(_), _) => None,
+        };
+        match bits {
+            Some(bits) => invalid.extend(bits),
+            None if ty.is_float() => problems.add(
+                format!("{place}.codec.invalid"),
+                format!(
+                    "{} is not a value of this float (a number, \"nan\", \"inf\" or \"-inf\")",
+                    mark_text(mark)
+                ),
+            ),
             None => problems.add(
                 format!("{place}.codec.invalid"),
-                format!("{mark} is not a raw value of this codec"),
+                format!("{} is not a raw value of this codec", mark_text(mark)),
             ),
         }
     }
     invalid
+}
+
+fn is_non_finite_word(word: &str) -> bool {
+    matches!(
+        word.to_ascii_lowercase().as_str(),
+        "nan" | "inf" | "+inf" | "-inf"
+    )
+}
+
+fn mark_text(mark: &InvalidMark) -> String {
+    match mark {
+        InvalidMark::Integer(value) => value.to_string(),
+        InvalidMark::Float(value) => value.to_string(),
+        InvalidMark::Word(word) => format!("`{word}`"),
+    }
+}
+
+/// The bits of an f32 mark, the nearest f32 to it (both zeros for a zero); None when it is
+/// beyond the f32's range.
+fn float_bits_f32(value: f64) -> Option<Vec<u64>> {
+    let single = value as f32;
+    if !single.is_finite() {
+        return None;
+    }
+    let mut bits = vec![u64::from(single.to_bits())];
+    if single == 0.0 {
+        bits.push(u64::from((-single).to_bits()));
+    }
+    Some(bits)
+}
+
+/// The bits of an f64 mark (both zeros for a zero).
+fn float_bits_f64(value: f64) -> Option<Vec<u64>> {
+    if !value.is_finite() {
+        return None;
+    }
+    let mut bits = vec![value.to_bits()];
+    if value == 0.0 {
+        bits.push((-value).to_bits());
+    }
+    Some(bits)
 }
 
 /// The keys that place a number in its registers: `byte` for the 8-bit codecs alone,
@@ -426,12 +569,85 @@ mod tests {
             ]
         );
         assert_eq!(
-            refused_at("type = \"f32\"\ninvalid = [1]"),
-            ["p: fields[0] (f).codec.invalid"]
+            refused_at("type = \"f32\"\ninvalid = [1e40, \"none\"]"),
+            [
+                "p: fields[0] (f).codec.invalid",
+                "p: fields[0] (f).codec.invalid"
+            ]
+        );
+        assert_eq!(
+            refused_at("type = \"i16\"\ninvalid = [0.5, \"nan\"]"),
+            [
+                "p: fields[0] (f).codec.invalid",
+                "p: fields[0] (f).codec.invalid"
+            ]
         );
         assert_eq!(
             refused_at("type = \"i32\"\ndecimals = 7"),
             ["p: fields[0] (f).codec.decimals"]
+        );
+    }
+
+    #[test]
+    fn a_float_lists_values_and_words_as_no_value_marks() {
+        let (codec, found) = codec("type = \"f32\"\ninvalid = [\"nan\", -1.0, 0, 0.1, \"-inf\"]");
+        assert!(found.is_empty(), "{found:?}");
+        let Some(FieldCodec::Number(number)) = codec else {
+            panic!("not a number: {codec:?}");
+        };
+        let bits = |value: f32| u64::from(value.to_bits());
+        assert_eq!(
+            number.invalid,
+            [bits(-1.0), bits(0.0), bits(-0.0), bits(0.1)]
+        );
+    }
+
+    #[test]
+    fn an_enum_names_sparse_codes_of_one_or_two_registers() {
+        let (sparse, found) = codec(
+            "type = \"enum\"\nvalues = { 0 = \"waiting\", 1 = \"normal\", 0x10 = \"fault\" }\n\
+             unknown = \"publish_number\"",
+        );
+        assert!(found.is_empty(), "{found:?}");
+        let Some(FieldCodec::Enum(codes)) = sparse else {
+            panic!("not an enum: {sparse:?}");
+        };
+        assert_eq!(codes.registers, 1);
+        assert_eq!(
+            codes.codes,
+            [
+                (0, "waiting".to_string()),
+                (1, "normal".to_string()),
+                (16, "fault".to_string())
+            ]
+        );
+        assert_eq!(codes.unknown, crate::enumeration::UnknownCode::PublishNumber);
+        let (wide, found) = codec(
+            "type = \"enum\"\nregisters = 2\nword_order = \"low_first\"\nvalues = { 70000 = \"far\" }",
+        );
+        assert!(found.is_empty(), "{found:?}");
+        assert!(matches!(wide, Some(FieldCodec::Enum(codes)) if codes.registers == 2));
+    }
+
+    #[test]
+    fn an_enum_refuses_codes_past_its_registers_and_names_used_twice() {
+        let (_, found) = codec("type = \"enum\"\nvalues = { 70000 = \"far\", 1 = \"a\", 2 = \"a\", x = \"b\" }");
+        let reasons: Vec<&str> = found.iter().map(|(_, reason)| reason.as_str()).collect();
+        assert_eq!(
+            reasons,
+            [
+                "`70000` is not a code of 1 register(s) (a whole number 0–65535)",
+                "`x` is not a code of 1 register(s) (a whole number 0–65535)",
+                "duplicate option `a`",
+            ]
+        );
+        assert_eq!(
+            refused_at("type = \"enum\"\nregisters = 3\nvalues = { 0 = \"a\" }"),
+            ["p: fields[0] (f).codec.registers"]
+        );
+        assert_eq!(
+            refused_at("type = \"enum\"\nword_order = \"low_first\"\nvalues = { 0 = \"a\" }"),
+            ["p: fields[0] (f).codec.word_order"]
         );
     }
 }
