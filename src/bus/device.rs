@@ -1,8 +1,10 @@
 //! One device's runtime on its line, in one place instead of parallel per-device vectors: its
 //! configuration, its statistics, the blocks it refused merged (read by parts from then on),
 //! the last answer of each block, and the one path from a read answer to the values the line
-//! publishes (field data that does not decode is counted and logged, never published). No
-//! frames are run here.
+//! publishes (field data that does not decode is counted and logged, never published; a field
+//! turning unavailable is counted and logged once per episode). No frames are run here.
+
+use std::collections::HashSet;
 
 use rtu2mqtt_modbus::Response;
 use rtu2mqtt_profile::{DeviceState, Value};
@@ -30,6 +32,8 @@ pub(crate) struct DeviceRuntime {
     latest_answers: Vec<Option<Response>>,
     /// Per block: the other blocks holding fields scaled by an exponent in it.
     scaled_blocks: Vec<Vec<usize>>,
+    /// The fields whose latest value is unavailable: an episode is logged and counted once.
+    unavailable: HashSet<String>,
 }
 
 impl DeviceRuntime {
@@ -42,6 +46,7 @@ impl DeviceRuntime {
             scaled_blocks: (0..spec.profile.read_blocks().len())
                 .map(|block| spec.profile.blocks_scaled_by(block))
                 .collect(),
+            unavailable: HashSet::new(),
             spec,
         }
     }
@@ -112,7 +117,10 @@ impl DeviceRuntime {
         values.reserve(readings.len());
         for reading in readings {
             match reading.value {
-                Ok(value) => values.push((reading.field, value)),
+                Ok(value) => {
+                    self.note_availability(&reading.field, &value);
+                    values.push((reading.field, value));
+                }
                 Err(error) => {
                     all_valid = false;
                     self.stats.field_errors += 1;
@@ -130,6 +138,24 @@ impl DeviceRuntime {
             } else {
                 *last = None;
             }
+        }
+    }
+}
+
+impl DeviceRuntime {
+    /// Logs and counts a field turning unavailable once per episode, and its return.
+    fn note_availability(&mut self, field: &str, value: &Value) {
+        let available = value.is_available();
+        if !available && !self.unavailable.contains(field) {
+            self.unavailable.insert(field.to_string());
+            self.stats.unavailable_episodes += 1;
+            tracing::info!(
+                device = %self.spec.name,
+                field,
+                "the device reports no value: published as unavailable until it has one"
+            );
+        } else if available && self.unavailable.remove(field) {
+            tracing::info!(device = %self.spec.name, field, "the device has a value again");
         }
     }
 }

@@ -23,6 +23,9 @@ pub struct DeviceStats {
     pub polls_failed: u64,
     /// Fields whose raw data was invalid (bad BCD): not published, counted here.
     pub field_errors: u64,
+    /// Times a field turned unavailable (a NaN, an `invalid` mark, an unnamed enum code):
+    /// one per episode, however many polls it lasts.
+    pub unavailable_episodes: u64,
     /// Consecutive failed polls (resets on success).
     pub consecutive_failures: u32,
     pub last_latency: Option<Duration>,
@@ -64,6 +67,7 @@ impl DeviceStats {
             polls_ok: 0,
             polls_failed: 0,
             field_errors: 0,
+            unavailable_episodes: 0,
             consecutive_failures: 0,
             last_latency: None,
             worst_latency: None,

@@ -297,6 +297,10 @@ pub fn metric_value(datatype: DataType, value: &Value) -> Option<MetricValue> {
         (DataType::String | DataType::Text, Value::Enum(text) | Value::Text(text)) => {
             Some(MetricValue::String(text.clone()))
         }
+        // An enum's unnamed code (`unknown = "publish_number"`) is sent as its number's text.
+        (DataType::String | DataType::Text, Value::Int(code)) => {
+            Some(MetricValue::String(code.to_string()))
+        }
         (DataType::Float | DataType::Double, Value::Int(_) | Value::Decimal { .. }) => {
             // Through the text form so 12.34 becomes the float nearest 12.34.
             let number: f64 = value.to_text().parse().ok()?;

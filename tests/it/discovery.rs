@@ -49,6 +49,8 @@ fn field(name: &str, kind: FieldKind, writable: bool) -> FieldInfo {
         min_write_interval: None,
         publish: Default::default(),
         scaled_by: None,
+        may_be_unavailable: false,
+        unnamed_codes_as_numbers: false,
     }
 }
 

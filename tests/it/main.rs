@@ -49,3 +49,4 @@ mod sparkplug_readme;
 mod systemd_unit;
 mod tcp_lines;
 mod trust_store;
+mod unavailable_values;

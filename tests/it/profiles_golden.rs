@@ -884,7 +884,10 @@ fn th_sensor_decodes_floats_in_both_word_orders() {
         let answer = Response::InputRegisters(vec![nan_or_infinity, 0, 0x4262, 0xCCCD, 0, 0, 0, 0]);
         let readings = profile.decode_block(0, &answer);
         assert_eq!(readings[0].value, Ok(Value::Unavailable));
-        assert_eq!(readings[1].value.as_ref().map(Value::to_text), Ok("56.7".to_string()));
+        assert_eq!(
+            readings[1].value.as_ref().map(Value::to_text),
+            Ok("56.7".to_string())
+        );
     }
 }
 

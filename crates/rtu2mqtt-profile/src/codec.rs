@@ -10,7 +10,7 @@
 use serde::Deserialize;
 
 use super::bcd::{self, BcdError};
-use super::enumeration::EnumCodec;
+use super::enumeration::{EnumCodec, UnknownCode};
 use super::field::{FieldInfo, FieldKind};
 use super::number::{self, DecimalText, ScaleError};
 use super::numeric::{at_precision, Exponent, NumberCodec, NumberError, NumberType, EXPONENTS};
@@ -208,6 +208,24 @@ impl FieldCodec {
 
     pub(crate) fn is_writable(&self) -> bool {
         !matches!(self, Self::Bytes { .. } | Self::Text { .. })
+    }
+
+    /// Whether the device can report "no value" through this codec (see
+    /// [`FieldInfo::may_be_unavailable`]).
+    pub(crate) fn may_be_unavailable(&self) -> bool {
+        match self {
+            Self::Number(number) => {
+                number.ty.is_float() || !number.invalid.is_empty() || number.scaled_by_exponent
+            }
+            Self::Text { .. } => true,
+            Self::Enum(codes) => codes.unknown == UnknownCode::Invalid,
+            _ => false,
+        }
+    }
+
+    /// An enum publishing the codes it does not name as numbers.
+    pub(crate) fn unnamed_codes_as_numbers(&self) -> bool {
+        matches!(self, Self::Enum(codes) if codes.unknown == UnknownCode::PublishNumber)
     }
 
     /// True for a `scale_by` number: it is read and written with its exponent field's value.

@@ -103,7 +103,10 @@ mod tests {
     #[test]
     fn a_u32_code_spans_two_registers_in_the_word_order() {
         let wide = codec(2, UnknownCode::Invalid);
-        assert_eq!(wide.decode(&[0x0001, 0x1170]), Value::Enum("far".to_string()));
+        assert_eq!(
+            wide.decode(&[0x0001, 0x1170]),
+            Value::Enum("far".to_string())
+        );
         assert_eq!(
             wide.encode(&Value::Enum("far".to_string())),
             Ok(vec![0x0001, 0x1170])

@@ -113,4 +113,11 @@ pub struct FieldInfo {
     /// The field holding the power of ten this number is multiplied by (`scale_by`): its
     /// places follow the device, up to those of [`FieldKind::Decimal`]'s precision.
     pub scaled_by: Option<String>,
+    /// The device can report "no value" here (a float's NaN, an `invalid` mark, an enum code
+    /// the profile does not name, an empty string): the field is then published as
+    /// unavailable.
+    pub may_be_unavailable: bool,
+    /// An enum whose codes the profile does not name are published as numbers
+    /// (`unknown = "publish_number"`): its values are not only its options.
+    pub unnamed_codes_as_numbers: bool,
 }

@@ -24,12 +24,14 @@
 //!   daemon's configuration also reads) and its exact amounts.
 //! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
 //! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
+//! - [`enumeration`]: the `enum` codec (sparse codes over whole registers) and its
+//!   [`enumeration::UnknownCode`] rule.
 //!
 //! # Inside
 //!
 //! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
 //! payloads and commands), `value`, `registers` (word and byte order), `numeric` (the number
-//! codecs), `text` (text encodings), `rejection`, `publish`, `field`, `codec` (every field
+//! codecs), `text` (text encodings), `enumeration`, `rejection`, `publish`, `field`, `codec` (every field
 //! codec and command parsing), `model`, `format` (the file's serde types), `compile` (file to
 //! model, with every problem), then `command` (a command as one bus slot's plan) and `raw`
 //! (simulated block images patched through the write frames); this file's [`Profile`] is what
@@ -48,8 +50,8 @@ pub mod bcd;
 mod codec;
 mod command;
 mod compile;
-pub mod enumeration;
 pub mod contract;
+pub mod enumeration;
 mod field;
 mod format;
 mod model;
@@ -77,7 +79,7 @@ pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Behaviour, Limits, PollClass, ReadBlock};
 pub use publish::PublishRule;
 pub use rejection::Rejection;
-pub use value::Value;
+pub use value::{Value, UNAVAILABLE};
 
 /// Last known decoded values of one device, by field name.
 pub type DeviceState = HashMap<String, Value>;

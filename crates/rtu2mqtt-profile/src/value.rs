@@ -1,5 +1,8 @@
 //! A decoded field value and its text and JSON forms (the MQTT payload contract).
 
+/// The text payload of a field that has no value ([`Value::Unavailable`]).
+pub const UNAVAILABLE: &str = "unavailable";
+
 /// A field's value as decoded from the device or parsed from a command; its text form is the
 /// MQTT payload.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,14 +23,15 @@ pub enum Value {
     /// The text of a `string` or `bytes` field, as shown (`SN1234`, `0A1B2C`, `1:02:03`).
     Text(String),
     /// The device reports that it has no value here: the raw value is one of the field's
-    /// `invalid` marks (SunSpec's "not implemented"), or its exponent is. Never published as a
-    /// value: the field's topic keeps what it had and the JSON view shows `null`.
+    /// `invalid` marks (SunSpec's "not implemented"), or its exponent is, a float is NaN, an
+    /// enum code is not named. Published as [`UNAVAILABLE`] on the field's topic, `null` in the
+    /// JSON view and Sparkplug, never as a number.
     Unavailable,
 }
 
 impl Value {
-    /// The MQTT text payload: `ON`/`OFF`, decimal integers, decimals with their precision
-    /// (empty for [`Value::Unavailable`], which is never published as text).
+    /// The MQTT text payload: `ON`/`OFF`, decimal integers, decimals with their precision,
+    /// [`UNAVAILABLE`] for no value.
     pub fn to_text(&self) -> String {
         match self {
             Self::Bool(true) => "ON".to_string(),
@@ -48,7 +52,7 @@ impl Value {
                 )
             }
             Self::Enum(word) | Self::Text(word) => word.clone(),
-            Self::Unavailable => String::new(),
+            Self::Unavailable => UNAVAILABLE.to_string(),
         }
     }
 
@@ -180,7 +184,7 @@ mod tests {
         assert_eq!(json(decimal(500, 2)), "5.0");
         assert_eq!(json(decimal(-5, 2)), "-0.05");
         assert_eq!(json(Value::Unavailable), "null");
-        assert_eq!(Value::Unavailable.to_text(), "");
+        assert_eq!(Value::Unavailable.to_text(), "unavailable");
     }
 
     #[test]

@@ -301,8 +301,15 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     if clock {
         put("value_template", json!(CLOCK_TO_SECONDS));
     }
+    // A field the device can leave without a value is published as `unavailable`: Home
+    // Assistant shows it as unknown (`None`), never as a stale number or a parse error.
+    if field.may_be_unavailable && platform.has_state() && !clock {
+        put("value_template", json!(UNAVAILABLE_AS_UNKNOWN));
+    }
     let unit = unit_of(field).or(clock.then_some("s"));
-    let enumeration = matches!(field.kind, FieldKind::Enum { .. });
+    // An enum that publishes unnamed codes as numbers is no closed list to Home Assistant.
+    let enumeration =
+        matches!(field.kind, FieldKind::Enum { .. }) && !field.unnamed_codes_as_numbers;
     match platform {
         Platform::BinarySensor | Platform::Switch => {
             put("payload_on", json!(PAYLOAD_ON));
@@ -326,7 +333,10 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
                 // out-of-range error.
                 FieldKind::Integer { min, max } => {
                     if !field.also.is_empty() {
-                        put("value_template", json!(also_as_unknown(&field.also)));
+                        put(
+                            "value_template",
+                            json!(also_as_unknown(&field.also, field.may_be_unavailable)),
+                        );
                     }
                     (json!(min), json!(max))
                 }
@@ -344,7 +354,7 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
             _ => put("options", json!(integer_choices(field).unwrap_or_default())),
         },
         Platform::Sensor => {
-            if let FieldKind::Enum { options } = &field.kind {
+            if let (FieldKind::Enum { options }, true) = (&field.kind, enumeration) {
                 put("options", json!(options));
             }
             // A `scale_by` number has as many places as its device's exponent gives it.
@@ -414,9 +424,17 @@ pub fn component(ctx: &Topics, device: &str, field: &FieldInfo) -> Json {
     Json::Object(config)
 }
 
-/// A number's `value_template` that turns the `also` values into `None` (unknown).
-fn also_as_unknown(also: &[i64]) -> String {
-    let values: Vec<String> = also.iter().map(|value| format!("'{value}'")).collect();
+/// The `value_template` of a field that can be unavailable: that payload becomes `None`.
+pub const UNAVAILABLE_AS_UNKNOWN: &str =
+    "{% if value == 'unavailable' %}None{% else %}{{ value }}{% endif %}";
+
+/// A number's `value_template` that turns the `also` values (and `unavailable`, when the field
+/// can be) into `None` (unknown).
+fn also_as_unknown(also: &[i64], may_be_unavailable: bool) -> String {
+    let mut values: Vec<String> = also.iter().map(|value| format!("'{value}'")).collect();
+    if may_be_unavailable {
+        values.push(format!("'{}'", rtu2mqtt_profile::UNAVAILABLE));
+    }
     format!(
         "{{% if value in [{}] %}}None{{% else %}}{{{{ value }}}}{{% endif %}}",
         values.join(", ")
@@ -507,7 +525,10 @@ fn device_document(
             let Some(identity) = field.identity else {
                 continue;
             };
-            let text = state.get(&field.name).map(Value::to_text);
+            let text = state
+                .get(&field.name)
+                .filter(|value| value.is_available())
+                .map(Value::to_text);
             if let Some(text) = text.filter(|text| !text.trim().is_empty()) {
                 entry.insert(identity.key().to_string(), json!(text));
             }

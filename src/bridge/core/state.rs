@@ -253,8 +253,8 @@ impl StateCache {
 
     /// Stores fresh values. When `connected` and the device does not wait for its turn, returns
     /// the fields to publish (changed ones, or all of them right after the device came back) and
-    /// records them as published. A value the device marks unavailable is kept (the JSON view
-    /// shows it as `null`) but never published: the field's topic keeps the last value it had.
+    /// records them as published. A value the device marks unavailable is published as such
+    /// (`unavailable`; `null` in the JSON view), once, so no stale number stays on the topic.
     pub fn update(
         &mut self,
         device: &str,
@@ -270,7 +270,7 @@ impl StateCache {
         for (field, value) in values {
             let entry = cache.entry_mut(&field);
             let changed = everything || entry.published.as_ref() != Some(&value);
-            if publishing && value.is_available() && changed {
+            if publishing && changed {
                 entry.published = Some(value.clone());
                 let text = value.to_text();
                 entry.value = Some(value);
@@ -384,7 +384,7 @@ impl StateCache {
             let Some(entry) = cache.fields.get_mut(slot) else {
                 continue;
             };
-            let Some(value) = entry.value.as_ref().filter(|value| value.is_available()) else {
+            let Some(value) = entry.value.as_ref() else {
                 continue;
             };
             if entry.published.as_ref() == Some(value) {
@@ -477,20 +477,30 @@ mod tests {
     }
 
     #[test]
-    fn an_unavailable_value_is_kept_but_never_published() {
+    fn an_unavailable_value_is_published_once_as_unavailable_never_as_the_stale_number() {
         let mut cache = StateCache::new(["meter"]);
         cache.update("meter", values(&[("power", 1500)]), true);
-        let marked = vec![("power".to_string(), Value::Unavailable)];
-        assert!(cache.update("meter", marked, true).is_empty());
+        let marked = || vec![("power".to_string(), Value::Unavailable)];
+        let gone = cache.update("meter", marked(), true);
+        assert_eq!(texts(&gone), [("power", "unavailable")]);
+        assert!(cache.update("meter", marked(), true).is_empty(), "once");
         assert_eq!(cache.state("meter").unwrap()["power"], Value::Unavailable);
         assert_eq!(
             cache.published_text("meter", "power").as_deref(),
-            Some("1500")
+            Some("unavailable")
         );
-        assert!(cache.republish_all().is_empty());
+        // A new connection is told too.
+        assert_eq!(texts(&cache.republish_all()), [("power", "unavailable")]);
         // The value coming back is published again.
         let back = cache.update("meter", values(&[("power", 1500)]), true);
-        assert_eq!(fields(&back), ["power"]);
+        assert_eq!(texts(&back), [("power", "1500")]);
+    }
+
+    fn texts(updates: &[StateUpdate]) -> Vec<(&str, &str)> {
+        updates
+            .iter()
+            .map(|update| (update.field.as_str(), update.text.as_str()))
+            .collect()
     }
 
     #[test]

@@ -257,6 +257,12 @@ const DEVICE_COUNTERS: &[DeviceCounter] = &[
          (expected from some devices; not exceptions, not failures).",
         |d| d.split_read_fallbacks,
     ),
+    (
+        "unavailable_episodes_total",
+        "Times a field turned unavailable (the device reported no value: a NaN, an invalid \
+         mark, an unnamed code), once per episode.",
+        |d| d.unavailable_episodes,
+    ),
 ];
 
 fn device_failures(device: &DeviceStats) -> u64 {
@@ -522,6 +528,7 @@ fn device_json(device: &DeviceStats) -> Json {
         "failures": device_failures(device),
         "consecutive_failures": device.consecutive_failures,
         "split_read_fallbacks": device.split_read_fallbacks,
+        "unavailable_episodes": device.unavailable_episodes,
         "latency_ms": millis(device.last_latency),
         "worst_latency_ms": millis(device.worst_latency),
     })

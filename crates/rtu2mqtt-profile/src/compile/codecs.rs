@@ -373,7 +373,9 @@ fn invalid_marks(
             (InvalidMark::Float(value), NumberType::F32) => float_bits_f32(*value),
             (InvalidMark::Integer(value), NumberType::F64) => float_bits_f64(*value as f64),
             (InvalidMark::Float(value), NumberType::F64) => float_bits_f64(*value),
-            (InvalidMark::Integer(value), _) => ty.raw_bits_of(i128::from(*value)).map(|bits| vec![bits]),
+            (InvalidMark::Integer(value), _) => {
+                ty.raw_bits_of(i128::from(*value)).map(|bits| vec![bits])
+            }
             (InvalidMark::Float(_), _) => None,
             (InvalidMark::Word(_), _) => None,
         };
@@ -621,7 +623,10 @@ mod tests {
                 (16, "fault".to_string())
             ]
         );
-        assert_eq!(codes.unknown, crate::enumeration::UnknownCode::PublishNumber);
+        assert_eq!(
+            codes.unknown,
+            crate::enumeration::UnknownCode::PublishNumber
+        );
         let (wide, found) = codec(
             "type = \"enum\"\nregisters = 2\nword_order = \"low_first\"\nvalues = { 70000 = \"far\" }",
         );
@@ -631,7 +636,8 @@ mod tests {
 
     #[test]
     fn an_enum_refuses_codes_past_its_registers_and_names_used_twice() {
-        let (_, found) = codec("type = \"enum\"\nvalues = { 70000 = \"far\", 1 = \"a\", 2 = \"a\", x = \"b\" }");
+        let (_, found) =
+            codec("type = \"enum\"\nvalues = { 70000 = \"far\", 1 = \"a\", 2 = \"a\", x = \"b\" }");
         let reasons: Vec<&str> = found.iter().map(|(_, reason)| reason.as_str()).collect();
         assert_eq!(
             reasons,

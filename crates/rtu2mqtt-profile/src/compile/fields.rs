@@ -332,6 +332,8 @@ fn field_info(
         min_write_interval: field.min_write_interval,
         publish,
         scaled_by: field.codec.scale_by().map(str::to_string),
+        may_be_unavailable: def.codec.may_be_unavailable(),
+        unnamed_codes_as_numbers: def.codec.unnamed_codes_as_numbers(),
     }
 }
 
