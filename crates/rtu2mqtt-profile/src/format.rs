@@ -13,6 +13,7 @@ use super::enumeration::UnknownCode;
 use super::model::Behaviour;
 use super::numeric::BytePlace;
 use super::publish::RawPublish;
+use super::register_numbers::RegisterNumbers;
 use super::registers::{ByteOrder, WordOrder};
 use super::text::Encoding;
 
@@ -39,6 +40,9 @@ pub(super) struct DeviceSection {
     pub(super) model: String,
     #[serde(default)]
     pub(super) description: String,
+    /// How the `start`s and `address`es are numbered; absent: bus addresses, and a start
+    /// that looks like a Modicon number is warned about.
+    pub(super) register_numbers: Option<RegisterNumbers>,
 }
 
 pub(super) fn default_baud() -> u32 {
@@ -102,7 +106,8 @@ pub(super) struct LineSection {
 pub(super) struct BlockSection {
     pub(super) name: String,
     pub(super) function: u8,
-    pub(super) start: u16,
+    /// In the profile's `register_numbers`.
+    pub(super) start: u32,
     pub(super) count: u16,
     #[serde(default = "default_poll")]
     pub(super) poll: String,
@@ -125,8 +130,9 @@ pub(super) fn default_poll() -> String {
 pub(super) struct WriteFrameSection {
     pub(super) name: String,
     pub(super) function: u8,
-    /// Device address of the first coil or register written.
-    pub(super) address: u16,
+    /// Device address of the first coil or register written, in the profile's
+    /// `register_numbers`.
+    pub(super) address: u32,
     /// The block whose fresh read supplies the bits the command does not change.
     pub(super) block: String,
     /// Block offset of the first coil or register written.
@@ -198,7 +204,8 @@ pub(super) enum WriteSection {
 #[serde(deny_unknown_fields)]
 pub(super) struct OwnWrite {
     pub(super) function: u8,
-    pub(super) address: u16,
+    /// In the profile's `register_numbers`.
+    pub(super) address: u32,
 }
 
 #[derive(Debug, Default, Deserialize)]

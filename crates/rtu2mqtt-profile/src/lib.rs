@@ -60,6 +60,7 @@ mod numeric;
 pub mod publish;
 mod raw;
 mod registers;
+pub mod register_numbers;
 pub mod registry;
 mod rejection;
 pub mod sunspec;
@@ -134,6 +135,13 @@ impl Profile {
     /// The address the device usually has (the air shower's fixed 0x81), if the profile says.
     pub fn default_address(&self) -> Option<u8> {
         self.inner.default_address
+    }
+
+    /// What the profile's compilation warns about: it loads, but something in it is likely a
+    /// mistake (a block `start` that looks like a Modicon number of a manual). Shown by
+    /// `check` and `profiles`.
+    pub fn warnings(&self) -> &[ProfileError] {
+        &self.inner.warnings
     }
 
     /// The `[line]` section: line defaults, the address range and the device's transaction

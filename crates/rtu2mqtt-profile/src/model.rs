@@ -200,4 +200,6 @@ pub(crate) struct Compiled {
     pub(crate) forbidden: Vec<Forbidden>,
     /// The `[[write_frames]]` by name, in file order.
     pub(crate) named_frames: Vec<(String, WriteFrame)>,
+    /// What loads but is likely a mistake (a start that looks like a Modicon number).
+    pub(crate) warnings: Vec<super::compile::ProfileError>,
 }

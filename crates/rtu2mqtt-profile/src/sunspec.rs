@@ -371,12 +371,16 @@ pub fn write_profile(chain: &Chain, line: &LineChoice) -> String {
     let _ = writeln!(out, "model = {}", quoted(model_name));
     let _ = writeln!(
         out,
-        "description = {}\n",
+        "description = {}",
         quoted(&format!(
             "SunSpec models {} at base {}",
             ids.join(", "),
             chain.base
         ))
+    );
+    let _ = writeln!(
+        out,
+        "register_numbers = \"bus\"   # SunSpec's base is a bus address, not a Modicon number\n"
     );
     let _ = writeln!(out, "[line]");
     let _ = writeln!(out, "baud = {}", line.baud);

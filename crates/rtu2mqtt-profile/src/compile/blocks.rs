@@ -8,6 +8,7 @@ use std::time::Duration;
 use super::problems::Problems;
 use crate::format::{BlockSection, LineSection};
 use crate::model::{BlockKind, FieldDef, Limits, PollClass, ReadBlock, WriteFrame};
+use crate::register_numbers::RegisterNumbers;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::Request;
 
@@ -21,16 +22,19 @@ pub(super) struct Layout<'f> {
     pub(super) block_index: HashMap<&'f str, usize>,
     /// The `[[write_frames]]` by name; empty while they are being built.
     pub(super) frames: HashMap<String, WriteFrame>,
+    /// How the profile numbers its registers: write addresses are resolved with it too.
+    pub(super) numbers: RegisterNumbers,
 }
 
 impl<'f> Layout<'f> {
     /// The read blocks compiled against the line's limits, with no write frames yet.
     pub(super) fn new(
         limits: Limits,
+        numbers: Option<RegisterNumbers>,
         sections: &'f [BlockSection],
         problems: &mut Problems<'_>,
     ) -> Self {
-        let (blocks, kinds) = build_blocks(sections, &limits, problems);
+        let (blocks, kinds) = build_blocks(sections, &limits, numbers, problems);
         let block_index = sections
             .iter()
             .enumerate()
@@ -42,7 +46,25 @@ impl<'f> Layout<'f> {
             kinds,
             block_index,
             frames: HashMap::new(),
+            numbers: numbers.unwrap_or_default(),
         }
+    }
+
+    /// The bus address of a write's `address` (in the profile's numbers) for `function`; 0
+    /// with a problem at `place` when it is none.
+    pub(super) fn write_address(
+        &self,
+        address: u32,
+        function: u8,
+        place: &str,
+        problems: &mut Problems<'_>,
+    ) -> u16 {
+        self.numbers
+            .bus_address(address, function)
+            .unwrap_or_else(|reason| {
+                problems.add(place.to_string(), reason);
+                0
+            })
     }
 
     /// How many registers or bits block `block` reads.
@@ -139,6 +161,7 @@ pub(super) fn build_limits(line: &LineSection, problems: &mut Problems<'_>) -> L
 fn build_blocks(
     sections: &[BlockSection],
     limits: &Limits,
+    numbers: Option<RegisterNumbers>,
     problems: &mut Problems<'_>,
 ) -> (Vec<ReadBlock>, Vec<BlockKind>) {
     let mut blocks = Vec::new();
@@ -152,8 +175,31 @@ fn build_blocks(
                 format!("duplicate block name `{}`", section.name),
             );
         }
-        let (start, quantity) = (section.start, section.count);
-        let (kind, request, max) = read_request(section, limits).unwrap_or_else(|other| {
+        let quantity = section.count;
+        let start = numbers
+            .unwrap_or_default()
+            .bus_address(section.start, section.function)
+            .unwrap_or_else(|reason| {
+                problems.add(format!("{place}.start"), reason);
+                0
+            });
+        if let Some(address) = numbers
+            .is_none()
+            .then(|| RegisterNumbers::Bus.looks_like_modicon(start, section.function))
+            .flatten()
+        {
+            problems.warn(
+                format!("{place}.start"),
+                format!(
+                    "{start} looks like a Modicon number (register {} of its table, bus \
+                     address {address}); a manual's numbers are copied with \
+                     `register_numbers = \"modicon\"` in [device], and `register_numbers = \
+                     \"bus\"` says that {start} is meant",
+                    u32::from(address) + 1
+                ),
+            );
+        }
+        let (kind, request, max) = read_request(section, start, limits).unwrap_or_else(|other| {
             problems.add(
                 format!("{place}.function"),
                 format!("{other} is not a read function (1, 2, 3 or 4)"),
@@ -194,8 +240,12 @@ fn build_blocks(
 
 /// A block's read request from its `function`, with its kind and the device's limit on its
 /// count; the function number itself when it is not a read function.
-fn read_request(section: &BlockSection, limits: &Limits) -> Result<(BlockKind, Request, u16), u8> {
-    let (start, quantity) = (section.start, section.count);
+fn read_request(
+    section: &BlockSection,
+    start: u16,
+    limits: &Limits,
+) -> Result<(BlockKind, Request, u16), u8> {
+    let quantity = section.count;
     Ok(match section.function {
         1 => (
             BlockKind::Coils,
@@ -403,7 +453,7 @@ mod tests {
             block("name = \"a\"\nfunction = 4\nstart = 65535\ncount = 126"),
         ];
         let mut problems = Problems::new("p");
-        let (blocks, kinds) = build_blocks(&sections, &limits, &mut problems);
+        let (blocks, kinds) = build_blocks(&sections, &limits, None, &mut problems);
         assert_eq!(
             kinds,
             [BlockKind::HoldingRegisters, BlockKind::InputRegisters]
@@ -465,5 +515,40 @@ mod tests {
             fast
         ));
         assert!(polled_at_least_as_often(every(5), every(10), &limits, fast));
+    }
+
+    #[test]
+    fn starts_are_read_in_the_profiles_register_numbers_and_a_modicon_look_is_warned_about() {
+        let limits = build_limits(&line(""), &mut Problems::new("p"));
+        let sections = [block("name = \"a\"\nfunction = 3\nstart = 43204\ncount = 2")];
+        let mut problems = Problems::new("p");
+        let (blocks, _) = build_blocks(
+            &sections,
+            &limits,
+            Some(RegisterNumbers::Modicon),
+            &mut problems,
+        );
+        assert_eq!(blocks[0].request.read_span(), Some((3203, 2)));
+        assert!(problems.is_empty() && problems.take_warnings().is_empty());
+
+        // Unsaid, 43204 is read as a bus address, with a warning naming the rule.
+        let (blocks, _) = build_blocks(&sections, &limits, None, &mut problems);
+        assert_eq!(blocks[0].request.read_span(), Some((43204, 2)));
+        let warnings = problems.take_warnings();
+        assert_eq!(warnings.len(), 1);
+        assert_eq!(warnings[0].place, "p: blocks[0] (a).start");
+        assert!(
+            warnings[0].reason.contains("register 3204 of its table, bus address 3203"),
+            "{}",
+            warnings[0].reason
+        );
+        // Said to be a bus address, it is one, silently.
+        build_blocks(&sections, &limits, Some(RegisterNumbers::Bus), &mut problems);
+        assert!(problems.is_empty() && problems.take_warnings().is_empty());
+
+        // A number of another table is refused at the block's start.
+        let input = [block("name = \"i\"\nfunction = 4\nstart = 43204\ncount = 2")];
+        build_blocks(&input, &limits, Some(RegisterNumbers::Modicon), &mut problems);
+        assert_eq!(places(problems), ["p: blocks[0] (i).start"]);
     }
 }

@@ -47,7 +47,8 @@ pub(crate) fn compile(text: &str, source: &str) -> Result<Compiled, ProfileError
         }])
     })?;
     let mut problems = Problems::new(source);
-    let compiled = build(file, &mut problems);
+    let mut compiled = build(file, &mut problems);
+    compiled.warnings = problems.take_warnings();
     problems.into_result(compiled)
 }
 
@@ -56,7 +57,7 @@ pub(crate) fn compile(text: &str, source: &str) -> Result<Compiled, ProfileError
 fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     let limits = build_limits(&file.line, problems);
     check_device_name(&file.device.name, problems);
-    let mut layout = Layout::new(limits, &file.blocks, problems);
+    let mut layout = Layout::new(limits, file.device.register_numbers, &file.blocks, problems);
     layout.frames = build_write_frames(&file.write_frames, &layout, problems);
     let (defs, infos) = build_fields(&file.fields, &layout, problems);
     let blocks = mark_used_runs(layout.blocks, &file.blocks, &defs);
@@ -77,6 +78,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         infos,
         forbidden,
         named_frames,
+        warnings: Vec::new(),
     }
 }
 

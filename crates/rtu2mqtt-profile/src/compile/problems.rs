@@ -26,10 +26,11 @@ impl std::fmt::Display for ProfileErrors {
     }
 }
 
-/// Collects problems with their places.
+/// Collects problems with their places, and warnings: what loads but is likely a mistake.
 pub(super) struct Problems<'a> {
     source: &'a str,
     list: Vec<ProfileError>,
+    warnings: Vec<ProfileError>,
 }
 
 impl<'a> Problems<'a> {
@@ -38,6 +39,7 @@ impl<'a> Problems<'a> {
         Self {
             source,
             list: Vec::new(),
+            warnings: Vec::new(),
         }
     }
 
@@ -57,6 +59,19 @@ impl<'a> Problems<'a> {
         } else {
             Err(ProfileErrors(self.list))
         }
+    }
+
+    /// Adds a warning: the profile loads, and the warning is shown wherever it is loaded.
+    pub(super) fn warn(&mut self, place: impl std::fmt::Display, reason: impl Into<String>) {
+        self.warnings.push(ProfileError {
+            place: format!("{}: {place}", self.source),
+            reason: reason.into(),
+        });
+    }
+
+    /// The warnings collected so far, taken out.
+    pub(super) fn take_warnings(&mut self) -> Vec<ProfileError> {
+        std::mem::take(&mut self.warnings)
     }
 
     pub(super) fn add(&mut self, place: impl std::fmt::Display, reason: impl Into<String>) {

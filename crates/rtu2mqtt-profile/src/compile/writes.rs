@@ -123,9 +123,15 @@ pub(super) fn build_write_frames(
             &format!("{place}.function"),
             problems,
         );
+        let address = layout.write_address(
+            section.address,
+            section.function,
+            &format!("{place}.address"),
+            problems,
+        );
         let frame = WriteFrame {
             function: section.function,
-            address: section.address,
+            address,
             block,
             offset: section.offset,
             count: section.count,
@@ -190,9 +196,15 @@ pub(super) fn field_write(
                 &format!("{place}.write.function"),
                 problems,
             );
+            let address = layout.write_address(
+                own.address,
+                own.function,
+                &format!("{place}.write.address"),
+                problems,
+            );
             Ok(Some(WriteFrame {
                 function: own.function,
-                address: own.address,
+                address,
                 block,
                 offset,
                 count: width,
