@@ -222,20 +222,25 @@ pub fn render(slave: SlaveId, request: &Request, response: &Response) -> String 
     out
 }
 
+/// A bus address as the manuals' two readers look for it: hex and decimal (`0x0c83  3203`).
+fn place(address: u16) -> String {
+    format!("{address:#06x} {address:>5}")
+}
+
 /// One line per register, then one per register pair, then the block as characters.
 pub fn render_registers(start: u16, words: &[u16]) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "\nregister     hex      u16     i16  bits                 bcd  chars"
+        "\nregister          hex      u16     i16  bits                 bcd  chars"
     );
     for (i, &word) in words.iter().enumerate() {
         let bcd =
             bcd::decode(word, bcd::WORD_DIGITS).map_or_else(|_| "-".to_string(), |v| v.to_string());
         let _ = writeln!(
             out,
-            "{:#06x}    {word:#06x}  {word:>7}  {:>6}  {:04b} {:04b} {:04b} {:04b}  {bcd:>4}  \"{}\"",
-            start.wrapping_add(i as u16),
+            "{}    {word:#06x}  {word:>7}  {:>6}  {:04b} {:04b} {:04b} {:04b}  {bcd:>4}  \"{}\"",
+            place(start.wrapping_add(i as u16)),
             word as i16,
             word >> 12,
             (word >> 8) & 0xF,
@@ -247,15 +252,15 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
     if words.len() >= 2 {
         let _ = writeln!(
             out,
-            "\npair      u32 (high word first)  i32             f32  | u32 (low word first)  i32             f32"
+            "\npair           u32 (high word first)  i32             f32  | u32 (low word first)  i32             f32"
         );
         for (i, pair) in words.windows(2).enumerate() {
             let high_first = (u32::from(pair[0]) << 16) | u32::from(pair[1]);
             let low_first = (u32::from(pair[1]) << 16) | u32::from(pair[0]);
             let _ = writeln!(
                 out,
-                "{:#06x}    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
-                start.wrapping_add(i as u16),
+                "{}    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
+                place(start.wrapping_add(i as u16)),
                 high_first as i32,
                 float(high_first),
                 low_first as i32,
@@ -266,7 +271,7 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
     if words.len() >= 4 {
         let _ = writeln!(
             out,
-            "\nfour      u64 (high word first)            i64                   f64  | u64 (low word first)             i64                   f64"
+            "\nfour           u64 (high word first)            i64                   f64  | u64 (low word first)             i64                   f64"
         );
         for (i, four) in words.windows(4).enumerate() {
             let high_first = four.iter().fold(0u64, |acc, &w| (acc << 16) | u64::from(w));
@@ -276,8 +281,8 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
                 .fold(0u64, |acc, &w| (acc << 16) | u64::from(w));
             let _ = writeln!(
                 out,
-                "{:#06x}    {high_first:>20}  {:>20}  {:>20}  | {low_first:>20}  {:>20}  {:>20}",
-                start.wrapping_add(i as u16),
+                "{}    {high_first:>20}  {:>20}  {:>20}  | {low_first:>20}  {:>20}  {:>20}",
+                place(start.wrapping_add(i as u16)),
                 high_first as i64,
                 crate::web::decode::float(f64::from_bits(high_first)),
                 low_first as i64,
@@ -294,16 +299,19 @@ pub fn render_registers(start: u16, words: &[u16]) -> String {
 
 /// The bits in groups of eight, first bit first, with their addresses.
 pub fn render_bits(start: u16, bits: &[bool]) -> String {
-    let mut out = String::from("\nbit       values (first bit first)\n");
+    let mut out = String::from("\nbit            values (first bit first)\n");
     for (i, group) in bits.chunks(8).enumerate() {
         let text: String = group.iter().map(|&on| if on { '1' } else { '0' }).collect();
-        let _ = writeln!(out, "{:#06x}    {text}", start.wrapping_add(8 * i as u16));
+        let _ = writeln!(out, "{}    {text}", place(start.wrapping_add(8 * i as u16)));
     }
     let on: Vec<String> = bits
         .iter()
         .enumerate()
         .filter(|(_, on)| **on)
-        .map(|(i, _)| format!("{:#06x}", start.wrapping_add(i as u16)))
+        .map(|(i, _)| {
+            let address = start.wrapping_add(i as u16);
+            format!("{address:#06x} ({address})")
+        })
         .collect();
     let _ = writeln!(
         out,
@@ -311,7 +319,7 @@ pub fn render_bits(start: u16, bits: &[bool]) -> String {
         if on.is_empty() {
             "none".into()
         } else {
-            on.join(" ")
+            on.join(", ")
         }
     );
     out
@@ -379,7 +387,7 @@ mod tests {
         // An energy counter of 65,538 Wh, high word first; and 2.5 as f64 (0x4004_0000_0000_0000).
         let counter = render_registers(0, &[0x0000, 0x0000, 0x0001, 0x0002]);
         assert!(
-            counter.contains("0x0000                   65538"),
+            counter.contains("0x0000     0                   65538"),
             "{counter}"
         );
         let swapped = render_registers(0, &[0x0002, 0x0001, 0x0000, 0x0000]);
@@ -399,8 +407,11 @@ mod tests {
             0,
             &[true, false, false, true, false, false, false, false, true],
         );
-        assert!(text.contains("0x0000    10010000"));
-        assert!(text.contains("0x0008    1"));
-        assert!(text.contains("on: 0x0000 0x0003 0x0008"));
+        assert!(text.contains("0x0000     0    10010000"));
+        assert!(text.contains("0x0008     8    1"));
+        assert!(
+            text.contains("on: 0x0000 (0), 0x0003 (3), 0x0008 (8)"),
+            "{text}"
+        );
     }
 }

@@ -23,6 +23,7 @@ pub(super) fn validate_device(
     profiles: &mut HashMap<String, Arc<Profile>>,
     names: &mut HashMap<String, String>,
     problems: &mut Vec<Problem>,
+    warnings: &mut Vec<Problem>,
 ) -> Option<DeviceSpec> {
     let before = problems.len();
     if !is_valid_name(&raw.name) {
@@ -47,6 +48,12 @@ pub(super) fn validate_device(
                 // Once per profile: its field names become topic levels.
                 for reason in field_name_problems(&profile) {
                     problems.push(Problem::new(format!("{place}.profile"), reason));
+                }
+                for warning in profile.warnings() {
+                    warnings.push(Problem::new(
+                        format!("{place}.profile"),
+                        warning.to_string(),
+                    ));
                 }
                 let profile = Arc::new(profile);
                 profiles.insert(raw.profile.clone(), profile.clone());

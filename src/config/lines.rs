@@ -137,6 +137,7 @@ pub(super) fn validate_lines(
                 &mut profiles,
                 &mut device_names,
                 problems,
+                warnings,
             ) {
                 devices.push(spec);
             }

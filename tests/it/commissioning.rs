@@ -256,11 +256,11 @@ async fn read_decodes_the_valve_identity_block_every_way() {
     // Identity registers: address 1, serial 0x20 0x23 0x11 0x22 0x00 0x4A 0x5B, software 0x13,
     // hardware 0x02, baud code 6. u16, i16, bits, BCD, characters per register.
     for line in [
-        "0x0000    0x0001        1       1  0000 0000 0000 0001     1  \"..\"",
-        "0x0001    0x0020       32      32  0000 0000 0010 0000    20  \". \"",
-        "0x0006    0x004a       74      74  0000 0000 0100 1010     -  \".J\"",
-        "0x0007    0x005b       91      91  0000 0000 0101 1011     -  \".[\"",
-        "0x000a    0x0006        6       6  0000 0000 0000 0110     6  \"..\"",
+        "0x0000     0    0x0001        1       1  0000 0000 0000 0001     1  \"..\"",
+        "0x0001     1    0x0020       32      32  0000 0000 0010 0000    20  \". \"",
+        "0x0006     6    0x004a       74      74  0000 0000 0100 1010     -  \".J\"",
+        "0x0007     7    0x005b       91      91  0000 0000 0101 1011     -  \".[\"",
+        "0x000a    10    0x0006        6       6  0000 0000 0000 0110     6  \"..\"",
     ] {
         assert!(text.contains(line), "missing `{line}` in\n{text}");
     }
@@ -269,7 +269,7 @@ async fn read_decodes_the_valve_identity_block_every_way() {
     let high_first = 0x0001_0020u32;
     let low_first = 0x0020_0001u32;
     let pair = format!(
-        "0x0000    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
+        "0x0000     0    {high_first:>21}  {:>11}  {:>14}  | {low_first:>20}  {:>11}  {:>14}",
         high_first as i32,
         format!("{:e}", f32::from_bits(high_first)),
         low_first as i32,
@@ -295,8 +295,8 @@ async fn read_shows_bits_of_a_coil_block() {
     let text = stdout(&output);
     assert!(output.status.success(), "{text}");
     assert!(text.contains("request  81 01 00 00 00 16"), "{text}");
-    assert!(text.contains("0x0000    "), "{text}");
-    assert!(text.contains("0x0010    "), "{text}");
+    assert!(text.contains("0x0000     0    "), "{text}");
+    assert!(text.contains("0x0010    16    "), "{text}");
     assert!(text.contains("on: "), "{text}");
     assert_only_reads(&shower).await;
 }

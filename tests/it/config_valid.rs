@@ -531,11 +531,11 @@ fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
     );
     assert!(ok, "check failed: {stderr}");
     for expected in [
-        "FC04 0x0000 ×2       fast every 1s",
-        "FC04 0x0010 ×2       every 250ms",
-        "FC04 0x0100 ×2       every 15s",
-        "FC03 0x0300 ×1       slow every 1m",
-        "FC03 0x0200 ×2       once",
+        "FC04 0x0000 (0) ×2   fast every 1s",
+        "FC04 0x0010 (16) ×2  every 250ms",
+        "FC04 0x0100 (256) ×2 every 15s",
+        "FC03 0x0300 (768) ×1 slow every 1m",
+        "FC03 0x0200 (512) ×2 once",
         "once: 1 block, 25.00 ms on the wire",
         "no load in steady state",
     ] {
@@ -648,4 +648,64 @@ fn a_device_polled_faster_than_its_exponents_are_read_is_refused_with_its_place(
             && stderr.contains("the exponent `power_sf` of `power`"),
         "{stderr}"
     );
+}
+
+/// The cadence meter with its power block copied from a manual as "43204": `check` loads it
+/// and warns; said in Modicon numbers, the same text reads bus address 3203 silently.
+#[test]
+fn check_warns_about_a_start_that_looks_like_a_modicon_number_and_reads_the_convention() {
+    let copied = crate::cadence::PROFILE.replacen(
+        "function = 4\nstart = 0x0000",
+        "function = 3\nstart = 43204",
+        1,
+    );
+    let (ok, stdout, stderr) = check_text(MIXED_CONFIG, &[("cadence-meter.toml", &copied)]);
+    assert!(ok, "check failed: {stderr}");
+    let warning = stdout
+        .lines()
+        .find(|line| line.starts_with("warning: lines[0].devices[0].profile: "))
+        .unwrap_or_else(|| panic!("no warning in:\n{stdout}"));
+    assert!(
+        warning.ends_with(
+            "cadence-meter.toml: blocks[0] (power).start: 43204 looks like a Modicon number \
+             (register 3204 of its table, bus address 3203); a manual's numbers are copied with \
+             `register_numbers = \"modicon\"` in [device], and `register_numbers = \"bus\"` says \
+             that 43204 is meant"
+        ),
+        "{warning}"
+    );
+    assert!(stdout.contains("FC03 0xA8C4 (43204) ×2"), "{stdout}");
+
+    // The manual's numbers said to be Modicon numbers: register 43204 is bus address 3203, and
+    // a write to "40101" goes to bus address 100.
+    let modicon = r#"
+[device]
+name = "cadence-meter"
+manufacturer = "Test"
+model = "M1"
+register_numbers = "modicon"
+
+[line]
+
+[[blocks]]
+name = "power"
+function = 3
+start = 43204
+count = 2
+
+[[fields]]
+name = "power"
+block = "power"
+offset = 0
+codec = { type = "u16" }
+range = [0, 100]
+write = { function = 6, address = 43204 }
+"#;
+    let (ok, stdout, stderr) = check_text(MIXED_CONFIG, &[("cadence-meter.toml", modicon)]);
+    assert!(ok, "check failed: {stderr}");
+    assert!(!stdout.contains("Modicon"), "{stdout}");
+    assert!(stdout.contains("FC03 0x0C83 (3203) ×2"), "{stdout}");
+    let profile = rtu2mqtt_profile::Profile::from_toml(modicon, "m.toml").unwrap();
+    let listing = rtu2mqtt_profile::registry::describe(&profile);
+    assert!(listing.contains("FC06 @0x0C83 (3203)"), "{listing}");
 }

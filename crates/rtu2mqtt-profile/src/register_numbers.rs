@@ -106,14 +106,20 @@ mod tests {
         assert!(RegisterNumbers::Bus.bus_address(65536, 3).is_err());
         assert!(RegisterNumbers::OneBased.bus_address(0, 3).is_err());
         let wrong_table = RegisterNumbers::Modicon.bus_address(43204, 4).unwrap_err();
-        assert!(wrong_table.contains("3xxxx: 30001 to 39999"), "{wrong_table}");
+        assert!(
+            wrong_table.contains("3xxxx: 30001 to 39999"),
+            "{wrong_table}"
+        );
         assert!(RegisterNumbers::Modicon.bus_address(40000, 3).is_err());
         assert!(RegisterNumbers::Modicon.bus_address(3204, 3).is_err());
     }
 
     #[test]
     fn a_bus_start_in_the_register_tables_looks_like_a_modicon_number() {
-        assert_eq!(RegisterNumbers::Bus.looks_like_modicon(43204, 3), Some(3203));
+        assert_eq!(
+            RegisterNumbers::Bus.looks_like_modicon(43204, 3),
+            Some(3203)
+        );
         assert_eq!(RegisterNumbers::Bus.looks_like_modicon(30001, 4), Some(0));
         assert_eq!(RegisterNumbers::Bus.looks_like_modicon(43204, 4), None);
         assert_eq!(RegisterNumbers::Bus.looks_like_modicon(3204, 3), None);

@@ -168,7 +168,8 @@ fn describe_kind(kind: &FieldKind) -> String {
     }
 }
 
-/// A read request as `profiles` and `check` show it: `FC03 0x0000 ×11`.
+/// A read request as `profiles` and `check` show it, the bus address in hex and decimal:
+/// `FC03 0x0C83 (3203) ×11`.
 pub fn describe_read(request: &rtu2mqtt_modbus::Request) -> String {
     use rtu2mqtt_modbus::Request;
     match request {
@@ -176,7 +177,7 @@ pub fn describe_read(request: &rtu2mqtt_modbus::Request) -> String {
         | Request::ReadDiscreteInputs { start, quantity }
         | Request::ReadHoldingRegisters { start, quantity }
         | Request::ReadInputRegisters { start, quantity } => format!(
-            "FC{:02} 0x{start:04X} ×{quantity}",
+            "FC{:02} 0x{start:04X} ({start}) ×{quantity}",
             request.function().value()
         ),
         other => format!("{other:?}"),
@@ -189,7 +190,10 @@ fn describe_write(profile: &Profile, index: usize) -> String {
     let Some(frame) = &def.write else {
         return String::new();
     };
-    let mut text = format!("FC{:02} @0x{:04X}", frame.function, frame.address);
+    let mut text = format!(
+        "FC{:02} @0x{:04X} ({})",
+        frame.function, frame.address, frame.address
+    );
     if frame.count > 1 && frame.function != 6 {
         text.push_str(&format!("×{}", frame.count));
     }
@@ -279,8 +283,8 @@ pub fn describe(profile: &Profile) -> String {
     for (name, frame) in &profile.inner.named_frames {
         let _ = writeln!(
             out,
-            "  frame {:<14} FC{:02} @0x{:04X}×{}",
-            name, frame.function, frame.address, frame.count
+            "  frame {:<14} FC{:02} @0x{:04X} ({})×{}",
+            name, frame.function, frame.address, frame.address, frame.count
         );
     }
     let width = profile
@@ -299,6 +303,9 @@ pub fn describe(profile: &Profile) -> String {
             describe_write(profile, index),
         );
         let _ = writeln!(out, "{}", line.trim_end());
+    }
+    for warning in profile.warnings() {
+        let _ = writeln!(out, "  warning: {warning}");
     }
     out
 }

@@ -520,7 +520,9 @@ mod tests {
     #[test]
     fn starts_are_read_in_the_profiles_register_numbers_and_a_modicon_look_is_warned_about() {
         let limits = build_limits(&line(""), &mut Problems::new("p"));
-        let sections = [block("name = \"a\"\nfunction = 3\nstart = 43204\ncount = 2")];
+        let sections = [block(
+            "name = \"a\"\nfunction = 3\nstart = 43204\ncount = 2",
+        )];
         let mut problems = Problems::new("p");
         let (blocks, _) = build_blocks(
             &sections,
@@ -538,17 +540,31 @@ mod tests {
         assert_eq!(warnings.len(), 1);
         assert_eq!(warnings[0].place, "p: blocks[0] (a).start");
         assert!(
-            warnings[0].reason.contains("register 3204 of its table, bus address 3203"),
+            warnings[0]
+                .reason
+                .contains("register 3204 of its table, bus address 3203"),
             "{}",
             warnings[0].reason
         );
         // Said to be a bus address, it is one, silently.
-        build_blocks(&sections, &limits, Some(RegisterNumbers::Bus), &mut problems);
+        build_blocks(
+            &sections,
+            &limits,
+            Some(RegisterNumbers::Bus),
+            &mut problems,
+        );
         assert!(problems.is_empty() && problems.take_warnings().is_empty());
 
         // A number of another table is refused at the block's start.
-        let input = [block("name = \"i\"\nfunction = 4\nstart = 43204\ncount = 2")];
-        build_blocks(&input, &limits, Some(RegisterNumbers::Modicon), &mut problems);
+        let input = [block(
+            "name = \"i\"\nfunction = 4\nstart = 43204\ncount = 2",
+        )];
+        build_blocks(
+            &input,
+            &limits,
+            Some(RegisterNumbers::Modicon),
+            &mut problems,
+        );
         assert_eq!(places(problems), ["p: blocks[0] (i).start"]);
     }
 }
