@@ -24,17 +24,20 @@
 //!   daemon's configuration also reads) and its exact amounts.
 //! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
 //! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
+//! - [`register_numbers`]: how a profile numbers its registers (bus, one-based, Modicon) and
+//!   the bus address each number stands for.
 //! - [`enumeration`]: the `enum` codec (sparse codes over whole registers) and its
 //!   [`enumeration::UnknownCode`] rule.
 //!
 //! # Inside
 //!
 //! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
-//! payloads and commands), `value`, `registers` (word and byte order), `numeric` (the number
-//! codecs), `text` (text encodings), `enumeration`, `rejection`, `publish`, `field`, `codec` (every field
-//! codec and command parsing), `model`, `format` (the file's serde types), `compile` (file to
-//! model, with every problem), then `command` (a command as one bus slot's plan) and `raw`
-//! (simulated block images patched through the write frames); this file's [`Profile`] is what
+//! payloads and commands), `value`, `registers` (word and byte order), `register_numbers`,
+//! `numeric` (the number codecs), `text` (text encodings), `enumeration`, `rejection`,
+//! `publish`, `field`, `codec` (every field codec and command parsing), `model`, `format` (the
+//! file's serde types), `compile` (file to model, with every problem), then `command` (a
+//! command as one bus slot's plan) and `raw` (simulated block images patched through the
+//! write frames); this file's [`Profile`] is what
 //! the rest of the crate sees, and `sunspec` stands apart.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
