@@ -204,6 +204,7 @@ mod tests {
             &mut HashMap::new(),
             &mut HashMap::new(),
             &mut problems,
+            &mut Vec::new(),
         );
         assert_eq!(spec.is_none(), !problems.is_empty());
         problems.iter().map(ToString::to_string).collect()
@@ -261,6 +262,7 @@ mod tests {
                 &mut profiles,
                 &mut names,
                 &mut problems,
+                &mut Vec::new(),
             );
         }
         let shown: Vec<String> = problems.iter().map(ToString::to_string).collect();
