@@ -34,9 +34,12 @@ pub(super) fn validate_lines(
     warnings: &mut Vec<Problem>,
 ) -> Vec<LineSpec> {
     if raw_lines.is_empty() {
-        problems.push(Problem::new(
+        // A fresh installation: the service runs idle (its MQTT status, the console) until the
+        // administrator adds lines and reloads it; nothing polls a port nobody configured.
+        warnings.push(Problem::new(
             "lines",
-            "no [[lines]] configured: the gateway would have nothing to do",
+            "no [[lines]] configured: the gateway runs idle, polling nothing, until lines are \
+             added and it is reloaded (`systemctl reload rtu2mqtt`)",
         ));
     }
     let mut line_names: HashMap<&str, usize> = HashMap::new();

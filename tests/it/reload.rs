@@ -279,3 +279,60 @@ async fn sighup_reloads_one_line_and_keeps_the_other_polling() {
     };
     assert!(status.success(), "{status:?}");
 }
+
+/// A fresh installation: the packaged configuration has no lines. The daemon runs idle (its
+/// status online, nothing polled), and the administrator's lines start polling on SIGHUP,
+/// without a restart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_idle_gateway_without_lines_starts_polling_when_a_reload_adds_them() {
+    let plant = SeedPlant::spawn(false).expect("simulated plant");
+    let mosquitto = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config_path = dir.path().join("config.toml");
+    let log_path = dir.path().join("rtu2mqtt.log");
+    let full = PlantConfig::default().text(&mosquitto, &plant, CLIENT_ID);
+    let idle = full
+        .split("[[lines]]")
+        .next()
+        .expect("the [mqtt] table")
+        .to_string();
+    assert!(!idle.contains("devices"), "{idle}");
+    std::fs::write(&config_path, &idle).expect("write config");
+
+    let log = std::fs::File::create(&log_path).expect("log file");
+    let mut command = child::gateway_run(&config_path);
+    command.env("RUST_LOG", "info").stderr(log);
+    let mut daemon = KillOnDrop::spawn(command).expect("rtu2mqtt run starts");
+    let mut client = TestClient::connect(mosquitto.port, "idle-observer").await;
+    client.subscribe("plant/#").await;
+    client
+        .wait_for(&format!("plant/gateway/{CLIENT_ID}/status"), START, |m| {
+            m.text() == "online"
+        })
+        .await;
+    wait_for_log(
+        &log_path,
+        "no [[lines]] configured",
+        Duration::from_secs(10),
+    )
+    .await;
+    client.settle(Duration::from_secs(1)).await;
+    assert!(
+        plant.line_a.journal().frames().is_empty() && plant.line_b.journal().frames().is_empty(),
+        "an idle gateway polled a port"
+    );
+    assert!(client.on("plant/valve/availability").is_empty());
+
+    std::fs::write(&config_path, &full).expect("write config");
+    kill(daemon.pid(), Signal::SIGHUP).expect("SIGHUP");
+    wait_for_log(&log_path, "started=2", Duration::from_secs(10)).await;
+    client
+        .wait_for("plant/valve/availability", START, |m| m.text() == "online")
+        .await;
+    client
+        .wait_for("plant/dust_collector/availability", START, |m| {
+            m.text() == "online"
+        })
+        .await;
+    assert!(daemon.is_running(), "the reload ended the daemon");
+}
