@@ -11,7 +11,8 @@
 //! At the root: [`Profile`] and what its questions answer with: the fields ([`FieldInfo`],
 //! [`FieldKind`], [`HaHints`], [`Identity`]), the blocks ([`ReadBlock`], [`PollClass`],
 //! [`Limits`]), decoded values ([`FieldReading`], [`Value`], [`FieldError`], [`DeviceState`]),
-//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), when a value is
+//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), actions
+//! ([`ActionInfo`], [`ActionParam`], [`ActionResult`]), when a value is
 //! published ([`PublishRule`]), a profile's problems ([`ProfileErrors`], [`ProfileError`]) and
 //! the raw images a simulated device keeps ([`BlockImage`], [`RawPatch`]). The public modules:
 //!
@@ -30,10 +31,11 @@
 //! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
 //! payloads and commands), `value`, `registers` (word and byte order), `numeric` (the number
 //! codecs), `text` (text encodings), `rejection`, `publish`, `field`, `codec` (every field
-//! codec and command parsing), `model`, `format` (the file's serde types), `compile` (file to
-//! model, with every problem), then `command` (a command as one bus slot's plan) and `raw`
-//! (simulated block images patched through the write frames); this file's [`Profile`] is what
-//! the rest of the crate sees, and `sunspec` stands apart.
+//! codec and command parsing), `action` (command interfaces and their payloads), `model`,
+//! `format` (the file's serde types), `compile` (file to model, with every problem), then
+//! `command` (a command on fields as one bus slot's plan), `plan` (any command's plan, an
+//! action's included) and `raw` (simulated block images patched through the write frames);
+//! this file's [`Profile`] is what the rest of the crate sees, and `sunspec` stands apart.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, every public item says what it is, the 2018 idioms.
@@ -44,6 +46,7 @@
     rust_2018_idioms
 )]
 
+mod action;
 pub mod bcd;
 mod codec;
 mod command;
@@ -54,6 +57,7 @@ mod format;
 mod model;
 mod number;
 mod numeric;
+mod plan;
 pub mod publish;
 mod raw;
 mod registers;
@@ -69,11 +73,13 @@ use std::time::Duration;
 
 use rtu2mqtt_modbus::{Request, Response};
 
+pub use action::{ActionInfo, ActionParam, ActionResult};
 pub use codec::{BlockImage, FieldError, RawPatch};
-pub use command::{CommandPlan, Verification};
+pub use command::Verification;
 pub use compile::{ProfileError, ProfileErrors};
 pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Behaviour, Limits, PollClass, ReadBlock};
+pub use plan::CommandPlan;
 pub use publish::PublishRule;
 pub use rejection::Rejection;
 pub use value::Value;
@@ -456,13 +462,17 @@ impl Profile {
     }
 
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
-    /// last known state, and plans the bus slot that carries it out.
+    /// last known state, and plans the bus slot that carries it out. A name that is one of the
+    /// profile's actions plans that action ([`Profile::plan_action`]).
     pub fn plan_command(
         &self,
         field: &str,
         text: &str,
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
+        if self.field(field).is_none() && self.action(field).is_some() {
+            return self.plan_action(field, text);
+        }
         let (index, target) = self.parse_target(field, text)?;
         let Some(frame) = self.inner.defs[index].write.clone() else {
             return Err(Rejection(format!("{field} is read-only")));

@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use super::action::ActionDef;
 use super::codec::{FieldCodec, FieldError};
 use super::field::FieldInfo;
 use super::numeric::Exponent;
@@ -200,4 +201,6 @@ pub(crate) struct Compiled {
     pub(crate) forbidden: Vec<Forbidden>,
     /// The `[[write_frames]]` by name, in file order.
     pub(crate) named_frames: Vec<(String, WriteFrame)>,
+    /// The `[[actions]]`, in file order.
+    pub(crate) actions: Vec<ActionDef>,
 }
