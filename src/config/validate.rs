@@ -91,14 +91,17 @@ pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems>
 }
 
 /// Home Assistant would drop one of two entities sharing a `unique_id`
-/// (device `a` + field `b_c` and device `a_b` + field `c`).
+/// (device `a` + field `b_c` and device `a_b` + field `c`; an action is an entity too).
 fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<Problem>) {
     let fields = lines
         .iter()
         .flat_map(|line| line.devices.iter())
         .flat_map(|device| {
-            (device.profile.fields().iter())
-                .map(|field| (device.name.as_str(), field.name.as_str()))
+            let fields = device.profile.fields().iter().map(|field| &field.name);
+            let actions = device.profile.actions().map(|action| &action.name);
+            fields
+                .chain(actions)
+                .map(|name| (device.name.as_str(), name.as_str()))
         });
     for id in mqtt.topics().unique_id_collisions(fields) {
         problems.push(Problem::new(
