@@ -574,6 +574,70 @@ mod tests {
     }
 
     #[test]
+    fn actions_follow_the_fields_as_metrics_only_written() {
+        let text = "[device]\nname = \"meter\"\nmanufacturer = \"m\"\nmodel = \"x\"\n[line]\n\
+            [[blocks]]\nname = \"hold\"\nfunction = 3\nstart = 0\ncount = 1\n\
+            [[fields]]\nname = \"energy\"\nblock = \"hold\"\noffset = 0\n\
+            codec = { type = \"u16\" }\n\
+            [[actions]]\nname = \"reset\"\naddress = 10\nregisters = [1]\n\
+            [[actions]]\nname = \"set_tariff\"\naddress = 10\nregisters = [2, \"tariff\"]\n\
+            params = { tariff = { range = [1, 4] } }\n\
+            [[actions]]\nname = \"set_clock\"\naddress = 10\nregisters = [3, \"h\", \"m\"]\n";
+        let profile = match Profile::from_toml(text, "meter") {
+            Ok(profile) => Arc::new(profile),
+            Err(errors) => panic!("{errors}"),
+        };
+        let metrics = DeviceMetrics::new("meter", profile, 1000);
+        let shape: Vec<(&str, u64, DataType, bool)> = metrics
+            .defs()
+            .iter()
+            .map(|def| (def.name.as_str(), def.alias, def.datatype, def.action))
+            .collect();
+        assert_eq!(
+            shape,
+            [
+                ("energy", 1000, DataType::UInt16, false),
+                ("reset", 1001, DataType::Boolean, true),
+                ("set_tariff", 1002, DataType::UInt8, true),
+                ("set_clock", 1003, DataType::String, true),
+            ]
+        );
+        let written = |name: &str, value: MetricValue| {
+            let metric = Metric {
+                name: Some(name.to_string()),
+                value: Some(value),
+                ..Default::default()
+            };
+            metrics
+                .command_text(&metric)
+                .map(|(def, text)| (def.name.clone(), text))
+        };
+        assert_eq!(
+            written("reset", MetricValue::Boolean(true)),
+            Ok(("reset".to_string(), "ON".to_string()))
+        );
+        assert_eq!(
+            written("reset", MetricValue::Boolean(false)),
+            Err(Refusal("reset: an action runs when written true".into()))
+        );
+        assert_eq!(
+            written("set_tariff", MetricValue::Int(3)),
+            Ok(("set_tariff".to_string(), "3".to_string()))
+        );
+        let clock = r#"{"h": 7, "m": 30}"#;
+        assert_eq!(
+            written("set_clock", MetricValue::String(clock.into())),
+            Ok(("set_clock".to_string(), clock.to_string()))
+        );
+        let tariff = metrics.by_name("set_tariff").map(|def| {
+            let birth = DeviceMetrics::birth_metric(def, None, 5);
+            (birth.is_null, birth.properties.map(|set| set.keys))
+        });
+        let keys = ["engLow", "engHigh", "readOnly"].map(String::from).to_vec();
+        assert_eq!(tariff, Some((Some(true), Some(keys))));
+    }
+
+    #[test]
     fn every_writable_field_round_trips_through_a_command_metric() {
         for name in rtu2mqtt_profile::registry::built_in_names() {
             let profile = match rtu2mqtt_profile::registry::built_in(name) {
