@@ -17,13 +17,14 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::protobuf::{DataType, MetricValue, Payload};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_profile::Profile;
 use rtu2mqtt_sim::command_interface::INVALID_PARAMETER;
 use rtu2mqtt_sim::{lock, share, CommandInterface, GenericDevice, ServeOptions, VirtualLine};
 use serde_json::{json, Value as Json};
 
+use crate::sparkplug_node::command;
 use crate::support::pysparkplug::decode_with_pysparkplug;
 use crate::support::{fast_config, hex, Gateway, Mosquitto, TestClient};
 
@@ -343,20 +344,6 @@ async fn sparkplug_runs_an_action_from_its_metric() {
         "Selects the active tariff"
     );
 
-    let written = |name: &str, datatype: DataType, value: MetricValue| {
-        Payload {
-            timestamp: Some(1),
-            metrics: vec![Metric {
-                name: Some(name.into()),
-                datatype: Some(datatype.number()),
-                value: Some(value),
-                ..Default::default()
-            }],
-            ..Default::default()
-        }
-        .encode_to_bytes()
-    };
-
     // The tariff as an integer: the frame, the result read, the plain result.
     bench.line.journal().clear();
     bench.client.drain();
@@ -364,7 +351,7 @@ async fn sparkplug_runs_an_action_from_its_metric() {
         .client
         .publish(
             dcmd,
-            written("set_tariff", DataType::UInt8, MetricValue::Int(3)),
+            command("set_tariff", DataType::UInt8, MetricValue::Int(3)),
             false,
         )
         .await;
@@ -382,19 +369,9 @@ async fn sparkplug_runs_an_action_from_its_metric() {
     assert_eq!(after(&bench.frames(), TARIFF_3), Some(RESULT_READ));
 
     // The reset runs on true; false is refused without a frame, the metric null again.
+    let press = |on: bool| command("reset_partial", DataType::Boolean, MetricValue::Boolean(on));
     bench.line.journal().clear();
-    bench
-        .client
-        .publish(
-            dcmd,
-            written(
-                "reset_partial",
-                DataType::Boolean,
-                MetricValue::Boolean(false),
-            ),
-            false,
-        )
-        .await;
+    bench.client.publish(dcmd, press(false), false).await;
     let reset_alias = Payload::decode_bytes(&birth.payload)
         .unwrap_or_default()
         .metrics
@@ -427,18 +404,7 @@ async fn sparkplug_runs_an_action_from_its_metric() {
         decoded[1]
     );
     assert!(hex::writes(&bench.line.journal().frames(), 1).is_empty());
-    bench
-        .client
-        .publish(
-            dcmd,
-            written(
-                "reset_partial",
-                DataType::Boolean,
-                MetricValue::Boolean(true),
-            ),
-            false,
-        )
-        .await;
+    bench.client.publish(dcmd, press(true), false).await;
     let result = bench
         .client
         .next_on("plant/meter/reset_partial/result", WAIT)

@@ -347,26 +347,19 @@ mod tests {
         assert_eq!(tariff.parse_payload(" 3.0 "), Ok(vec![3]));
         assert_eq!(tariff.parse_payload(r#"{"tariff": 4}"#), Ok(vec![4]));
         assert_eq!(tariff.parse_payload(r#"{"tariff": "1"}"#), Ok(vec![1]));
-        assert_eq!(
-            refusal(&tariff, "9"),
-            "set_tariff: tariff must be an integer 1–4, got 9"
-        );
-        assert_eq!(
-            refusal(&tariff, r#"{"tariff": 9}"#),
-            "set_tariff: tariff must be an integer 1–4, got 9"
-        );
-        assert_eq!(
-            refusal(&tariff, "two"),
-            "set_tariff: tariff must be an integer 1–4, got \"two\""
-        );
-        assert_eq!(
-            refusal(&tariff, r#"{"tarif": 2}"#),
-            "set_tariff has no parameter \"tarif\" (its parameters: tariff)"
-        );
-        assert_eq!(
-            refusal(&tariff, r#"{"tariff": true}"#),
-            "set_tariff: tariff must be an integer 1–4, got \"true\""
-        );
+        let range = "set_tariff: tariff must be an integer 1–4, got";
+        for (text, reason) in [
+            ("9", format!("{range} 9")),
+            (r#"{"tariff": 9}"#, format!("{range} 9")),
+            ("two", format!("{range} \"two\"")),
+            (r#"{"tariff": true}"#, format!("{range} \"true\"")),
+            (
+                r#"{"tarif": 2}"#,
+                "set_tariff has no parameter \"tarif\" (its parameters: tariff)".to_string(),
+            ),
+        ] {
+            assert_eq!(refusal(&tariff, text), reason, "{text}");
+        }
         assert_eq!(tariff.summary(&[2]), Value::Int(2));
         assert_eq!(tariff.example_payload(), "1");
     }

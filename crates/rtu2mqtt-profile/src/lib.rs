@@ -71,6 +71,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
+use command::FieldPlan;
 use rtu2mqtt_modbus::{Request, Response};
 
 pub use action::{ActionInfo, ActionParam, ActionResult};
@@ -479,12 +480,12 @@ impl Profile {
         };
         let targets = vec![(index, target)];
         self.check_known_state(&targets, state)?;
-        Ok(CommandPlan::new(
+        Ok(CommandPlan::from_fields(FieldPlan::new(
             Arc::clone(&self.inner),
             field.to_string(),
             frame,
             targets,
-        ))
+        )))
     }
 
     /// Plans several fields written together through one named `[[write_frames]]` entry in one
@@ -542,12 +543,12 @@ impl Profile {
             targets.push((index, target));
         }
         self.check_known_state(&targets, state)?;
-        Ok(CommandPlan::new(
+        Ok(CommandPlan::from_fields(FieldPlan::new(
             Arc::clone(&self.inner),
             frame_name.to_string(),
             frame,
             targets,
-        ))
+        )))
     }
 
     /// Names of the profile's shared write frames (for group commands).

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use super::action::ActionInfo;
 use super::command::{FieldPlan, Verification};
-use super::model::{Compiled, WriteFrame};
+use super::model::Compiled;
 use super::rejection::Rejection;
 use super::value::Value;
 use super::Profile;
@@ -83,15 +83,9 @@ impl ActionPlan {
 }
 
 impl CommandPlan {
-    /// A plan for `targets` written through `frame`. The caller has validated that every
-    /// target field lies inside the frame.
-    pub(crate) fn new(
-        profile: Arc<Compiled>,
-        label: String,
-        frame: WriteFrame,
-        targets: Vec<(usize, Value)>,
-    ) -> Self {
-        Self(Plan::Fields(FieldPlan::new(profile, label, frame, targets)))
+    /// The plan of a command on fields.
+    pub(crate) fn from_fields(plan: FieldPlan) -> Self {
+        Self(Plan::Fields(plan))
     }
 
     fn fields(&self) -> Option<&FieldPlan> {

@@ -56,48 +56,42 @@ pub fn action_component(ctx: &Topics, device: &str, action: &ActionInfo) -> Json
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rtu2mqtt_profile::ActionParam;
+    use rtu2mqtt_profile::Profile;
 
-    fn param(name: &str, min: i128, max: i128) -> ActionParam {
-        ActionParam {
-            name: name.to_string(),
-            description: String::new(),
-            unit: None,
-            min,
-            max,
-        }
-    }
-
-    fn action(name: &str, params: Vec<ActionParam>) -> ActionInfo {
-        ActionInfo {
-            name: name.to_string(),
-            description: String::new(),
-            params,
-            result: None,
-        }
-    }
+    const METER: &str = "[device]\nname = \"meter\"\nmanufacturer = \"m\"\nmodel = \"x\"\n[line]\n\
+        [[blocks]]\nname = \"hold\"\nfunction = 3\nstart = 0\ncount = 1\n\
+        [[fields]]\nname = \"energy\"\nblock = \"hold\"\noffset = 0\ncodec = { type = \"u16\" }\n\
+        [[actions]]\nname = \"reset_energy\"\naddress = 9\nregisters = [1]\n\
+        [[actions]]\nname = \"set_tariff\"\naddress = 9\nregisters = [2, \"tariff\"]\n\
+        params = { tariff = { range = [1, 4] } }\n\
+        [[actions]]\nname = \"set_clock\"\naddress = 9\nregisters = [3, \"hour\", \"minute\"]\n";
 
     #[test]
     fn an_action_is_a_button_a_number_or_a_text_by_its_parameters() {
+        let profile = match Profile::from_toml(METER, "meter") {
+            Ok(profile) => profile,
+            Err(errors) => panic!("{errors}"),
+        };
         let ctx = Topics::new("edge", "plant");
+        let component = |name: &str| {
+            profile
+                .action(name)
+                .map(|action| action_component(&ctx, "meter", action))
+        };
         assert_eq!(
-            action_component(&ctx, "meter", &action("reset_energy", Vec::new())),
-            json!({
+            component("reset_energy"),
+            Some(json!({
                 "p": "button",
                 "name": "Reset energy",
                 "unique_id": "edge_meter_reset_energy",
                 "command_topic": "plant/meter/reset_energy/set",
                 "retain": false,
                 "payload_press": "PRESS",
-            })
+            }))
         );
         assert_eq!(
-            action_component(
-                &ctx,
-                "meter",
-                &action("set_tariff", vec![param("tariff", 1, 4)])
-            ),
-            json!({
+            component("set_tariff"),
+            Some(json!({
                 "p": "number",
                 "name": "Set tariff",
                 "unique_id": "edge_meter_set_tariff",
@@ -107,22 +101,18 @@ mod tests {
                 "max": 4,
                 "step": 1,
                 "mode": "box",
-            })
-        );
-        let clock = action(
-            "set_clock",
-            vec![param("hour", 0, 23), param("minute", 0, 59)],
+            }))
         );
         assert_eq!(
-            action_component(&ctx, "meter", &clock),
-            json!({
+            component("set_clock"),
+            Some(json!({
                 "p": "text",
                 "name": "Set clock",
                 "unique_id": "edge_meter_set_clock",
                 "command_topic": "plant/meter/set_clock/set",
                 "retain": false,
                 "max": 255,
-            })
+            }))
         );
     }
 }
