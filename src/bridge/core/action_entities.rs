@@ -16,8 +16,23 @@ const PAYLOAD_PRESS: &str = "PRESS";
 /// The longest JSON object a `text` entity of an action lets one type.
 const MAX_JSON_CHARS: usize = 255;
 
+/// Adds the component of each of `actions` to a device's discovery `components`, keyed by
+/// the action's name; whether there was any.
+pub fn add_action_components<'a>(
+    ctx: &Topics,
+    device: &str,
+    actions: impl Iterator<Item = &'a ActionInfo>,
+    components: &mut Map<String, Json>,
+) -> bool {
+    let before = components.len();
+    for action in actions {
+        components.insert(action.name.clone(), action_component(ctx, device, action));
+    }
+    components.len() > before
+}
+
 /// The component of `action` in its device's discovery document.
-pub fn action_component(ctx: &Topics, device: &str, action: &ActionInfo) -> Json {
+fn action_component(ctx: &Topics, device: &str, action: &ActionInfo) -> Json {
     let mut config = Map::new();
     let mut put = |key: &str, value: Json| {
         config.insert(key.to_string(), value);

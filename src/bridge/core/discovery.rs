@@ -16,11 +16,9 @@
 //!   the field's kind and access (see [`platform_for`]); profile [`HaHints`] override the
 //!   defaults. Command topics appear only on writable fields and are exactly the topics the
 //!   gateway subscribes to, with `retain: false` so Home Assistant never leaves a command
-//!   behind in the broker. Identity fields are not components (they fill `dev`); each of the
-//!   profile's actions is one more (a button, a number or a text: see
-//!   [`action_entities`](super::action_entities)); a device that takes commands has one more,
-//!   the command-result event ([`result_event`]). Names are field labels only: Home Assistant
-//!   prefixes the device name itself.
+//!   behind in the broker. Identity fields are not components (they fill `dev`); an action is
+//!   one ([`action_entities`](super::action_entities)); a device that takes commands has the
+//!   command-result event ([`result_event`]). Names are labels: Home Assistant adds the device's.
 //!
 //! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
 //! device with a connectivity sensor and line statistics.
@@ -31,7 +29,7 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
-use super::action_entities::action_component;
+use super::action_entities::add_action_components;
 use super::entity_naming::{
     default_entity_category, is_numeric, name_has_word, DIAGNOSTIC_WORDS, PROBLEM_WORDS,
 };
@@ -469,7 +467,7 @@ pub fn device_config_from_fields(
         model,
         profile_name,
     };
-    device_document(ctx, device, &model, fields, &[], None)
+    device_document(ctx, device, &model, fields, std::iter::empty(), None)
 }
 
 /// Who made a device and which profile describes it: the fixed part of its registry entry.
@@ -482,12 +480,12 @@ struct DeviceModel<'a> {
 /// A device's document: `dev` (with the identity values known in `state`), the shared keys,
 /// one component per field that is not an identity field and per action, and the
 /// command-result event when Home Assistant can send the device commands.
-fn device_document(
+fn device_document<'a>(
     ctx: &Topics,
     device: &str,
     model: &DeviceModel<'_>,
     fields: &[FieldInfo],
-    actions: &[&ActionInfo],
+    actions: impl Iterator<Item = &'a ActionInfo>,
     state: Option<&DeviceState>,
 ) -> (String, Json) {
     let mut components: Map<String, Json> = fields
@@ -495,10 +493,8 @@ fn device_document(
         .filter(|field| field.identity.is_none())
         .map(|field| (field.name.clone(), component(ctx, device, field)))
         .collect();
-    for action in actions {
-        components.insert(action.name.clone(), action_component(ctx, device, action));
-    }
-    if !actions.is_empty() || fields.iter().any(|field| platform_for(field).commands()) {
+    let has_actions = add_action_components(ctx, device, actions, &mut components);
+    if has_actions || fields.iter().any(|field| platform_for(field).commands()) {
         components.insert(RESULT_EVENT.to_string(), result_event(ctx, device));
     }
     let mut dev = json!({
@@ -550,8 +546,8 @@ pub fn device_config_with_state(
         model: profile.model(),
         profile_name: profile.name(),
     };
-    let actions: Vec<&ActionInfo> = profile.actions().collect();
-    device_document(ctx, device, &model, profile.fields(), &actions, state)
+    let actions = profile.actions();
+    device_document(ctx, device, &model, profile.fields(), actions, state)
 }
 
 /// The device's document again when `updates` (the state about to be published: changed
