@@ -273,6 +273,7 @@ impl CommandSlots {
             Ok(Verification::Applied) => CommandOutcome::Applied {
                 detail: "read-back confirms the value after settling".into(),
             },
+            Ok(Verification::Reported(detail)) => CommandOutcome::Applied { detail },
             Ok(Verification::NotApplied(detail)) => CommandOutcome::NotApplied { detail },
             Ok(Verification::Settling) if now < settle.deadline => {
                 settle.next_read = now + SETTLE_REREAD;

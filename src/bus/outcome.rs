@@ -12,9 +12,9 @@ use rtu2mqtt_profile::CommandPlan;
 /// How a command ended on the bus.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CommandOutcome {
-    /// Written, and the read-back shows the value.
+    /// Written, and the read-back shows the value (an action: the device reports success).
     Applied { detail: String },
-    /// Acknowledged, but the read-back differs.
+    /// Acknowledged, but the read-back differs (an action: its result code is no success).
     NotApplied { detail: String },
     /// Refused by the profile's rules on the fresh state: nothing written.
     Rejected { detail: String },

@@ -118,6 +118,7 @@ pub(crate) async fn run_slot(
         Ok(Verification::Applied) => SlotEnd::Done(CommandOutcome::Applied {
             detail: "read-back confirms the value".into(),
         }),
+        Ok(Verification::Reported(detail)) => SlotEnd::Done(CommandOutcome::Applied { detail }),
         Ok(Verification::NotApplied(detail)) => {
             SlotEnd::Done(CommandOutcome::NotApplied { detail })
         }

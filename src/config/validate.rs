@@ -91,19 +91,25 @@ pub(crate) fn validate(raw: &RawConfig, base: &Path) -> Result<Config, Problems>
 }
 
 /// Home Assistant would drop one of two entities sharing a `unique_id`
-/// (device `a` + field `b_c` and device `a_b` + field `c`).
+/// (device `a` + field `b_c` and device `a_b` + field `c`; an action is an entity too).
 fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<Problem>) {
     let fields = lines
         .iter()
         .flat_map(|line| line.devices.iter())
         .flat_map(|device| {
-            (device.profile.fields().iter())
-                .map(|field| (device.name.as_str(), field.name.as_str()))
+            let fields = device.profile.fields().iter().map(|field| &field.name);
+            let actions = device.profile.actions().map(|action| &action.name);
+            fields
+                .chain(actions)
+                .map(|name| (device.name.as_str(), name.as_str()))
         });
     for id in mqtt.topics().unique_id_collisions(fields) {
         problems.push(Problem::new(
             "lines",
-            format!("two fields would share the Home Assistant unique_id {id:?}: rename a device"),
+            format!(
+                "two fields or actions would share the Home Assistant unique_id {id:?}: rename \
+                 a device"
+            ),
         ));
     }
 }
@@ -111,6 +117,44 @@ fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_action_and_a_field_of_two_devices_may_not_share_a_unique_id() {
+        let dir = tempfile::tempdir().unwrap();
+        let device = "[device]\nname = \"m\"\nmanufacturer = \"m\"\nmodel = \"x\"\n[line]\n\
+            [[blocks]]\nname = \"hold\"\nfunction = 3\nstart = 0\ncount = 1\n";
+        let with_action = format!(
+            "{device}[[fields]]\nname = \"energy\"\nblock = \"hold\"\noffset = 0\n\
+             codec = {{ type = \"u16\" }}\n\
+             [[actions]]\nname = \"set_tariff\"\naddress = 9\nregisters = [1, \"tariff\"]\n"
+        );
+        let with_field = format!(
+            "{device}[[fields]]\nname = \"tariff\"\nblock = \"hold\"\noffset = 0\n\
+             codec = {{ type = \"u16\" }}\n"
+        );
+        std::fs::write(dir.path().join("a.toml"), with_action).unwrap();
+        std::fs::write(dir.path().join("f.toml"), with_field).unwrap();
+        let text = "[mqtt]\nurl = \"mqtt://broker\"\nclient_id = \"edge1\"\n\
+                    [[lines]]\nname = \"a\"\nport = \"/dev/ttyS1\"\n\
+                    [[lines.devices]]\nname = \"meter\"\nprofile = \"a.toml\"\naddress = 1\n\
+                    [[lines.devices]]\nname = \"meter_set\"\nprofile = \"f.toml\"\naddress = 2\n";
+        let raw = crate::config::load::load_str(text).unwrap();
+        let Err(Problems(problems)) = validate(&raw, dir.path()) else {
+            panic!("two entities of one unique id accepted");
+        };
+        let found: Vec<(&str, &str)> = problems
+            .iter()
+            .map(|problem| (problem.place.as_str(), problem.reason.as_str()))
+            .collect();
+        assert_eq!(
+            found,
+            [(
+                "lines",
+                "two fields or actions would share the Home Assistant unique_id \
+                 \"edge1_meter_set_tariff\": rename a device"
+            )]
+        );
+    }
 
     #[test]
     fn every_section_s_problems_are_collected_in_one_list_with_their_places() {

@@ -2,15 +2,17 @@
 //! (Boolean for bits and buttons, the narrowest Int/UInt holding the field's range, Float or
 //! Double for scaled fields, String for enumerations and identifiers), units, descriptions and
 //! ranges as metric properties, stable aliases, field values as metric values, and a command
-//! metric back to the command text the profile's `plan_command` judges. Pure: no topics, no
-//! sequence numbers, no I/O.
+//! metric back to the command text the profile's `plan_command` judges. The profile's actions
+//! follow the fields as metrics that carry no value and are only written: Boolean `true` runs
+//! an action without parameters, one parameter is its integer type, several are a String of
+//! their JSON object. Pure: no topics, no sequence numbers, no I/O.
 
 use std::sync::Arc;
 
 use serde_json::Value as Json;
 
 use super::protobuf::{DataType, Metric, MetricValue, PropertyScalar, PropertySet, PropertyValue};
-use rtu2mqtt_profile::{FieldInfo, FieldKind, Profile, Value};
+use rtu2mqtt_profile::{ActionInfo, FieldInfo, FieldKind, Profile, Value};
 
 /// Range bounds this large come from the number format (float registers), not the device.
 const NO_RANGE: f64 = 1e15;
@@ -25,6 +27,9 @@ pub struct MetricDef {
     pub alias: u64,
     pub datatype: DataType,
     pub writable: bool,
+    /// One of the profile's actions: never a value of its own (null in the birth), a command
+    /// when written.
+    pub action: bool,
     properties: PropertySet,
 }
 
@@ -47,19 +52,31 @@ impl std::fmt::Display for Refusal {
 }
 
 impl DeviceMetrics {
-    /// The device's metrics, aliased `alias_base + field index` (stable while the profile's
-    /// field order is).
+    /// The device's metrics, aliased `alias_base + field index`, then its actions' after them
+    /// (stable while the profile's field and action order is).
     pub fn new(device: &str, profile: Arc<Profile>, alias_base: u64) -> Self {
-        let defs = profile
-            .fields()
-            .iter()
+        let fields = profile.fields().iter().map(|info| MetricDef {
+            name: info.name.clone(),
+            alias: 0,
+            datatype: datatype_for(info),
+            writable: info.writable,
+            action: false,
+            properties: properties_for(info),
+        });
+        let actions = profile.actions().map(|action| MetricDef {
+            name: action.name.clone(),
+            alias: 0,
+            datatype: action_datatype(action),
+            writable: true,
+            action: true,
+            properties: action_properties(action),
+        });
+        let defs = fields
+            .chain(actions)
             .enumerate()
-            .map(|(index, info)| MetricDef {
-                name: info.name.clone(),
+            .map(|(index, def)| MetricDef {
                 alias: alias_base + index as u64,
-                datatype: datatype_for(info),
-                writable: info.writable,
-                properties: properties_for(info),
+                ..def
             })
             .collect();
         DeviceMetrics {
@@ -146,6 +163,11 @@ impl DeviceMetrics {
         let wrong_kind = || Refusal(format!("{field}: the value is not a {:?}", def.datatype));
         let value = metric.value.as_ref().ok_or_else(wrong_kind)?;
         let text = match (def.datatype, value) {
+            (DataType::Boolean, MetricValue::Boolean(false)) if def.action => {
+                return Err(Refusal(format!(
+                    "{field}: an action runs when written true"
+                )));
+            }
             (DataType::Boolean, MetricValue::Boolean(on)) => {
                 if *on { "ON" } else { "OFF" }.to_string()
             }
@@ -198,6 +220,16 @@ pub fn datatype_for(info: &FieldInfo) -> DataType {
     }
 }
 
+/// The datatype of an action's metric: Boolean without parameters, the narrowest integer
+/// holding a single parameter's range, String (the JSON object) for several.
+pub fn action_datatype(action: &ActionInfo) -> DataType {
+    match action.params.as_slice() {
+        [] => DataType::Boolean,
+        [param] => integer_type(param.min, param.max),
+        _ => DataType::String,
+    }
+}
+
 /// The narrowest Sparkplug integer type holding `low..=high`.
 fn integer_type(low: i128, high: i128) -> DataType {
     if low >= 0 {
@@ -222,12 +254,7 @@ fn integer_type(low: i128, high: i128) -> DataType {
 fn properties_for(info: &FieldInfo) -> PropertySet {
     let mut set = PropertySet::default();
     let mut push = |key: &str, datatype: DataType, value: PropertyScalar| {
-        set.keys.push(key.to_string());
-        set.values.push(PropertyValue {
-            r#type: Some(datatype.number()),
-            is_null: None,
-            value: Some(value),
-        });
+        push_property(&mut set, key, datatype, value);
     };
     if let Some(unit) = &info.unit {
         push(
@@ -267,6 +294,57 @@ fn properties_for(info: &FieldInfo) -> PropertySet {
         "readOnly",
         DataType::Boolean,
         PropertyScalar::Boolean(!info.writable),
+    );
+    set
+}
+
+/// Adds one property to `set`.
+fn push_property(set: &mut PropertySet, key: &str, datatype: DataType, value: PropertyScalar) {
+    set.keys.push(key.to_string());
+    set.values.push(PropertyValue {
+        r#type: Some(datatype.number()),
+        is_null: None,
+        value: Some(value),
+    });
+}
+
+/// An action's description and, for a single parameter, its range and unit as metric
+/// properties; never read-only.
+fn action_properties(action: &ActionInfo) -> PropertySet {
+    let mut set = PropertySet::default();
+    let mut push = |key: &str, datatype: DataType, value: PropertyScalar| {
+        push_property(&mut set, key, datatype, value);
+    };
+    if let [param] = action.params.as_slice() {
+        if let Some(unit) = &param.unit {
+            push(
+                "engUnit",
+                DataType::String,
+                PropertyScalar::String(unit.clone()),
+            );
+        }
+        push(
+            "engLow",
+            DataType::Double,
+            PropertyScalar::Double(param.min as f64),
+        );
+        push(
+            "engHigh",
+            DataType::Double,
+            PropertyScalar::Double(param.max as f64),
+        );
+    }
+    if !action.description.trim().is_empty() {
+        push(
+            "description",
+            DataType::String,
+            PropertyScalar::String(action.description.clone()),
+        );
+    }
+    push(
+        "readOnly",
+        DataType::Boolean,
+        PropertyScalar::Boolean(false),
     );
     set
 }
@@ -497,6 +575,70 @@ mod tests {
             FieldKind::Enum { options } => Value::Enum(options.last().cloned().unwrap_or_default()),
             FieldKind::Text => Value::Text("0A".into()),
         }
+    }
+
+    #[test]
+    fn actions_follow_the_fields_as_metrics_only_written() {
+        let text = "[device]\nname = \"meter\"\nmanufacturer = \"m\"\nmodel = \"x\"\n[line]\n\
+            [[blocks]]\nname = \"hold\"\nfunction = 3\nstart = 0\ncount = 1\n\
+            [[fields]]\nname = \"energy\"\nblock = \"hold\"\noffset = 0\n\
+            codec = { type = \"u16\" }\n\
+            [[actions]]\nname = \"reset\"\naddress = 10\nregisters = [1]\n\
+            [[actions]]\nname = \"set_tariff\"\naddress = 10\nregisters = [2, \"tariff\"]\n\
+            params = { tariff = { range = [1, 4] } }\n\
+            [[actions]]\nname = \"set_clock\"\naddress = 10\nregisters = [3, \"h\", \"m\"]\n";
+        let profile = match Profile::from_toml(text, "meter") {
+            Ok(profile) => Arc::new(profile),
+            Err(errors) => panic!("{errors}"),
+        };
+        let metrics = DeviceMetrics::new("meter", profile, 1000);
+        let shape: Vec<(&str, u64, DataType, bool)> = metrics
+            .defs()
+            .iter()
+            .map(|def| (def.name.as_str(), def.alias, def.datatype, def.action))
+            .collect();
+        assert_eq!(
+            shape,
+            [
+                ("energy", 1000, DataType::UInt16, false),
+                ("reset", 1001, DataType::Boolean, true),
+                ("set_tariff", 1002, DataType::UInt8, true),
+                ("set_clock", 1003, DataType::String, true),
+            ]
+        );
+        let written = |name: &str, value: MetricValue| {
+            let metric = Metric {
+                name: Some(name.to_string()),
+                value: Some(value),
+                ..Default::default()
+            };
+            metrics
+                .command_text(&metric)
+                .map(|(def, text)| (def.name.clone(), text))
+        };
+        assert_eq!(
+            written("reset", MetricValue::Boolean(true)),
+            Ok(("reset".to_string(), "ON".to_string()))
+        );
+        assert_eq!(
+            written("reset", MetricValue::Boolean(false)),
+            Err(Refusal("reset: an action runs when written true".into()))
+        );
+        assert_eq!(
+            written("set_tariff", MetricValue::Int(3)),
+            Ok(("set_tariff".to_string(), "3".to_string()))
+        );
+        let clock = r#"{"h": 7, "m": 30}"#;
+        assert_eq!(
+            written("set_clock", MetricValue::String(clock.into())),
+            Ok(("set_clock".to_string(), clock.to_string()))
+        );
+        let tariff = metrics.by_name("set_tariff").map(|def| {
+            let birth = DeviceMetrics::birth_metric(def, None, 5);
+            (birth.is_null, birth.properties.map(|set| set.keys))
+        });
+        let keys = ["engLow", "engHigh", "readOnly"].map(String::from).to_vec();
+        assert_eq!(tariff, Some((Some(true), Some(keys))));
     }
 
     #[test]

@@ -54,7 +54,7 @@ impl DeviceSession {
                     .metrics
                     .defs()
                     .iter()
-                    .all(|def| self.values.contains_key(&def.name)))
+                    .all(|def| def.action || self.values.contains_key(&def.name)))
     }
 }
 
@@ -728,7 +728,7 @@ fn count_value(count: u64) -> MetricValue {
 fn alias_base(index: usize, devices: &[(String, Arc<Profile>)]) -> u64 {
     let most = devices
         .iter()
-        .map(|(_, profile)| profile.fields().len() as u64)
+        .map(|(_, profile)| (profile.fields().len() + profile.actions().len()) as u64)
         .max()
         .unwrap_or(0);
     let mut stride = ALIAS_STRIDE;

@@ -5,6 +5,7 @@
 use rtu2mqtt_testkit as support;
 
 mod acceptance;
+mod actions;
 mod answer_gaps;
 mod bridge_reliability;
 mod cadence;

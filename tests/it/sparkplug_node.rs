@@ -95,7 +95,8 @@ fn dust(gear: i64) -> LineEvent {
     }
 }
 
-fn command(name: &str, datatype: DataType, value: MetricValue) -> Vec<u8> {
+/// A DCMD payload writing `value` to the metric `name`.
+pub(crate) fn command(name: &str, datatype: DataType, value: MetricValue) -> Vec<u8> {
     Payload {
         timestamp: Some(1),
         metrics: vec![Metric {

@@ -1,5 +1,6 @@
-//! A validated command as the plan of one bus slot: the reads to make first (read-modify-write),
-//! the writes computed from their fresh answers, the read-back and how to judge it.
+//! A validated command on fields as the plan of one bus slot: the reads to make first
+//! (read-modify-write), the writes computed from their fresh answers, the read-back and how to
+//! judge it; and [`Verification`], what any read-back says about a command.
 //!
 //! The rules that protect a device live here and nowhere else: bits a command does not change
 //! are written back exactly as freshly read; toggle fields are written 1 only to change their
@@ -22,19 +23,21 @@ pub enum Verification {
     /// The read-back shows every commanded value (numbers compared by magnitude, so `1.50`
     /// is `1.5`).
     Applied,
+    /// The device itself reports the command carried out: an action's result register holds a
+    /// success code, or an action without one acknowledged its frame. The text says which.
+    Reported(String),
     /// The device acknowledged but shows something else.
     NotApplied(String),
     /// Still moving toward the value (valve opening): read again later, within the settle window.
     Settling,
 }
 
-/// One planned command. The line runs: `reads_before()` → `writes(answers)` → the writes →
-/// `readback()` → `verify(answers)`, with no other transaction in between.
+/// One planned command on fields, run as a [`CommandPlan`](crate::CommandPlan) runs.
 ///
 /// A plan carries one field (`plan_command`) or several fields written together in one frame
 /// (`plan_group`, e.g. the dust collector's FC10 power-on with its settings).
 #[derive(Debug, Clone, PartialEq)]
-pub struct CommandPlan {
+pub(crate) struct FieldPlan {
     profile: Arc<Compiled>,
     /// The field name, or the write frame's name for a group.
     label: String,
@@ -58,7 +61,7 @@ pub struct CommandPlan {
     first_readback_judged: OnceLock<()>,
 }
 
-impl CommandPlan {
+impl FieldPlan {
     /// A plan for `targets` written through `frame`. The caller has validated that every
     /// target field lies inside the frame.
     pub(crate) fn new(
@@ -186,17 +189,17 @@ impl CommandPlan {
     }
 
     /// The commanded field (for a group: the write frame's name).
-    pub fn field(&self) -> &str {
+    pub(crate) fn field(&self) -> &str {
         &self.label
     }
 
     /// The commanded value of the (first) field, parsed and normalised to its kind.
-    pub fn target(&self) -> &Value {
+    pub(crate) fn target(&self) -> &Value {
         &self.targets[0].1
     }
 
     /// Every commanded field with its value.
-    pub fn targets(&self) -> Vec<(&str, &Value)> {
+    pub(crate) fn targets(&self) -> Vec<(&str, &Value)> {
         self.targets
             .iter()
             .map(|(field, value)| (self.profile.infos[*field].name.as_str(), value))
@@ -205,14 +208,14 @@ impl CommandPlan {
 
     /// Running the command twice leaves the device as running it once: every commanded field
     /// is a state (a momentary button or a toggle is an action, not a state).
-    pub fn is_idempotent(&self) -> bool {
+    pub(crate) fn is_idempotent(&self) -> bool {
         self.targets
             .iter()
             .all(|(field, _)| self.profile.defs[*field].behaviour == Behaviour::State)
     }
 
     /// Reads to make in the slot before writing (empty when no read-modify-write is needed).
-    pub fn reads_before(&self) -> &[Request] {
+    pub(crate) fn reads_before(&self) -> &[Request] {
         &self.reads_before
     }
 
@@ -250,7 +253,7 @@ impl CommandPlan {
 
     /// The write requests, computed from the fresh answers to `reads_before()`. Empty when the
     /// device already is in the commanded state (a toggle field asked for its current state).
-    pub fn writes(&self, before: &[Response]) -> Result<Vec<Request>, Rejection> {
+    pub(crate) fn writes(&self, before: &[Response]) -> Result<Vec<Request>, Rejection> {
         let profile = &self.profile;
         let frame = &self.frame;
         let name = &self.label;
@@ -363,15 +366,15 @@ impl CommandPlan {
     }
 
     /// Reads that verify the command, made right after the writes; their answers go to
-    /// [`CommandPlan::verify`].
-    pub fn readback(&self) -> &[Request] {
+    /// [`FieldPlan::verify`].
+    pub(crate) fn readback(&self) -> &[Request] {
         &self.readback
     }
 
     /// The profile's read blocks (indices into its `read_blocks()`) whose data the command can
     /// change, as the profile knows it: those its read-back looks at (the targets' block and
     /// the blocks of its settle conditions).
-    pub fn readback_blocks(&self) -> impl Iterator<Item = usize> + '_ {
+    pub(crate) fn readback_blocks(&self) -> impl Iterator<Item = usize> + '_ {
         self.readback_places.iter().map(|&(block, _)| block)
     }
 
@@ -390,7 +393,7 @@ impl CommandPlan {
 
     /// Judges the answers to `readback()`. The first call judges the read-back right after the
     /// write; later calls the repeated read-backs of a settling command.
-    pub fn verify(&self, answers: &[Response]) -> Verification {
+    pub(crate) fn verify(&self, answers: &[Response]) -> Verification {
         let repeated = self.first_readback_judged.set(()).is_err();
         let profile = &self.profile;
         let images = self.readback_images(answers);
@@ -469,7 +472,7 @@ impl CommandPlan {
     }
 
     /// How long a `Settling` read-back may keep being repeated.
-    pub fn settle_window(&self) -> Option<Duration> {
+    pub(crate) fn settle_window(&self) -> Option<Duration> {
         self.targets
             .iter()
             .filter_map(|(field, _)| self.profile.defs[*field].settle_window)

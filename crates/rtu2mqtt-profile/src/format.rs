@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use super::action::ParamType;
 use super::codec::{ByteFormat, ByteSource};
 use super::enumeration::UnknownCode;
 use super::model::Behaviour;
@@ -30,6 +31,8 @@ pub(super) struct ProfileFile {
     pub(super) fields: Vec<FieldSection>,
     #[serde(default)]
     pub(super) forbidden: Vec<ForbiddenSection>,
+    #[serde(default)]
+    pub(super) actions: Vec<ActionSection>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -344,4 +347,61 @@ pub(super) struct NumberSection {
     pub(super) word_order: Option<WordOrder>,
     pub(super) byte_order: Option<ByteOrder>,
     pub(super) byte: Option<BytePlace>,
+}
+
+/// A command interface: one FC16 frame of fixed words and parameters, and optionally the
+/// result register read after it.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ActionSection {
+    pub(super) name: String,
+    /// Address of the frame's first register, in the profile's `register_numbers`.
+    pub(super) address: u32,
+    /// The frame's words in order: a fixed word, or the name of a parameter.
+    pub(super) registers: Vec<ActionWord>,
+    /// Parameter name → its type and range (a parameter not listed is a u16 of any value).
+    #[serde(default)]
+    pub(super) params: BTreeMap<String, ParamSection>,
+    pub(super) result: Option<ResultSection>,
+    #[serde(default)]
+    pub(super) description: String,
+}
+
+/// One entry of an action's `registers`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum ActionWord {
+    Fixed(i64),
+    Param(String),
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ParamSection {
+    #[serde(default, rename = "type")]
+    pub(super) ty: ParamType,
+    pub(super) range: Option<[i64; 2]>,
+    pub(super) word_order: Option<WordOrder>,
+    #[serde(default)]
+    pub(super) description: String,
+    pub(super) unit: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ResultSection {
+    /// Address of the result register, in the profile's `register_numbers`.
+    pub(super) address: u32,
+    /// 3 (holding register) or 4 (input register).
+    #[serde(default = "default_result_function")]
+    pub(super) function: u8,
+    /// Code (as a TOML key) → its name.
+    #[serde(default)]
+    pub(super) codes: BTreeMap<String, String>,
+    /// The codes that mean success (default `[0]`).
+    pub(super) success: Option<Vec<i64>>,
+}
+
+pub(super) fn default_result_function() -> u8 {
+    3
 }

@@ -11,7 +11,8 @@
 //! At the root: [`Profile`] and what its questions answer with: the fields ([`FieldInfo`],
 //! [`FieldKind`], [`HaHints`], [`Identity`]), the blocks ([`ReadBlock`], [`PollClass`],
 //! [`Limits`]), decoded values ([`FieldReading`], [`Value`], [`FieldError`], [`DeviceState`]),
-//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), when a value is
+//! commands ([`CommandPlan`], [`Verification`], [`Rejection`], [`Behaviour`]), actions
+//! ([`ActionInfo`], [`ActionParam`], [`ActionResult`]), when a value is
 //! published ([`PublishRule`]), a profile's problems ([`ProfileErrors`], [`ProfileError`]) and
 //! the raw images a simulated device keeps ([`BlockImage`], [`RawPatch`]). The public modules:
 //!
@@ -34,11 +35,12 @@
 //! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
 //! payloads and commands), `value`, `registers` (word and byte order), `register_numbers`,
 //! `numeric` (the number codecs), `text` (text encodings), `enumeration`, `rejection`,
-//! `publish`, `field`, `codec` (every field codec and command parsing), `model`, `format` (the
-//! file's serde types), `compile` (file to model, with every problem), then `command` (a
-//! command as one bus slot's plan) and `raw` (simulated block images patched through the
-//! write frames); this file's [`Profile`] is what
-//! the rest of the crate sees, and `sunspec` stands apart.
+//! `publish`, `field`, `codec` (every field codec and command parsing), `action` (command
+//! interfaces and their payloads), `model`, `format` (the file's serde types), `compile` (file
+//! to model, with every problem), then `command` (a command on fields as one bus slot's plan),
+//! `plan` (any command's plan, an action's included) and `raw` (simulated block images patched
+//! through the write frames); this file's [`Profile`] is what the rest of the crate sees, and
+//! `sunspec` stands apart.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, every public item says what it is, the 2018 idioms.
@@ -49,6 +51,7 @@
     rust_2018_idioms
 )]
 
+mod action;
 pub mod bcd;
 mod codec;
 mod command;
@@ -60,6 +63,7 @@ mod format;
 mod model;
 mod number;
 mod numeric;
+mod plan;
 pub mod publish;
 mod raw;
 pub mod register_numbers;
@@ -74,13 +78,16 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
+use command::FieldPlan;
 use rtu2mqtt_modbus::{Request, Response};
 
+pub use action::{ActionInfo, ActionParam, ActionResult};
 pub use codec::{BlockImage, FieldError, RawPatch};
-pub use command::{CommandPlan, Verification};
+pub use command::Verification;
 pub use compile::{ProfileError, ProfileErrors};
 pub use field::{FieldInfo, FieldKind, HaHints, Identity};
 pub use model::{Behaviour, Limits, PollClass, ReadBlock};
+pub use plan::CommandPlan;
 pub use publish::PublishRule;
 pub use rejection::Rejection;
 pub use value::{Value, UNAVAILABLE};
@@ -470,25 +477,29 @@ impl Profile {
     }
 
     /// Validates a command (`text` as received on `…/set`) against the field's rules and the
-    /// last known state, and plans the bus slot that carries it out.
+    /// last known state, and plans the bus slot that carries it out. A name that is one of the
+    /// profile's actions plans that action ([`Profile::plan_action`]).
     pub fn plan_command(
         &self,
         field: &str,
         text: &str,
         state: &DeviceState,
     ) -> Result<CommandPlan, Rejection> {
+        if self.field(field).is_none() && self.action(field).is_some() {
+            return self.plan_action(field, text);
+        }
         let (index, target) = self.parse_target(field, text)?;
         let Some(frame) = self.inner.defs[index].write.clone() else {
             return Err(Rejection(format!("{field} is read-only")));
         };
         let targets = vec![(index, target)];
         self.check_known_state(&targets, state)?;
-        Ok(CommandPlan::new(
+        Ok(CommandPlan::from_fields(FieldPlan::new(
             Arc::clone(&self.inner),
             field.to_string(),
             frame,
             targets,
-        ))
+        )))
     }
 
     /// Plans several fields written together through one named `[[write_frames]]` entry in one
@@ -546,12 +557,12 @@ impl Profile {
             targets.push((index, target));
         }
         self.check_known_state(&targets, state)?;
-        Ok(CommandPlan::new(
+        Ok(CommandPlan::from_fields(FieldPlan::new(
             Arc::clone(&self.inner),
             frame_name.to_string(),
             frame,
             targets,
-        ))
+        )))
     }
 
     /// Names of the profile's shared write frames (for group commands).

@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use super::action::ActionDef;
 use super::codec::{FieldCodec, FieldError};
 use super::field::FieldInfo;
 use super::numeric::Exponent;
@@ -202,4 +203,6 @@ pub(crate) struct Compiled {
     pub(crate) named_frames: Vec<(String, WriteFrame)>,
     /// What loads but is likely a mistake (a start that looks like a Modicon number).
     pub(crate) warnings: Vec<super::compile::ProfileError>,
+    /// The `[[actions]]`, in file order.
+    pub(crate) actions: Vec<ActionDef>,
 }

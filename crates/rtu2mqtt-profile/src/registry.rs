@@ -304,8 +304,47 @@ pub fn describe(profile: &Profile) -> String {
         );
         let _ = writeln!(out, "{}", line.trim_end());
     }
+    for def in &profile.inner.actions {
+        let _ = writeln!(out, "  action {}", describe_action(def));
+    }
     for warning in profile.warnings() {
         let _ = writeln!(out, "  warning: {warning}");
     }
     out
+}
+
+/// An action's line of the listing: its frame, its parameters and its result register.
+fn describe_action(def: &crate::action::ActionDef) -> String {
+    let info = &def.info;
+    let count = def.frame(&vec![0; info.params.len()]).len();
+    let params: Vec<String> = info
+        .params
+        .iter()
+        .map(|param| format!("{} {}–{}", param.name, param.min, param.max))
+        .collect();
+    let params = if params.is_empty() {
+        "no parameters".to_string()
+    } else {
+        params.join(", ")
+    };
+    let result = match &info.result {
+        Some(result) => {
+            let codes: Vec<String> = result
+                .codes
+                .iter()
+                .map(|(code, name)| format!("{code} {name}"))
+                .collect();
+            format!(
+                "; result FC{:02} @0x{:04X}: {}",
+                result.function,
+                result.address,
+                codes.join(", ")
+            )
+        }
+        None => "; no result register".to_string(),
+    };
+    format!(
+        "{:<14} FC16 @0x{:04X}×{count}  {params}{result}",
+        info.name, def.address
+    )
 }

@@ -6,11 +6,14 @@
 //!
 //! Reads outside the memory give exception 02. Writes land anywhere in the coil and holding
 //! register tables (a profile may write at addresses it reads elsewhere, like the dust
-//! collector); a write to a read-only table does not exist in Modbus.
+//! collector); a write to a read-only table does not exist in Modbus. A device may also have a
+//! [`CommandInterface`]: an FC16 frame written at its first register is a command, and its
+//! result code lands in the result register.
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use super::command_interface::CommandInterface;
 use super::device::{Reply, SimDevice};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 use rtu2mqtt_profile::{FieldKind, Profile, RawPatch, ReadBlock};
@@ -30,6 +33,7 @@ pub struct GenericDevice {
     address: SlaveId,
     memory: BTreeMap<(Table, u16), u16>,
     writes: u32,
+    interface: Option<CommandInterface>,
 }
 
 impl GenericDevice {
@@ -93,6 +97,7 @@ impl GenericDevice {
             address,
             memory,
             writes: 0,
+            interface: None,
         }
     }
 
@@ -103,7 +108,23 @@ impl GenericDevice {
             address,
             memory: BTreeMap::new(),
             writes: 0,
+            interface: None,
         }
+    }
+
+    /// The same device with a command interface; its result register reads 0 until the
+    /// first command.
+    pub fn with_command_interface(mut self, interface: CommandInterface) -> Self {
+        self.memory
+            .entry((Table::Holding, interface.result()))
+            .or_insert(0);
+        self.interface = Some(interface);
+        self
+    }
+
+    /// The device's command interface, if it has one.
+    pub fn command_interface(&self) -> Option<&CommandInterface> {
+        self.interface.as_ref()
     }
 
     /// A register's value (holding registers).
@@ -170,6 +191,18 @@ impl GenericDevice {
         }
         self.writes += 1;
         Ok(())
+    }
+
+    /// A frame written at the command interface's first register is a command: its result
+    /// code lands in the result register.
+    fn run_command(&mut self, start: u16, values: &[u16]) {
+        let Some(interface) = self.interface.as_mut() else {
+            return;
+        };
+        if let Some(code) = interface.take(start, values) {
+            self.memory
+                .insert((Table::Holding, interface.result()), code);
+        }
     }
 }
 
@@ -245,11 +278,13 @@ impl SimDevice for GenericDevice {
                 if values.is_empty() || values.len() > 123 {
                     Err(ExceptionCode::IllegalDataValue)
                 } else {
-                    self.store(Table::Holding, *start, values).map(|()| {
-                        Response::WriteMultipleRegisters {
-                            start: *start,
-                            quantity: values.len() as u16,
-                        }
+                    let stored = self.store(Table::Holding, *start, values);
+                    if stored.is_ok() {
+                        self.run_command(*start, values);
+                    }
+                    stored.map(|()| Response::WriteMultipleRegisters {
+                        start: *start,
+                        quantity: values.len() as u16,
                     })
                 }
             }
@@ -302,6 +337,35 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_command_frame_leaves_its_result_code() {
+        let interface = CommandInterface::new(5249, 5375).command(2060, vec![0..=0, 1..=4]);
+        let mut device = GenericDevice::empty(1).with_command_interface(interface);
+        let now = Instant::now();
+        let result = Request::ReadHoldingRegisters {
+            start: 5375,
+            quantity: 1,
+        };
+        let reads = |code: u16| Reply::Normal(Response::HoldingRegisters(vec![code]));
+        assert_eq!(device.handle(&result, now), reads(0));
+        for (tariff, code) in [(9, 3001), (2, 0)] {
+            let frame = Request::WriteMultipleRegisters {
+                start: 5249,
+                values: vec![2060, 0, tariff],
+            };
+            assert_eq!(
+                device.handle(&frame, now),
+                Reply::Normal(Response::WriteMultipleRegisters {
+                    start: 5249,
+                    quantity: 3
+                })
+            );
+            assert_eq!(device.handle(&result, now), reads(code));
+        }
+        let executed = device.command_interface().map(|i| i.executed().to_vec());
+        assert_eq!(executed, Some(vec![(2060, vec![0, 2])]));
     }
 
     #[test]

@@ -15,7 +15,8 @@
 //!   frames) or a Modbus TCP gateway, with network faults of its own ([`TcpFaults`]).
 //!
 //! Modules: `device` (what a simulated device is), the devices `dust_collector`, `air_shower`, `valve` (written by hand), `generic`
-//! (from any profile), `library` (the device library's tables of `register_map` values) and
+//! (from any profile, optionally with a `command_interface`: a command frame and its result
+//! register), `library` (the device library's tables of `register_map` values) and
 //! `sunspec` (SunSpec maps); `server` (framing, `pace`, `faults`, `journal`; `drive` runs a
 //! device's clock), `wire` (frames on the simulator's side), `virtual_line` (a served pty),
 //! `pty_settings` (the baud rate the master set, watched through the pty), `serial_stream` (a
@@ -47,6 +48,7 @@
 #![warn(unreachable_pub, missing_debug_implementations, rust_2018_idioms)]
 
 pub mod air_shower;
+pub mod command_interface;
 mod device;
 #[cfg(test)]
 mod drive;
@@ -68,6 +70,7 @@ pub mod virtual_line;
 pub mod wire;
 
 pub use air_shower::AirShower;
+pub use command_interface::CommandInterface;
 pub use device::{lock, share, Addressing, Reply, SharedDevice, SimDevice};
 pub use dust_collector::DustCollector;
 pub use faults::{FaultHandle, Faults, Occurrence};

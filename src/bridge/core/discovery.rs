@@ -16,9 +16,9 @@
 //!   the field's kind and access (see [`platform_for`]); profile [`HaHints`] override the
 //!   defaults. Command topics appear only on writable fields and are exactly the topics the
 //!   gateway subscribes to, with `retain: false` so Home Assistant never leaves a command
-//!   behind in the broker. Identity fields are not components (they fill `dev`); a device that
-//!   takes commands has one more, the command-result event ([`result_event`]). Names are field
-//!   labels only: Home Assistant prefixes the device name itself.
+//!   behind in the broker. Identity fields are not components (they fill `dev`); an action is
+//!   one ([`action_entities`](super::action_entities)); a device that takes commands has the
+//!   command-result event ([`result_event`]). Names are labels: Home Assistant adds the device's.
 //!
 //! The gateway itself gets a document too ([`gateway_config`]), so `via_device` names a real
 //! device with a connectivity sensor and line statistics.
@@ -29,6 +29,7 @@ use std::time::Duration;
 use rand::Rng;
 use serde_json::{json, Map, Value as Json};
 
+use super::action_entities::add_action_components;
 use super::entity_naming::{
     default_entity_category, is_numeric, name_has_word, DIAGNOSTIC_WORDS, PROBLEM_WORDS,
 };
@@ -36,7 +37,7 @@ pub use super::entity_naming::{display_name, entity_name};
 use super::payload::Outcome;
 use super::state::StateUpdate;
 use rtu2mqtt_profile::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
-use rtu2mqtt_profile::{DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
+use rtu2mqtt_profile::{ActionInfo, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
 /// range spreads the load when several gateways restart discovery at once (HA's own advice).
@@ -484,7 +485,7 @@ pub fn device_config_from_fields(
         model,
         profile_name,
     };
-    device_document(ctx, device, &model, fields, None)
+    device_document(ctx, device, &model, fields, std::iter::empty(), None)
 }
 
 /// Who made a device and which profile describes it: the fixed part of its registry entry.
@@ -495,13 +496,14 @@ struct DeviceModel<'a> {
 }
 
 /// A device's document: `dev` (with the identity values known in `state`), the shared keys,
-/// one component per field that is not an identity field, and the command-result event when
-/// Home Assistant can send the device commands.
-fn device_document(
+/// one component per field that is not an identity field and per action, and the
+/// command-result event when Home Assistant can send the device commands.
+fn device_document<'a>(
     ctx: &Topics,
     device: &str,
     model: &DeviceModel<'_>,
     fields: &[FieldInfo],
+    actions: impl Iterator<Item = &'a ActionInfo>,
     state: Option<&DeviceState>,
 ) -> (String, Json) {
     let mut components: Map<String, Json> = fields
@@ -509,7 +511,8 @@ fn device_document(
         .filter(|field| field.identity.is_none())
         .map(|field| (field.name.clone(), component(ctx, device, field)))
         .collect();
-    if fields.iter().any(|field| platform_for(field).commands()) {
+    let has_actions = add_action_components(ctx, device, actions, &mut components);
+    if has_actions || fields.iter().any(|field| platform_for(field).commands()) {
         components.insert(RESULT_EVENT.to_string(), result_event(ctx, device));
     }
     let mut dev = json!({
@@ -564,7 +567,8 @@ pub fn device_config_with_state(
         model: profile.model(),
         profile_name: profile.name(),
     };
-    device_document(ctx, device, &model, profile.fields(), state)
+    let actions = profile.actions();
+    device_document(ctx, device, &model, profile.fields(), actions, state)
 }
 
 /// The device's document again when `updates` (the state about to be published: changed

@@ -16,10 +16,11 @@
 //!
 //! Its parts: [`command_desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
 //! and a result says), [`publisher`] with [`state`] and [`json_view`] (the published state),
-//! [`discovery`] with [`entity_naming`] (Home Assistant), [`topic_guard`] (our retained topics
+//! [`discovery`] with [`entity_naming`] and [`action_entities`] (Home Assistant), [`topic_guard`] (our retained topics
 //! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
 
 pub(crate) mod action;
+pub mod action_entities;
 pub(crate) mod bridge_device;
 pub(crate) mod command_book;
 pub(crate) mod command_desk;

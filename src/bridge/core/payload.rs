@@ -14,9 +14,9 @@ const MAX_ECHO_BYTES: usize = (MAX_ECHO_CHARS + 1) * 4;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Outcome {
-    /// Written, and the read-back shows the value.
+    /// Written, and the read-back shows the value (an action: the device reports success).
     Applied,
-    /// Acknowledged, but the read-back differs.
+    /// Acknowledged, but the read-back differs (an action: its result code is no success).
     NotApplied,
     /// Invalid: nothing sent.
     Rejected,

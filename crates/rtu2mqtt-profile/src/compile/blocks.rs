@@ -59,12 +59,7 @@ impl<'f> Layout<'f> {
         place: &str,
         problems: &mut Problems<'_>,
     ) -> u16 {
-        self.numbers
-            .bus_address(address, function)
-            .unwrap_or_else(|reason| {
-                problems.add(place.to_string(), reason);
-                0
-            })
+        bus_address(self.numbers, address, function, place, problems)
     }
 
     /// How many registers or bits block `block` reads.
@@ -74,6 +69,23 @@ impl<'f> Layout<'f> {
             .read_span()
             .map_or(0, |(_, quantity)| u32::from(quantity))
     }
+}
+
+/// The bus address of `number` in the profile's `numbers` for `function`; 0 with a problem at
+/// `place` when it is none.
+pub(super) fn bus_address(
+    numbers: RegisterNumbers,
+    number: u32,
+    function: u8,
+    place: &str,
+    problems: &mut Problems<'_>,
+) -> u16 {
+    numbers
+        .bus_address(number, function)
+        .unwrap_or_else(|reason| {
+            problems.add(place.to_string(), reason);
+            0
+        })
 }
 
 pub(super) fn build_limits(line: &LineSection, problems: &mut Problems<'_>) -> Limits {

@@ -10,9 +10,11 @@
 //! This file holds the entry point and the order of the phases; each part builds one thing:
 //! [`problems`] (every problem with its place), [`blocks`] (the line's limits, the read blocks
 //! and their cadence), [`writes`] (write frames and a field's write), [`codecs`] (a codec
-//! section as a [`FieldCodec`](super::codec::FieldCodec)) and [`fields`] (the fields, what they
-//! refer to across each other, and the forbidden combinations).
+//! section as a [`FieldCodec`](super::codec::FieldCodec)), [`fields`] (the fields, what they
+//! refer to across each other, and the forbidden combinations) and [`actions`] (the command
+//! interfaces).
 
+mod actions;
 mod blocks;
 mod codecs;
 mod fields;
@@ -21,6 +23,7 @@ mod writes;
 
 use super::format::ProfileFile;
 use super::model::Compiled;
+use actions::build_actions;
 use blocks::{build_limits, check_blocks_used, mark_used_runs, Layout};
 use fields::{build_fields, build_forbidden, check_device_name};
 use problems::Problems;
@@ -64,6 +67,13 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
     check_blocks_used(&blocks, problems);
     let forbidden = build_forbidden(&file.forbidden, &infos, &defs, problems);
     let named_frames = named_frames(&file.write_frames, &layout.frames);
+    let actions = build_actions(
+        &file.actions,
+        &infos,
+        &layout.limits,
+        layout.numbers,
+        problems,
+    );
 
     Compiled {
         name: file.device.name,
@@ -79,6 +89,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         forbidden,
         named_frames,
         warnings: Vec::new(),
+        actions,
     }
 }
 
