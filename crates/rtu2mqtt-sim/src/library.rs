@@ -269,7 +269,12 @@ pub fn growatt_min() -> LibraryDevice {
         input("warning_code", 3106, Raw::U16(0), "0"),
         holding("active_power_rate", 3, Raw::U16(100), "100"),
         holding("firmware_version", 9, Raw::Text("GH1.0", 3), "GH1.0"),
-        holding("serial_number", 23, Raw::Text("NTD2C15003", 5), "NTD2C15003"),
+        holding(
+            "serial_number",
+            23,
+            Raw::Text("NTD2C15003", 5),
+            "NTD2C15003",
+        ),
     ];
     LibraryDevice {
         profile: "growatt-min",
@@ -301,7 +306,12 @@ pub fn iem3155() -> LibraryDevice {
         )
     };
     let entries = vec![
-        h("meter_name", 30, Raw::Text("Verteilung Süd", 20), "Verteilung Süd"),
+        h(
+            "meter_name",
+            30,
+            Raw::Text("Verteilung Süd", 20),
+            "Verteilung Süd",
+        ),
         h("meter_model", 50, Raw::Text("iEM3155", 20), "iEM3155"),
         h(
             "manufacturer",
