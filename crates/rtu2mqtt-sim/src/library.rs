@@ -56,12 +56,10 @@ pub fn sdm120() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "eastron-sdm120",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Input, 0x0000, 0x50)
-        .zeros(Table::Input, 0x0156, 4),
+            &[(Table::Input, 0x0000, 0x50), (Table::Input, 0x0156, 4)],
+        ),
     }
 }
 
@@ -135,13 +133,14 @@ pub fn sdm630() -> LibraryDevice {
     ]);
     LibraryDevice {
         profile: "eastron-sdm630",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Input, 0x0000, 0x50)
-        .zeros(Table::Input, 0x00C8, 0x1A)
-        .zeros(Table::Input, 0x0156, 4),
+            &[
+                (Table::Input, 0x0000, 0x50),
+                (Table::Input, 0x00C8, 0x1A),
+                (Table::Input, 0x0156, 4),
+            ],
+        ),
     }
 }
 
@@ -208,13 +207,14 @@ pub fn abb_a43() -> LibraryDevice {
         h("power_factor_l3", 0x5B3D, Raw::I16(-950), "-0.950"),
     ]);
     // The manual's readout: phase angles after the frequency, 0xFFFF where no data exists.
-    let mut map = RegisterMap {
+    let mut map = RegisterMap::over_zeros(
         entries,
-        filler: vec![],
-    }
-    .zeros(Table::Holding, 0x5000, 0x18)
-    .zeros(Table::Holding, 0x5460, 0x18)
-    .zeros(Table::Holding, 0x5B00, 0x3E);
+        &[
+            (Table::Holding, 0x5000, 0x18),
+            (Table::Holding, 0x5460, 0x18),
+            (Table::Holding, 0x5B00, 0x3E),
+        ],
+    );
     let angles: [u16; 13] = [
         0x0087, 0x0000, 0xFF6A, 0x016F, 0x0000, 0x04AF, 0xFB4E, 0xFFFF, 0xFFFF, 0xFFFF, 0xFFF3,
         0x0409, 0xFCAE,
@@ -278,14 +278,15 @@ pub fn growatt_min() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "growatt-min",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Input, 3000, 63)
-        .zeros(Table::Input, 3093, 14)
-        .zeros(Table::Holding, 3, 1)
-        .zeros(Table::Holding, 9, 19),
+            &[
+                (Table::Input, 3000, 63),
+                (Table::Input, 3093, 14),
+                (Table::Holding, 3, 1),
+                (Table::Holding, 9, 19),
+            ],
+        ),
     }
 }
 
@@ -353,17 +354,18 @@ pub fn iem3155() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "schneider-iem3155",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Holding, 29, 60)
-        .zeros(Table::Holding, 129, 11)
-        .zeros(Table::Holding, 2003, 14)
-        .zeros(Table::Holding, 2999, 38)
-        .zeros(Table::Holding, 3053, 58)
-        .zeros(Table::Holding, 3203, 24)
-        .zeros(Table::Holding, 3255, 20),
+            &[
+                (Table::Holding, 29, 60),
+                (Table::Holding, 129, 11),
+                (Table::Holding, 2003, 14),
+                (Table::Holding, 2999, 38),
+                (Table::Holding, 3053, 58),
+                (Table::Holding, 3203, 24),
+                (Table::Holding, 3255, 20),
+            ],
+        ),
     }
 }
 

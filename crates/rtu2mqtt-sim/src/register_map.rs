@@ -119,6 +119,18 @@ impl RegisterMap {
         device
     }
 
+    /// A map of `entries` over zero-filled blocks `(table, start, count)`: the registers of
+    /// each block that no entry holds read as zero.
+    pub fn over_zeros(entries: Vec<Entry>, blocks: &[(Table, u16, u16)]) -> Self {
+        let map = Self {
+            entries,
+            filler: vec![],
+        };
+        blocks.iter().fold(map, |map, &(table, start, count)| {
+            map.zeros(table, start, count)
+        })
+    }
+
     /// Zero-filled registers `start..start + count` of `table` under the entries.
     pub fn zeros(mut self, table: Table, start: u16, count: u16) -> Self {
         self.filler
