@@ -2,13 +2,15 @@
 //! its simulator (built from the same register map, not from the profile); end to end, each
 //! profile runs in the gateway against its simulator on a real pty (one over Modbus TCP) and
 //! every value the simulator holds reaches a real mosquitto with the text the map gives, while
-//! values the device marks "not available" never do. `rtu2mqtt sunspec` walks the simulated
-//! inverter; the profile it writes passes `check` and reads the inverter the same way.
+//! values the device marks "not available" are published as `unavailable`; the Growatt takes a
+//! power limit. `rtu2mqtt sunspec` walks the simulated inverter; the profile it writes passes
+//! `check` and reads the inverter the same way.
 
 use crate::support;
 use crate::support::child;
 
 use std::process::Command;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rtu2mqtt_modbus::timing::Parity;
@@ -18,7 +20,8 @@ use rtu2mqtt_profile::{sunspec, Profile, Value, UNAVAILABLE};
 use rtu2mqtt_sim::library::{self, LibraryDevice};
 use rtu2mqtt_sim::register_map::Entry;
 use rtu2mqtt_sim::{
-    share, Protocol, Reply, ServeOptions, SharedDevice, SimDevice, TcpSimulator, VirtualLine,
+    lock, share, GenericDevice, Protocol, Reply, ServeOptions, SharedDevice, SimDevice,
+    TcpSimulator, VirtualLine,
 };
 use support::{fast_config, Gateway, Mosquitto, TestClient};
 
@@ -74,7 +77,9 @@ fn the_library_is_built_in_and_listed() {
             "eastron-sdm120",
             "eastron-sdm630",
             "abb-a43",
-            "sunspec-inverter"
+            "sunspec-inverter",
+            "growatt-min",
+            "schneider-iem3155"
         ]
     );
     let output = Command::new(child::gateway_binary())
@@ -124,9 +129,9 @@ fn words(hex: &str) -> Vec<u16> {
         .collect()
 }
 
-/// The field values `profile` decodes from `answer` to its block `block`, without the
-/// unavailable ones.
-fn decode(profile: &Profile, block: &str, answer: Response) -> Vec<(String, String)> {
+/// The values `profile` decodes from `answer` to its block `block`, each as published:
+/// `None` for an unavailable value, the error text for invalid data.
+fn readings(profile: &Profile, block: &str, answer: Response) -> Vec<(String, Reading)> {
     let index = profile
         .read_blocks()
         .iter()
@@ -135,7 +140,16 @@ fn decode(profile: &Profile, block: &str, answer: Response) -> Vec<(String, Stri
     profile
         .decode_block(index, &answer)
         .into_iter()
-        .filter_map(|r| r.value.ok().and_then(published).map(|v| (r.field, v)))
+        .map(|r| (r.field, r.value.map(published).map_err(|e| e.to_string())))
+        .collect()
+}
+
+/// The field values `profile` decodes from `answer` to its block `block`, without the
+/// unavailable ones.
+fn decode(profile: &Profile, block: &str, answer: Response) -> Vec<(String, String)> {
+    readings(profile, block, answer)
+        .into_iter()
+        .filter_map(|(field, reading)| reading.ok().flatten().map(|v| (field, v)))
         .collect()
 }
 
@@ -218,6 +232,95 @@ fn vendor_examples_decode_as_the_maps_say() {
     assert!(!values.iter().any(|(f, _)| f == "ac_current"), "{values:?}");
 }
 
+fn reading<'a>(readings: &'a [(String, Reading)], field: &str) -> &'a Reading {
+    readings
+        .iter()
+        .find(|(f, _)| f == field)
+        .map(|(_, r)| r)
+        .unwrap_or_else(|| panic!("no {field} in {readings:?}"))
+}
+
+#[test]
+fn growatt_and_schneider_words_decode_as_their_documents_say() {
+    // Growatt: a 32-bit value is its "H" register, then its "L" register, in 0.1 W.
+    let growatt = built_in("growatt-min").unwrap();
+    let mut inverter = vec![0u16; 63];
+    inverter[0] = 3; // 3000: fault
+    inverter[1] = 0x0001; // 3001 Ppv H
+    inverter[2] = 0x2630; // 3002 Ppv L: 0x12630 = 75312
+    inverter[51] = 0x0002; // 3051 Eac total H
+    inverter[52] = 0xC84B; // 3052 Eac total L: 0x2C84B = 182347
+    let values = readings(
+        &growatt,
+        "inverter",
+        Response::InputRegisters(inverter.clone()),
+    );
+    assert_eq!(
+        reading(&values, "inverter_status"),
+        &Ok(Some("fault".into()))
+    );
+    assert_eq!(reading(&values, "pv_power"), &Ok(Some("7531.2".into())));
+    assert_eq!(
+        reading(&values, "energy_total"),
+        &Ok(Some("18234.7".into()))
+    );
+    // A hybrid model's mode in the high byte is a code the profile does not name: its number.
+    inverter[0] = 0x0501;
+    let values = readings(&growatt, "inverter", Response::InputRegisters(inverter));
+    assert_eq!(
+        reading(&values, "inverter_status"),
+        &Ok(Some("1281".into()))
+    );
+    // Temperatures are signed tenths: 0xFFF6 is -1.0 °C.
+    let mut diagnostics = vec![0u16; 14];
+    diagnostics[0] = 0xFFF6;
+    let values = readings(
+        &growatt,
+        "diagnostics",
+        Response::InputRegisters(diagnostics),
+    );
+    assert_eq!(
+        reading(&values, "inverter_temperature"),
+        &Ok(Some("-1.0".into()))
+    );
+
+    // Schneider: Int64 energies in Wh, high word first, published in kWh.
+    let iem = built_in("schneider-iem3155").unwrap();
+    let energy = words(
+        "00 00 00 00 00 BC 61 4E 00 00 00 00 00 00 04 D2 00 00 00 00 00 00 00 00 \
+         00 00 00 00 00 00 00 00 00 00 00 00 00 23 CA CE 00 00 00 00 00 00 00 00",
+    );
+    let values = readings(&iem, "energy", Response::HoldingRegisters(energy));
+    assert_eq!(
+        reading(&values, "active_import"),
+        &Ok(Some("12345.678".into()))
+    );
+    assert_eq!(reading(&values, "active_export"), &Ok(Some("1.234".into())));
+    assert_eq!(
+        reading(&values, "reactive_import"),
+        &Ok(Some("2345.678".into()))
+    );
+    // Float32, high word first: 0x43C8 0x4000 is 400.5 V; a NaN (either sign) is unavailable.
+    let mut instant = vec![0u16; 38];
+    instant[20] = 0x43C8; // 3020 V L1-L2
+    instant[21] = 0x4000;
+    instant[28] = 0xFFC0; // 3028 V L1-N
+    instant[30] = 0x7FC0; // 3030 V L2-N
+    let values = readings(&iem, "instant", Response::HoldingRegisters(instant));
+    assert_eq!(reading(&values, "voltage_l1_l2"), &Ok(Some("400.5".into())));
+    assert_eq!(reading(&values, "voltage_l1_n"), &Ok(None));
+    assert_eq!(reading(&values, "voltage_l2_n"), &Ok(None));
+    assert_eq!(reading(&values, "voltage_l3_n"), &Ok(Some("0.0".into())));
+    // UTF-8 text, first byte in the high byte, ended by NUL; a broken sequence is invalid data.
+    let mut identity = vec![0u16; 60];
+    identity[0..2].copy_from_slice(&[0x53C3, 0xBC64]); // "Süd"
+    identity[20] = 0x53C3; // "S" and a lone lead byte
+    let values = readings(&iem, "identity", Response::HoldingRegisters(identity));
+    assert_eq!(reading(&values, "meter_name"), &Ok(Some("Süd".into())));
+    assert!(reading(&values, "meter_model").is_err(), "{values:?}");
+    assert_eq!(reading(&values, "manufacturer"), &Ok(None));
+}
+
 /// One library device on one line of the gateway, prefix `lib`, device name `device`.
 fn config(broker: &Mosquitto, client_id: &str, line: &str, profile: &str) -> String {
     format!(
@@ -251,11 +354,21 @@ async fn assert_published(client: &mut TestClient, name: &str, entries: &[Entry]
     }
 }
 
-async fn run_on_pty(device: LibraryDevice, profile: &str) {
+/// A library device on a pseudo-terminal line of a running gateway, with a client that sees
+/// `lib/#`.
+struct OnPty {
+    gateway: Gateway,
+    client: TestClient,
+    device: Arc<Mutex<GenericDevice>>,
+    _line: VirtualLine,
+    _broker: Mosquitto,
+}
+
+async fn start_on_pty(device: &LibraryDevice) -> OnPty {
     let baud = built_in(device.profile)
         .map(|p| p.limits().default_baud)
         .unwrap_or(9600);
-    let shared: SharedDevice = share(device.map.device(1)).1;
+    let (typed, shared) = share(device.map.device(1));
     let line = VirtualLine::spawn(ServeOptions::new(baud, Parity::None), vec![shared]).unwrap();
     let broker = Mosquitto::start();
     let mut client = TestClient::connect(broker.port, &format!("{}-test", device.profile)).await;
@@ -267,31 +380,55 @@ async fn run_on_pty(device: LibraryDevice, profile: &str) {
             "port = \"{}\"\nbaud = {baud}\nparity = \"none\"",
             line.path().display()
         ),
-        profile,
+        device.profile,
     );
     let gateway = Gateway::start(fast_config(&text)).await;
-    assert_published(&mut client, device.profile, &device.map.entries).await;
-    gateway.stop().await;
+    OnPty {
+        gateway,
+        client,
+        device: typed,
+        _line: line,
+        _broker: broker,
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sdm120_publishes_its_map_over_a_pty() {
-    run_on_pty(library::sdm120(), "eastron-sdm120").await;
+async fn every_library_device_publishes_its_map_over_a_pty() {
+    for device in library::devices() {
+        let mut run = start_on_pty(&device).await;
+        assert_published(&mut run.client, device.profile, &device.map.entries).await;
+        run.gateway.stop().await;
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sdm630_publishes_its_map_over_a_pty() {
-    run_on_pty(library::sdm630(), "eastron-sdm630").await;
-}
+async fn growatt_min_takes_a_power_limit_over_a_pty() {
+    let mut run = start_on_pty(&library::growatt_min()).await;
+    let limit = run
+        .client
+        .next_on("lib/device/active_power_rate", ANSWER)
+        .await;
+    assert_eq!(limit.text(), "100");
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn abb_a43_publishes_its_64_bit_counters_over_a_pty() {
-    run_on_pty(library::abb_a43(), "abb-a43").await;
-}
+    // Holding register 3 takes 0–100 % or 255 ("not limited"): 101 is refused unwritten.
+    let set = "lib/device/active_power_rate/set";
+    let result = "lib/device/active_power_rate/result";
+    run.client.publish(set, b"101".to_vec(), false).await;
+    let refused = run.client.next_on(result, ANSWER).await.json();
+    assert_eq!(refused["outcome"], "rejected", "{refused}");
+    assert_eq!(lock(&run.device).holding(3), Some(100));
+    assert_eq!(lock(&run.device).writes(), 0);
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sunspec_inverter_publishes_its_map_over_a_pty() {
-    run_on_pty(library::sunspec_inverter(), "sunspec-inverter").await;
+    run.client.publish(set, b"80".to_vec(), false).await;
+    let applied = run.client.next_on(result, ANSWER).await.json();
+    assert_eq!(applied["outcome"], "applied", "{applied}");
+    assert_eq!(lock(&run.device).holding(3), Some(80));
+    let read_back = run
+        .client
+        .next_on("lib/device/active_power_rate", ANSWER)
+        .await;
+    assert_eq!(read_back.text(), "80");
+    run.gateway.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -39,7 +39,9 @@ fn without_arguments_every_built_in_is_listed() {
             "eastron-sdm120",
             "eastron-sdm630",
             "abb-a43",
-            "sunspec-inverter"
+            "sunspec-inverter",
+            "growatt-min",
+            "schneider-iem3155"
         ]
     );
     assert!(output.stderr.is_empty(), "{}", text(&output.stderr));
@@ -88,7 +90,7 @@ fn an_unknown_name_is_refused_with_the_built_ins() {
         text(&output.stderr),
         "`ruiwan-dust-colector` is neither a built-in profile (built-in: \
          ruiwan-dust-collector, wuzhou-valve, lixian-air-shower, eastron-sdm120, eastron-sdm630, \
-         abb-a43, sunspec-inverter) nor a profile file\n"
+         abb-a43, sunspec-inverter, growatt-min, schneider-iem3155) nor a profile file\n"
     );
 
     // The good ones are still listed; the bad one still fails the run.

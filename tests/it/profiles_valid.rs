@@ -34,8 +34,10 @@ fn every_profile_file_loads() {
             "eastron-sdm120",
             "eastron-sdm630",
             "generic-th-sensor",
+            "growatt-min",
             "lixian-air-shower",
             "ruiwan-dust-collector",
+            "schneider-iem3155",
             "sunspec-inverter",
             "wuzhou-valve"
         ]
@@ -53,7 +55,9 @@ fn built_ins_are_the_files() {
             "eastron-sdm120",
             "eastron-sdm630",
             "abb-a43",
-            "sunspec-inverter"
+            "sunspec-inverter",
+            "growatt-min",
+            "schneider-iem3155"
         ]
     );
     for name in built_in_names() {

@@ -44,6 +44,14 @@ const LIBRARY: &[(&str, &str)] = &[
         "sunspec-inverter",
         include_str!("../../../config/profiles/sunspec-inverter.toml"),
     ),
+    (
+        "growatt-min",
+        include_str!("../../../config/profiles/growatt-min.toml"),
+    ),
+    (
+        "schneider-iem3155",
+        include_str!("../../../config/profiles/schneider-iem3155.toml"),
+    ),
 ];
 
 fn all_built_in() -> impl Iterator<Item = &'static (&'static str, &'static str)> {

@@ -1,7 +1,9 @@
 //! The device library's simulators: one [`RegisterMap`] per library profile, written from the
 //! same vendor register map as the profile (not from the profile), holding the values a test
 //! expects the gateway to publish. Values come from the vendors' own worked examples where the
-//! documents give them (the ABB readouts, Eastron's 240.5 V float, SunSpec's 1234 × 10^-2).
+//! documents give them (the ABB readouts, Eastron's 240.5 V float, SunSpec's 1234 × 10^-2), and
+//! are otherwise the readings of a plausible installation (a 6 kW inverter at full sun, a
+//! meter on a three-wire feeder).
 
 use super::register_map::{Entry, Raw, RegisterMap, Table};
 use super::sunspec::SunSpecMap;
@@ -15,7 +17,14 @@ pub struct LibraryDevice {
 
 /// Every library device.
 pub fn devices() -> Vec<LibraryDevice> {
-    vec![sdm120(), sdm630(), abb_a43(), sunspec_inverter()]
+    vec![
+        sdm120(),
+        sdm630(),
+        abb_a43(),
+        sunspec_inverter(),
+        growatt_min(),
+        iem3155(),
+    ]
 }
 
 /// The library device of `profile`, if it is one.
@@ -47,12 +56,10 @@ pub fn sdm120() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "eastron-sdm120",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Input, 0x0000, 0x50)
-        .zeros(Table::Input, 0x0156, 4),
+            &[(Table::Input, 0x0000, 0x50), (Table::Input, 0x0156, 4)],
+        ),
     }
 }
 
@@ -126,13 +133,14 @@ pub fn sdm630() -> LibraryDevice {
     ]);
     LibraryDevice {
         profile: "eastron-sdm630",
-        map: RegisterMap {
+        map: RegisterMap::over_zeros(
             entries,
-            filler: vec![],
-        }
-        .zeros(Table::Input, 0x0000, 0x50)
-        .zeros(Table::Input, 0x00C8, 0x1A)
-        .zeros(Table::Input, 0x0156, 4),
+            &[
+                (Table::Input, 0x0000, 0x50),
+                (Table::Input, 0x00C8, 0x1A),
+                (Table::Input, 0x0156, 4),
+            ],
+        ),
     }
 }
 
@@ -199,13 +207,14 @@ pub fn abb_a43() -> LibraryDevice {
         h("power_factor_l3", 0x5B3D, Raw::I16(-950), "-0.950"),
     ]);
     // The manual's readout: phase angles after the frequency, 0xFFFF where no data exists.
-    let mut map = RegisterMap {
+    let mut map = RegisterMap::over_zeros(
         entries,
-        filler: vec![],
-    }
-    .zeros(Table::Holding, 0x5000, 0x18)
-    .zeros(Table::Holding, 0x5460, 0x18)
-    .zeros(Table::Holding, 0x5B00, 0x3E);
+        &[
+            (Table::Holding, 0x5000, 0x18),
+            (Table::Holding, 0x5460, 0x18),
+            (Table::Holding, 0x5B00, 0x3E),
+        ],
+    );
     let angles: [u16; 13] = [
         0x0087, 0x0000, 0xFF6A, 0x016F, 0x0000, 0x04AF, 0xFB4E, 0xFFFF, 0xFFFF, 0xFFFF, 0xFFF3,
         0x0409, 0xFCAE,
@@ -216,6 +225,147 @@ pub fn abb_a43() -> LibraryDevice {
     LibraryDevice {
         profile: "abb-a43",
         map,
+    }
+}
+
+/// Growatt MIN TL-X at full sun: input registers with 32-bit values as high/low word pairs
+/// (the protocol's "H"/"L"), the power limit and the ASCII nameplate in holding registers, at
+/// the addresses the protocol prints (bus addresses).
+pub fn growatt_min() -> LibraryDevice {
+    let input = |field: &str, address: u16, raw: Raw, text: &str| {
+        Entry::new(field, Table::Input, address, raw, text)
+    };
+    let holding = |field: &str, address: u16, raw: Raw, text: &str| {
+        Entry::new(field, Table::Holding, address, raw, text)
+    };
+    let entries = vec![
+        input("inverter_status", 3000, Raw::U16(1), "normal"),
+        input("pv_power", 3001, Raw::U32(62_615), "6261.5"),
+        input("pv1_voltage", 3003, Raw::U16(3_604), "360.4"),
+        input("pv1_current", 3004, Raw::U16(92), "9.2"),
+        input("pv1_power", 3005, Raw::U32(33_157), "3315.7"),
+        input("pv2_voltage", 3007, Raw::U16(3_386), "338.6"),
+        input("pv2_current", 3008, Raw::U16(87), "8.7"),
+        input("pv2_power", 3009, Raw::U32(29_458), "2945.8"),
+        input("ac_power", 3023, Raw::U32(59_870), "5987.0"),
+        input("grid_frequency", 3025, Raw::U16(5_001), "50.01"),
+        input("grid_voltage", 3026, Raw::U16(2_334), "233.4"),
+        input("grid_current", 3027, Raw::U16(257), "25.7"),
+        input("grid_apparent_power", 3028, Raw::U32(59_984), "5998.4"),
+        // 7000 h in 0.5 s counts, and one more: the high word is 0x0301.
+        input("work_time", 3047, Raw::U32(50_400_001), "25200000.5"),
+        input("energy_today", 3049, Raw::U32(312), "31.2"),
+        input("energy_total", 3051, Raw::U32(182_347), "18234.7"),
+        input("pv_energy_total", 3053, Raw::U32(189_120), "18912.0"),
+        input("pv1_energy_today", 3055, Raw::U32(162), "16.2"),
+        input("pv1_energy_total", 3057, Raw::U32(98_765), "9876.5"),
+        input("pv2_energy_today", 3059, Raw::U32(157), "15.7"),
+        input("pv2_energy_total", 3061, Raw::U32(90_355), "9035.5"),
+        input("inverter_temperature", 3093, Raw::I16(452), "45.2"),
+        input("ipm_temperature", 3094, Raw::I16(518), "51.8"),
+        input("boost_temperature", 3095, Raw::I16(387), "38.7"),
+        input("output_percent", 3101, Raw::U16(99), "99"),
+        input("fault_code", 3105, Raw::U16(0), "0"),
+        input("warning_code", 3106, Raw::U16(0), "0"),
+        holding("active_power_rate", 3, Raw::U16(100), "100"),
+        holding("firmware_version", 9, Raw::Text("GH1.0", 3), "GH1.0"),
+        holding(
+            "serial_number",
+            23,
+            Raw::Text("NTD2C15003", 5),
+            "NTD2C15003",
+        ),
+    ];
+    LibraryDevice {
+        profile: "growatt-min",
+        map: RegisterMap::over_zeros(
+            entries,
+            &[
+                (Table::Input, 3000, 63),
+                (Table::Input, 3093, 14),
+                (Table::Holding, 3, 1),
+                (Table::Holding, 9, 19),
+            ],
+        ),
+    }
+}
+
+/// Schneider iEM3155 on a three-wire feeder (no neutral, so the phase-to-neutral voltages are
+/// NaN): Float32 values, Int64 energies in Wh and UTF-8 text, all in holding registers, written
+/// with the manual's 1-based register numbers.
+pub fn iem3155() -> LibraryDevice {
+    // The frame carries the manual's register number minus one.
+    let h = |field: &str, register: u16, raw: Raw, text: &str| {
+        Entry::new(field, Table::Holding, register - 1, raw, text)
+    };
+    let nan = |field: &str, register: u16| {
+        Entry::unavailable(
+            field,
+            Table::Holding,
+            register - 1,
+            Raw::F32(f32::from_bits(0xFFC0_0000)),
+        )
+    };
+    let entries = vec![
+        h(
+            "meter_name",
+            30,
+            Raw::Text("Verteilung Süd", 20),
+            "Verteilung Süd",
+        ),
+        h("meter_model", 50, Raw::Text("iEM3155", 20), "iEM3155"),
+        h(
+            "manufacturer",
+            70,
+            Raw::Text("Schneider Electric", 20),
+            "Schneider Electric",
+        ),
+        h("serial_number", 130, Raw::U32(2_137_004_512), "2137004512"),
+        h("hardware_revision", 136, Raw::Text("1.0.0", 5), "1.0.0"),
+        h("operation_time", 2004, Raw::U32(31_536_000), "31536000"),
+        h("power_system", 2016, Raw::U16(3), "3ph3w"),
+        h("nominal_frequency", 2017, Raw::U16(50), "50"),
+        h("current_l1", 3000, Raw::F32(11.5), "11.500"),
+        h("current_l2", 3002, Raw::F32(11.25), "11.250"),
+        h("current_l3", 3004, Raw::F32(11.75), "11.750"),
+        h("current_avg", 3010, Raw::F32(11.5), "11.500"),
+        h("voltage_l1_l2", 3020, Raw::F32(400.5), "400.5"),
+        h("voltage_l2_l3", 3022, Raw::F32(398.0), "398.0"),
+        h("voltage_l3_l1", 3024, Raw::F32(401.5), "401.5"),
+        h("voltage_ll_avg", 3026, Raw::F32(400.0), "400.0"),
+        nan("voltage_l1_n", 3028),
+        nan("voltage_l2_n", 3030),
+        nan("voltage_l3_n", 3032),
+        nan("voltage_ln_avg", 3036),
+        h("power_l1", 3054, Raw::F32(2.625), "2.625"),
+        h("power_l2", 3056, Raw::F32(2.5), "2.500"),
+        h("power_l3", 3058, Raw::F32(2.75), "2.750"),
+        h("total_power", 3060, Raw::F32(7.875), "7.875"),
+        h("total_reactive_power", 3068, Raw::F32(1.25), "1.250"),
+        h("total_apparent_power", 3076, Raw::F32(7.974), "7.974"),
+        h("power_factor", 3084, Raw::F32(0.988), "0.988"),
+        h("frequency", 3110, Raw::F32(50.02), "50.02"),
+        h("active_import", 3204, Raw::I64(12_345_678), "12345.678"),
+        h("active_export", 3208, Raw::I64(1_234), "1.234"),
+        h("reactive_import", 3220, Raw::I64(2_345_678), "2345.678"),
+        h("reactive_export", 3224, Raw::I64(0), "0.000"),
+        h("partial_active_import", 3256, Raw::I64(345_678), "345.678"),
+        h("partial_reactive_import", 3272, Raw::I64(45_678), "45.678"),
+    ];
+    LibraryDevice {
+        profile: "schneider-iem3155",
+        map: RegisterMap::over_zeros(
+            entries,
+            &[
+                (Table::Holding, 29, 60),
+                (Table::Holding, 129, 11),
+                (Table::Holding, 2003, 14),
+                (Table::Holding, 2999, 38),
+                (Table::Holding, 3053, 58),
+                (Table::Holding, 3203, 24),
+                (Table::Holding, 3255, 20),
+            ],
+        ),
     }
 }
 

@@ -26,7 +26,8 @@ pub enum Raw {
     U64(u64),
     I64(i64),
     F32(f32),
-    /// ASCII text padded with NUL to this many registers, first character in the high byte.
+    /// Text (its UTF-8 bytes; ASCII is the same) padded with NUL to this many registers, the
+    /// first byte in the high byte.
     Text(&'static str, u16),
 }
 
@@ -118,6 +119,18 @@ impl RegisterMap {
         device
     }
 
+    /// A map of `entries` over zero-filled blocks `(table, start, count)`: the registers of
+    /// each block that no entry holds read as zero.
+    pub fn over_zeros(entries: Vec<Entry>, blocks: &[(Table, u16, u16)]) -> Self {
+        let map = Self {
+            entries,
+            filler: vec![],
+        };
+        blocks.iter().fold(map, |map, &(table, start, count)| {
+            map.zeros(table, start, count)
+        })
+    }
+
     /// Zero-filled registers `start..start + count` of `table` under the entries.
     pub fn zeros(mut self, table: Table, start: u16, count: u16) -> Self {
         self.filler
@@ -145,6 +158,11 @@ mod tests {
         );
         assert_eq!(Raw::Text("SunS", 2).words(), vec![0x5375, 0x6E53]);
         assert_eq!(Raw::Text("ABC", 3).words(), vec![0x4142, 0x4300, 0x0000]);
+        assert_eq!(Raw::Text("Süd", 3).words(), vec![0x53C3, 0xBC64, 0x0000]);
+        assert_eq!(
+            Raw::F32(f32::from_bits(0xFFC0_0000)).words(),
+            vec![0xFFC0, 0x0000]
+        );
         assert_eq!(Raw::I16(-1).words(), vec![0xFFFF]);
     }
 
