@@ -321,6 +321,52 @@ fn growatt_and_schneider_words_decode_as_their_documents_say() {
     assert_eq!(reading(&values, "manufacturer"), &Ok(None));
 }
 
+/// The iEM3155's command interface as the manual gives it: one FC16 from register 5250 (bus
+/// 5249), the command, a reserved 0, its parameters; the result code read at register 5376.
+/// The reset's frame is the one seen going to real meters; the CRCs are computed apart, by
+/// the bit-wise CRC-16/MODBUS of the specification.
+#[test]
+fn the_iem3155_command_interface_writes_the_manuals_frames_and_reads_the_result() {
+    let profile = built_in("schneider-iem3155").expect("built in");
+    let frame = |action: &str, payload: &str| {
+        let plan = profile
+            .plan_command(action, payload, &rtu2mqtt_profile::DeviceState::new())
+            .unwrap_or_else(|rejection| panic!("{action} {payload}: {rejection}"));
+        let writes = plan.writes(&[]).expect("no read before");
+        assert_eq!(
+            plan.readback(),
+            [rtu2mqtt_modbus::Request::ReadHoldingRegisters {
+                start: 5375,
+                quantity: 1
+            }]
+        );
+        writes
+            .iter()
+            .map(|write| {
+                rtu2mqtt_modbus::codec::hex(
+                    &rtu2mqtt_modbus::codec::encode_request(1, write).expect("a frame"),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        frame("reset_partial_energy", "PRESS"),
+        ["01 10 14 81 00 02 04 07 E4 00 00 84 40"]
+    );
+    assert_eq!(
+        frame("set_tariff", "{\"tariff\": 2}"),
+        ["01 10 14 81 00 03 06 07 D8 00 00 00 02 51 38"]
+    );
+    assert_eq!(
+        frame("set_tariff_mode", "1"),
+        ["01 10 14 81 00 03 06 08 0C 00 00 00 01 21 D4"]
+    );
+    let refused = profile
+        .plan_command("set_tariff", "5", &rtu2mqtt_profile::DeviceState::new())
+        .expect_err("tariff 5");
+    assert!(refused.to_string().contains("1"), "{refused}");
+}
+
 /// One library device on one line of the gateway, prefix `lib`, device name `device`.
 fn config(broker: &Mosquitto, client_id: &str, line: &str, profile: &str) -> String {
     format!(
