@@ -168,9 +168,10 @@ fn seed_plant_births_and_data_decode_with_pysparkplug() {
             .iter()
             .find(|m| m["type"] == "DBIRTH" && m["device"] == device.as_str())
             .unwrap_or_else(|| panic!("no DBIRTH for {device}"));
+        // Every field, then every action (born null: it has no state).
         assert_eq!(
             dbirth["metrics"].as_array().map(Vec::len),
-            Some(profile.fields().len()),
+            Some(profile.fields().len() + profile.actions().len()),
             "{device}"
         );
         for (info, (_, value)) in profile.fields().iter().zip(values) {
