@@ -290,9 +290,9 @@ mod tests {
         let listing = crate::registry::describe(&profile);
         assert!(
             listing.contains(
-                "  action set_tariff     FC16 @0x1481×3  tariff 1–4; result FC03 @0x14FF: 0 ok, \
-                 3001 invalid parameter\n  action reset_energy   FC16 @0x1000×1  no parameters; \
-                 no result register\n"
+                "  action set_tariff     FC16 @0x1481 (5249)×3  tariff 1–4; result FC03 @0x14FF \
+                 (5375): 0 ok, 3001 invalid parameter\n  action reset_energy   FC16 @0x1000 \
+                 (4096)×1  no parameters; no result register\n"
             ),
             "{listing}"
         );

@@ -343,8 +343,9 @@ fn describe_action(def: &crate::action::ActionDef) -> String {
                 .map(|(code, name)| format!("{code} {name}"))
                 .collect();
             format!(
-                "; result FC{:02} @0x{:04X}: {}",
+                "; result FC{:02} @0x{:04X} ({}): {}",
                 result.function,
+                result.address,
                 result.address,
                 codes.join(", ")
             )
@@ -352,7 +353,7 @@ fn describe_action(def: &crate::action::ActionDef) -> String {
         None => "; no result register".to_string(),
     };
     format!(
-        "{:<14} FC16 @0x{:04X}×{count}  {params}{result}",
-        info.name, def.address
+        "{:<14} FC16 @0x{:04X} ({})×{count}  {params}{result}",
+        info.name, def.address, def.address
     )
 }
