@@ -2,7 +2,8 @@
 //! a request. Complete (and how long), needing more (how many in all), another device's frame
 //! (and, once whole with a good CRC, how long), noise to drop before the answer, or an
 //! adapter's echo of the request. The expected length comes from the request (the byte count
-//! for reads, 5 bytes for an exception).
+//! for reads, 5 bytes for an exception), or for Read Device Identification from the answer's
+//! own bytes (its number of objects and their lengths, as they arrive).
 //!
 //! Pure byte work, no I/O and no clock: the serial master decides *when* to read and asks
 //! `AnswerFramer::frame` *what* the bytes are after every read; a raw RTU stream without
@@ -12,6 +13,7 @@
 
 use crate::codec::{self, Answer, EXCEPTION_FRAME_LEN, MAX_FRAME_LEN};
 use crate::crc::carried_and_computed;
+use crate::device_id;
 use crate::frame::{FunctionCode, Request, SlaveId};
 
 /// Default bound on the bytes [`AnswerFramer::poll`] drops while looking for one answer: a
@@ -208,7 +210,14 @@ impl AnswerFramer {
         let needed = if found_function == function.value() | 0x80 {
             EXCEPTION_FRAME_LEN
         } else if found_function == function.value() {
-            if request.is_read() {
+            if function == FunctionCode::EncapsulatedInterface {
+                // Framed by the lengths its bytes give so far; bytes that cannot be such an
+                // answer are read to a gap and rejected.
+                match device_id_frame_len(received) {
+                    Some(needed) => needed,
+                    None => return Framing::UnknownLength,
+                }
+            } else if request.is_read() {
                 match received.get(2) {
                     // Framed by the byte count the device claims; the decoder checks it.
                     Some(&count) => 5 + usize::from(count),
@@ -236,6 +245,13 @@ impl AnswerFramer {
     }
 }
 
+/// The length of the Read Device Identification answer frame at the start of `received`
+/// (address, PDU, CRC) as far as its bytes tell; `None` when they cannot be one.
+fn device_id_frame_len(received: &[u8]) -> Option<usize> {
+    let pdu = received.get(1..)?;
+    device_id::answer_pdu_len(pdu).ok().map(|len| 1 + len + 2)
+}
+
 /// The length of the answer frame at the start of `received` when its function code gives the
 /// length, all of it has arrived and its CRC is right (`None` otherwise).
 fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
@@ -248,6 +264,7 @@ fn complete_foreign_frame(received: &[u8]) -> Option<usize> {
             | FunctionCode::ReadDiscreteInputs
             | FunctionCode::ReadHoldingRegisters
             | FunctionCode::ReadInputRegisters => 5 + usize::from(*received.get(2)?),
+            FunctionCode::EncapsulatedInterface => device_id_frame_len(received)?,
             _ => 8,
         }
     };

@@ -8,6 +8,7 @@
 //! conforming device would accept it) and by [`decode_request`].
 
 use super::crc::{append_crc, carried_and_computed};
+use super::device_id;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 
 /// Most registers one read may ask for.
@@ -170,7 +171,9 @@ fn validate_request(request: &Request) -> Result<(), EncodeError> {
         | Request::ReadInputRegisters { quantity, .. } => {
             check_quantity(function, usize::from(*quantity), MAX_READ_REGISTERS)
         }
-        Request::WriteSingleCoil { .. } | Request::WriteSingleRegister { .. } => Ok(()),
+        Request::WriteSingleCoil { .. }
+        | Request::WriteSingleRegister { .. }
+        | Request::ReadDeviceIdentification { .. } => Ok(()),
         Request::WriteMultipleCoils { values, .. } => {
             check_quantity(function, values.len(), MAX_WRITE_COILS)
         }
@@ -226,6 +229,9 @@ pub fn encode_request(slave: SlaveId, request: &Request) -> Result<Vec<u8>, Enco
             frame.extend_from_slice(&(values.len() as u16).to_be_bytes());
             frame.push((values.len() * 2) as u8);
             frame.extend_from_slice(&words_to_bytes(values));
+        }
+        Request::ReadDeviceIdentification { code, object_id } => {
+            frame.extend_from_slice(&device_id::request_data(*code, *object_id));
         }
     }
     append_crc(&mut frame);
@@ -289,10 +295,11 @@ fn decode_answer_with(
     trailer: Trailer,
 ) -> Result<Answer, DecodeError> {
     let function = request.function().value();
-    let normal_len = trailer.frame_len(request.answer_len());
+    // What the request alone tells of the answer's length, until its head is checked.
+    let least_len = normal_answer_len(request, &[], trailer)?;
     let Some(&address) = frame.first() else {
         return Err(DecodeError::Truncated {
-            needed: normal_len,
+            needed: least_len,
             got: 0,
         });
     };
@@ -304,7 +311,7 @@ fn decode_answer_with(
     }
     let Some(&found_function) = frame.get(1) else {
         return Err(DecodeError::Truncated {
-            needed: normal_len,
+            needed: least_len,
             got: frame.len(),
         });
     };
@@ -328,7 +335,7 @@ fn decode_answer_with(
     let needed = if is_exception {
         trailer.frame_len(EXCEPTION_FRAME_LEN)
     } else {
-        normal_len
+        normal_answer_len(request, frame, trailer)?
     };
     if frame.len() < needed {
         return Err(DecodeError::Truncated {
@@ -347,6 +354,23 @@ fn decode_answer_with(
     }
     let data_end = frame.len() - trailer.len();
     decode_answer_pdu(request, &frame[..data_end]).map(Answer::Normal)
+}
+
+/// The length of the normal answer to `request`, counted with `trailer`: from the request, or
+/// for Read Device Identification from the answer's own bytes in `frame` (as far as they
+/// tell: more than `frame` holds while its objects have not all arrived).
+fn normal_answer_len(
+    request: &Request,
+    frame: &[u8],
+    trailer: Trailer,
+) -> Result<usize, DecodeError> {
+    match request {
+        Request::ReadDeviceIdentification { .. } => {
+            let pdu = frame.get(1..).unwrap_or_default();
+            Ok(1 + device_id::answer_pdu_len(pdu)? + trailer.len())
+        }
+        _ => Ok(trailer.frame_len(request.answer_len())),
+    }
 }
 
 fn check_crc(frame: &[u8]) -> Result<(), DecodeError> {
@@ -437,6 +461,9 @@ fn decode_answer_pdu(request: &Request, frame: &[u8]) -> Result<Response, Decode
             }
             echoed
         }
+        Request::ReadDeviceIdentification { code, .. } => Response::DeviceIdentification(
+            device_id::decode_answer_pdu(*code, &frame[1..data_end])?,
+        ),
     })
 }
 
@@ -461,6 +488,8 @@ pub fn request_frame_len(head: &[u8]) -> Result<Option<usize>, DecodeError> {
             // Address, function, start, quantity, byte count, data, CRC.
             Ok(head.get(6).map(|&count| 9 + usize::from(count)))
         }
+        // Address, function, MEI type, code, object id, CRC.
+        Some(FunctionCode::EncapsulatedInterface) => Ok(Some(7)),
         Some(_) => Ok(Some(8)),
     }
 }
@@ -491,6 +520,10 @@ pub fn decode_request(frame: &[u8]) -> Result<(SlaveId, Request), DecodeError> {
     }
     check_crc(frame)?;
     let slave = frame[0];
+    if frame[1] == FunctionCode::EncapsulatedInterface.value() {
+        let (code, object_id) = device_id::parse_request_data(&frame[2..needed - 2])?;
+        return Ok((slave, Request::ReadDeviceIdentification { code, object_id }));
+    }
     let first = be16(frame, 2);
     let second = be16(frame, 4);
     let bad_quantity = DecodeError::Malformed("quantity outside the specification's range");
@@ -607,6 +640,10 @@ pub fn encode_answer(slave: SlaveId, response: &Response) -> Vec<u8> {
             frame.push(FunctionCode::WriteMultipleRegisters.value());
             frame.extend_from_slice(&start.to_be_bytes());
             frame.extend_from_slice(&quantity.to_be_bytes());
+        }
+        Response::DeviceIdentification(answer) => {
+            frame.push(FunctionCode::EncapsulatedInterface.value());
+            frame.extend_from_slice(&device_id::answer_data(answer));
         }
     }
     append_crc(&mut frame);

@@ -1,5 +1,7 @@
 //! Modbus PDU types with the specification's names: function codes, exception codes, requests
-//! and answers. No byte work here (see `codec`).
+//! and answers. No byte work here (see `codec`, and `device_id` for FC43/14).
+
+use crate::device_id::{DeviceIdentification, ReadDeviceIdCode};
 
 /// A device address on a serial line: 1–247 in the standard (some devices allow up to 253),
 /// 0 for broadcast.
@@ -25,6 +27,9 @@ pub enum FunctionCode {
     WriteMultipleCoils = 0x0F,
     /// 0x10: writes 1–123 contiguous holding registers; the answer repeats start and quantity.
     WriteMultipleRegisters = 0x10,
+    /// 0x2B: Encapsulated Interface Transport; framed here with MEI type 0x0E, Read Device
+    /// Identification (the answer's length is in its bytes).
+    EncapsulatedInterface = 0x2B,
 }
 
 impl FunctionCode {
@@ -40,6 +45,7 @@ impl FunctionCode {
             0x06 => Self::WriteSingleRegister,
             0x0F => Self::WriteMultipleCoils,
             0x10 => Self::WriteMultipleRegisters,
+            0x2B => Self::EncapsulatedInterface,
             _ => return None,
         })
     }
@@ -190,6 +196,14 @@ pub enum Request {
         /// The words written, first register first.
         values: Vec<u16>,
     },
+    /// FC43 / MEI type 14: the device's identification objects, a stream of a category from
+    /// `object_id` on, or the one object `object_id`. Changes nothing on the device.
+    ReadDeviceIdentification {
+        /// What is asked for: basic, regular or extended stream, or one object.
+        code: ReadDeviceIdCode,
+        /// The first object of the stream (0 to start), or the one object asked for.
+        object_id: u8,
+    },
 }
 
 impl Request {
@@ -204,10 +218,23 @@ impl Request {
             Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
             Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
             Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
+            Self::ReadDeviceIdentification { .. } => FunctionCode::EncapsulatedInterface,
         }
     }
 
-    /// True for the four read functions.
+    /// True for the four write functions: the requests that change something on the device
+    /// (every other one only asks).
+    pub fn is_write(&self) -> bool {
+        matches!(
+            self,
+            Self::WriteSingleCoil { .. }
+                | Self::WriteSingleRegister { .. }
+                | Self::WriteMultipleCoils { .. }
+                | Self::WriteMultipleRegisters { .. }
+        )
+    }
+
+    /// True for the four read functions (those reading a span of a table).
     pub fn is_read(&self) -> bool {
         self.read_span().is_some()
     }
@@ -270,6 +297,8 @@ impl Request {
         match self {
             Self::WriteMultipleCoils { values, .. } => 9 + values.len().div_ceil(8),
             Self::WriteMultipleRegisters { values, .. } => 9 + 2 * values.len(),
+            // Address, function, MEI type, code, object id, CRC.
+            Self::ReadDeviceIdentification { .. } => 7,
             _ => 8,
         }
     }
@@ -284,11 +313,16 @@ impl Request {
         })
     }
 
-    /// Length in bytes of the normal answer frame to this request, address and CRC included.
+    /// Length in bytes of the normal answer frame to this request, address and CRC included;
+    /// for Read Device Identification, whose answer's length is in its bytes, the longest
+    /// frame there is.
     pub fn answer_len(&self) -> usize {
         match self.answer_data_len() {
             // Address, function, byte count, data, CRC.
             Some(data) => 5 + data,
+            None if matches!(self, Self::ReadDeviceIdentification { .. }) => {
+                crate::codec::MAX_FRAME_LEN
+            }
             // Writes echo address and value, or start and quantity: address, function, 4, CRC.
             None => 8,
         }
@@ -335,6 +369,8 @@ pub enum Response {
         /// Registers written.
         quantity: u16,
     },
+    /// FC43 / MEI type 14's answer: identification objects.
+    DeviceIdentification(DeviceIdentification),
 }
 
 impl Response {

@@ -3,7 +3,8 @@
 //! Grouped as tokio-modbus groups its `rtu` and `tcp`:
 //!
 //! - Pure, no I/O and no tokio: [`frame`] (the types with the specification's names and their
-//!   arithmetic), [`crc`], [`codec`] (byte work), [`timing`] (character time, t1.5, t3.5, the
+//!   arithmetic), [`crc`], [`codec`] (byte work), [`device_id`] (FC43/14 Read Device
+//!   Identification: its types and byte work), [`timing`] (character time, t1.5, t3.5, the
 //!   response timeout), `outcome` (how a transaction ends: [`Reply`], [`Error`],
 //!   [`WireCounters`], re-exported here).
 //! - What every link shares: [`answer_framing`] (the one framer of their answers) and
@@ -33,6 +34,7 @@ pub mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;
+pub mod device_id;
 pub mod frame;
 pub mod frame_log;
 pub mod link;
@@ -48,6 +50,7 @@ mod transaction;
 #[cfg(doctest)]
 pub struct ReadmeDoctests;
 
+pub use device_id::{DeviceIdObject, DeviceIdentification, ReadDeviceIdCode};
 pub use frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
 pub use outcome::{Error, PortFault, Reply, WireCounters};
 pub use transaction::{FrameSink, Transact};

@@ -9,12 +9,18 @@
 //! collector); a write to a read-only table does not exist in Modbus. A device may also have a
 //! [`CommandInterface`]: an FC16 frame written at its first register is a command, and its
 //! result code lands in the result register.
+//!
+//! Read Device Identification (FC43/14) is answered from the objects given with
+//! [`GenericDevice::with_identification`] (basic, regular and extended streams, with "more
+//! follows" where they do not fit one answer, and single objects); without them the device
+//! does not implement the function and answers exception 01, as most devices do.
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
 use super::command_interface::CommandInterface;
 use super::device::{Reply, SimDevice};
+use rtu2mqtt_modbus::device_id::{DeviceIdObject, DeviceIdentification};
 use rtu2mqtt_modbus::frame::{ExceptionCode, Request, Response, SlaveId};
 use rtu2mqtt_profile::{FieldKind, Profile, RawPatch, ReadBlock};
 
@@ -34,6 +40,19 @@ pub struct GenericDevice {
     memory: BTreeMap<(Table, u16), u16>,
     writes: u32,
     interface: Option<CommandInterface>,
+    /// The identification objects FC43/14 reads, ordered by id; `None`: no FC43.
+    identification: Option<Vec<DeviceIdObject>>,
+}
+
+/// The conformity level of a device holding `objects`: the highest category it has (basic
+/// 01, regular 02, extended 03), with individual access (0x80).
+fn conformity_level(objects: &[DeviceIdObject]) -> u8 {
+    let category = match objects.iter().map(|o| o.id).max() {
+        Some(0x80..) => 0x03,
+        Some(0x03..=0x7F) => 0x02,
+        _ => 0x01,
+    };
+    0x80 | category
 }
 
 impl GenericDevice {
@@ -98,7 +117,17 @@ impl GenericDevice {
             memory,
             writes: 0,
             interface: None,
+            identification: None,
         }
+    }
+
+    /// The device answering Read Device Identification with `objects` (their ids in any
+    /// order; VendorName 0x00, ProductCode 0x01 and MajorMinorRevision 0x02 are the basic
+    /// ones).
+    pub fn with_identification(mut self, mut objects: Vec<DeviceIdObject>) -> Self {
+        objects.sort_by_key(|object| object.id);
+        self.identification = Some(objects);
+        self
     }
 
     /// A device at `address` with no memory yet: registers are added with [`Self::set_holding`]
@@ -109,6 +138,7 @@ impl GenericDevice {
             memory: BTreeMap::new(),
             writes: 0,
             interface: None,
+            identification: None,
         }
     }
 
@@ -288,6 +318,17 @@ impl SimDevice for GenericDevice {
                     })
                 }
             }
+            Request::ReadDeviceIdentification { code, object_id } => match &self.identification {
+                None => Err(ExceptionCode::IllegalFunction),
+                Some(objects) => DeviceIdentification::answer_from(
+                    objects,
+                    *code,
+                    conformity_level(objects),
+                    *object_id,
+                )
+                .map(Response::DeviceIdentification)
+                .ok_or(ExceptionCode::IllegalDataAddress),
+            },
         };
         match result {
             Ok(response) => Reply::Normal(response),
@@ -366,6 +407,41 @@ mod tests {
         }
         let executed = device.command_interface().map(|i| i.executed().to_vec());
         assert_eq!(executed, Some(vec![(2060, vec![0, 2])]));
+    }
+
+    #[test]
+    fn identification_is_answered_only_by_a_device_given_its_objects() {
+        use rtu2mqtt_modbus::device_id::ReadDeviceIdCode;
+        let now = Instant::now();
+        let basic = Request::ReadDeviceIdentification {
+            code: ReadDeviceIdCode::Basic,
+            object_id: 0,
+        };
+        let mut plain = GenericDevice::empty(1);
+        assert_eq!(
+            plain.handle(&basic, now),
+            Reply::Exception(ExceptionCode::IllegalFunction)
+        );
+        let mut meter = GenericDevice::empty(1).with_identification(vec![
+            DeviceIdObject::text(2, "1.4.2"),
+            DeviceIdObject::text(0, "Sim Metering"),
+            DeviceIdObject::text(1, "SM-3P"),
+        ]);
+        let Reply::Normal(Response::DeviceIdentification(answer)) = meter.handle(&basic, now)
+        else {
+            panic!("no identification");
+        };
+        let ids: Vec<u8> = answer.objects.iter().map(|o| o.id).collect();
+        assert_eq!(ids, [0, 1, 2]);
+        assert_eq!(answer.text_of(1).as_deref(), Some("SM-3P"));
+        let missing = Request::ReadDeviceIdentification {
+            code: ReadDeviceIdCode::Individual,
+            object_id: 0x42,
+        };
+        assert_eq!(
+            meter.handle(&missing, now),
+            Reply::Exception(ExceptionCode::IllegalDataAddress)
+        );
     }
 
     #[test]

@@ -115,6 +115,13 @@ mod tests {
                 .prop_map(|(start, values)| Request::WriteMultipleCoils { start, values }),
             (start, proptest::collection::vec(any::<u16>(), 0..10))
                 .prop_map(|(start, values)| Request::WriteMultipleRegisters { start, values }),
+            (1u8..=4, any::<u8>()).prop_map(|(code, object_id)| {
+                Request::ReadDeviceIdentification {
+                    code: rtu2mqtt_modbus::ReadDeviceIdCode::from_u8(code)
+                        .unwrap_or(rtu2mqtt_modbus::ReadDeviceIdCode::Basic),
+                    object_id,
+                }
+            }),
         ]
     }
 
@@ -137,7 +144,11 @@ mod tests {
                         reads_linearly: true,
                     }],
                     1,
-                )),
+                )
+                .with_identification(vec![
+                    rtu2mqtt_modbus::DeviceIdObject::text(0, "Sim"),
+                    rtu2mqtt_modbus::DeviceIdObject { id: 0x90, value: vec![0xAB; 200] },
+                ])),
             ];
             let start = Instant::now();
             for (i, request) in requests.iter().enumerate() {

@@ -24,7 +24,6 @@ use super::pty_settings::{garble, BaudWatch};
 use super::wire::{self, FrameLen, RequestError};
 use rtu2mqtt_modbus::clock::sleep_until_precise;
 use rtu2mqtt_modbus::codec::{encode_answer, encode_exception, hex};
-use rtu2mqtt_modbus::frame::Request;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use tokio_util::sync::CancellationToken;
 
@@ -349,7 +348,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             }
             let reply = match &decoded {
                 Ok((_, request)) => {
-                    if is_write(request) {
+                    if request.is_write() {
                         self.journal.count_write(device.address());
                     }
                     device.handle(request, now)
@@ -448,8 +447,4 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
             }
         }
     }
-}
-
-fn is_write(request: &Request) -> bool {
-    !request.is_read()
 }

@@ -6,9 +6,13 @@
 //! must never send; a device has to hear it and react as the real ones do: a quantity of 0 or
 //! above the specification's limit is a request the device answers with exception 03, a
 //! function code it does not know is a frame that ends at the next silence and gets exception
-//! 01. Keeping the device side apart also keeps it an independent check on the gateway's codec.
+//! 01. Read Device Identification (0x2B, MEI type 0x0E) is decoded for the devices that
+//! implement it; another MEI type is a function the devices do not know, and a read device ID
+//! code outside 01–04 a frame they ignore. Keeping the device side apart also keeps it an
+//! independent check on the gateway's codec.
 
 use rtu2mqtt_modbus::crc::{append_crc, carried_and_computed};
+use rtu2mqtt_modbus::device_id::{ReadDeviceIdCode, MEI_READ_DEVICE_ID};
 use rtu2mqtt_modbus::frame::{Request, SlaveId};
 
 /// `body` followed by its CRC, low byte first.
@@ -48,6 +52,8 @@ pub fn request_frame_len(head: &[u8]) -> FrameLen {
             Some(&byte_count) => FrameLen::Known(7 + usize::from(byte_count) + 2),
             None => FrameLen::NeedMore,
         },
+        // address, function, MEI type, read device ID code, object id, CRC
+        0x2B => FrameLen::Known(7),
         _ => FrameLen::UntilSilence,
     }
 }
@@ -136,6 +142,14 @@ pub fn decode_request(frame: &[u8]) -> Result<(SlaveId, Request), RequestError> 
                 Request::WriteMultipleRegisters { start, values }
             }
         }
+        0x2B => match *body {
+            [MEI_READ_DEVICE_ID, code, object_id] => Request::ReadDeviceIdentification {
+                code: ReadDeviceIdCode::from_u8(code).ok_or(RequestError::Malformed)?,
+                object_id,
+            },
+            [_, _, _] => return Err(RequestError::UnknownFunction(function)),
+            _ => return Err(RequestError::Malformed),
+        },
         other => return Err(RequestError::UnknownFunction(other)),
     };
     Ok((address, request))
@@ -217,10 +231,41 @@ mod tests {
     }
 
     #[test]
+    fn read_device_identification_frames_and_decodes() {
+        // The specification's example request, with pymodbus's CRC on it.
+        let basic = hex("01 2B 0E 01 00 70 77");
+        assert!(crc_ok(&basic));
+        assert_eq!(request_frame_len(&basic[..2]), FrameLen::Known(7));
+        assert_eq!(
+            decode_request(&basic).unwrap(),
+            (
+                1,
+                Request::ReadDeviceIdentification {
+                    code: ReadDeviceIdCode::Basic,
+                    object_id: 0
+                }
+            )
+        );
+        // Another MEI type (CANopen general reference, 0x0D) is a function no device knows.
+        assert_eq!(
+            decode_request(&with_crc(vec![1, 0x2B, 0x0D, 0x01, 0x00])),
+            Err(RequestError::UnknownFunction(0x2B))
+        );
+        assert_eq!(
+            decode_request(&with_crc(vec![1, 0x2B, 0x0E, 0x07, 0x00])),
+            Err(RequestError::Malformed)
+        );
+    }
+
+    #[test]
     fn malformed_and_unknown_requests_are_errors() {
         assert_eq!(
             decode_request(&with_crc(vec![1, 0x2B, 0x0E, 0x01])),
-            Err(RequestError::UnknownFunction(0x2B))
+            Err(RequestError::Malformed)
+        );
+        assert_eq!(
+            decode_request(&with_crc(vec![1, 0x2C, 0x0E, 0x01])),
+            Err(RequestError::UnknownFunction(0x2C))
         );
         // byte count disagrees with the quantity
         assert_eq!(

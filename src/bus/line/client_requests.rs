@@ -39,7 +39,7 @@ impl Line {
                 let _ = reply.send(Ok(answer));
                 return;
             }
-            if !request.is_read() {
+            if request.is_write() {
                 self.served.cache.forget(device);
                 if access == Access::Profile {
                     let answer = self.run_client_write(device, &client, &request).await;
@@ -50,7 +50,7 @@ impl Line {
         }
         // A raw write passes as it came, but not inside a write interval of a field it covers.
         let raw_write = match device.and_then(|d| self.devices.get(d).map(|r| (d, r))) {
-            Some((device, runtime)) if !request.is_read() => {
+            Some((device, runtime)) if request.is_write() => {
                 // By address through each field's own write, and as the profile's shared frames
                 // read it (the dust collector's gear at 0x1001 of its settings frame).
                 let profile = &runtime.spec.profile;

@@ -47,6 +47,10 @@ pub(crate) fn judge(
             Verdict::Refuse(ExceptionCode::IllegalDataAddress)
         };
     }
+    // Read Device Identification asks the device what it is and changes nothing.
+    if !request.is_write() {
+        return Verdict::Forward;
+    }
     match access {
         Access::ReadOnly => Verdict::Refuse(ExceptionCode::IllegalFunction),
         _ => Verdict::ProfileWrite,
