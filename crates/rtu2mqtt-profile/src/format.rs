@@ -11,6 +11,7 @@ use serde::Deserialize;
 use super::action::ParamType;
 use super::codec::{ByteFormat, ByteSource};
 use super::enumeration::UnknownCode;
+use super::identification::IdentificationSection;
 use super::model::Behaviour;
 use super::numeric::BytePlace;
 use super::publish::RawPublish;
@@ -46,6 +47,8 @@ pub(super) struct DeviceSection {
     /// How the `start`s and `address`es are numbered; absent: bus addresses, and a start
     /// that looks like a Modicon number is warned about.
     pub(super) register_numbers: Option<RegisterNumbers>,
+    /// What the device reports when asked what it is (a scan names the profile by it).
+    pub(super) identification: Option<IdentificationSection>,
 }
 
 pub(super) fn default_baud() -> u32 {

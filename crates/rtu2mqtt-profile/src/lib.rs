@@ -27,6 +27,9 @@
 //! - [`bcd`]: packed BCD words, shared with the commissioning read and the simulators.
 //! - [`register_numbers`]: how a profile numbers its registers (bus, one-based, Modicon) and
 //!   the bus address each number stands for.
+//! - [`identification`]: a profile's `[device] identification` (what the device reports when
+//!   asked what it is) and how it is matched; [`identify`]: the reads that ask a device what
+//!   it is (Read Device Identification, the SunSpec marker) and the profile that fits.
 //! - [`enumeration`]: the `enum` codec (sparse codes over whole registers) and its
 //!   [`enumeration::UnknownCode`] rule.
 //!
@@ -36,11 +39,12 @@
 //! payloads and commands), `value`, `registers` (word and byte order), `register_numbers`,
 //! `numeric` (the number codecs), `text` (text encodings), `enumeration`, `rejection`,
 //! `publish`, `field`, `codec` (every field codec and command parsing), `action` (command
-//! interfaces and their payloads), `model`, `format` (the file's serde types), `compile` (file
-//! to model, with every problem), then `command` (a command on fields as one bus slot's plan),
-//! `plan` (any command's plan, an action's included) and `raw` (simulated block images patched
-//! through the write frames); this file's [`Profile`] is what the rest of the crate sees, and
-//! `sunspec` stands apart.
+//! interfaces and their payloads), `identification`, `model`, `format` (the file's serde
+//! types), `compile` (file to model, with every problem), then `command` (a command on fields as
+//! one bus slot's plan), `plan` (any command's plan, an action's included) and `raw` (simulated
+//! block images patched through the write frames); this file's [`Profile`] is what the rest of
+//! the crate sees, `sunspec` stands apart, and `identify` (after `sunspec` and [`Profile`])
+//! uses them.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, every public item says what it is, the 2018 idioms.
@@ -60,6 +64,8 @@ pub mod contract;
 pub mod enumeration;
 mod field;
 mod format;
+pub mod identification;
+pub mod identify;
 mod model;
 mod number;
 mod numeric;
@@ -135,6 +141,12 @@ impl Profile {
     /// The device model from `device.model` (Home Assistant's `mdl`).
     pub fn model(&self) -> &str {
         &self.inner.model
+    }
+
+    /// What the device reports when asked what it is (`device.identification`), if the
+    /// profile says.
+    pub fn identification(&self) -> Option<&identification::Identification> {
+        self.inner.identification.as_ref()
     }
 
     /// The free text of `device.description`; empty when the profile has none.

@@ -205,4 +205,6 @@ pub(crate) struct Compiled {
     pub(crate) warnings: Vec<super::compile::ProfileError>,
     /// The `[[actions]]`, in file order.
     pub(crate) actions: Vec<ActionDef>,
+    /// What the device reports when asked what it is.
+    pub(crate) identification: Option<super::identification::Identification>,
 }

@@ -113,6 +113,14 @@ pub fn built_in(name: &str) -> Result<Profile, LoadError> {
     Ok(Profile::from_toml(text, &format!("built-in {name}"))?)
 }
 
+/// Every built-in profile (each one is valid: the tests load them all).
+pub fn built_in_profiles() -> Vec<Profile> {
+    built_in_names()
+        .into_iter()
+        .filter_map(|name| built_in(name).ok())
+        .collect()
+}
+
 /// Loads a profile file: [`LoadError::Read`] when it cannot be read, [`LoadError::Invalid`]
 /// with every problem when it is not a valid profile.
 pub fn load_file(path: &Path) -> Result<Profile, LoadError> {

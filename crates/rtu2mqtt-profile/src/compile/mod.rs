@@ -22,6 +22,7 @@ mod problems;
 mod writes;
 
 use super::format::ProfileFile;
+use super::identification::Identification;
 use super::model::Compiled;
 use actions::build_actions;
 use blocks::{build_limits, check_blocks_used, mark_used_runs, Layout};
@@ -74,6 +75,11 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         layout.numbers,
         problems,
     );
+    let identification = file.device.identification.and_then(|section| {
+        Identification::from_section(section)
+            .map_err(|reason| problems.add("device.identification", reason))
+            .ok()
+    });
 
     Compiled {
         name: file.device.name,
@@ -90,6 +96,7 @@ fn build(file: ProfileFile, problems: &mut Problems<'_>) -> Compiled {
         named_frames,
         warnings: Vec::new(),
         actions,
+        identification,
     }
 }
 
