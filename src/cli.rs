@@ -142,6 +142,10 @@ pub struct ScanArgs {
     /// Read this profile's blocks at every address found and show the decoded fields.
     #[arg(long)]
     pub profile: Option<String>,
+    /// A directory of profile files (`*.toml`) a device found may be named by too, besides
+    /// the built-in ones, when its identification matches theirs.
+    #[arg(long, value_name = "DIR")]
+    pub profiles: Option<std::path::PathBuf>,
 }
 
 #[derive(Debug, Args)]

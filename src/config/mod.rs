@@ -7,7 +7,8 @@
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`], [`history`] and [`web`]; [`names`] holds the name rules and
 //! the quoting they share, [`problem`] what a problem is. [`poll_plan`] computes each line's
-//! poll plan and bus load from the wire timing, for validation and `rtu2mqtt check`.
+//! poll plan and bus load from the wire timing, for validation and `rtu2mqtt check`;
+//! [`suggestion`] writes a configuration to copy from what a scan found.
 //!
 //! What leaves this module is a [`Config`] (declared beside the validation that builds it):
 //! the bus's [`LineSpec`](crate::bus::LineSpec)s with their resolved profiles, and the MQTT
@@ -27,6 +28,7 @@ pub mod poll_plan;
 pub(crate) mod problem;
 pub mod schema;
 pub(crate) mod sparkplug;
+pub mod suggestion;
 pub(crate) mod tree;
 pub(crate) mod validate;
 pub mod web;

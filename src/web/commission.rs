@@ -1,7 +1,9 @@
-//! Commissioning through the running line: a scan of addresses, a read shown every way, and a
-//! profile tried against a device, all sent as slots of the line's scheduler (between its
-//! polls, one request per slot, a due poll between two of them, the line's t3.5 kept), so the
-//! plant keeps running. Reads only: nothing here builds a write. One run at a time.
+//! Commissioning through the running line: a scan of addresses (each device found asked what
+//! it is, with the built-in profile that fits and the configuration to add), a read shown
+//! every way, and a profile tried against a device, all sent as slots of the line's scheduler
+//! (between its polls, one request per slot, a due poll between two of them, the line's t3.5
+//! kept), so the plant keeps running. Reads only: nothing here builds a write. One run at a
+//! time.
 
 use std::sync::Arc;
 
@@ -15,8 +17,10 @@ use tokio::sync::oneshot;
 use super::decode::{self, Registers};
 use super::{refusal, Console};
 use crate::bus::serve::ClientRequest;
+use crate::config::suggestion::{devices_to_add, Candidates, SuggestedDevice};
 use rtu2mqtt_modbus::{ExceptionCode, Reply, Request, Response as ModbusResponse, SlaveId};
 use rtu2mqtt_profile::contract::reserved_name_problem;
+use rtu2mqtt_profile::identify::{Heard, Identifier, Identity};
 use rtu2mqtt_profile::Profile;
 
 /// Addresses one scan may probe: every address a line can carry.
@@ -88,6 +92,36 @@ pub struct ScanRow {
     pub answers: Vec<String>,
     /// The configured device at this address on the line, if any.
     pub device: Option<String>,
+    /// What the device says it is, and the profile that fits.
+    pub identification: ScanIdentity,
+}
+
+/// What a device found says it is (absent parts `None`), and the profile that fits.
+#[derive(Debug, Serialize)]
+pub struct ScanIdentity {
+    /// How it answered Read Device Identification: `ok`, the exception, `no answer`.
+    pub fc43: String,
+    pub vendor: Option<String>,
+    pub product_code: Option<String>,
+    pub revision: Option<String>,
+    /// Its SunSpec map: `40000: models 1, 103`.
+    pub sunspec: Option<String>,
+    /// The built-in profile that fits, `unknown`, or the SunSpec command to run.
+    pub profile: String,
+}
+
+impl ScanIdentity {
+    fn of(identity: &Identity, candidates: &Candidates) -> Self {
+        let id = &identity.device_id;
+        Self {
+            fc43: id.status(),
+            vendor: id.vendor(),
+            product_code: id.product_code(),
+            revision: id.revision(),
+            sunspec: identity.sunspec.as_ref().map(ToString::to_string),
+            profile: candidates.choose(identity).describe(),
+        }
+    }
 }
 
 /// What a scan found.
@@ -96,6 +130,9 @@ pub struct ScanReport {
     pub line: String,
     pub scanned: usize,
     pub found: Vec<ScanRow>,
+    /// The `[[lines.devices]]` tables of the devices found that the line does not have yet;
+    /// `None` when it has them all.
+    pub configuration: Option<String>,
 }
 
 fn read_request(function: u8, start: u16, quantity: u16) -> Option<Request> {
@@ -115,9 +152,23 @@ fn answer_word(function: u8, reply: &Reply) -> String {
     }
 }
 
+/// Asks the device at `unit` what it is, through the line (reads only).
+async fn identify(console: &Console, line: &str, unit: SlaveId) -> Result<Identity, Response> {
+    let mut identifier = Identifier::new();
+    while let Some(request) = identifier.next_request() {
+        let heard = match ask(console, line, unit, request, true).await? {
+            Ok(answer) => Heard::Answer(answer),
+            Err(code) if is_silence(code) => Heard::Nothing,
+            Err(code) => Heard::Exception(code),
+        };
+        identifier.hear(heard);
+    }
+    Ok(identifier.identity())
+}
+
 /// `POST /api/scan`: probes each address with FC03 (and FC04, FC01 where FC03 is refused),
 /// once each, through the line. Only a device's own answer counts: silence, and a gateway's
-/// 0A/0B in its place, do not.
+/// 0A/0B in its place, do not. Each device found is asked what it is.
 pub async fn scan(State(console): State<Arc<Console>>, Form(form): Form<ScanForm>) -> Response {
     let addresses = match crate::cli::parse_addresses(&form.addresses) {
         Ok(addresses) if addresses.len() <= MAX_SCAN => addresses,
@@ -140,6 +191,8 @@ pub async fn scan(State(console): State<Arc<Console>>, Form(form): Form<ScanForm
     }
     let _one_at_a_time = console.commissioning.lock().await;
     tracing::info!(line = %form.line, addresses = %form.addresses, via = "console", "scan");
+    let candidates = Candidates::built_in();
+    let mut to_add = Vec::new();
     let mut found = Vec::new();
     for &address in &addresses {
         let mut answers = Vec::new();
@@ -168,14 +221,27 @@ pub async fn scan(State(console): State<Arc<Console>>, Form(form): Form<ScanForm
                 .iter()
                 .find(|d| d.line == form.line && d.address == address)
                 .map(|d| d.name.clone());
+            let identity = match identify(&console, &form.line, address).await {
+                Ok(identity) => identity,
+                Err(refused) => return refused,
+            };
+            if device.is_none() {
+                to_add.push(SuggestedDevice {
+                    address,
+                    name: None,
+                    profile: candidates.choose(&identity),
+                });
+            }
             found.push(ScanRow {
                 address,
                 answers,
                 device,
+                identification: ScanIdentity::of(&identity, &candidates),
             });
         }
     }
     Json(ScanReport {
+        configuration: (!to_add.is_empty()).then(|| devices_to_add(&form.line, &to_add)),
         line: form.line,
         scanned: addresses.len(),
         found,

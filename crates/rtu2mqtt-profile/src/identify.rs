@@ -40,6 +40,15 @@ pub enum DeviceId {
 }
 
 impl DeviceId {
+    /// How the device answered, in a word: `ok`, the exception, or `no answer`.
+    pub fn status(&self) -> String {
+        match self {
+            Self::Objects(_) => "ok".to_string(),
+            Self::Refused(code) => code.to_string(),
+            Self::NoAnswer => "no answer".to_string(),
+        }
+    }
+
     fn text(&self, id: u8) -> Option<String> {
         match self {
             Self::Objects(objects) => objects
@@ -74,6 +83,18 @@ pub struct SunSpecMap {
     pub base: u16,
     /// The ids of the chain's first models, in order (at most [`SUNSPEC_MODELS_READ`]).
     pub models: Vec<u16>,
+}
+
+impl std::fmt::Display for SunSpecMap {
+    /// `40000: models 1, 103`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let models: Vec<String> = self.models.iter().map(u16::to_string).collect();
+        match models.as_slice() {
+            [] => write!(f, "{}", self.base),
+            [one] => write!(f, "{}: model {one}", self.base),
+            _ => write!(f, "{}: models {}", self.base, models.join(", ")),
+        }
+    }
 }
 
 /// What a device says it is.
@@ -350,6 +371,10 @@ mod tests {
             DeviceId::Refused(ExceptionCode::IllegalFunction)
         );
         assert_eq!(identity.sunspec, None);
+        assert_eq!(
+            identity.device_id.status(),
+            "exception 01 (illegal function)"
+        );
         assert!(matches!(identity.fit(&[]), Fit::Unknown));
     }
 
@@ -443,6 +468,15 @@ mod tests {
                 models: vec![1, 103]
             })
         );
+        assert_eq!(
+            identity
+                .sunspec
+                .as_ref()
+                .map(ToString::to_string)
+                .as_deref(),
+            Some("40000: models 1, 103")
+        );
+        assert_eq!(identity.device_id.status(), "no answer");
         let inverter = crate::registry::built_in("sunspec-inverter").unwrap();
         let candidates = [inverter];
         assert!(

@@ -26,8 +26,16 @@
 //! (the last address of a setting always gets the full timeout, as nothing follows it). Behind
 //! a TCP link the network's delay is unknown, so every probe waits the full timeout there.
 //!
+//! Each device found is asked what it is, once, at the setting it first answered at
+//! ([`identities`]: its Read Device Identification and the SunSpec marker, reads only), and
+//! the scan ends with the table of what the devices said, the profile that fits each (a
+//! built-in one, or one of `--profiles DIR`) and a configuration to copy. A silent address
+//! costs nothing more.
+//!
 //! Progress goes to stderr, and at the end how long the scan took; Ctrl-C stops the scan and
 //! prints the table found so far.
+
+mod identities;
 
 use std::fmt::Write as _;
 use std::process::ExitCode;
@@ -37,10 +45,12 @@ use anyhow::{bail, Context as _};
 
 use super::read::{read_request, Target};
 use crate::cli::{parse_parity, ScanArgs};
+use crate::config::suggestion::{Candidates, LinkPlace};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Error as LinkError, WireCounters};
 use rtu2mqtt_modbus::{ExceptionCode, Request, SlaveId, Transact};
+use rtu2mqtt_profile::identify::Identity;
 
 /// What one address answered at one serial setting.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -50,6 +60,8 @@ pub struct Found {
     pub parity: Parity,
     /// One entry per read function probed: `FC03 ok`, `FC03 exception 02 (…)`, ….
     pub answers: Vec<String>,
+    /// What it said it is, asked the first time a device answered at this address.
+    pub identity: Option<Identity>,
 }
 
 /// Parses `1-247`, `1,2,0x81` or a mix of both.
@@ -151,6 +163,7 @@ async fn probe_address(
 
 pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
     let addresses = parse_addresses(&args.addresses)?;
+    let candidates = candidates(args.profiles.as_deref())?;
     let parities = args
         .parity
         .iter()
@@ -206,6 +219,19 @@ pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
             println!("  {line}");
         }
     }
+    if !found.is_empty() {
+        println!("\nwhat the devices say they are:");
+        print!("{}", identities::table(&found, &candidates));
+        let place = match target {
+            Target::Port(path) => LinkPlace::Port(path.display().to_string()),
+            Target::Url(url) => LinkPlace::Url(url.to_string()),
+        };
+        println!("\na configuration to copy (docs/configuration.md):\n");
+        print!(
+            "{}",
+            identities::suggestion(&found, &candidates, &place, modbus_tcp)
+        );
+    }
     if let Some(profile) = &args.profile {
         if !interrupted {
             runtime.block_on(show_profile(args, profile, &found))?;
@@ -216,6 +242,29 @@ pub fn scan(args: &ScanArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::SUCCESS
     })
+}
+
+/// The built-in profiles and those in `directory` (every `*.toml` file), which a scan may
+/// name for a device.
+fn candidates(directory: Option<&std::path::Path>) -> anyhow::Result<Candidates> {
+    let mut candidates = Candidates::built_in();
+    let Some(directory) = directory else {
+        return Ok(candidates);
+    };
+    let entries = std::fs::read_dir(directory)
+        .with_context(|| format!("reading the profiles in {}", directory.display()))?;
+    let mut paths: Vec<std::path::PathBuf> = entries
+        .filter_map(|entry| entry.ok().map(|entry| entry.path()))
+        .filter(|path| path.extension().is_some_and(|ext| ext == "toml"))
+        .collect();
+    paths.sort();
+    for path in paths {
+        match rtu2mqtt_profile::registry::load_file(&path) {
+            Ok(profile) => candidates.add(profile, path.display().to_string()),
+            Err(error) => eprintln!("skipping {}: {error}", path.display()),
+        }
+    }
+    Ok(candidates)
 }
 
 async fn run_scan(
@@ -283,7 +332,9 @@ async fn run_scan(
                         let again =
                             probe_address(&mut master, previous, args.timeout, args.timeout)
                                 .await?;
-                        record(found, garbled, previous, baud, parity, again);
+                        if record(found, garbled, previous, baud, parity, again) {
+                            identify_last(&mut master, found, args.timeout).await?;
+                        }
                     }
                 }
                 if late_after > late_before && outcome.0.is_empty() && outcome.1.is_none() {
@@ -295,7 +346,9 @@ async fn run_scan(
                 if outcome.0.is_empty() && outcome.1.is_none() {
                     silent.push((address, Instant::now()));
                 }
-                record(found, garbled, address, baud, parity, outcome);
+                if record(found, garbled, address, baud, parity, outcome) {
+                    identify_last(&mut master, found, args.timeout).await?;
+                }
             }
         }
     }
@@ -303,7 +356,23 @@ async fn run_scan(
     Ok(())
 }
 
-/// Notes what one address answered (if anything) at one setting.
+/// Asks the device found last what it is, at the setting it was found at.
+async fn identify_last(
+    master: &mut Link,
+    found: &mut [Found],
+    timeout: Duration,
+) -> anyhow::Result<()> {
+    let Some(device) = found.last_mut() else {
+        return Ok(());
+    };
+    let timing = LineTiming::new(device.baud, format_name(device.parity));
+    let timeout = identities::identification_timeout(timeout, &timing);
+    device.identity = Some(identities::identify(master, device.address, timeout).await?);
+    Ok(())
+}
+
+/// Notes what one address answered (if anything) at one setting; true when a device answered
+/// at an address where none had answered before (at any setting).
 fn record(
     found: &mut Vec<Found>,
     garbled: &mut Vec<String>,
@@ -311,21 +380,25 @@ fn record(
     baud: u32,
     parity: Parity,
     (answers, garble): (Vec<String>, Option<String>),
-) {
+) -> bool {
     if let Some(why) = garble {
         garbled.push(format!(
             "address {address} ({address:#04x}) at {baud} {}: {why}",
             format_name(parity)
         ));
     }
-    if !answers.is_empty() {
-        found.push(Found {
-            address,
-            baud,
-            parity,
-            answers,
-        });
+    if answers.is_empty() {
+        return false;
     }
+    let first_here = !found.iter().any(|device| device.address == address);
+    found.push(Found {
+        address,
+        baud,
+        parity,
+        answers,
+        identity: None,
+    });
+    first_here
 }
 
 /// The table of what answered where (behind a Modbus TCP gateway the serial setting is the
@@ -430,6 +503,7 @@ mod tests {
             baud: 19200,
             parity: Parity::None,
             answers: vec!["FC01 ok".into()],
+            identity: None,
         }];
         let text = table(&found, false);
         assert!(
