@@ -171,9 +171,13 @@ impl<'a> Target<'a> {
                     )
                     .await
                     .map(Link::RawTcp),
-                    TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint, options)
-                        .await
-                        .map(Link::ModbusTcp),
+                    TcpKind::ModbusTcp => ModbusTcpMaster::connect(
+                        endpoint,
+                        options,
+                        LineTiming::new(baud, char_format(parity)),
+                    )
+                    .await
+                    .map(Link::ModbusTcp),
                 };
                 connected.with_context(|| format!("connecting to {url}"))
             }

@@ -126,7 +126,7 @@ pub(crate) async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Lin
                 TcpKind::RawRtu => RawTcpMaster::connect(endpoint.clone(), options, timing)
                     .await
                     .map(Link::RawTcp),
-                TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint.clone(), options)
+                TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint.clone(), options, timing)
                     .await
                     .map(Link::ModbusTcp),
             };

@@ -77,7 +77,10 @@ impl DeviceStats {
 }
 
 /// Bus load over a sliding window: wire time carried per wall time, from samples of the line's
-/// growing wire time.
+/// growing wire time (on every kind of line the serial wire time of its frames and silences,
+/// the model of the poll plan's estimate). Until the line has run for a whole window, the time
+/// before its first sample counts as idle: the figure grows to the line's load over the first
+/// window, rather than showing the first transactions' share of the first moments.
 #[derive(Debug, Clone)]
 pub struct LoadWindow {
     window: Duration,
@@ -92,9 +95,9 @@ impl LoadWindow {
         }
     }
 
-    /// Adds the wire time carried so far at `now`; the load since the oldest sample still in
-    /// the window (0.0–1.0), `None` while no wall time has passed.
-    pub fn sample(&mut self, now: Instant, wire_time: Duration) -> Option<f64> {
+    /// Adds the wire time carried so far at `now`; the load (0.0–1.0) since the oldest sample
+    /// still in the window, over the whole window while less time has passed.
+    pub fn sample(&mut self, now: Instant, wire_time: Duration) -> f64 {
         self.samples.push_back((now, wire_time));
         while self
             .samples
@@ -103,12 +106,15 @@ impl LoadWindow {
         {
             self.samples.pop_front();
         }
-        let (since, wire_then) = self.samples.front()?;
-        let wall = now.duration_since(*since).as_secs_f64();
-        (wall > 0.0).then(|| {
-            let wire = wire_time.saturating_sub(*wire_then).as_secs_f64();
-            (wire / wall).min(1.0)
-        })
+        let Some((since, wire_then)) = self.samples.front() else {
+            return 0.0;
+        };
+        let wall = now.duration_since(*since).max(self.window).as_secs_f64();
+        if wall <= 0.0 {
+            return 0.0;
+        }
+        let wire = wire_time.saturating_sub(*wire_then).as_secs_f64();
+        (wire / wall).min(1.0)
     }
 }
 
@@ -283,13 +289,24 @@ mod tests {
     fn load_is_wire_time_per_wall_time_over_the_window() {
         let start = Instant::now();
         let mut load = LoadWindow::new(Duration::from_secs(10));
-        assert_eq!(load.sample(start, Duration::ZERO), None);
-        let half = load.sample(start + Duration::from_secs(2), Duration::from_secs(1));
-        assert_eq!(half, Some(0.5));
+        assert_eq!(load.sample(start, Duration::ZERO), 0.0);
+        // Within the first window the time before the start counts as idle: 1 s of wire time
+        // in the first 2 s is 10 % of the window, not half of the 2 s.
+        let early = load.sample(start + Duration::from_secs(2), Duration::from_secs(1));
+        assert_eq!(early, 0.1);
+        // A line that starts with a burst of transactions shows no burst: 50 ms of wire time
+        // in the first 53 ms is half a percent of the window.
+        let mut burst = LoadWindow::new(Duration::from_secs(10));
+        burst.sample(start, Duration::ZERO);
+        let first = burst.sample(start + Duration::from_millis(53), Duration::from_millis(50));
+        assert!((first - 0.005).abs() < 1e-12, "{first}");
+        // Once the window has passed, it is the window's own load.
+        let filled = load.sample(start + Duration::from_secs(10), Duration::from_secs(5));
+        assert_eq!(filled, 0.5);
         // The first sample leaves the window: the load is measured from the second.
         let later = load.sample(start + Duration::from_secs(12), Duration::from_secs(6));
-        assert_eq!(later, Some(0.5));
+        assert_eq!(later, 0.5);
         let capped = load.sample(start + Duration::from_secs(13), Duration::from_secs(30));
-        assert_eq!(capped, Some(1.0));
+        assert_eq!(capped, 1.0);
     }
 }

@@ -163,7 +163,9 @@ pub(super) fn validate_lines(
         if problems.len() != before || devices.is_empty() {
             continue;
         }
-        // A Modbus TCP gateway runs its serial side itself: no baud of ours times it.
+        // A Modbus TCP gateway runs its serial side itself, at the setting it is given there:
+        // the line's baud and parity only say what that is (for the default response timeout
+        // and the bus load), and a device's usual setting is not ours to warn about.
         let our_timing = !is_modbus_tcp(&transport);
 
         // Character format: the line's own, else the first device's profile defaults.
@@ -393,20 +395,6 @@ fn validate_transport(
                     "applies only to serial ports (the server drives its own RS485 transceiver)",
                 ));
             }
-            if endpoint.kind == TcpKind::ModbusTcp {
-                for (key, set) in [
-                    ("baud", raw.baud.is_some()),
-                    ("parity", raw.parity.is_some()),
-                ] {
-                    if set {
-                        warnings.push(Problem::new(
-                            format!("{place}.{key}"),
-                            "means nothing on a modbus-tcp:// line (the gateway's own serial \
-                             settings apply): ignored",
-                        ));
-                    }
-                }
-            }
             for (key, value) in &tcp_keys {
                 if let Some(value) = value {
                     check_timeout(&format!("{place}.{key}"), *value, problems);
@@ -604,15 +592,19 @@ mod tests {
     }
 
     #[test]
-    fn tcp_lines_get_their_transport_and_modbus_tcp_warns_about_serial_settings() {
+    fn tcp_lines_get_their_transport_and_modbus_tcp_takes_the_gateways_serial_setting() {
         let (problems, warnings) = link_findings(&["url = \"modbus-tcp://gw:502\"\nbaud = 19200"]);
         assert!(problems.is_empty(), "{problems:?}");
-        assert!(
-            has(
-                &warnings,
-                "lines[0].baud: means nothing on a modbus-tcp:// line"
-            ),
-            "{warnings:?}"
+        assert!(warnings.is_empty(), "{warnings:?}");
+        let text = "[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n[[lines]]\n\
+                    name = \"gw\"\nurl = \"modbus-tcp://10.0.0.6:502\"\nbaud = 19200\n\
+                    [[lines.devices]]\nname = \"v\"\nprofile = \"wuzhou-valve\"\naddress = 1\n";
+        let config = crate::config::from_str(text, Path::new(".")).unwrap();
+        // The gateway's serial setting times the line's figures: the valve's 8E1 at 19200.
+        assert_eq!(config.lines[0].serial.baud, 19200);
+        assert_eq!(
+            config.lines[0].serial.format.parity,
+            rtu2mqtt_modbus::timing::Parity::Even
         );
         let text =
             "[mqtt]\nurl = \"mqtt://localhost\"\nclient_id = \"edge1\"\n[[lines]]\nname = \"a\"\n\

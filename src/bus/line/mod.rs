@@ -678,9 +678,7 @@ impl Line {
         let stats = &mut self.stats;
         stats.heartbeat = now;
         stats.record_wire(&counters);
-        if let Some(load) = self.load.sample(now, counters.wire_time) {
-            stats.bus_load = load;
-        }
+        stats.bus_load = self.load.sample(now, counters.wire_time);
         if let Some((mean, worst)) = self.turnaround.figures() {
             stats.turnaround_mean = Some(mean);
             stats.turnaround_worst = Some(worst);

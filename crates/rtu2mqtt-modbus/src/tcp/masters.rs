@@ -501,22 +501,40 @@ impl Exchange for RawTcpMaster {
 /// Modbus TCP to a TCP-to-RTU gateway: each request carries a new transaction id, answers are
 /// framed by their MBAP length and matched by id; an answer with another id (the late answer of
 /// a request that timed out) is discarded and counted in `late_answers`. The gateway paces its
-/// own serial side; its busy time (request sent to answer received) is counted as wire time.
+/// own serial side. The wire time counted is what that side carries: each request and each
+/// answer as an RTU frame (the ADU's unit id and PDU with a CRC) at the line's serial format,
+/// with its t3.5, the same model as a serial line's and as a poll plan's estimate; the network's
+/// delays are no part of it.
 #[derive(Debug)]
 pub struct ModbusTcpMaster {
     pub(crate) connection: Connection,
     next_transaction: u16,
+    /// The gateway's serial side, as the line configures it.
+    timing: LineTiming,
 }
 
 impl ModbusTcpMaster {
-    /// Connects to the gateway. An error is the connection's failure (refused, no route, no
-    /// answer within the connect timeout).
-    pub async fn connect(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Self> {
+    /// Connects to the gateway, whose serial side runs at `timing` (for the wire time counted).
+    /// An error is the connection's failure (refused, no route, no answer within the connect
+    /// timeout).
+    pub async fn connect(
+        endpoint: TcpEndpoint,
+        options: TcpOptions,
+        timing: LineTiming,
+    ) -> std::io::Result<Self> {
         Ok(ModbusTcpMaster {
             connection: Connection::open(endpoint, options).await?,
             // Not 0: some gateways treat id 0 specially.
             next_transaction: 1,
+            timing,
         })
+    }
+
+    /// Counts the serial wire time of the ADU `adu` (sent or received): its RTU frame and the
+    /// t3.5 after it.
+    fn count_wire_time(&mut self, adu: &[u8]) {
+        let serial = self.timing.frame_time(mbap::rtu_frame_len(adu.len())) + self.timing.t3_5;
+        self.connection.core.counters_mut().wire_time += serial;
     }
 
     fn take_transaction(&mut self) -> u16 {
@@ -547,6 +565,7 @@ impl ModbusTcpMaster {
         self.connection.core.record(Direction::Tx, adu);
         let sent_at = self.connection.send(adu).await?;
         self.connection.core.counters_mut().requests += 1;
+        self.count_wire_time(adu);
         Ok(sent_at)
     }
 
@@ -561,12 +580,15 @@ impl ModbusTcpMaster {
         Ok(())
     }
 
-    /// The next complete ADU in the buffer. A header that cannot be right means the stream is
-    /// out of step: the connection is dropped (the next transaction reconnects).
+    /// The next complete ADU in the buffer (its serial wire time counted: the gateway's line
+    /// carried it, late or not). A header that cannot be right means the stream is out of
+    /// step: the connection is dropped (the next transaction reconnects).
     fn next_adu(&mut self) -> Result<Option<Vec<u8>>, Error> {
         match mbap::adu_len(&self.connection.buffer) {
             Ok(Some(len)) if self.connection.buffer.len() >= len => {
-                Ok(Some(self.connection.buffer.drain(..len).collect()))
+                let adu: Vec<u8> = self.connection.buffer.drain(..len).collect();
+                self.count_wire_time(&adu);
+                Ok(Some(adu))
             }
             Ok(_) => Ok(None),
             Err(error) => {
@@ -614,10 +636,7 @@ impl Exchange for ModbusTcpMaster {
             while let Some(answer) = self.next_adu()? {
                 self.connection.core.record(Direction::Rx, &answer);
                 match mbap::decode_answer(transaction, unit, request, &answer) {
-                    Ok(Matched::Current(answer)) => {
-                        self.connection.core.counters_mut().wire_time += sent_at.elapsed();
-                        return Ok(reply_of(answer));
-                    }
+                    Ok(Matched::Current(answer)) => return Ok(reply_of(answer)),
                     Ok(Matched::Stale { transaction: old }) => {
                         self.connection.core.counters_mut().late_answers += 1;
                         tracing::debug!(url = %self.connection.label(), transaction = old, "answer to an earlier request dropped");
@@ -637,7 +656,6 @@ impl Exchange for ModbusTcpMaster {
                 }
             }
             if !self.connection.read_until(deadline).await? {
-                self.connection.core.counters_mut().wire_time += timeout;
                 let got = self.connection.buffer.len();
                 if got > 0 {
                     return Err(Error::Truncated {
@@ -654,6 +672,82 @@ impl Exchange for ModbusTcpMaster {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::Response;
+    use crate::timing::{CharFormat, Parity};
+    use crate::transaction::Transact;
+
+    /// A Modbus TCP gateway on loopback that answers each ADU after `delay` with `answer`'s
+    /// PDU (the request's transaction id and unit kept), as often as it is asked.
+    async fn gateway(answer: Response, delay: Duration) -> String {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let address = listener.local_addr().unwrap().to_string();
+        tokio::spawn(async move {
+            let (mut stream, _) = listener.accept().await.unwrap();
+            let mut request = [0u8; 12];
+            while stream.read_exact(&mut request).await.is_ok() {
+                tokio::time::sleep(delay).await;
+                let rtu = codec::encode_answer(request[6], &answer);
+                let transaction = u16::from_be_bytes([request[0], request[1]]);
+                let adu = mbap::rtu_to_adu(transaction, &rtu).unwrap();
+                if stream.write_all(&adu).await.is_err() {
+                    break;
+                }
+            }
+        });
+        address
+    }
+
+    /// The wire time counted is the gateway's serial side carrying the request and the answer
+    /// as RTU frames with their t3.5, whatever the network and the gateway took; a timeout
+    /// counts the request alone.
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_modbus_tcp_transaction_counts_its_serial_wire_time() {
+        let read = Request::ReadHoldingRegisters {
+            start: 0x1000,
+            quantity: 6,
+        };
+        let timing = LineTiming::new(
+            9600,
+            CharFormat {
+                data_bits: 8,
+                parity: Parity::None,
+                stop_bits: 1,
+            },
+        );
+        // Slow on purpose: 40 ms for an answer whose serial wire time is under 30 ms.
+        let address = gateway(
+            Response::HoldingRegisters(vec![3, 5, 2, 10, 1500, 25]),
+            Duration::from_millis(40),
+        )
+        .await;
+        let endpoint = TcpEndpoint {
+            kind: TcpKind::ModbusTcp,
+            address,
+        };
+        let mut master = ModbusTcpMaster::connect(endpoint, TcpOptions::default(), timing)
+            .await
+            .unwrap();
+        let one = timing.frame_time(read.frame_len())
+            + timing.frame_time(read.answer_len())
+            + 2 * timing.t3_5;
+        for round in 1..=3u32 {
+            let answer = master
+                .transact(1, &read, Duration::from_secs(2))
+                .await
+                .unwrap();
+            assert!(answer.is_ok());
+            assert_eq!(master.connection.core.counters().wire_time, one * round);
+        }
+        // 8 + 17 bytes of 10 bits at 9600 baud (1.04 ms each) and two t3.5 of 3.65 ms.
+        assert_eq!(one.as_micros(), 33_333);
+        let before = master.connection.core.counters().wire_time;
+        let timed_out = master.transact(1, &read, Duration::from_millis(5)).await;
+        assert!(matches!(timed_out, Err(Error::Timeout(_))), "{timed_out:?}");
+        assert_eq!(
+            master.connection.core.counters().wire_time - before,
+            timing.frame_time(read.frame_len()) + timing.t3_5
+        );
+    }
 
     #[test]
     fn urls_parse_with_their_kind_and_port() {

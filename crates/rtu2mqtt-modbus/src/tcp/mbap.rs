@@ -107,6 +107,12 @@ pub fn adu_len(head: &[u8]) -> Result<Option<usize>, MbapError> {
     Header::decode(head).map(|header| Some(header.adu_len()))
 }
 
+/// The length of the RTU frame an ADU of `adu_len` bytes carries: the unit id as its address,
+/// the PDU, a CRC.
+pub fn rtu_frame_len(adu_len: usize) -> usize {
+    adu_len.saturating_sub(HEADER_LEN) + 1 + 2
+}
+
 /// The ADU carrying the RTU frame `rtu` (address, PDU, CRC; the CRC is not checked here) with
 /// `transaction`: the address becomes the unit id, the CRC is dropped.
 pub fn rtu_to_adu(transaction: u16, rtu: &[u8]) -> Result<Vec<u8>, MbapError> {
@@ -304,6 +310,7 @@ mod tests {
             prop_assert_eq!(adu_len(&adu), Ok(Some(adu.len())));
             let (header, back) = adu_to_rtu(&adu).unwrap();
             prop_assert_eq!(header.transaction, transaction);
+            prop_assert_eq!(rtu_frame_len(adu.len()), rtu.len());
             prop_assert_eq!(back, rtu);
         }
 
