@@ -1,7 +1,9 @@
 //! The commissioning commands against simulated devices on real ptys: `scan` finds each seed
 //! device at its address and baud rate (the simulators garble their answers while the master's
-//! baud rate on the pty differs from theirs), `read` decodes a known block every way, and
-//! neither puts a write on the line (asserted from the simulators' journals).
+//! baud rate on the pty differs from theirs) and asks each one what it is (Read Device
+//! Identification, the SunSpec marker), naming the profile that fits and writing the
+//! configuration; `read` decodes a known block every way, and neither puts a write on the line
+//! (asserted from the simulators' journals).
 
 use crate::support::child;
 
@@ -58,7 +60,8 @@ fn stdout(output: &Output) -> String {
     String::from_utf8_lossy(&output.stdout).into_owned()
 }
 
-/// Every frame the devices heard is a read (FC01–FC04).
+/// Every frame the devices heard is a read (FC01–FC04, or FC43/14 Read Device
+/// Identification).
 async fn assert_only_reads(line: &VirtualLine) {
     // The journal records an answer once it is written: the command may have printed first.
     line.journal()
@@ -67,8 +70,9 @@ async fn assert_only_reads(line: &VirtualLine) {
     let frames = line.journal().frames();
     assert!(!frames.is_empty());
     for frame in frames {
+        let read_device_id = frame.get(1..3) == Some(&[0x2B, 0x0E][..]);
         assert!(
-            (0x01..=0x04).contains(&frame[1]),
+            (0x01..=0x04).contains(&frame[1]) || read_device_id,
             "a non-read frame reached the line: {frame:02X?}"
         );
     }
@@ -128,13 +132,15 @@ async fn scan_finds_each_seed_device_at_its_address_and_baud_rate() {
         rows(&stdout(&valve_out)),
         ["  2 (0x02)    4800  8N1     FC03 ok"]
     );
-    // The valve heard and answered the probe at every baud rate, garbled at the wrong ones,
-    // and the scan took none of those for a device.
+    // The valve heard and answered the probe (FC03, one register at 0) at every baud rate,
+    // garbled at the wrong ones, and the scan took none of those for a device (it asked what
+    // it is only at the right one, with other reads).
+    let probe = [2, 0x03, 0x00, 0x00, 0x00, 0x01];
     let answered: Vec<_> = valve
         .journal()
         .requests()
         .into_iter()
-        .filter(|record| record.frame[0] == 2 && record.answer.is_some())
+        .filter(|record| record.frame.starts_with(&probe) && record.answer.is_some())
         .collect();
     assert_eq!(answered.len(), 3, "one probe per baud rate");
     let garbled = answered
@@ -345,4 +351,238 @@ async fn write_functions_are_refused_before_the_port_is_opened() {
     .await;
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("only the read functions"));
+}
+
+/// The words of the rows of the identification table (after its header), by address.
+fn identification_rows(text: &str) -> Vec<Vec<String>> {
+    text.lines()
+        .skip_while(|line| !line.starts_with("address     FC43"))
+        .skip(1)
+        .take_while(|line| !line.is_empty())
+        .map(|line| {
+            line.split("  ")
+                .map(str::trim)
+                .filter(|w| !w.is_empty())
+                .map(str::to_owned)
+                .collect()
+        })
+        .collect()
+}
+
+/// A site's own profile for a meter that identifies itself as Sim Metering SM-3P-100.
+const SITE_METER: &str = r#"
+[device]
+name = "sim-meter"
+manufacturer = "Sim Metering"
+model = "SM-3P"
+identification = { vendor = "Sim Metering", product_code = "SM-3P-*" }
+
+[line]
+baud = 9600
+parity = "none"
+
+[[blocks]]
+name = "values"
+function = 3
+start = 0
+count = 2
+
+[[fields]]
+name = "voltage"
+block = "values"
+offset = 0
+codec = { type = "u16", scale = 0.1, decimals = 1 }
+unit = "V"
+"#;
+
+/// `scan` asks each device found what it is: a device with identification objects is named by
+/// the profile whose `identification` they match (here a site profile from `--profiles`), a
+/// SunSpec inverter by its chain (the built-in sunspec-inverter), a device without FC43 (the
+/// dust collector answers exception 01) and one whose identification no profile names are
+/// unknown. A stream longer than one answer is followed. The configuration it writes is one
+/// `check` reads, wanting only the two missing profiles; and nothing but reads reached the line.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_identifies_each_device_and_writes_the_configuration() {
+    use rtu2mqtt_modbus::DeviceIdObject;
+    use rtu2mqtt_sim::GenericDevice;
+
+    let profiles = tempfile::tempdir().unwrap();
+    let profile_path = profiles.path().join("sim-meter.toml");
+    std::fs::write(&profile_path, SITE_METER).unwrap();
+    let site = rtu2mqtt_profile::Profile::from_toml(SITE_METER, "sim-meter").unwrap();
+    let meter = GenericDevice::from_profile(&site, 3).with_identification(vec![
+        DeviceIdObject::text(0, "Sim Metering"),
+        DeviceIdObject::text(1, "SM-3P-100"),
+        DeviceIdObject::text(2, "1.4.2"),
+    ]);
+    let inverter = rtu2mqtt_sim::library::sunspec_inverter().map.device(4);
+    // Fixed-length objects padded with NUL bytes, as some meters send them: the vendor's 230
+    // bytes leave no room for the revision, which comes with a second request.
+    let mut vendor = b"Schneider Electric".to_vec();
+    vendor.resize(230, 0);
+    let mut schneider = GenericDevice::empty(5).with_identification(vec![
+        DeviceIdObject {
+            id: 0,
+            value: vendor,
+        },
+        DeviceIdObject::text(1, "A9MEM3155"),
+        DeviceIdObject::text(2, "V2.1.4"),
+    ]);
+    schneider.set_holding(0, 7);
+    let plant = line(
+        9600,
+        vec![
+            share(DustCollector::new(1)).1,
+            share(meter).1,
+            share(inverter).1,
+            share(schneider).1,
+        ],
+    );
+    let directory = profiles.path().to_string_lossy().into_owned();
+    let output = run_on(
+        &plant,
+        "scan",
+        &[
+            "--baud",
+            "9600",
+            "--parity",
+            "none",
+            "--addresses",
+            "1-5",
+            "--timeout",
+            "150ms",
+            "--profiles",
+            &directory,
+        ],
+    )
+    .await;
+    let text = stdout(&output);
+    assert!(
+        output.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let site_reference = profile_path.to_string_lossy().into_owned();
+    let owned = |row: &[&str]| row.iter().map(|w| w.to_string()).collect::<Vec<_>>();
+    assert_eq!(
+        identification_rows(&text),
+        [
+            owned(&[
+                "1 (0x01)",
+                "exception 01 (illegal function)",
+                "-",
+                "-",
+                "-",
+                "-",
+                "unknown"
+            ]),
+            owned(&[
+                "3 (0x03)",
+                "ok",
+                "Sim Metering",
+                "SM-3P-100",
+                "1.4.2",
+                "-",
+                &site_reference
+            ]),
+            owned(&[
+                "4 (0x04)",
+                "exception 01 (illegal function)",
+                "-",
+                "-",
+                "-",
+                "40000: models 1, 103, 160",
+                "sunspec-inverter"
+            ]),
+            owned(&[
+                "5 (0x05)",
+                "ok",
+                "Schneider Electric",
+                "A9MEM3155",
+                "V2.1.4",
+                "-",
+                "unknown"
+            ]),
+        ],
+        "{text}"
+    );
+    let configuration = text
+        .split("a configuration to copy (docs/configuration.md):\n\n")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no configuration: {text}"));
+    let port = plant.path().to_string_lossy().into_owned();
+    assert_eq!(
+        configuration,
+        format!(
+            "[[lines]]\nname = \"line1\"\nport = \"{port}\"\nbaud = 9600\nparity = \"none\"\n\n\
+             [[lines.devices]]\nname = \"device_1\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 1\n\n\
+             [[lines.devices]]\nname = \"sim_meter_3\"\nprofile = \"{site_reference}\"\naddress = 3\n\n\
+             [[lines.devices]]\nname = \"sunspec_inverter_4\"\nprofile = \"sunspec-inverter\"\naddress = 4\n\n\
+             [[lines.devices]]\nname = \"device_5\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 5\n"
+        )
+    );
+    // The configuration as `check` reads it: only the two devices without a profile lack one.
+    let config_dir = tempfile::tempdir().unwrap();
+    let config_path = config_dir.path().join("config.toml");
+    std::fs::write(
+        &config_path,
+        format!("[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\nclient_id = \"edge\"\n\n{configuration}"),
+    )
+    .unwrap();
+    let check = run(&["check", "--config", &config_path.to_string_lossy()]).await;
+    let said = format!(
+        "{}{}",
+        stdout(&check),
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert!(!check.status.success(), "{said}");
+    let problems: Vec<&str> = said
+        .lines()
+        .filter(|line| line.contains("lines[0].devices["))
+        .collect();
+    assert_eq!(problems.len(), 2, "{said}");
+    assert!(
+        problems[0].contains("devices[0]") && problems[0].contains("profile"),
+        "{said}"
+    );
+    assert!(
+        problems[1].contains("devices[3]") && problems[1].contains("profile"),
+        "{said}"
+    );
+
+    // The long stream was followed from the object the device named; the seed device was
+    // asked once and said exception 01.
+    let frames = plant.journal().frames();
+    let hex = |frame: &[u8]| rtu2mqtt_modbus::codec::hex(frame);
+    let asked: Vec<String> = frames
+        .iter()
+        .filter(|frame| frame.get(1) == Some(&0x2B))
+        .map(|frame| hex(frame))
+        .collect();
+    let expected = |address: u8, from: u8| {
+        hex(&rtu2mqtt_modbus::codec::encode_request(
+            address,
+            &rtu2mqtt_modbus::Request::ReadDeviceIdentification {
+                code: rtu2mqtt_modbus::ReadDeviceIdCode::Basic,
+                object_id: from,
+            },
+        )
+        .unwrap())
+    };
+    assert_eq!(asked[0], "01 2B 0E 01 00 70 77");
+    assert_eq!(
+        asked,
+        [
+            expected(1, 0),
+            expected(3, 0),
+            expected(4, 0),
+            expected(5, 0),
+            expected(5, 2)
+        ]
+    );
+    // Nothing was asked at the silent address.
+    assert!(frames
+        .iter()
+        .all(|frame| frame[0] != 2 || frame[1] == 0x03 && frame[2..6] == [0, 0, 0, 1]));
+    assert_only_reads(&plant).await;
 }

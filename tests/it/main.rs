@@ -16,6 +16,7 @@ mod config_valid;
 mod console;
 mod crash_exactly_once;
 mod daemon_health;
+mod device_identification;
 mod discovery;
 mod docker_files;
 mod fuzz_smoke;

@@ -470,8 +470,9 @@ async fn a_restarted_server_is_reconnected_with_back_off() {
     plant.stop().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_pymodbus_server_is_read_over_modbus_tcp() {
+/// The pymodbus Modbus TCP server of `tests/interop/modbus_tcp_server.py` on a free loopback
+/// port (killed when dropped), once it listens.
+async fn pymodbus_server() -> (child::KillOnDrop, u16) {
     use std::io::BufRead;
     let port = free_port();
     let script = concat!(
@@ -482,8 +483,7 @@ async fn a_pymodbus_server_is_read_over_modbus_tcp() {
     command
         .args([script, "127.0.0.1", &port.to_string()])
         .stdout(Stdio::piped())
-        .stderr(Stdio::inherit());
-    // Killed when the test ends.
+        .stderr(Stdio::null());
     let mut server = child::KillOnDrop::spawn(command).expect("python3 runs");
     let stdout = server.0.stdout.take().unwrap();
     let ready = tokio::task::spawn_blocking(move || {
@@ -494,6 +494,12 @@ async fn a_pymodbus_server_is_read_over_modbus_tcp() {
     .await
     .unwrap();
     assert_eq!(ready.trim(), "listening", "pymodbus server did not start");
+    (server, port)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pymodbus_server_is_read_over_modbus_tcp() {
+    let (server, port) = pymodbus_server().await;
 
     let broker = Mosquitto::start();
     let mut client = TestClient::connect(broker.port, "pymodbus-observer").await;
@@ -602,10 +608,135 @@ async fn scan_and_read_take_a_url_and_never_write() {
     for frames in [raw.journal().frames(), modbus.journal().frames()] {
         assert!(!frames.is_empty());
         assert!(
-            frames.iter().all(|f| (1..=4).contains(&f[1])),
+            frames
+                .iter()
+                .all(|f| (1..=4).contains(&f[1]) || f.get(1..3) == Some(&[0x2B, 0x0E][..])),
             "a frame other than a read: {frames:?}"
         );
     }
+}
+
+/// The rows of a scan's identification table after its header, each split at its column
+/// gaps.
+fn identification_rows(text: &str) -> Vec<Vec<String>> {
+    text.lines()
+        .skip_while(|line| !line.starts_with("address     FC43"))
+        .skip(1)
+        .take_while(|line| !line.is_empty())
+        .map(|line| {
+            line.split("  ")
+                .map(str::trim)
+                .filter(|w| !w.is_empty())
+                .map(str::to_owned)
+                .collect()
+        })
+        .collect()
+}
+
+/// Through a Modbus TCP gateway, `scan` asks each unit what it is as on a serial port: the
+/// simulated gateway's SunSpec inverter is named by its chain and its meter by its
+/// identification (a library profile does not name it), and pymodbus's own Read Device
+/// Identification answer (an implementation not written here) is read as pymodbus built it.
+/// The configuration has the gateway's url and no serial setting.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_through_a_modbus_tcp_gateway_identifies_each_unit() {
+    use rtu2mqtt_modbus::DeviceIdObject;
+    let meter = sim::GenericDevice::empty(3).with_identification(vec![
+        DeviceIdObject::text(0, "Sim Metering"),
+        DeviceIdObject::text(1, "SM-3P-100"),
+        DeviceIdObject::text(2, "1.4.2"),
+    ]);
+    let mut meter = meter;
+    meter.set_holding(0, 1);
+    let inverter = sim::library::sunspec_inverter().map.device(2);
+    let modbus = bind(
+        "127.0.0.1:0",
+        Protocol::ModbusTcp,
+        Parity::None,
+        vec![share(inverter).1, share(meter).1],
+    )
+    .await;
+    let (ok, out) = run_cli(&[
+        "scan",
+        "--url",
+        &modbus.url(),
+        "--addresses",
+        "1-3",
+        "--timeout",
+        "300ms",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    let owned = |row: &[&str]| row.iter().map(|w| w.to_string()).collect::<Vec<_>>();
+    assert_eq!(
+        identification_rows(&out),
+        [
+            owned(&[
+                "2 (0x02)",
+                "exception 01 (illegal function)",
+                "-",
+                "-",
+                "-",
+                "40000: models 1, 103, 160",
+                "sunspec-inverter"
+            ]),
+            owned(&[
+                "3 (0x03)",
+                "ok",
+                "Sim Metering",
+                "SM-3P-100",
+                "1.4.2",
+                "-",
+                "unknown"
+            ]),
+        ],
+        "{out}"
+    );
+    assert!(
+        out.ends_with(&format!(
+            "[[lines]]\nname = \"line1\"\nurl = \"{}\"\n\n[[lines.devices]]\n\
+             name = \"sunspec_inverter_2\"\nprofile = \"sunspec-inverter\"\naddress = 2\n\n\
+             [[lines.devices]]\nname = \"device_3\"\n\
+             # profile: unknown — write one, see docs/profiles.md\naddress = 3\n",
+            modbus.url()
+        )),
+        "{out}"
+    );
+    let frames = modbus.journal().frames();
+    // Unit 3 was asked for its basic identification from object 0.
+    assert!(
+        frames
+            .iter()
+            .any(|f| f.get(..5) == Some(&[3, 0x2B, 0x0E, 0x01, 0x00][..])),
+        "{frames:02X?}"
+    );
+
+    let (server, port) = pymodbus_server().await;
+    let (ok, out) = run_cli(&[
+        "scan",
+        "--url",
+        &format!("modbus-tcp://127.0.0.1:{port}"),
+        "--addresses",
+        "1",
+        "--timeout",
+        "500ms",
+    ])
+    .await;
+    assert!(ok, "{out}");
+    assert_eq!(
+        identification_rows(&out),
+        [owned(&[
+            "1 (0x01)",
+            "ok",
+            "pymodbus interop",
+            "PM-DUST-1",
+            "3.16",
+            "-",
+            "unknown"
+        ])],
+        "{out}"
+    );
+    drop(server);
 }
 
 /// A Modbus TCP gateway in front of one device at unit 1: every other unit is answered with
