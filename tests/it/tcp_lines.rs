@@ -812,3 +812,70 @@ async fn a_scan_behind_a_gateway_counts_only_real_answers_and_says_what_it_scann
         "{err}"
     );
 }
+
+/// A Modbus TCP line's bus load is the serial wire time of the frames its gateway carries, the
+/// model of `check`'s estimate: five dust collectors behind a simulated Modbus TCP gateway,
+/// each polled once a second, publish a figure within 20 % of the estimate once the line has
+/// run a whole load window (10 s after the first polls), and never a start-up burst above it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_modbus_tcp_lines_bus_load_is_checks_estimate() {
+    let devices: Vec<sim::SharedDevice> = (1..=5)
+        .map(|address| {
+            let (dust, shared) = share(DustCollector::new(address));
+            sim::lock(&dust).set_power(true);
+            shared
+        })
+        .collect();
+    let modbus = bind("127.0.0.1:0", Protocol::ModbusTcp, Parity::None, devices).await;
+    let broker = Mosquitto::start();
+    let mut client = TestClient::connect(broker.port, "load-observer").await;
+    client.subscribe("plant/gateway/#").await;
+    let mut text = format!(
+        "[mqtt]\nurl = \"{}\"\nclient_id = \"load-gw\"\nprefix = \"plant\"\n\n[gateway]\n\
+         stats_interval = \"1s\"\n\n[[lines]]\nname = \"gw\"\nurl = \"{}\"\n",
+        broker.url(),
+        modbus.url()
+    );
+    for address in 1..=5 {
+        text.push_str(&format!(
+            "\n[[lines.devices]]\nname = \"dust_{address}\"\nprofile = \"ruiwan-dust-collector\"\n\
+             address = {address}\npoll_interval = \"1s\"\n"
+        ));
+    }
+    let config = rtu2mqtt::config::from_str(&text, std::path::Path::new(".")).unwrap();
+    let estimate = rtu2mqtt::config::poll_plan::LinePlan::of(&config.lines[0]).bus_load * 100.0;
+    let started = std::time::Instant::now();
+    let gateway = Gateway::start(config).await;
+    let topic = "plant/gateway/load-gw/stats/gw";
+    let mut figures: Vec<(Duration, f64)> = Vec::new();
+    while started.elapsed() < Duration::from_secs(17) {
+        let document = client.next_on(topic, ANSWER).await.json();
+        let figure = document["bus_load_percent"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no bus_load_percent: {document}"));
+        figures.push((started.elapsed(), figure));
+    }
+    gateway.stop().await;
+    println!("check's estimate {estimate:.1} %; published: {figures:?}");
+    // 5 × (8 + 17 bytes of 10 bits at 9600 baud + 2 × t3.5) a second.
+    assert!((estimate - 16.7).abs() < 0.1, "{estimate}");
+    for (at, figure) in &figures {
+        assert!(
+            *figure <= estimate * 1.2,
+            "{figure} % at {at:?} (estimate {estimate:.1} %)"
+        );
+    }
+    // The dust collectors' start-up delay is 3 s: the window is full from 13 s on.
+    let settled: Vec<f64> = figures
+        .iter()
+        .filter(|(at, _)| *at >= Duration::from_secs(14))
+        .map(|(_, figure)| *figure)
+        .collect();
+    assert!(!settled.is_empty(), "{figures:?}");
+    for figure in settled {
+        assert!(
+            (figure - estimate).abs() <= estimate * 0.2,
+            "{figure} % against check's {estimate:.1} %"
+        );
+    }
+}
