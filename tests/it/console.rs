@@ -342,12 +342,15 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
         .await;
     assert_eq!(found, serde_json::json!(["1", "129"]));
     let journal = h.plant.line_a.journal();
-    // A probe reads one item from address 0; everything else is the line's own polling.
-    let polls = journal
-        .frames()
-        .iter()
-        .filter(|f| f.get(2..6) != Some(&[0, 0, 0, 1][..]))
-        .count();
+    // The scan's reads: a probe of one item at address 0, a Read Device Identification, a
+    // SunSpec marker or model header (two holding registers). Everything else is the line's
+    // own polling.
+    let scan_read = |f: &Vec<u8>| {
+        f.get(2..6) == Some(&[0, 0, 0, 1][..])
+            || f.get(1) == Some(&0x2B)
+            || (f.get(1) == Some(&0x03) && f.get(4..6) == Some(&[0, 2][..]))
+    };
+    let polls = journal.frames().iter().filter(|f| !scan_read(f)).count();
     assert!(
         journal.request_count() > polls_before + 6 && polls > 0,
         "the line's polls stopped during the scan"
@@ -423,6 +426,125 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
     tokio::time::sleep(Duration::from_millis(300)).await;
     browser.screenshot(&shots.join("phone.png")).await;
     browser.close().await;
+    h.stop().await;
+}
+
+/// The seed plant with two more devices on line A, which the configuration does not have: a
+/// SunSpec inverter at 3 and a meter at 4 that answers Read Device Identification.
+fn plant_with_newcomers() -> SeedPlant {
+    use rtu2mqtt_modbus::DeviceIdObject;
+    use rtu2mqtt_sim::{share, ServeOptions, VirtualLine};
+    let (dust_collector, dust) = share(sim::DustCollector::new(1));
+    let (air_shower, shower) = share(sim::AirShower::new());
+    let (valve, valve_shared) = share(sim::Valve::new(1));
+    let inverter = share(sim::library::sunspec_inverter().map.device(3)).1;
+    let mut meter = sim::GenericDevice::empty(4).with_identification(vec![
+        DeviceIdObject::text(0, "Schneider Electric"),
+        DeviceIdObject::text(1, "A9MEM3155"),
+        DeviceIdObject::text(2, "V2.1.4"),
+    ]);
+    meter.set_holding(0, 1);
+    let line_a = VirtualLine::spawn(
+        ServeOptions::new(9600, Parity::None),
+        vec![dust, shower, inverter, share(meter).1],
+    )
+    .expect("line A");
+    let line_b = VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared])
+        .expect("line B");
+    SeedPlant {
+        line_a,
+        line_b,
+        dust_collector,
+        air_shower,
+        valve,
+    }
+}
+
+/// The console's scan asks each device it finds what it is, through the running line: the
+/// table shows what each said and the profile that fits, and the configuration to add holds
+/// the two devices the line does not have yet. Only reads reach the line.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_console_scan_names_what_each_device_is() {
+    let (shots, _keep) = shots();
+    let port = free_port();
+    let mut h = PlantBench::setup("console-identify")
+        .plant(plant_with_newcomers)
+        .config(move |broker, plant, client_id| {
+            console_config(broker, plant, client_id, port, Some(TOKEN), None)
+        })
+        .start()
+        .await;
+    h.wait_text("plant/dust_collector/power", "OFF").await;
+    let browser = Browser::start(1280, 1000).await;
+    browser
+        .goto(&format!("http://127.0.0.1:{port}/login"))
+        .await;
+    let field = browser.wait_for("input[name=token]").await;
+    field.send_keys(&format!("{TOKEN}\u{E007}")).await.unwrap();
+    browser.wait_for("[data-device=dust_collector]").await;
+    browser
+        .goto(&format!("http://127.0.0.1:{port}/#/commission"))
+        .await;
+    let scan = browser.wait_for("form[data-form=scan]").await;
+    h.plant.line_a.journal().clear();
+    let addresses = scan.find(Locator::Css("[name=addresses]")).await.unwrap();
+    addresses.clear().await.unwrap();
+    addresses.send_keys("1-4,129").await.unwrap();
+    scan.find(Locator::Css("button[type=submit]"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let configuration = browser
+        .wait_text("#scan-configuration", |t| !t.is_empty())
+        .await;
+    let rows = browser
+        .eval(
+            "return Object.fromEntries([...document.querySelectorAll('#scan-result tr[data-address]')]\
+             .map(r => [r.dataset.address, Object.fromEntries([...r.querySelectorAll('[data-identification]')]\
+             .map(c => [c.dataset.identification, c.textContent]))]));",
+        )
+        .await;
+    let exception_01 = "exception 01 (illegal function)";
+    assert_eq!(
+        rows,
+        serde_json::json!({
+            "1": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "-", "profile": "unknown"},
+            "3": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "40000: models 1, 103, 160", "profile": "sunspec-inverter"},
+            "4": {"fc43": "ok", "vendor": "Schneider Electric", "product_code": "A9MEM3155", "revision": "V2.1.4", "sunspec": "-", "profile": "unknown"},
+            "129": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "-", "profile": "unknown"},
+        })
+    );
+    // The page's text, as the browser gives it, without the last line end.
+    assert_eq!(
+        configuration,
+        "# under the [[lines]] table of \"line-a\":\n\n\
+         [[lines.devices]]\nname = \"sunspec_inverter_3\"\nprofile = \"sunspec-inverter\"\naddress = 3\n\n\
+         [[lines.devices]]\nname = \"device_4\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 4"
+    );
+    browser
+        .eval(
+            "const top = document.querySelector('form[data-form=scan]').getBoundingClientRect().top;\
+             window.scrollBy(0, top - 70); return true;",
+        )
+        .await;
+    browser.screenshot(&shots.join("scan.png")).await;
+    browser.close().await;
+    // The meter at 4 was asked for its identification, and nothing but reads reached line A.
+    let frames = h.plant.line_a.journal().frames();
+    assert!(
+        frames
+            .iter()
+            .any(|f| f.starts_with(&[4, 0x2B, 0x0E, 0x01, 0x00])),
+        "{frames:02X?}"
+    );
+    for frame in &frames {
+        assert!(
+            (1..=4).contains(&frame[1]) || frame.get(1..3) == Some(&[0x2B, 0x0E][..]),
+            "a frame other than a read: {frame:02X?}"
+        );
+    }
     h.stop().await;
 }
 

@@ -427,7 +427,7 @@ function lineChoice(id) {
 
 function commissionPage() {
   const scanResult = el("div", { id: "scan-result" });
-  const scanForm = el("form", { "data-form": "scan", class: "card" },
+  const scanForm = el("form", { "data-form": "scan", class: "card full" },
     el("h2", { text: "Scan" }),
     el("p", { class: "hint", text: "Reads one register at each address through the running line, between its polls, and asks each device found what it is." }),
     el("label", { for: "scan-line" }, "Line"), lineChoice("scan-line"),
@@ -442,13 +442,13 @@ function commissionPage() {
       const said = ["fc43", "vendor", "product_code", "revision", "sunspec", "profile"];
       const rows = report.found.map((found) => el("tr", { "data-address": String(found.address) },
         el("td", { class: "num", text: String(found.address) }), el("td", { text: `0x${found.address.toString(16).padStart(2, "0")}` }),
-        el("td", { text: found.answers.join(", ") }), el("td", { text: found.device || "not configured" }),
+        el("td", { class: "answers", text: found.answers.join(", ") }), el("td", { text: found.device || "not configured" }),
         said.map((key) => el("td", { "data-identification": key, text: found.identification[key] || "-" }))));
       const configuration = report.configuration
         ? [el("h3", { text: "To add to the configuration" }), el("pre", { id: "scan-configuration", text: report.configuration })]
         : [];
       scanResult.replaceChildren(el("p", { text: `${report.found.length} of ${report.scanned} addresses answered on ${report.line}.` }),
-        el("div", { class: "scroll" }, el("table", {}, el("thead", {}, el("tr", {},
+        el("div", { class: "scroll" }, el("table", { class: "identification" }, el("thead", {}, el("tr", {},
           ["address", "hex", "answers", "device", "FC43", "vendor", "product code", "revision", "SunSpec", "profile"].map((h) => el("th", { scope: "col", text: h })))),
           el("tbody", {}, rows))),
         ...configuration);
