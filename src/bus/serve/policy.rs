@@ -205,6 +205,21 @@ mod tests {
         for request in [&outside, &gear(8)] {
             assert_eq!(judge(Access::Raw, &devices, 9, request), Verdict::Forward);
         }
+        // Read Device Identification changes nothing: it passes to a configured device.
+        let identification = Request::ReadDeviceIdentification {
+            code: rtu2mqtt_modbus::ReadDeviceIdCode::Basic,
+            object_id: 0,
+        };
+        for access in [Access::Profile, Access::ReadOnly, Access::Raw] {
+            assert_eq!(
+                judge(access, &devices, 1, &identification),
+                Verdict::Forward
+            );
+        }
+        assert_eq!(
+            judge(Access::ReadOnly, &devices, 9, &identification),
+            refuse(ExceptionCode::GatewayPathUnavailable)
+        );
     }
 
     #[test]
