@@ -353,8 +353,9 @@ async fn write_functions_are_refused_before_the_port_is_opened() {
     assert!(String::from_utf8_lossy(&output.stderr).contains("only the read functions"));
 }
 
-/// The words of the rows of the identification table (after its header), by address.
-fn identification_rows(text: &str) -> Vec<Vec<String>> {
+/// The rows of a scan's identification table after its header, each split at its column
+/// gaps.
+pub(crate) fn identification_rows(text: &str) -> Vec<Vec<String>> {
     text.lines()
         .skip_while(|line| !line.starts_with("address     FC43"))
         .skip(1)
@@ -367,6 +368,11 @@ fn identification_rows(text: &str) -> Vec<Vec<String>> {
                 .collect()
         })
         .collect()
+}
+
+/// One expected row of [`identification_rows`].
+pub(crate) fn cells(row: &[&str]) -> Vec<String> {
+    row.iter().map(|cell| cell.to_string()).collect()
 }
 
 /// A site's own profile for a meter that identifies itself as Sim Metering SM-3P-100.
@@ -463,11 +469,10 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
         String::from_utf8_lossy(&output.stderr)
     );
     let site_reference = profile_path.to_string_lossy().into_owned();
-    let owned = |row: &[&str]| row.iter().map(|w| w.to_string()).collect::<Vec<_>>();
     assert_eq!(
         identification_rows(&text),
         [
-            owned(&[
+            cells(&[
                 "1 (0x01)",
                 "exception 01 (illegal function)",
                 "-",
@@ -476,7 +481,7 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
                 "-",
                 "unknown"
             ]),
-            owned(&[
+            cells(&[
                 "3 (0x03)",
                 "ok",
                 "Sim Metering",
@@ -485,7 +490,7 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
                 "-",
                 &site_reference
             ]),
-            owned(&[
+            cells(&[
                 "4 (0x04)",
                 "exception 01 (illegal function)",
                 "-",
@@ -494,7 +499,7 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
                 "40000: models 1, 103, 160",
                 "sunspec-inverter"
             ]),
-            owned(&[
+            cells(&[
                 "5 (0x05)",
                 "ok",
                 "Schneider Electric",

@@ -66,6 +66,19 @@ fn console_config(
     text
 }
 
+/// Types `addresses` into the scan form and sends it.
+async fn start_scan(form: &support::browser::Element, addresses: &str) {
+    let field = form.find(Locator::Css("[name=addresses]")).await.unwrap();
+    field.clear().await.unwrap();
+    field.send_keys(addresses).await.unwrap();
+    form.find(Locator::Css("button[type=submit]"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+}
+
 fn shots() -> (PathBuf, Option<tempfile::TempDir>) {
     match std::env::var_os("RTU2MQTT_SCREENSHOTS") {
         Some(dir) => {
@@ -322,15 +335,7 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
     let scan = browser.wait_for("form[data-form=scan]").await;
     h.plant.line_a.journal().clear();
     let polls_before = h.plant.line_a.journal().request_count();
-    let addresses = scan.find(Locator::Css("[name=addresses]")).await.unwrap();
-    addresses.clear().await.unwrap();
-    addresses.send_keys("1-5,129").await.unwrap();
-    scan.find(Locator::Css("button[type=submit]"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    start_scan(&scan, "1-5,129").await;
     browser
         .wait_for("#scan-result tr[data-address=\"129\"]")
         .await;
@@ -487,15 +492,7 @@ async fn the_console_scan_names_what_each_device_is() {
         .await;
     let scan = browser.wait_for("form[data-form=scan]").await;
     h.plant.line_a.journal().clear();
-    let addresses = scan.find(Locator::Css("[name=addresses]")).await.unwrap();
-    addresses.clear().await.unwrap();
-    addresses.send_keys("1-4,129").await.unwrap();
-    scan.find(Locator::Css("button[type=submit]"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    start_scan(&scan, "1-4,129").await;
     let configuration = browser
         .wait_text("#scan-configuration", |t| !t.is_empty())
         .await;

@@ -11,6 +11,7 @@ use crate::support::child;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use crate::commissioning::{cells, identification_rows};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_sim::{
     self as sim, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
@@ -616,23 +617,6 @@ async fn scan_and_read_take_a_url_and_never_write() {
     }
 }
 
-/// The rows of a scan's identification table after its header, each split at its column
-/// gaps.
-fn identification_rows(text: &str) -> Vec<Vec<String>> {
-    text.lines()
-        .skip_while(|line| !line.starts_with("address     FC43"))
-        .skip(1)
-        .take_while(|line| !line.is_empty())
-        .map(|line| {
-            line.split("  ")
-                .map(str::trim)
-                .filter(|w| !w.is_empty())
-                .map(str::to_owned)
-                .collect()
-        })
-        .collect()
-}
-
 /// Through a Modbus TCP gateway, `scan` asks each unit what it is as on a serial port: the
 /// simulated gateway's SunSpec inverter is named by its chain and its meter by its
 /// identification (a library profile does not name it), and pymodbus's own Read Device
@@ -667,11 +651,10 @@ async fn a_scan_through_a_modbus_tcp_gateway_identifies_each_unit() {
     ])
     .await;
     assert!(ok, "{out}");
-    let owned = |row: &[&str]| row.iter().map(|w| w.to_string()).collect::<Vec<_>>();
     assert_eq!(
         identification_rows(&out),
         [
-            owned(&[
+            cells(&[
                 "2 (0x02)",
                 "exception 01 (illegal function)",
                 "-",
@@ -680,7 +663,7 @@ async fn a_scan_through_a_modbus_tcp_gateway_identifies_each_unit() {
                 "40000: models 1, 103, 160",
                 "sunspec-inverter"
             ]),
-            owned(&[
+            cells(&[
                 "3 (0x03)",
                 "ok",
                 "Sim Metering",
@@ -725,7 +708,7 @@ async fn a_scan_through_a_modbus_tcp_gateway_identifies_each_unit() {
     assert!(ok, "{out}");
     assert_eq!(
         identification_rows(&out),
-        [owned(&[
+        [cells(&[
             "1 (0x01)",
             "ok",
             "pymodbus interop",

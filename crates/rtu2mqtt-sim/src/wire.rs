@@ -5,10 +5,12 @@
 //! This is not `rtu2mqtt_modbus::codec::decode_request` on purpose. That one refuses what a master
 //! must never send; a device has to hear it and react as the real ones do: a quantity of 0 or
 //! above the specification's limit is a request the device answers with exception 03, a
-//! function code it does not know is a frame that ends at the next silence and gets exception
-//! 01. Read Device Identification (0x2B, MEI type 0x0E) is decoded for the devices that
-//! implement it; another MEI type is a function the devices do not know, and a read device ID
-//! code outside 01–04 a frame they ignore. Keeping the device side apart also keeps it an
+//! function code it does not know is a frame that ends at the next silence and gets
+//! exception 01.
+//!
+//! Read Device Identification (0x2B, MEI type 0x0E) is decoded for the devices that implement
+//! it; another MEI type is a function the devices do not know, and a read device ID code
+//! outside 01–04 a frame they ignore. Keeping the device side apart also keeps it an
 //! independent check on the gateway's codec.
 
 use rtu2mqtt_modbus::crc::{append_crc, carried_and_computed};
