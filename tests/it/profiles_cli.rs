@@ -121,4 +121,9 @@ fn a_number_scaled_by_an_exponent_field_is_listed_with_that_field() {
         .unwrap_or_else(|| panic!("no ac_power in:\n{stdout}"));
     assert!(line.contains("number × 10^ac_power_sf"), "{line}");
     assert!(line.trim_end().ends_with('W'), "{line}");
+    // What a scan recognises it by.
+    assert!(
+        stdout.contains("\n  identified by: SunSpec map at 40000 starting with models 1, 103\n"),
+        "{stdout}"
+    );
 }

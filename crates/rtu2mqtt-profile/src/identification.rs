@@ -130,6 +130,29 @@ impl Identification {
     }
 }
 
+impl std::fmt::Display for Identification {
+    /// `vendor "Schneider Electric", product code A9MEM3155 or A9MEM3165` and/or
+    /// `SunSpec map at 40000 starting with models 1, 103`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut parts = Vec::new();
+        if let Some((vendor, codes)) = &self.read_device_id {
+            parts.push(format!(
+                "vendor \"{vendor}\", product code {}",
+                codes.join(" or ")
+            ));
+        }
+        if let Some((base, models)) = &self.sunspec {
+            let models: Vec<String> = models.iter().map(u16::to_string).collect();
+            parts.push(format!(
+                "SunSpec map at {base} starting with model{} {}",
+                if models.len() == 1 { "" } else { "s" },
+                models.join(", ")
+            ));
+        }
+        f.write_str(&parts.join("; "))
+    }
+}
+
 /// Equal ignoring ASCII case and runs of white space (padding included).
 fn same_words(a: &str, b: &str) -> bool {
     let words = |text: &str| {
@@ -198,6 +221,10 @@ mod tests {
         assert!(!id.matches_device_id("Schneider Electric", "A9MEM3175"));
         assert!(!id.matches_sunspec(40000, &[1, 103]));
         assert_eq!(id.vendor(), Some("Schneider Electric"));
+        assert_eq!(
+            id.to_string(),
+            "vendor \"Schneider Electric\", product code A9MEM3155 or A9MEM3165"
+        );
         let one = parse("vendor = \"ACME\"\nproduct_code = \"X-1\"").unwrap();
         assert_eq!(one.product_codes(), ["X-1"]);
     }
@@ -210,6 +237,10 @@ mod tests {
         assert!(!id.matches_sunspec(40000, &[1, 101]));
         assert!(!id.matches_sunspec(0, &[1, 103]));
         assert!(!id.matches_device_id("SunSpec", "x"));
+        assert_eq!(
+            id.to_string(),
+            "SunSpec map at 40000 starting with models 1, 103"
+        );
     }
 
     #[test]

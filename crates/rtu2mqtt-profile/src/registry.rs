@@ -266,6 +266,9 @@ pub fn describe(profile: &Profile) -> String {
     if !profile.description().is_empty() {
         let _ = writeln!(out, "  {}", profile.description());
     }
+    if let Some(identification) = profile.identification() {
+        let _ = writeln!(out, "  identified by: {identification}");
+    }
     let parity = rtu2mqtt_modbus::timing::CharFormat {
         data_bits: 8,
         parity: limits.default_parity,
