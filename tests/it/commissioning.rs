@@ -402,11 +402,12 @@ unit = "V"
 "#;
 
 /// `scan` asks each device found what it is: a device with identification objects is named by
-/// the profile whose `identification` they match (here a site profile from `--profiles`), a
-/// SunSpec inverter by its chain (the built-in sunspec-inverter), a device without FC43 (the
-/// dust collector answers exception 01) and one whose identification no profile names are
-/// unknown. A stream longer than one answer is followed. The configuration it writes is one
-/// `check` reads, wanting only the two missing profiles; and nothing but reads reached the line.
+/// the profile whose `identification` they match (the library's iEM3155, and a site profile
+/// from `--profiles`), a SunSpec inverter by its chain (the built-in sunspec-inverter), a device
+/// without FC43 (the dust collector answers exception 01) and one whose identification no
+/// profile names are unknown. A stream longer than one answer is followed. The configuration
+/// it writes is one `check` reads, wanting only the two missing profiles; and nothing but
+/// reads reached the line.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scan_identifies_each_device_and_writes_the_configuration() {
     use rtu2mqtt_modbus::DeviceIdObject;
@@ -421,27 +422,30 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
         DeviceIdObject::text(1, "SM-3P-100"),
         DeviceIdObject::text(2, "1.4.2"),
     ]);
-    let inverter = rtu2mqtt_sim::library::sunspec_inverter().map.device(4);
-    // Fixed-length objects padded with NUL bytes, as some meters send them: the vendor's 230
-    // bytes leave no room for the revision, which comes with a second request.
+    let inverter = rtu2mqtt_sim::library::sunspec_inverter().device(4);
+    // A meter of another series (a PM3255) with fixed-length objects padded with NUL bytes,
+    // as some meters send them: the vendor's 230 bytes leave no room for the revision, which
+    // comes with a second request.
     let mut vendor = b"Schneider Electric".to_vec();
     vendor.resize(230, 0);
-    let mut schneider = GenericDevice::empty(5).with_identification(vec![
+    let mut other_meter = GenericDevice::empty(5).with_identification(vec![
         DeviceIdObject {
             id: 0,
             value: vendor,
         },
-        DeviceIdObject::text(1, "A9MEM3155"),
-        DeviceIdObject::text(2, "V2.1.4"),
+        DeviceIdObject::text(1, "METSEPM3255"),
+        DeviceIdObject::text(2, "1.2.3"),
     ]);
-    schneider.set_holding(0, 7);
+    other_meter.set_holding(0, 7);
+    let iem3155 = rtu2mqtt_sim::library::iem3155().device(6);
     let plant = line(
         9600,
         vec![
             share(DustCollector::new(1)).1,
             share(meter).1,
             share(inverter).1,
-            share(schneider).1,
+            share(other_meter).1,
+            share(iem3155).1,
         ],
     );
     let directory = profiles.path().to_string_lossy().into_owned();
@@ -454,7 +458,7 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
             "--parity",
             "none",
             "--addresses",
-            "1-5",
+            "1-6",
             "--timeout",
             "150ms",
             "--profiles",
@@ -503,10 +507,19 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
                 "5 (0x05)",
                 "ok",
                 "Schneider Electric",
-                "A9MEM3155",
-                "V2.1.4",
+                "METSEPM3255",
+                "1.2.3",
                 "-",
                 "unknown"
+            ]),
+            cells(&[
+                "6 (0x06)",
+                "ok",
+                "Schneider Electric",
+                "A9MEM3155",
+                "002.001.004",
+                "-",
+                "schneider-iem3155"
             ]),
         ],
         "{text}"
@@ -523,7 +536,8 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
              [[lines.devices]]\nname = \"device_1\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 1\n\n\
              [[lines.devices]]\nname = \"sim_meter_3\"\nprofile = \"{site_reference}\"\naddress = 3\n\n\
              [[lines.devices]]\nname = \"sunspec_inverter_4\"\nprofile = \"sunspec-inverter\"\naddress = 4\n\n\
-             [[lines.devices]]\nname = \"device_5\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 5\n"
+             [[lines.devices]]\nname = \"device_5\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 5\n\n\
+             [[lines.devices]]\nname = \"schneider_iem3155_6\"\nprofile = \"schneider-iem3155\"\naddress = 6\n"
         )
     );
     // The configuration as `check` reads it: only the two devices without a profile lack one.
@@ -582,7 +596,8 @@ async fn scan_identifies_each_device_and_writes_the_configuration() {
             expected(3, 0),
             expected(4, 0),
             expected(5, 0),
-            expected(5, 2)
+            expected(5, 2),
+            expected(6, 0)
         ]
     );
     // Nothing was asked at the silent address.

@@ -435,23 +435,17 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
 }
 
 /// The seed plant with two more devices on line A, which the configuration does not have: a
-/// SunSpec inverter at 3 and a meter at 4 that answers Read Device Identification.
+/// SunSpec inverter at 3 and an iEM3155 meter at 4, which answers Read Device Identification.
 fn plant_with_newcomers() -> SeedPlant {
-    use rtu2mqtt_modbus::DeviceIdObject;
     use rtu2mqtt_sim::{share, ServeOptions, VirtualLine};
     let (dust_collector, dust) = share(sim::DustCollector::new(1));
     let (air_shower, shower) = share(sim::AirShower::new());
     let (valve, valve_shared) = share(sim::Valve::new(1));
-    let inverter = share(sim::library::sunspec_inverter().map.device(3)).1;
-    let mut meter = sim::GenericDevice::empty(4).with_identification(vec![
-        DeviceIdObject::text(0, "Schneider Electric"),
-        DeviceIdObject::text(1, "A9MEM3155"),
-        DeviceIdObject::text(2, "V2.1.4"),
-    ]);
-    meter.set_holding(0, 1);
+    let inverter = share(sim::library::sunspec_inverter().device(3)).1;
+    let meter = share(sim::library::iem3155().device(4)).1;
     let line_a = VirtualLine::spawn(
         ServeOptions::new(9600, Parity::None),
-        vec![dust, shower, inverter, share(meter).1],
+        vec![dust, shower, inverter, meter],
     )
     .expect("line A");
     let line_b = VirtualLine::spawn(ServeOptions::new(9600, Parity::Even), vec![valve_shared])
@@ -509,7 +503,7 @@ async fn the_console_scan_names_what_each_device_is() {
         serde_json::json!({
             "1": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "-", "profile": "unknown"},
             "3": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "40000: models 1, 103, 160", "profile": "sunspec-inverter"},
-            "4": {"fc43": "ok", "vendor": "Schneider Electric", "product_code": "A9MEM3155", "revision": "V2.1.4", "sunspec": "-", "profile": "unknown"},
+            "4": {"fc43": "ok", "vendor": "Schneider Electric", "product_code": "A9MEM3155", "revision": "002.001.004", "sunspec": "-", "profile": "schneider-iem3155"},
             "129": {"fc43": exception_01, "vendor": "-", "product_code": "-", "revision": "-", "sunspec": "-", "profile": "unknown"},
         })
     );
@@ -518,7 +512,7 @@ async fn the_console_scan_names_what_each_device_is() {
         configuration,
         "# under the [[lines]] table of \"line-a\":\n\n\
          [[lines.devices]]\nname = \"sunspec_inverter_3\"\nprofile = \"sunspec-inverter\"\naddress = 3\n\n\
-         [[lines.devices]]\nname = \"device_4\"\n# profile: unknown — write one, see docs/profiles.md\naddress = 4"
+         [[lines.devices]]\nname = \"schneider_iem3155_4\"\nprofile = \"schneider-iem3155\"\naddress = 4"
     );
     browser
         .eval(

@@ -101,7 +101,7 @@ fn the_library_is_built_in_and_listed() {
 
 #[test]
 fn every_library_profile_reads_its_simulator() {
-    for LibraryDevice { profile, map } in library::devices() {
+    for LibraryDevice { profile, map, .. } in library::devices() {
         let compiled = built_in(profile).unwrap_or_else(|e| panic!("{profile}: {e}"));
         let mut device = map.device(1);
         let readings = read_all(&compiled, &mut device);

@@ -632,7 +632,7 @@ async fn a_scan_through_a_modbus_tcp_gateway_identifies_each_unit() {
     ]);
     let mut meter = meter;
     meter.set_holding(0, 1);
-    let inverter = sim::library::sunspec_inverter().map.device(2);
+    let inverter = sim::library::sunspec_inverter().device(2);
     let modbus = bind(
         "127.0.0.1:0",
         Protocol::ModbusTcp,

@@ -5,14 +5,31 @@
 //! are otherwise the readings of a plausible installation (a 6 kW inverter at full sun, a
 //! meter on a three-wire feeder).
 
+use super::generic::GenericDevice;
 use super::register_map::{Entry, Raw, RegisterMap, Table};
 use super::sunspec::SunSpecMap;
+use rtu2mqtt_modbus::{DeviceIdObject, SlaveId};
 
-/// A library device: its built-in profile's name and its registers.
+/// A library device: its built-in profile's name, its registers, and the objects it answers
+/// Read Device Identification with (none: it does not implement the function, and answers
+/// exception 01, as the vendor's document leaves it).
 #[derive(Debug, Clone)]
 pub struct LibraryDevice {
     pub profile: &'static str,
     pub map: RegisterMap,
+    pub identification: Vec<DeviceIdObject>,
+}
+
+impl LibraryDevice {
+    /// The simulated device at `address`: its registers, and its identification if it has one.
+    pub fn device(&self, address: SlaveId) -> GenericDevice {
+        let device = self.map.device(address);
+        if self.identification.is_empty() {
+            device
+        } else {
+            device.with_identification(self.identification.clone())
+        }
+    }
 }
 
 /// Every library device.
@@ -56,6 +73,7 @@ pub fn sdm120() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "eastron-sdm120",
+        identification: Vec::new(),
         map: RegisterMap::over_zeros(
             entries,
             &[(Table::Input, 0x0000, 0x50), (Table::Input, 0x0156, 4)],
@@ -133,6 +151,7 @@ pub fn sdm630() -> LibraryDevice {
     ]);
     LibraryDevice {
         profile: "eastron-sdm630",
+        identification: Vec::new(),
         map: RegisterMap::over_zeros(
             entries,
             &[
@@ -224,6 +243,7 @@ pub fn abb_a43() -> LibraryDevice {
     }
     LibraryDevice {
         profile: "abb-a43",
+        identification: Vec::new(),
         map,
     }
 }
@@ -278,6 +298,7 @@ pub fn growatt_min() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "growatt-min",
+        identification: Vec::new(),
         map: RegisterMap::over_zeros(
             entries,
             &[
@@ -354,6 +375,13 @@ pub fn iem3155() -> LibraryDevice {
     ];
     LibraryDevice {
         profile: "schneider-iem3155",
+        // The manual's Read Device Identification: the vendor, the commercial reference as the
+        // product code, the firmware revision as XXX.YYY.ZZZ.
+        identification: vec![
+            DeviceIdObject::text(0x00, "Schneider Electric"),
+            DeviceIdObject::text(0x01, "A9MEM3155"),
+            DeviceIdObject::text(0x02, "002.001.004"),
+        ],
         map: RegisterMap::over_zeros(
             entries,
             &[
@@ -529,6 +557,7 @@ pub fn sunspec_inverter() -> LibraryDevice {
     map.entries = renamed;
     LibraryDevice {
         profile: "sunspec-inverter",
+        identification: Vec::new(),
         map,
     }
 }
