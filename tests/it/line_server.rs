@@ -600,18 +600,21 @@ async fn bad_input_closes_that_client_and_disturbs_no_one_else() {
     let address = format!("127.0.0.1:{}", h.port);
     let connect = || TcpStream::connect(address.clone());
 
-    // An unknown function code: exception 01 for that transaction, the connection stays.
+    // An unknown function code (65, user-defined): exception 01 for that transaction, the
+    // connection stays; a known one without its data (43 with no MEI type): exception 03.
     let mut stream = connect().await.unwrap();
-    stream
-        .write_all(&hex::decode("00 07 00 00 00 02 01 2B"))
-        .await
-        .unwrap();
-    let mut answer = [0u8; 9];
-    tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
-        .await
-        .expect("an answer")
-        .unwrap();
-    assert_eq!(hex::encode(&answer), "00 07 00 00 00 03 01 AB 01");
+    for (request, expected) in [
+        ("00 07 00 00 00 02 01 41", "00 07 00 00 00 03 01 C1 01"),
+        ("00 08 00 00 00 02 01 2B", "00 08 00 00 00 03 01 AB 03"),
+    ] {
+        stream.write_all(&hex::decode(request)).await.unwrap();
+        let mut answer = [0u8; 9];
+        tokio::time::timeout(ANSWER, stream.read_exact(&mut answer))
+            .await
+            .expect("an answer")
+            .unwrap();
+        assert_eq!(hex::encode(&answer), expected);
+    }
 
     // A protocol id that is not Modbus and a length no PDU has: closed at once.
     for header in [

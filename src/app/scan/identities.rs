@@ -166,7 +166,7 @@ mod tests {
         let meter = Identity {
             device_id: DeviceId::Objects(vec![
                 DeviceIdObject::text(0, "Schneider Electric"),
-                DeviceIdObject::text(1, "A9MEM3155"),
+                DeviceIdObject::text(1, "METSEPM3255"),
                 DeviceIdObject::text(2, "V2.1.4"),
             ]),
             sunspec: None,
@@ -188,7 +188,7 @@ mod tests {
         assert_eq!(
             table(&finds, &candidates),
             "address     FC43                             vendor              product code  revision  SunSpec               profile\n  \
-             1 (0x01)  ok                               Schneider Electric  A9MEM3155     V2.1.4    -                     unknown\n  \
+             1 (0x01)  ok                               Schneider Electric  METSEPM3255   V2.1.4    -                     unknown\n  \
              2 (0x02)  exception 01 (illegal function)  -                   -             -         40000: models 1, 103  sunspec-inverter\n"
         );
         let place = LinkPlace::Port("/dev/ttyUSB0".into());
