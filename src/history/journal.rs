@@ -145,7 +145,7 @@ impl Journal {
             return Ok(None);
         }
         let mut stats = JournalStats::default();
-        for (path, _) in segment_names(dir)? {
+        for (path, sequence) in segment_names(dir)? {
             let bytes = match read_segment_file(&path) {
                 Ok(bytes) => bytes,
                 // Not a regular file: no segment, and no damage either.
@@ -156,8 +156,9 @@ impl Journal {
                 }
             };
             let decoded = record::decode(&bytes);
-            // A file with no header and no record is a stray file, not a damaged segment.
-            if !decoded.foreign {
+            // A file with no header and no record is a stray file, not a damaged segment; nor
+            // is one numbered beyond any sequence number.
+            if !decoded.foreign && sequence.is_some() {
                 stats.damaged += decoded.damaged;
                 stats.bytes += bytes.len() as u64;
                 stats.waiting += decoded.records.len() as u64;
@@ -406,6 +407,14 @@ impl Journal {
                 let _ = fs::remove_file(&path);
                 continue;
             }
+            let Some(sequence) = sequence else {
+                // Records under a number no segment of ours can have: not replayed, since
+                // they cannot be put in order.
+                tracing::warn!(path = %path.display(), records = decoded.records.len(),
+                    "not a history journal segment (its number is beyond any sequence number): \
+                     skipped, left alone");
+                continue;
+            };
             self.segments.push_back(Segment {
                 sequence,
                 bytes: bytes.len() as u64,
@@ -625,16 +634,17 @@ fn encoded_len(record: &Record) -> u64 {
     record.encode().map_or(0, |bytes| bytes.len() as u64)
 }
 
-/// The files of `dir` named like segments, with their sequence numbers, in order.
-fn segment_names(dir: &Path) -> io::Result<Vec<(PathBuf, u64)>> {
-    let mut names: Vec<(PathBuf, u64)> = fs::read_dir(dir)?
+/// The files of `dir` named like segments, with their sequence numbers, in order; a name
+/// whose number is beyond any sequence number is one too, with none.
+fn segment_names(dir: &Path) -> io::Result<Vec<(PathBuf, Option<u64>)>> {
+    let mut names: Vec<(PathBuf, Option<u64>)> = fs::read_dir(dir)?
         .flatten()
         .filter_map(|entry| {
             let path = entry.path();
             sequence_of(&path).map(|sequence| (path, sequence))
         })
         .collect();
-    names.sort_unstable_by_key(|(_, sequence)| *sequence);
+    names.sort_unstable_by_key(|(_, sequence)| sequence.unwrap_or(u64::MAX));
     Ok(names)
 }
 
@@ -691,8 +701,10 @@ fn kind_name(kind: fs::FileType) -> &'static str {
     }
 }
 
-/// The sequence number of a segment file's path; None for any other file.
-fn sequence_of(path: &Path) -> Option<u64> {
+/// The sequence number of a segment file's path: None for a file not named like a segment,
+/// Some(None) for one whose number is beyond the range of sequence numbers (no segment of
+/// ours, and said like every other such file).
+fn sequence_of(path: &Path) -> Option<Option<u64>> {
     if path.extension()? != SUFFIX {
         return None;
     }
@@ -700,7 +712,7 @@ fn sequence_of(path: &Path) -> Option<u64> {
     if stem.is_empty() || !stem.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
-    stem.parse().ok()
+    Some(stem.parse().ok())
 }
 
 #[cfg(test)]

@@ -92,9 +92,13 @@ async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
     }
 }
 
-/// A subscriber to every device's history stream.
+/// A subscriber to every device's history stream, under a client id of its own: an earlier
+/// one still alive would take the session over at each reconnect, and lose what the broker
+/// delivers meanwhile.
 async fn historian(port: u16) -> TestClient {
-    let mut observer = TestClient::connect(port, "historian").await;
+    static HISTORIANS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = HISTORIANS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut observer = TestClient::connect(port, &format!("historian-{n}")).await;
     observer.subscribe("plant/+/history").await;
     observer
 }
@@ -731,6 +735,93 @@ async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
     broker.restart();
     let mut observer = historian(broker.port).await;
     assert_outage_follows_in_order(&mut observer, &outage).await;
+    gateway.stop().await;
+    drop(disk);
+}
+
+const SHOWER_HISTORY: &str = "plant/air_shower/history";
+
+/// The air shower's e-stop after each of its history documents (folding the change sets),
+/// with repeats collapsed.
+fn estop_states(messages: &[Message]) -> Vec<bool> {
+    let mut state = None;
+    let mut states = Vec::new();
+    for message in messages {
+        if let Some(estop) = message.json()["values"]["emergency_stop"].as_bool() {
+            state = Some(estop);
+        }
+        if let Some(now) = state {
+            if states.last() != Some(&now) {
+                states.push(now);
+            }
+        }
+    }
+    states
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_full_disk_has_room_again_a_later_outage_loses_nothing() {
+    let Some(disk) = SmallDisk::mount() else {
+        eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+        return;
+    };
+    let mut broker = Mosquitto::start();
+    let plant = SeedPlant::spawn(false).expect("seed plant");
+    let journal = disk.0.path().join("history");
+    let config = support::fast_config(&config_text(&broker, &plant, "hist-later", &journal));
+    sim::lock(&plant.dust_collector).set_alarms(0);
+    sim::lock(&plant.air_shower).set_emergency_stop(false);
+    let gateway = Gateway::start(config).await;
+    first_history(broker.port).await;
+
+    // An outage on a full disk, room again during it ("writable again"), the broker back.
+    let filler = disk.fill();
+    broker.kill();
+    link_is(&gateway, false).await;
+    let outage = [1, 2, 4, 7, 0];
+    walk_alarms(&plant, &outage[..3]).await;
+    journal_problem_is(&gateway, true).await;
+    std::fs::remove_file(filler).expect("remove the filler");
+    journal_problem_is(&gateway, false).await;
+    walk_alarms(&plant, &outage[3..]).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    assert_outage_follows_in_order(&mut observer, &outage).await;
+
+    // The next outage, ten seconds, on a disk full again: five changes of the air shower,
+    // waiting in memory with everything else read meanwhile; the broker is back while they
+    // wait there, and the disk has room again a little later.
+    let filler = disk.fill();
+    broker.kill();
+    link_is(&gateway, false).await;
+    let changes = [true, false, true, false, true];
+    for &estop in &changes {
+        sim::lock(&plant.air_shower).set_emergency_stop(estop);
+        tokio::time::sleep(Duration::from_millis(2000)).await;
+    }
+    journal_problem_is(&gateway, true).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    link_is(&gateway, true).await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    std::fs::remove_file(filler).expect("remove the filler");
+    journal_problem_is(&gateway, false).await;
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    loop {
+        observer.settle(Duration::from_millis(500)).await;
+        let seen: Vec<Message> = observer.on(SHOWER_HISTORY).into_iter().cloned().collect();
+        let states = estop_states(&seen);
+        if states.windows(changes.len()).any(|w| w == changes) {
+            assert_in_order(&seen);
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "a change of the air shower read during the outage is missing: expected {changes:?} \
+             in {states:?}\n{:?}",
+            seen.iter().map(Message::text).collect::<Vec<_>>()
+        );
+    }
     gateway.stop().await;
     drop(disk);
 }
