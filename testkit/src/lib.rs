@@ -12,6 +12,7 @@
 //! - [`command`]: a command's refusal by a profile, for asserting the same words as the gateway.
 //! - [`hex`]: frames as hex text.
 //! - [`pysparkplug`]: the Sparkplug B decoder written by others, run through Python.
+//! - [`soak`]: the gateway process under a long run of chaos, with its end checks.
 
 pub mod broker;
 pub mod browser;
@@ -22,6 +23,7 @@ pub mod gateway;
 pub mod hex;
 pub mod plant_bench;
 pub mod pysparkplug;
+pub mod soak;
 
 pub use broker::{free_port, Mosquitto, MOSQUITTO};
 pub use browser::Browser;
