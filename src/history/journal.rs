@@ -16,18 +16,16 @@
 
 use std::collections::VecDeque;
 use std::fs::{self, File, OpenOptions};
-use std::io::{self, Read, Write};
-use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use nix::unistd::{access, AccessFlags};
 
 use super::record::{self, Record, MAGIC, MAX_RECORD};
+use super::segment_file::{read_segment_file, segment_names, SUFFIX};
 use crate::config::HistoryConfig;
 
-/// Segment files are named `<sequence>.journal`, the sequence zero-padded so that names sort.
-const SUFFIX: &str = "journal";
 /// The longest time written records stay unsynced.
 pub const SYNC_INTERVAL: Duration = Duration::from_secs(1);
 /// How often a journal that cannot be written is tried again.
@@ -41,6 +39,8 @@ const MIN_SEGMENT: u64 = 4 * 1024;
 const MAX_SEGMENT: u64 = 4 * 1024 * 1024;
 /// No segment is ever longer: a larger file of that name is not one, and is not read.
 pub const MAX_SEGMENT_FILE: u64 = MAX_SEGMENT + MAGIC.len() as u64 + MAX_RECORD as u64;
+/// How far the segments are numbered up when one has to be put before the first.
+const FRONT_ROOM: u64 = 1 << 20;
 /// A segment numbered this high makes the journal number its segments from 0 again, in
 /// order: a stray name cannot make the numbers run out.
 const RENUMBER_FROM: u64 = 1 << 63;
@@ -66,11 +66,14 @@ struct Segment {
     sequence: u64,
     bytes: u64,
     records: u64,
+    /// Records handed out for replay from its start (they are no longer waiting).
+    handed: u64,
     /// Read-at stamp of its newest record (ms since the epoch).
     newest_ms: u64,
 }
 
-/// The segment being appended to.
+/// A segment being written: the one appended to, or the one in front of all that records
+/// coming back are put in.
 #[derive(Debug)]
 struct Writer {
     file: File,
@@ -89,9 +92,18 @@ pub struct Journal {
     /// Oldest first; when `writer` is set, the last one is the one written.
     segments: VecDeque<Segment>,
     writer: Option<Writer>,
+    /// The first segment, while records handed out come back into it
+    /// ([`Journal::put_back`]).
+    front_writer: Option<Writer>,
     next_sequence: u64,
-    /// The oldest segment's records, once replay has started on it, and how many are out.
-    replaying: Option<(VecDeque<Record>, u64)>,
+    /// The oldest segment's records not handed out yet, once replay has started on it.
+    replaying: Option<VecDeque<Record>>,
+    /// Records handed out that came back while they could not be written (or while others
+    /// that could not waited here), older than every record on disk, oldest first.
+    returned: VecDeque<Record>,
+    /// Where the next record coming back goes in `returned`: those coming back after one
+    /// replay come before whatever that replay left, in the order they come.
+    returned_at: usize,
     unsynced_since: Option<Instant>,
     /// Records not written yet, newer than every record on disk, oldest first.
     pending: VecDeque<Record>,
@@ -115,8 +127,11 @@ impl Journal {
             loaded: false,
             segments: VecDeque::new(),
             writer: None,
+            front_writer: None,
             next_sequence: 0,
             replaying: None,
+            returned: VecDeque::new(),
+            returned_at: 0,
             unsynced_since: None,
             pending: VecDeque::new(),
             pending_bytes: 0,
@@ -246,7 +261,7 @@ impl Journal {
     /// Syncs what was written now (on shutdown).
     pub fn sync(&mut self) {
         self.unsynced_since = None;
-        if let Some(writer) = &self.writer {
+        for writer in [&self.writer, &self.front_writer].into_iter().flatten() {
             if let Err(error) = writer.file.sync_data() {
                 tracing::error!(dir = %self.dir.display(), %error, "history journal cannot be synced");
             }
@@ -254,41 +269,41 @@ impl Journal {
     }
 
     /// Up to `limit` of the oldest records, in order, handed out for replay and deleted from
-    /// the journal (a segment file goes when its last record is handed out); those waiting in
-    /// memory come after the disk's. Records older than `max_age` at `now_ms` are dropped,
-    /// counted, instead.
+    /// the journal (a segment file goes when its last record is handed out); those that came
+    /// back without being written come first, those waiting in memory after the disk's.
+    /// Records older than `max_age` at `now_ms` are dropped, counted, instead.
     pub fn take(&mut self, limit: usize, now_ms: u64) -> Vec<Record> {
         self.drop_expired(now_ms);
         let oldest_kept = now_ms.saturating_sub(self.max_age.as_millis() as u64);
-        let mut out = Vec::new();
-        while out.len() < limit {
-            let Some(sequence) = self.segments.front().map(|segment| segment.sequence) else {
-                break;
-            };
-            if self.replaying.is_none() {
-                self.replaying = Some((self.read_segment(sequence), 0));
+        let mut taken = Vec::new();
+        while taken.len() < limit {
+            if let Some(record) = self.returned.pop_front() {
+                taken.push(record);
+                continue;
             }
-            let Some((records, handed)) = &mut self.replaying else {
+            let Some(front) = self.segments.front() else {
                 break;
             };
-            match records.pop_front() {
+            let (sequence, handed, total) = (front.sequence, front.handed, front.records);
+            if self.replaying.is_none() {
+                let mut records = self.read_segment(sequence);
+                records.drain(..records.len().min(handed as usize));
+                self.replaying = Some(records);
+            }
+            match self.replaying.as_mut().and_then(VecDeque::pop_front) {
                 Some(record) => {
-                    *handed += 1;
-                    if record.at_ms < oldest_kept {
-                        self.stats.dropped += 1;
-                    } else {
-                        out.push(record);
+                    if let Some(front) = self.segments.front_mut() {
+                        front.handed += 1;
                     }
+                    taken.push(record);
                 }
                 None => {
-                    let total = self.segments.front().map_or(0, |s| s.records);
-                    let handed = *handed;
                     if handed < total {
                         // Appended since it was read: read again past what was handed out.
                         let mut fresh = self.read_segment(sequence);
                         fresh.drain(..fresh.len().min(handed as usize));
                         if !fresh.is_empty() {
-                            self.replaying = Some((fresh, handed));
+                            self.replaying = Some(fresh);
                             continue;
                         }
                     }
@@ -296,19 +311,173 @@ impl Journal {
                 }
             }
         }
-        while out.len() < limit && self.segments.is_empty() {
+        // A segment whose every record is out goes now, not at the next replay: a start in
+        // between would replay it again.
+        while self.segments.front().is_some_and(|s| s.handed >= s.records) {
+            self.remove_front();
+        }
+        while taken.len() < limit && self.segments.is_empty() {
             let Some(record) = self.pending.pop_front() else {
                 break;
             };
             self.pending_bytes = self.pending_bytes.saturating_sub(encoded_len(&record));
-            if record.at_ms < oldest_kept {
-                self.stats.dropped += 1;
-            } else {
-                out.push(record);
+            taken.push(record);
+        }
+        if !taken.is_empty() {
+            // What comes back from now on was handed out by this replay: it goes before
+            // everything the replay left.
+            self.close_front();
+            self.returned_at = 0;
+        }
+        let (kept, expired): (Vec<Record>, Vec<Record>) = taken
+            .into_iter()
+            .partition(|record| record.at_ms >= oldest_kept);
+        self.stats.dropped += expired.len() as u64;
+        self.refresh_stats();
+        kept
+    }
+
+    /// A record handed out by [`Journal::take`] (or published live) that did not reach the
+    /// broker: it goes back in front of every record still waiting, behind those that came
+    /// back before it since the last replay, so that the replay keeps the order values were
+    /// read in. Written into a segment numbered before the others; kept in memory while the
+    /// journal cannot be written (and while others kept there wait).
+    pub fn put_back(&mut self, record: &Record) {
+        let Some(bytes) = record.encode() else {
+            self.stats.write_failures += 1;
+            tracing::warn!(device = %record.device, "history record too large for the journal: not kept");
+            return;
+        };
+        if self.problem.is_none() && self.returned.is_empty() {
+            match self.store_in_front(&bytes, record.at_ms) {
+                Ok(()) => {
+                    self.refresh_stats();
+                    return;
+                }
+                Err(error) => {
+                    self.fail(&error);
+                    // What came back before it waits in memory with it, in order.
+                    self.front_to_memory();
+                }
             }
         }
+        self.stats.write_failures += 1;
+        let at = self.returned_at.min(self.returned.len());
+        self.returned.insert(at, record.clone());
+        self.returned_at = at + 1;
         self.refresh_stats();
-        out
+    }
+
+    /// Writes one encoded record into the first segment, begun (numbered before every other)
+    /// when records come back after a replay.
+    fn store_in_front(&mut self, bytes: &[u8], at_ms: u64) -> io::Result<()> {
+        if self.front_writer.is_none() {
+            self.start_front_segment()?;
+        }
+        let (Some(writer), Some(segment)) = (&mut self.front_writer, self.segments.front_mut())
+        else {
+            return Err(io::Error::other("no segment open in front"));
+        };
+        if let Err(error) = writer.file.write_all(bytes) {
+            if writer.file.set_len(segment.bytes).is_err() {
+                self.front_writer = None;
+            }
+            return Err(error);
+        }
+        segment.bytes += bytes.len() as u64;
+        segment.records += 1;
+        segment.newest_ms = segment.newest_ms.max(at_ms);
+        self.replaying = None;
+        self.unsynced_since.get_or_insert_with(Instant::now);
+        Ok(())
+    }
+
+    /// Opens a segment numbered before every other (the others are numbered up first when
+    /// the first is 0 or the number before it is taken).
+    fn start_front_segment(&mut self) -> io::Result<()> {
+        let sequence = match self.segments.front().map(|s| s.sequence) {
+            None => {
+                let sequence = self.next_sequence;
+                self.next_sequence = sequence.saturating_add(1);
+                sequence
+            }
+            Some(first) => match first.checked_sub(1) {
+                Some(before) if fs::symlink_metadata(self.path_of(before)).is_err() => before,
+                _ => {
+                    self.number_up()?;
+                    self.segments.front().map_or(0, |s| s.sequence) - 1
+                }
+            },
+        };
+        let mut file = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(self.path_of(sequence))?;
+        if let Err(error) = file.write_all(MAGIC) {
+            let _ = fs::remove_file(self.path_of(sequence));
+            return Err(error);
+        }
+        self.segments.push_front(Segment {
+            sequence,
+            bytes: MAGIC.len() as u64,
+            records: 0,
+            handed: 0,
+            newest_ms: 0,
+        });
+        // The replay's place in the segment that was first is kept in its `handed`.
+        self.replaying = None;
+        self.front_writer = Some(Writer { file, sequence });
+        File::open(&self.dir)?.sync_all()
+    }
+
+    /// Renames every segment to a number [`FRONT_ROOM`] higher (the last first), so that
+    /// segments can be put before the first.
+    fn number_up(&mut self) -> io::Result<()> {
+        for index in (0..self.segments.len()).rev() {
+            let old = self.segments[index].sequence;
+            let new = old
+                .checked_add(FRONT_ROOM)
+                .filter(|new| fs::symlink_metadata(self.path_of(*new)).is_err())
+                .ok_or_else(|| io::Error::other("no segment number free before the first"))?;
+            fs::rename(self.path_of(old), self.path_of(new))?;
+            self.segments[index].sequence = new;
+            for writer in [&mut self.writer, &mut self.front_writer]
+                .into_iter()
+                .flatten()
+            {
+                if writer.sequence == old {
+                    writer.sequence = new;
+                }
+            }
+        }
+        self.next_sequence = self.next_sequence.saturating_add(FRONT_ROOM);
+        Ok(())
+    }
+
+    /// The segment records came back into is done with: synced and closed.
+    fn close_front(&mut self) {
+        if let Some(writer) = self.front_writer.take() {
+            if let Err(error) = writer.file.sync_data() {
+                tracing::error!(dir = %self.dir.display(), %error, "history journal cannot be synced");
+            }
+        }
+    }
+
+    /// The journal cannot be written: what came back into the first segment since the last
+    /// replay moves to memory, where the rest of it will wait.
+    fn front_to_memory(&mut self) {
+        let Some(writer) = self.front_writer.take() else {
+            return;
+        };
+        if self.segments.front().map(|s| s.sequence) != Some(writer.sequence) {
+            return;
+        }
+        let records = self.read_segment(writer.sequence);
+        self.returned_at = records.len();
+        for record in records.into_iter().rev() {
+            self.returned.push_front(record);
+        }
+        self.remove_front();
     }
 
     /// Reads the directory when it was not read yet, checks that it can be written, and
@@ -419,6 +588,7 @@ impl Journal {
                 sequence,
                 bytes: bytes.len() as u64,
                 records: decoded.records.len() as u64,
+                handed: 0,
                 newest_ms: decoded.records.iter().map(|r| r.at_ms).max().unwrap_or(0),
             });
         }
@@ -495,6 +665,7 @@ impl Journal {
             sequence,
             bytes: MAGIC.len() as u64,
             records: 0,
+            handed: 0,
             newest_ms: 0,
         });
         self.writer = Some(Writer { file, sequence });
@@ -516,8 +687,13 @@ impl Journal {
                     return;
                 }
                 self.segments[index].sequence = next;
-                if let Some(writer) = self.writer.as_mut().filter(|w| w.sequence == old) {
-                    writer.sequence = next;
+                for writer in [&mut self.writer, &mut self.front_writer]
+                    .into_iter()
+                    .flatten()
+                {
+                    if writer.sequence == old {
+                        writer.sequence = next;
+                    }
                 }
             }
             next += 1;
@@ -584,6 +760,13 @@ impl Journal {
             self.writer = None;
             self.unsynced_since = None;
         }
+        if self
+            .front_writer
+            .as_ref()
+            .is_some_and(|w| w.sequence == segment.sequence)
+        {
+            self.front_writer = None;
+        }
         self.replaying = None;
         if let Err(error) = fs::remove_file(self.path_of(segment.sequence)) {
             if error.kind() != io::ErrorKind::NotFound {
@@ -595,11 +778,14 @@ impl Journal {
 
     /// Drops the oldest segment to keep the bound, counting its records not yet handed out.
     fn drop_oldest(&mut self) -> bool {
-        let handed = self.replaying.as_ref().map_or(0, |(_, handed)| *handed);
-        let Some(records) = self.segments.front().map(|s| s.records) else {
+        let Some(waiting) = self
+            .segments
+            .front()
+            .map(|s| s.records.saturating_sub(s.handed))
+        else {
             return false;
         };
-        self.stats.dropped += records.saturating_sub(handed);
+        self.stats.dropped += waiting;
         self.remove_front()
     }
 
@@ -619,10 +805,13 @@ impl Journal {
     }
 
     fn refresh_stats(&mut self) {
-        let handed = self.replaying.as_ref().map_or(0, |(_, handed)| *handed);
         self.stats.bytes = self.disk_bytes();
-        let records: u64 = self.segments.iter().map(|s| s.records).sum();
-        self.stats.waiting = records.saturating_sub(handed) + self.pending.len() as u64;
+        let on_disk: u64 = self
+            .segments
+            .iter()
+            .map(|s| s.records.saturating_sub(s.handed))
+            .sum();
+        self.stats.waiting = on_disk + (self.pending.len() + self.returned.len()) as u64;
     }
 
     fn path_of(&self, sequence: u64) -> PathBuf {
@@ -632,87 +821,6 @@ impl Journal {
 
 fn encoded_len(record: &Record) -> u64 {
     record.encode().map_or(0, |bytes| bytes.len() as u64)
-}
-
-/// The files of `dir` named like segments, with their sequence numbers, in order; a name
-/// whose number is beyond any sequence number is one too, with none.
-fn segment_names(dir: &Path) -> io::Result<Vec<(PathBuf, Option<u64>)>> {
-    let mut names: Vec<(PathBuf, Option<u64>)> = fs::read_dir(dir)?
-        .flatten()
-        .filter_map(|entry| {
-            let path = entry.path();
-            sequence_of(&path).map(|sequence| (path, sequence))
-        })
-        .collect();
-    names.sort_unstable_by_key(|(_, sequence)| sequence.unwrap_or(u64::MAX));
-    Ok(names)
-}
-
-/// A segment file's bytes. Only a regular file is one: anything else of that name (a FIFO,
-/// a socket, a device, a directory, a symbolic link) is refused before it is opened
-/// ([`io::ErrorKind::Unsupported`]), opening never blocks or follows a link, the kind is
-/// checked again on what was opened, and a file longer than any segment is not read.
-fn read_segment_file(path: &Path) -> io::Result<Vec<u8>> {
-    let not_segment = |kind: &str| {
-        io::Error::new(
-            io::ErrorKind::Unsupported,
-            format!("{kind}, not a regular file"),
-        )
-    };
-    let kind = fs::symlink_metadata(path)?.file_type();
-    if !kind.is_file() {
-        return Err(not_segment(kind_name(kind)));
-    }
-    let file = OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
-        .open(path)?;
-    let meta = file.metadata()?;
-    if !meta.file_type().is_file() {
-        return Err(not_segment(kind_name(meta.file_type())));
-    }
-    if meta.len() > MAX_SEGMENT_FILE {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidData,
-            format!(
-                "{} bytes, longer than any segment ({MAX_SEGMENT_FILE})",
-                meta.len()
-            ),
-        ));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(MAX_SEGMENT_FILE).read_to_end(&mut bytes)?;
-    Ok(bytes)
-}
-
-fn kind_name(kind: fs::FileType) -> &'static str {
-    if kind.is_symlink() {
-        "a symbolic link"
-    } else if kind.is_dir() {
-        "a directory"
-    } else if kind.is_fifo() {
-        "a FIFO"
-    } else if kind.is_socket() {
-        "a socket"
-    } else if kind.is_block_device() || kind.is_char_device() {
-        "a device"
-    } else {
-        "not a regular file"
-    }
-}
-
-/// The sequence number of a segment file's path: None for a file not named like a segment,
-/// Some(None) for one whose number is beyond the range of sequence numbers (no segment of
-/// ours, and said like every other such file).
-fn sequence_of(path: &Path) -> Option<Option<u64>> {
-    if path.extension()? != SUFFIX {
-        return None;
-    }
-    let stem = path.file_stem()?.to_str()?;
-    if stem.is_empty() || !stem.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    Some(stem.parse().ok())
 }
 
 #[cfg(test)]

@@ -4,6 +4,7 @@
 use std::process::Command;
 
 use super::*;
+use crate::history::segment_file::sequence_of;
 
 const NOW: u64 = 1_796_223_601_123;
 
