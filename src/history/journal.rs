@@ -73,6 +73,19 @@ struct Segment {
     newest_ms: u64,
 }
 
+impl Segment {
+    /// A segment just made: its header and no record.
+    fn begun(sequence: u64) -> Segment {
+        Segment {
+            sequence,
+            bytes: MAGIC.len() as u64,
+            records: 0,
+            handed: 0,
+            newest_ms: 0,
+        }
+    }
+}
+
 /// A segment being written: the one appended to, or the one in front of all that records
 /// coming back are put in.
 #[derive(Debug)]
@@ -499,36 +512,35 @@ impl Journal {
         if self.next_sequence >= RENUMBER_FROM {
             self.renumber();
         }
-        let (mut file, sequence) = loop {
+        let (file, sequence) = loop {
             let sequence = self.next_sequence;
             self.next_sequence = sequence
                 .checked_add(1)
                 .ok_or_else(|| io::Error::other("segment numbers exhausted"))?;
-            match OpenOptions::new()
-                .create_new(true)
-                .append(true)
-                .open(self.path_of(sequence))
-            {
+            match self.create_segment(sequence) {
                 Ok(file) => break (file, sequence),
                 // Something else has that name: it is left alone, the next one is taken.
                 Err(error) if error.kind() == io::ErrorKind::AlreadyExists => continue,
                 Err(error) => return Err(error),
             }
         };
+        self.segments.push_back(Segment::begun(sequence));
+        self.writer = Some(Writer { file, sequence });
+        // The new name must survive a power cut as well as the records in it.
+        File::open(&self.dir)?.sync_all()
+    }
+
+    /// Makes segment file `sequence` (never over another file) with its header.
+    fn create_segment(&self, sequence: u64) -> io::Result<File> {
+        let mut file = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(self.path_of(sequence))?;
         if let Err(error) = file.write_all(MAGIC) {
             let _ = fs::remove_file(self.path_of(sequence));
             return Err(error);
         }
-        self.segments.push_back(Segment {
-            sequence,
-            bytes: MAGIC.len() as u64,
-            records: 0,
-            handed: 0,
-            newest_ms: 0,
-        });
-        self.writer = Some(Writer { file, sequence });
-        // The new name must survive a power cut as well as the records in it.
-        File::open(&self.dir)?.sync_all()
+        Ok(file)
     }
 
     /// Numbers the segments from 0 again, in order, past names something else holds.

@@ -4,12 +4,12 @@
 //! before what a replay left when they come back after it. While the journal cannot be
 //! written they wait in memory, ahead of every record on disk.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::{self, File};
 use std::io::{self, Write};
 use std::time::Instant;
 
 use super::{Journal, Segment, Writer, FRONT_ROOM};
-use crate::history::record::{Record, MAGIC};
+use crate::history::record::Record;
 
 impl Journal {
     /// A record handed out by [`Journal::take`] (or published live) that did not reach the
@@ -84,21 +84,8 @@ impl Journal {
                 }
             },
         };
-        let mut file = OpenOptions::new()
-            .create_new(true)
-            .append(true)
-            .open(self.path_of(sequence))?;
-        if let Err(error) = file.write_all(MAGIC) {
-            let _ = fs::remove_file(self.path_of(sequence));
-            return Err(error);
-        }
-        self.segments.push_front(Segment {
-            sequence,
-            bytes: MAGIC.len() as u64,
-            records: 0,
-            handed: 0,
-            newest_ms: 0,
-        });
+        let file = self.create_segment(sequence)?;
+        self.segments.push_front(Segment::begun(sequence));
         // The replay's place in the segment that was first is kept in its `handed`.
         self.replaying = None;
         self.front_writer = Some(Writer { file, sequence });

@@ -14,7 +14,7 @@ use rtu2mqtt_sim::{self as sim, SeedPlant};
 use serde_json::{Map, Value as Json};
 use support::child::{gateway_run, KillOnDrop};
 use support::pysparkplug::decode_with_pysparkplug;
-use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use support::{Gateway, Message, Mosquitto, PlantConfig, SmallDisk, TestClient};
 
 const ANSWER: Duration = Duration::from_secs(15);
 const DUST_HISTORY: &str = "plant/dust_collector/history";
@@ -662,40 +662,6 @@ async fn a_history_path_that_cannot_be_written_makes_the_gateway_unhealthy_never
     assert!(gateway.is_running());
 }
 
-/// A tmpfs of 256 KiB mounted on a fresh directory, unmounted when dropped; None where
-/// mounting needs a root this test does not have.
-struct SmallDisk(tempfile::TempDir);
-
-impl SmallDisk {
-    fn mount() -> Option<SmallDisk> {
-        let dir = tempfile::tempdir().ok()?;
-        let mounted = std::process::Command::new("mount")
-            .args(["-t", "tmpfs", "-o", "size=256k", "tmpfs"])
-            .arg(dir.path())
-            .status()
-            .is_ok_and(|status| status.success());
-        mounted.then_some(SmallDisk(dir))
-    }
-
-    /// Takes all the room left.
-    fn fill(&self) -> std::path::PathBuf {
-        use std::io::Write;
-        let path = self.0.path().join("filler");
-        let mut file = std::fs::File::create(&path).expect("filler");
-        while file.write_all(&[0xAA; 4096]).is_ok() {}
-        while file.write_all(&[0xAA; 1]).is_ok() {}
-        path
-    }
-}
-
-impl Drop for SmallDisk {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount")
-            .arg(self.0.path())
-            .status();
-    }
-}
-
 /// Waits until the gateway's journal is said writable (`problem` None) or not.
 async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> {
     let mut problem = gateway.running.bridge.history_problem.clone();
@@ -707,34 +673,54 @@ async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> 
     said
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
-    let Some(disk) = SmallDisk::mount() else {
+/// The gateway over the seed plant with its journal on a small tmpfs; None where mounting
+/// one needs a root this test does not have.
+async fn on_a_small_disk(client_id: &str) -> Option<(SmallDisk, Mosquitto, SeedPlant, Gateway)> {
+    let Some(disk) = SmallDisk::mount("256k") else {
         eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
-        return;
+        return None;
     };
-    let mut broker = Mosquitto::start();
+    let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).expect("seed plant");
-    let journal = disk.0.path().join("history");
-    let config = support::fast_config(&config_text(&broker, &plant, "hist-full", &journal));
+    let journal = disk.path().join("history");
+    let config = support::fast_config(&config_text(&broker, &plant, client_id, &journal));
     sim::lock(&plant.dust_collector).set_alarms(0);
+    sim::lock(&plant.air_shower).set_emergency_stop(false);
     let gateway = Gateway::start(config).await;
     first_history(broker.port).await;
+    Some((disk, broker, plant, gateway))
+}
 
+/// An outage on a full disk, room again during it ("writable again"), the broker back: every
+/// alarm state read meanwhile arrives, in order.
+async fn full_disk_outage(
+    disk: &SmallDisk,
+    broker: &mut Mosquitto,
+    plant: &SeedPlant,
+    gateway: &Gateway,
+) {
     let filler = disk.fill();
     broker.kill();
-    link_is(&gateway, false).await;
+    link_is(gateway, false).await;
     let outage = [1, 2, 4, 7, 0];
-    walk_alarms(&plant, &outage[..3]).await;
-    let problem = journal_problem_is(&gateway, true).await.unwrap_or_default();
+    walk_alarms(plant, &outage[..3]).await;
+    let problem = journal_problem_is(gateway, true).await.unwrap_or_default();
     assert!(problem.contains("No space left on device"), "{problem}");
     // Room again: the journal resumes by itself, the outage goes on.
     std::fs::remove_file(filler).expect("remove the filler");
-    journal_problem_is(&gateway, false).await;
-    walk_alarms(&plant, &outage[3..]).await;
+    journal_problem_is(gateway, false).await;
+    walk_alarms(plant, &outage[3..]).await;
     broker.restart();
     let mut observer = historian(broker.port).await;
     assert_outage_follows_in_order(&mut observer, &outage).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
+    let Some((disk, mut broker, plant, gateway)) = on_a_small_disk("hist-full").await else {
+        return;
+    };
+    full_disk_outage(&disk, &mut broker, &plant, &gateway).await;
     gateway.stop().await;
     drop(disk);
 }
@@ -761,32 +747,10 @@ fn estop_states(messages: &[Message]) -> Vec<bool> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn after_a_full_disk_has_room_again_a_later_outage_loses_nothing() {
-    let Some(disk) = SmallDisk::mount() else {
-        eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+    let Some((disk, mut broker, plant, gateway)) = on_a_small_disk("hist-later").await else {
         return;
     };
-    let mut broker = Mosquitto::start();
-    let plant = SeedPlant::spawn(false).expect("seed plant");
-    let journal = disk.0.path().join("history");
-    let config = support::fast_config(&config_text(&broker, &plant, "hist-later", &journal));
-    sim::lock(&plant.dust_collector).set_alarms(0);
-    sim::lock(&plant.air_shower).set_emergency_stop(false);
-    let gateway = Gateway::start(config).await;
-    first_history(broker.port).await;
-
-    // An outage on a full disk, room again during it ("writable again"), the broker back.
-    let filler = disk.fill();
-    broker.kill();
-    link_is(&gateway, false).await;
-    let outage = [1, 2, 4, 7, 0];
-    walk_alarms(&plant, &outage[..3]).await;
-    journal_problem_is(&gateway, true).await;
-    std::fs::remove_file(filler).expect("remove the filler");
-    journal_problem_is(&gateway, false).await;
-    walk_alarms(&plant, &outage[3..]).await;
-    broker.restart();
-    let mut observer = historian(broker.port).await;
-    assert_outage_follows_in_order(&mut observer, &outage).await;
+    full_disk_outage(&disk, &mut broker, &plant, &gateway).await;
 
     // The next outage, ten seconds, on a disk full again: five changes of the air shower,
     // waiting in memory with everything else read meanwhile; the broker is back while they

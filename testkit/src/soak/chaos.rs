@@ -17,7 +17,7 @@ use rtu2mqtt_sim::{self as sim, Occurrence};
 
 use super::observer::{alarm_states, Observer};
 use super::rig::{tcp_dust_collectors, Rig};
-use crate::Mosquitto;
+use crate::{Mosquitto, SmallDisk};
 
 /// Each alarm state is held for two polls of the dust collector's block (1 s apart), and a
 /// little more for a machine under load.
@@ -74,43 +74,6 @@ impl Counts {
     }
 }
 
-/// A tmpfs of 16 MiB for the journal, unmounted when dropped; None where mounting is not
-/// permitted (the journal outages are then left out).
-pub struct SmallDisk(PathBuf);
-
-impl SmallDisk {
-    pub fn mount(at: &Path) -> Option<SmallDisk> {
-        std::fs::create_dir_all(at).ok()?;
-        let mounted = std::process::Command::new("mount")
-            .args(["-t", "tmpfs", "-o", "size=16m", "tmpfs"])
-            .arg(at)
-            .status()
-            .is_ok_and(|status| status.success());
-        mounted.then(|| SmallDisk(at.to_path_buf()))
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.0
-    }
-
-    /// Takes all the room left.
-    fn fill(&self) -> PathBuf {
-        use std::io::Write as _;
-        let path = self.0.join("filler");
-        if let Ok(mut file) = std::fs::File::create(&path) {
-            while file.write_all(&[0xAA; 65536]).is_ok() {}
-            while file.write_all(&[0xAA; 1]).is_ok() {}
-        }
-        path
-    }
-}
-
-impl Drop for SmallDisk {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount").arg(&self.0).status();
-    }
-}
-
 /// The schedule and what it acts on.
 pub struct Chaos<'a> {
     rig: &'a Rig,
@@ -125,7 +88,6 @@ pub struct Chaos<'a> {
     alarms: u16,
     /// The response timeout of the first TCP line, which each reload changes.
     timeout_ms: u64,
-    broker_url: String,
     /// A run of minutes: shorter events, closer together, so that each kind comes.
     short: bool,
 }
@@ -140,7 +102,6 @@ impl<'a> Chaos<'a> {
         disk: Option<&'a SmallDisk>,
         short: bool,
     ) -> Self {
-        let broker_url = broker.url();
         Chaos {
             rig,
             observer,
@@ -153,7 +114,6 @@ impl<'a> Chaos<'a> {
             counts: Counts::default(),
             alarms: 0,
             timeout_ms: 500,
-            broker_url,
             short,
         }
     }
@@ -256,9 +216,7 @@ impl<'a> Chaos<'a> {
     /// The first TCP line's response timeout changed in the configuration, and SIGHUP.
     fn reload(&mut self) {
         self.timeout_ms = if self.timeout_ms == 500 { 600 } else { 500 };
-        let text = self
-            .rig
-            .config(&self.broker_url, self.journal, self.timeout_ms);
+        let text = self.rig.config(self.broker, self.journal, self.timeout_ms);
         if std::fs::write(self.config_path, text).is_ok()
             && kill(Pid::from_raw(self.pid as i32), Signal::SIGHUP).is_ok()
         {

@@ -54,14 +54,15 @@ pub async fn run(options: &Options) -> anyhow::Result<Report> {
     let started = Instant::now();
     let mut broker = Mosquitto::start();
     let rig = Rig::start().await?;
-    let disk = chaos::SmallDisk::mount(&options.out_dir.join("journal-disk"));
+    // The journal on a tmpfs of its own, so that a journal outage is a full disk.
+    let disk = crate::SmallDisk::mount("16m");
     let journal = match &disk {
         Some(disk) => disk.path().join("history"),
         None => options.out_dir.join("history"),
     };
     let _ = std::fs::remove_dir_all(options.out_dir.join("history"));
     let config_path = options.out_dir.join("soak.toml");
-    std::fs::write(&config_path, rig.config(&broker.url(), &journal, 500))?;
+    std::fs::write(&config_path, rig.config(&broker, &journal, 500))?;
     let log_path = options.out_dir.join("gateway.log");
     let mut command = Command::new(&options.daemon);
     command

@@ -16,6 +16,8 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_util::sync::CancellationToken;
 
+use crate::{Mosquitto, PlantConfig};
+
 /// Modbus TCP lines, each one simulator.
 pub const TCP_LINES: usize = 10;
 /// Devices on each, at addresses 1–10.
@@ -73,59 +75,21 @@ impl Rig {
         })
     }
 
-    /// The gateway's configuration: MQTT at `broker_url`, the journal in `journal`, line
-    /// `slow_line`'s response timeout `timeout_ms` (what a reload changes).
-    pub fn config(&self, broker_url: &str, journal: &Path, timeout_ms: u64) -> String {
-        let mut text = format!(
-            r#"[mqtt]
-url = "{broker_url}"
-client_id = "soak-gw"
-prefix = "plant"
-
-[gateway]
-stats_interval = "5s"
-
-[history]
-path = "{journal}"
-
-[[lines]]
-name = "line-a"
-port = "{line_a}"
-response_timeout = "150ms"
-
-[lines.serve]
-listen = "modbus-tcp://127.0.0.1:{serve_a}"
-
-[[lines.devices]]
-name = "dust_collector"
-profile = "ruiwan-dust-collector"
-address = 1
-
-[[lines.devices]]
-name = "air_shower"
-profile = "lixian-air-shower"
-address = 0x81
-
-[[lines]]
-name = "line-b"
-port = "{line_b}"
-parity = "even"
-response_timeout = "150ms"
-
-[lines.serve]
-listen = "modbus-tcp://127.0.0.1:{serve_b}"
-
-[[lines.devices]]
-name = "valve"
-profile = "wuzhou-valve"
-address = 1
-"#,
-            journal = journal.display(),
-            line_a = self.seed.line_a.path().display(),
-            line_b = self.seed.line_b.path().display(),
-            serve_a = self.serve_ports[0],
-            serve_b = self.serve_ports[1],
-        );
+    /// The gateway's configuration: MQTT at `broker`, the journal in `journal`, the first TCP
+    /// line's response timeout `timeout_ms` (what a reload changes).
+    pub fn config(&self, broker: &Mosquitto, journal: &Path, timeout_ms: u64) -> String {
+        let serve =
+            |port: u16| format!("\n[lines.serve]\nlisten = \"modbus-tcp://127.0.0.1:{port}\"");
+        let (serve_a, serve_b) = (serve(self.serve_ports[0]), serve(self.serve_ports[1]));
+        let mut text = PlantConfig {
+            discovery: true,
+            gateway: "stats_interval = \"5s\"",
+            line_a_keys: &serve_a,
+            line_b_keys: &serve_b,
+            ..PlantConfig::default()
+        }
+        .text(broker, &self.seed, "soak-gw");
+        text.push_str(&format!("\n[history]\npath = \"{}\"\n", journal.display()));
         for (line, simulator) in self.tcp.iter().enumerate() {
             let timeout = if line == 0 { timeout_ms } else { 500 };
             let (profile, parity) = if line < DUST_LINES {
