@@ -22,8 +22,7 @@ use crate::{Mosquitto, PlantConfig};
 pub const TCP_LINES: usize = 10;
 /// Devices on each, at addresses 1–10.
 pub const PER_TCP_LINE: u8 = 10;
-/// The first lines hold dust collectors, the others valves (each line's devices share their
-/// serial settings, as on a real line behind a Modbus TCP gateway).
+/// The first lines hold dust collectors, the others valves.
 const DUST_LINES: usize = TCP_LINES / 2;
 
 /// Every simulated device and line.
@@ -92,13 +91,14 @@ impl Rig {
         text.push_str(&format!("\n[history]\npath = \"{}\"\n", journal.display()));
         for (line, simulator) in self.tcp.iter().enumerate() {
             let timeout = if line == 0 { timeout_ms } else { 500 };
-            let (profile, parity) = if line < DUST_LINES {
-                ("ruiwan-dust-collector", "none")
+            let profile = if line < DUST_LINES {
+                "ruiwan-dust-collector"
             } else {
-                ("wuzhou-valve", "even")
+                "wuzhou-valve"
             };
+            // A Modbus TCP gateway's serial side is its own: no parity here.
             text.push_str(&format!(
-                "\n[[lines]]\nname = \"tcp{line:02}\"\nurl = \"{}\"\nparity = \"{parity}\"\n\
+                "\n[[lines]]\nname = \"tcp{line:02}\"\nurl = \"{}\"\n\
                  response_timeout = \"{timeout}ms\"\nconnect_timeout = \"1s\"\n",
                 simulator.url()
             ));
