@@ -12,22 +12,21 @@
 //! renumbers the segments instead of running out. A journal that cannot be written (a full
 //! disk, a path that is no usable directory) is a pause: the newest records wait in memory
 //! ([`PENDING_LIMIT`]), the cause is said once and kept as [`Journal::problem`] (the gateway
-//! is unhealthy meanwhile), and writing resumes by itself when it can.
+//! is unhealthy meanwhile), and writing resumes by itself when it can. Records handed out
+//! that come back go in front of all that waits ([`front`]).
 
 use std::collections::VecDeque;
 use std::fs::{self, File, OpenOptions};
-use std::io::{self, Read, Write};
-use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use nix::unistd::{access, AccessFlags};
 
 use super::record::{self, Record, MAGIC, MAX_RECORD};
+use super::segment_file::{read_segment_file, segment_names, SUFFIX};
 use crate::config::HistoryConfig;
 
-/// Segment files are named `<sequence>.journal`, the sequence zero-padded so that names sort.
-const SUFFIX: &str = "journal";
 /// The longest time written records stay unsynced.
 pub const SYNC_INTERVAL: Duration = Duration::from_secs(1);
 /// How often a journal that cannot be written is tried again.
@@ -41,6 +40,8 @@ const MIN_SEGMENT: u64 = 4 * 1024;
 const MAX_SEGMENT: u64 = 4 * 1024 * 1024;
 /// No segment is ever longer: a larger file of that name is not one, and is not read.
 pub const MAX_SEGMENT_FILE: u64 = MAX_SEGMENT + MAGIC.len() as u64 + MAX_RECORD as u64;
+/// How far the segments are numbered up when one has to be put before the first.
+const FRONT_ROOM: u64 = 1 << 20;
 /// A segment numbered this high makes the journal number its segments from 0 again, in
 /// order: a stray name cannot make the numbers run out.
 const RENUMBER_FROM: u64 = 1 << 63;
@@ -66,11 +67,27 @@ struct Segment {
     sequence: u64,
     bytes: u64,
     records: u64,
+    /// Records handed out for replay from its start (they are no longer waiting).
+    handed: u64,
     /// Read-at stamp of its newest record (ms since the epoch).
     newest_ms: u64,
 }
 
-/// The segment being appended to.
+impl Segment {
+    /// A segment just made: its header and no record.
+    fn begun(sequence: u64) -> Segment {
+        Segment {
+            sequence,
+            bytes: MAGIC.len() as u64,
+            records: 0,
+            handed: 0,
+            newest_ms: 0,
+        }
+    }
+}
+
+/// A segment being written: the one appended to, or the one in front of all that records
+/// coming back are put in.
 #[derive(Debug)]
 struct Writer {
     file: File,
@@ -89,9 +106,18 @@ pub struct Journal {
     /// Oldest first; when `writer` is set, the last one is the one written.
     segments: VecDeque<Segment>,
     writer: Option<Writer>,
+    /// The first segment, while records handed out come back into it
+    /// ([`Journal::put_back`]).
+    front_writer: Option<Writer>,
     next_sequence: u64,
-    /// The oldest segment's records, once replay has started on it, and how many are out.
-    replaying: Option<(VecDeque<Record>, u64)>,
+    /// The oldest segment's records not handed out yet, once replay has started on it.
+    replaying: Option<VecDeque<Record>>,
+    /// Records handed out that came back while they could not be written (or while others
+    /// that could not waited here), older than every record on disk, oldest first.
+    returned: VecDeque<Record>,
+    /// Where the next record coming back goes in `returned`: those coming back after one
+    /// replay come before whatever that replay left, in the order they come.
+    returned_at: usize,
     unsynced_since: Option<Instant>,
     /// Records not written yet, newer than every record on disk, oldest first.
     pending: VecDeque<Record>,
@@ -115,8 +141,11 @@ impl Journal {
             loaded: false,
             segments: VecDeque::new(),
             writer: None,
+            front_writer: None,
             next_sequence: 0,
             replaying: None,
+            returned: VecDeque::new(),
+            returned_at: 0,
             unsynced_since: None,
             pending: VecDeque::new(),
             pending_bytes: 0,
@@ -145,7 +174,7 @@ impl Journal {
             return Ok(None);
         }
         let mut stats = JournalStats::default();
-        for (path, _) in segment_names(dir)? {
+        for (path, sequence) in segment_names(dir)? {
             let bytes = match read_segment_file(&path) {
                 Ok(bytes) => bytes,
                 // Not a regular file: no segment, and no damage either.
@@ -156,8 +185,9 @@ impl Journal {
                 }
             };
             let decoded = record::decode(&bytes);
-            // A file with no header and no record is a stray file, not a damaged segment.
-            if !decoded.foreign {
+            // A file with no header and no record is a stray file, not a damaged segment; nor
+            // is one numbered beyond any sequence number.
+            if !decoded.foreign && sequence.is_some() {
                 stats.damaged += decoded.damaged;
                 stats.bytes += bytes.len() as u64;
                 stats.waiting += decoded.records.len() as u64;
@@ -245,7 +275,7 @@ impl Journal {
     /// Syncs what was written now (on shutdown).
     pub fn sync(&mut self) {
         self.unsynced_since = None;
-        if let Some(writer) = &self.writer {
+        for writer in [&self.writer, &self.front_writer].into_iter().flatten() {
             if let Err(error) = writer.file.sync_data() {
                 tracing::error!(dir = %self.dir.display(), %error, "history journal cannot be synced");
             }
@@ -253,41 +283,41 @@ impl Journal {
     }
 
     /// Up to `limit` of the oldest records, in order, handed out for replay and deleted from
-    /// the journal (a segment file goes when its last record is handed out); those waiting in
-    /// memory come after the disk's. Records older than `max_age` at `now_ms` are dropped,
-    /// counted, instead.
+    /// the journal (a segment file goes when its last record is handed out); those that came
+    /// back without being written come first, those waiting in memory after the disk's.
+    /// Records older than `max_age` at `now_ms` are dropped, counted, instead.
     pub fn take(&mut self, limit: usize, now_ms: u64) -> Vec<Record> {
         self.drop_expired(now_ms);
         let oldest_kept = now_ms.saturating_sub(self.max_age.as_millis() as u64);
-        let mut out = Vec::new();
-        while out.len() < limit {
-            let Some(sequence) = self.segments.front().map(|segment| segment.sequence) else {
-                break;
-            };
-            if self.replaying.is_none() {
-                self.replaying = Some((self.read_segment(sequence), 0));
+        let mut taken = Vec::new();
+        while taken.len() < limit {
+            if let Some(record) = self.returned.pop_front() {
+                taken.push(record);
+                continue;
             }
-            let Some((records, handed)) = &mut self.replaying else {
+            let Some(front) = self.segments.front() else {
                 break;
             };
-            match records.pop_front() {
+            let (sequence, handed, total) = (front.sequence, front.handed, front.records);
+            if self.replaying.is_none() {
+                let mut records = self.read_segment(sequence);
+                records.drain(..records.len().min(handed as usize));
+                self.replaying = Some(records);
+            }
+            match self.replaying.as_mut().and_then(VecDeque::pop_front) {
                 Some(record) => {
-                    *handed += 1;
-                    if record.at_ms < oldest_kept {
-                        self.stats.dropped += 1;
-                    } else {
-                        out.push(record);
+                    if let Some(front) = self.segments.front_mut() {
+                        front.handed += 1;
                     }
+                    taken.push(record);
                 }
                 None => {
-                    let total = self.segments.front().map_or(0, |s| s.records);
-                    let handed = *handed;
                     if handed < total {
                         // Appended since it was read: read again past what was handed out.
                         let mut fresh = self.read_segment(sequence);
                         fresh.drain(..fresh.len().min(handed as usize));
                         if !fresh.is_empty() {
-                            self.replaying = Some((fresh, handed));
+                            self.replaying = Some(fresh);
                             continue;
                         }
                     }
@@ -295,19 +325,30 @@ impl Journal {
                 }
             }
         }
-        while out.len() < limit && self.segments.is_empty() {
+        // A segment whose every record is out goes now, not at the next replay: a start in
+        // between would replay it again.
+        while self.segments.front().is_some_and(|s| s.handed >= s.records) {
+            self.remove_front();
+        }
+        while taken.len() < limit && self.segments.is_empty() {
             let Some(record) = self.pending.pop_front() else {
                 break;
             };
             self.pending_bytes = self.pending_bytes.saturating_sub(encoded_len(&record));
-            if record.at_ms < oldest_kept {
-                self.stats.dropped += 1;
-            } else {
-                out.push(record);
-            }
+            taken.push(record);
         }
+        if !taken.is_empty() {
+            // What comes back from now on was handed out by this replay: it goes before
+            // everything the replay left.
+            self.close_front();
+            self.returned_at = 0;
+        }
+        let (kept, expired): (Vec<Record>, Vec<Record>) = taken
+            .into_iter()
+            .partition(|record| record.at_ms >= oldest_kept);
+        self.stats.dropped += expired.len() as u64;
         self.refresh_stats();
-        out
+        kept
     }
 
     /// Reads the directory when it was not read yet, checks that it can be written, and
@@ -406,10 +447,19 @@ impl Journal {
                 let _ = fs::remove_file(&path);
                 continue;
             }
+            let Some(sequence) = sequence else {
+                // Records under a number no segment of ours can have: not replayed, since
+                // they cannot be put in order.
+                tracing::warn!(path = %path.display(), records = decoded.records.len(),
+                    "not a history journal segment (its number is beyond any sequence number): \
+                     skipped, left alone");
+                continue;
+            };
             self.segments.push_back(Segment {
                 sequence,
                 bytes: bytes.len() as u64,
                 records: decoded.records.len() as u64,
+                handed: 0,
                 newest_ms: decoded.records.iter().map(|r| r.at_ms).max().unwrap_or(0),
             });
         }
@@ -462,35 +512,35 @@ impl Journal {
         if self.next_sequence >= RENUMBER_FROM {
             self.renumber();
         }
-        let (mut file, sequence) = loop {
+        let (file, sequence) = loop {
             let sequence = self.next_sequence;
             self.next_sequence = sequence
                 .checked_add(1)
                 .ok_or_else(|| io::Error::other("segment numbers exhausted"))?;
-            match OpenOptions::new()
-                .create_new(true)
-                .append(true)
-                .open(self.path_of(sequence))
-            {
+            match self.create_segment(sequence) {
                 Ok(file) => break (file, sequence),
                 // Something else has that name: it is left alone, the next one is taken.
                 Err(error) if error.kind() == io::ErrorKind::AlreadyExists => continue,
                 Err(error) => return Err(error),
             }
         };
+        self.segments.push_back(Segment::begun(sequence));
+        self.writer = Some(Writer { file, sequence });
+        // The new name must survive a power cut as well as the records in it.
+        File::open(&self.dir)?.sync_all()
+    }
+
+    /// Makes segment file `sequence` (never over another file) with its header.
+    fn create_segment(&self, sequence: u64) -> io::Result<File> {
+        let mut file = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(self.path_of(sequence))?;
         if let Err(error) = file.write_all(MAGIC) {
             let _ = fs::remove_file(self.path_of(sequence));
             return Err(error);
         }
-        self.segments.push_back(Segment {
-            sequence,
-            bytes: MAGIC.len() as u64,
-            records: 0,
-            newest_ms: 0,
-        });
-        self.writer = Some(Writer { file, sequence });
-        // The new name must survive a power cut as well as the records in it.
-        File::open(&self.dir)?.sync_all()
+        Ok(file)
     }
 
     /// Numbers the segments from 0 again, in order, past names something else holds.
@@ -507,8 +557,13 @@ impl Journal {
                     return;
                 }
                 self.segments[index].sequence = next;
-                if let Some(writer) = self.writer.as_mut().filter(|w| w.sequence == old) {
-                    writer.sequence = next;
+                for writer in [&mut self.writer, &mut self.front_writer]
+                    .into_iter()
+                    .flatten()
+                {
+                    if writer.sequence == old {
+                        writer.sequence = next;
+                    }
                 }
             }
             next += 1;
@@ -575,6 +630,13 @@ impl Journal {
             self.writer = None;
             self.unsynced_since = None;
         }
+        if self
+            .front_writer
+            .as_ref()
+            .is_some_and(|w| w.sequence == segment.sequence)
+        {
+            self.front_writer = None;
+        }
         self.replaying = None;
         if let Err(error) = fs::remove_file(self.path_of(segment.sequence)) {
             if error.kind() != io::ErrorKind::NotFound {
@@ -586,11 +648,14 @@ impl Journal {
 
     /// Drops the oldest segment to keep the bound, counting its records not yet handed out.
     fn drop_oldest(&mut self) -> bool {
-        let handed = self.replaying.as_ref().map_or(0, |(_, handed)| *handed);
-        let Some(records) = self.segments.front().map(|s| s.records) else {
+        let Some(waiting) = self
+            .segments
+            .front()
+            .map(|s| s.records.saturating_sub(s.handed))
+        else {
             return false;
         };
-        self.stats.dropped += records.saturating_sub(handed);
+        self.stats.dropped += waiting;
         self.remove_front()
     }
 
@@ -610,10 +675,13 @@ impl Journal {
     }
 
     fn refresh_stats(&mut self) {
-        let handed = self.replaying.as_ref().map_or(0, |(_, handed)| *handed);
         self.stats.bytes = self.disk_bytes();
-        let records: u64 = self.segments.iter().map(|s| s.records).sum();
-        self.stats.waiting = records.saturating_sub(handed) + self.pending.len() as u64;
+        let on_disk: u64 = self
+            .segments
+            .iter()
+            .map(|s| s.records.saturating_sub(s.handed))
+            .sum();
+        self.stats.waiting = on_disk + (self.pending.len() + self.returned.len()) as u64;
     }
 
     fn path_of(&self, sequence: u64) -> PathBuf {
@@ -625,83 +693,8 @@ fn encoded_len(record: &Record) -> u64 {
     record.encode().map_or(0, |bytes| bytes.len() as u64)
 }
 
-/// The files of `dir` named like segments, with their sequence numbers, in order.
-fn segment_names(dir: &Path) -> io::Result<Vec<(PathBuf, u64)>> {
-    let mut names: Vec<(PathBuf, u64)> = fs::read_dir(dir)?
-        .flatten()
-        .filter_map(|entry| {
-            let path = entry.path();
-            sequence_of(&path).map(|sequence| (path, sequence))
-        })
-        .collect();
-    names.sort_unstable_by_key(|(_, sequence)| *sequence);
-    Ok(names)
-}
-
-/// A segment file's bytes. Only a regular file is one: anything else of that name (a FIFO,
-/// a socket, a device, a directory, a symbolic link) is refused before it is opened
-/// ([`io::ErrorKind::Unsupported`]), opening never blocks or follows a link, the kind is
-/// checked again on what was opened, and a file longer than any segment is not read.
-fn read_segment_file(path: &Path) -> io::Result<Vec<u8>> {
-    let not_segment = |kind: &str| {
-        io::Error::new(
-            io::ErrorKind::Unsupported,
-            format!("{kind}, not a regular file"),
-        )
-    };
-    let kind = fs::symlink_metadata(path)?.file_type();
-    if !kind.is_file() {
-        return Err(not_segment(kind_name(kind)));
-    }
-    let file = OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
-        .open(path)?;
-    let meta = file.metadata()?;
-    if !meta.file_type().is_file() {
-        return Err(not_segment(kind_name(meta.file_type())));
-    }
-    if meta.len() > MAX_SEGMENT_FILE {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidData,
-            format!(
-                "{} bytes, longer than any segment ({MAX_SEGMENT_FILE})",
-                meta.len()
-            ),
-        ));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(MAX_SEGMENT_FILE).read_to_end(&mut bytes)?;
-    Ok(bytes)
-}
-
-fn kind_name(kind: fs::FileType) -> &'static str {
-    if kind.is_symlink() {
-        "a symbolic link"
-    } else if kind.is_dir() {
-        "a directory"
-    } else if kind.is_fifo() {
-        "a FIFO"
-    } else if kind.is_socket() {
-        "a socket"
-    } else if kind.is_block_device() || kind.is_char_device() {
-        "a device"
-    } else {
-        "not a regular file"
-    }
-}
-
-/// The sequence number of a segment file's path; None for any other file.
-fn sequence_of(path: &Path) -> Option<u64> {
-    if path.extension()? != SUFFIX {
-        return None;
-    }
-    let stem = path.file_stem()?.to_str()?;
-    if stem.is_empty() || !stem.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    stem.parse().ok()
-}
+#[path = "journal_front.rs"]
+mod front;
 
 #[cfg(test)]
 #[path = "journal_tests.rs"]

@@ -6,6 +6,7 @@
 pub mod document;
 pub mod journal;
 pub mod record;
+mod segment_file;
 
 pub use journal::{Journal, JournalStats};
 pub use record::Record;

@@ -28,6 +28,9 @@ pub struct PlantConfig<'a> {
     pub explicit_serial: bool,
     /// More keys for both lines.
     pub line_keys: &'a str,
+    /// More keys (or sub-tables, such as `[lines.serve]`) for line-a, and for line-b.
+    pub line_a_keys: &'a str,
+    pub line_b_keys: &'a str,
     /// More keys for the dust collector.
     pub dust_collector_keys: &'a str,
 }
@@ -58,7 +61,7 @@ discovery = {discovery}
 name = "line-a"
 port = "{line_a}"
 {line_a_serial}response_timeout = "150ms"
-{line_keys}
+{line_keys}{line_a_keys}
 [[lines.devices]]
 name = "dust_collector"
 profile = "ruiwan-dust-collector"
@@ -74,7 +77,7 @@ name = "line-b"
 port = "{line_b}"
 {line_b_serial}parity = "even"
 response_timeout = "150ms"
-{line_keys}
+{line_keys}{line_b_keys}
 [[lines.devices]]
 name = "valve"
 profile = "wuzhou-valve"
@@ -85,6 +88,8 @@ address = 1
             line_a = plant.line_a.path().display(),
             line_b = plant.line_b.path().display(),
             dust_collector_keys = with_newline(self.dust_collector_keys),
+            line_a_keys = with_newline(self.line_a_keys),
+            line_b_keys = with_newline(self.line_b_keys),
         )
     }
 }

@@ -9,22 +9,27 @@
 //! - [`plant_bench`]: the broker + plant + gateway bench most end-to-end tests stand on
 //!   ([`PlantBench`]).
 //! - [`child`]: the workspace's binaries as child processes, killed and reaped on drop.
+//! - [`disk`]: a small tmpfs to fill, for a full disk ([`SmallDisk`]).
 //! - [`command`]: a command's refusal by a profile, for asserting the same words as the gateway.
 //! - [`hex`]: frames as hex text.
 //! - [`pysparkplug`]: the Sparkplug B decoder written by others, run through Python.
+//! - [`soak`]: the gateway process under a long run of chaos, with its end checks.
 
 pub mod broker;
 pub mod browser;
 pub mod child;
 pub mod client;
 pub mod command;
+pub mod disk;
 pub mod gateway;
 pub mod hex;
 pub mod plant_bench;
 pub mod pysparkplug;
+pub mod soak;
 
 pub use broker::{free_port, Mosquitto, MOSQUITTO};
 pub use browser::Browser;
 pub use client::{Message, TestClient};
+pub use disk::SmallDisk;
 pub use gateway::{fast_config, Gateway, PlantConfig};
 pub use plant_bench::{PlantBench, PlantSetup, PLANT_ANSWER, SEED_DEVICES};

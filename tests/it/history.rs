@@ -14,7 +14,7 @@ use rtu2mqtt_sim::{self as sim, SeedPlant};
 use serde_json::{Map, Value as Json};
 use support::child::{gateway_run, KillOnDrop};
 use support::pysparkplug::decode_with_pysparkplug;
-use support::{Gateway, Message, Mosquitto, PlantConfig, TestClient};
+use support::{Gateway, Message, Mosquitto, PlantConfig, SmallDisk, TestClient};
 
 const ANSWER: Duration = Duration::from_secs(15);
 const DUST_HISTORY: &str = "plant/dust_collector/history";
@@ -92,9 +92,13 @@ async fn walk_alarms(plant: &SeedPlant, sequence: &[u16]) {
     }
 }
 
-/// A subscriber to every device's history stream.
+/// A subscriber to every device's history stream, under a client id of its own: an earlier
+/// one still alive would take the session over at each reconnect, and lose what the broker
+/// delivers meanwhile.
 async fn historian(port: u16) -> TestClient {
-    let mut observer = TestClient::connect(port, "historian").await;
+    static HISTORIANS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = HISTORIANS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut observer = TestClient::connect(port, &format!("historian-{n}")).await;
     observer.subscribe("plant/+/history").await;
     observer
 }
@@ -658,40 +662,6 @@ async fn a_history_path_that_cannot_be_written_makes_the_gateway_unhealthy_never
     assert!(gateway.is_running());
 }
 
-/// A tmpfs of 256 KiB mounted on a fresh directory, unmounted when dropped; None where
-/// mounting needs a root this test does not have.
-struct SmallDisk(tempfile::TempDir);
-
-impl SmallDisk {
-    fn mount() -> Option<SmallDisk> {
-        let dir = tempfile::tempdir().ok()?;
-        let mounted = std::process::Command::new("mount")
-            .args(["-t", "tmpfs", "-o", "size=256k", "tmpfs"])
-            .arg(dir.path())
-            .status()
-            .is_ok_and(|status| status.success());
-        mounted.then_some(SmallDisk(dir))
-    }
-
-    /// Takes all the room left.
-    fn fill(&self) -> std::path::PathBuf {
-        use std::io::Write;
-        let path = self.0.path().join("filler");
-        let mut file = std::fs::File::create(&path).expect("filler");
-        while file.write_all(&[0xAA; 4096]).is_ok() {}
-        while file.write_all(&[0xAA; 1]).is_ok() {}
-        path
-    }
-}
-
-impl Drop for SmallDisk {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount")
-            .arg(self.0.path())
-            .status();
-    }
-}
-
 /// Waits until the gateway's journal is said writable (`problem` None) or not.
 async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> {
     let mut problem = gateway.running.bridge.history_problem.clone();
@@ -703,34 +673,119 @@ async fn journal_problem_is(gateway: &Gateway, failing: bool) -> Option<String> 
     said
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
-    let Some(disk) = SmallDisk::mount() else {
+/// The gateway over the seed plant with its journal on a small tmpfs; None where mounting
+/// one needs a root this test does not have.
+async fn on_a_small_disk(client_id: &str) -> Option<(SmallDisk, Mosquitto, SeedPlant, Gateway)> {
+    let Some(disk) = SmallDisk::mount("256k") else {
         eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
-        return;
+        return None;
     };
-    let mut broker = Mosquitto::start();
+    let broker = Mosquitto::start();
     let plant = SeedPlant::spawn(false).expect("seed plant");
-    let journal = disk.0.path().join("history");
-    let config = support::fast_config(&config_text(&broker, &plant, "hist-full", &journal));
+    let journal = disk.path().join("history");
+    let config = support::fast_config(&config_text(&broker, &plant, client_id, &journal));
     sim::lock(&plant.dust_collector).set_alarms(0);
+    sim::lock(&plant.air_shower).set_emergency_stop(false);
     let gateway = Gateway::start(config).await;
     first_history(broker.port).await;
+    Some((disk, broker, plant, gateway))
+}
 
+/// An outage on a full disk, room again during it ("writable again"), the broker back: every
+/// alarm state read meanwhile arrives, in order.
+async fn full_disk_outage(
+    disk: &SmallDisk,
+    broker: &mut Mosquitto,
+    plant: &SeedPlant,
+    gateway: &Gateway,
+) {
     let filler = disk.fill();
     broker.kill();
-    link_is(&gateway, false).await;
+    link_is(gateway, false).await;
     let outage = [1, 2, 4, 7, 0];
-    walk_alarms(&plant, &outage[..3]).await;
-    let problem = journal_problem_is(&gateway, true).await.unwrap_or_default();
+    walk_alarms(plant, &outage[..3]).await;
+    let problem = journal_problem_is(gateway, true).await.unwrap_or_default();
     assert!(problem.contains("No space left on device"), "{problem}");
     // Room again: the journal resumes by itself, the outage goes on.
     std::fs::remove_file(filler).expect("remove the filler");
-    journal_problem_is(&gateway, false).await;
-    walk_alarms(&plant, &outage[3..]).await;
+    journal_problem_is(gateway, false).await;
+    walk_alarms(plant, &outage[3..]).await;
     broker.restart();
     let mut observer = historian(broker.port).await;
     assert_outage_follows_in_order(&mut observer, &outage).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_during_an_outage_is_a_pause_and_nothing_read_is_lost() {
+    let Some((disk, mut broker, plant, gateway)) = on_a_small_disk("hist-full").await else {
+        return;
+    };
+    full_disk_outage(&disk, &mut broker, &plant, &gateway).await;
+    gateway.stop().await;
+    drop(disk);
+}
+
+const SHOWER_HISTORY: &str = "plant/air_shower/history";
+
+/// The air shower's e-stop after each of its history documents (folding the change sets),
+/// with repeats collapsed.
+fn estop_states(messages: &[Message]) -> Vec<bool> {
+    let mut state = None;
+    let mut states = Vec::new();
+    for message in messages {
+        if let Some(estop) = message.json()["values"]["emergency_stop"].as_bool() {
+            state = Some(estop);
+        }
+        if let Some(now) = state {
+            if states.last() != Some(&now) {
+                states.push(now);
+            }
+        }
+    }
+    states
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_full_disk_has_room_again_a_later_outage_loses_nothing() {
+    let Some((disk, mut broker, plant, gateway)) = on_a_small_disk("hist-later").await else {
+        return;
+    };
+    full_disk_outage(&disk, &mut broker, &plant, &gateway).await;
+
+    // The next outage, ten seconds, on a disk full again: five changes of the air shower,
+    // waiting in memory with everything else read meanwhile; the broker is back while they
+    // wait there, and the disk has room again a little later.
+    let filler = disk.fill();
+    broker.kill();
+    link_is(&gateway, false).await;
+    let changes = [true, false, true, false, true];
+    for &estop in &changes {
+        sim::lock(&plant.air_shower).set_emergency_stop(estop);
+        tokio::time::sleep(Duration::from_millis(2000)).await;
+    }
+    journal_problem_is(&gateway, true).await;
+    broker.restart();
+    let mut observer = historian(broker.port).await;
+    link_is(&gateway, true).await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    std::fs::remove_file(filler).expect("remove the filler");
+    journal_problem_is(&gateway, false).await;
+    let deadline = tokio::time::Instant::now() + ANSWER;
+    loop {
+        observer.settle(Duration::from_millis(500)).await;
+        let seen: Vec<Message> = observer.on(SHOWER_HISTORY).into_iter().cloned().collect();
+        let states = estop_states(&seen);
+        if states.windows(changes.len()).any(|w| w == changes) {
+            assert_in_order(&seen);
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "a change of the air shower read during the outage is missing: expected {changes:?} \
+             in {states:?}\n{:?}",
+            seen.iter().map(Message::text).collect::<Vec<_>>()
+        );
+    }
     gateway.stop().await;
     drop(disk);
 }

@@ -44,6 +44,7 @@ mod scheduler_cadence;
 mod scheduler_time;
 mod sim_pty;
 mod sim_tcp;
+mod soak;
 mod sparkplug_decode;
 mod sparkplug_e2e;
 mod sparkplug_node;

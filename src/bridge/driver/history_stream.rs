@@ -4,8 +4,9 @@
 //! reconnect. The core decides what a change set is ([`HistoryEntry`]); this only carries it.
 //! What is replayed is also handed on (to the Sparkplug node's store and forward), never
 //! faster than it is taken. When a connection is lost, what was handed towards the broker and
-//! not acknowledged comes back here and is journaled first; change sets queued behind it are
-//! held until all of it is back, so that the journal stays in the order values were read.
+//! not acknowledged comes back here and is put back in front of everything the journal still
+//! holds (it was read before all of that); what the outbox held is older than nothing the
+//! writer still gives back, so it waits until all of that is back, and follows it.
 
 use std::time::{Instant, SystemTime};
 
@@ -34,8 +35,8 @@ pub(crate) struct HistoryStream {
     journal: Journal,
     /// Where replayed records are handed on, once [`HistoryStream::forward_replays`] is called.
     forward: Option<mpsc::Sender<Record>>,
-    /// Change sets newer than some still coming back from the writer after a lost
-    /// connection: journaled once those are ([`HistoryStream::release_held`]).
+    /// What the outbox held when the connection was lost, newer than what the writer still
+    /// gives back: put back once that is ([`HistoryStream::release_held`]).
     held: Option<Vec<Record>>,
 }
 
@@ -77,11 +78,12 @@ impl HistoryStream {
     }
 
     /// A history publish that went towards the broker and was not acknowledged, or was not
-    /// handed over at all: journaled (in the order they come back).
+    /// handed over at all: put back in front of what the journal holds (behind what came back
+    /// before it).
     pub(crate) fn take_back(&mut self, topic: &str, document: &[u8]) {
         let document = String::from_utf8_lossy(document).into_owned();
         match self.record_of(topic, document) {
-            Some(record) => self.journal(record),
+            Some(record) => self.journal.put_back(&record),
             None => {
                 tracing::warn!(%topic, "a history publish taken back is not one of this gateway's")
             }
@@ -100,8 +102,8 @@ impl HistoryStream {
         })
     }
 
-    /// From now on change sets wait in memory, behind `queued` (those the outbox held), until
-    /// [`HistoryStream::release_held`].
+    /// `queued` (what the outbox held) waits in memory until [`HistoryStream::release_held`];
+    /// change sets read meanwhile are journaled, behind everything.
     pub(crate) fn hold(&mut self, queued: Vec<Publish>) {
         let records: Vec<Record> = queued
             .into_iter()
@@ -113,7 +115,7 @@ impl HistoryStream {
     /// Everything taken back is in the journal: what was held follows it there.
     pub(crate) fn release_held(&mut self) {
         for record in self.held.take().unwrap_or_default() {
-            self.journal(record);
+            self.journal.put_back(&record);
         }
     }
 
@@ -131,21 +133,17 @@ impl HistoryStream {
     }
 
     /// Where `entry` goes: the publish to make now, or None when it was journaled (the link
-    /// is down, or older records still wait for their replay).
+    /// is down, or older records still wait for their replay or to come back).
     pub(crate) fn route(&mut self, entry: HistoryEntry, link_up: bool) -> Option<Publish> {
         let waiting = !self.journal.is_empty();
         if link_up && !waiting && self.held.is_none() {
             return Some(publish(entry.topic, entry.document));
         }
-        let record = Record {
+        self.journal(Record {
             at_ms: entry.at_ms,
             device: entry.device,
             document: entry.document,
-        };
-        match &mut self.held {
-            Some(held) => held.push(record),
-            None => self.journal(record),
-        }
+        });
         None
     }
 
@@ -268,6 +266,37 @@ mod tests {
         stream.take_back(&handed[1].topic, handed[1].payload.as_bytes());
         stream.release_held();
         assert_eq!(replayed_gears(&mut stream), ["1", "2", "3", "4"]);
+    }
+
+    #[test]
+    fn what_a_replay_handed_out_and_gets_back_comes_before_what_it_left() {
+        let dir = tempfile::tempdir().expect("dir");
+        let mut stream = stream(dir.path());
+        for n in 0..10 {
+            assert_eq!(stream.route(entry(n), false), None);
+        }
+        // The broker is back: the replay hands out 0 to 3; the link is lost again with 0 and 1
+        // unacknowledged, 2 with the writer and 3 still in the outbox.
+        let handed = stream.replay(4);
+        assert_eq!(replay_all_of(handed.clone()), gears(0..4));
+        for publish in &handed[..2] {
+            stream.take_back(&publish.topic, publish.payload.as_bytes());
+        }
+        stream.hold(vec![handed[3].clone()]);
+        assert_eq!(stream.route(entry(10), false), None, "read meanwhile");
+        stream.take_back(&handed[2].topic, handed[2].payload.as_bytes());
+        stream.release_held();
+        // Back again: the replay hands out 0 and 1 and loses them once more.
+        let handed = stream.replay(2);
+        assert_eq!(replay_all_of(handed.clone()), gears(0..2));
+        for publish in &handed {
+            stream.take_back(&publish.topic, publish.payload.as_bytes());
+        }
+        assert_eq!(stream.route(entry(11), false), None);
+        assert_eq!(replay_all(&mut stream, 3), gears(0..12));
+        // Nothing is left behind on disk.
+        let files = std::fs::read_dir(dir.path()).map_or(0, Iterator::count);
+        assert_eq!(files, 0, "every segment is removed once replayed");
     }
 
     #[test]
@@ -402,6 +431,32 @@ mod tests {
         assert_eq!(replayed, gears(5..n + 1), "{on_disk} were on disk");
         assert_eq!(stream.stats(true).journal.waiting, 0);
         assert!(stream.route(entry(n + 1), true).is_some(), "live again");
+    }
+
+    #[test]
+    fn what_comes_back_while_the_disk_is_full_waits_in_memory_in_front() {
+        let Some(disk) = SmallDisk::mount("64k") else {
+            eprintln!("a full disk is tested on a tmpfs: mounting one needs root");
+            return;
+        };
+        let mut stream = stream(&disk.0.path().join("history"));
+        for n in 0..6 {
+            assert_eq!(stream.route(entry(n), false), None);
+        }
+        let handed = stream.replay(3);
+        assert_eq!(replay_all_of(handed.clone()), gears(0..3));
+        // The link is lost with 0 to 2 in flight, on a full disk: 0 is written in front, then
+        // the disk is full; all three wait in memory, in order, ahead of 3 to 5.
+        let filler = disk.fill();
+        for publish in &handed {
+            stream.take_back(&publish.topic, publish.payload.as_bytes());
+        }
+        assert!(stream.problem().is_some());
+        assert_eq!(stream.route(entry(6), false), None);
+        std::fs::remove_file(&filler).expect("room again");
+        stream.on_tick(Instant::now() + Duration::from_secs(2));
+        assert_eq!(stream.problem(), None);
+        assert_eq!(replay_all(&mut stream, 2), gears(0..7));
     }
 
     fn replay_all_of(publishes: Vec<Publish>) -> Vec<String> {
