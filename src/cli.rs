@@ -42,6 +42,7 @@ pub enum Command {
     /// Validate the configuration and profiles and print each line's poll plan; touches no port
     /// and no broker.
     Check {
+        /// Configuration file.
         #[arg(
             long,
             env = "RTU2MQTT_CONFIG",
@@ -65,6 +66,7 @@ pub enum Command {
     },
     /// Exit 0 when the daemon's status file is fresh (Docker HEALTHCHECK).
     Health {
+        /// The status file the daemon rewrites.
         #[arg(long, default_value = "/run/rtu2mqtt/health")]
         status_file: PathBuf,
         /// Maximum age of the status file.

@@ -123,9 +123,13 @@ fn every_command_and_long_option_has_its_manual_page() {
             unroff(&text(&pages, &format!("man/rtu2mqtt-{command}.1")))
         };
         for option in options {
+            // An OPTIONS entry: `--port <PORT>`, `--help`, or `-h, --help`.
+            let entry = |line: &str| {
+                let line = line.split_once(", ").map_or(line, |(_, long)| long);
+                line == option || line.starts_with(&format!("{option} "))
+            };
             assert!(
-                page.lines()
-                    .any(|line| line.starts_with(&option) || line.contains(&format!(", {option}"))),
+                page.lines().any(entry),
                 "rtu2mqtt {command} {option} is not in its manual page's OPTIONS"
             );
         }
@@ -183,8 +187,11 @@ fn zsh_completes_every_command_and_long_option() {
                 zsh.contains(&format!("\n'{command}:")),
                 "zsh does not complete `{command}`"
             );
+            let arm = format!("({command})\n");
             let start = zsh
-                .find(&format!("\n({command})\n"))
+                .match_indices(&arm)
+                .map(|(at, _)| at)
+                .find(|at| zsh[..*at].ends_with(['\n', ' ']))
                 .unwrap_or_else(|| panic!("no ({command}) in the zsh completion"));
             let end = zsh[start..].find("\n;;").expect("the end of its arguments");
             zsh[start..start + end].to_string()
