@@ -142,11 +142,38 @@ fn every_command_and_long_option_has_its_manual_page() {
     );
 }
 
+/// Asserts, for one shell, that it completes every command, and every long option of each
+/// command (`""` for rtu2mqtt itself) within the part of its script that `part_of` cuts out.
+fn assert_completes(
+    shell: &str,
+    completes_command: impl Fn(&str) -> bool,
+    part_of: impl Fn(&str) -> String,
+    completes_option: impl Fn(&str, &str) -> bool,
+) {
+    for (command, options) in options_by_command() {
+        assert!(
+            command.is_empty() || completes_command(&command),
+            "{shell} does not complete `{command}`"
+        );
+        let part = part_of(&command);
+        for option in options {
+            assert!(
+                completes_option(&part, &option),
+                "{shell} does not complete rtu2mqtt {command} {option}"
+            );
+        }
+    }
+}
+
 #[test]
 fn bash_completes_every_command_and_long_option() {
     let bash = text(&completions(), "completions/rtu2mqtt.bash");
     // Each command's case arm sets `opts` to the words it completes.
-    let opts_of = |arm: &str| -> Vec<String> {
+    let opts_of = |command: &str| -> String {
+        let arm = match command {
+            "" => "rtu2mqtt".to_string(),
+            command => format!("rtu2mqtt__subcmd__{command}"),
+        };
         let start = bash
             .find(&format!("\n        {arm})\n"))
             .unwrap_or_else(|| panic!("no case for {arm} in the bash completion"));
@@ -154,84 +181,64 @@ fn bash_completes_every_command_and_long_option() {
             .lines()
             .find_map(|line| line.trim().strip_prefix("opts=\""))
             .expect("an opts line");
-        opts.trim_end_matches('"')
-            .split_whitespace()
-            .map(String::from)
-            .collect()
+        format!(" {} ", opts.trim_end_matches('"'))
     };
-    let top = opts_of("rtu2mqtt");
-    for (command, options) in options_by_command() {
-        let words = if command.is_empty() {
-            top.clone()
-        } else {
-            assert!(top.contains(&command), "bash does not complete `{command}`");
-            opts_of(&format!("rtu2mqtt__subcmd__{command}"))
-        };
-        for option in options {
-            assert!(
-                words.contains(&option),
-                "bash does not complete rtu2mqtt {command} {option}: {words:?}"
-            );
-        }
-    }
+    let word = |opts: &str, word: &str| opts.contains(&format!(" {word} "));
+    assert_completes("bash", |command| word(&opts_of(""), command), opts_of, word);
 }
 
 #[test]
 fn zsh_completes_every_command_and_long_option() {
     let zsh = text(&completions(), "completions/_rtu2mqtt");
-    for (command, options) in options_by_command() {
-        let arguments = if command.is_empty() {
-            zsh[..zsh.find("case $state in").expect("the command state")].to_string()
-        } else {
-            assert!(
-                zsh.contains(&format!("\n'{command}:")),
-                "zsh does not complete `{command}`"
-            );
-            let arm = format!("({command})\n");
-            let start = zsh
-                .match_indices(&arm)
-                .map(|(at, _)| at)
-                .find(|at| zsh[..*at].ends_with(['\n', ' ']))
-                .unwrap_or_else(|| panic!("no ({command}) in the zsh completion"));
-            let end = zsh[start..].find("\n;;").expect("the end of its arguments");
-            zsh[start..start + end].to_string()
-        };
-        for option in options {
-            assert!(
-                arguments.contains(&format!("{option}=["))
-                    || arguments.contains(&format!("'{option}["))
-                    || arguments.contains(&format!("){option}["))
-                    || arguments.contains(&format!("){option}=[")),
-                "zsh does not complete rtu2mqtt {command} {option}"
-            );
+    // rtu2mqtt's own arguments come before the commands' states; each command's follow its
+    // `(command)` arm.
+    let arguments_of = |command: &str| -> String {
+        if command.is_empty() {
+            return zsh[..zsh.find("case $state in").expect("the command state")].to_string();
         }
-    }
+        let arm = format!("({command})\n");
+        let start = zsh
+            .match_indices(&arm)
+            .map(|(at, _)| at)
+            .find(|at| zsh[..*at].ends_with(['\n', ' ']))
+            .unwrap_or_else(|| panic!("no ({command}) in the zsh completion"));
+        let end = zsh[start..].find("\n;;").expect("the end of its arguments");
+        zsh[start..start + end].to_string()
+    };
+    assert_completes(
+        "zsh",
+        |command| zsh.contains(&format!("\n'{command}:")),
+        arguments_of,
+        |arguments, option| {
+            ["'", ")"].iter().any(|before| {
+                arguments.contains(&format!("{before}{option}["))
+                    || arguments.contains(&format!("{before}{option}=["))
+                    || arguments.contains(&format!("{before}*{option}=["))
+            }) || arguments.contains(&format!("'*{option}=["))
+        },
+    );
 }
 
 #[test]
 fn fish_completes_every_command_and_long_option() {
     let fish = text(&completions(), "completions/rtu2mqtt.fish");
-    for (command, options) in options_by_command() {
-        let condition = if command.is_empty() {
-            "__fish_rtu2mqtt_needs_command\"".to_string()
-        } else {
-            assert!(
-                fish.contains(&format!(
-                    "-n \"__fish_rtu2mqtt_needs_command\" -f -a \"{command}\""
-                )),
-                "fish does not complete `{command}`"
-            );
-            format!("__fish_rtu2mqtt_using_subcommand {command}\"")
+    // Each completion is one `complete` line whose condition names the command.
+    let lines_of = |command: &str| -> String {
+        let condition = match command {
+            "" => "\"__fish_rtu2mqtt_needs_command\"".to_string(),
+            command => format!("\"__fish_rtu2mqtt_using_subcommand {command}\""),
         };
-        for option in options {
-            let long = format!(" -l {} ", option.trim_start_matches("--"));
-            assert!(
-                fish.lines()
-                    .any(|line| line.contains(&condition) && line.contains(&long)),
-                "fish does not complete rtu2mqtt {command} {option}"
-            );
-        }
-    }
+        fish.lines()
+            .filter(|line| line.contains(&condition))
+            .map(|line| format!("{line}\n"))
+            .collect()
+    };
+    assert_completes(
+        "fish",
+        |command| lines_of("").contains(&format!(" -f -a \"{command}\"")),
+        lines_of,
+        |lines, option| lines.contains(&format!(" -l {} ", option.trim_start_matches("--"))),
+    );
 }
 
 #[test]

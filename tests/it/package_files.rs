@@ -1,86 +1,12 @@
-//! The Debian package's own files agree with the daemon and the unit: the configuration it
-//! installs is valid and polls nothing until lines are written (its commented examples valid
-//! once uncommented), the executable goes where the unit's `ExecStart=` looks, and the
-//! maintainer scripts make and purge the credential file the unit loads.
-//! (`scripts/package-check` proves the package itself on a fresh Debian.)
+//! The Debian package's own files agree with the unit: the executable and the configuration go
+//! where the unit's `ExecStart=` looks, and the maintainer scripts make and purge the
+//! credential file the unit loads. (The packaged configuration is checked with the others in
+//! config_valid.rs; `scripts/package-check` proves the package itself on a fresh Debian.)
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
-const PACKAGED_CONFIG: &str = include_str!("../../packaging/config.toml");
 const MANIFEST: &str = include_str!("../../Cargo.toml");
 const UNIT: &str = include_str!("../../systemd/rtu2mqtt.service");
 const POSTINST: &str = include_str!("../../packaging/debian/postinst");
 const POSTRM: &str = include_str!("../../packaging/debian/postrm");
-
-/// `rtu2mqtt check --config <path>`: success, stdout, stderr.
-fn check(path: &Path) -> (bool, String, String) {
-    let output = Command::new(crate::support::child::gateway_binary())
-        .arg("check")
-        .arg("--config")
-        .arg(path)
-        .env_remove("RTU2MQTT_CONFIG")
-        .output()
-        .expect("the gateway binary runs");
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
-}
-
-fn packaged_config_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/config.toml")
-}
-
-#[test]
-fn the_packaged_configuration_is_valid_and_polls_nothing() {
-    let (ok, stdout, stderr) = check(&packaged_config_path());
-    assert!(ok, "check failed:\n{stdout}\n{stderr}");
-    assert!(stdout.contains("valid"), "{stdout}");
-    assert!(
-        format!("{stdout}{stderr}").contains("no [[lines]] configured"),
-        "the idle installation is not pointed out:\n{stdout}\n{stderr}"
-    );
-    let config = rtu2mqtt::config::load(&packaged_config_path()).expect("valid");
-    assert!(config.lines.is_empty(), "the package would poll a port");
-    // The journal and bdSeq go to the unit's state directory.
-    assert_eq!(
-        config.history.as_ref().map(|history| history.path.clone()),
-        Some(PathBuf::from("/var/lib/rtu2mqtt/history"))
-    );
-    assert!(UNIT.contains("\nStateDirectory=rtu2mqtt\n"));
-}
-
-#[test]
-fn the_packaged_configurations_examples_are_valid_once_uncommented() {
-    // Everything after the first commented `[[lines]]` is the example: settings commented as
-    // `# key = value`, with their own comments trailing.
-    let start = PACKAGED_CONFIG
-        .find("\n# [[lines]]\n")
-        .expect("an example line");
-    let (head, examples) = PACKAGED_CONFIG.split_at(start + 1);
-    let uncommented: Vec<&str> = examples
-        .lines()
-        .map(|line| {
-            line.strip_prefix("# ")
-                .or_else(|| (line == "#").then_some(""))
-                .unwrap_or_else(|| panic!("not a commented setting in the example: {line:?}"))
-        })
-        .collect();
-    let dir = tempfile::tempdir().expect("a temporary directory");
-    let path = dir.path().join("config.toml");
-    std::fs::write(&path, format!("{head}{}\n", uncommented.join("\n"))).expect("written");
-    let (ok, stdout, stderr) = check(&path);
-    assert!(ok, "the uncommented example fails:\n{stdout}\n{stderr}");
-    let config = rtu2mqtt::config::load(&path).expect("valid");
-    let lines: Vec<(&str, usize)> = config
-        .lines
-        .iter()
-        .map(|line| (line.name.as_str(), line.devices.len()))
-        .collect();
-    assert_eq!(lines, [("line-a", 1), ("line-b", 1)]);
-}
 
 /// The `[source, destination, mode]` rows of `[package.metadata.deb] assets`.
 fn package_assets() -> Vec<[String; 3]> {
