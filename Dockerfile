@@ -28,6 +28,7 @@ WORKDIR /src
 # demo and its embedded broker are other crates of the workspace), so that its build reuses
 # this layer.
 COPY Cargo.toml Cargo.lock ./
+COPY crates/rtu2mqtt-assets/Cargo.toml crates/rtu2mqtt-assets/
 COPY crates/rtu2mqtt-modbus/Cargo.toml crates/rtu2mqtt-modbus/
 COPY crates/rtu2mqtt-profile/Cargo.toml crates/rtu2mqtt-profile/
 COPY crates/rtu2mqtt-sim/Cargo.toml crates/rtu2mqtt-sim/

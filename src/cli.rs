@@ -6,11 +6,21 @@ use clap::{Args, Parser, Subcommand};
 
 use rtu2mqtt_modbus::timing::Parity;
 
+/// The version `--version` shows: the package's, with the commit it was built from when built
+/// from a git checkout (`0.1.0 (abc1234)`; see build.rs).
+pub const VERSION: &str = env!("RTU2MQTT_VERSION");
+
 #[derive(Debug, Parser)]
 #[command(
     name = "rtu2mqtt",
-    version,
-    about = "Modbus RTU (RS485) to MQTT gateway"
+    version = VERSION,
+    about = "Modbus RTU (RS485) to MQTT gateway",
+    long_about = "Modbus RTU (RS485) to MQTT gateway.\n\n\
+        rtu2mqtt polls the devices on serial lines (local ports, serial device servers, Modbus \
+        TCP gateways) as their profiles describe, publishes every field on MQTT and applies \
+        commands validated against the profile. `rtu2mqtt run` is the daemon (the systemd \
+        service rtu2mqtt); the other commands check a configuration, commission devices and \
+        report the daemon's health."
 )]
 pub struct Cli {
     #[command(subcommand)]
@@ -32,6 +42,7 @@ pub enum Command {
     /// Validate the configuration and profiles and print each line's poll plan; touches no port
     /// and no broker.
     Check {
+        /// Configuration file.
         #[arg(
             long,
             env = "RTU2MQTT_CONFIG",
@@ -55,6 +66,7 @@ pub enum Command {
     },
     /// Exit 0 when the daemon's status file is fresh (Docker HEALTHCHECK).
     Health {
+        /// The status file the daemon rewrites.
         #[arg(long, default_value = "/run/rtu2mqtt/health")]
         status_file: PathBuf,
         /// Maximum age of the status file.

@@ -1,4 +1,5 @@
-//! The configuration as users meet it: the shipped example is valid, `rtu2mqtt check` prints
+//! The configuration as users meet it: the shipped example is valid, so is the one the Debian
+//! package installs (it polls nothing until lines are written), `rtu2mqtt check` prints
 //! the poll plan and exits 0; a configuration with many mistakes gets every one of them listed
 //! with its place, exit 1, in one run whatever the phase; environment overrides reach the
 //! settings; names, prefixes, ports, the CA file and secrets are checked so that nothing
@@ -708,4 +709,56 @@ write = { function = 6, address = 43204 }
     let profile = rtu2mqtt_profile::Profile::from_toml(modicon, "m.toml").unwrap();
     let listing = rtu2mqtt_profile::registry::describe(&profile);
     assert!(listing.contains("FC06 @0x0C83 (3203)"), "{listing}");
+}
+
+fn packaged_config_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/config.toml")
+}
+
+#[test]
+fn the_packaged_configuration_is_valid_and_polls_nothing() {
+    let (ok, stdout, stderr) = check(&packaged_config_path());
+    assert!(ok, "check failed:\n{stdout}\n{stderr}");
+    assert!(stdout.contains("valid"), "{stdout}");
+    assert!(
+        format!("{stdout}{stderr}").contains("no [[lines]] configured"),
+        "the idle installation is not pointed out:\n{stdout}\n{stderr}"
+    );
+    let config = rtu2mqtt::config::load(&packaged_config_path()).expect("valid");
+    assert!(config.lines.is_empty(), "the package would poll a port");
+    // The journal and bdSeq go to the unit's state directory.
+    assert_eq!(
+        config.history.as_ref().map(|history| history.path.clone()),
+        Some(PathBuf::from("/var/lib/rtu2mqtt/history"))
+    );
+    assert!(include_str!("../../systemd/rtu2mqtt.service").contains("\nStateDirectory=rtu2mqtt\n"));
+}
+
+#[test]
+fn the_packaged_configurations_examples_are_valid_once_uncommented() {
+    // Everything after the first commented `[[lines]]` is the example: settings commented as
+    // `# key = value`, with their own comments trailing.
+    let start = include_str!("../../packaging/config.toml")
+        .find("\n# [[lines]]\n")
+        .expect("an example line");
+    let (head, examples) = include_str!("../../packaging/config.toml").split_at(start + 1);
+    let uncommented: Vec<&str> = examples
+        .lines()
+        .map(|line| {
+            line.strip_prefix("# ")
+                .or_else(|| (line == "#").then_some(""))
+                .unwrap_or_else(|| panic!("not a commented setting in the example: {line:?}"))
+        })
+        .collect();
+    let uncommented = format!("{head}{}\n", uncommented.join("\n"));
+    let (ok, stdout, stderr) = check_text(&uncommented, &[]);
+    assert!(ok, "the uncommented example fails:\n{stdout}\n{stderr}");
+    let config = rtu2mqtt::config::from_str(&uncommented, Path::new("/etc/rtu2mqtt"))
+        .unwrap_or_else(|problems| panic!("{problems:?}"));
+    let lines: Vec<(&str, usize)> = config
+        .lines
+        .iter()
+        .map(|line| (line.name.as_str(), line.devices.len()))
+        .collect();
+    assert_eq!(lines, [("line-a", 1), ("line-b", 1)]);
 }

@@ -40,7 +40,7 @@ fn unit_supervises_the_daemon() {
     assert_eq!(one(&unit, "Restart"), "on-failure");
     assert_eq!(
         one(&unit, "ExecStart"),
-        "/usr/local/bin/rtu2mqtt run --config /etc/rtu2mqtt/config.toml"
+        "/usr/bin/rtu2mqtt run --config /etc/rtu2mqtt/config.toml"
     );
 }
 
