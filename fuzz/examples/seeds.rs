@@ -361,14 +361,34 @@ fn config_toml() {
             let Some((example, _)) = block.split_once("```") else {
                 continue;
             };
-            let whole = example.contains("[mqtt]");
             let tables: Vec<&str> = example
                 .lines()
                 .filter(|line| line.starts_with('['))
                 .collect();
-            let seed = if whole {
+            // Profiles and other programs' configurations are no configuration of ours.
+            let ours = tables.iter().all(|table| {
+                [
+                    "[mqtt",
+                    "[gateway",
+                    "[health",
+                    "[[lines",
+                    "[lines",
+                    "[sparkplug",
+                    "[history",
+                    "[web",
+                ]
+                .iter()
+                .any(|section| table.starts_with(section))
+            });
+            // A table the file has already cannot come twice; an array of tables can.
+            let in_base = |table: &&str| {
+                !table.starts_with("[[") && base.lines().any(|line| line.trim() == *table)
+            };
+            let seed = if !ours || tables.is_empty() {
+                continue;
+            } else if example.contains("[mqtt]") {
                 example.to_string()
-            } else if tables.iter().all(|table| !base.contains(table)) {
+            } else if !tables.iter().any(in_base) {
                 format!("{base}\n{example}")
             } else {
                 continue;

@@ -16,14 +16,14 @@ use std::time::{Duration, Instant, SystemTime};
 use libfuzzer_sys::fuzz_target;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
-use rtu2mqtt::bridge::core::{Action, Core, CoreSettings, Incoming};
+use rtu2mqtt::bridge::core::{Core, Incoming};
 use rtu2mqtt::bus::{CommandOutcome, LineEvent, Origin};
 use rtu2mqtt_fuzz::plant::{self, Lines};
 use rtu2mqtt_fuzz::Input;
 use rumqttc::QoS;
 
 fuzz_target!(|data: &[u8]| {
-    let settings = CoreSettings::from_config(plant::config());
+    let settings = plant::core_settings();
     let topics = settings.topics.clone();
     let mut lines = Lines::new(settings.devices.clone());
     let devices = settings.devices.clone();

@@ -18,7 +18,7 @@ use std::time::Instant;
 use libfuzzer_sys::fuzz_target;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
-use rtu2mqtt::bridge::core::{Core, CoreSettings};
+use rtu2mqtt::bridge::core::Core;
 use rtu2mqtt::sparkplug::protobuf::{MetricValue, Payload};
 use rtu2mqtt::sparkplug::session_interface::{Action, REBIRTH};
 use rtu2mqtt_fuzz::plant::{self, Lines};
@@ -39,8 +39,7 @@ fuzz_target!(|data: &[u8]| {
         );
     }
 
-    let config = plant::config();
-    let settings = CoreSettings::from_config(config);
+    let settings = plant::core_settings();
     let devices = settings.devices.clone();
     let mut lines = Lines::new(devices.clone());
     let now = Instant::now();
@@ -48,7 +47,8 @@ fuzz_target!(|data: &[u8]| {
     lines.check(core.on_connected());
     let mut session = plant::born_session();
     for device in &devices {
-        lines.check(core.on_line_event(lines.availability(&device.name, true), now));
+        let online = lines.availability(&device.name, true);
+        lines.check(core.on_line_event(online, now));
     }
 
     let topic = match pick % 5 {

@@ -3,6 +3,7 @@
 //! answer against its bytes ([`assert_reencodes`]). The input layouts are written down here so
 //! that the seed corpora (`examples/seeds.rs`) and the targets agree on them.
 
+use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use rtu2mqtt_modbus::codec::{self, Answer};
@@ -10,7 +11,7 @@ use rtu2mqtt_modbus::crc::append_crc;
 use rtu2mqtt_modbus::{Request, Response, SlaveId};
 use rtu2mqtt_profile::{registry, Profile};
 
-/// The profiles of the seed plant's devices and of the library, as the daemon has them built in.
+/// The profiles of the seed plant's devices and the generic sensor, in `config/profiles/`.
 pub const SEED_PROFILES: [&str; 4] = [
     "ruiwan-dust-collector",
     "wuzhou-valve",
@@ -18,15 +19,16 @@ pub const SEED_PROFILES: [&str; 4] = [
     "generic-th-sensor",
 ];
 
-/// The seed profiles, compiled once.
+/// The seed profiles, read from their files and compiled once.
 pub fn seed_profiles() -> &'static [(String, Arc<Profile>)] {
     static PROFILES: OnceLock<Vec<(String, Arc<Profile>)>> = OnceLock::new();
     PROFILES.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/profiles");
         SEED_PROFILES
             .iter()
             .map(|name| {
-                let profile = registry::built_in(name)
-                    .unwrap_or_else(|error| panic!("built-in profile {name}: {error}"));
+                let profile = registry::load_file(&dir.join(format!("{name}.toml")))
+                    .unwrap_or_else(|error| panic!("profile {name}: {error}"));
                 (name.to_string(), Arc::new(profile))
             })
             .collect()
@@ -150,7 +152,7 @@ pub mod plant {
     use std::collections::{HashMap, HashSet};
     use std::sync::OnceLock;
 
-    use rtu2mqtt::bridge::core::{Action, BridgeDevice};
+    use rtu2mqtt::bridge::core::{Action, BridgeDevice, CoreSettings};
     use rtu2mqtt::bus::{LineEvent, Origin};
     use rtu2mqtt::config::Config;
     use rtu2mqtt::sparkplug::session::Session;
@@ -209,6 +211,15 @@ pub mod plant {
             let base = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config"));
             rtu2mqtt::config::from_str(text, base).expect("the seed plant's configuration")
         })
+    }
+
+    /// The bridge core's settings for the seed plant, without Home Assistant discovery: its
+    /// documents, built again on every connect, would take most of each run's time and have
+    /// nothing to do with commands.
+    pub fn core_settings() -> CoreSettings {
+        let mut settings = CoreSettings::from_config(config());
+        settings.discovery = false;
+        settings
     }
 
     /// The lines' side: which devices are online, which commands are on the bus.
