@@ -15,6 +15,7 @@ use rtu2mqtt::sparkplug::protobuf::{Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::session_interface::REBIRTH;
 use rtu2mqtt_fuzz::{plant, push_part, push_request, seed_profiles};
 use rtu2mqtt_modbus::codec::{self, encode_answer, encode_exception};
+use rtu2mqtt_modbus::crc::append_crc;
 use rtu2mqtt_modbus::tcp::mbap;
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response, SlaveId};
 use rtu2mqtt_profile::{DeviceState, Profile};
@@ -58,54 +59,45 @@ fn answer_to(request: &Request) -> Option<Response> {
     })
 }
 
-/// The requests a master sends to a device of `profile`, and the device's answer to each:
-/// every block read, and the writes of the profile's example commands.
-fn exchanges(profile: &Profile) -> Vec<(Request, Response)> {
-    let mut exchanges: Vec<(Request, Response)> = profile
+/// The requests a master sends to device `slave` of `profile`, and the device's answer frame
+/// to each: every block read, and the writes of the profile's example commands.
+fn exchanges(profile: &Profile, slave: SlaveId) -> Vec<(Request, Vec<u8>)> {
+    let reads: Vec<(Request, Response)> = profile
         .read_blocks()
         .iter()
         .filter_map(|block| Some((block.request.clone(), answer_to(&block.request)?)))
         .collect();
-    let before: Vec<Response> = exchanges.iter().map(|(_, answer)| answer.clone()).collect();
+    let mut exchanges: Vec<(Request, Vec<u8>)> = reads
+        .iter()
+        .map(|(request, answer)| (request.clone(), encode_answer(slave, answer)))
+        .collect();
     for (field, text) in profile.example_commands() {
         let Ok(plan) = profile.plan_command(field, &text, &DeviceState::new()) else {
             continue;
         };
-        let reads: Vec<Response> = plan
+        let before: Vec<Response> = plan
             .reads_before()
             .iter()
-            .filter_map(|read| {
-                let index = exchanges.iter().position(|(r, _)| r == read)?;
-                before.get(index).cloned()
-            })
+            .filter_map(|read| Some(reads.iter().find(|(r, _)| r == read)?.1.clone()))
             .collect();
-        for write in plan.writes(&reads).unwrap_or_default() {
-            let echoed = echo(&write);
-            exchanges.push((write, echoed));
+        for write in plan.writes(&before).unwrap_or_default() {
+            let frame = codec::encode_request(slave, &write).expect("a planned write");
+            exchanges.push((write, echo(&frame)));
         }
     }
     exchanges
 }
 
-fn echo(write: &Request) -> Response {
-    match write {
-        Request::WriteSingleCoil { address, value } => Response::WriteSingleCoil {
-            address: *address,
-            value: *value,
-        },
-        Request::WriteSingleRegister { address, value } => Response::WriteSingleRegister {
-            address: *address,
-            value: *value,
-        },
-        Request::WriteMultipleCoils { start, values } => Response::WriteMultipleCoils {
-            start: *start,
-            quantity: values.len() as u16,
-        },
-        Request::WriteMultipleRegisters { start, values } => Response::WriteMultipleRegisters {
-            start: *start,
-            quantity: values.len() as u16,
-        },
-        read => read.empty_answer().expect("a read"),
+/// A device's answer to the write request `frame`: a single write's answer is the request
+/// itself, a multiple write's its address, function, start and quantity.
+fn echo(frame: &[u8]) -> Vec<u8> {
+    match frame[1] {
+        0x05 | 0x06 => frame.to_vec(),
+        _ => {
+            let mut answer = frame[..6].to_vec();
+            append_crc(&mut answer);
+            answer
+        }
     }
 }
 
@@ -115,8 +107,7 @@ fn golden_frames() -> Vec<(String, SlaveId, Request, Vec<u8>)> {
     let mut frames = Vec::new();
     for (index, (name, profile)) in seed_profiles().iter().enumerate() {
         let slave = profile.default_address().unwrap_or(index as u8 + 1);
-        for (number, (request, response)) in exchanges(profile).into_iter().enumerate() {
-            let frame = encode_answer(slave, &response);
+        for (number, (request, frame)) in exchanges(profile, slave).into_iter().enumerate() {
             frames.push((format!("{name}-{number}"), slave, request, frame));
         }
         if let Some(block) = profile.read_blocks().first() {
@@ -189,7 +180,7 @@ fn served_request() {
         for ((name, profile), address) in seed_profiles().iter().zip(addresses) {
             let mut one_adu = vec![access];
             let mut one_rtu = vec![access | 1];
-            for (transaction, (request, _)) in exchanges(profile).into_iter().enumerate() {
+            for (transaction, (request, _)) in exchanges(profile, address).into_iter().enumerate() {
                 let adu =
                     mbap::encode_request(transaction as u16, address, &request).expect("a request");
                 let rtu = codec::encode_request(address, &request).expect("a request");
