@@ -89,7 +89,8 @@ pub async fn serve_bytes(
     let serve = serve_connection(
         server_read,
         server_write,
-        (framing, access),
+        framing,
+        access,
         specs.clone(),
         line_tx,
         Arc::clone(&counters),

@@ -163,7 +163,8 @@ pub(crate) async fn run(
 pub(crate) async fn serve_connection(
     read_half: impl AsyncRead + Unpin + Send + 'static,
     write_half: impl AsyncWrite + Unpin,
-    (framing, access): (ServeFraming, Access),
+    framing: ServeFraming,
+    access: Access,
     devices: Vec<DeviceSpec>,
     line: mpsc::Sender<Box<ClientRequest>>,
     counters: Arc<ServeCounters>,
