@@ -311,6 +311,24 @@ fn valve_setpoint_refusals() {
     }
 }
 
+/// Found by fuzzing (`fuzz/`, served_request): a value outside the range that `also` allows
+/// (255 disables the valve's low alarm) was accepted by a command but refused by
+/// `parse_value`, whose rules are the commands'.
+#[test]
+fn valve_alarm_disabled_by_an_also_value_parses_like_its_command() {
+    let profile = valve();
+    plan(&profile, "low_alarm_opening_2", "255");
+    assert_eq!(
+        profile.parse_value("low_alarm_opening_2", "255"),
+        Ok(Value::Int(255))
+    );
+    let reason = refused(&profile, "low_alarm_opening_2", "101");
+    assert_eq!(
+        profile.parse_value("low_alarm_opening_2", "101"),
+        Err(Rejection(reason))
+    );
+}
+
 #[test]
 fn valve_opening_settles_within_a_window() {
     let plan = plan(&valve(), "opening", "60");

@@ -12,8 +12,9 @@
 //!   recorder and late-answer guard inside the crate), so that the three links frame, count,
 //!   record and guard alike.
 //! - [`serial`]: the RS485 line: [`serial::transport`] (the serial port, the only code here
-//!   that touches one) and [`serial::master`] (one RTU transaction at a time with the
-//!   serial-line specification's timing).
+//!   that touches one), [`serial::master`] (one RTU transaction at a time with the
+//!   serial-line specification's timing) and [`serial::reception`] (how the master frames an
+//!   answer from its port's reads and silences, without I/O or clock).
 //! - [`tcp`]: the TCP masters in [`tcp::masters`] (a serial device server's raw RTU stream, or
 //!   Modbus TCP through [`tcp::mbap`]).
 //! - [`link`]: what a line holds, whichever of the three it is ([`link::Link`]).

@@ -612,18 +612,7 @@ impl Profile {
             return Err(Rejection(format!("{field} is read-only")));
         }
         let def = &inner.defs[index];
-        let target = match codec::parse_command(info, text) {
-            Ok(value) => value,
-            Err(rejection) if def.also.is_empty() => return Err(rejection),
-            Err(rejection) => match number::integer(text) {
-                Some(value) if def.also.contains(&value) => Value::Int(i128::from(value)),
-                _ => {
-                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
-                    let or = format!(" or {}, got ", list.join(", "));
-                    return Err(Rejection(rejection.0.replacen(", got ", &or, 1)));
-                }
-            },
-        };
+        let target = self.parse_field_value(index, text)?;
         // Kinds and ranges are validated against the codec at load, so this only fails on a
         // profile bug; refuse rather than write something else. A `scale_by` number is
         // encoded in its slot, with the exponent read there.
@@ -633,6 +622,23 @@ impl Profile {
                 .map_err(|why| Rejection(format!("{field}: {why}")))?;
         }
         Ok((index, target))
+    }
+
+    /// `text` as a value of field `index`: of its kind and range, or one of its `also` values.
+    fn parse_field_value(&self, index: usize, text: &str) -> Result<Value, Rejection> {
+        let (info, def) = (&self.inner.infos[index], &self.inner.defs[index]);
+        match codec::parse_command(info, text) {
+            Ok(value) => Ok(value),
+            Err(rejection) if def.also.is_empty() => Err(rejection),
+            Err(rejection) => match number::integer(text) {
+                Some(value) if def.also.contains(&value) => Ok(Value::Int(i128::from(value))),
+                _ => {
+                    let list: Vec<String> = def.also.iter().map(ToString::to_string).collect();
+                    let or = format!(" or {}, got ", list.join(", "));
+                    Err(Rejection(rejection.0.replacen(", got ", &or, 1)))
+                }
+            },
+        }
     }
 
     /// Judges forbidden combinations on the last known state with the command applied. Fields
@@ -726,13 +732,16 @@ impl Profile {
             .collect()
     }
 
-    /// Parses text into a value of the field's kind, with the same rules as commands, whether
-    /// or not the field is writable.
+    /// Parses text into a value of the field's kind, with the same rules as commands (its
+    /// range, or one of its `also` values), whether or not the field is writable.
     pub fn parse_value(&self, field: &str, text: &str) -> Result<Value, Rejection> {
-        let info = self
-            .field(field)
+        let index = self
+            .inner
+            .infos
+            .iter()
+            .position(|info| info.name == field)
             .ok_or_else(|| Rejection(format!("unknown field `{field}`")))?;
-        codec::parse_command(info, text)
+        self.parse_field_value(index, text)
     }
 }
 

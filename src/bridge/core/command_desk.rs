@@ -422,16 +422,22 @@ impl CommandDesk {
     /// The driver could not hand `command` to its line: the line's queue is `full` (try again
     /// on the next tick), or the line has stopped.
     pub(crate) fn on_send_failed(&mut self, p: &mut Publisher, command: Command, full: bool) {
+        if full {
+            self.back_to_waiting(p, command);
+        } else if let Some(tracked) = self.on_bus.remove(&command.id) {
+            self.fail(p, tracked, "the line has stopped");
+        }
+    }
+
+    /// `command`, taken for the line but not handed to it, waits again; a newer command of
+    /// its field that arrived meanwhile supersedes it.
+    fn back_to_waiting(&mut self, p: &mut Publisher, command: Command) {
         let Some(tracked) = self.on_bus.remove(&command.id) else {
             return;
         };
-        if full {
-            self.plans.insert(command.id, command.plan);
-            if let Some(older) = self.book.requeue(tracked) {
-                self.supersede(p, older);
-            }
-        } else {
-            self.fail(p, tracked, "the line has stopped");
+        self.plans.insert(command.id, command.plan);
+        if let Some(older) = self.book.requeue(tracked) {
+            self.supersede(p, older);
         }
     }
 
@@ -616,11 +622,18 @@ impl CommandDesk {
     }
 
     /// An empty message on `set`: an action waiting for its clearing may run now. The broker
-    /// delivers one topic's messages in order, so it was published after the command.
+    /// delivers one topic's messages in order, so it was published after the command. A
+    /// device that went offline meanwhile gets it like any command, once it is back.
     fn on_cleared(&mut self, p: &mut Publisher, set: &str) {
-        if let Some((line, command)) = self.clearing.remove(set) {
+        let Some((line, command)) = self.clearing.remove(set) else {
+            return;
+        };
+        if p.cache().is_online(&command.device) {
             tracing::debug!(device = %command.device, "command cleared: handed to the line");
             p.push(Action::Send { line, command });
+        } else {
+            tracing::debug!(device = %command.device, "command cleared: waits for its device");
+            self.back_to_waiting(p, command);
         }
     }
 

@@ -792,9 +792,8 @@ fn overloaded_commands_are_refused_with_their_outcome() {
     assert_eq!(sent(&command(&mut core, "opening", "50", 2, now)).len(), 1);
 }
 
-#[test]
-fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
-    let now = Instant::now();
+/// A connected core with one air shower, `shower`, on line 0.
+fn shower_core(now: Instant) -> Core {
     let profile = Arc::new(registry::built_in("lixian-air-shower").unwrap());
     let mut core = Core::new(
         CoreSettings {
@@ -813,13 +812,21 @@ fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
         seeded(),
     );
     core.on_connected();
-    core.on_line_event(
-        LineEvent::Availability {
-            device: "shower".to_string(),
-            online: true,
-        },
-        now,
-    );
+    core
+}
+
+fn shower(online: bool) -> LineEvent {
+    LineEvent::Availability {
+        device: "shower".to_string(),
+        online,
+    }
+}
+
+#[test]
+fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
+    let now = Instant::now();
+    let mut core = shower_core(now);
+    core.on_line_event(shower(true), now);
     let set = "plant/shower/voice_start/set";
     let actions = core.on_message(message(set, b"PRESS", 1, false), now);
     assert!(sent(&actions).is_empty(), "not before the clearing is back");
@@ -832,6 +839,29 @@ fn an_action_goes_to_the_line_only_after_its_command_is_cleared() {
     // A state write is idempotent: it goes at once.
     let gear = core.on_message(message("plant/shower/breeze/set", b"ON", 2, false), now);
     assert_eq!(sent(&gear).len(), 1);
+}
+
+/// Found by fuzzing (`fuzz/`, mqtt_command): a device that went offline while its action's
+/// clearing went round the broker got the action at once; it waits for the device instead,
+/// and is cleared again before it runs.
+#[test]
+fn an_action_whose_device_went_offline_during_its_clearing_waits_for_it() {
+    let now = Instant::now();
+    let mut core = shower_core(now);
+    core.on_line_event(shower(true), now);
+    let set = "plant/shower/voice_start/set";
+    assert!(sent(&core.on_message(message(set, b"PRESS", 1, false), now)).is_empty());
+    core.on_line_event(shower(false), now);
+    let back = core.on_message(message(set, b"", 0, false), now);
+    assert!(
+        sent(&back).is_empty(),
+        "handed to the line of an offline device"
+    );
+    let online = core.on_line_event(shower(true), now);
+    assert!(sent(&online).is_empty(), "not before it is cleared again");
+    assert_eq!(retained_clears(&online), [set.to_string()]);
+    let again = core.on_message(message(set, b"", 0, false), now);
+    assert_eq!(sent(&again).len(), 1);
 }
 
 // ----- external commands (Sparkplug DCMDs) -----

@@ -7,8 +7,11 @@
 //! `max_clients` places; [`queue`] is the line task's side of the requests' channel and the
 //! cache of polled blocks it answers reads from, and `served_side` is everything a line task
 //! keeps of its clients (their turn, the cache, counters, settling writes, the answers' rules).
-//! The line task runs their requests as slots (`bus::line`'s `client_requests`).
+//! The line task runs their requests as slots (`bus::line`'s `client_requests`). `fuzzing`
+//! drives one connection with bytes alone, for the fuzz targets.
 
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod places;
 pub(crate) mod policy;
 pub(crate) mod queue;

@@ -16,9 +16,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
-use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
-use tokio::net::{TcpListener, TcpSocket, TcpStream};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpSocket};
 use tokio::sync::{mpsc, oneshot};
 
 use rtu2mqtt_modbus::codec::{self, DecodeError};
@@ -145,8 +144,9 @@ pub(crate) async fn run(
                 }
             };
             tracing::info!(%client, "client connected");
+            let (read_half, write_half) = socket.into_split();
             tokio::select! {
-                end = serve_client(socket, &client, &context, &mut place) => {
+                end = serve_client(read_half, write_half, &client, &context, &mut place) => {
                     tracing::info!(%client, "client disconnected: {end}");
                 }
                 () = client_shutdown.cancelled() => {}
@@ -154,6 +154,35 @@ pub(crate) async fn run(
             drop(place);
         });
     }
+}
+
+/// One connection's whole life without a listening socket: the client's requests come on
+/// `read_half`, the answers go on `write_half`, as on a connection of a server with `access`,
+/// `framing` and `devices` whose line takes its requests on `line` (the served line's fuzz
+/// target drives it with bytes, `super::fuzzing`). Returns why it ended.
+pub(crate) async fn serve_connection(
+    read_half: impl AsyncRead + Unpin + Send + 'static,
+    write_half: impl AsyncWrite + Unpin,
+    framing: ServeFraming,
+    access: Access,
+    devices: Vec<DeviceSpec>,
+    line: mpsc::Sender<Box<ClientRequest>>,
+    counters: Arc<ServeCounters>,
+) -> String {
+    let places = Places::new(1, PLACE_GRACE, PLACE_WAIT);
+    let Ok(mut place) = places.take(|| {}).await else {
+        return "no place".to_string();
+    };
+    let context = Context {
+        access,
+        framing,
+        devices: Arc::new(devices),
+        line,
+        counters,
+    };
+    serve_client(read_half, write_half, "client", &context, &mut place)
+        .await
+        .to_string()
 }
 
 /// Why a client's connection ended.
@@ -217,13 +246,15 @@ impl Drop for AbortOnDrop {
     }
 }
 
+/// Serves one client, whose requests come on `read_half` and answers go on `write_half`,
+/// until the connection ends.
 async fn serve_client(
-    socket: TcpStream,
+    read_half: impl AsyncRead + Unpin + Send + 'static,
+    mut write_half: impl AsyncWrite + Unpin,
     client: &str,
     context: &Context,
     place: &mut Place,
 ) -> End {
-    let (read_half, mut write_half) = socket.into_split();
     let (framed_tx, mut framed_rx) = mpsc::channel(1);
     let _reader = AbortOnDrop(tokio::spawn(read_requests(
         read_half,
@@ -312,7 +343,7 @@ async fn line_answer(on_line: &mut Option<oneshot::Receiver<Reply>>) -> Option<R
 /// Reads a connection's requests and hands them over one by one, until the first that ends
 /// the connection (handed over too) or until nobody takes them.
 async fn read_requests(
-    mut socket: OwnedReadHalf,
+    mut socket: impl AsyncRead + Unpin,
     framing: ServeFraming,
     framed_tx: mpsc::Sender<Result<Framed, End>>,
 ) {
@@ -326,7 +357,7 @@ async fn read_requests(
 }
 
 /// Writes one answer in the client's framing within [`WRITE_PATIENCE`].
-async fn write_answer(socket: &mut OwnedWriteHalf, answered: Held) -> Result<(), End> {
+async fn write_answer(socket: &mut (impl AsyncWrite + Unpin), answered: Held) -> Result<(), End> {
     let HeldState::Answered(reply) = answered.state else {
         return Ok(());
     };

@@ -23,11 +23,10 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tracing::Instrument;
 
-use crate::answer_framing::{AnswerFramer, Framing};
 use crate::clock::PreciseTimer;
 use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
 use crate::frame::{FunctionCode, Request, SlaveId};
-use crate::outcome::reply_of;
+use crate::serial::reception::{AnswerTiming, Heard, Next, Reception};
 use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 // How a transaction ends: the outcome types every link shares, where callers have always
 // found them.
@@ -291,7 +290,8 @@ impl Master {
         Ok(drained_at)
     }
 
-    /// Reads the answer to the request asked (sent as `sent` at `drained_at`) and decodes it.
+    /// Reads the answer to the request asked (sent as `sent` at `drained_at`) and decodes it:
+    /// the port's reads and silences handed to a [`Reception`], which frames them.
     async fn receive_answer(
         &mut self,
         ask: Ask<'_>,
@@ -303,131 +303,56 @@ impl Master {
             request,
             timeout,
         } = ask;
-        let answer_deadline = drained_at + timeout;
         if self.options.echo {
-            self.strip_echo(sent, answer_deadline, timeout).await?;
+            self.strip_echo(sent, drained_at + timeout, timeout).await?;
         }
-        let gap_limit = self.inter_char_timeout();
-        let mut received: Vec<u8> = Vec::new();
-        let mut last_byte_at = drained_at;
-        // The answer's rest has had its last timed wait (see below).
-        let mut rest_waited_for = false;
+        let timing = AnswerTiming {
+            sent_at: drained_at,
+            timeout,
+            byte_timeout: self.inter_char_timeout(),
+            line: self.timing,
+        };
+        let mut reception = Reception::new(slave, request, sent, self.options.echo, timing);
         let mut chunk = [0u8; MAX_FRAME_LEN];
-        let framer = AnswerFramer::on_serial_line(slave, request, sent, self.options.echo);
         loop {
-            let framing = framer.frame(&received);
-            match framing {
-                Framing::Echo(length) => {
+            let next = reception.next(Instant::now());
+            self.account(&mut reception);
+            let (until, rest_due) = match next {
+                Next::Done(result) => return result,
+                Next::Read { until, rest_due } => (until, rest_due),
+            };
+            if let Some(due) = rest_due {
+                // Bytes that arrive meanwhile would each wake the runtime for nothing.
+                self.port.stop_listening();
+                self.timer.sleep_until(due).await;
+            }
+            if let Some((count, seen)) = self.port.read_until(&mut chunk, until).await? {
+                reception.heard(&chunk[..count], seen);
+                self.last_activity = seen;
+            } else if let Some(result) = reception.silence(Instant::now()) {
+                self.account(&mut reception);
+                return result;
+            }
+            self.account(&mut reception);
+        }
+    }
+
+    /// Counts, logs and records what the reception made of the bytes heard.
+    fn account(&mut self, reception: &mut Reception) {
+        for heard in reception.take_heard() {
+            match heard {
+                Heard::Echo(_) => {
                     if !self.echo_warned {
                         self.echo_warned = true;
                         tracing::warn!(port = %self.port.path(), "the adapter echoes what is sent; set echo = true for this line");
                     }
-                    received.drain(..length);
-                    continue;
                 }
-                Framing::Noise(length) => {
-                    let rest = received.split_off(length);
-                    self.absorb_noise(&received, last_byte_at);
-                    received = rest;
-                    continue;
-                }
-                // Another device's frame whose length and CRC check out ends here; whatever
-                // follows may be our answer.
-                Framing::Foreign {
-                    frame_len: Some(length),
-                } => {
-                    let rest = received.split_off(length);
-                    self.ignore_foreign_frame(&received);
-                    received = rest;
-                    continue;
-                }
-                // No frame is longer: a line that babbles without a gap is dropped in pieces,
-                // and the response timeout still ends the wait.
-                Framing::Foreign { frame_len: None } if received.len() >= MAX_FRAME_LEN => {
-                    self.drop_unframed(&received, last_byte_at);
-                    received.clear();
-                    if Instant::now() >= answer_deadline {
-                        return Err(Error::Timeout(timeout));
-                    }
-                    continue;
-                }
-                Framing::Complete(length) => {
-                    let trailing = received.split_off(length);
-                    self.took_frame(&received);
-                    if !trailing.is_empty() {
-                        self.absorb_unsolicited(&trailing, last_byte_at);
-                    }
-                    return self.decode(slave, request, &received);
-                }
-                _ => {}
-            }
-            let wait_until = if received.is_empty() {
-                answer_deadline
-            } else {
-                last_byte_at + gap_limit
-            };
-            // Once the length is known (from the third byte on), the rest cannot be complete
-            // before its wire time: it is waited for in one go, not with a wake-up per byte
-            // (a rest longer than the gap limit in steps of the limit, each from the bytes
-            // that came in the one before, so that a silence inside it is still noticed at
-            // the limit). Only until its wire time: bytes still missing then come a little
-            // after it (a byte-paced line always lags by some microseconds), and their
-            // arrival wakes the read, so that the answer ends, and t3.5 starts, when its last
-            // byte came, not a character time later.
-            if let Framing::NeedMore { needed } = framing {
-                if received.len() >= 3 && !rest_waited_for {
-                    let remaining = needed.saturating_sub(received.len());
-                    let due = last_byte_at + self.timing.frame_time(remaining);
-                    rest_waited_for = due <= wait_until;
-                    if due > Instant::now() {
-                        // Bytes that arrive meanwhile would each wake the runtime for nothing.
-                        self.port.stop_listening();
-                        self.timer.sleep_until(due.min(wait_until)).await;
-                    }
-                }
-            }
-            if let Some((count, seen)) = self.port.read_until(&mut chunk, wait_until).await? {
-                // These bytes took their wire time to arrive; anything beyond it plus t1.5 was
-                // a silence inside the answer.
-                if !received.is_empty()
-                    && seen.duration_since(last_byte_at)
-                        > self.timing.frame_time(count) + self.timing.t1_5
-                {
-                    self.core.counters_mut().long_gaps += 1;
-                }
-                received.extend_from_slice(&chunk[..count]);
-                last_byte_at = seen;
-                self.last_activity = seen;
-                continue;
-            }
-            // Nothing more arrived in time.
-            if received.is_empty() {
-                return Err(Error::Timeout(timeout));
-            }
-            match framing {
-                Framing::Foreign { .. } => {
-                    self.drop_unframed(&received, last_byte_at);
-                    received.clear();
-                    if Instant::now() >= answer_deadline {
-                        return Err(Error::Timeout(timeout));
-                    }
-                }
-                _ => {
-                    // A short answer that happened to match the start of our request, a frame
-                    // cut short, or one of unknown length: decode what there is.
-                    self.took_frame(&received);
-                    let needed = match framing {
-                        Framing::NeedMore { needed } => needed,
-                        _ => received.len(),
-                    };
-                    if received.len() < needed {
-                        return Err(Error::Truncated {
-                            needed,
-                            got: received.len(),
-                        });
-                    }
-                    return self.decode(slave, request, &received);
-                }
+                Heard::Noise { bytes, seen } => self.absorb_noise(&bytes, seen),
+                Heard::Foreign(frame) => self.ignore_foreign_frame(&frame),
+                Heard::Unframed { bytes, seen } => self.drop_unframed(&bytes, seen),
+                Heard::Frame(frame) => self.took_frame(&frame),
+                Heard::Trailing { bytes, seen } => self.absorb_unsolicited(&bytes, seen),
+                Heard::LongGap => self.core.counters_mut().long_gaps += 1,
             }
         }
     }
@@ -498,12 +423,6 @@ impl Master {
         self.core.record(Direction::Rx, frame);
         self.core.counters_mut().wire_time +=
             self.timing.frame_time(frame.len()) + self.timing.t3_5;
-    }
-
-    fn decode(&self, slave: SlaveId, request: &Request, frame: &[u8]) -> Result<Reply, Error> {
-        codec::decode_answer(slave, request, frame)
-            .map(reply_of)
-            .map_err(Error::from)
     }
 }
 

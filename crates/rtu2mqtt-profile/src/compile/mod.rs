@@ -45,15 +45,32 @@ pub(crate) fn compile(text: &str, source: &str) -> Result<Compiled, ProfileError
             }
             None => source.to_string(),
         };
-        ProfileErrors(vec![ProfileError {
-            place,
-            reason: err.message().to_string(),
-        }])
+        let reason = match err.message() {
+            "" => unreadable(text, err.span()),
+            message => message.to_string(),
+        };
+        ProfileErrors(vec![ProfileError { place, reason }])
     })?;
     let mut problems = Problems::new(source);
     let mut compiled = build(file, &mut problems);
     compiled.warnings = problems.take_warnings();
     problems.into_result(compiled)
+}
+
+/// Why the TOML reader stopped at `span`, for the errors it gives no words for (a control
+/// character in a comment).
+fn unreadable(text: &str, span: Option<std::ops::Range<usize>>) -> String {
+    let at = span.and_then(|span| text.get(span.start..)?.chars().next());
+    match at {
+        Some(c) if c.is_control() => {
+            format!(
+                "the control character U+{:04X} is not allowed in TOML",
+                u32::from(c)
+            )
+        }
+        Some(c) => format!("not TOML from {c:?} on"),
+        None => "not TOML".to_string(),
+    }
 }
 
 /// The phases in order: each one is compiled against what the ones before it built, and adds
@@ -124,6 +141,22 @@ mod tests {
         let errors = compile("[device]\nname = 3\n", "p.toml").unwrap_err();
         assert_eq!(errors.0.len(), 1);
         assert_eq!(errors.0[0].place, "p.toml:2:8");
+    }
+
+    /// Found by fuzzing (`fuzz/`, profile_toml): the TOML reader gives no words for a control
+    /// character in a comment, and the refusal had no reason.
+    #[test]
+    fn a_control_character_is_refused_with_a_reason() {
+        let errors = compile("# a\0b\n", "p.toml").unwrap_err();
+        assert_eq!(
+            errors.to_string(),
+            "p.toml:1:4: the control character U+0000 is not allowed in TOML"
+        );
+        let errors = compile("[device]\n# x\u{1}\n", "p.toml").unwrap_err();
+        assert_eq!(
+            errors.to_string(),
+            "p.toml:2:4: the control character U+0001 is not allowed in TOML"
+        );
     }
 
     #[test]
