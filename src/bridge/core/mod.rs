@@ -16,7 +16,7 @@
 //!
 //! Its parts: [`command_desk`] and [`command_book`] (the commands), [`payload`] (what a `…/set` carries
 //! and a result says), [`publisher`] with [`state`] and [`json_view`] (the published state),
-//! [`discovery`] with [`entity_naming`] and [`action_entities`] (Home Assistant), [`topic_guard`] (our retained topics
+//! [`discovery`] with [`entity_naming`], [`ha_templates`] and [`action_entities`] (Home Assistant), [`topic_guard`] (our retained topics
 //! defended), [`action`] and [`bridge_device`] (what the core gives and is given).
 
 pub(crate) mod action;
@@ -26,6 +26,7 @@ pub(crate) mod command_book;
 pub(crate) mod command_desk;
 pub mod discovery;
 mod entity_naming;
+mod ha_templates;
 pub mod json_view;
 pub mod payload;
 pub(crate) mod publisher;
