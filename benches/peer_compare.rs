@@ -33,14 +33,14 @@ use std::time::Duration;
 
 use block_device::{
     command_window, millis, ms_f, over_rounds, profile_text, spawn_line, transaction_wire_time,
-    wire_figures, ResultAfter, Window, Wire, Writes, BAUD,
+    wire_figures, BenchLine, ResultAfter, Window, Wire, Writes, BAUD,
 };
 use gateway_process::GatewayProcess;
 use rtu2mqtt_modbus::timing::LineTiming;
 use rtu2mqtt_profile::Profile;
-use rtu2mqtt_sim::{Pace, VirtualLine};
+use rtu2mqtt_sim::Pace;
 use rumqttc::QoS;
-use support::Mosquitto;
+use support::{Mosquitto, PacedPymodbus};
 use wire_bench::{command_client, percentile, timed_subscriber, EIGHT_N_ONE};
 
 const WARM_UP: Duration = Duration::from_secs(5);
@@ -133,6 +133,32 @@ struct Turn {
     wire: Wire,
 }
 
+/// The simulators every gateway is measured on, in the same run.
+struct Simulator {
+    name: &'static str,
+    line: Box<dyn BenchLine>,
+}
+
+/// The project's own simulator, and pymodbus's RTU server behind a byte pacer unless
+/// `PEER_COMPARE_PYMODBUS=0` (or pymodbus cannot be started: then it says why).
+fn simulators(profile: &Profile) -> anyhow::Result<Vec<Simulator>> {
+    let mut simulators = vec![Simulator {
+        name: "project's simulator",
+        line: Box::new(spawn_line(profile, 1, Pace::Bytes)?),
+    }];
+    if std::env::var("PEER_COMPARE_PYMODBUS").as_deref() == Ok("0") {
+        return Ok(simulators);
+    }
+    match PacedPymodbus::spawn(BAUD, 6) {
+        Ok(line) => simulators.push(Simulator {
+            name: "pymodbus, paced",
+            line: Box::new(line),
+        }),
+        Err(error) => eprintln!("pymodbus's RTU server not measured: {error:#}"),
+    }
+    Ok(simulators)
+}
+
 fn main() -> anyhow::Result<()> {
     let contenders = contenders()?;
     let runtime = wire_bench::runtime()?;
@@ -148,37 +174,55 @@ fn main() -> anyhow::Result<()> {
         .and_then(|v| v.parse::<usize>().ok())
         .filter(|n| *n > 0)
         .unwrap_or(DEFAULT_ROUNDS);
-    let mut turns: Vec<Vec<Turn>> = contenders.iter().map(|_| Vec::new()).collect();
+    // The project's simulator runs on the bench's runtime.
+    let simulators = runtime.block_on(async { simulators(&profile) })?;
+    // turns[simulator][gateway]: every round's turn.
+    let mut turns: Vec<Vec<Vec<Turn>>> = simulators
+        .iter()
+        .map(|_| contenders.iter().map(|_| Vec::new()).collect())
+        .collect();
     runtime.block_on(async {
-        // One simulated device on one line for every turn of every gateway.
-        let line = spawn_line(&profile, 1, Pace::Bytes)?;
+        let mut turn_number = 0;
         for round in 0..rounds {
-            let mut order: Vec<usize> = (0..contenders.len()).collect();
-            if round % 2 == 1 {
-                order.reverse();
-            }
-            for index in order {
-                let Some((contender, list)) = contenders.get(index).zip(turns.get_mut(index))
-                else {
-                    continue;
-                };
-                eprintln!("round {} of {rounds}: {}", round + 1, contender.name);
-                let turn = take_turn(
-                    contender,
-                    &broker,
-                    dir.path(),
-                    &profile_path,
-                    &line,
-                    round * contenders.len() + index,
-                )
-                .await?;
-                list.push(turn);
-                tokio::time::sleep(SETTLE).await;
+            for (simulator, sim_turns) in simulators.iter().zip(turns.iter_mut()) {
+                let mut order: Vec<usize> = (0..contenders.len()).collect();
+                if round % 2 == 1 {
+                    order.reverse();
+                }
+                for index in order {
+                    let Some((contender, list)) =
+                        contenders.get(index).zip(sim_turns.get_mut(index))
+                    else {
+                        continue;
+                    };
+                    eprintln!(
+                        "round {} of {rounds}, {}: {}",
+                        round + 1,
+                        simulator.name,
+                        contender.name
+                    );
+                    let turn = take_turn(
+                        contender,
+                        &broker,
+                        dir.path(),
+                        &profile_path,
+                        simulator.line.as_ref(),
+                        turn_number,
+                    )
+                    .await?;
+                    turn_number += 1;
+                    list.push(turn);
+                    tokio::time::sleep(SETTLE).await;
+                }
             }
         }
         anyhow::Ok(())
     })?;
-    report(&contenders, &turns, rounds);
+    header(&contenders, rounds);
+    for (simulator, turns) in simulators.iter().zip(&turns) {
+        report(simulator.name, &contenders, turns);
+    }
+    footer();
     Ok(())
 }
 
@@ -187,7 +231,7 @@ async fn take_turn(
     broker: &Mosquitto,
     dir: &Path,
     profile_path: &Path,
-    line: &VirtualLine,
+    line: &dyn BenchLine,
     turn: usize,
 ) -> anyhow::Result<Turn> {
     let gateway = contender.gateway;
@@ -242,7 +286,12 @@ async fn take_turn(
 }
 
 /// rtu2mqtt: the line and the bench device (`block`) polled back to back.
-fn rtu2mqtt_config(broker: &Mosquitto, line: &VirtualLine, profile: &Path, turn: usize) -> String {
+fn rtu2mqtt_config(
+    broker: &Mosquitto,
+    line: &dyn BenchLine,
+    profile: &Path,
+    turn: usize,
+) -> String {
     format!(
         "[mqtt]\nurl = \"{url}\"\nclient_id = \"peer-compare-{turn}\"\n\n\
          [health]\nstatus_file = \"\"\n\n\
@@ -258,7 +307,7 @@ fn rtu2mqtt_config(broker: &Mosquitto, line: &VirtualLine, profile: &Path, turn:
 /// mqmgateway: the same line and block, polled back to back (`refresh: 0ms`), its state the
 /// six registers as one JSON array, published on change; the first register writable through
 /// `peer/block/set` (FC06). Its log at `warning`, as rtu2mqtt's.
-fn peer_config(broker: &Mosquitto, line: &VirtualLine, turn: usize) -> String {
+fn peer_config(broker: &Mosquitto, line: &dyn BenchLine, turn: usize) -> String {
     format!(
         "modmqttd:\n  log_level: warning\n\
          modbus:\n  networks:\n    - name: line\n      device: {port}\n      baud: {BAUD}\n\
@@ -313,8 +362,7 @@ fn latency_pairs(turns: &[Vec<Turn>], list: fn(&Wire) -> &Vec<Duration>) -> Vec<
         .collect()
 }
 
-fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
-    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
+fn header(contenders: &[Contender], rounds: usize) {
     println!();
     for contender in contenders {
         println!("{}: {}", contender.name, contender.binary.display());
@@ -334,7 +382,20 @@ fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
          figure the median over them (lowest–highest)",
         WINDOW.as_secs()
     );
+}
+
+fn footer() {
+    println!(
+        "\nCPU from /proc/<pid>/stat (utime + stime) over each window; memory at its end; \
+         transactions and the wire from the simulator's journal (the pymodbus pacer's: where it \
+         saw a request's first byte, when it handed an answer's last byte over)"
+    );
+}
+
+fn report(simulator: &str, contenders: &[Contender], turns: &[Vec<Turn>]) {
+    let timing = LineTiming::new(BAUD, EIGHT_N_ONE);
     println!();
+    println!("== on the {simulator}");
     let names: Vec<String> = contenders.iter().map(|c| c.name.to_string()).collect();
     row("figure", &names, "");
     let wire_limit = 1.0 / transaction_wire_time().as_secs_f64();
@@ -366,7 +427,7 @@ fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
         "",
     );
     row(
-        "simulator CPU (this process), % of one core",
+        "simulator CPU (with this process), % of one core",
         &per_gateway(
             turns,
             |t| t.window.simulator_cpu_percent(),
@@ -425,6 +486,25 @@ fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
         &per_gateway(turns, |t| millis(t.wire.gap_p50), ms_f),
         &format!("t3.5 = {}", ms_f(millis(timing.t3_5))),
     );
+    row(
+        "bus efficiency",
+        &per_gateway(turns, |t| t.wire.efficiency, |v| format!("{v:.3}")),
+        "wire time + 2 × t3.5 per transaction ÷ wall",
+    );
+    row(
+        "bus efficiency, the device's own answer times",
+        &per_gateway(
+            turns,
+            |t| t.wire.efficiency_device_times,
+            |v| format!("{v:.3}"),
+        ),
+        "request start → answer end + t3.5, ÷ wall",
+    );
+    row(
+        "device turnaround p50",
+        &per_gateway(turns, |t| millis(t.wire.device_turnaround_p50), ms_f),
+        "request end → answer start: the simulator's",
+    );
     let early: Vec<String> = turns
         .iter()
         .map(|turns| {
@@ -476,9 +556,5 @@ fn report(contenders: &[Contender], turns: &[Vec<Turn>], rounds: usize) {
         "  read-back answer end → on MQTT",
         &latency_pairs(turns, |w| &w.read_back_to_result),
         "line → bridge → broker → subscriber",
-    );
-    println!(
-        "\nCPU from /proc/<pid>/stat (utime + stime) over each window; memory at its end; \
-         transactions and the wire from the simulator's journal"
     );
 }

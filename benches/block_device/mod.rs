@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
 use rtu2mqtt_profile::Profile;
 use rtu2mqtt_sim::{share, GenericDevice, Pace, RequestRecord, ServeOptions, VirtualLine};
+use rtu2mqtt_testkit::PacedPymodbus;
 use rumqttc::{AsyncClient, QoS};
 use tokio::sync::mpsc::UnboundedReceiver;
 
@@ -78,7 +79,16 @@ pub fn profile_text() -> String {
 
 /// What the wire and a subscriber saw of one run.
 pub struct Wire {
+    /// The wire time of every request and answer plus the two t3.5 silences of each
+    /// transaction, over the window.
     pub efficiency: f64,
+    /// The same with the device's own answer times: each transaction from its request's first
+    /// byte to its answer's last byte (however long the device took to answer), plus the t3.5
+    /// before the next request, over the window. Equal to `efficiency` on a device that answers
+    /// t3.5 after a request; what the gateway alone leaves unused on any other.
+    pub efficiency_device_times: f64,
+    /// From a request's last byte on the wire to its answer's first: the device's turnaround.
+    pub device_turnaround_p50: Duration,
     pub gap_p50: Duration,
     pub gap_p95: Duration,
     pub early: usize,
@@ -117,6 +127,41 @@ pub fn spawn_line(profile: &Profile, devices: u8, pace: Pace) -> anyhow::Result<
     )?)
 }
 
+/// A simulated line a gateway is measured on: its pseudo-terminal and the requests its
+/// device saw, in the project's journal records.
+pub trait BenchLine {
+    fn path(&self) -> std::path::PathBuf;
+    fn requests(&self) -> anyhow::Result<Vec<RequestRecord>>;
+    /// The simulator's own process, when it is not this one.
+    fn process(&self) -> Option<u32> {
+        None
+    }
+}
+
+impl BenchLine for VirtualLine {
+    fn path(&self) -> std::path::PathBuf {
+        VirtualLine::path(self)
+    }
+
+    fn requests(&self) -> anyhow::Result<Vec<RequestRecord>> {
+        Ok(self.journal().requests())
+    }
+}
+
+impl BenchLine for PacedPymodbus {
+    fn path(&self) -> std::path::PathBuf {
+        PacedPymodbus::path(self).to_path_buf()
+    }
+
+    fn requests(&self) -> anyhow::Result<Vec<RequestRecord>> {
+        PacedPymodbus::requests(self)
+    }
+
+    fn process(&self) -> Option<u32> {
+        Some(PacedPymodbus::process(self))
+    }
+}
+
 /// What a gateway publishes a command's outcome after, which sets its bound.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ResultAfter {
@@ -150,8 +195,31 @@ pub fn wire_figures(
         }
         ResultAfter::Echo => write_and_echo,
     };
+    let device_busy: Duration = records
+        .iter()
+        .map(|r| {
+            r.answer_timing.as_ref().map_or_else(
+                || timing.frame_time(r.frame.len()),
+                |answer| answer.handed_over.saturating_duration_since(r.arrived),
+            ) + timing.t3_5
+        })
+        .sum();
+    let mut turnarounds: Vec<Duration> = records
+        .iter()
+        .filter_map(|r| {
+            let answer_start = r.answer_timing.as_ref()?.due
+                - timing.frame_time(r.answer.as_ref().map_or(0, Vec::len));
+            Some(
+                answer_start
+                    .saturating_duration_since(r.arrived + timing.frame_time(r.frame.len())),
+            )
+        })
+        .collect();
+    turnarounds.sort();
     let mut wire = Wire {
         efficiency: busy.as_secs_f64() / wall.as_secs_f64(),
+        efficiency_device_times: device_busy.as_secs_f64() / wall.as_secs_f64(),
+        device_turnaround_p50: percentile(&turnarounds, 50),
         gap_p50: percentile(&gaps, 50),
         gap_p95: percentile(&gaps, 95),
         early,
@@ -330,7 +398,7 @@ pub struct Writes<'a> {
 /// the window; `results` notes the arrivals of whatever answers them.
 pub async fn command_window(
     gateway: &GatewayProcess,
-    line: &VirtualLine,
+    line: &(impl BenchLine + ?Sized),
     client: &AsyncClient,
     writes: Writes<'_>,
     results: &mut UnboundedReceiver<Instant>,
@@ -339,7 +407,13 @@ pub async fn command_window(
     while results.try_recv().is_ok() {}
     let start = Instant::now();
     let cpu_start = gateway.cpu_time()?;
-    let simulator_start = cpu_time_of("self")?;
+    let simulator_cpu_time = || -> anyhow::Result<Duration> {
+        let own = line
+            .process()
+            .map_or(Ok(Duration::ZERO), |pid| cpu_time_of(&pid.to_string()))?;
+        Ok(cpu_time_of("self")? + own)
+    };
+    let simulator_start = simulator_cpu_time()?;
     let mut published = Vec::new();
     let every = length / writes.count.max(1);
     for i in 0..writes.count {
@@ -358,15 +432,14 @@ pub async fn command_window(
     tokio::time::sleep_until((start + length).into()).await;
     let wall = start.elapsed();
     let gateway_cpu = gateway.cpu_time()?.saturating_sub(cpu_start);
-    let simulator_cpu = cpu_time_of("self")?.saturating_sub(simulator_start);
+    let simulator_cpu = simulator_cpu_time()?.saturating_sub(simulator_start);
     let memory = gateway.memory()?;
     let mut arrivals = Vec::new();
     while let Ok(at) = results.try_recv() {
         arrivals.push(at);
     }
     let records = line
-        .journal()
-        .requests()
+        .requests()?
         .into_iter()
         .filter(|r| r.arrived >= start && r.arrived < start + wall)
         .collect();

@@ -13,6 +13,8 @@
 //! - [`command`]: a command's refusal by a profile, for asserting the same words as the gateway.
 //! - [`hex`]: frames as hex text.
 //! - [`pysparkplug`]: the Sparkplug B decoder written by others, run through Python.
+//! - [`paced_pymodbus`]: a serial line whose device is pymodbus's RTU server, paced at the
+//!   wire's rate ([`PacedPymodbus`]), with a journal of what crossed it.
 //! - [`soak`]: the gateway process under a long run of chaos, with its end checks.
 
 pub mod broker;
@@ -23,6 +25,7 @@ pub mod command;
 pub mod disk;
 pub mod gateway;
 pub mod hex;
+pub mod paced_pymodbus;
 pub mod plant_bench;
 pub mod pysparkplug;
 pub mod soak;
@@ -32,4 +35,5 @@ pub use browser::Browser;
 pub use client::{Message, TestClient};
 pub use disk::SmallDisk;
 pub use gateway::{fast_config, Gateway, PlantConfig};
+pub use paced_pymodbus::PacedPymodbus;
 pub use plant_bench::{PlantBench, PlantSetup, PLANT_ANSWER, SEED_DEVICES};

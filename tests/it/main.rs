@@ -39,6 +39,7 @@ mod profiles_valid;
 mod pty_line;
 mod pty_master;
 mod publish;
+mod pymodbus_rtu;
 mod readme;
 mod reliability;
 mod reload;

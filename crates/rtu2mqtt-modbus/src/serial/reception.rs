@@ -192,15 +192,16 @@ impl Reception {
             // before its wire time: it is waited for in one go, not with a wake-up per byte
             // (a rest longer than the byte timeout in steps of it, each from the bytes that
             // came in the one before, so that a silence inside it is still noticed at the
-            // limit). Only until its wire time: bytes still missing then come a little after
-            // it (a byte-paced line always lags by some microseconds), and their arrival wakes
-            // the read, so that the answer ends, and t3.5 starts, when its last byte came,
-            // not a character time later.
+            // limit). Only until the wire time of all but its last byte: that byte's own
+            // arrival wakes the read, so that the answer ends, and t3.5 starts, when it came.
+            // Waking at the whole rest's wire time would start t3.5 late by the wake-up's own
+            // lag and by the lag with which the byte the wait is counted from was seen.
             let mut rest_due = None;
             if let Framing::NeedMore { needed } = framing {
                 if self.received.len() >= 3 && !self.rest_waited_for {
                     let remaining = needed.saturating_sub(self.received.len());
-                    let due = self.last_byte_at + self.timing.line.frame_time(remaining);
+                    let due = self.last_byte_at
+                        + self.timing.line.frame_time(remaining.saturating_sub(1));
                     self.rest_waited_for = due <= until;
                     if due > now {
                         rest_due = Some(due.min(until));
