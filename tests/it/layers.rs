@@ -2,9 +2,9 @@
 //! that does not depend on it); what is checked here is what each manifest may depend on: the
 //! wire crate on no MQTT, JSON or configuration crate, the profile crate on no runtime and no
 //! MQTT, the daemon on no simulator, demo or broker. Inside the daemon a top-level module of
-//! `src/` names only modules below it (`crate::<module>` in code, test code and comments aside),
-//! in the order of `lib.rs`'s module map; an arrow pointing up, and so any import circle between
-//! top-level modules, fails.
+//! `src/` names only modules below it (`crate::<module>` anywhere in its files, the items behind
+//! `#[cfg(test)]` and comments aside), in the order of `lib.rs`'s module map; an arrow pointing
+//! up, and so any import circle between top-level modules, fails.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -36,14 +36,17 @@ fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
     }
 }
 
-/// The top-level modules `text` names as `crate::<module>`, test modules and comments aside.
+/// The top-level modules `text` names as `crate::<module>`, in the whole file: comments and
+/// the items behind `#[cfg(test)]` aside (test code may reach anywhere), and only those items:
+/// code after an inline test module is read like the code before it.
 fn named_modules(text: &str) -> BTreeSet<String> {
     let mut names = BTreeSet::new();
-    for line in text.lines() {
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
         let code = line.trim_start();
         if code.starts_with("#[cfg(test)]") {
-            // Test modules close the file in this crate.
-            break;
+            skip_item(&mut lines);
+            continue;
         }
         if code.starts_with("//") {
             continue;
@@ -60,6 +63,29 @@ fn named_modules(text: &str) -> BTreeSet<String> {
         }
     }
     names
+}
+
+/// Passes over the item that starts at the next line: up to its `;` when it has no body
+/// (`mod tests;`), else to the brace that closes its body.
+fn skip_item<'a>(lines: &mut impl Iterator<Item = &'a str>) {
+    let mut depth = 0i32;
+    let mut opened = false;
+    for line in lines {
+        let code = line.split("//").next().unwrap_or_default();
+        for c in code.chars() {
+            match c {
+                '{' => {
+                    depth += 1;
+                    opened = true;
+                }
+                '}' => depth -= 1,
+                _ => {}
+            }
+        }
+        if (opened && depth <= 0) || (!opened && code.trim_end().ends_with(';')) {
+            return;
+        }
+    }
 }
 
 /// The top-level module a file of `src/` belongs to (None for `lib.rs` and `main.rs`).
@@ -114,6 +140,14 @@ fn the_scan_sees_uses_and_paths_but_not_comments_or_tests() {
                 #[cfg(test)]\nmod tests { use crate::sim; }\n";
     let names: Vec<String> = named_modules(text).into_iter().collect();
     assert_eq!(names, vec!["bridge".to_string(), "bus".to_string()]);
+}
+
+#[test]
+fn the_scan_reads_on_after_a_test_module() {
+    let text = "use crate::bus::LineStats;\n#[cfg(test)]\nmod tests {\n    fn f() {\n        \
+                use crate::web;\n    }\n}\n#[cfg(test)]\nmod more;\nuse crate::app::run;\n";
+    let names: Vec<String> = named_modules(text).into_iter().collect();
+    assert_eq!(names, vec!["app".to_string(), "bus".to_string()]);
 }
 
 /// The names of the dependencies a manifest's `[dependencies]` table declares (not its
