@@ -28,6 +28,7 @@ mod layers;
 mod library;
 mod line_server;
 mod logs;
+mod module_maps;
 mod number_grammar;
 mod oversized_messages;
 mod package_files;

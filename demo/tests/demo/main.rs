@@ -1,5 +1,6 @@
 //! The demo's tests: the `rtu2mqtt-demo` binary with its embedded broker (or a mosquitto of the
-//! harness), watched on MQTT like a user would, and its live table on a real terminal (tmux).
+//! harness), watched on MQTT like a user would (`plant_demo`), and its live table on a real
+//! terminal, tmux (`screen`).
 
 use rtu2mqtt_testkit as support;
 

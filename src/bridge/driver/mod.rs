@@ -9,7 +9,9 @@
 //! back under [`OVERLOAD_LOW`]. With `[history]`, [`history_stream`] carries the history stream:
 //! published while the broker is there, journaled while it is away, replayed after. [`tls`] is
 //! the `mqtts://` client configuration. [`oversized`] keeps an incoming packet larger than the
-//! gateway reads from ending connection after connection.
+//! gateway reads from ending connection after connection. [`inputs`] waits for what comes
+//! besides the broker's messages and the lines' events: the console's messages and a Sparkplug
+//! node's commands.
 
 pub mod connection;
 pub(crate) mod history_stream;

@@ -1,0 +1,174 @@
+//! Maps that cannot drift: every module map of the repository (a `lib.rs`, `main.rs` or
+//! `mod.rs`) names, in its `//!` documentation, every module it declares, and each of its
+//! bullets that starts with a module's name (`` - [`name`]: `` or `` - `name`: ``) names one it
+//! declares. Modules behind `#[cfg(test)]` are the tests of the map's own code and need no entry.
+
+use std::path::{Path, PathBuf};
+
+/// The folders whose maps are checked, from the repository's root.
+const ROOTS: &[&str] = &[
+    "src",
+    "crates",
+    "testkit/src",
+    "demo/src",
+    "demo/tests",
+    "tests/it",
+    "fuzz/fuzz_targets",
+];
+
+fn maps(dir: &Path, found: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let name = entry.file_name();
+        if path.is_dir() {
+            if name != "target" {
+                maps(&path, found);
+            }
+        } else if matches!(name.to_str(), Some("lib.rs" | "main.rs" | "mod.rs")) {
+            found.push(path);
+        }
+    }
+}
+
+/// The modules `text` declares (`mod name;`, with any visibility), those behind
+/// `#[cfg(test)]` aside.
+fn declared(text: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    let mut test_only = false;
+    for line in text.lines() {
+        let code = line.trim();
+        if code.starts_with("#[cfg(test)]") {
+            test_only = true;
+            continue;
+        }
+        let after_visibility = code
+            .strip_prefix("pub(crate) ")
+            .or_else(|| code.strip_prefix("pub(super) "))
+            .or_else(|| code.strip_prefix("pub "))
+            .unwrap_or(code);
+        if let Some(name) = after_visibility
+            .strip_prefix("mod ")
+            .and_then(|rest| rest.strip_suffix(';'))
+        {
+            if !test_only {
+                names.push(name.trim().to_string());
+            }
+        }
+        if !code.starts_with("#[") {
+            test_only = false;
+        }
+    }
+    names
+}
+
+/// The map's `//!` text.
+fn documentation(text: &str) -> String {
+    text.lines()
+        .filter_map(|line| line.trim_start().strip_prefix("//!"))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Whether `doc` names `module` in code style: `` `module` ``, `` [`module`] ``,
+/// `` [`mod@module`] ``, or as a part of a path (`` `crate::bus::module` ``,
+/// `` `module::Item` ``), a folder (`` `module/` ``) or a file (`` `module.rs` ``).
+fn names(doc: &str, module: &str) -> bool {
+    doc.split('`').skip(1).step_by(2).any(|quoted| {
+        let quoted = quoted.strip_prefix("mod@").unwrap_or(quoted);
+        let quoted = quoted.strip_suffix("()").unwrap_or(quoted);
+        quoted == module
+            || quoted.split("::").any(|part| part == module)
+            || quoted
+                .strip_suffix("/")
+                .is_some_and(|folder| folder == module)
+            || quoted
+                .strip_suffix(".rs")
+                .is_some_and(|file| file == module)
+    })
+}
+
+/// The names that open the doc's bullets: `` - [`name`]: `` or `` - `name`: ``, lower-case
+/// names only (a bullet may open with a type).
+fn bullet_heads(doc: &str) -> Vec<String> {
+    doc.lines()
+        .filter_map(|line| {
+            let rest = line.trim_start().strip_prefix("- ")?;
+            let rest = rest.strip_prefix('[').unwrap_or(rest);
+            let name = rest.strip_prefix('`')?.split('`').next()?;
+            let lower = name
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+            (lower && !name.is_empty()).then(|| name.to_string())
+        })
+        .collect()
+}
+
+fn problems_of(path: &Path, text: &str) -> Vec<String> {
+    let doc = documentation(text);
+    let declared = declared(text);
+    let mut problems: Vec<String> = declared
+        .iter()
+        .filter(|module| !names(&doc, module))
+        .map(|module| {
+            format!(
+                "{}: declares `{module}` and does not name it",
+                path.display()
+            )
+        })
+        .collect();
+    problems.extend(
+        bullet_heads(&doc)
+            .into_iter()
+            .filter(|head| !declared.contains(head))
+            .map(|head| {
+                format!(
+                    "{}: a bullet names `{head}`, which it does not declare",
+                    path.display()
+                )
+            }),
+    );
+    problems
+}
+
+#[test]
+fn every_module_map_names_exactly_the_modules_it_declares() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = Vec::new();
+    for dir in ROOTS {
+        maps(&root.join(dir), &mut found);
+    }
+    assert!(found.len() > 20, "maps found: {found:?}");
+    let mut problems = Vec::new();
+    for path in &found {
+        let Ok(text) = std::fs::read_to_string(path) else {
+            problems.push(format!("{}: unreadable", path.display()));
+            continue;
+        };
+        let relative = path.strip_prefix(root).unwrap_or(path);
+        problems.extend(problems_of(relative, &text));
+    }
+    assert!(
+        problems.is_empty(),
+        "maps out of step:\n{}",
+        problems.join("\n")
+    );
+}
+
+#[test]
+fn a_missing_or_an_extra_entry_is_found() {
+    let text = "//! The map: [`alpha`] does one thing.\n//!\n//! - `gamma`: gone.\n\
+                pub mod alpha;\nmod beta;\n#[cfg(test)]\nmod tests;\n";
+    let problems = problems_of(Path::new("x/mod.rs"), text);
+    assert_eq!(
+        problems,
+        vec![
+            "x/mod.rs: declares `beta` and does not name it".to_string(),
+            "x/mod.rs: a bullet names `gamma`, which it does not declare".to_string(),
+        ]
+    );
+    let named = "//! - [`alpha`]: one.\n//! - `beta`: two.\npub mod alpha;\nmod beta;\n";
+    assert!(problems_of(Path::new("y/mod.rs"), named).is_empty());
+}
