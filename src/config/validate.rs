@@ -3,16 +3,20 @@
 //! [`super::devices`], [`super::sparkplug`], [`super::history`], [`super::web`]), and every problem is collected
 //! with its place; what no single section can see (Home Assistant ids across lines) is checked
 //! here. Nothing is opened (profile files and the password file are read, ports and the broker
-//! are not). The result is the bus's [`LineSpec`]s and the bridge's settings.
+//! are not). The result is the bus's [`LineSpec`]s and the bridge's settings. [`load`] and
+//! [`from_str`] are the way in: what the reading stage found comes first, validation of the
+//! rest follows.
 
 use std::path::Path;
 
+use super::deserialize::Loaded;
 use super::gateway::validate_gateway;
 use super::gateway::GatewayOptions;
 use super::health::validate_health;
 use super::health::HealthSettings;
 use super::history::HistoryConfig;
 use super::lines::validate_lines;
+use super::load as reading;
 use super::mqtt::validate_mqtt;
 use super::mqtt::MqttSettings;
 use super::problem::{Problem, Problems};
@@ -184,4 +188,49 @@ mod tests {
             ]
         );
     }
+}
+
+/// Reads, overrides from the environment and validates the configuration at `path`.
+/// A problem in a value set from the environment names its variable, not the file.
+pub fn load(path: &Path) -> Result<Config, Problems> {
+    load_with_env(path, reading::process_environment()?)
+}
+
+/// Like [`load()`] with an explicit environment (tests).
+pub fn load_with_env(
+    path: &Path,
+    env: std::collections::HashMap<String, String>,
+) -> Result<Config, Problems> {
+    let overrides = reading::env_overrides(&env);
+    let loaded = reading::load_file_lenient(path, Some(env))?;
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    validate_loaded(loaded, base)
+        .map_err(|problems| reading::blame_overrides(problems, &overrides, false))
+}
+
+/// Parses and validates configuration text (profile paths relative to `base`).
+pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
+    validate_loaded(reading::load_str_lenient(text)?, base)
+}
+
+/// Validates what reading found. Problems of the reading stage come first; validation of the
+/// rest follows, leaving out problems at a place the reading stage already reported.
+fn validate_loaded(loaded: Loaded, base: &Path) -> Result<Config, Problems> {
+    let Some(raw) = &loaded.raw else {
+        return Err(Problems(loaded.problems));
+    };
+    let validated = validate(raw, base);
+    if loaded.problems.is_empty() {
+        return validated;
+    }
+    let mut problems = loaded.problems;
+    if let Err(Problems(found)) = validated {
+        let reported: Vec<String> = problems.iter().map(|p| p.place.clone()).collect();
+        problems.extend(found.into_iter().filter(|problem| {
+            !reported
+                .iter()
+                .any(|place| !place.is_empty() && reading::is_within(&problem.place, place))
+        }));
+    }
+    Err(Problems(problems))
 }

@@ -2,6 +2,8 @@
 //! `mod.rs`) names, in its `//!` documentation, every module it declares, and each of its
 //! bullets that starts with a module's name (`` - [`name`]: `` or `` - `name`: ``) names one it
 //! declares. Modules behind `#[cfg(test)]` are the tests of the map's own code and need no entry.
+//! A `lib.rs` or `mod.rs` is a map and nothing else: it declares modules and re-exports their
+//! items, and defines none itself (tests and doctests aside).
 
 use std::path::{Path, PathBuf};
 
@@ -155,6 +157,100 @@ fn every_module_map_names_exactly_the_modules_it_declares() {
         "maps out of step:\n{}",
         problems.join("\n")
     );
+}
+
+/// The items `text` defines itself (functions, types, impls, constants…), outside the items
+/// behind `#[cfg(test)]` or `#[cfg(doctest)]`: their first lines.
+fn homed_items(text: &str) -> Vec<String> {
+    const ITEMS: &[&str] = &[
+        "fn ",
+        "async fn ",
+        "struct ",
+        "enum ",
+        "union ",
+        "impl ",
+        "impl<",
+        "trait ",
+        "const ",
+        "static ",
+        "type ",
+        "macro_rules!",
+    ];
+    let mut found = Vec::new();
+    let mut skipping_next = false;
+    let mut depth = 0i32;
+    for line in text.lines() {
+        let code = line.trim();
+        if depth > 0 {
+            depth += brace_balance(code);
+            continue;
+        }
+        if code.starts_with("#[cfg(test)]") || code.starts_with("#[cfg(doctest)]") {
+            skipping_next = true;
+            continue;
+        }
+        if code.starts_with("#") || code.starts_with("//") || code.is_empty() {
+            continue;
+        }
+        let after_visibility = code
+            .strip_prefix("pub(crate) ")
+            .or_else(|| code.strip_prefix("pub(super) "))
+            .or_else(|| code.strip_prefix("pub "))
+            .unwrap_or(code);
+        let is_item = ITEMS.iter().any(|item| after_visibility.starts_with(item));
+        if is_item && !skipping_next {
+            found.push(code.to_string());
+        }
+        if is_item || skipping_next {
+            depth = brace_balance(code);
+        }
+        skipping_next = false;
+    }
+    found
+}
+
+fn brace_balance(code: &str) -> i32 {
+    code.chars()
+        .map(|c| match c {
+            '{' => 1,
+            '}' => -1,
+            _ => 0,
+        })
+        .sum()
+}
+
+#[test]
+fn a_lib_rs_or_mod_rs_is_a_map_not_a_home() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = Vec::new();
+    for dir in ROOTS {
+        maps(&root.join(dir), &mut found);
+    }
+    let mut homes = Vec::new();
+    for path in found.iter().filter(|path| !path.ends_with("main.rs")) {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        let items = homed_items(&text);
+        if let Some(first) = items.first() {
+            let relative = path.strip_prefix(root).unwrap_or(path);
+            homes.push(format!(
+                "{}: {} item(s) of its own, first `{first}`",
+                relative.display(),
+                items.len()
+            ));
+        }
+    }
+    assert!(
+        homes.is_empty(),
+        "maps that are homes:\n{}",
+        homes.join("\n")
+    );
+}
+
+#[test]
+fn an_item_of_a_map_is_found_and_its_tests_are_not() {
+    let text = "//! Map.\nmod a;\npub use a::X;\n#[cfg(test)]\nmod tests {\n    fn t() {}\n}\n\
+                #[cfg(doctest)]\npub struct Readme;\npub fn home() {\n    let x = 1;\n}\n";
+    assert_eq!(homed_items(text), vec!["pub fn home() {".to_string()]);
 }
 
 #[test]

@@ -7,8 +7,8 @@ use std::sync::atomic::Ordering;
 
 use super::chaos::{Counts, OutageCheck};
 use super::rig::{ClientCounts, WireAudit};
+use super::run::Options;
 use super::sampler::{self, Sample, Trend};
-use super::Options;
 
 /// What the run gathered.
 pub struct Inputs<'a> {
