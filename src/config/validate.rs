@@ -118,6 +118,51 @@ fn check_unique_ids(mqtt: &MqttSettings, lines: &[LineSpec], problems: &mut Vec<
     }
 }
 
+/// Reads, overrides from the environment and validates the configuration at `path`.
+/// A problem in a value set from the environment names its variable, not the file.
+pub fn load(path: &Path) -> Result<Config, Problems> {
+    load_with_env(path, reading::process_environment()?)
+}
+
+/// Like [`load()`] with an explicit environment (tests).
+pub fn load_with_env(
+    path: &Path,
+    env: std::collections::HashMap<String, String>,
+) -> Result<Config, Problems> {
+    let overrides = reading::env_overrides(&env);
+    let loaded = reading::load_file_lenient(path, Some(env))?;
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    validate_loaded(loaded, base)
+        .map_err(|problems| reading::blame_overrides(problems, &overrides, false))
+}
+
+/// Parses and validates configuration text (profile paths relative to `base`).
+pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
+    validate_loaded(reading::load_str_lenient(text)?, base)
+}
+
+/// Validates what reading found. Problems of the reading stage come first; validation of the
+/// rest follows, leaving out problems at a place the reading stage already reported.
+fn validate_loaded(loaded: Loaded, base: &Path) -> Result<Config, Problems> {
+    let Some(raw) = &loaded.raw else {
+        return Err(Problems(loaded.problems));
+    };
+    let validated = validate(raw, base);
+    if loaded.problems.is_empty() {
+        return validated;
+    }
+    let mut problems = loaded.problems;
+    if let Err(Problems(found)) = validated {
+        let reported: Vec<String> = problems.iter().map(|p| p.place.clone()).collect();
+        problems.extend(found.into_iter().filter(|problem| {
+            !reported
+                .iter()
+                .any(|place| !place.is_empty() && reading::is_within(&problem.place, place))
+        }));
+    }
+    Err(Problems(problems))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -188,49 +233,4 @@ mod tests {
             ]
         );
     }
-}
-
-/// Reads, overrides from the environment and validates the configuration at `path`.
-/// A problem in a value set from the environment names its variable, not the file.
-pub fn load(path: &Path) -> Result<Config, Problems> {
-    load_with_env(path, reading::process_environment()?)
-}
-
-/// Like [`load()`] with an explicit environment (tests).
-pub fn load_with_env(
-    path: &Path,
-    env: std::collections::HashMap<String, String>,
-) -> Result<Config, Problems> {
-    let overrides = reading::env_overrides(&env);
-    let loaded = reading::load_file_lenient(path, Some(env))?;
-    let base = path.parent().unwrap_or_else(|| Path::new("."));
-    validate_loaded(loaded, base)
-        .map_err(|problems| reading::blame_overrides(problems, &overrides, false))
-}
-
-/// Parses and validates configuration text (profile paths relative to `base`).
-pub fn from_str(text: &str, base: &Path) -> Result<Config, Problems> {
-    validate_loaded(reading::load_str_lenient(text)?, base)
-}
-
-/// Validates what reading found. Problems of the reading stage come first; validation of the
-/// rest follows, leaving out problems at a place the reading stage already reported.
-fn validate_loaded(loaded: Loaded, base: &Path) -> Result<Config, Problems> {
-    let Some(raw) = &loaded.raw else {
-        return Err(Problems(loaded.problems));
-    };
-    let validated = validate(raw, base);
-    if loaded.problems.is_empty() {
-        return validated;
-    }
-    let mut problems = loaded.problems;
-    if let Err(Problems(found)) = validated {
-        let reported: Vec<String> = problems.iter().map(|p| p.place.clone()).collect();
-        problems.extend(found.into_iter().filter(|problem| {
-            !reported
-                .iter()
-                .any(|place| !place.is_empty() && reading::is_within(&problem.place, place))
-        }));
-    }
-    Err(Problems(problems))
 }

@@ -10,6 +10,7 @@ use tokio::sync::watch;
 
 use super::*;
 use crate::bus::LineStats;
+use tokio_util::sync::CancellationToken;
 
 fn settings() -> HealthSettings {
     HealthSettings {
