@@ -7,8 +7,8 @@
 //!
 //! - [`asset`]: the executable's name, the command line every file is made from, a file.
 //! - [`manual`]: the manual pages.
-//! - [`completions`]: the completion scripts.
-//! - [`write`]: every file written below a directory.
+//! - [`completions`](mod@completions): the completion scripts.
+//! - [`write`](mod@write): every file written below a directory.
 
 pub mod asset;
 pub mod completions;
