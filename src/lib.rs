@@ -2,8 +2,9 @@
 //!
 //! Below this crate: [`rtu2mqtt_modbus`] (Modbus on the wire: frames, CRC, timing, the serial
 //! and TCP links that run one transaction at a time with legal timing) and [`rtu2mqtt_profile`]
-//! (device profiles as data, and the MQTT contract's names). The simulators and the demo are
-//! crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates fit.
+//! (device profiles as data, and the names the MQTT topics reserve). The simulators and the
+//! demo are crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates
+//! fit.
 //!
 //! The modules are layered from the wire upwards; each only knows the ones listed before it
 //! (`tests/it/layers.rs` fails on any arrow pointing up):
@@ -17,6 +18,9 @@
 //!   pure) and `reporter` (its task), `write_clock` (when each field was last written, by any
 //!   source), `serve` (a line served to other Modbus masters: their requests are slots of its
 //!   scheduler). It reports [`bus::LineEvent`]s and publishes nothing.
+//! - [`topics`]: the MQTT topics of one gateway: `names` ([`topics::Topics`], every topic and
+//!   Home Assistant id built), `kind` ([`topics::Topics::classify`], what a topic is, read
+//!   once), `words` (`online`/`offline`, limits).
 //! - [`config`]: the configuration (file + `RTU2MQTT__*` environment), validated completely with
 //!   the place of every problem before anything is opened; each section checked in its own file
 //!   (`mqtt`, `gateway`, `health`, `lines`, `devices`, `sparkplug`, `history`), `names`, and
@@ -63,4 +67,5 @@ pub mod config;
 pub mod health;
 pub mod history;
 pub mod sparkplug;
+pub mod topics;
 pub mod web;

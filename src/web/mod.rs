@@ -45,7 +45,7 @@ use crate::bridge::{BridgeFigures, BridgeHealth, LocalMessage};
 use crate::bus::LineHandle;
 use crate::config::{Config, WebSettings};
 use rtu2mqtt_modbus::live_frames::LiveFrames;
-use rtu2mqtt_profile::contract::Topics;
+use crate::topics::{TopicKind, Topics};
 
 /// Largest request body: a profile pasted for a try-out is the largest thing sent.
 pub const MAX_BODY: usize = 256 * 1024;
@@ -243,7 +243,7 @@ async fn command(State(console): State<Arc<Console>>, Form(form): Form<CommandFo
             "this console only reads: set web.token_file to send commands from it",
         );
     }
-    let Some((device, field)) = console.topics.parse_command(&form.topic) else {
+    let TopicKind::Command { device, field } = console.topics.classify(&form.topic) else {
         return refusal(
             StatusCode::BAD_REQUEST,
             format!(

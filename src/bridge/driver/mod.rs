@@ -45,6 +45,7 @@ use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::observers::statistics::BridgeStats;
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
+use crate::topics::TopicKind;
 use tokio_util::sync::CancellationToken;
 
 /// How often waiting commands, expiries and statistics are looked at; the bridge's heartbeat
@@ -517,7 +518,11 @@ impl Bridge {
             .topic
             .strip_prefix(topics.discovery_prefix.as_str())
             .is_some_and(|rest| rest.starts_with('/'));
-        if discovery || topics.is_stats_topic(&publish.topic) {
+        let own_stats = matches!(
+            topics.classify(&publish.topic),
+            TopicKind::GatewayStats { gateway, .. } if gateway == topics.client_id
+        );
+        if discovery || own_stats {
             Urgency::Resend
         } else {
             Urgency::Urgent

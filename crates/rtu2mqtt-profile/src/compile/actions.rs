@@ -8,7 +8,7 @@ use std::collections::HashSet;
 use super::blocks::bus_address;
 use super::problems::Problems;
 use crate::action::{ActionDef, ActionInfo, ActionParam, ActionResult, ParamLayout, Word};
-use crate::contract::{reserved_name_problem, MAX_NAME_LEN};
+use crate::topic_levels::{reserved_name_problem, MAX_NAME_LEN};
 use crate::field::FieldInfo;
 use crate::format::{ActionSection, ActionWord, ParamSection, ResultSection};
 use crate::model::Limits;
