@@ -15,7 +15,7 @@ use super::bridge_device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
-use super::topic_guard::{TopicGuard, Verdict};
+use super::topic_guard::{TopicGuard, GuardVerdict};
 use crate::history::document;
 use crate::topics::{availability_word, TopicKind, Topics, OFFLINE, ONLINE};
 use rtu2mqtt_profile::Value;
@@ -642,7 +642,7 @@ impl Publisher {
             return;
         };
         let seen = String::from_utf8_lossy(payload);
-        if self.guard.judge(topic, &seen, &truth, now) == Verdict::Reassert {
+        if self.guard.judge(topic, &seen, &truth, now) == GuardVerdict::Reassert {
             self.counters.topics_reasserted += 1;
             self.publish(topic.to_string(), truth, true);
         }
