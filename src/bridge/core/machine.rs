@@ -219,31 +219,24 @@ impl Core {
         self.publisher.take()
     }
 
-    /// The message's topic is classified once; its handler gets what the topic names. The
-    /// gateway's own topics are defended first; Home Assistant's are looked at only with
-    /// discovery on.
+    /// The message's topic is classified once, and its one handler gets what the topic
+    /// names. Home Assistant's topics are looked at only with discovery on; what is left may
+    /// be one of the topics this gateway defends.
     fn route(&mut self, message: Incoming<'_>, now: Instant) {
         let topic = message.topic;
         let p = &mut self.publisher;
-        let kind = p.topics().classify(topic);
-        if let Some(guarded) = p.guarded_kind(kind) {
-            p.on_guarded(guarded, topic, message.payload, now);
-            return;
-        }
-        match kind {
-            TopicKind::HaStatus if p.discovery() => self.on_ha_status(message.payload, now),
-            TopicKind::DeviceConfig { device } if p.discovery() => {
-                p.on_config(topic, device, message.payload)
-            }
-            TopicKind::LineConfig { line } if p.discovery() => {
-                p.on_line_config(topic, line, message.payload)
-            }
-            TopicKind::Availability { device } => {
-                if !p.devices().contains_key(device) && !message.payload.is_empty() {
-                    self.commands.note_foreign(device);
+        match p.topics().classify(topic) {
+            TopicKind::HaStatus if p.discovery() => {
+                if is_ha_online(message.payload) {
+                    let delay = discovery::reannounce_delay(&mut self.rng);
+                    tracing::info!(
+                        ?delay,
+                        "Home Assistant is online: discovery and state follow"
+                    );
+                    self.reannounce_at = Some(now + delay);
+                    self.stats_due = true;
                 }
             }
-            TopicKind::Refresh { device } => p.on_refresh(device, message.payload, message.retain),
             TopicKind::Command { device, field } => {
                 let set = SetMessage {
                     topic,
@@ -257,21 +250,22 @@ impl Core {
                 };
                 self.commands.on_set(p, set, now);
             }
-            _ => tracing::debug!(%topic, "not a command topic"),
-        }
-    }
-
-    /// Home Assistant's status: its birth message has discovery and every state announced
-    /// again, after a random delay so that gateways do not all answer at once.
-    fn on_ha_status(&mut self, payload: &[u8], now: Instant) {
-        if is_ha_online(payload) {
-            let delay = discovery::reannounce_delay(&mut self.rng);
-            tracing::info!(
-                ?delay,
-                "Home Assistant is online: discovery and state follow"
-            );
-            self.reannounce_at = Some(now + delay);
-            self.stats_due = true;
+            TopicKind::Availability { device } if !p.devices().contains_key(device) => {
+                if !message.payload.is_empty() {
+                    self.commands.note_foreign(device);
+                }
+            }
+            TopicKind::Refresh { device } => p.on_refresh(device, message.payload, message.retain),
+            TopicKind::LineConfig { line } if p.discovery() => {
+                p.on_line_config(line, message.payload)
+            }
+            TopicKind::DeviceConfig { device } if p.discovery() => {
+                p.on_config(device, message.payload)
+            }
+            kind => match p.guarded_kind(kind) {
+                Some(guarded) => p.on_guarded(guarded, message.payload, now),
+                None => tracing::debug!(%topic, "not a command topic"),
+            },
         }
     }
 

@@ -494,22 +494,24 @@ impl Publisher {
         }
     }
 
-    /// One of our own line documents as the broker holds it: removed when its line is no
-    /// longer configured.
-    pub(crate) fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+    /// One of our own line documents (`line`'s) as the broker holds it: removed when its
+    /// line is no longer configured.
+    pub(crate) fn on_line_config(&mut self, line: &str, payload: &[u8]) {
         if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
+            let topic = self.topics.line_config_topic(line);
             tracing::info!(%topic, "removing the discovery config of a line no longer configured");
-            self.publish(topic.to_string(), String::new(), true);
+            self.publish(topic, String::new(), true);
         }
     }
 
-    /// One of our own discovery documents (`device`'s, on `topic`) as the broker holds it:
-    /// removed when its device is no longer configured.
-    pub(crate) fn on_config(&mut self, topic: &str, device: &str, payload: &[u8]) {
+    /// One of our own discovery documents (`device`'s) as the broker holds it: removed when
+    /// its device is no longer configured.
+    pub(crate) fn on_config(&mut self, device: &str, payload: &[u8]) {
         let configured = self.cache.devices();
         if discovery::is_stale_device_config(&self.topics, device, payload, configured) {
+            let topic = self.topics.config_topic(device);
             tracing::info!(%topic, "removing the discovery config of a device no longer configured");
-            self.publish(topic.to_string(), String::new(), true);
+            self.publish(topic, String::new(), true);
         }
     }
 
@@ -562,6 +564,15 @@ impl Publisher {
                 Some(Guarded::State(device.to_string(), field.to_string()))
             }
             _ => None,
+        }
+    }
+
+    /// The topic of what this gateway defends.
+    fn guarded_topic(&self, guarded: &Guarded) -> String {
+        match guarded {
+            Guarded::Status => self.topics.gateway_status_topic(),
+            Guarded::Availability(device) => self.topics.availability_topic(device),
+            Guarded::State(device, field) => self.topics.state_topic(device, field),
         }
     }
 
@@ -626,13 +637,7 @@ impl Publisher {
 
     /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
     /// was overwritten again too soon (then later, [`Self::reassert_due`]).
-    pub(crate) fn on_guarded(
-        &mut self,
-        guarded: Guarded,
-        topic: &str,
-        payload: &[u8],
-        now: Instant,
-    ) {
+    pub(crate) fn on_guarded(&mut self, guarded: Guarded, payload: &[u8], now: Instant) {
         // A state topic outside its audit: a late message of an audit that has ended, or of
         // a subscription an earlier connection left behind.
         if !self.is_watched(&guarded) {
@@ -641,10 +646,11 @@ impl Publisher {
         let Some(truth) = self.truth(&guarded) else {
             return;
         };
+        let topic = self.guarded_topic(&guarded);
         let seen = String::from_utf8_lossy(payload);
-        if self.guard.judge(topic, &seen, &truth, now) == GuardVerdict::Reassert {
+        if self.guard.judge(&topic, &seen, &truth, now) == GuardVerdict::Reassert {
             self.counters.topics_reasserted += 1;
-            self.publish(topic.to_string(), truth, true);
+            self.publish(topic, truth, true);
         }
     }
 
