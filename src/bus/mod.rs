@@ -29,10 +29,10 @@ pub mod stats;
 pub(crate) mod transaction;
 pub(crate) mod write_clock;
 
+pub use command::{Command, CommandFailure, CommandOutcome};
 pub use device_spec::DeviceSpec;
 pub use event::{LineEvent, Origin};
 pub use line_spec::{FrameRecorders, LineSpec, Transport};
-pub use command::{Command, CommandFailure, CommandOutcome};
 pub use stats::LineStats;
 pub use write_clock::WriteClock;
 

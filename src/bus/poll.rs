@@ -37,7 +37,8 @@ pub(crate) async fn read_block(
         read_by_parts,
         ..
     } = device;
-    let exchange = ExchangeContext::for_device(context.line, spec, context.timeout, context.turnaround);
+    let exchange =
+        ExchangeContext::for_device(context.line, spec, context.timeout, context.turnaround);
     let attempts = context.attempts;
     let by_parts = read_by_parts.get(index).copied().unwrap_or(false);
     if by_parts {

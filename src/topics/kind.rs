@@ -93,6 +93,20 @@ impl Topics {
 }
 
 impl<'t> TopicKind<'t> {
+    /// The device the topic names, if it names one.
+    pub fn device(&self) -> Option<&'t str> {
+        match *self {
+            TopicKind::Availability { device }
+            | TopicKind::Refresh { device }
+            | TopicKind::History { device }
+            | TopicKind::State { device, .. }
+            | TopicKind::Command { device, .. }
+            | TopicKind::Result { device, .. }
+            | TopicKind::DeviceConfig { device } => Some(device),
+            _ => None,
+        }
+    }
+
     /// This kind, or what `other` finds when this is [`TopicKind::Other`].
     fn or_else(self, other: impl FnOnce() -> TopicKind<'t>) -> TopicKind<'t> {
         match self {
@@ -202,7 +216,10 @@ mod tests {
                 TopicKind::Result { device, field },
             ),
             (topics.ha_status_topic(), TopicKind::HaStatus),
-            (topics.config_topic(device), TopicKind::DeviceConfig { device }),
+            (
+                topics.config_topic(device),
+                TopicKind::DeviceConfig { device },
+            ),
             (
                 topics.gateway_config_topic(),
                 TopicKind::DeviceConfig { device: "gateway" },

@@ -8,9 +8,9 @@ use rtu2mqtt_profile::topic_levels::{
     AVAILABILITY, GATEWAY_DEVICE, HISTORY, REFRESH, RESULT, SET, STATS, STATUS,
 };
 
+use super::words::DEFAULT_DISCOVERY_PREFIX;
 #[cfg(doc)]
 use super::TopicKind;
-use super::words::DEFAULT_DISCOVERY_PREFIX;
 
 /// `<prefix>/<device>`: the topic of a device's JSON view.
 pub fn json_view_topic(prefix: &str, device: &str) -> String {
@@ -89,12 +89,18 @@ impl Topics {
 
     /// `<prefix>/gateway/<client_id>/status`: birth `online`, Will `offline`.
     pub fn gateway_status_topic(&self) -> String {
-        format!("{}/{GATEWAY_DEVICE}/{}/{STATUS}", self.prefix, self.client_id)
+        format!(
+            "{}/{GATEWAY_DEVICE}/{}/{STATUS}",
+            self.prefix, self.client_id
+        )
     }
 
     /// `<prefix>/gateway/<client_id>/stats`: the gateway's statistics summary.
     pub fn gateway_stats_topic(&self) -> String {
-        format!("{}/{GATEWAY_DEVICE}/{}/{STATS}", self.prefix, self.client_id)
+        format!(
+            "{}/{GATEWAY_DEVICE}/{}/{STATS}",
+            self.prefix, self.client_id
+        )
     }
 
     /// `<prefix>/gateway/<client_id>/stats/<line>`: one line's statistics, its devices'
@@ -209,7 +215,6 @@ impl Topics {
         format!("{}/{STATUS}", self.discovery_prefix)
     }
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -44,8 +44,8 @@ use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::{BridgeFigures, BridgeHealth, LocalMessage};
 use crate::bus::LineHandle;
 use crate::config::{Config, WebSettings};
-use rtu2mqtt_modbus::live_frames::LiveFrames;
 use crate::topics::{TopicKind, Topics};
+use rtu2mqtt_modbus::live_frames::LiveFrames;
 
 /// Largest request body: a profile pasted for a try-out is the largest thing sent.
 pub const MAX_BODY: usize = 256 * 1024;

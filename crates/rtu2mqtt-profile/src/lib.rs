@@ -77,8 +77,8 @@ mod registers;
 pub mod registry;
 mod rejection;
 pub mod sunspec;
-pub mod topic_levels;
 mod text;
+pub mod topic_levels;
 mod value;
 
 use std::collections::HashMap;

@@ -164,8 +164,7 @@ impl Core {
     /// little of it at any time.
     pub fn on_announce_room(&mut self) -> Vec<Action> {
         if !self.overloaded {
-            self.publisher
-                .continue_announcing_up_to(ANNOUNCE_ON_ROOM);
+            self.publisher.continue_announcing_up_to(ANNOUNCE_ON_ROOM);
         }
         self.publisher.take()
     }

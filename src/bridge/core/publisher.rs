@@ -15,7 +15,7 @@ use super::bridge_device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
-use super::topic_guard::{TopicGuard, GuardVerdict};
+use super::topic_guard::{GuardVerdict, TopicGuard};
 use crate::history::document;
 use crate::topics::{availability_word, TopicKind, Topics, OFFLINE, ONLINE};
 use rtu2mqtt_profile::Value;

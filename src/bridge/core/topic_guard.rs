@@ -227,9 +227,15 @@ mod tests {
         // message), then echoes ours.
         guard.sent(status, "online");
         for earlier in ["offline", "offline"] {
-            assert_eq!(guard.judge(status, earlier, "online", now), GuardVerdict::Fine);
+            assert_eq!(
+                guard.judge(status, earlier, "online", now),
+                GuardVerdict::Fine
+            );
         }
-        assert_eq!(guard.judge(status, "online", "online", now), GuardVerdict::Fine);
+        assert_eq!(
+            guard.judge(status, "online", "online", now),
+            GuardVerdict::Fine
+        );
         // Once ours is there, a contradiction is someone else's.
         assert_eq!(
             guard.judge(status, "offline", "online", now),
@@ -309,14 +315,23 @@ mod tests {
         guard.sent("plant/a/gear", "3");
         guard.sent("plant/a/gear", "4");
         // The echo of the older value while the newer is in flight is ours.
-        assert_eq!(guard.judge("plant/a/gear", "3", "4", now), GuardVerdict::Fine);
-        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), GuardVerdict::Fine);
+        assert_eq!(
+            guard.judge("plant/a/gear", "3", "4", now),
+            GuardVerdict::Fine
+        );
+        assert_eq!(
+            guard.judge("plant/a/gear", "4", "4", now),
+            GuardVerdict::Fine
+        );
         assert_eq!(
             guard.judge("plant/a/gear", "99", "4", now),
             GuardVerdict::Reassert
         );
         guard.sent("plant/a/gear", "4");
-        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), GuardVerdict::Fine);
+        assert_eq!(
+            guard.judge("plant/a/gear", "4", "4", now),
+            GuardVerdict::Fine
+        );
         assert_eq!(
             guard.judge("plant/a/gear", "98", "4", now + Duration::from_millis(10)),
             GuardVerdict::Hold

@@ -33,7 +33,7 @@ use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
 pub use self::inputs::LocalMessage;
 use self::inputs::{next_external, next_local};
-use self::outbox::{Outbox, ClientOrder, Urgency};
+use self::outbox::{ClientOrder, Outbox, Urgency};
 use self::oversized::SubscriptionWatch;
 use self::writer::spawn_writer;
 use crate::bridge::core::publisher::ANNOUNCE_BATCH;
@@ -400,13 +400,16 @@ impl Bridge {
                     }
                 }
                 Action::Subscribe { filter, qos } => {
-                    self.outbox.push_control(ClientOrder::Subscribe { filter, qos });
+                    self.outbox
+                        .push_control(ClientOrder::Subscribe { filter, qos });
                 }
                 Action::SubscribeInTurn { filter, qos } => {
-                    self.outbox.push_in_turn(ClientOrder::Subscribe { filter, qos });
+                    self.outbox
+                        .push_in_turn(ClientOrder::Subscribe { filter, qos });
                 }
                 Action::UnsubscribeInTurn { filter } => {
-                    self.outbox.push_in_turn(ClientOrder::Unsubscribe { filter });
+                    self.outbox
+                        .push_in_turn(ClientOrder::Unsubscribe { filter });
                 }
                 Action::Send { line, command } => {
                     let refused = match self.lines.get(line) {

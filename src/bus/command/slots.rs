@@ -231,7 +231,11 @@ impl CommandSlots {
 
     /// Re-reads a settling command's device: its end, or back to the list while the device
     /// is still moving and the settle window lasts.
-    pub(crate) async fn reread(&mut self, mut link: SlotLink<'_>, mut settle: Settle) -> SlotReport {
+    pub(crate) async fn reread(
+        &mut self,
+        mut link: SlotLink<'_>,
+        mut settle: Settle,
+    ) -> SlotReport {
         let mut seen = SeenReads::new();
         let result = run::reread(&mut link, &settle.plan, &mut seen).await;
         let now = Instant::now();

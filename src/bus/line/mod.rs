@@ -325,7 +325,12 @@ impl Line {
         } = self;
         let link = devices.get_mut(device).and_then(|runtime| {
             Some(SlotLink {
-                exchange: ExchangeContext::for_device(&spec.name, &runtime.spec, *timeout, turnaround),
+                exchange: ExchangeContext::for_device(
+                    &spec.name,
+                    &runtime.spec,
+                    *timeout,
+                    turnaround,
+                ),
                 master: master.as_mut()?,
                 stats: &mut runtime.stats,
                 attempts,
