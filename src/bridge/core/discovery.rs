@@ -747,25 +747,17 @@ pub fn removal(ctx: &Topics, device: &str) -> (String, Vec<u8>) {
     (ctx.config_topic(device), Vec::new())
 }
 
-/// Whether a retained config seen on [`Topics::config_filter`] is one this gateway
-/// published for a device that is no longer configured, and so must be cleared with
-/// [`removal`] ([`is_stale_device_config`] once the topic has named its device).
-pub fn is_stale_config(
-    ctx: &Topics,
-    topic: &str,
-    payload: &[u8],
-    configured_devices: &[String],
-) -> bool {
-    match ctx.classify(topic) {
-        TopicKind::DeviceConfig { device } => {
-            is_stale_device_config(ctx, device, payload, configured_devices)
-        }
-        _ => false,
-    }
+/// [`is_stale_device_config`] of the device a config topic seen on [`Topics::config_filter`]
+/// names; false for any other topic.
+pub fn is_stale_config(ctx: &Topics, topic: &str, payload: &[u8], configured: &[String]) -> bool {
+    let TopicKind::DeviceConfig { device } = ctx.classify(topic) else {
+        return false;
+    };
+    is_stale_device_config(ctx, device, payload, configured)
 }
 
-/// Whether `payload`, retained on the config topic of `device`, is a document this gateway
-/// published for a device that is no longer configured.
+/// Whether `payload`, retained on `device`'s config topic, is a document this gateway
+/// published for a device no longer configured, to be cleared with [`removal`].
 ///
 /// The topic alone is not proof: with client ids `edge` and `edge_b`, `edge_b_valve` matches
 /// both. So the document itself must name this gateway as its `via_device`. Empty payloads
