@@ -9,8 +9,6 @@ use rtu2mqtt_profile::topic_levels::{
 };
 
 use super::words::DEFAULT_DISCOVERY_PREFIX;
-#[cfg(doc)]
-use super::TopicKind;
 
 /// `<prefix>/<device>`: the topic of a device's JSON view.
 pub fn json_view_topic(prefix: &str, device: &str) -> String {
@@ -205,7 +203,7 @@ impl Topics {
     /// What to subscribe to for finding the configs this gateway published earlier. MQTT
     /// wildcards take whole levels, so `<client_id>_+` is not a valid filter: subscribe to
     /// every device config and keep the ones [`Topics::classify`] finds to be
-    /// [`TopicKind::DeviceConfig`].
+    /// [`TopicKind::DeviceConfig`](super::TopicKind::DeviceConfig).
     pub fn config_filter(&self) -> String {
         format!("{}/device/+/config", self.discovery_prefix)
     }

@@ -151,13 +151,15 @@ pub(crate) async fn reread(
     plan: &CommandPlan,
     seen: &mut SeenReads,
 ) -> Result<Verification, Stop> {
-    let SlotLink {
-        exchange,
-        master,
-        stats,
-        attempts,
-    } = link;
-    read_back(exchange, master, stats, plan, *attempts, seen).await
+    read_back(
+        &link.exchange,
+        link.master,
+        link.stats,
+        plan,
+        link.attempts,
+        seen,
+    )
+    .await
 }
 
 /// Reads the plan's read-back and judges it.
