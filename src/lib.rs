@@ -2,21 +2,27 @@
 //!
 //! Below this crate: [`rtu2mqtt_modbus`] (Modbus on the wire: frames, CRC, timing, the serial
 //! and TCP links that run one transaction at a time with legal timing) and [`rtu2mqtt_profile`]
-//! (device profiles as data, and the MQTT contract's names). The simulators and the demo are
-//! crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates fit.
+//! (device profiles as data, and the names the MQTT topics reserve). The simulators and the
+//! demo are crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates
+//! fit.
 //!
 //! The modules are layered from the wire upwards; each only knows the ones listed before it
 //! (`tests/it/layers.rs` fails on any arrow pointing up):
 //!
-//! - [`bus`]: one task per line. `line` (the loop; `line::command_slots` its commands,
-//!   refreshes and settle re-reads), `port` (opening the link, one reopen back-off), `device`,
-//!   `poll` (a block, with the exception-02 fallback), `commands` (queue, slots, settle), `slot`,
-//!   `transaction` (one request with retries), `outcome` (typed failure causes), `cadence` (each
-//!   block's cadence), `scheduler` (what is due, pure, clock passed in: commands, then refreshes,
-//!   then polls), `availability` (offline, back-off), `stats`, `report` (report by exception,
-//!   pure) and `reporter` (its task), `write_clock` (when each field was last written, by any
-//!   source), `serve` (a line served to other Modbus masters: their requests are slots of its
-//!   scheduler). It reports [`bus::LineEvent`]s and publishes nothing.
+//! - [`bus`]: one task per line. `line` (the loop; `line::command_side` its commands,
+//!   refreshes and settle re-reads, `line::client_requests` its served side), `line_spec` and
+//!   `device_spec` (what a line is started with), `port` (opening the link, one reopen
+//!   back-off), `device`, `poll` (a block, with the exception-02 fallback), `command` (a
+//!   command from its queue to its outcome: `queue`, `slots`, `run`, `outcome`), `transaction`
+//!   (one request with retries), `cadence` (each block's cadence), `scheduler` (what is due,
+//!   pure, clock passed in: commands, then refreshes, then polls), `availability` (offline,
+//!   back-off), `stats`, `report` (report by exception, pure) and `reporter` (its task),
+//!   `write_clock` (when each field was last written, by any source), `serve` (a line served to
+//!   other Modbus masters: their requests are slots of its scheduler), `event` (what it
+//!   reports). It reports [`bus::LineEvent`]s and publishes nothing.
+//! - [`topics`]: the MQTT topics of one gateway: `names` ([`topics::Topics`], every topic and
+//!   Home Assistant id built), `kind` ([`topics::Topics::classify`], what a topic is, read
+//!   once), `words` (`online`/`offline`, limits).
 //! - [`config`]: the configuration (file + `RTU2MQTT__*` environment), validated completely with
 //!   the place of every problem before anything is opened; each section checked in its own file
 //!   (`mqtt`, `gateway`, `health`, `lines`, `devices`, `sparkplug`, `history`), `names`, and
@@ -28,12 +34,15 @@
 //!   `{"ts","values"}`), `record` (length + CRC-32 per record, a damaged part skipped), `journal`
 //!   (append-only segment files, bounded, crash-safe). File I/O only.
 //! - [`bridge`]: the only plain-MQTT user, in three parts: `core` (every decision, no I/O:
-//!   events in, actions out; `command_desk` the command desk from arrival to result, `publisher` the
-//!   state cache and what is published from it, `discovery`, `topic_guard`, `json_view`, `payload`,
-//!   `state`, `command_book`), `driver` (the task that carries the actions out: `connection`,
-//!   `outbox`, `writer`, `tls`, `history_stream`, `oversized`, `inputs`) and `observers`
-//!   (`statistics` documents and Prometheus text, `figures` where they are read, `plant_view`
-//!   what the console shows).
+//!   events in, actions out; `machine` the core that routes each event, with `settings`,
+//!   `incoming`, `action` and `bridge_device` what it is built from, given and gives;
+//!   `command_desk` the command desk from arrival to result, with `command_book` and
+//!   `payload`; `publisher` the state cache and what is published from it, with `state`,
+//!   `json_view`, `topic_guard`, and Home Assistant's `discovery`, `entity_naming`,
+//!   `ha_templates`, `action_entities`), `driver` (the task that carries the actions out:
+//!   `connection`, `outbox`, `writer`, `tls`, `history_stream`, `oversized`, `inputs`) and
+//!   `observers` (`statistics` documents and Prometheus text, `figures` where they are read,
+//!   `plant_view` what the console shows).
 //! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
 //!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its
 //!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.
@@ -63,4 +72,5 @@ pub mod config;
 pub mod health;
 pub mod history;
 pub mod sparkplug;
+pub mod topics;
 pub mod web;

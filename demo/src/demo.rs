@@ -96,7 +96,7 @@ async fn run_demo(broker: Option<String>, port: u16, log: bool) -> anyhow::Resul
             starting_allowance: device.profile.limits().startup_delay + FIRST_POLLS,
         })
         .collect();
-    let mut view = PlantView::new(&config.mqtt.prefix, &outlines);
+    let mut view = PlantView::new(config.mqtt.topics(), &outlines);
     let mut pacing = LogPacing::default();
     // On a broker others use, whatever the demo leaves retained is cleared when it stops.
     let mut leftovers = (endpoint.origin != EMBEDDED_ORIGIN).then(|| {

@@ -3,7 +3,7 @@
 
 use rtu2mqtt_profile::Value;
 
-use super::outcome::CommandOutcome;
+use super::command::CommandOutcome;
 
 /// What a line reports to the bridge.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,7 +26,7 @@ pub enum LineEvent {
     /// A command's end, sent after the `Values` of the reads its slot made (so its state is
     /// out before its result).
     CommandFinished {
-        /// The [`Command::id`](super::outcome::Command::id) it answers.
+        /// The [`Command::id`](super::command::Command::id) it answers.
         id: u64,
         device: String,
         outcome: CommandOutcome,

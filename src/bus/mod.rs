@@ -2,7 +2,7 @@
 //! [`rtu2mqtt_modbus::serial::master::Master`]), asks the pure [`scheduler`] what is due, runs polls and
 //! command slots (read → write → read-back, nothing interleaved), tracks device health
 //! (offline after N failures, capped back-off probing) and line statistics, and reports
-//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] (a [`command_queue`]) and run
+//! [`LineEvent`]s. Commands arrive on [`LineHandle::command_tx`] (a [`command::queue`]) and run
 //! before the next poll;
 //! refresh requests (a device's every block read at once) on [`LineHandle::refresh_tx`], served
 //! after the commands and ahead of the polls.
@@ -13,29 +13,26 @@
 
 pub mod availability;
 pub mod cadence;
-pub mod command_queue;
-mod commands;
+pub mod command;
 pub(crate) mod device;
 pub(crate) mod device_spec;
 pub(crate) mod event;
 pub(crate) mod line;
 pub(crate) mod line_spec;
-pub(crate) mod outcome;
 pub(crate) mod poll;
 pub(crate) mod port;
 pub(crate) mod report;
 pub(crate) mod reporter;
 pub mod scheduler;
 pub mod serve;
-pub(crate) mod slot;
 pub mod stats;
 pub(crate) mod transaction;
 pub(crate) mod write_clock;
 
+pub use command::{Command, CommandFailure, CommandOutcome};
 pub use device_spec::DeviceSpec;
 pub use event::{LineEvent, Origin};
 pub use line_spec::{FrameRecorders, LineSpec, Transport};
-pub use outcome::{Command, CommandFailure, CommandOutcome};
 pub use stats::LineStats;
 pub use write_clock::WriteClock;
 

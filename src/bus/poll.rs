@@ -11,7 +11,7 @@ use rtu2mqtt_profile::ReadBlock;
 use super::device::DeviceRuntime;
 use super::scheduler::PollOutcome;
 use super::stats::DeviceStats;
-use super::transaction::{Exchange, Failure, Turnaround};
+use super::transaction::{ExchangeContext, Failure, Turnaround};
 
 /// What one poll of a device needs from its line.
 #[derive(Debug, Clone, Copy)]
@@ -37,7 +37,8 @@ pub(crate) async fn read_block(
         read_by_parts,
         ..
     } = device;
-    let exchange = Exchange::for_device(context.line, spec, context.timeout, context.turnaround);
+    let exchange =
+        ExchangeContext::for_device(context.line, spec, context.timeout, context.turnaround);
     let attempts = context.attempts;
     let by_parts = read_by_parts.get(index).copied().unwrap_or(false);
     if by_parts {
@@ -88,7 +89,7 @@ pub(crate) fn outcome(reply: &Reply, device: &str, block: &str) -> PollOutcome {
 /// Reads a block's used runs one by one and assembles the block's answer with zeros in the
 /// places no field uses. An exception to any run is the block's reply.
 async fn read_runs(
-    exchange: &Exchange<'_>,
+    exchange: &ExchangeContext<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
     block: &ReadBlock,

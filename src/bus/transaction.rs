@@ -34,9 +34,10 @@ impl std::fmt::Display for Failure {
     }
 }
 
-/// What every exchange of one line shares.
+/// What every exchange with one device of a line shares: its line, name and address, the
+/// answer timeout and the line's turnaround.
 #[derive(Debug, Clone)]
-pub(crate) struct Exchange<'a> {
+pub(crate) struct ExchangeContext<'a> {
     pub line: &'a str,
     pub device: &'a str,
     pub slave: SlaveId,
@@ -122,7 +123,7 @@ impl Turnaround {
     }
 }
 
-impl<'a> Exchange<'a> {
+impl<'a> ExchangeContext<'a> {
     /// The exchanges with the configured `device` on the line named `line`.
     pub(crate) fn for_device(
         line: &'a str,
@@ -130,7 +131,7 @@ impl<'a> Exchange<'a> {
         timeout: Duration,
         turnaround: &'a Turnaround,
     ) -> Self {
-        Exchange {
+        ExchangeContext {
             line,
             device: &device.name,
             slave: device.address,

@@ -13,7 +13,7 @@ use super::names::{invalid_name, is_valid_name, shown, MAX_NAME_LEN};
 use super::problem::Problem;
 use super::schema::RawDevice;
 use crate::bus::DeviceSpec;
-use rtu2mqtt_profile::contract::reserved_name_problem;
+use rtu2mqtt_profile::topic_levels::reserved_name_problem;
 use rtu2mqtt_profile::{Profile, PublishRule};
 
 pub(super) fn validate_device(

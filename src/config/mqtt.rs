@@ -14,8 +14,7 @@ use rustls::RootCertStore;
 use super::names::{shown, MAX_NAME_LEN};
 use super::problem::Problem;
 use super::schema::RawMqtt;
-use rtu2mqtt_profile::contract::Topics;
-use rtu2mqtt_profile::contract::MAX_TOPIC_LEN;
+use crate::topics::{Topics, MAX_TOPIC_LEN};
 
 /// How to reach the broker, checked.
 #[derive(Debug, Clone, PartialEq)]

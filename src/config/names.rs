@@ -3,7 +3,7 @@
 //! in a message, cut short so that a huge value never becomes a huge log line.
 
 use super::problem::Problem;
-use rtu2mqtt_profile::contract;
+use rtu2mqtt_profile::topic_levels;
 
 /// Longest part of a user's value quoted in a message; longer ones are cut and their length
 /// given (a 70,000-character name must not become a 70,000-character log line).
@@ -19,7 +19,7 @@ pub(crate) fn shown(value: &str) -> String {
 }
 
 /// Device, line and client names become topic levels: keep them short.
-pub(crate) const MAX_NAME_LEN: usize = contract::MAX_NAME_LEN;
+pub(crate) const MAX_NAME_LEN: usize = topic_levels::MAX_NAME_LEN;
 
 /// `[a-z0-9_-]+`, at most 64 characters.
 pub(crate) fn is_valid_name(name: &str) -> bool {

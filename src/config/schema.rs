@@ -280,7 +280,7 @@ fn default_true() -> bool {
     true
 }
 fn default_discovery_prefix() -> String {
-    rtu2mqtt_profile::contract::DEFAULT_DISCOVERY_PREFIX.to_string()
+    crate::topics::DEFAULT_DISCOVERY_PREFIX.to_string()
 }
 fn default_command_ttl() -> Duration {
     Duration::from_secs(300)

@@ -19,8 +19,8 @@ use super::{refusal, Console};
 use crate::bus::serve::ClientRequest;
 use crate::config::suggestion::{devices_to_add, Candidates, SuggestedDevice};
 use rtu2mqtt_modbus::{ExceptionCode, Reply, Request, Response as ModbusResponse, SlaveId};
-use rtu2mqtt_profile::contract::reserved_name_problem;
 use rtu2mqtt_profile::identify::{Heard, Identifier, Identity};
+use rtu2mqtt_profile::topic_levels::reserved_name_problem;
 use rtu2mqtt_profile::Profile;
 
 /// Addresses one scan may probe: every address a line can carry.

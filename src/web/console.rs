@@ -10,8 +10,8 @@ use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::{BridgeFigures, BridgeHealth, LocalMessage};
 use crate::bus::LineHandle;
 use crate::config::{Config, WebSettings};
+use crate::topics::Topics;
 use rtu2mqtt_modbus::live_frames::LiveFrames;
-use rtu2mqtt_profile::contract::Topics;
 
 /// What the console reads and where it sends, shared by every request.
 #[derive(Debug)]

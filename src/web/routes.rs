@@ -15,6 +15,7 @@ use tokio_util::sync::CancellationToken;
 use super::console::Console;
 use super::{auth, commission, gateway_info, listener, live, model, pages};
 use crate::bridge::{BridgeFigures, LocalMessage};
+use crate::topics::TopicKind;
 
 /// Largest request body: a profile pasted for a try-out is the largest thing sent.
 pub const MAX_BODY: usize = 256 * 1024;
@@ -125,7 +126,7 @@ async fn command(State(console): State<Arc<Console>>, Form(form): Form<CommandFo
             "this console only reads: set web.token_file to send commands from it",
         );
     }
-    let Some((device, field)) = console.topics.parse_command(&form.topic) else {
+    let TopicKind::Command { device, field } = console.topics.classify(&form.topic) else {
         return refusal(
             StatusCode::BAD_REQUEST,
             format!(

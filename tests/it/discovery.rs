@@ -26,7 +26,7 @@ use rtu2mqtt::bridge::observers::statistics::{
     line_stats_json, prometheus_text, stats_json, BridgeStats,
 };
 use rtu2mqtt::bus::LineStats;
-use rtu2mqtt_profile::contract::{is_ha_online, json_view_topic, Topics};
+use rtu2mqtt::topics::{is_ha_online, json_view_topic, Topics};
 use rtu2mqtt_profile::{
     registry, DeviceState, FieldInfo, FieldKind, HaHints, Identity, Profile, Value,
 };

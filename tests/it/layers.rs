@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
     "bus",
+    "topics",
     "config",
     "health",
     "history",

@@ -12,7 +12,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{kill, Signal};
-use rtu2mqtt_profile::contract::Topics;
+use rtu2mqtt::topics::Topics;
 use rtu2mqtt_sim::SeedPlant;
 use support::child::{self, KillOnDrop};
 use support::{Mosquitto, PlantConfig, TestClient};

@@ -1,4 +1,4 @@
-//! rtu2mqtt-profile: device knowledge as data, and the names of the MQTT contract. A
+//! rtu2mqtt-profile: device knowledge as data, and the names the MQTT topics reserve. A
 //! [`Profile`] is loaded from TOML (`config/profiles/*.toml`, or one of the built-in copies),
 //! validated completely at load, and then answers every question the rest of the gateway has
 //! about a device: which blocks to poll, how raw words become field values, which fields exist
@@ -18,9 +18,9 @@
 //!
 //! - [`registry`]: the built-in profiles, loading a profile by name or path, the listing of
 //!   `rtu2mqtt profiles`.
-//! - [`contract`]: the MQTT contract (topic names, the parse of a command topic, Home
-//!   Assistant ids, the words `online`/`offline`, reserved names): pure strings shared by the
-//!   daemon's configuration check, discovery and bridge, and by the demo.
+//! - [`topic_levels`]: the words the MQTT topics use as levels of their own, which no device,
+//!   field or action may be named, and the longest name a topic level may have (the daemon's
+//!   `topics` builds and classifies the topics with them).
 //! - [`publish`]: the `publish` table as written ([`publish::RawPublish`], which the
 //!   daemon's configuration also reads) and its exact amounts.
 //! - [`sunspec`]: the SunSpec model table and the profile written from a device's model chain.
@@ -35,16 +35,16 @@
 //!
 //! # Inside
 //!
-//! A module only uses those before it in this order: `bcd`, `number` (the number grammar of
-//! payloads and commands), `value`, `registers` (word and byte order), `register_numbers`,
-//! `numeric` (the number codecs), `text` (text encodings), `enumeration`, `rejection`,
-//! `publish`, `field`, `codec` (every field codec and command parsing), `action` (command
-//! interfaces and their payloads), `identification`, `model`, `format` (the file's serde
-//! types), `compile` (file to model, with every problem), then `command` (a command on fields as
-//! one bus slot's plan), `plan` (any command's plan, an action's included) and `raw` (simulated
-//! block images patched through the write frames); this file's [`Profile`] is what the rest of
-//! the crate sees, `sunspec` stands apart, and `identify` (after `sunspec` and [`Profile`])
-//! uses them.
+//! A module only uses those before it in this order: `bcd`, `topic_levels`, `number` (the
+//! number grammar of payloads and commands), `value`, `registers` (word and byte order),
+//! `register_numbers`, `numeric` (the number codecs), `text` (text encodings), `enumeration`,
+//! `rejection`, `publish`, `field`, `codec` (every field codec and command parsing), `action`
+//! (command interfaces and their payloads), `identification`, `model`, `format` (the file's
+//! serde types), `compile` (file to model, with every problem), then `command` (a command on
+//! fields as one bus slot's plan), `plan` (any command's plan, an action's included) and `raw`
+//! (simulated block images patched through the write frames); this file's [`Profile`] is what
+//! the rest of the crate sees, `sunspec` stands apart, and `identify` (after `sunspec` and
+//! [`Profile`]) uses them.
 
 // Kept true on every build, as in the daemon: `pub` is the crate's surface, every public type
 // prints with `{:?}`, every public item says what it is, the 2018 idioms.
@@ -61,7 +61,6 @@ mod codec;
 mod command;
 mod command_planning;
 mod compile;
-pub mod contract;
 pub mod enumeration;
 mod field;
 mod format;
@@ -79,6 +78,7 @@ pub mod registry;
 mod rejection;
 pub mod sunspec;
 mod text;
+pub mod topic_levels;
 mod value;
 
 use std::collections::HashMap;

@@ -242,6 +242,7 @@ pub(super) fn keep_log_line(line: &str) -> bool {
 mod tests {
     use super::*;
     use crate::demo::view::DeviceOutline;
+    use rtu2mqtt::topics::Topics;
 
     #[test]
     fn warnings_outlive_ordinary_log_lines() {
@@ -282,7 +283,10 @@ mod tests {
 
     #[test]
     fn the_screen_fits_the_terminal_with_the_footer_last() {
-        let view = PlantView::new("plant", &[outline("valve", 40, 4)]);
+        let view = PlantView::new(
+            Topics::new("rtu2mqtt-demo", "plant"),
+            &[outline("valve", 40, 4)],
+        );
         let log: VecDeque<String> = (0..10).map(|i| format!("log line {i}")).collect();
         let hints = "a\nb\nc\n";
         let tall = compose_screen(&view, "header", hints, &log, (80, 60), Duration::ZERO);
@@ -302,7 +306,7 @@ mod tests {
     fn every_device_keeps_its_heading_when_rows_run_short() {
         let devices: Vec<DeviceOutline> =
             (0..4).map(|i| outline(&format!("d{i}"), 30, 30)).collect();
-        let view = PlantView::new("plant", &devices);
+        let view = PlantView::new(Topics::new("rtu2mqtt-demo", "plant"), &devices);
         let frame = compose_screen(
             &view,
             "header",

@@ -13,6 +13,9 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
+use rtu2mqtt::topics::{TopicKind, Topics};
+use rtu2mqtt_profile::topic_levels::GATEWAY_DEVICE;
+
 /// What one MQTT message meant to the view.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(super) enum Change {
@@ -139,9 +142,10 @@ pub(super) struct DeviceOutline {
 }
 
 /// The plant as seen from the broker.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub(super) struct PlantView {
-    prefix: String,
+    /// The gateway's topics, by which each message is classified.
+    topics: Topics,
     /// Devices in configuration order, with a profile-ordered field list.
     devices: Vec<(String, DeviceView)>,
     gateways: BTreeMap<String, String>,
@@ -153,11 +157,11 @@ pub(super) struct PlantView {
 const RESULTS_SHOWN: usize = 4;
 
 impl PlantView {
-    /// A view of the devices under `prefix`, listed in `devices` order with their fields in
-    /// the given order, so the table does not reshuffle as values arrive.
-    pub(super) fn new(prefix: &str, devices: &[DeviceOutline]) -> Self {
+    /// A view of the devices under the prefix of `topics`, listed in `devices` order with
+    /// their fields in the given order, so the table does not reshuffle as values arrive.
+    pub(super) fn new(topics: Topics, devices: &[DeviceOutline]) -> Self {
         PlantView {
-            prefix: prefix.to_string(),
+            topics,
             devices: devices
                 .iter()
                 .map(|outline| {
@@ -203,19 +207,19 @@ impl PlantView {
         retained: bool,
         now: Duration,
     ) -> Option<Change> {
-        let rest = topic.strip_prefix(&self.prefix)?.strip_prefix('/')?;
-        let levels: Vec<&str> = rest.split('/').collect();
+        let kind = self.topics.classify(topic);
         let text = String::from_utf8_lossy(payload).trim().to_string();
-        match levels.as_slice() {
-            ["gateway", gateway, "status"] => {
+        match kind {
+            TopicKind::GatewayStatus { gateway } => {
                 let previous = self.gateways.insert(gateway.to_string(), text.clone());
                 (previous.as_deref() != Some(text.as_str())).then(|| Change::GatewayStatus {
                     gateway: gateway.to_string(),
                     status: text,
                 })
             }
-            ["gateway", ..] => None,
-            [device, "availability"] => {
+            // The gateway's own space holds no device.
+            kind if kind.device() == Some(GATEWAY_DEVICE) => None,
+            TopicKind::Availability { device } => {
                 let view = self.device_mut(device);
                 let before = view.status_at(now);
                 view.status = match text.as_str() {
@@ -241,12 +245,14 @@ impl PlantView {
                     status,
                 })
             }
-            [device, field, "set"] => (!text.is_empty()).then(|| Change::CommandSent {
-                device: device.to_string(),
-                field: field.to_string(),
-                value: text,
-            }),
-            [device, field, "result"] => {
+            TopicKind::Command { device, field } => {
+                (!text.is_empty()).then(|| Change::CommandSent {
+                    device: device.to_string(),
+                    field: field.to_string(),
+                    value: text,
+                })
+            }
+            TopicKind::Result { device, field } => {
                 let result = parse_result(&text);
                 let change = Change::CommandResult {
                     device: device.to_string(),
@@ -261,9 +267,9 @@ impl PlantView {
                 }
                 Some(change)
             }
-            [device, field] => {
+            TopicKind::State { device, field } => {
                 let view = self.device_mut(device);
-                let index = match view.fields.iter().position(|f| f.name == *field) {
+                let index = match view.fields.iter().position(|f| f.name == field) {
                     Some(index) => index,
                     None => {
                         view.fields.push(FieldView {
@@ -569,7 +575,7 @@ mod tests {
 
     fn view() -> PlantView {
         PlantView::new(
-            "plant",
+            Topics::new("rtu2mqtt-demo", "plant"),
             &[
                 outline("dust_collector", &[("power", false), ("gear", false)]),
                 outline("valve", &[("opening", false), ("setpoint", true)]),
@@ -660,7 +666,7 @@ mod tests {
     fn table_wraps_to_the_width() {
         let names: Vec<String> = (0..12).map(|i| format!("field_{i}")).collect();
         let fields: Vec<(&str, bool)> = names.iter().map(|n| (n.as_str(), false)).collect();
-        let mut view = PlantView::new("p", &[outline("d", &fields)]);
+        let mut view = PlantView::new(Topics::new("rtu2mqtt-demo", "p"), &[outline("d", &fields)]);
         for i in 0..12 {
             view.apply(&format!("p/d/field_{i}"), b"123");
         }

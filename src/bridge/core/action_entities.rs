@@ -7,7 +7,7 @@
 use serde_json::{json, Map, Value as Json};
 
 use super::entity_naming::display_name;
-use rtu2mqtt_profile::contract::Topics;
+use crate::topics::Topics;
 use rtu2mqtt_profile::ActionInfo;
 
 /// What the button of an action without parameters sends (any payload runs it).

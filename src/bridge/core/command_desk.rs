@@ -23,7 +23,7 @@ const SHED_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// Where a command came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Origin {
+pub(crate) enum CommandSource {
     /// `…/set`: its (possibly retained) message is cleared once it has an outcome.
     Plain,
     /// An external command (a Sparkplug DCMD): its end is reported.
@@ -31,11 +31,11 @@ pub(crate) enum Origin {
 }
 
 /// `set` or `external`: how the log says where a command came from.
-impl std::fmt::Display for Origin {
+impl std::fmt::Display for CommandSource {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            Origin::Plain => "set",
-            Origin::External => "external",
+            CommandSource::Plain => "set",
+            CommandSource::External => "external",
         })
     }
 }
@@ -65,7 +65,7 @@ struct Shedding {
 
 /// The one INFO line of a command's arrival. `value` as sent (bounded by
 /// [`payload::echo`]), logged with `?` so control characters cannot forge log lines.
-fn log_received(device: &str, field: &str, value: &str, origin: Origin) {
+fn log_received(device: &str, field: &str, value: &str, origin: CommandSource) {
     tracing::info!(%device, %field, ?value, via = %origin, "command received");
 }
 
@@ -195,7 +195,7 @@ impl CommandDesk {
             CommandPayload::Clear => return,
             CommandPayload::Refused { shown, reason } => {
                 self.counters.commands_received += 1;
-                self.reject_incoming(p, device, field, &shown, reason, Origin::Plain);
+                self.reject_incoming(p, device, field, &shown, reason, CommandSource::Plain);
                 return;
             }
             CommandPayload::Text(text) => text,
@@ -205,7 +205,7 @@ impl CommandDesk {
             field,
             text: &text,
             value: &value,
-            origin: Origin::Plain,
+            origin: CommandSource::Plain,
             from_store: message.retain,
         };
         self.admit(p, arrival, now);
@@ -229,7 +229,7 @@ impl CommandDesk {
                     field,
                     text: &text,
                     value: &value,
-                    origin: Origin::External,
+                    origin: CommandSource::External,
                     from_store: false,
                 };
                 self.admit(p, arrival, now);
@@ -240,7 +240,7 @@ impl CommandDesk {
         };
         if p.devices().contains_key(device) {
             self.counters.commands_received += 1;
-            self.reject_incoming(p, device, field, &shown, reason, Origin::External);
+            self.reject_incoming(p, device, field, &shown, reason, CommandSource::External);
         } else {
             self.note_unknown_device(device, "an external command");
             report(p, device, field, false);
@@ -265,7 +265,7 @@ impl CommandDesk {
         let Some(entry) = p.devices().get(device).cloned() else {
             let topic = p.topics().command_topic(device, field);
             self.note_unknown_device(device, &topic);
-            if origin == Origin::External {
+            if origin == CommandSource::External {
                 report(p, device, field, false);
             }
             return;
@@ -299,7 +299,7 @@ impl CommandDesk {
             Admission::AlreadyWaiting => {
                 tracing::debug!(%device, %field, "the broker sent the waiting command again");
                 if let Some(id) = self.book.waiting_id(device, field) {
-                    if origin == Origin::External {
+                    if origin == CommandSource::External {
                         self.external.insert(id);
                     }
                 }
@@ -308,14 +308,14 @@ impl CommandDesk {
                 log_received(device, field, value, origin);
                 if let Some(id) = self.book.waiting_id(device, field) {
                     self.plans.insert(id, plan);
-                    if origin == Origin::External {
+                    if origin == CommandSource::External {
                         self.external.insert(id);
                     }
                 }
                 if let Some(older) = superseded {
                     let older_was_plain = !self.external.contains(&older.id);
                     self.supersede(p, older);
-                    if origin == Origin::External && older_was_plain {
+                    if origin == CommandSource::External && older_was_plain {
                         // Its retained message is still on `…/set`: it must not run again
                         // at the next start.
                         let set = p.topics().command_topic(device, field);
@@ -362,7 +362,7 @@ impl CommandDesk {
         field: &str,
         shown: &str,
         reason: String,
-        origin: Origin,
+        origin: CommandSource,
     ) {
         log_received(device, field, shown, origin);
         log_outcome(device, field, shown, Outcome::Rejected, &reason);
@@ -371,11 +371,11 @@ impl CommandDesk {
         let topic = p.topics().result_topic(device, field);
         p.publish_or_keep(topic, result.to_json(), false);
         match origin {
-            Origin::Plain => {
+            CommandSource::Plain => {
                 let set = p.topics().command_topic(device, field);
                 p.publish_or_keep(set, String::new(), true);
             }
-            Origin::External => report(p, device, field, false),
+            CommandSource::External => report(p, device, field, false),
         }
     }
 
@@ -692,7 +692,7 @@ struct Arrival<'a> {
     field: &'a str,
     text: &'a str,
     value: &'a str,
-    origin: Origin,
+    origin: CommandSource,
     from_store: bool,
 }
 

@@ -38,7 +38,8 @@ use super::entity_naming::{
 pub use super::entity_naming::{display_name, entity_name};
 use super::payload::Outcome;
 use super::state::StateUpdate;
-use rtu2mqtt_profile::contract::{Topics, GATEWAY_DEVICE, OFFLINE, ONLINE};
+use crate::topics::{TopicKind, Topics, OFFLINE, ONLINE};
+use rtu2mqtt_profile::topic_levels::GATEWAY_DEVICE;
 use rtu2mqtt_profile::{ActionInfo, DeviceState, FieldInfo, FieldKind, HaHints, Profile, Value};
 
 /// How long to wait after Home Assistant's `online` before re-announcing. A random pick in this
@@ -746,22 +747,27 @@ pub fn removal(ctx: &Topics, device: &str) -> (String, Vec<u8>) {
     (ctx.config_topic(device), Vec::new())
 }
 
-/// Whether a retained config seen on [`Topics::config_filter`] is one this gateway
-/// published for a device that is no longer configured, and so must be cleared with
-/// [`removal`].
+/// [`is_stale_device_config`] of the device a config topic seen on [`Topics::config_filter`]
+/// names; false for any other topic.
+pub fn is_stale_config(ctx: &Topics, topic: &str, payload: &[u8], configured: &[String]) -> bool {
+    let TopicKind::DeviceConfig { device } = ctx.classify(topic) else {
+        return false;
+    };
+    is_stale_device_config(ctx, device, payload, configured)
+}
+
+/// Whether `payload`, retained on `device`'s config topic, is a document this gateway
+/// published for a device no longer configured, to be cleared with [`removal`].
 ///
 /// The topic alone is not proof: with client ids `edge` and `edge_b`, `edge_b_valve` matches
 /// both. So the document itself must name this gateway as its `via_device`. Empty payloads
 /// (already removed) and the gateway's own document are never stale.
-pub fn is_stale_config(
+pub fn is_stale_device_config(
     ctx: &Topics,
-    topic: &str,
+    device: &str,
     payload: &[u8],
     configured_devices: &[String],
 ) -> bool {
-    let Some(device) = ctx.device_of_config_topic(topic) else {
-        return false;
-    };
     if device == GATEWAY_DEVICE || configured_devices.iter().any(|name| name == device) {
         return false;
     }

@@ -15,9 +15,9 @@ use super::bridge_device::{self, BridgeDevice, Devices};
 use super::discovery;
 use super::json_view::JsonView;
 use super::state::{StateCache, StateUpdate};
-use super::topic_guard::{TopicGuard, Verdict};
+use super::topic_guard::{GuardVerdict, TopicGuard};
 use crate::history::document;
-use rtu2mqtt_profile::contract::{availability_word, Topics, OFFLINE, ONLINE};
+use crate::topics::{availability_word, TopicKind, Topics, OFFLINE, ONLINE};
 use rtu2mqtt_profile::Value;
 
 /// Results and clears kept while MQTT is down (older ones are dropped first).
@@ -494,39 +494,86 @@ impl Publisher {
         }
     }
 
-    /// One of our own line documents as the broker holds it: removed when its line is no
-    /// longer configured.
-    pub(crate) fn on_line_config(&mut self, topic: &str, line: &str, payload: &[u8]) {
+    /// One of our own line documents (`line`'s) as the broker holds it: removed when its
+    /// line is no longer configured.
+    pub(crate) fn on_line_config(&mut self, line: &str, payload: &[u8]) {
         if !payload.is_empty() && !self.line_names.iter().any(|name| name == line) {
+            let topic = self.topics.line_config_topic(line);
             tracing::info!(%topic, "removing the discovery config of a line no longer configured");
-            self.publish(topic.to_string(), String::new(), true);
+            self.publish(topic, String::new(), true);
         }
     }
 
-    /// One of our own discovery documents as the broker holds it: removed when its device is
-    /// no longer configured.
-    pub(crate) fn on_config(&mut self, topic: &str, payload: &[u8]) {
+    /// One of our own discovery documents (`device`'s) as the broker holds it: removed when
+    /// its device is no longer configured.
+    pub(crate) fn on_config(&mut self, device: &str, payload: &[u8]) {
         let configured = self.cache.devices();
-        if discovery::is_stale_config(&self.topics, topic, payload, configured) {
+        if discovery::is_stale_device_config(&self.topics, device, payload, configured) {
+            let topic = self.topics.config_topic(device);
             tracing::info!(%topic, "removing the discovery config of a device no longer configured");
-            self.publish(topic.to_string(), String::new(), true);
+            self.publish(topic, String::new(), true);
         }
+    }
+
+    /// A message on `<prefix>/<device>/refresh`. A live one (any payload but the empty
+    /// clearing) sends the device's line a refresh request; one from the broker's retained
+    /// store (`retained`) is stale, so it is ignored. Either is then cleared (an empty retained
+    /// message), like a command: MQTT 3.1.1 does not say whether a live message was retained,
+    /// and a retained copy left behind would be a stale request at the next subscription.
+    /// Devices that are not ours are left alone.
+    pub(crate) fn on_refresh(&mut self, device: &str, payload: &[u8], retained: bool) {
+        let Some(line) = self.devices.get(device).map(|entry| entry.line) else {
+            tracing::debug!(%device, "refresh for a device that is not ours");
+            return;
+        };
+        if payload.is_empty() {
+            return;
+        }
+        if retained {
+            tracing::info!(%device, "a retained refresh request is ignored and cleared");
+        } else {
+            tracing::info!(%device, "refresh requested");
+            self.push(Action::Refresh {
+                line,
+                device: device.to_string(),
+            });
+        }
+        let topic = self.topics.refresh_topic(device);
+        self.publish_or_keep(topic, String::new(), true);
     }
 
     // ----- defence of the gateway's topics -----
 
     /// The topic as one this gateway defends, if it is one.
     pub(crate) fn guarded(&self, topic: &str) -> Option<Guarded> {
-        if topic == self.topics.gateway_status_topic() {
-            return Some(Guarded::Status);
+        self.guarded_kind(self.topics.classify(topic))
+    }
+
+    /// A topic of this kind as one this gateway defends, if it is one: its status, and the
+    /// availability and state of its devices' fields.
+    pub(crate) fn guarded_kind(&self, kind: TopicKind<'_>) -> Option<Guarded> {
+        match kind {
+            TopicKind::GatewayStatus { gateway } if gateway == self.topics.client_id => {
+                Some(Guarded::Status)
+            }
+            TopicKind::Availability { device } if self.devices.contains_key(device) => {
+                Some(Guarded::Availability(device.to_string()))
+            }
+            TopicKind::State { device, field } => {
+                self.devices.get(device)?.profile.field(field)?;
+                Some(Guarded::State(device.to_string(), field.to_string()))
+            }
+            _ => None,
         }
-        let (device, level) = self.topics.parse_device_topic(topic)?;
-        let entry = self.devices.get(device)?;
-        if level == rtu2mqtt_profile::contract::AVAILABILITY {
-            return Some(Guarded::Availability(device.to_string()));
+    }
+
+    /// The topic of what this gateway defends.
+    fn guarded_topic(&self, guarded: &Guarded) -> String {
+        match guarded {
+            Guarded::Status => self.topics.gateway_status_topic(),
+            Guarded::Availability(device) => self.topics.availability_topic(device),
+            Guarded::State(device, field) => self.topics.state_topic(device, field),
         }
-        entry.profile.field(level)?;
-        Some(Guarded::State(device.to_string(), level.to_string()))
     }
 
     /// Whether the broker hands this gateway what is published on the topic now: the status
@@ -557,11 +604,12 @@ impl Publisher {
             .guard
             .audit_turn(self.cache.devices(), now, topics_of, |device, topic| {
                 // Availability is watched all the time: its echoes still come.
-                topics
-                    .parse_device_topic(topic)
-                    .is_some_and(|(owner, level)| {
-                        owner == device && level != rtu2mqtt_profile::contract::AVAILABILITY
-                    })
+                match topics.classify(topic) {
+                    TopicKind::State { device: owner, .. }
+                    | TopicKind::Refresh { device: owner }
+                    | TopicKind::History { device: owner } => owner == device,
+                    _ => false,
+                }
             });
         if let Some(device) = turn.ended {
             self.out.push(Action::UnsubscribeInTurn {
@@ -589,13 +637,7 @@ impl Publisher {
 
     /// Another client wrote `payload` on a topic we defend: the truth goes back, unless it
     /// was overwritten again too soon (then later, [`Self::reassert_due`]).
-    pub(crate) fn on_guarded(
-        &mut self,
-        guarded: Guarded,
-        topic: &str,
-        payload: &[u8],
-        now: Instant,
-    ) {
+    pub(crate) fn on_guarded(&mut self, guarded: Guarded, payload: &[u8], now: Instant) {
         // A state topic outside its audit: a late message of an audit that has ended, or of
         // a subscription an earlier connection left behind.
         if !self.is_watched(&guarded) {
@@ -604,10 +646,11 @@ impl Publisher {
         let Some(truth) = self.truth(&guarded) else {
             return;
         };
+        let topic = self.guarded_topic(&guarded);
         let seen = String::from_utf8_lossy(payload);
-        if self.guard.judge(topic, &seen, &truth, now) == Verdict::Reassert {
+        if self.guard.judge(&topic, &seen, &truth, now) == GuardVerdict::Reassert {
             self.counters.topics_reasserted += 1;
-            self.publish(topic.to_string(), truth, true);
+            self.publish(topic, truth, true);
         }
     }
 

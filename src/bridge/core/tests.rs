@@ -12,7 +12,7 @@ use serde_json::Value as Json;
 use super::{Action, BridgeDevice, Core, CoreSettings, ExternalCommand, HistoryEntry, Incoming};
 use crate::bus::{Command, CommandFailure, CommandOutcome, LineEvent, Origin};
 use crate::config::GatewayOptions;
-use rtu2mqtt_profile::contract::Topics;
+use crate::topics::Topics;
 use rtu2mqtt_profile::registry;
 
 /// The seed of every test core: equal inputs give equal actions.

@@ -43,7 +43,7 @@ pub(crate) struct AuditTurn {
 
 /// What to do about a message seen on a guarded topic.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) enum Verdict {
+pub(crate) enum GuardVerdict {
     /// Our own message, or one that agrees with the truth.
     Fine,
     /// Someone else contradicted the truth: publish it again.
@@ -148,7 +148,7 @@ impl TopicGuard {
         payload: &str,
         truth: &str,
         now: Instant,
-    ) -> Verdict {
+    ) -> GuardVerdict {
         if let Some(queue) = self.in_flight.get_mut(topic) {
             if let Some(position) = queue.iter().position(|sent| sent == payload) {
                 queue.drain(..=position);
@@ -157,13 +157,13 @@ impl TopicGuard {
                 if queue.is_empty() {
                     self.in_flight.remove(topic);
                 }
-                return Verdict::Fine;
+                return GuardVerdict::Fine;
             }
             tracing::debug!(%topic, seen = ?payload, "a message from before ours, which replaces it");
-            return Verdict::Fine;
+            return GuardVerdict::Fine;
         }
         if payload == truth {
-            return Verdict::Fine;
+            return GuardVerdict::Fine;
         }
         if self
             .last_reassert
@@ -171,7 +171,7 @@ impl TopicGuard {
             .is_some_and(|at| now.saturating_duration_since(*at) < REASSERT_INTERVAL)
         {
             self.held.insert(topic.to_string());
-            return Verdict::Hold;
+            return GuardVerdict::Hold;
         }
         self.held.remove(topic);
         self.last_reassert.insert(topic.to_string(), now);
@@ -189,7 +189,7 @@ impl TopicGuard {
         } else {
             tracing::debug!(%topic, seen = ?payload, "overwritten again: publishing the truth again");
         }
-        Verdict::Reassert
+        GuardVerdict::Reassert
     }
 
     /// Held topics whose interval has passed, to re-assert now.
@@ -227,13 +227,19 @@ mod tests {
         // message), then echoes ours.
         guard.sent(status, "online");
         for earlier in ["offline", "offline"] {
-            assert_eq!(guard.judge(status, earlier, "online", now), Verdict::Fine);
+            assert_eq!(
+                guard.judge(status, earlier, "online", now),
+                GuardVerdict::Fine
+            );
         }
-        assert_eq!(guard.judge(status, "online", "online", now), Verdict::Fine);
+        assert_eq!(
+            guard.judge(status, "online", "online", now),
+            GuardVerdict::Fine
+        );
         // Once ours is there, a contradiction is someone else's.
         assert_eq!(
             guard.judge(status, "offline", "online", now),
-            Verdict::Reassert
+            GuardVerdict::Reassert
         );
     }
 
@@ -244,12 +250,12 @@ mod tests {
         let mut guard = TopicGuard::with_own_will(status, "offline");
         assert_eq!(
             guard.judge(status, "offline", "online", now),
-            Verdict::Reassert
+            GuardVerdict::Reassert
         );
         assert!(guard.reported.is_empty(), "not reported as another client");
         assert_eq!(
             guard.judge(status, "gone", "online", now + REASSERT_INTERVAL),
-            Verdict::Reassert
+            GuardVerdict::Reassert
         );
         assert!(guard.reported.contains(status));
     }
@@ -309,27 +315,36 @@ mod tests {
         guard.sent("plant/a/gear", "3");
         guard.sent("plant/a/gear", "4");
         // The echo of the older value while the newer is in flight is ours.
-        assert_eq!(guard.judge("plant/a/gear", "3", "4", now), Verdict::Fine);
-        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), Verdict::Fine);
+        assert_eq!(
+            guard.judge("plant/a/gear", "3", "4", now),
+            GuardVerdict::Fine
+        );
+        assert_eq!(
+            guard.judge("plant/a/gear", "4", "4", now),
+            GuardVerdict::Fine
+        );
         assert_eq!(
             guard.judge("plant/a/gear", "99", "4", now),
-            Verdict::Reassert
+            GuardVerdict::Reassert
         );
         guard.sent("plant/a/gear", "4");
-        assert_eq!(guard.judge("plant/a/gear", "4", "4", now), Verdict::Fine);
+        assert_eq!(
+            guard.judge("plant/a/gear", "4", "4", now),
+            GuardVerdict::Fine
+        );
         assert_eq!(
             guard.judge("plant/a/gear", "98", "4", now + Duration::from_millis(10)),
-            Verdict::Hold
+            GuardVerdict::Hold
         );
         assert!(guard.due(now + Duration::from_millis(20)).is_empty());
         assert_eq!(guard.due(now + REASSERT_INTERVAL), vec!["plant/a/gear"]);
         assert_eq!(
             guard.judge("plant/a/gear", "4", "4", now + REASSERT_INTERVAL),
-            Verdict::Fine
+            GuardVerdict::Fine
         );
         assert_eq!(
             guard.judge("plant/a/gear", "97", "4", now + REASSERT_INTERVAL * 2),
-            Verdict::Reassert
+            GuardVerdict::Reassert
         );
     }
 }

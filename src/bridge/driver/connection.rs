@@ -28,7 +28,7 @@ use tokio::sync::{mpsc, watch};
 use super::history_stream::is_history;
 use super::oversized::{log_oversized, oversized, SubscriptionWatch};
 use crate::config::MqttSettings;
-use rtu2mqtt_profile::contract::{Topics, OFFLINE};
+use crate::topics::{Topics, OFFLINE};
 
 /// First wait after a connection error.
 pub const BACKOFF_INITIAL: Duration = Duration::from_millis(250);

@@ -18,7 +18,8 @@ use crate::bridge::observers::statistics::HistoryStats;
 use crate::config::HistoryConfig;
 use crate::history::document::{epoch_ms, read_at_of};
 use crate::history::{Journal, Record};
-use rtu2mqtt_profile::contract::{Topics, HISTORY};
+use crate::topics::{TopicKind, Topics};
+use rtu2mqtt_profile::topic_levels::HISTORY;
 
 /// Records replayed per tick at most (with the bridge's 250 ms tick, 4,000 a second). While
 /// the journal holds records, what is read meanwhile is journaled behind them: the replay has
@@ -92,9 +93,9 @@ impl HistoryStream {
 
     /// The record a history publish was made from.
     fn record_of(&self, topic: &str, document: String) -> Option<Record> {
-        let device = topic
-            .strip_prefix(&format!("{}/", self.topics.prefix))?
-            .strip_suffix(&format!("/{HISTORY}"))?;
+        let TopicKind::History { device } = self.topics.classify(topic) else {
+            return None;
+        };
         Some(Record {
             at_ms: read_at_of(&document)?,
             device: device.to_string(),

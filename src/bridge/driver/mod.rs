@@ -35,7 +35,7 @@ use self::connection::{LinkEvent, LinkFlag, PacketLimit, MAX_OUTGOING_PACKET};
 use self::history_stream::{is_history, HistoryStream, REPLAY_ROOM};
 pub use self::inputs::LocalMessage;
 use self::inputs::{next_external, next_local};
-use self::outbox::{Outbox, Request, Urgency};
+use self::outbox::{ClientOrder, Outbox, Urgency};
 use self::oversized::SubscriptionWatch;
 use self::writer::spawn_writer;
 use crate::bridge::core::publisher::ANNOUNCE_BATCH;
@@ -47,6 +47,7 @@ use crate::bridge::observers::plant_view::PlantView;
 use crate::bridge::observers::statistics::BridgeStats;
 use crate::bus::{LineEvent, LineHandle, LineStats};
 use crate::config::Config;
+use crate::topics::TopicKind;
 use tokio_util::sync::CancellationToken;
 
 /// How often waiting commands, expiries and statistics are looked at; the bridge's heartbeat
@@ -93,7 +94,7 @@ pub struct Bridge {
     core: Core,
     outbox: Outbox,
     /// To the writer task, which owns the client's sending side.
-    writer_tx: mpsc::Sender<Request>,
+    writer_tx: mpsc::Sender<ClientOrder>,
     writer: tokio::task::JoinHandle<()>,
     /// The link is up: the outbox is fed to the writer.
     link_up: bool,
@@ -401,13 +402,16 @@ impl Bridge {
                     }
                 }
                 Action::Subscribe { filter, qos } => {
-                    self.outbox.push_control(Request::Subscribe { filter, qos });
+                    self.outbox
+                        .push_control(ClientOrder::Subscribe { filter, qos });
                 }
                 Action::SubscribeInTurn { filter, qos } => {
-                    self.outbox.push_in_turn(Request::Subscribe { filter, qos });
+                    self.outbox
+                        .push_in_turn(ClientOrder::Subscribe { filter, qos });
                 }
                 Action::UnsubscribeInTurn { filter } => {
-                    self.outbox.push_in_turn(Request::Unsubscribe { filter });
+                    self.outbox
+                        .push_in_turn(ClientOrder::Unsubscribe { filter });
                 }
                 Action::Send { line, command } => {
                     let refused = match self.lines.get(line) {
@@ -519,7 +523,11 @@ impl Bridge {
             .topic
             .strip_prefix(topics.discovery_prefix.as_str())
             .is_some_and(|rest| rest.starts_with('/'));
-        if discovery || topics.is_stats_topic(&publish.topic) {
+        let own_stats = matches!(
+            topics.classify(&publish.topic),
+            TopicKind::GatewayStats { gateway, .. } if gateway == topics.client_id
+        );
+        if discovery || own_stats {
             Urgency::Resend
         } else {
             Urgency::Urgent
@@ -536,7 +544,7 @@ impl Bridge {
                 break;
             };
             self.in_writer.fetch_add(1, Ordering::SeqCst);
-            if let Request::Publish(_) = &request {
+            if let ClientOrder::Publish(_) = &request {
                 self.core.on_handed();
             }
             permit.send(request);
@@ -579,9 +587,9 @@ impl Bridge {
         self.pump();
     }
 
-    fn note_handed(&mut self, request: &Request) {
+    fn note_handed(&mut self, request: &ClientOrder) {
         self.in_writer.fetch_add(1, Ordering::SeqCst);
-        if let Request::Publish(_) = request {
+        if let ClientOrder::Publish(_) = request {
             self.core.on_handed();
         }
     }
@@ -632,7 +640,7 @@ impl Bridge {
             let until = tokio::time::Instant::now() + STOP_GRACE;
             self.flush(until).await;
             // Control requests jump the queue: the Disconnect only once the rest is handed on.
-            self.outbox.push_control(Request::Disconnect);
+            self.outbox.push_control(ClientOrder::Disconnect);
             self.flush(until).await;
             // Its own bound: the event loop waits up to its close grace for the broker.
             if !self.until_closed(STOP_GRACE).await {

@@ -16,9 +16,9 @@ use crate::bridge::core::Publish;
 /// reported by [`Outbox::push`]).
 pub(crate) const MAX_OUTBOX: usize = 100_000;
 
-/// One request for the MQTT client.
+/// One order for the MQTT client, as the writer task carries it out.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) enum Request {
+pub(crate) enum ClientOrder {
     Publish(Publish),
     Subscribe { filter: String, qos: QoS },
     Unsubscribe { filter: String },
@@ -40,12 +40,12 @@ enum Entry {
     /// The newest payload for this retained topic is in `retained`.
     Retained(String),
     /// A (un)subscription that keeps its place among the publishes.
-    InTurn(Request),
+    InTurn(ClientOrder),
 }
 
 #[derive(Debug, Default)]
 pub(crate) struct Outbox {
-    control: VecDeque<Request>,
+    control: VecDeque<ClientOrder>,
     urgent: VecDeque<Entry>,
     resend: VecDeque<Entry>,
     retained: HashMap<String, Publish>,
@@ -66,12 +66,12 @@ impl Outbox {
         self.len() == 0
     }
 
-    pub(crate) fn push_control(&mut self, request: Request) {
+    pub(crate) fn push_control(&mut self, request: ClientOrder) {
         self.control.push_back(request);
     }
 
     /// Queues a (un)subscription behind the urgent publishes already waiting.
-    pub(crate) fn push_in_turn(&mut self, request: Request) {
+    pub(crate) fn push_in_turn(&mut self, request: ClientOrder) {
         self.urgent.push_back(Entry::InTurn(request));
     }
 
@@ -133,7 +133,7 @@ impl Outbox {
     }
 
     /// The next request in priority order.
-    pub(crate) fn pop(&mut self) -> Option<Request> {
+    pub(crate) fn pop(&mut self) -> Option<ClientOrder> {
         if let Some(control) = self.control.pop_front() {
             return Some(control);
         }
@@ -142,7 +142,7 @@ impl Outbox {
                 return Some(request);
             }
             if let Some(publish) = self.resolve(entry) {
-                return Some(Request::Publish(publish));
+                return Some(ClientOrder::Publish(publish));
             }
         }
         None
@@ -199,10 +199,10 @@ mod tests {
     fn topics_in_order(outbox: &mut Outbox) -> Vec<String> {
         std::iter::from_fn(|| outbox.pop())
             .map(|request| match request {
-                Request::Publish(p) => format!("{}={}", p.topic, p.payload),
-                Request::Subscribe { filter, .. } => format!("sub {filter}"),
-                Request::Unsubscribe { filter } => format!("unsub {filter}"),
-                Request::Disconnect => "disconnect".to_string(),
+                ClientOrder::Publish(p) => format!("{}={}", p.topic, p.payload),
+                ClientOrder::Subscribe { filter, .. } => format!("sub {filter}"),
+                ClientOrder::Unsubscribe { filter } => format!("unsub {filter}"),
+                ClientOrder::Disconnect => "disconnect".to_string(),
             })
             .collect()
     }
@@ -217,7 +217,7 @@ mod tests {
             Urgency::Urgent,
         );
         outbox.push(publish("p/a/gear", "4", true, false), Urgency::Urgent);
-        outbox.push_control(Request::Subscribe {
+        outbox.push_control(ClientOrder::Subscribe {
             filter: "p/+/+/set".to_string(),
             qos: QoS::AtLeastOnce,
         });
@@ -238,14 +238,14 @@ mod tests {
     fn a_subscription_in_turn_keeps_its_place_behind_earlier_publishes() {
         let mut outbox = Outbox::default();
         outbox.push(publish("p/a/gear", "3", true, false), Urgency::Urgent);
-        outbox.push_in_turn(Request::Subscribe {
+        outbox.push_in_turn(ClientOrder::Subscribe {
             filter: "p/a/+".to_string(),
             qos: QoS::AtLeastOnce,
         });
         // A newer payload for a topic queued before takes the older one's place.
         outbox.push(publish("p/a/gear", "4", true, false), Urgency::Urgent);
         outbox.push(publish("p/a/power", "ON", true, false), Urgency::Urgent);
-        outbox.push_in_turn(Request::Unsubscribe {
+        outbox.push_in_turn(ClientOrder::Unsubscribe {
             filter: "p/a/+".to_string(),
         });
         assert_eq!(
@@ -253,7 +253,7 @@ mod tests {
             ["p/a/gear=4", "sub p/a/+", "p/a/power=ON", "unsub p/a/+"]
         );
         // A lost connection drops them: the next one makes its own.
-        outbox.push_in_turn(Request::Unsubscribe {
+        outbox.push_in_turn(ClientOrder::Unsubscribe {
             filter: "p/a/+".to_string(),
         });
         assert_eq!(outbox.on_disconnect(), 1);
@@ -293,7 +293,7 @@ mod tests {
         let taken = outbox.take_where(|publish| publish.topic.ends_with("history"));
         let topics: Vec<&str> = taken.iter().map(|p| p.topic.as_str()).collect();
         assert_eq!(topics, ["a/history", "b/history"]);
-        assert_eq!(outbox.pop(), Some(Request::Publish(once("a/result"))));
+        assert_eq!(outbox.pop(), Some(ClientOrder::Publish(once("a/result"))));
         assert_eq!(outbox.pop(), None);
     }
 }

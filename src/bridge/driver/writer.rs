@@ -11,7 +11,7 @@ use tokio::sync::mpsc;
 
 use super::connection::{LinkEvent, LinkFlag};
 use super::history_stream::is_history;
-use super::outbox::Request;
+use super::outbox::ClientOrder;
 use super::oversized::SubscriptionWatch;
 use crate::bridge::core::Publish;
 
@@ -23,7 +23,7 @@ const HANDOVER_RETRY: Duration = Duration::from_millis(10);
 /// ([`LinkEvent::Unsent`]) to be journaled.
 pub(super) fn spawn_writer(
     client: AsyncClient,
-    mut requests: mpsc::Receiver<Request>,
+    mut requests: mpsc::Receiver<ClientOrder>,
     (link, link_tx, in_writer, subscriptions): (
         LinkFlag,
         mpsc::Sender<LinkEvent>,
@@ -37,31 +37,31 @@ pub(super) fn spawn_writer(
             let result = match request {
                 // The client has ended (a stop): history publishes still go back for the
                 // journal, the rest has nowhere to go.
-                Request::Publish(publish)
+                ClientOrder::Publish(publish)
                     if client_gone && is_history(&publish.topic, publish.retain) =>
                 {
                     let _ = link_tx.send(LinkEvent::Unsent(publish)).await;
                     Ok(())
                 }
                 _ if client_gone => Ok(()),
-                Request::Publish(publish) if is_history(&publish.topic, publish.retain) => {
+                ClientOrder::Publish(publish) if is_history(&publish.topic, publish.retain) => {
                     hand_history(&client, publish, &link, &link_tx).await
                 }
-                Request::Publish(publish) => {
+                ClientOrder::Publish(publish) => {
                     client
                         .publish(publish.topic, publish.qos, publish.retain, publish.payload)
                         .await
                 }
                 // One left out (it keeps bringing an oversized retained message) is not sent.
-                Request::Subscribe { filter, qos } => {
+                ClientOrder::Subscribe { filter, qos } => {
                     if subscriptions.handing(&filter, Instant::now()) {
                         client.subscribe(filter, qos).await
                     } else {
                         Ok(())
                     }
                 }
-                Request::Unsubscribe { filter } => client.unsubscribe(filter).await,
-                Request::Disconnect => client.disconnect().await,
+                ClientOrder::Unsubscribe { filter } => client.unsubscribe(filter).await,
+                ClientOrder::Disconnect => client.disconnect().await,
             };
             in_writer.fetch_sub(1, Ordering::SeqCst);
             if let Err(error) = result {

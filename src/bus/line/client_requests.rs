@@ -6,15 +6,15 @@
 use std::time::Instant;
 
 use super::Line;
-use crate::bus::commands::Pending;
+use crate::bus::command::slots::Pending;
+use crate::bus::command::{Command, CommandOutcome};
 use crate::bus::event::LineEvent;
-use crate::bus::outcome::{Command, CommandOutcome};
 use crate::bus::serve::policy;
 use crate::bus::serve::served_side::{
     block_overlaps, client_answer, echo, written_span, ClientCount, ClientWrite,
 };
 use crate::bus::serve::{Access, ClientRequest};
-use crate::bus::transaction::{Exchange, Failure};
+use crate::bus::transaction::{ExchangeContext, Failure};
 use rtu2mqtt_modbus::{Error as MasterError, Reply};
 use rtu2mqtt_modbus::{ExceptionCode, Request};
 
@@ -111,7 +111,7 @@ impl Line {
             Some(runtime) => (runtime.spec.name.as_str(), &mut runtime.stats),
             None => (unknown.as_str(), &mut passer_by),
         };
-        let exchange = Exchange {
+        let exchange = ExchangeContext {
             line: &self.spec.name,
             device: name,
             slave: unit,

@@ -1,13 +1,13 @@
 //! The task that owns one line: its loop. It keeps the link open ([`super::port`]: a serial
 //! port or a TCP connection, the same loop for both),
 //! asks the [`Scheduler`] what is due, runs command slots and settle re-reads
-//! ([`super::commands`]) before polls ([`super::poll`]), carries out what they report, turns
+//! ([`super::command`]) before polls ([`super::poll`]), carries out what they report, turns
 //! answers into values through each
 //! device's runtime ([`super::device`]) and reports [`LineEvent`]s. It publishes [`LineStats`]
 //! after every transaction and at least once a second.
 //!
 //! Its command side (commands, refreshes, settle re-reads, the write clock) is in
-//! [`command_slots`], its served side (clients' requests as line slots) in [`client_requests`];
+//! [`command_side`], its served side (clients' requests as line slots) in [`client_requests`];
 //! both are further `impl Line` blocks on the one state this file owns.
 //!
 //! A served line ([`super::serve`]) takes its clients' requests when no command waits, one
@@ -28,16 +28,17 @@ use tokio::sync::{mpsc, watch};
 use tracing::Instrument;
 
 mod client_requests;
-mod command_slots;
+mod command_side;
 
 use super::availability::{HealthChange, HealthPolicy};
 use super::cadence::DevicePlan;
-use super::command_queue::{command_queue, CommandReceiver, CommandSender};
-use super::commands::{CommandSlots, Pending, SlotLink};
+use super::command::queue::{command_queue, CommandReceiver, CommandSender};
+use super::command::run::SlotLink;
+use super::command::slots::{CommandSlots, Pending};
+use super::command::{Command, CommandFailure};
 use super::device::{Decode, DeviceRuntime, Values};
 use super::event::{LineEvent, Origin};
 use super::line_spec::{LineSpec, Transport};
-use super::outcome::{Command, CommandFailure};
 use super::poll::{self, PollContext};
 use super::port::{self, Backoff, OpenError, Reopen, MISSING_PORT, UNREACHABLE_SERVER};
 use super::report::Report;
@@ -49,7 +50,7 @@ use super::serve::server::{self, ServeCounters};
 use super::serve::ClientRequest;
 use super::stats::LineStats;
 use super::stats::LoadWindow;
-use super::transaction::{Exchange, Failure, Turnaround};
+use super::transaction::{ExchangeContext, Failure, Turnaround};
 use super::write_clock::WriteClock;
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::serial::transport::TransportError;
@@ -324,7 +325,12 @@ impl Line {
         } = self;
         let link = devices.get_mut(device).and_then(|runtime| {
             Some(SlotLink {
-                exchange: Exchange::for_device(&spec.name, &runtime.spec, *timeout, turnaround),
+                exchange: ExchangeContext::for_device(
+                    &spec.name,
+                    &runtime.spec,
+                    *timeout,
+                    turnaround,
+                ),
                 master: master.as_mut()?,
                 stats: &mut runtime.stats,
                 attempts,

@@ -13,7 +13,7 @@ use tokio::sync::mpsc;
 use super::queue::{BlockCache, ClientQueue};
 use super::server::ServeCounters;
 use super::ClientRequest;
-use crate::bus::outcome::{CommandFailure, CommandOutcome};
+use crate::bus::command::{CommandFailure, CommandOutcome};
 use crate::bus::stats::LineStats;
 use rtu2mqtt_modbus::Reply;
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};

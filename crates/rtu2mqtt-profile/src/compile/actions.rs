@@ -8,11 +8,11 @@ use std::collections::HashSet;
 use super::blocks::bus_address;
 use super::problems::Problems;
 use crate::action::{ActionDef, ActionInfo, ActionParam, ActionResult, ParamLayout, Word};
-use crate::contract::{reserved_name_problem, MAX_NAME_LEN};
 use crate::field::FieldInfo;
 use crate::format::{ActionSection, ActionWord, ParamSection, ResultSection};
 use crate::model::Limits;
 use crate::register_numbers::RegisterNumbers;
+use crate::topic_levels::{reserved_name_problem, MAX_NAME_LEN};
 use rtu2mqtt_modbus::Request;
 
 /// The actions, in file order. A refused action is left out; every problem is added.

@@ -47,7 +47,7 @@ pub(super) fn build_fields(
                 "a field name must be lower-case letters, digits or `_`",
             );
         }
-        if let Some(reason) = crate::contract::reserved_name_problem(&field.name) {
+        if let Some(reason) = crate::topic_levels::reserved_name_problem(&field.name) {
             problems.add(format!("{place}.name"), reason);
         }
         if seen.insert(field.name.clone(), i).is_some() {

@@ -6,7 +6,7 @@
 use rtu2mqtt_modbus::ExceptionCode;
 use rtu2mqtt_modbus::{Error as MasterError, PortFault};
 
-use super::transaction::Failure;
+use crate::bus::transaction::Failure;
 use rtu2mqtt_profile::CommandPlan;
 
 /// How a command ended on the bus.

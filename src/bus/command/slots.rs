@@ -7,35 +7,33 @@
 //! line wrote the field meanwhile) is held here until the interval ends. What a run
 //! leaves for the line to do (note the contact, publish the reads, report the end, close a
 //! failed port) comes back as a [`SlotReport`]; the line owns the events channel, the
-//! scheduler and the port. The frames of a slot are [`super::slot`]'s.
+//! scheduler and the port. The frames of a slot are [`super::run`]'s.
 
 use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 use tracing::Instrument;
 
-use super::command_queue::CommandReceiver;
 use super::outcome::{Command, CommandFailure, CommandOutcome};
-use super::slot::{self, SeenReads, SlotEnd, Stop};
-use super::stats::DeviceStats;
-use super::transaction::{Exchange, Failure};
-use rtu2mqtt_modbus::link::Link;
+use super::queue::CommandReceiver;
+use super::run::{self, SeenReads, SlotEnd, SlotLink, Stop};
+use crate::bus::transaction::Failure;
 use rtu2mqtt_modbus::PortFault;
 use rtu2mqtt_profile::{CommandPlan, Verification};
 
 /// Pause between two read-backs of a command whose device is still moving.
-pub(super) const SETTLE_REREAD: Duration = Duration::from_millis(500);
+pub(crate) const SETTLE_REREAD: Duration = Duration::from_millis(500);
 
 /// A command waiting for its slot.
 #[derive(Debug)]
-pub(super) struct Pending {
-    pub(super) command: Command,
-    pub(super) arrived: Instant,
+pub(crate) struct Pending {
+    pub(crate) command: Command,
+    pub(crate) arrived: Instant,
 }
 
 impl Pending {
     /// This command's end without a slot: it failed for `cause`.
-    pub(super) fn failed(&self, cause: CommandFailure) -> Finished {
+    pub(crate) fn failed(&self, cause: CommandFailure) -> Finished {
         Finished {
             id: self.command.id,
             arrived: self.arrived,
@@ -46,7 +44,7 @@ impl Pending {
 
 /// A command whose writes are done and whose device is still moving toward the value.
 #[derive(Debug)]
-pub(super) struct Settle {
+pub(crate) struct Settle {
     device: usize,
     plan: CommandPlan,
     id: u64,
@@ -57,40 +55,31 @@ pub(super) struct Settle {
 
 /// A command's end, for the line to count and report.
 #[derive(Debug)]
-pub(super) struct Finished {
-    pub(super) id: u64,
-    pub(super) arrived: Instant,
-    pub(super) outcome: CommandOutcome,
+pub(crate) struct Finished {
+    pub(crate) id: u64,
+    pub(crate) arrived: Instant,
+    pub(crate) outcome: CommandOutcome,
 }
 
 /// What a slot or a settle re-read of `device` leaves for the line to do, in this order:
 /// note that the device answered, publish the reads (and have the blocks the command can have
 /// changed read again unless the reads covered them), report the end, close the failed port.
 #[derive(Debug)]
-pub(super) struct SlotReport {
-    pub(super) device: usize,
-    pub(super) contact: bool,
-    pub(super) reads: Option<SeenReads>,
+pub(crate) struct SlotReport {
+    pub(crate) device: usize,
+    pub(crate) contact: bool,
+    pub(crate) reads: Option<SeenReads>,
     /// The device's read blocks the command can have changed.
-    pub(super) changed: Vec<usize>,
-    pub(super) finished: Option<Finished>,
-    pub(super) port_gone: Option<PortFault>,
+    pub(crate) changed: Vec<usize>,
+    pub(crate) finished: Option<Finished>,
+    pub(crate) port_gone: Option<PortFault>,
     /// A write may have reached the device (every end but a refusal before the writes).
-    pub(super) wrote: bool,
-}
-
-/// What a slot needs of its line: the exchange for the device, the link and the device's
-/// counters.
-pub(super) struct SlotLink<'a> {
-    pub(super) exchange: Exchange<'a>,
-    pub(super) master: &'a mut Link,
-    pub(super) stats: &'a mut DeviceStats,
-    pub(super) attempts: u32,
+    pub(crate) wrote: bool,
 }
 
 /// The line's command queue and its settling commands.
 #[derive(Debug)]
-pub(super) struct CommandSlots {
+pub(crate) struct CommandSlots {
     queue: CommandReceiver,
     /// The sending side (the bridge) is still there.
     open: bool,
@@ -100,7 +89,7 @@ pub(super) struct CommandSlots {
 }
 
 impl CommandSlots {
-    pub(super) fn new(queue: CommandReceiver) -> Self {
+    pub(crate) fn new(queue: CommandReceiver) -> Self {
         CommandSlots {
             queue,
             open: true,
@@ -110,12 +99,12 @@ impl CommandSlots {
     }
 
     /// Whether commands may still arrive (the queue's sender is there).
-    pub(super) fn is_open(&self) -> bool {
+    pub(crate) fn is_open(&self) -> bool {
         self.open
     }
 
     /// The next command already in the queue, without waiting.
-    pub(super) fn try_take(&mut self) -> Option<Command> {
+    pub(crate) fn try_take(&mut self) -> Option<Command> {
         if !self.open {
             return None;
         }
@@ -130,34 +119,34 @@ impl CommandSlots {
     }
 
     /// Waits for the next command; `None` when the queue has ended (then [`Self::closed`]).
-    pub(super) async fn next(&mut self) -> Option<Command> {
+    pub(crate) async fn next(&mut self) -> Option<Command> {
         self.queue.recv().await
     }
 
     /// The queue has ended: the bridge is gone and the line stops listening to it.
-    pub(super) fn closed(&mut self) {
+    pub(crate) fn closed(&mut self) {
         self.open = false;
     }
 
     /// A settling command whose re-read is due at `now`.
-    pub(super) fn take_due_settle(&mut self, now: Instant) -> Option<Settle> {
+    pub(crate) fn take_due_settle(&mut self, now: Instant) -> Option<Settle> {
         let index = self.settling.iter().position(|s| s.next_read <= now)?;
         Some(self.settling.swap_remove(index))
     }
 
     /// When the next settle re-read or held command is due.
-    pub(super) fn next_due(&self) -> Option<Instant> {
+    pub(crate) fn next_due(&self) -> Option<Instant> {
         let settles = self.settling.iter().map(|s| s.next_read);
         settles.chain(self.held.iter().map(|h| h.2)).min()
     }
 
     /// Holds `pending` for `device` until `until` (its field's write interval ends then).
-    pub(super) fn hold(&mut self, device: usize, pending: Pending, until: Instant) {
+    pub(crate) fn hold(&mut self, device: usize, pending: Pending, until: Instant) {
         self.held.push((device, pending, until));
     }
 
     /// A held command whose write interval has ended at `now`, the longest held first.
-    pub(super) fn take_due_held(&mut self, now: Instant) -> Option<(usize, Pending)> {
+    pub(crate) fn take_due_held(&mut self, now: Instant) -> Option<(usize, Pending)> {
         let index = self
             .held
             .iter()
@@ -170,7 +159,7 @@ impl CommandSlots {
     }
 
     /// Every held command, removed (the line stops).
-    pub(super) fn drain_held(&mut self) -> Vec<(usize, Pending)> {
+    pub(crate) fn drain_held(&mut self) -> Vec<(usize, Pending)> {
         std::mem::take(&mut self.held)
             .into_iter()
             .map(|(device, pending, _)| (device, pending))
@@ -178,23 +167,16 @@ impl CommandSlots {
     }
 
     /// Runs `pending`'s slot on `device`.
-    pub(super) async fn run(
+    pub(crate) async fn run(
         &mut self,
-        link: SlotLink<'_>,
+        mut link: SlotLink<'_>,
         device: usize,
         pending: Pending,
     ) -> SlotReport {
         let Pending { command, arrived } = pending;
-        let SlotLink {
-            exchange,
-            master,
-            stats,
-            attempts,
-        } = link;
-        let span =
-            tracing::info_span!("command", device = %exchange.device, field = command.plan.field());
+        let span = tracing::info_span!("command", device = %link.exchange.device, field = command.plan.field());
         let mut seen = SeenReads::new();
-        let end = slot::run_slot(&exchange, master, stats, &command.plan, attempts, &mut seen)
+        let end = run::run_slot(&mut link, &command.plan, &mut seen)
             .instrument(span)
             .await;
         let now = Instant::now();
@@ -209,7 +191,7 @@ impl CommandSlots {
         };
         match end {
             SlotEnd::Done(outcome) => {
-                tracing::debug!(device = %exchange.device, field = command.plan.field(), %outcome, "command done on the line");
+                tracing::debug!(device = %link.exchange.device, field = command.plan.field(), %outcome, "command done on the line");
                 report.contact = matches!(
                     outcome,
                     CommandOutcome::Applied { .. } | CommandOutcome::NotApplied { .. }
@@ -249,16 +231,13 @@ impl CommandSlots {
 
     /// Re-reads a settling command's device: its end, or back to the list while the device
     /// is still moving and the settle window lasts.
-    pub(super) async fn reread(&mut self, link: SlotLink<'_>, mut settle: Settle) -> SlotReport {
-        let SlotLink {
-            exchange,
-            master,
-            stats,
-            attempts,
-        } = link;
+    pub(crate) async fn reread(
+        &mut self,
+        mut link: SlotLink<'_>,
+        mut settle: Settle,
+    ) -> SlotReport {
         let mut seen = SeenReads::new();
-        let result =
-            slot::reread(&exchange, master, stats, &settle.plan, attempts, &mut seen).await;
+        let result = run::reread(&mut link, &settle.plan, &mut seen).await;
         let now = Instant::now();
         let mut report = SlotReport {
             device: settle.device,
@@ -300,7 +279,7 @@ impl CommandSlots {
     }
 
     /// The port failed: every command waiting for its device to settle has failed.
-    pub(super) fn fail_settling(&mut self, error: &PortFault) -> Vec<(usize, Finished)> {
+    pub(crate) fn fail_settling(&mut self, error: &PortFault) -> Vec<(usize, Finished)> {
         std::mem::take(&mut self.settling)
             .into_iter()
             .map(|settle| {
@@ -314,7 +293,7 @@ impl CommandSlots {
     }
 
     /// Shutdown: commands waiting for their device to settle end without a verdict.
-    pub(super) fn abandon_settling(&mut self) -> Vec<(usize, Finished)> {
+    pub(crate) fn abandon_settling(&mut self) -> Vec<(usize, Finished)> {
         std::mem::take(&mut self.settling)
             .into_iter()
             .map(|settle| {
@@ -330,12 +309,12 @@ impl CommandSlots {
 
 impl Settle {
     /// The device being re-read.
-    pub(super) fn device(&self) -> usize {
+    pub(crate) fn device(&self) -> usize {
         self.device
     }
 
     /// This command's end.
-    pub(super) fn finish(&self, outcome: CommandOutcome) -> Finished {
+    pub(crate) fn finish(&self, outcome: CommandOutcome) -> Finished {
         Finished {
             id: self.id,
             arrived: self.arrived,
@@ -352,7 +331,7 @@ mod tests {
 
     #[test]
     fn a_held_command_is_due_when_its_write_interval_ends() {
-        let (_commands, queue) = super::super::command_queue::command_queue(1);
+        let (_commands, queue) = super::super::queue::command_queue(1);
         let mut slots = CommandSlots::new(queue);
         let profile = built_in("ruiwan-dust-collector").unwrap();
         let plan = profile

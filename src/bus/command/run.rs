@@ -17,11 +17,10 @@ use rtu2mqtt_modbus::{Error as MasterError, PortFault};
 use rtu2mqtt_modbus::{ExceptionCode, Request, Response};
 use rtu2mqtt_profile::{CommandPlan, Verification};
 
-use super::outcome::CommandFailure;
-use super::outcome::CommandOutcome;
-use super::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};
-use super::stats::DeviceStats;
-use super::transaction::{Exchange, Failure};
+use super::outcome::{CommandFailure, CommandOutcome};
+use crate::bus::scheduler::{BUSY_LIMIT, BUSY_RETRY_DELAY};
+use crate::bus::stats::DeviceStats;
+use crate::bus::transaction::{ExchangeContext, Failure};
 
 /// How a slot ended.
 #[derive(Debug)]
@@ -76,20 +75,32 @@ fn failed_with(cause: CommandFailure) -> SlotEnd {
 /// one of the device's poll blocks, instead of polling them again right away.
 pub(crate) type SeenReads = Vec<(Request, Response)>;
 
-/// Runs `plan` on the device of `exchange`. `attempts` bounds the reads and the slot repeats.
+/// What a slot needs of its line: the exchange context of the device, the link, the device's
+/// counters and how many attempts a read may take.
+pub(crate) struct SlotLink<'a> {
+    pub(crate) exchange: ExchangeContext<'a>,
+    pub(crate) master: &'a mut Link,
+    pub(crate) stats: &'a mut DeviceStats,
+    pub(crate) attempts: u32,
+}
+
+/// Runs `plan` on the device of `link`. Its attempts bound the reads and the slot repeats.
 /// Every read answered in the slot is added to `seen`.
 pub(crate) async fn run_slot(
-    exchange: &Exchange<'_>,
-    master: &mut Link,
-    stats: &mut DeviceStats,
+    link: &mut SlotLink<'_>,
     plan: &CommandPlan,
-    attempts: u32,
     seen: &mut SeenReads,
 ) -> SlotEnd {
+    let SlotLink {
+        exchange,
+        master,
+        stats,
+        attempts,
+    } = link;
     if exchange.slave == 0 {
         return broadcast(master, plan).await;
     }
-    let attempts = attempts.max(1);
+    let attempts = (*attempts).max(1);
     for attempt in 1..=attempts {
         let before =
             match read_all(exchange, master, stats, plan.reads_before(), attempts, seen).await {
@@ -114,7 +125,7 @@ pub(crate) async fn run_slot(
             Err(stop) => return stop.end(),
         }
     }
-    match reread(exchange, master, stats, plan, attempts, seen).await {
+    match read_back(exchange, master, stats, plan, attempts, seen).await {
         Ok(Verification::Applied) => SlotEnd::Done(CommandOutcome::Applied {
             detail: "read-back confirms the value".into(),
         }),
@@ -134,9 +145,26 @@ pub(crate) async fn run_slot(
     }
 }
 
-/// Reads the plan's read-back and judges it.
+/// Reads the plan's read-back on the device of `link` and judges it.
 pub(crate) async fn reread(
-    exchange: &Exchange<'_>,
+    link: &mut SlotLink<'_>,
+    plan: &CommandPlan,
+    seen: &mut SeenReads,
+) -> Result<Verification, Stop> {
+    read_back(
+        &link.exchange,
+        link.master,
+        link.stats,
+        plan,
+        link.attempts,
+        seen,
+    )
+    .await
+}
+
+/// Reads the plan's read-back and judges it.
+async fn read_back(
+    exchange: &ExchangeContext<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
     plan: &CommandPlan,
@@ -169,7 +197,7 @@ async fn broadcast(master: &mut Link, plan: &CommandPlan) -> SlotEnd {
 }
 
 async fn read_all(
-    exchange: &Exchange<'_>,
+    exchange: &ExchangeContext<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
     requests: &[Request],
@@ -187,7 +215,7 @@ async fn read_all(
 }
 
 async fn write_all(
-    exchange: &Exchange<'_>,
+    exchange: &ExchangeContext<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
     writes: &[Request],
@@ -202,7 +230,7 @@ async fn write_all(
 /// An exchange that waits out exception 06 (busy) a bounded number of times; any other
 /// exception stops the slot.
 async fn patiently(
-    exchange: &Exchange<'_>,
+    exchange: &ExchangeContext<'_>,
     master: &mut Link,
     stats: &mut DeviceStats,
     request: &Request,

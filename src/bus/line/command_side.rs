@@ -7,12 +7,12 @@ use std::time::{Instant, SystemTime};
 use tokio::sync::mpsc;
 
 use super::Line;
-use crate::bus::commands::{Finished, Pending, Settle, SlotReport};
+use crate::bus::command::run::SeenReads;
+use crate::bus::command::slots::{Finished, Pending, Settle, SlotReport};
+use crate::bus::command::{Command, CommandFailure, CommandOutcome};
 use crate::bus::device::{Decode, Values};
 use crate::bus::event::{LineEvent, Origin};
-use crate::bus::outcome::{Command, CommandFailure, CommandOutcome};
 use crate::bus::serve::served_side::FIRST_CLIENT_COMMAND_ID;
-use crate::bus::slot::SeenReads;
 
 /// Commands: taking them in, running their slots and carrying out what the slots report.
 impl Line {
