@@ -14,12 +14,10 @@ use anyhow::{bail, Context as _};
 
 use crate::cli::{parse_parity, ReadArgs};
 use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
-use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
-use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings, TransportError};
-use rtu2mqtt_modbus::tcp::masters::{
-    ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions,
-};
+use rtu2mqtt_modbus::link::{Link, LinkSpec, OpenError};
+use rtu2mqtt_modbus::serial::master::MasterOptions;
+use rtu2mqtt_modbus::serial::transport::{SerialSettings, TransportError};
+use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
 use rtu2mqtt_profile::bcd;
@@ -79,27 +77,48 @@ fn rtu2mqtt_holder(path: &Path) -> Option<String> {
     None
 }
 
-/// Opens `path` for commissioning, refusing a port a running gateway holds.
-pub fn open_port(path: &Path, baud: u32, parity: Parity) -> anyhow::Result<Port> {
+/// Refuses `path` when a running gateway holds it, naming the holder.
+fn refuse_held_port(path: &Path) -> anyhow::Result<()> {
     if let Some(holder) = rtu2mqtt_holder(path) {
         bail!(
             "{} is in use by rtu2mqtt {holder}; stop the gateway first (systemctl stop rtu2mqtt)",
             path.display()
         );
     }
-    let settings = SerialSettings {
-        path: path.to_string_lossy().into_owned(),
-        baud,
-        format: char_format(parity),
-        rs485: None,
-    };
-    match Port::open(&settings) {
-        Ok(port) => Ok(port),
-        Err(TransportError::Open { path, source }) if is_busy(&source) => bail!(
-            "{path} is busy: another program holds it with exclusive access (a running rtu2mqtt \
-             gateway, ModemManager or a terminal program); stop it first"
-        ),
-        Err(error) => Err(error).context("opening the port"),
+    Ok(())
+}
+
+/// The port at `path` with `baud`/`parity` and default options, as the commissioning commands
+/// open it.
+fn serial_spec(path: &Path, baud: u32, parity: Parity) -> LinkSpec {
+    LinkSpec::Serial {
+        port: SerialSettings {
+            path: path.to_string_lossy().into_owned(),
+            baud,
+            format: char_format(parity),
+            rs485: None,
+        },
+        options: MasterOptions::default(),
+    }
+}
+
+/// Why the commissioning link could not be opened, in the words of the command line.
+fn open_failed(error: OpenError, target: &Target<'_>) -> anyhow::Error {
+    match error {
+        OpenError::Serial(TransportError::Open { path, source }) if is_busy(&source) => {
+            anyhow::anyhow!(
+                "{path} is busy: another program holds it with exclusive access (a running \
+                 rtu2mqtt gateway, ModemManager or a terminal program); stop it first"
+            )
+        }
+        OpenError::Serial(error) => anyhow::Error::new(error).context("opening the port"),
+        OpenError::Connect { source, .. } => {
+            let place = match target {
+                Target::Port(path) => path.display().to_string(),
+                Target::Url(url) => url.to_string(),
+            };
+            anyhow::Error::new(source).context(format!("connecting to {place}"))
+        }
     }
 }
 
@@ -115,15 +134,6 @@ pub fn char_format(parity: Parity) -> CharFormat {
         parity,
         stop_bits: 1,
     }
-}
-
-/// A master on `port` at `baud`/`parity` with default options.
-pub fn master_on(port: Port, baud: u32, parity: Parity) -> Master {
-    Master::new(
-        port,
-        LineTiming::new(baud, char_format(parity)),
-        MasterOptions::default(),
-    )
 }
 
 /// Where a commissioning command talks: `--port` or `--url`.
@@ -154,34 +164,20 @@ impl<'a> Target<'a> {
     /// Opens the port (refusing one a running gateway holds) or connects to the server, at
     /// `baud`/`parity` (the server's serial side on `tcp://`; unused on `modbus-tcp://`).
     pub async fn open(&self, baud: u32, parity: Parity) -> anyhow::Result<Link> {
-        match self {
-            Target::Port(path) => Ok(Link::Serial(master_on(
-                open_port(path, baud, parity)?,
-                baud,
-                parity,
-            ))),
-            Target::Url(url) => {
-                let endpoint = TcpEndpoint::parse(url)?;
-                let options = TcpOptions::default();
-                let connected = match endpoint.kind {
-                    TcpKind::RawRtu => RawTcpMaster::connect(
-                        endpoint,
-                        options,
-                        LineTiming::new(baud, char_format(parity)),
-                    )
-                    .await
-                    .map(Link::RawTcp),
-                    TcpKind::ModbusTcp => ModbusTcpMaster::connect(
-                        endpoint,
-                        options,
-                        LineTiming::new(baud, char_format(parity)),
-                    )
-                    .await
-                    .map(Link::ModbusTcp),
-                };
-                connected.with_context(|| format!("connecting to {url}"))
+        let spec = match self {
+            Target::Port(path) => {
+                refuse_held_port(path)?;
+                serial_spec(path, baud, parity)
             }
-        }
+            Target::Url(url) => LinkSpec::Tcp {
+                endpoint: TcpEndpoint::parse(url)?,
+                options: TcpOptions::default(),
+            },
+        };
+        let timing = LineTiming::new(baud, char_format(parity));
+        Link::open(&spec, timing)
+            .await
+            .map_err(|error| open_failed(error, self))
     }
 }
 

@@ -359,7 +359,7 @@ impl RawTcpMaster {
             // Until the late answer starts to arrive or the guard ends.
             while self.connection.buffer.is_empty() && self.connection.read_until(until).await? {}
         }
-        self.wait_until_quiet().await;
+        self.sleep_out_spacing().await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
             self.connection.core.record(Direction::Rx, &pending);
@@ -374,8 +374,14 @@ impl RawTcpMaster {
     }
 
     /// Waits until the link's own t3.5 spacing after the last answer has passed
-    /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]).
-    pub(crate) async fn wait_until_quiet(&mut self) {
+    /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]). That spacing is
+    /// never longer than the line's silence, so `patience` cannot run out first.
+    pub(crate) async fn wait_until_quiet(&mut self, _patience: Duration) -> Result<(), Error> {
+        self.sleep_out_spacing().await;
+        Ok(())
+    }
+
+    async fn sleep_out_spacing(&mut self) {
         self.timer.sleep_until(self.next_send_at).await;
     }
 
@@ -541,6 +547,11 @@ impl ModbusTcpMaster {
         let transaction = self.next_transaction;
         self.next_transaction = self.next_transaction.wrapping_add(1).max(1);
         transaction
+    }
+
+    /// Ready at once: a gateway keeps its own line's timing.
+    pub(crate) async fn wait_until_quiet(&mut self, _patience: Duration) -> Result<(), Error> {
+        Ok(())
     }
 
     /// Sends `request` to unit 0 (broadcast), calls `sent` and waits the broadcast
