@@ -151,7 +151,7 @@ pub async fn run_gateway(
                 session,
                 mqtt: node_mqtt,
                 stats_interval: config.gateway.stats_interval,
-                bd_seq_store: sparkplug::bd_seq::BdSeqStore::for_config(&config),
+                bd_seq_store: sparkplug::core::bd_seq::BdSeqStore::for_config(&config),
                 history: config.history.is_some(),
             };
             let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
@@ -228,7 +228,7 @@ struct NodeWiring {
     session: sparkplug::Session,
     mqtt: config::MqttSettings,
     stats_interval: Duration,
-    bd_seq_store: Option<sparkplug::bd_seq::BdSeqStore>,
+    bd_seq_store: Option<sparkplug::core::bd_seq::BdSeqStore>,
     /// `[history]` is configured: replayed records also go out as historical DDATA.
     history: bool,
 }
@@ -254,7 +254,7 @@ impl NodeWiring {
         // One sample in flight: a slow node gets the next, fresher one.
         let (values_tx, values_rx) = mpsc::channel(1);
         let stats = lines.iter().map(|line| line.stats_rx.clone()).collect();
-        tokio::spawn(sparkplug::node_metrics::feed(
+        tokio::spawn(sparkplug::core::node_metrics::feed(
             stats,
             values_tx,
             self.stats_interval,
