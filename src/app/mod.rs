@@ -6,11 +6,8 @@
 pub mod check;
 pub mod logging;
 pub mod profiles;
-pub mod read;
 pub mod reload;
-pub mod scan;
 pub mod signals;
-pub mod sunspec;
 
 use std::path::Path;
 use std::process::ExitCode;

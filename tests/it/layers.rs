@@ -19,6 +19,7 @@ const LAYERS: &[&str] = &[
     "sparkplug",
     "cli",
     "web",
+    "commissioning",
     "app",
 ];
 
