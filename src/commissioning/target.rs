@@ -7,10 +7,10 @@ use std::path::Path;
 
 use anyhow::bail;
 
-use rtu2mqtt_modbus::link::{Link, LinkSpec, OpenError};
+use rtu2mqtt_modbus::link::{Link, LinkSpec, OpenError, TcpEndpoint};
 use rtu2mqtt_modbus::serial::master::MasterOptions;
 use rtu2mqtt_modbus::serial::transport::{SerialSettings, TransportError};
-use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::tcp::masters::TcpOptions;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 
 /// A gateway (or another rtu2mqtt command on this very port) holding `path` open, as
@@ -137,7 +137,7 @@ impl<'a> Target<'a> {
     pub fn is_modbus_tcp(&self) -> anyhow::Result<bool> {
         Ok(match self {
             Target::Port(_) => false,
-            Target::Url(url) => TcpEndpoint::parse(url)?.kind == TcpKind::ModbusTcp,
+            Target::Url(url) => TcpEndpoint::parse(url)?.kind.times_its_serial_side(),
         })
     }
 
