@@ -2,6 +2,10 @@
 //! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, reload the configuration on
 //! SIGHUP ([`reload`]), run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the
 //! library entry point that `run`, the demo and the end-to-end tests share.
+//!
+//! Its modules: [`check`] (`rtu2mqtt check`: the configuration and its poll plan),
+//! [`profiles`] (`rtu2mqtt profiles`), [`reload`], [`signals`] (SIGHUP, SIGTERM, SIGINT) and
+//! [`logging`]. The commissioning tools are `crate::commissioning`'s.
 
 pub mod check;
 pub mod logging;
