@@ -251,7 +251,9 @@ fn sparkplug_command() {
     let config = plant::config();
     let devices: Vec<_> = config.lines.iter().flat_map(|line| &line.devices).collect();
     for action in births {
-        let rtu2mqtt::sparkplug::core::session_interface::Action::Publish { topic, payload, .. } = action
+        let rtu2mqtt::sparkplug::core::session_interface::Action::Publish {
+            topic, payload, ..
+        } = action
         else {
             continue;
         };
