@@ -16,8 +16,9 @@ use crate::{
 /// Last known decoded values of one device, by field name.
 pub type DeviceState = HashMap<String, Value>;
 
-/// A validated device profile: made by [`Profile::from_toml`] or [`registry`], never
-/// invalid, and cheap to clone (the compiled form is shared, also with its command plans).
+/// A validated device profile: made by [`Profile::from_toml`] or
+/// [`registry`](crate::registry), never invalid, and cheap to clone (the compiled form is
+/// shared, also with its command plans).
 #[derive(Debug, Clone)]
 pub struct Profile {
     // Shared with the command plans made from it.
