@@ -11,7 +11,7 @@
 //!
 //! - [`bus`]: one task per line. `line` (the loop; `line::command_side` its commands,
 //!   refreshes and settle re-reads, `line::client_requests` its served side), `line_spec` and
-//!   `device_spec` (what a line is started with), `port` (opening the link, one reopen
+//!   `device_spec` (what a line is started with), `port` (the link opened by the wire crate's `Link::open`, one reopen
 //!   back-off), `device`, `poll` (a block, with the exception-02 fallback), `command` (a
 //!   command from its queue to its outcome: `queue`, `slots`, `run`, `outcome`), `transaction`
 //!   (one request with retries), `cadence` (each block's cadence), `scheduler` (what is due,
@@ -43,16 +43,18 @@
 //!   `connection`, `outbox`, `writer`, `tls`, `history_stream`, `oversized`, `inputs`) and
 //!   `observers` (`statistics` documents and Prometheus text, `figures` where they are read,
 //!   `plant_view` what the console shows).
-//! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection: `payload`,
-//!   `metrics`, `node_metrics`, `session_interface`, `session` (the pure edge-node rules) and its
-//!   driver. Its commands enter the bridge core like `…/set` commands; it never touches the bus.
+//! - [`sparkplug`]: the optional Sparkplug B edge node on its own MQTT connection, in two parts
+//!   as the bridge: `core` (`protobuf`, `metrics`, `node_metrics`, `session_interface`, `session`
+//!   the pure edge-node rules, `bd_seq`) and `driver` (the node's task and connection). Its
+//!   commands enter the bridge core like `…/set` commands; it never touches the bus.
 //! - [`cli`]: the command line (clap); parses, does nothing else.
 //! - [`web`]: the console in the browser and the metrics endpoint, one HTTP server: the plant
 //!   view pushed live, commands through the bridge like any MQTT client's, the lines' frames,
 //!   commissioning reads through the running lines' schedulers. Off unless configured.
+//! - [`commissioning`]: the commands that talk to devices without a gateway: `target` (where
+//!   they talk and how the link is opened), `read`, `scan`, `sunspec`.
 //! - [`app`]: wiring: `run`/[`app::run_gateway`] (lines, bridge, Sparkplug node, health, reload
-//!   on SIGHUP), `signals`, `check`, `profiles`, the commissioning tools `scan`, `read` and
-//!   `sunspec`, `logging`. No protocol logic.
+//!   on SIGHUP), `signals`, `check`, `profiles`, `logging`. No protocol logic.
 
 // What the codebase keeps true, checked on every build (`-D warnings` in CI):
 // - `pub` means part of the crate's surface: an item only its module uses is `pub(crate)` or
@@ -68,6 +70,7 @@ pub mod app;
 pub mod bridge;
 pub mod bus;
 pub mod cli;
+pub mod commissioning;
 pub mod config;
 pub mod health;
 pub mod history;

@@ -12,9 +12,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run { config } => rtu2mqtt::app::run(&config),
         Command::Check { config } => rtu2mqtt::app::check::check(&config),
-        Command::Scan(args) => rtu2mqtt::app::scan::scan(&args),
-        Command::Read(args) => rtu2mqtt::app::read::read(&args),
-        Command::Sunspec(args) => rtu2mqtt::app::sunspec::sunspec(&args),
+        Command::Scan(args) => rtu2mqtt::commissioning::scan::scan(&args),
+        Command::Read(args) => rtu2mqtt::commissioning::read::read(&args),
+        Command::Sunspec(args) => rtu2mqtt::commissioning::sunspec::sunspec(&args),
         Command::Profiles { paths } => rtu2mqtt::app::profiles::print_profiles(&paths),
         Command::Health {
             status_file,

@@ -11,8 +11,8 @@ use std::time::Duration;
 
 use rtu2mqtt::config::HistoryConfig;
 use rtu2mqtt::history::{Journal, Record};
-use rtu2mqtt::sparkplug::protobuf::{Metric, MetricValue, Payload};
-use rtu2mqtt::sparkplug::session_interface::REBIRTH;
+use rtu2mqtt::sparkplug::core::protobuf::{Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::core::session_interface::REBIRTH;
 use rtu2mqtt_fuzz::{plant, push_part, push_request, seed_profiles};
 use rtu2mqtt_modbus::codec::{self, encode_answer, encode_exception};
 use rtu2mqtt_modbus::crc::append_crc;
@@ -251,7 +251,9 @@ fn sparkplug_command() {
     let config = plant::config();
     let devices: Vec<_> = config.lines.iter().flat_map(|line| &line.devices).collect();
     for action in births {
-        let rtu2mqtt::sparkplug::session_interface::Action::Publish { topic, payload, .. } = action
+        let rtu2mqtt::sparkplug::core::session_interface::Action::Publish {
+            topic, payload, ..
+        } = action
         else {
             continue;
         };

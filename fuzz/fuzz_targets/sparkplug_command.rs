@@ -19,8 +19,8 @@ use libfuzzer_sys::fuzz_target;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use rtu2mqtt::bridge::core::Core;
-use rtu2mqtt::sparkplug::protobuf::{MetricValue, Payload};
-use rtu2mqtt::sparkplug::session_interface::{Action, REBIRTH};
+use rtu2mqtt::sparkplug::core::protobuf::{MetricValue, Payload};
+use rtu2mqtt::sparkplug::core::session_interface::{Action, REBIRTH};
 use rtu2mqtt_fuzz::plant::{self, Lines};
 use rtu2mqtt_fuzz::Input;
 

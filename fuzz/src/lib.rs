@@ -155,8 +155,8 @@ pub mod plant {
     use rtu2mqtt::bridge::core::{Action, BridgeDevice, CoreSettings};
     use rtu2mqtt::bus::{LineEvent, Origin};
     use rtu2mqtt::config::Config;
-    use rtu2mqtt::sparkplug::session::Session;
-    use rtu2mqtt::sparkplug::session_interface::SessionSettings;
+    use rtu2mqtt::sparkplug::core::session::Session;
+    use rtu2mqtt::sparkplug::core::session_interface::SessionSettings;
 
     /// Sparkplug's clock in the fuzz targets (ms since the epoch).
     pub const SPARKPLUG_NOW: u64 = 1_700_000_000_000;

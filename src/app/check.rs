@@ -15,7 +15,6 @@ use crate::bus::Transport;
 use crate::config::poll_plan::{BlockLoad, LinePlan};
 use crate::config::{self, Config};
 use crate::history::Journal;
-use rtu2mqtt_modbus::tcp::masters::TcpKind;
 use rtu2mqtt_profile::registry::describe_read;
 use rtu2mqtt_profile::PollClass;
 
@@ -143,23 +142,28 @@ pub fn report(path: &Path, config: &Config) -> String {
                 endpoint,
                 network_allowance,
                 ..
-            } => match endpoint.kind {
-                TcpKind::RawRtu => writeln!(
-                    out,
-                    "\nline {} on {} (serial device server, raw RTU): {format} on its serial \
-                     side, t3.5 {t3_5}, response timeout {timeout} (network allowance {})",
-                    line.name,
-                    endpoint.url(),
-                    millis(*network_allowance)
-                ),
-                TcpKind::ModbusTcp => writeln!(
-                    out,
-                    "\nline {} on {} (Modbus TCP gateway, unit id = address): response timeout \
-                     {timeout}; the gateway times its serial side, load estimated at {format}",
-                    line.name,
-                    endpoint.url()
-                ),
-            },
+            } => {
+                let kind = endpoint.kind;
+                let what = format!("{}, {}", kind.server_name(), kind.framing());
+                if kind.times_its_serial_side() {
+                    writeln!(
+                        out,
+                        "\nline {} on {} ({what}): response timeout {timeout}; the gateway times \
+                         its serial side, load estimated at {format}",
+                        line.name,
+                        endpoint.url()
+                    )
+                } else {
+                    writeln!(
+                        out,
+                        "\nline {} on {} ({what}): {format} on its serial side, t3.5 {t3_5}, \
+                         response timeout {timeout} (network allowance {})",
+                        line.name,
+                        endpoint.url(),
+                        millis(*network_allowance)
+                    )
+                }
+            }
         };
         if let Some(serve) = &line.serve {
             let _ = writeln!(

@@ -2,15 +2,16 @@
 //! MQTT bridge and (with `[sparkplug]`) the Sparkplug edge node, reload the configuration on
 //! SIGHUP ([`reload`]), run until SIGTERM/SIGINT, then stop cleanly. [`run_gateway`] is the
 //! library entry point that `run`, the demo and the end-to-end tests share.
+//!
+//! Its modules: [`check`] (`rtu2mqtt check`: the configuration and its poll plan),
+//! [`profiles`] (`rtu2mqtt profiles`), [`reload`], [`signals`] (SIGHUP, SIGTERM, SIGINT) and
+//! [`logging`]. The commissioning tools are `crate::commissioning`'s.
 
 pub mod check;
 pub mod logging;
 pub mod profiles;
-pub mod read;
 pub mod reload;
-pub mod scan;
 pub mod signals;
-pub mod sunspec;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -151,7 +152,7 @@ pub async fn run_gateway(
                 session,
                 mqtt: node_mqtt,
                 stats_interval: config.gateway.stats_interval,
-                bd_seq_store: sparkplug::bd_seq::BdSeqStore::for_config(&config),
+                bd_seq_store: sparkplug::core::bd_seq::BdSeqStore::for_config(&config),
                 history: config.history.is_some(),
             };
             let (events_rx, task) = node.start(&mut bridge, &handles, events_rx, &shutdown);
@@ -228,7 +229,7 @@ struct NodeWiring {
     session: sparkplug::Session,
     mqtt: config::MqttSettings,
     stats_interval: Duration,
-    bd_seq_store: Option<sparkplug::bd_seq::BdSeqStore>,
+    bd_seq_store: Option<sparkplug::core::bd_seq::BdSeqStore>,
     /// `[history]` is configured: replayed records also go out as historical DDATA.
     history: bool,
 }
@@ -254,7 +255,7 @@ impl NodeWiring {
         // One sample in flight: a slow node gets the next, fresher one.
         let (values_tx, values_rx) = mpsc::channel(1);
         let stats = lines.iter().map(|line| line.stats_rx.clone()).collect();
-        tokio::spawn(sparkplug::node_metrics::feed(
+        tokio::spawn(sparkplug::core::node_metrics::feed(
             stats,
             values_tx,
             self.stats_interval,

@@ -4,8 +4,9 @@
 
 use std::time::Duration;
 
+use rtu2mqtt_modbus::link::TcpEndpoint;
 use rtu2mqtt_modbus::serial::transport::SerialSettings;
-use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::tcp::masters::TcpOptions;
 
 use super::device_spec::DeviceSpec;
 use super::serve;
@@ -30,10 +31,7 @@ impl Transport {
     pub fn describe(&self, serial: &SerialSettings) -> String {
         match self {
             Transport::Serial => format!("serial port {}", serial.path),
-            Transport::Tcp { endpoint, .. } => match endpoint.kind {
-                TcpKind::RawRtu => format!("serial device server {} (raw RTU)", endpoint.url()),
-                TcpKind::ModbusTcp => format!("Modbus TCP gateway {}", endpoint.url()),
-            },
+            Transport::Tcp { endpoint, .. } => endpoint.describe(),
         }
     }
 }

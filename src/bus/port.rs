@@ -1,5 +1,5 @@
-//! A line's link: opening its serial port as a [`Master`] or connecting to its TCP server,
-//! with the line's settings, and when to try again after it was missing, failed under a
+//! A line's link: what the wire crate's [`Link::open`] opens for it (its serial port or its
+//! TCP server, with the line's settings), and when to try again after it was missing, failed under a
 //! transaction, or turned out to be no serial port at all. One back-off policy ([`Reopen`])
 //! with three schedules ([`Backoff`]). Nothing here runs a transaction or reports to the
 //! bridge.
@@ -13,10 +13,10 @@
 
 use std::time::{Duration, Instant};
 
-use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
-use rtu2mqtt_modbus::serial::transport::{Port, TransportError};
-use rtu2mqtt_modbus::tcp::masters::{ModbusTcpMaster, RawTcpMaster, TcpKind};
+use rtu2mqtt_modbus::link::{Link, LinkSpec};
+use rtu2mqtt_modbus::serial::master::MasterOptions;
+use rtu2mqtt_modbus::serial::transport::TransportError;
+use rtu2mqtt_modbus::tcp::masters::TcpOptions;
 use rtu2mqtt_modbus::timing::LineTiming;
 
 use super::line_spec::{LineSpec, Transport};
@@ -57,14 +57,8 @@ impl Backoff {
     }
 }
 
-/// Why a line's link could not be opened.
-#[derive(Debug, thiserror::Error)]
-pub(crate) enum OpenError {
-    #[error(transparent)]
-    Serial(#[from] TransportError),
-    #[error("cannot connect to {url}: {source}")]
-    Connect { url: String, source: std::io::Error },
-}
+/// Why a line's link could not be opened (named here for the line, which matches on it).
+pub(crate) use rtu2mqtt_modbus::link::OpenError;
 
 /// When the line tries to open its port next.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -104,42 +98,39 @@ impl Reopen {
     }
 }
 
-/// Opens the line's port, or connects to its server, with the line's settings.
+/// Opens the line's port, or connects to its server, with the line's settings, and records
+/// its frames where the line's are recorded.
 pub(crate) async fn open_link(spec: &LineSpec, timing: LineTiming) -> Result<Link, OpenError> {
-    let mut link = match &spec.transport {
-        Transport::Serial => {
-            let port = Port::open(&spec.serial)?;
-            let options = MasterOptions {
-                echo: spec.echo,
-                broadcast_turnaround: spec.broadcast_turnaround,
-                inter_char_timeout: spec.byte_timeout,
-                ..MasterOptions::default()
-            };
-            Link::Serial(Master::new(port, timing, options))
-        }
-        Transport::Tcp {
-            endpoint, options, ..
-        } => {
-            let mut options = *options;
-            options.broadcast_turnaround = spec.broadcast_turnaround;
-            let connected = match endpoint.kind {
-                TcpKind::RawRtu => RawTcpMaster::connect(endpoint.clone(), options, timing)
-                    .await
-                    .map(Link::RawTcp),
-                TcpKind::ModbusTcp => ModbusTcpMaster::connect(endpoint.clone(), options, timing)
-                    .await
-                    .map(Link::ModbusTcp),
-            };
-            connected.map_err(|source| OpenError::Connect {
-                url: endpoint.url(),
-                source,
-            })?
-        }
-    };
+    let mut link = Link::open(&link_spec(spec), timing).await?;
     if let Some(writer) = spec.recorders.writer(&spec.name) {
         link.record_frames_to(writer);
     }
     Ok(link)
+}
+
+/// What the wire crate opens for the line: its port with the master's options from the line's
+/// settings, or its server with the line's broadcast turnaround.
+fn link_spec(spec: &LineSpec) -> LinkSpec {
+    match &spec.transport {
+        Transport::Serial => LinkSpec::Serial {
+            port: spec.serial.clone(),
+            options: MasterOptions {
+                echo: spec.echo,
+                broadcast_turnaround: spec.broadcast_turnaround,
+                inter_char_timeout: spec.byte_timeout,
+                ..MasterOptions::default()
+            },
+        },
+        Transport::Tcp {
+            endpoint, options, ..
+        } => LinkSpec::Tcp {
+            endpoint: endpoint.clone(),
+            options: TcpOptions {
+                broadcast_turnaround: spec.broadcast_turnaround,
+                ..*options
+            },
+        },
+    }
 }
 
 #[cfg(test)]

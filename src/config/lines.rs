@@ -15,8 +15,9 @@ use super::problem::Problem;
 use super::schema::{RawLine, RawServe};
 use crate::bus::serve::{Access, ServeFraming, ServeSpec};
 use crate::bus::{LineSpec, Transport};
+use rtu2mqtt_modbus::link::TcpEndpoint;
 use rtu2mqtt_modbus::serial::transport::{Rs485Settings, SerialSettings};
-use rtu2mqtt_modbus::tcp::masters::{TcpEndpoint, TcpKind, TcpOptions};
+use rtu2mqtt_modbus::tcp::masters::TcpOptions;
 use rtu2mqtt_modbus::timing::CharFormat;
 use rtu2mqtt_profile::Profile;
 
@@ -308,8 +309,9 @@ fn validate_serve(
 /// Default network allowance of TCP lines (on top of the default response timeout).
 pub(crate) const DEFAULT_NETWORK_ALLOWANCE: Duration = Duration::from_millis(200);
 
+/// The server runs the line's serial side itself (a Modbus TCP gateway).
 fn is_modbus_tcp(transport: &Transport) -> bool {
-    matches!(transport, Transport::Tcp { endpoint, .. } if endpoint.kind == TcpKind::ModbusTcp)
+    matches!(transport, Transport::Tcp { endpoint, .. } if endpoint.kind.times_its_serial_side())
 }
 
 /// The line's link from exactly one of `port` and `url`, with its keys checked: the path (or
@@ -467,6 +469,7 @@ fn normalize(path: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rtu2mqtt_modbus::link::TcpKind;
 
     /// Validates one-device lines given by their link keys; problems and warnings as text.
     fn link_findings(lines: &[&str]) -> (Vec<String>, Vec<String>) {

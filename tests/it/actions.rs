@@ -17,7 +17,7 @@
 
 use std::time::Duration;
 
-use rtu2mqtt::sparkplug::protobuf::{DataType, MetricValue, Payload};
+use rtu2mqtt::sparkplug::core::protobuf::{DataType, MetricValue, Payload};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_profile::Profile;
 use rtu2mqtt_sim::command_interface::INVALID_PARAMETER;

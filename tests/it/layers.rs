@@ -20,6 +20,7 @@ const LAYERS: &[&str] = &[
     "sparkplug",
     "cli",
     "web",
+    "commissioning",
     "app",
 ];
 

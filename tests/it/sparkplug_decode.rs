@@ -12,8 +12,8 @@ use crate::support::pysparkplug;
 
 use pysparkplug::decode_with_pysparkplug;
 use rtu2mqtt::bus::{LineEvent, Origin};
-use rtu2mqtt::sparkplug::metrics::datatype_for;
-use rtu2mqtt::sparkplug::protobuf::DataType;
+use rtu2mqtt::sparkplug::core::metrics::datatype_for;
+use rtu2mqtt::sparkplug::core::protobuf::DataType;
 use rtu2mqtt::sparkplug::{Action, Session, SessionSettings};
 use rtu2mqtt_profile::{registry, FieldInfo, FieldKind, Profile, Value};
 use serde_json::{json, Value as Json};

@@ -18,8 +18,8 @@ use std::time::Duration;
 
 use pysparkplug::decode_with_pysparkplug;
 use rtu2mqtt::config::{self, Config};
-use rtu2mqtt::sparkplug::metrics::datatype_for;
-use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::core::metrics::datatype_for;
+use rtu2mqtt::sparkplug::core::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt_profile::registry;
 use rtu2mqtt_sim::{self as sim, SeedPlant};
 use serde_json::{json, Value as Json};

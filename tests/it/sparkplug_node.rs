@@ -11,8 +11,8 @@ use std::time::Duration;
 use rtu2mqtt::bridge::driver::connection::{publish_packet_size, PacketLimit};
 use rtu2mqtt::bus::{LineEvent, Origin};
 use rtu2mqtt::config::MqttSettings;
-use rtu2mqtt::sparkplug::bd_seq::BdSeqStore;
-use rtu2mqtt::sparkplug::protobuf::{DataType, Metric, MetricValue, Payload};
+use rtu2mqtt::sparkplug::core::bd_seq::BdSeqStore;
+use rtu2mqtt::sparkplug::core::protobuf::{DataType, Metric, MetricValue, Payload};
 use rtu2mqtt::sparkplug::{
     run, CommandReport, ExternalCommand, NodeLinks, NodeMetricSpec, Session, SessionSettings,
 };

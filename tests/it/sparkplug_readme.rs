@@ -3,7 +3,7 @@
 //! reference's `[sparkplug]` table (docs/configuration.md) names exactly the section's keys.
 
 use rtu2mqtt::config::{keys_of, SparkplugSettings};
-use rtu2mqtt::sparkplug::metrics::datatype_for;
+use rtu2mqtt::sparkplug::core::metrics::datatype_for;
 use rtu2mqtt_profile::registry;
 
 const SPARKPLUG: &str = include_str!("../../docs/sparkplug.md");

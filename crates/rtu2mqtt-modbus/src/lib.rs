@@ -17,7 +17,8 @@
 //!   answer from its port's reads and silences, without I/O or clock).
 //! - [`tcp`]: the TCP masters in [`tcp::masters`] (a serial device server's raw RTU stream, or
 //!   Modbus TCP through [`tcp::mbap`]).
-//! - [`link`]: what a line holds, whichever of the three it is ([`link::Link`]).
+//! - [`link`]: what a line holds, whichever of the three it is ([`link::Link`]), opened by
+//!   [`link::Link::open`]; the one list of the transports, their url schemes and names.
 //! - [`clock`]: the precise wait the line's silences need; [`frame_log`]: the frames of every
 //!   line written to one file from a thread of its own; [`live_frames`]: the same records handed
 //!   to whoever watches them live.

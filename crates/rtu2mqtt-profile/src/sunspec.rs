@@ -3,7 +3,7 @@
 //! The table (`data/sunspec/models.json`) is generated from the SunSpec Alliance's published
 //! model definitions by `scripts/sunspec-models.py`, for the models `rtu2mqtt sunspec` knows.
 //! This module reads it, says how a SunSpec point type becomes a codec, and writes the TOML
-//! text of a profile for a [`Chain`] found on a device. Pure: the bus walk is `app::sunspec`.
+//! text of a profile for a [`Chain`] found on a device. Pure: the bus walk is `commissioning::sunspec`.
 
 use std::fmt::Write as _;
 use std::sync::OnceLock;

@@ -26,125 +26,13 @@ use crate::tcp::mbap::{self, Matched, MbapError};
 use crate::timing::LineTiming;
 use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 
-/// What a TCP line's stream carries.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TcpKind {
-    /// RTU frames with their CRC, as a serial device server in transparent mode passes them.
-    RawRtu,
-    /// Modbus TCP (MBAP header, unit id = the device's address).
-    ModbusTcp,
-}
-
-impl TcpKind {
-    /// The url scheme that names this kind: `tcp` or `modbus-tcp`.
-    pub fn scheme(self) -> &'static str {
-        match self {
-            TcpKind::RawRtu => "tcp",
-            TcpKind::ModbusTcp => "modbus-tcp",
-        }
-    }
-}
-
-/// Why a line's `url` is not usable.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum UrlError {
-    /// No `://` in the url, which it carries.
-    #[error("{0:?} has no scheme: use tcp://host:port or modbus-tcp://host:port")]
-    NoScheme(String),
-    /// A scheme other than `tcp` or `modbus-tcp`.
-    #[error("unknown scheme {scheme:?} in {url:?}: use tcp:// or modbus-tcp://")]
-    UnknownScheme {
-        /// The url as given.
-        url: String,
-        /// Its scheme.
-        scheme: String,
-    },
-    /// Nothing between `://` and the port (or an IPv6 host without its closing `]`).
-    #[error("{0:?} has no host")]
-    NoHost(String),
-    /// No port number after the host.
-    #[error("{0:?} has no port number (such as tcp://10.0.0.5:4001)")]
-    NoPort(String),
-    /// The port is not a number from 1 to 65535.
-    #[error("{url:?}: port {port:?} is not 1–65535")]
-    BadPort {
-        /// The url as given.
-        url: String,
-        /// The text where the port number should be.
-        port: String,
-    },
-    /// A path, user, query or fragment after the host and port.
-    #[error("{0:?}: give only host and port")]
-    ExtraParts(String),
-}
-
-/// A parsed `tcp://host:port` or `modbus-tcp://host:port`.
+/// The server a TCP master connects to.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TcpEndpoint {
-    /// What the stream carries, from the scheme.
-    pub kind: TcpKind,
+pub struct TcpServer {
     /// `host:port` as `TcpStream::connect` takes it (IPv6 hosts in brackets).
     pub address: String,
-}
-
-impl TcpEndpoint {
-    /// Parses a line's `url`. The port number is required: device servers have no common
-    /// default, and a Modbus TCP gateway's 502 is better written out.
-    pub fn parse(url: &str) -> Result<TcpEndpoint, UrlError> {
-        let Some((scheme, rest)) = url.split_once("://") else {
-            return Err(UrlError::NoScheme(url.to_string()));
-        };
-        let kind = match scheme {
-            "tcp" => TcpKind::RawRtu,
-            "modbus-tcp" => TcpKind::ModbusTcp,
-            other => {
-                return Err(UrlError::UnknownScheme {
-                    url: url.to_string(),
-                    scheme: other.to_string(),
-                })
-            }
-        };
-        let rest = rest.strip_suffix('/').unwrap_or(rest);
-        if rest.contains(['/', '@', '?', '#']) {
-            return Err(UrlError::ExtraParts(url.to_string()));
-        }
-        let (host, port) = match rest.strip_prefix('[') {
-            Some(bracketed) => match bracketed.split_once(']') {
-                Some((host, after)) => (host, after.strip_prefix(':')),
-                None => return Err(UrlError::NoHost(url.to_string())),
-            },
-            None => match rest.rsplit_once(':') {
-                Some((host, port)) => (host, Some(port)),
-                None => (rest, None),
-            },
-        };
-        if host.is_empty() {
-            return Err(UrlError::NoHost(url.to_string()));
-        }
-        let port = match port {
-            None | Some("") => return Err(UrlError::NoPort(url.to_string())),
-            Some(text) => match text.parse::<u16>() {
-                Ok(port) if port > 0 => port,
-                _ => {
-                    return Err(UrlError::BadPort {
-                        url: url.to_string(),
-                        port: text.to_string(),
-                    })
-                }
-            },
-        };
-        let address = if host.contains(':') {
-            format!("[{host}]:{port}")
-        } else {
-            format!("{host}:{port}")
-        };
-        Ok(TcpEndpoint { kind, address })
-    }
-
-    /// The url again, in its normal form.
-    pub fn url(&self) -> String {
-        format!("{}://{}", self.kind.scheme(), self.address)
-    }
+    /// The url that named it, for logs and the frame log.
+    pub url: String,
 }
 
 /// Settings shared by both kinds.
@@ -172,7 +60,7 @@ impl Default for TcpOptions {
 /// One TCP connection to the server, reopened on demand, with the link's counters, frame
 /// recording and late-answer guard.
 pub(crate) struct Connection {
-    endpoint: TcpEndpoint,
+    server: TcpServer,
     options: TcpOptions,
     stream: Option<TcpStream>,
     /// Bytes read and not yet framed.
@@ -194,10 +82,10 @@ impl Connection {
         self.core.label()
     }
 
-    async fn open(endpoint: TcpEndpoint, options: TcpOptions) -> std::io::Result<Connection> {
-        let core = LinkCore::new(endpoint.url());
+    async fn open(server: TcpServer, options: TcpOptions) -> std::io::Result<Connection> {
+        let core = LinkCore::new(server.url.clone());
         let mut connection = Connection {
-            endpoint,
+            server,
             options,
             stream: None,
             buffer: Vec::new(),
@@ -208,7 +96,7 @@ impl Connection {
     }
 
     async fn connect(&mut self) -> std::io::Result<()> {
-        let connecting = TcpStream::connect(&self.endpoint.address);
+        let connecting = TcpStream::connect(&self.server.address);
         let stream = match tokio::time::timeout(self.options.connect_timeout, connecting).await {
             Ok(connected) => connected?,
             Err(_) => {
@@ -321,12 +209,12 @@ impl RawTcpMaster {
     /// An error is the connection's failure (refused, no route, no answer within the connect
     /// timeout).
     pub async fn connect(
-        endpoint: TcpEndpoint,
+        server: TcpServer,
         options: TcpOptions,
         timing: LineTiming,
     ) -> std::io::Result<Self> {
         Ok(RawTcpMaster {
-            connection: Connection::open(endpoint, options).await?,
+            connection: Connection::open(server, options).await?,
             timing,
             next_send_at: Instant::now(),
             timer: PreciseTimer::default(),
@@ -359,7 +247,7 @@ impl RawTcpMaster {
             // Until the late answer starts to arrive or the guard ends.
             while self.connection.buffer.is_empty() && self.connection.read_until(until).await? {}
         }
-        self.wait_until_quiet().await;
+        self.sleep_out_spacing().await;
         let pending = self.connection.take_pending()?;
         if !pending.is_empty() {
             self.connection.core.record(Direction::Rx, &pending);
@@ -374,8 +262,14 @@ impl RawTcpMaster {
     }
 
     /// Waits until the link's own t3.5 spacing after the last answer has passed
-    /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]).
-    pub(crate) async fn wait_until_quiet(&mut self) {
+    /// (cancel-safe; see [`crate::serial::master::Master::wait_until_quiet`]). That spacing is
+    /// never longer than the line's silence, so `patience` cannot run out first.
+    pub(crate) async fn wait_until_quiet(&mut self, _patience: Duration) -> Result<(), Error> {
+        self.sleep_out_spacing().await;
+        Ok(())
+    }
+
+    async fn sleep_out_spacing(&mut self) {
         self.timer.sleep_until(self.next_send_at).await;
     }
 
@@ -518,12 +412,12 @@ impl ModbusTcpMaster {
     /// An error is the connection's failure (refused, no route, no answer within the connect
     /// timeout).
     pub async fn connect(
-        endpoint: TcpEndpoint,
+        server: TcpServer,
         options: TcpOptions,
         timing: LineTiming,
     ) -> std::io::Result<Self> {
         Ok(ModbusTcpMaster {
-            connection: Connection::open(endpoint, options).await?,
+            connection: Connection::open(server, options).await?,
             // Not 0: some gateways treat id 0 specially.
             next_transaction: 1,
             timing,
@@ -541,6 +435,11 @@ impl ModbusTcpMaster {
         let transaction = self.next_transaction;
         self.next_transaction = self.next_transaction.wrapping_add(1).max(1);
         transaction
+    }
+
+    /// Ready at once: a gateway keeps its own line's timing.
+    pub(crate) async fn wait_until_quiet(&mut self, _patience: Duration) -> Result<(), Error> {
+        Ok(())
     }
 
     /// Sends `request` to unit 0 (broadcast), calls `sent` and waits the broadcast
@@ -720,11 +619,11 @@ mod tests {
             Duration::from_millis(40),
         )
         .await;
-        let endpoint = TcpEndpoint {
-            kind: TcpKind::ModbusTcp,
+        let server = TcpServer {
+            url: format!("modbus-tcp://{address}"),
             address,
         };
-        let mut master = ModbusTcpMaster::connect(endpoint, TcpOptions::default(), timing)
+        let mut master = ModbusTcpMaster::connect(server, TcpOptions::default(), timing)
             .await
             .unwrap();
         let one = timing.frame_time(read.frame_len())
@@ -747,52 +646,5 @@ mod tests {
             master.connection.core.counters().wire_time - before,
             timing.frame_time(read.frame_len()) + timing.t3_5
         );
-    }
-
-    #[test]
-    fn urls_parse_with_their_kind_and_port() {
-        assert_eq!(
-            TcpEndpoint::parse("tcp://10.0.0.5:4001"),
-            Ok(TcpEndpoint {
-                kind: TcpKind::RawRtu,
-                address: "10.0.0.5:4001".into()
-            })
-        );
-        assert_eq!(
-            TcpEndpoint::parse("modbus-tcp://gw.local:502/").map(|e| e.url()),
-            Ok("modbus-tcp://gw.local:502".into())
-        );
-        assert_eq!(
-            TcpEndpoint::parse("tcp://[fe80::1]:4001").map(|e| e.address),
-            Ok("[fe80::1]:4001".into())
-        );
-        assert!(matches!(
-            TcpEndpoint::parse("udp://10.0.0.5:4001"),
-            Err(UrlError::UnknownScheme { .. })
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("tcp://10.0.0.5"),
-            Err(UrlError::NoPort(_))
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("tcp://10.0.0.5:"),
-            Err(UrlError::NoPort(_))
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("tcp://10.0.0.5:70000"),
-            Err(UrlError::BadPort { .. })
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("10.0.0.5:4001"),
-            Err(UrlError::NoScheme(_))
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("tcp://:4001"),
-            Err(UrlError::NoHost(_))
-        ));
-        assert!(matches!(
-            TcpEndpoint::parse("tcp://user@host:4001"),
-            Err(UrlError::ExtraParts(_))
-        ));
     }
 }

@@ -1,26 +1,17 @@
-//! `rtu2mqtt read`: one raw read on a serial port or over TCP (`--url`), shown as hex and decoded every way a profile
-//! could (u16, i16, u32/i32/f32 in both word orders, packed BCD, characters, bits), to help
-//! write a profile. Also the port opening both commissioning commands share ([`Target`]): it
-//! refuses a port another rtu2mqtt process holds (a running gateway) and names the holder, or
-//! connects to a serial device server or a Modbus TCP gateway.
+//! `rtu2mqtt read`: one raw read on a serial port or over TCP (`--url`), shown as hex and
+//! decoded every way a profile could (u16, i16, u32/i32/f32 in both word orders, packed BCD,
+//! characters, bits), to help write a profile.
 //!
 //! Read functions only: this module never builds a write request.
 
 use std::fmt::Write as _;
-use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::{bail, Context as _};
 
+use super::target::Target;
 use crate::cli::{parse_parity, ReadArgs};
 use rtu2mqtt_modbus::codec::{encode_answer, encode_request, hex};
-use rtu2mqtt_modbus::link::Link;
-use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
-use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings, TransportError};
-use rtu2mqtt_modbus::tcp::masters::{
-    ModbusTcpMaster, RawTcpMaster, TcpEndpoint, TcpKind, TcpOptions,
-};
-use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_modbus::{Request, Response, SlaveId, Transact};
 use rtu2mqtt_profile::bcd;
 
@@ -33,156 +24,6 @@ pub fn read_request(function: u8, start: u16, quantity: u16) -> anyhow::Result<R
         4 => Request::ReadInputRegisters { start, quantity },
         other => bail!("function {other}: only the read functions 1, 2, 3 and 4 are allowed"),
     })
-}
-
-/// A gateway (or another rtu2mqtt command on this very port) holding `path` open, as
-/// `pid N (command line)`. Exclusive access (TIOCEXCL) does not stop root, so the holder is
-/// looked for in /proc as well: an rtu2mqtt process with the port open that is a gateway
-/// (`rtu2mqtt run`, the demo `rtu2mqtt-demo`) or names the port on its command line
-/// (`rtu2mqtt-demo simulate`). (Other rtu2mqtt processes may hold it only by inheritance.)
-fn rtu2mqtt_holder(path: &Path) -> Option<String> {
-    let target = std::fs::canonicalize(path).ok()?;
-    let own = std::process::id().to_string();
-    for entry in std::fs::read_dir("/proc").ok()?.flatten() {
-        let pid = entry.file_name().to_string_lossy().into_owned();
-        if pid == own || !pid.bytes().all(|b| b.is_ascii_digit()) {
-            continue;
-        }
-        let comm = std::fs::read_to_string(entry.path().join("comm")).unwrap_or_default();
-        let demo = match comm.trim() {
-            "rtu2mqtt" => false,
-            "rtu2mqtt-demo" => true,
-            _ => continue,
-        };
-        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-        let args: Vec<String> = cmdline
-            .split(|&b| b == 0)
-            .map(|arg| String::from_utf8_lossy(arg).into_owned())
-            .collect();
-        let concerned = (demo && !args.iter().any(|arg| arg == "simulate"))
-            || args.iter().skip(1).any(|arg| {
-                arg == "run" || std::fs::canonicalize(arg).is_ok_and(|named| named == target)
-            });
-        if !concerned {
-            continue;
-        }
-        let Ok(fds) = std::fs::read_dir(entry.path().join("fd")) else {
-            continue;
-        };
-        if fds
-            .flatten()
-            .any(|fd| std::fs::read_link(fd.path()).is_ok_and(|link| link == target))
-        {
-            return Some(format!("pid {pid} ({})", args.join(" ").trim()));
-        }
-    }
-    None
-}
-
-/// Opens `path` for commissioning, refusing a port a running gateway holds.
-pub fn open_port(path: &Path, baud: u32, parity: Parity) -> anyhow::Result<Port> {
-    if let Some(holder) = rtu2mqtt_holder(path) {
-        bail!(
-            "{} is in use by rtu2mqtt {holder}; stop the gateway first (systemctl stop rtu2mqtt)",
-            path.display()
-        );
-    }
-    let settings = SerialSettings {
-        path: path.to_string_lossy().into_owned(),
-        baud,
-        format: char_format(parity),
-        rs485: None,
-    };
-    match Port::open(&settings) {
-        Ok(port) => Ok(port),
-        Err(TransportError::Open { path, source }) if is_busy(&source) => bail!(
-            "{path} is busy: another program holds it with exclusive access (a running rtu2mqtt \
-             gateway, ModemManager or a terminal program); stop it first"
-        ),
-        Err(error) => Err(error).context("opening the port"),
-    }
-}
-
-/// EBUSY, whichever way the serial library reports it.
-fn is_busy(error: &std::io::Error) -> bool {
-    error.raw_os_error() == Some(libc::EBUSY)
-        || error.to_string().to_ascii_lowercase().contains("busy")
-}
-
-pub fn char_format(parity: Parity) -> CharFormat {
-    CharFormat {
-        data_bits: 8,
-        parity,
-        stop_bits: 1,
-    }
-}
-
-/// A master on `port` at `baud`/`parity` with default options.
-pub fn master_on(port: Port, baud: u32, parity: Parity) -> Master {
-    Master::new(
-        port,
-        LineTiming::new(baud, char_format(parity)),
-        MasterOptions::default(),
-    )
-}
-
-/// Where a commissioning command talks: `--port` or `--url`.
-#[derive(Debug, Clone, Copy)]
-pub enum Target<'a> {
-    Port(&'a Path),
-    Url(&'a str),
-}
-
-impl<'a> Target<'a> {
-    /// The one of `port` and `url` given (the command line requires exactly one).
-    pub fn of(port: Option<&'a Path>, url: Option<&'a str>) -> anyhow::Result<Self> {
-        match (port, url) {
-            (Some(port), None) => Ok(Target::Port(port)),
-            (None, Some(url)) => Ok(Target::Url(url)),
-            _ => bail!("give either --port or --url"),
-        }
-    }
-
-    /// A Modbus TCP gateway: baud and parity are its own, not ours to try.
-    pub fn is_modbus_tcp(&self) -> anyhow::Result<bool> {
-        Ok(match self {
-            Target::Port(_) => false,
-            Target::Url(url) => TcpEndpoint::parse(url)?.kind == TcpKind::ModbusTcp,
-        })
-    }
-
-    /// Opens the port (refusing one a running gateway holds) or connects to the server, at
-    /// `baud`/`parity` (the server's serial side on `tcp://`; unused on `modbus-tcp://`).
-    pub async fn open(&self, baud: u32, parity: Parity) -> anyhow::Result<Link> {
-        match self {
-            Target::Port(path) => Ok(Link::Serial(master_on(
-                open_port(path, baud, parity)?,
-                baud,
-                parity,
-            ))),
-            Target::Url(url) => {
-                let endpoint = TcpEndpoint::parse(url)?;
-                let options = TcpOptions::default();
-                let connected = match endpoint.kind {
-                    TcpKind::RawRtu => RawTcpMaster::connect(
-                        endpoint,
-                        options,
-                        LineTiming::new(baud, char_format(parity)),
-                    )
-                    .await
-                    .map(Link::RawTcp),
-                    TcpKind::ModbusTcp => ModbusTcpMaster::connect(
-                        endpoint,
-                        options,
-                        LineTiming::new(baud, char_format(parity)),
-                    )
-                    .await
-                    .map(Link::ModbusTcp),
-                };
-                connected.with_context(|| format!("connecting to {url}"))
-            }
-        }
-    }
 }
 
 pub fn read(args: &ReadArgs) -> anyhow::Result<ExitCode> {

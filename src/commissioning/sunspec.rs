@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context as _};
 
-use super::read::Target;
+use super::target::Target;
 use crate::cli::{parse_parity, SunspecArgs};
 use rtu2mqtt_modbus::link::Link;
 use rtu2mqtt_modbus::timing::Parity;

@@ -43,7 +43,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _};
 
-use super::read::{read_request, Target};
+use super::read::read_request;
+use super::target::Target;
 use crate::cli::{parse_parity, ScanArgs};
 use crate::config::suggestion::{Candidates, LinkPlace};
 use rtu2mqtt_modbus::link::Link;
