@@ -15,7 +15,7 @@ use rtu2mqtt_sim::{
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
-use crate::support::hex;
+use crate::hex;
 
 /// How long an expected answer may take on a busy machine.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);

@@ -9,7 +9,7 @@ use rtu2mqtt_profile::{
     BlockImage, CommandPlan, DeviceState, FieldError, Profile, Rejection, Value, Verification,
 };
 
-use crate::support::command::refused;
+use crate::support::{refused, PROFILE_DIR};
 
 fn dust() -> Profile {
     built_in("ruiwan-dust-collector").unwrap()
@@ -859,10 +859,9 @@ fn shower_decodes_every_field() {
 // --- the fourth profile, a file only --------------------------------------------------------
 
 fn th_sensor() -> Profile {
-    rtu2mqtt_profile::registry::load_file(std::path::Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/config/profiles/generic-th-sensor.toml"
-    )))
+    rtu2mqtt_profile::registry::load_file(
+        &std::path::Path::new(PROFILE_DIR).join("generic-th-sensor.toml"),
+    )
     .unwrap()
 }
 
@@ -1305,7 +1304,7 @@ mod bytes {
             written[1]
         );
         for frame in &written {
-            let bytes = crate::support::hex::decode(frame);
+            let bytes = crate::support::frame(frame);
             let crc = rtu2mqtt_modbus::crc::crc16(&bytes[..6]);
             assert_eq!(&bytes[6..], &crc.to_le_bytes());
         }

@@ -6,7 +6,7 @@ use std::path::Path;
 use rtu2mqtt_profile::registry::{built_in, built_in_names, describe, load, load_file, LoadError};
 use rtu2mqtt_profile::{Profile, ProfileErrors};
 
-const PROFILE_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/profiles");
+use crate::support::{CONFIG_DIR, PROFILE_DIR};
 
 #[test]
 fn every_profile_file_loads() {
@@ -143,7 +143,7 @@ fn loading_by_reference() {
     assert_eq!(load("wuzhou-valve", None).unwrap().name(), "wuzhou-valve");
     let by_relative = load(
         "profiles/generic-th-sensor.toml",
-        Some(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config"))),
+        Some(Path::new(CONFIG_DIR)),
     )
     .unwrap();
     assert_eq!(by_relative.name(), "generic-th-sensor");

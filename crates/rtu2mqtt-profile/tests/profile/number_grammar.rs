@@ -8,7 +8,7 @@ use std::path::Path;
 use rtu2mqtt_profile::registry::{built_in, load_file};
 use rtu2mqtt_profile::{DeviceState, Profile, Rejection, Value};
 
-use crate::support::command::refused;
+use crate::support::{refused, PROFILE_DIR};
 
 fn dust() -> Profile {
     built_in("ruiwan-dust-collector").expect("built-in dust collector")
@@ -18,7 +18,7 @@ fn valve() -> Profile {
 }
 /// A profile with a signed one-decimal setting (`temperature_offset`, −10.0–10.0 °C).
 fn sensor() -> Profile {
-    load_file(Path::new("config/profiles/generic-th-sensor.toml")).expect("the sensor profile")
+    load_file(&Path::new(PROFILE_DIR).join("generic-th-sensor.toml")).expect("the sensor profile")
 }
 
 fn accepted(profile: &Profile, field: &str, text: &str) -> Value {

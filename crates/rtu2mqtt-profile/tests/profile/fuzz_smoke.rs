@@ -16,6 +16,8 @@ use rtu2mqtt_modbus::crc::append_crc;
 use rtu2mqtt_modbus::{Request, Response};
 use rtu2mqtt_profile::{DeviceState, Profile, Rejection, Verification};
 
+use crate::support::PROFILE_DIR;
+
 const PROFILE_FILES: [&str; 4] = [
     "ruiwan-dust-collector",
     "wuzhou-valve",
@@ -24,7 +26,7 @@ const PROFILE_FILES: [&str; 4] = [
 ];
 
 fn profile_text(name: &str) -> String {
-    let path = format!("{}/config/profiles/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    let path = format!("{PROFILE_DIR}/{name}.toml");
     std::fs::read_to_string(path).unwrap()
 }
 
