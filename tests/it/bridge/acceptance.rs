@@ -138,7 +138,7 @@ fn check(config_text: &str) -> (bool, String) {
     (output.status.success(), text)
 }
 
-const SEED_CONFIG: &str = include_str!("../../config/rtu2mqtt.toml");
+const SEED_CONFIG: &str = include_str!("../../../config/rtu2mqtt.toml");
 
 #[test]
 fn check_lists_an_unknown_key_and_a_wrong_type_together() {

@@ -82,7 +82,7 @@ fn run_reports_readiness_liveness_and_stop() {
     let mosquitto = support::Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
 
-    let example = include_str!("../../config/rtu2mqtt.toml");
+    let example = include_str!("../../../config/rtu2mqtt.toml");
     let config = example
         .replace("/dev/ttyUSB0", &plant.line_a.path().to_string_lossy())
         .replace("/dev/ttyUSB1", &plant.line_b.path().to_string_lossy())

@@ -269,7 +269,7 @@ fn names_the_contract_uses_as_topic_levels_are_refused() {
             "{stderr}"
         );
     }
-    let valve = include_str!("../../config/profiles/wuzhou-valve.toml");
+    let valve = include_str!("../../../config/profiles/wuzhou-valve.toml");
     for field in ["availability", "set", "result"] {
         let profile = valve.replace("name = \"serial_number\"", &format!("name = \"{field}\""));
         assert_ne!(profile, valve, "the valve profile changed shape");
@@ -287,7 +287,7 @@ fn names_the_contract_uses_as_topic_levels_are_refused() {
 #[test]
 fn names_are_bounded_and_never_echoed_whole() {
     let long = "x".repeat(70_000);
-    let valve = include_str!("../../config/profiles/wuzhou-valve.toml");
+    let valve = include_str!("../../../config/profiles/wuzhou-valve.toml");
     let profile = valve.replace("name = \"serial_number\"", &format!("name = \"{long}\""));
     let text = one_valve("", "").replace("\"wuzhou-valve\"", "\"valve.toml\"");
     let (ok, _, stderr) = check_text(&text, &[("valve.toml", &profile)]);
@@ -528,7 +528,7 @@ address = 1
 fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
     let (ok, stdout, stderr) = check_text(
         MIXED_CONFIG,
-        &[("cadence-meter.toml", crate::cadence::PROFILE)],
+        &[("cadence-meter.toml", crate::lines::cadence::PROFILE)],
     );
     assert!(ok, "check failed: {stderr}");
     for expected in [
@@ -550,7 +550,7 @@ fn check_shows_each_blocks_cadence_and_the_line_load_of_every_period() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(
         dir.path().join("cadence-meter.toml"),
-        crate::cadence::PROFILE,
+        crate::lines::cadence::PROFILE,
     )
     .unwrap();
     let text = MIXED_CONFIG.replace("{dir}", &dir.path().to_string_lossy());
@@ -655,7 +655,7 @@ fn a_device_polled_faster_than_its_exponents_are_read_is_refused_with_its_place(
 /// and warns; said in Modicon numbers, the same text reads bus address 3203 silently.
 #[test]
 fn check_warns_about_a_start_that_looks_like_a_modicon_number_and_reads_the_convention() {
-    let copied = crate::cadence::PROFILE.replacen(
+    let copied = crate::lines::cadence::PROFILE.replacen(
         "function = 4\nstart = 0x0000",
         "function = 3\nstart = 43204",
         1,
@@ -731,17 +731,17 @@ fn the_packaged_configuration_is_valid_and_polls_nothing() {
         config.history.as_ref().map(|history| history.path.clone()),
         Some(PathBuf::from("/var/lib/rtu2mqtt/history"))
     );
-    assert!(include_str!("../../systemd/rtu2mqtt.service").contains("\nStateDirectory=rtu2mqtt\n"));
+    assert!(include_str!("../../../systemd/rtu2mqtt.service").contains("\nStateDirectory=rtu2mqtt\n"));
 }
 
 #[test]
 fn the_packaged_configurations_examples_are_valid_once_uncommented() {
     // Everything after the first commented `[[lines]]` is the example: settings commented as
     // `# key = value`, with their own comments trailing.
-    let start = include_str!("../../packaging/config.toml")
+    let start = include_str!("../../../packaging/config.toml")
         .find("\n# [[lines]]\n")
         .expect("an example line");
-    let (head, examples) = include_str!("../../packaging/config.toml").split_at(start + 1);
+    let (head, examples) = include_str!("../../../packaging/config.toml").split_at(start + 1);
     let uncommented: Vec<&str> = examples
         .lines()
         .map(|line| {

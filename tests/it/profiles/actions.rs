@@ -24,7 +24,7 @@ use rtu2mqtt_sim::command_interface::INVALID_PARAMETER;
 use rtu2mqtt_sim::{lock, share, CommandInterface, GenericDevice, ServeOptions, VirtualLine};
 use serde_json::{json, Value as Json};
 
-use crate::sparkplug_node::command;
+use crate::sparkplug::sparkplug_node::command;
 use crate::support::pysparkplug::decode_with_pysparkplug;
 use crate::support::{fast_config, hex, Gateway, Mosquitto, TestClient};
 

@@ -27,7 +27,7 @@ use rtu2mqtt_sim::{
 };
 use tokio_util::sync::CancellationToken;
 
-const AIR_SHOWER_TOML: &str = include_str!("../../config/profiles/lixian-air-shower.toml");
+const AIR_SHOWER_TOML: &str = include_str!("../../../config/profiles/lixian-air-shower.toml");
 
 fn built_in(name: &str) -> Arc<Profile> {
     Arc::new(registry::built_in(name).unwrap())

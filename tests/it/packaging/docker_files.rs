@@ -6,10 +6,10 @@
 
 use std::path::Path;
 
-const DOCKERFILE: &str = include_str!("../../Dockerfile");
-const EDGE_BUILD: &str = include_str!("../../scripts/edge-build");
-const DOCKERIGNORE: &str = include_str!("../../.dockerignore");
-const COMPOSE: &str = include_str!("../../docker-compose.yml");
+const DOCKERFILE: &str = include_str!("../../../Dockerfile");
+const EDGE_BUILD: &str = include_str!("../../../scripts/edge-build");
+const DOCKERIGNORE: &str = include_str!("../../../.dockerignore");
+const COMPOSE: &str = include_str!("../../../docker-compose.yml");
 
 /// Dockerfile instructions with continuation lines joined.
 fn instructions(dockerfile: &str) -> Vec<String> {
@@ -138,7 +138,7 @@ fn the_state_has_a_home_owned_by_the_daemons_user() {
         history.path.display()
     );
     // So does the example configuration, when its history is switched on.
-    let example = include_str!("../../config/rtu2mqtt.toml");
+    let example = include_str!("../../../config/rtu2mqtt.toml");
     assert!(example.contains(&format!("# path = \"{state}/history\"")));
 }
 

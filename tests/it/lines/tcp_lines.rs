@@ -11,7 +11,7 @@ use crate::support::child;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::commissioning::{cells, identification_rows};
+use crate::cli::commissioning::{cells, identification_rows};
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_sim::{
     self as sim, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,

@@ -6,8 +6,8 @@ use rtu2mqtt::config::{keys_of, SparkplugSettings};
 use rtu2mqtt::sparkplug::metrics::datatype_for;
 use rtu2mqtt_profile::registry;
 
-const SPARKPLUG: &str = include_str!("../../docs/sparkplug.md");
-const CONFIGURATION: &str = include_str!("../../docs/configuration.md");
+const SPARKPLUG: &str = include_str!("../../../docs/sparkplug.md");
+const CONFIGURATION: &str = include_str!("../../../docs/configuration.md");
 const BEGIN: &str = "<!-- BEGIN sparkplug metrics (tests/it/sparkplug_readme.rs) -->\n";
 const END: &str = "<!-- END sparkplug metrics -->";
 /// The seed plant's devices as `config/rtu2mqtt.toml` names them.

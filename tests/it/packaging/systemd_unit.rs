@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::process::Command;
 
-const UNIT: &str = include_str!("../../systemd/rtu2mqtt.service");
+const UNIT: &str = include_str!("../../../systemd/rtu2mqtt.service");
 
 /// `key → every value it is given`, over all sections (comments and blank lines skipped).
 fn settings(unit: &str) -> HashMap<String, Vec<String>> {
@@ -111,7 +111,7 @@ fn unit_provides_the_history_directory() {
     let unit = settings(UNIT);
     assert_eq!(one(&unit, "StateDirectory"), "rtu2mqtt");
     // The path docs/configuration.md gives for [history] lies inside it.
-    let configuration = include_str!("../../docs/configuration.md");
+    let configuration = include_str!("../../../docs/configuration.md");
     assert!(configuration.contains("`/var/lib/rtu2mqtt/history`"));
 }
 
@@ -146,7 +146,7 @@ fn unit_verifies_and_scores_ok_where_systemd_analyze_exists() {
         .and_then(|number| number.parse::<f64>().ok())
         .expect("an exposure level");
     assert!(score <= 2.0, "exposure {score}");
-    let operations = include_str!("../../docs/operations.md");
+    let operations = include_str!("../../../docs/operations.md");
     let claimed = format!("rates it **{score:.1} OK**");
     assert!(
         operations.contains(&claimed),

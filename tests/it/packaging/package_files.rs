@@ -3,10 +3,10 @@
 //! credential file the unit loads. (The packaged configuration is checked with the others in
 //! config_valid.rs; `scripts/package-check` proves the package itself on a fresh Debian.)
 
-const MANIFEST: &str = include_str!("../../Cargo.toml");
-const UNIT: &str = include_str!("../../systemd/rtu2mqtt.service");
-const POSTINST: &str = include_str!("../../packaging/debian/postinst");
-const POSTRM: &str = include_str!("../../packaging/debian/postrm");
+const MANIFEST: &str = include_str!("../../../Cargo.toml");
+const UNIT: &str = include_str!("../../../systemd/rtu2mqtt.service");
+const POSTINST: &str = include_str!("../../../packaging/debian/postinst");
+const POSTRM: &str = include_str!("../../../packaging/debian/postrm");
 
 /// The `[source, destination, mode]` rows of `[package.metadata.deb] assets`.
 fn package_assets() -> Vec<[String; 3]> {

@@ -4,10 +4,10 @@
 
 use std::path::{Path, PathBuf};
 
-const README: &str = include_str!("../../README.md");
-const ARCHITECTURE: &str = include_str!("../../ARCHITECTURE.md");
-const CI: &str = include_str!("../../.ci/run");
-const CONFIGURATION: &str = include_str!("../../docs/configuration.md");
+const README: &str = include_str!("../../../README.md");
+const ARCHITECTURE: &str = include_str!("../../../ARCHITECTURE.md");
+const CI: &str = include_str!("../../../.ci/run");
+const CONFIGURATION: &str = include_str!("../../../docs/configuration.md");
 /// The README stays a first read; everything else lives in docs/.
 const README_MAX_LINES: usize = 400;
 
@@ -274,7 +274,7 @@ fn architecture_links_each_crates_module_map_and_each_map_names_every_module() {
 #[test]
 fn quick_start_pokes_the_plant_with_the_demos_own_example_commands() {
     let config = rtu2mqtt::config::from_str(
-        include_str!("../../config/rtu2mqtt.toml"),
+        include_str!("../../../config/rtu2mqtt.toml"),
         std::path::Path::new("config"),
     )
     .unwrap_or_else(|problems| panic!("the example configuration: {problems:?}"));
