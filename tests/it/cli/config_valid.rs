@@ -731,7 +731,9 @@ fn the_packaged_configuration_is_valid_and_polls_nothing() {
         config.history.as_ref().map(|history| history.path.clone()),
         Some(PathBuf::from("/var/lib/rtu2mqtt/history"))
     );
-    assert!(include_str!("../../../systemd/rtu2mqtt.service").contains("\nStateDirectory=rtu2mqtt\n"));
+    assert!(
+        include_str!("../../../systemd/rtu2mqtt.service").contains("\nStateDirectory=rtu2mqtt\n")
+    );
 }
 
 #[test]

@@ -291,11 +291,15 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
             |t| t.starts_with("rejected"),
         )
         .await;
-    let expected = support::command::refused(
-        &rtu2mqtt_profile::registry::built_in("ruiwan-dust-collector").unwrap(),
+    // The same words as the profile's own refusal.
+    let dust = rtu2mqtt_profile::registry::built_in("ruiwan-dust-collector").unwrap();
+    let Err(rtu2mqtt_profile::Rejection(expected)) = dust.plan_command(
         "pulse_interval",
         "250",
-    );
+        &rtu2mqtt_profile::DeviceState::new(),
+    ) else {
+        panic!("pulse_interval=250 accepted");
+    };
     assert!(refused.contains(&expected), "{refused} / {expected}");
     tokio::time::sleep(Duration::from_millis(400)).await;
     assert_eq!(

@@ -314,22 +314,6 @@ async fn a_served_clients_write_into_a_once_block_has_it_read_again() {
 
 /// Runs `ops` in one pymodbus client against the served line on `port`; its output.
 async fn modbus_client(port: u16, ops: &str) -> String {
-    let mut command = std::process::Command::new("python3");
-    command
-        .arg(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/tests/interop/modbus_share_client.py"
-        ))
-        .arg("127.0.0.1")
-        .arg(port.to_string())
-        .arg(ops);
-    let output = support::child::output(command, Duration::from_secs(60))
-        .await
-        .expect("pymodbus client ran");
-    assert!(
-        output.status.success(),
-        "pymodbus client failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8_lossy(&output.stdout).into_owned()
+    let args = ["127.0.0.1", &port.to_string(), ops];
+    support::pymodbus::run_client("modbus_share_client.py", &args, Duration::from_secs(60)).await
 }

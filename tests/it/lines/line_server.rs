@@ -5,7 +5,6 @@
 
 use crate::support;
 
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value as Json};
@@ -17,10 +16,7 @@ use support::{free_port, hex, Mosquitto, PlantBench, PlantConfig};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(15);
-const CLIENT: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/tests/interop/modbus_share_client.py"
-);
+const CLIENT: &str = "modbus_share_client.py";
 const DUST: u8 = 1;
 const SHOWER: u8 = 0x81;
 
@@ -112,8 +108,8 @@ impl Harness {
             .await
     }
 
-    /// Runs the pymodbus `script` against the server (`HOST PORT ARGS… OPS`); one JSON value
-    /// per line it prints.
+    /// Runs the pymodbus `script` of tests/interop against the server (`HOST PORT ARGS… OPS`);
+    /// one JSON value per line it prints.
     async fn python<T: serde::de::DeserializeOwned>(
         &self,
         script: &str,
@@ -121,23 +117,11 @@ impl Harness {
         ops: &Json,
         limit: Duration,
     ) -> Vec<T> {
-        let mut command = Command::new("python3");
-        command
-            .arg(script)
-            .arg("127.0.0.1")
-            .arg(self.port.to_string())
-            .args(args)
-            .arg(ops.to_string());
-        let output = support::child::output(command, limit)
+        let mut all = vec!["127.0.0.1".to_string(), self.port.to_string()];
+        all.extend_from_slice(args);
+        all.push(ops.to_string());
+        support::pymodbus::run_client(script, &all, limit)
             .await
-            .expect("pymodbus client ran");
-        let stdout = String::from_utf8_lossy(&output.stdout);
-        assert!(
-            output.status.success(),
-            "pymodbus client {script} failed: {}\n{stdout}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        stdout
             .lines()
             .map(|line| serde_json::from_str(line).expect("one JSON value per line"))
             .collect()
@@ -1111,10 +1095,7 @@ async fn a_broadcast_over_rtu_over_tcp_goes_out_once_and_gets_no_answer() {
     h.base.stop().await;
 }
 
-const PIPELINE_CLIENT: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/tests/interop/modbus_pipeline_client.py"
-);
+const PIPELINE_CLIENT: &str = "modbus_pipeline_client.py";
 
 impl Harness {
     /// Runs `rounds` rounds of `ops` pipelined by pymodbus's framer on one connection,

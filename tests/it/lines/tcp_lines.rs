@@ -8,7 +8,7 @@
 use crate::support;
 use crate::support::child;
 
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
 use crate::cli::commissioning::{cells, identification_rows};
@@ -17,7 +17,7 @@ use rtu2mqtt_sim::{
     self as sim, share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpFaults,
     TcpSimulator, Valve, VirtualLine,
 };
-use support::{free_port, Gateway, Mosquitto, TestClient};
+use support::{Gateway, Mosquitto, TestClient};
 
 /// Generous bounds for a busy 2-core machine: they only fail when something is broken.
 const ANSWER: Duration = Duration::from_secs(20);
@@ -474,28 +474,7 @@ async fn a_restarted_server_is_reconnected_with_back_off() {
 /// The pymodbus Modbus TCP server of `tests/interop/modbus_tcp_server.py` on a free loopback
 /// port (killed when dropped), once it listens.
 async fn pymodbus_server() -> (child::KillOnDrop, u16) {
-    use std::io::BufRead;
-    let port = free_port();
-    let script = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/modbus_tcp_server.py"
-    );
-    let mut command = Command::new("python3");
-    command
-        .args([script, "127.0.0.1", &port.to_string()])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null());
-    let mut server = child::KillOnDrop::spawn(command).expect("python3 runs");
-    let stdout = server.0.stdout.take().unwrap();
-    let ready = tokio::task::spawn_blocking(move || {
-        let mut line = String::new();
-        std::io::BufReader::new(stdout).read_line(&mut line).ok();
-        line
-    })
-    .await
-    .unwrap();
-    assert_eq!(ready.trim(), "listening", "pymodbus server did not start");
-    (server, port)
+    support::pymodbus::server("modbus_tcp_server.py").await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -470,17 +470,9 @@ print(json.dumps(out))
 
 #[test]
 fn the_codecs_read_what_pymodbus_writes_and_write_what_it_would() {
-    let output = std::process::Command::new("python3")
-        .args(["-c", PYMODBUS_CASES])
-        .output()
-        .expect("python3 runs");
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let output = crate::support::pymodbus::run_snippet(PYMODBUS_CASES);
     let cases: Vec<(String, String, String, Vec<u16>)> =
-        serde_json::from_slice(&output.stdout).expect("the cases as JSON");
+        serde_json::from_slice(&output).expect("the cases as JSON");
     assert_eq!(cases.len(), 17);
     for (codec, order, value, registers) in cases {
         let word_order = if order == "big" {

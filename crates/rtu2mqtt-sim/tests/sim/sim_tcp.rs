@@ -9,7 +9,7 @@ use rtu2mqtt_modbus::tcp::mbap;
 use rtu2mqtt_modbus::timing::Parity;
 use rtu2mqtt_modbus::{Request, Response};
 use rtu2mqtt_sim::{
-    share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator, Valve,
+    share, AirShower, DustCollector, Occurrence, Protocol, ServeOptions, TcpSimulator,
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
