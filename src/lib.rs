@@ -6,7 +6,7 @@
 //! crates above it that it does not depend on. `ARCHITECTURE.md` draws how the crates fit.
 //!
 //! The modules are layered from the wire upwards; each only knows the ones listed before it
-//! (`tests/it/layers.rs` fails on any arrow pointing up):
+//! (`tests/it/repository/layers.rs` fails on any arrow pointing up):
 //!
 //! - [`bus`]: one task per line. `line` (the loop; `line::command_slots` its commands,
 //!   refreshes and settle re-reads), `port` (opening the link, one reopen back-off), `device`,

@@ -7,7 +7,7 @@
 //! order, that no simulated device refused a write, and that anonymous memory, PSS and open
 //! descriptors stayed flat over the second half of the run ([`sampler::Trend`]).
 //!
-//! `scripts/soak DURATION` runs it from the `soak` binary; `tests/it/soak.rs` runs two minutes.
+//! `scripts/soak DURATION` runs it from the `soak` binary; `tests/it/reliability/soak.rs` runs two minutes.
 
 pub mod observer;
 pub mod rig;

@@ -8,7 +8,7 @@ use rtu2mqtt_profile::registry;
 
 const SPARKPLUG: &str = include_str!("../../../docs/sparkplug.md");
 const CONFIGURATION: &str = include_str!("../../../docs/configuration.md");
-const BEGIN: &str = "<!-- BEGIN sparkplug metrics (tests/it/sparkplug_readme.rs) -->\n";
+const BEGIN: &str = "<!-- BEGIN sparkplug metrics (tests/it/sparkplug/sparkplug_readme.rs) -->\n";
 const END: &str = "<!-- END sparkplug metrics -->";
 /// The seed plant's devices as `config/rtu2mqtt.toml` names them.
 const SEED: [(&str, &str); 3] = [

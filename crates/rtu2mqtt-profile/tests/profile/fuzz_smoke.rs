@@ -1,7 +1,8 @@
 //! Fuzz smoke without cargo-fuzz: many proptest cases of hostile input against the places where
 //! bytes and text from outside enter. Checked only for not panicking and for refusals that say
-//! something. Complements `codec_props.rs` (random bytes, which almost never pass the CRC) and
-//! the profile robustness properties (decoding any answer, planning any short command text):
+//! something. Complements the wire crate's `codec_props.rs` (random bytes, which almost never
+//! pass the CRC) and the profile robustness properties (decoding any answer, planning any short
+//! command text):
 //!   - frames with a valid CRC over random contents, so the decoders get past the CRC check;
 //!   - the profile TOML loader on arbitrary text and on mutated real profiles;
 //!   - a planned command's writes and read-back judged on arbitrary device answers;
