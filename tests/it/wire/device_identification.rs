@@ -3,8 +3,6 @@
 //! objects, a stream too long for one answer), this codec decodes each of pymodbus's answers
 //! to the objects pymodbus was given and encodes the same bytes from them.
 
-use std::process::Command;
-
 use rtu2mqtt_modbus::codec::{decode_answer, encode_answer, encode_request, hex, Answer};
 use rtu2mqtt_modbus::{DeviceIdObject, DeviceIdentification, ReadDeviceIdCode, Request, Response};
 
@@ -45,16 +43,8 @@ fn answer(more: Option<u8>, objects: Vec<DeviceIdObject>) -> Response {
 
 #[test]
 fn pymodbus_builds_the_frames_this_codec_reads_and_writes() {
-    let output = Command::new("python3")
-        .args(["-c", PYMODBUS_FRAMES])
-        .output()
-        .expect("python3 runs");
-    assert!(
-        output.status.success(),
-        "pymodbus: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let text = String::from_utf8_lossy(&output.stdout).into_owned();
+    let output = crate::support::pymodbus::run_snippet(PYMODBUS_FRAMES);
+    let text = String::from_utf8_lossy(&output).into_owned();
     let frames: Vec<Vec<u8>> = text.lines().map(bytes).collect();
     assert_eq!(frames.len(), 3, "{text}");
 
