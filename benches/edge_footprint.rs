@@ -172,7 +172,7 @@ async fn one_line(
     )?;
     let mut gateway = start_gateway(&config)?;
     // Client ids of their own per run: the previous run's clients may still be connected.
-    let mut results = timed_subscriber(
+    let (_subscriber, mut results) = timed_subscriber(
         broker.port,
         "plant/block-1-1/setpoint/result",
         &format!("bench-results-{run}"),

@@ -79,7 +79,7 @@ async fn run() -> anyhow::Result<()> {
     let hour_records = (per_second * HOUR.as_secs_f64()).round() as u64;
     let hour_bytes = write_hour(&journal_dir, &outage.records, hour_records)?;
     broker.restart();
-    let mut arrivals = timed_subscriber(
+    let (_subscriber, mut arrivals) = timed_subscriber(
         broker.port,
         "plant/+/history",
         "history-bench-historian",

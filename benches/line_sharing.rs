@@ -32,8 +32,8 @@ use gateway_process::GatewayProcess;
 use rtu2mqtt_modbus::timing::{LineTiming, Parity};
 use rtu2mqtt_sim::VirtualLine;
 use rtu2mqtt_sim::{share, AirShower, DustCollector, Pace, RequestRecord, ServeOptions};
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
-use support::{free_port, Mosquitto};
+use rumqttc::{MqttOptions, QoS};
+use support::{free_port, Mosquitto, Recorder};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::watch;
@@ -211,7 +211,7 @@ async fn cached(broker: &Mosquitto, dir: &Path) -> anyhow::Result<CacheRun> {
     let port = free_port();
     let config = config_file(dir, "share-cache", broker, &line, port, "1s")?;
     let _gateway = start_gateway(&config)?;
-    let stats =
+    let (_stats_client, stats) =
         stats_subscriber(broker.port, "plant/gateway/bench-share-cache/stats/line-a").await?;
     tokio::time::sleep(WARM_UP).await;
     let before = line_counters(&stats);
@@ -291,30 +291,25 @@ async fn read_until(port: u16, end: Instant, pause: Duration) -> anyhow::Result<
     Ok(latencies)
 }
 
-/// The last document published on `topic`.
+/// The last document published on `topic` (while the returned [`Recorder`] is held).
 async fn stats_subscriber(
     port: u16,
     topic: &str,
-) -> anyhow::Result<watch::Receiver<serde_json::Value>> {
+) -> anyhow::Result<(Recorder, watch::Receiver<serde_json::Value>)> {
     let options = MqttOptions::new("bench-share-stats", "127.0.0.1", port);
-    let (client, mut eventloop) = AsyncClient::new(options, 16);
-    client.subscribe(topic, QoS::AtMostOnce).await?;
     let (tx, rx) = watch::channel(serde_json::Value::Null);
-    tokio::spawn(async move {
-        let _client = client;
-        loop {
-            match eventloop.poll().await {
-                Ok(Event::Incoming(Packet::Publish(publish))) => {
-                    if let Ok(doc) = serde_json::from_slice(&publish.payload) {
-                        tx.send_replace(doc);
-                    }
-                }
-                Ok(_) => {}
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+    let recorder = Recorder::start(
+        options,
+        false,
+        &[(topic, QoS::AtMostOnce)],
+        move |_, payload| {
+            if let Ok(doc) = serde_json::from_slice(payload) {
+                tx.send_replace(doc);
             }
-        }
-    });
-    Ok(rx)
+        },
+    )
+    .await?;
+    Ok((recorder, rx))
 }
 
 fn wire_figures(records: &[RequestRecord], wall: Duration) -> Wire {

@@ -250,7 +250,7 @@ async fn take_turn(
         }
     };
     // Client ids of their own per turn: the previous turn's clients may still be connected.
-    let mut results = timed_subscriber(
+    let (_subscriber, mut results) = timed_subscriber(
         broker.port,
         gateway.result_topic(),
         &format!("peer-compare-results-{turn}"),

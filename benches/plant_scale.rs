@@ -43,13 +43,13 @@ mod wire_bench;
 use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
 use gateway_process::{cpu_time_of, GatewayProcess, Memory};
+use rtu2mqtt_testkit::{Mosquitto, Recorder};
 use rtu_plant::RtuPlant;
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use rumqttc::{MqttOptions, QoS};
 use scale_sim::{Lateness, ScalePlant, POINTS};
 
 const POLL_INTERVAL: Duration = Duration::from_secs(1);
@@ -320,7 +320,7 @@ async fn steady_state(
 async fn run(devices: usize, settings: &Settings, outage: Option<Duration>) -> anyhow::Result<Row> {
     println!("\n— {devices} devices —");
     let files = tempfile::tempdir()?;
-    let mut broker = Broker::start(files.path().join("broker"))?;
+    let mut broker = Mosquitto::start_durable();
     let counter = Counter::connect(broker.port, devices).await?;
     let plant = ScalePlant::spawn(devices).await?;
     let config = write_config(files.path(), broker.port, &plant)?;
@@ -364,7 +364,7 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
         100.0 * rtu_plant::slow_share(&profile, per_line)
     );
     let files = tempfile::tempdir()?;
-    let broker = Broker::start(files.path().join("broker"))?;
+    let broker = Mosquitto::start_durable();
     let counter = Counter::connect(broker.port, devices).await?;
     let plant = RtuPlant::spawn(lines, per_line)?;
     let config = write_rtu_config(files.path(), broker.port, &plant, interval)?;
@@ -388,7 +388,7 @@ async fn run_rtu(lines: usize, per_line: u8, settings: &Settings) -> anyhow::Res
 /// Stops the broker for `outage`, starts it again on the same port, and counts what the
 /// gateway measured against what reached the history stream.
 async fn broker_outage(
-    broker: &mut Broker,
+    broker: &mut Mosquitto,
     gateway: &mut GatewayProcess,
     plant: &ScalePlant,
     counter: &Counter,
@@ -407,7 +407,7 @@ async fn broker_outage(
     let up = Instant::now();
     let up_wall = SystemTime::now();
     let outage_cpu = (gateway.cpu_time()? - cpu_before).as_secs_f64() / (up - down).as_secs_f64();
-    broker.launch()?;
+    broker.restart();
     let measured_in_outage = plant
         .log
         .changes_served
@@ -549,85 +549,6 @@ fn device_name(index: usize) -> String {
     format!("d{index:04}")
 }
 
-/// mosquitto on a free loopback port, with persistence so that a subscriber's session and
-/// its queued messages outlive a restart; its own log of errors only.
-struct Broker {
-    port: u16,
-    dir: PathBuf,
-    child: Option<Child>,
-}
-
-impl Broker {
-    fn start(dir: PathBuf) -> anyhow::Result<Broker> {
-        std::fs::create_dir_all(&dir)?;
-        // mosquitto drops root privileges: let it write its database and log there.
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777))?;
-        let port = std::net::TcpListener::bind("127.0.0.1:0")?
-            .local_addr()?
-            .port();
-        let mut broker = Broker {
-            port,
-            dir,
-            child: None,
-        };
-        broker.launch()?;
-        Ok(broker)
-    }
-
-    fn launch(&mut self) -> anyhow::Result<()> {
-        let config = self.dir.join("mosquitto.conf");
-        std::fs::write(
-            &config,
-            format!(
-                "persistence true\npersistence_location {}/\nautosave_interval 0\n\
-                 log_dest file {}\nlog_type error\nlog_type warning\n\
-                 max_queued_messages 10000000\nlistener {} 127.0.0.1\nallow_anonymous true\n",
-                self.dir.display(),
-                self.dir.join("mosquitto.log").display(),
-                self.port
-            ),
-        )?;
-        let child = Command::new("/usr/sbin/mosquitto")
-            .arg("-c")
-            .arg(&config)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()?;
-        self.child = Some(child);
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
-            anyhow::ensure!(Instant::now() < deadline, "mosquitto did not start");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Ok(())
-    }
-
-    /// SIGTERM (mosquitto saves its sessions), then waits for the process to end.
-    fn stop(&mut self) {
-        if let Some(mut child) = self.child.take() {
-            let pid = nix::unistd::Pid::from_raw(child.id() as i32);
-            let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-            let deadline = Instant::now() + Duration::from_secs(20);
-            while Instant::now() < deadline {
-                if let Ok(Some(_)) = child.try_wait() {
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        self.stop();
-    }
-}
-
 /// What a subscriber on `plant/#` and `homeassistant/#` (persistent session, QoS 1) received.
 #[derive(Default)]
 struct Received {
@@ -640,7 +561,7 @@ struct Received {
 
 struct Counter {
     received: Arc<Mutex<Received>>,
-    _client: AsyncClient,
+    _recorder: Recorder,
 }
 
 impl Counter {
@@ -650,44 +571,24 @@ impl Counter {
         options.set_clean_session(false);
         options.set_max_packet_size(16 << 20, 1 << 20);
         options.set_inflight(1000);
-        let (client, mut eventloop) = AsyncClient::new(options, 64);
-        client.subscribe("plant/#", QoS::AtLeastOnce).await?;
-        client
-            .subscribe("homeassistant/#", QoS::AtLeastOnce)
-            .await?;
         let received = Arc::new(Mutex::new(Received {
             first_value: vec![None; devices],
             ..Received::default()
         }));
-        let (subscribed_tx, subscribed_rx) = tokio::sync::oneshot::channel();
         let into = Arc::clone(&received);
-        tokio::spawn(async move {
-            let mut subscribed_tx = Some(subscribed_tx);
-            let mut subacks = 0;
-            loop {
-                match eventloop.poll().await {
-                    Ok(Event::Incoming(Packet::Publish(publish))) => {
-                        if let Ok(mut received) = into.lock() {
-                            received.note(&publish.topic, &publish.payload);
-                        }
-                    }
-                    Ok(Event::Incoming(Packet::SubAck(_))) => {
-                        subacks += 1;
-                        if subacks == 2 {
-                            if let Some(subscribed) = subscribed_tx.take() {
-                                let _ = subscribed.send(());
-                            }
-                        }
-                    }
-                    Ok(_) => {}
-                    Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
-                }
+        let subscriptions = [
+            ("plant/#", QoS::AtLeastOnce),
+            ("homeassistant/#", QoS::AtLeastOnce),
+        ];
+        let recorder = Recorder::start(options, false, &subscriptions, move |topic, payload| {
+            if let Ok(mut received) = into.lock() {
+                received.note(topic, payload);
             }
-        });
-        tokio::time::timeout(Duration::from_secs(10), subscribed_rx).await??;
+        })
+        .await?;
         Ok(Counter {
             received,
-            _client: client,
+            _recorder: recorder,
         })
     }
 

@@ -7,7 +7,7 @@
 //! fit.
 //!
 //! The modules are layered from the wire upwards; each only knows the ones listed before it
-//! (`tests/it/layers.rs` fails on any arrow pointing up):
+//! (`tests/it/repository/layers.rs` fails on any arrow pointing up):
 //!
 //! - [`bus`]: one task per line. `line` (the loop; `line::command_side` its commands,
 //!   refreshes and settle re-reads, `line::client_requests` its served side), `line_spec` and

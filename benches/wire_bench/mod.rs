@@ -1,5 +1,5 @@
 //! What the benches that run the built gateway against simulated lines share: their runtime,
-//! a command publisher, a subscriber that notes arrivals, and the line's load as the simulator's journal shows it (the gateway
+//! a command publisher, a subscriber that notes arrivals (testkit's recorder), and the line's load as the simulator's journal shows it (the gateway
 //! process itself is `gateway_process`).
 
 // Each bench compiles this module as its own and uses a part of it.
@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
 use rtu2mqtt_sim::RequestRecord;
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use rtu2mqtt_testkit::Recorder;
+use rumqttc::{AsyncClient, MqttOptions, QoS};
 use tokio::sync::mpsc;
 
 pub const EIGHT_N_ONE: CharFormat = CharFormat {
@@ -43,44 +44,22 @@ pub async fn command_client(port: u16, client_id: &str) -> AsyncClient {
     client
 }
 
-/// A subscriber that notes when each message on its topic arrived.
+/// A subscriber that notes when each message on its topic arrived (the instants come while the
+/// returned [`Recorder`] is held).
 pub async fn timed_subscriber(
     port: u16,
     topic: &str,
     client_id: &str,
     qos: QoS,
-) -> anyhow::Result<mpsc::UnboundedReceiver<Instant>> {
+) -> anyhow::Result<(Recorder, mpsc::UnboundedReceiver<Instant>)> {
     let mut options = MqttOptions::new(client_id, "127.0.0.1", port);
     options.set_keep_alive(Duration::from_secs(30));
-    let (client, mut eventloop) = AsyncClient::new(options, 16);
-    let mut network = eventloop.network_options();
-    network.set_tcp_nodelay(true);
-    eventloop.set_network_options(network);
-    client.subscribe(topic, qos).await?;
     let (tx, rx) = mpsc::unbounded_channel();
-    let (subscribed_tx, subscribed_rx) = tokio::sync::oneshot::channel();
-    tokio::spawn(async move {
-        let _client = client;
-        let mut subscribed_tx = Some(subscribed_tx);
-        loop {
-            match eventloop.poll().await {
-                Ok(Event::Incoming(Packet::Publish(_))) => {
-                    if tx.send(Instant::now()).is_err() {
-                        return;
-                    }
-                }
-                Ok(Event::Incoming(Packet::SubAck(_))) => {
-                    if let Some(subscribed) = subscribed_tx.take() {
-                        let _ = subscribed.send(());
-                    }
-                }
-                Ok(_) => {}
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-            }
-        }
-    });
-    tokio::time::timeout(Duration::from_secs(10), subscribed_rx).await??;
-    Ok(rx)
+    let recorder = Recorder::start(options, true, &[(topic, qos)], move |_, _| {
+        let _ = tx.send(Instant::now());
+    })
+    .await?;
+    Ok((recorder, rx))
 }
 
 /// What the requests in a journal cost the line.

@@ -1,5 +1,6 @@
 //! A real mosquitto owned by a test: a free loopback port, a temporary configuration, killed on
-//! drop, restartable on the same port.
+//! drop, restartable on the same port; for a bench's long run, one that keeps its sessions
+//! across a restart ([`Mosquitto::start_durable`]).
 
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
@@ -15,6 +16,8 @@ pub struct Mosquitto {
     pub port: u16,
     /// More listeners and settings (after the anonymous loopback listener on `port`).
     extra: String,
+    /// Persistence on and a log of errors and warnings only ([`Mosquitto::start_durable`]).
+    durable: bool,
     child: Option<KillOnDrop>,
     dir: tempfile::TempDir,
 }
@@ -33,8 +36,24 @@ impl Mosquitto {
         let mut broker = Mosquitto {
             port,
             extra,
+            durable: false,
             child: None,
             dir,
+        };
+        broker.launch();
+        broker
+    }
+
+    /// A broker with persistence, so that a subscriber's session and the messages queued for it
+    /// outlive a [`Mosquitto::stop`] and [`Mosquitto::restart`], and whose log holds errors and
+    /// warnings alone: a plant-scale run publishes far too much to log every message.
+    pub fn start_durable() -> Mosquitto {
+        let mut broker = Mosquitto {
+            port: free_port(),
+            extra: String::new(),
+            durable: true,
+            child: None,
+            dir: tempfile::tempdir().expect("temp dir"),
         };
         broker.launch();
         broker
@@ -45,6 +64,7 @@ impl Mosquitto {
         Mosquitto {
             port: free_port(),
             extra: String::new(),
+            durable: false,
             child: None,
             dir: tempfile::tempdir().expect("temp dir"),
         }
@@ -160,9 +180,21 @@ impl Mosquitto {
     }
 
     fn launch(&mut self) {
+        let (persistence, log_types) = if self.durable {
+            (
+                format!(
+                    "persistence true\npersistence_location {}/\nautosave_interval 0\n\
+                     max_queued_messages 10000000\n",
+                    self.dir.path().display()
+                ),
+                "log_type error\nlog_type warning\n",
+            )
+        } else {
+            ("persistence false\n".to_string(), "log_type all\n")
+        };
         let config = format!(
-            "per_listener_settings true\npersistence false\n\
-             log_dest file {}\nlog_type all\nlistener {} 127.0.0.1\nallow_anonymous true\n{}",
+            "per_listener_settings true\n{persistence}\
+             log_dest file {}\n{log_types}listener {} 127.0.0.1\nallow_anonymous true\n{}",
             self.dir.path().join("mosquitto.log").display(),
             self.port,
             self.extra
@@ -177,8 +209,10 @@ impl Mosquitto {
                 .append(true)
                 .open(&log);
             let _ = std::fs::set_permissions(&log, std::fs::Permissions::from_mode(0o666));
+            // A durable broker writes its database there too.
+            let mode = if self.durable { 0o777 } else { 0o755 };
             let _ =
-                std::fs::set_permissions(self.dir.path(), std::fs::Permissions::from_mode(0o755));
+                std::fs::set_permissions(self.dir.path(), std::fs::Permissions::from_mode(mode));
         }
         let mut command = Command::new(MOSQUITTO);
         command
@@ -198,6 +232,18 @@ impl Mosquitto {
     /// SIGKILL: no Will for anyone, retained messages gone (no persistence).
     pub fn kill(&mut self) {
         self.child = None;
+    }
+
+    /// SIGTERM, on which mosquitto saves its sessions (see [`Mosquitto::start_durable`]), then
+    /// waits up to 20 s for the process to end before killing it.
+    pub fn stop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = nix::sys::signal::kill(child.pid(), nix::sys::signal::Signal::SIGTERM);
+            let deadline = Instant::now() + Duration::from_secs(20);
+            while child.is_running() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
     }
 
     /// Stops (SIGSTOP) or continues (SIGCONT) the broker process: a broker that stops

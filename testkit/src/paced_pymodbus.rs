@@ -5,7 +5,7 @@
 
 use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -16,11 +16,7 @@ use rtu2mqtt_sim::{AnswerTiming, RequestRecord};
 use serde_json::Value;
 
 use crate::child::KillOnDrop;
-
-/// The server's script, in the repository.
-fn script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/interop/paced_rtu_server.py")
-}
+use crate::pymodbus;
 
 /// pymodbus serving unit 1 on a paced 8N1 line; the process ends on drop.
 pub struct PacedPymodbus {
@@ -38,9 +34,8 @@ impl PacedPymodbus {
     pub fn spawn(baud: u32, registers: u16) -> anyhow::Result<PacedPymodbus> {
         let dir = tempfile::tempdir()?;
         let journal = dir.path().join("journal.jsonl");
-        let mut command = Command::new("python3");
+        let mut command = pymodbus::command("paced_rtu_server.py");
         command
-            .arg(script())
             .arg(baud.to_string())
             .arg(&journal)
             .arg(registers.to_string())

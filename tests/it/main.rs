@@ -1,59 +1,30 @@
-//! The integration tests, one binary: each module is one area's tests (`cargo test --test it
-//! pty_line::` runs one of them), `support` is what they share (a real mosquitto, an MQTT test
-//! client, the gateway over the simulated plant, child processes, frames as hex text).
+//! The integration tests, one binary, grouped by area (`cargo test --test it lines::` runs an
+//! area, `cargo test --test it lines::pty_line::` one module):
+//!
+//! - `wire`: the wire against peers written by others (pymodbus).
+//! - `lines`: reading devices on a bus, scheduling, sharing a line.
+//! - `profiles`: profiles end to end through the gateway.
+//! - `bridge`: the plant on MQTT: values, commands, discovery, views, TLS.
+//! - `reliability`: faults and pressure, each with its bound.
+//! - `sparkplug`: Sparkplug B.
+//! - `daemon`: the process as an operator runs it: start, health, logs, reload, the console.
+//! - `cli`: commissioning, `profiles`, `check`, the manual pages.
+//! - `packaging`: container, Debian package, systemd unit.
+//! - `repository`: the layers, the module maps and the documents.
+//!
+//! `support` is what they share (a real mosquitto, an MQTT test client, the gateway over the
+//! simulated plant, child processes, frames as hex text). Each crate's own tests live in its
+//! `tests/` (`cargo test -p rtu2mqtt-modbus` runs the golden frames).
 
 use rtu2mqtt_testkit as support;
 
-mod acceptance;
-mod actions;
-mod answer_gaps;
-mod bridge_reliability;
-mod cadence;
-mod calm_start;
-mod cli_docs;
-mod codec_props;
-mod commissioning;
-mod config_valid;
-mod console;
-mod crash_exactly_once;
-mod daemon_health;
-mod device_identification;
-mod discovery;
-mod docker_files;
-mod fuzz_smoke;
-mod gateway_e2e;
-mod golden_frames;
-mod history;
-mod layers;
-mod library;
-mod line_server;
-mod logs;
-mod module_maps;
-mod number_grammar;
-mod oversized_messages;
-mod package_files;
-mod plant_connection;
-mod profile_codecs;
-mod profiles_cli;
-mod profiles_golden;
-mod profiles_valid;
-mod pty_line;
-mod pty_master;
-mod publish;
-mod pymodbus_rtu;
-mod readme;
+mod bridge;
+mod cli;
+mod daemon;
+mod lines;
+mod packaging;
+mod profiles;
 mod reliability;
-mod reload;
-mod scheduler_cadence;
-mod scheduler_time;
-mod sim_pty;
-mod sim_tcp;
-mod soak;
-mod sparkplug_decode;
-mod sparkplug_e2e;
-mod sparkplug_node;
-mod sparkplug_readme;
-mod systemd_unit;
-mod tcp_lines;
-mod trust_store;
-mod unavailable_values;
+mod repository;
+mod sparkplug;
+mod wire;

@@ -7,12 +7,13 @@
 //! order, that no simulated device refused a write, and that anonymous memory, PSS and open
 //! descriptors stayed flat over the second half of the run ([`sampler::Trend`]).
 //!
-//! One concern per file: `run` (the run from start to end), [`rig`] (the plant and the gateway's configuration), `chaos` (the
-//! random events), [`observer`] (the MQTT client: commands sent, history and outcomes read),
+//! One concern per file: `run` (the run from start to end), [`rig`] (the plant and the
+//! gateway's configuration), `chaos` (the random events), [`observer`] (the MQTT client: commands sent, history and outcomes read),
 //! [`sampler`] (what `/proc` says of the gateway, and the trend) and `report` (the checks and
 //! figures printed at the end).
 //!
-//! `scripts/soak DURATION` runs it from the `soak` binary; `tests/it/soak.rs` runs two minutes.
+//! `scripts/soak DURATION` runs it from the `soak` binary; `tests/it/reliability/soak.rs` runs
+//! two minutes.
 
 pub mod observer;
 pub mod rig;
