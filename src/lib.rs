@@ -11,8 +11,8 @@
 //!
 //! - [`bus`]: one task per line. `line` (the loop; `line::command_side` its commands,
 //!   refreshes and settle re-reads, `line::client_requests` its served side), `line_spec` and
-//!   `device_spec` (what a line is started with), `port` (the link opened by the wire crate's `Link::open`, one reopen
-//!   back-off), `device`, `poll` (a block, with the exception-02 fallback), `command` (a
+//!   `device_spec` (what a line is started with), `port` (the link opened by the wire crate's
+//!   `Link::open`, one reopen back-off), `device`, `poll` (a block, with the exception-02 fallback), `command` (a
 //!   command from its queue to its outcome: `queue`, `slots`, `run`, `outcome`), `transaction`
 //!   (one request with retries), `cadence` (each block's cadence), `scheduler` (what is due,
 //!   pure, clock passed in: commands, then refreshes, then polls), `availability` (offline,

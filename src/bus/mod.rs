@@ -10,6 +10,16 @@
 //! requests are slots of the same scheduler, after commands and before polls.
 //! Fields with `publish` settings are reported by exception ([`report`], applied by the line's
 //! [`reporter`] task), so every consumer of the events sees the same series.
+//!
+//! One concern per file: `line` (the line's task: its loop, its commands' side and its served
+//! side), `line_spec` and `device_spec` (what a line and a device are started with), `port`
+//! (the link opened through the wire crate, with one reopen back-off), `device` (a device's
+//! state on the line), `poll` (one block's read, with the exception-02 fallback), [`command`]
+//! (a command from its queue to its outcome), `transaction` (one request with its retries),
+//! [`cadence`] (each block's cadence), [`scheduler`] (what is due), [`availability`] (offline
+//! and back-off), [`stats`] (the line's statistics), `event` (what a line reports),
+//! `write_clock` (when each field was last written, by any source), [`report`] and [`reporter`]
+//! (report by exception), [`serve`] (the line served to other masters).
 
 pub mod availability;
 pub mod cadence;

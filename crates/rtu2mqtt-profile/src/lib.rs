@@ -41,7 +41,7 @@
 //! `publish`, `field`, `codec` (every field codec and command parsing), `action` (command
 //! interfaces and their payloads), `identification`, `model`, `format` (the file's serde
 //! types), `compile` (file to model, with every problem), then `command` (a command on fields as
-//! one bus slot's plan), `plan` (any command's plan, an action's included) and `raw` (simulated
+//! one bus slot's plan, with `command_planning` the profile's side of it), `plan` (any command's plan, an action's included) and `raw` (simulated
 //! block images patched through the write frames); `profile` ([`Profile`] and its answers) is
 //! what the rest of the crate sees, `sunspec` stands apart, and `identify` (after `sunspec` and
 //! [`Profile`]) uses them. This file is the map: it declares the modules and re-exports the

@@ -22,7 +22,7 @@ pub enum CommandOutcome {
     Failed { cause: CommandFailure },
 }
 
-/// A command for the line's queue. Its end comes back as [`LineEvent::CommandFinished`](super::event::LineEvent::CommandFinished) with
+/// A command for the line's queue. Its end comes back as [`LineEvent::CommandFinished`](crate::bus::LineEvent::CommandFinished) with
 /// the same `id`, on the line's events channel.
 #[derive(Debug)]
 pub struct Command {
