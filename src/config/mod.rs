@@ -6,7 +6,7 @@
 //! checked in its own file: [`mqtt`] (`[mqtt]` and the broker URL), [`gateway`], [`health`],
 //! [`lines`] (lines, their ports or URLs and `[lines.serve]`), [`devices`]
 //! (`[[lines.devices]]`), [`sparkplug`], [`history`] and [`web`]; [`names`] holds the name rules and
-//! the quoting they share, [`problem`] what a problem is. [`poll_plan`] computes each line's
+//! the quoting they share, [`files`] the paths and password files a configuration names, [`problem`] what a problem is. [`poll_plan`] computes each line's
 //! poll plan and bus load from the wire timing, for validation and `rtu2mqtt check`;
 //! [`suggestion`] writes a configuration to copy from what a scan found.
 //!
@@ -17,6 +17,7 @@
 
 pub(crate) mod deserialize;
 pub(crate) mod devices;
+pub(crate) mod files;
 pub(crate) mod gateway;
 pub(crate) mod health;
 pub mod history;

@@ -11,6 +11,7 @@ use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::CertificateDer;
 use rustls::RootCertStore;
 
+use super::files::{read_password_file, resolve};
 use super::names::{shown, MAX_NAME_LEN};
 use super::problem::Problem;
 use super::schema::RawMqtt;
@@ -305,35 +306,6 @@ pub fn parse_broker_url(url: &str) -> Result<BrokerEndpoint, String> {
         port,
         tls,
     })
-}
-
-/// Reads a password file that only its owner and group may read (mode 0640 or stricter).
-pub(super) fn read_password_file(path: &Path) -> Result<String, String> {
-    use std::os::unix::fs::PermissionsExt;
-    let meta = std::fs::metadata(path).map_err(|error| format!("{}: {error}", path.display()))?;
-    let mode = meta.permissions().mode() & 0o777;
-    if mode & 0o137 != 0 {
-        return Err(format!(
-            "{} has mode {mode:04o}: a password file must be 0640 or stricter \
-             (no access for others, no write for the group)",
-            path.display()
-        ));
-    }
-    let text =
-        std::fs::read_to_string(path).map_err(|error| format!("{}: {error}", path.display()))?;
-    let password = text.trim_end_matches(['\r', '\n']).to_string();
-    if password.is_empty() {
-        return Err(format!("{} is empty", path.display()));
-    }
-    Ok(password)
-}
-
-pub(super) fn resolve(base: &Path, path: &Path) -> PathBuf {
-    if path.is_absolute() {
-        path.to_path_buf()
-    } else {
-        base.join(path)
-    }
 }
 
 /// `url` with the password of any `user:password@` masked (`mqtt://user:***@host`).

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use serde::Deserialize;
 
-use super::mqtt::{read_password_file, resolve};
+use super::files::{read_password_file, resolve};
 use super::problem::Problem;
 
 /// The shortest token accepted: a guessable one would open the plant to its network.

@@ -23,8 +23,9 @@ use std::time::{Duration, Instant};
 
 use nix::unistd::{access, AccessFlags};
 
-use super::record::{self, Record, MAGIC, MAX_RECORD};
-use super::segment_file::{read_segment_file, segment_names, SUFFIX};
+use super::record::{self, Record, MAGIC};
+pub use super::segment_file::MAX_SEGMENT_FILE;
+use super::segment_file::{read_segment_file, segment_names, MAX_SEGMENT, SUFFIX};
 use crate::config::HistoryConfig;
 
 /// The longest time written records stay unsynced.
@@ -37,9 +38,6 @@ pub const PENDING_LIMIT: u64 = 1024 * 1024;
 /// Segments are a sixteenth of the bound, so that dropping the oldest frees little at once,
 /// within these limits.
 const MIN_SEGMENT: u64 = 4 * 1024;
-const MAX_SEGMENT: u64 = 4 * 1024 * 1024;
-/// No segment is ever longer: a larger file of that name is not one, and is not read.
-pub const MAX_SEGMENT_FILE: u64 = MAX_SEGMENT + MAGIC.len() as u64 + MAX_RECORD as u64;
 /// How far the segments are numbered up when one has to be put before the first.
 const FRONT_ROOM: u64 = 1 << 20;
 /// A segment numbered this high makes the journal number its segments from 0 again, in

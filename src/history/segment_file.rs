@@ -7,7 +7,12 @@ use std::io::{self, Read};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
-use super::journal::MAX_SEGMENT_FILE;
+use super::record::{MAGIC, MAX_RECORD};
+
+/// Segments are at most this long (a sixteenth of the journal's bound, within a floor).
+pub(crate) const MAX_SEGMENT: u64 = 4 * 1024 * 1024;
+/// No segment is ever longer: a larger file of that name is not one, and is not read.
+pub const MAX_SEGMENT_FILE: u64 = MAX_SEGMENT + MAGIC.len() as u64 + MAX_RECORD as u64;
 
 /// Segment files are named `<sequence>.journal`.
 pub(super) const SUFFIX: &str = "journal";

@@ -10,6 +10,8 @@
 use super::crc::{append_crc, carried_and_computed};
 use super::device_id;
 use super::frame::{ExceptionCode, FunctionCode, Request, Response, SlaveId};
+pub use crate::decode_error::DecodeError;
+pub use crate::frame::MAX_FRAME_LEN;
 
 /// Most registers one read may ask for.
 pub(crate) const MAX_READ_REGISTERS: u16 = 125;
@@ -19,66 +21,11 @@ pub(crate) const MAX_READ_BITS: u16 = 2000;
 pub(crate) const MAX_WRITE_REGISTERS: u16 = 123;
 /// Most coils one FC0F write may carry.
 pub(crate) const MAX_WRITE_COILS: u16 = 1968;
-/// Longest RTU frame the serial-line specification allows, in bytes: address, a PDU of at
-/// most 253 bytes, CRC.
-pub const MAX_FRAME_LEN: usize = 256;
 
 /// Coil value on the wire for ON in FC05.
 const COIL_ON: u16 = 0xFF00;
 /// Coil value on the wire for OFF in FC05.
 const COIL_OFF: u16 = 0x0000;
-
-/// Why bytes are not the expected answer. Callers match on it to count and log.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum DecodeError {
-    /// The frame starts with another device's address: not the answer to our request.
-    #[error("answer from address {found}, expected {expected}")]
-    WrongAddress {
-        /// The address the request went to.
-        expected: SlaveId,
-        /// The address the frame carries.
-        found: SlaveId,
-    },
-    /// The frame answers another function (or is no exception of ours).
-    #[error("answer with function {found:#04x}, expected {expected:#04x}")]
-    WrongFunction {
-        /// The request's function code.
-        expected: u8,
-        /// The function byte of the frame.
-        found: u8,
-    },
-    /// A read answer's byte count is not the one the request's quantity calls for.
-    #[error("byte count {found}, expected {expected}")]
-    WrongByteCount {
-        /// Data bytes the request asked for.
-        expected: usize,
-        /// Data bytes the answer announces.
-        found: usize,
-    },
-    /// The CRC carried in the last two bytes is not the CRC of the bytes before them: a
-    /// byte was corrupted on the line.
-    #[error("bad CRC {found:#06x}, computed {computed:#06x}")]
-    BadCrc {
-        /// The CRC of the frame's bytes as received.
-        computed: u16,
-        /// The CRC the frame carries.
-        found: u16,
-    },
-    /// The frame ended before its expected length.
-    #[error("truncated frame: {got} of {needed} bytes")]
-    Truncated {
-        /// Bytes the frame should have.
-        needed: usize,
-        /// Bytes there are.
-        got: usize,
-    },
-    /// Anything else that cannot be read as the frame expected, with what was wrong: a
-    /// function this codec does not frame, a write's answer that does not echo the request,
-    /// a coil value other than 0xFF00 or 0x0000, a quantity outside the specification's
-    /// limits in a request.
-    #[error("malformed frame: {0}")]
-    Malformed(&'static str),
-}
 
 /// Why a request cannot be put on the wire.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -8,7 +8,7 @@
 //! then each object as id, length and value. A stream (codes 01–03) that does not fit one
 //! answer says "more follows" and the id to ask for next.
 
-use crate::codec::DecodeError;
+use crate::decode_error::DecodeError;
 
 /// The MEI type of Read Device Identification, the byte after function code 0x2B.
 pub const MEI_READ_DEVICE_ID: u8 = 0x0E;

@@ -3,6 +3,10 @@
 
 use crate::device_id::{DeviceIdentification, ReadDeviceIdCode};
 
+/// Longest RTU frame the serial-line specification allows, in bytes: address, a PDU of at
+/// most 253 bytes, CRC.
+pub const MAX_FRAME_LEN: usize = 256;
+
 /// A device address on a serial line: 1–247 in the standard (some devices allow up to 253),
 /// 0 for broadcast.
 pub type SlaveId = u8;
@@ -320,9 +324,7 @@ impl Request {
         match self.answer_data_len() {
             // Address, function, byte count, data, CRC.
             Some(data) => 5 + data,
-            None if matches!(self, Self::ReadDeviceIdentification { .. }) => {
-                crate::codec::MAX_FRAME_LEN
-            }
+            None if matches!(self, Self::ReadDeviceIdentification { .. }) => MAX_FRAME_LEN,
             // Writes echo address and value, or start and quantity: address, function, 4, CRC.
             None => 8,
         }

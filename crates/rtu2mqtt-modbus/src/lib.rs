@@ -3,9 +3,9 @@
 //! Grouped as tokio-modbus groups its `rtu` and `tcp`:
 //!
 //! - Pure, no I/O and no tokio: [`frame`] (the types with the specification's names and their
-//!   arithmetic), [`crc`], [`codec`] (byte work), [`device_id`] (FC43/14 Read Device
-//!   Identification: its types and byte work), [`timing`] (character time, t1.5, t3.5, the
-//!   response timeout), `outcome` (how a transaction ends: [`Reply`], [`Error`],
+//!   arithmetic), [`crc`], [`codec`] (byte work, and [`decode_error`]: why bytes are not the
+//!   answer), [`device_id`] (FC43/14 Read Device Identification: its types and byte work),
+//!   [`timing`] (character time, t1.5, t3.5, the response timeout), `outcome` (how a transaction ends: [`Reply`], [`Error`],
 //!   [`WireCounters`], re-exported here).
 //! - What every link shares: [`answer_framing`] (the one framer of their answers) and
 //!   `transaction` (the [`Transact`] wrapper, re-exported here, with the counters, frame
@@ -36,6 +36,7 @@ pub mod answer_framing;
 pub mod clock;
 pub mod codec;
 pub mod crc;
+pub mod decode_error;
 pub mod device_id;
 pub mod frame;
 pub mod frame_log;

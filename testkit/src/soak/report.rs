@@ -5,14 +5,17 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::sync::atomic::Ordering;
 
+use std::time::Duration;
+
 use super::chaos::{Counts, OutageCheck};
 use super::rig::{ClientCounts, WireAudit};
-use super::run::Options;
 use super::sampler::{self, Sample, Trend};
 
 /// What the run gathered.
 pub struct Inputs<'a> {
-    pub options: Options,
+    /// How long the run was, and the seed of its schedule.
+    pub duration: Duration,
+    pub seed: u64,
     pub pid: u32,
     pub running: bool,
     pub panics: usize,
@@ -59,7 +62,7 @@ const MEMORY_JUDGED_FROM_S: u64 = 60 * 60;
 
 impl Report {
     pub fn new(inputs: Inputs<'_>) -> Report {
-        let duration_s = inputs.options.duration.as_secs();
+        let duration_s = inputs.duration.as_secs();
         let half = duration_s as f64 / 2.0;
         let samples = &inputs.samples;
         let trends: Vec<(&'static str, Option<Trend>)> = vec![
@@ -205,7 +208,7 @@ impl Report {
             points,
             trends,
             counts,
-            seed: inputs.options.seed,
+            seed: inputs.seed,
             duration_s,
         }
     }

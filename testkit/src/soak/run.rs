@@ -142,7 +142,8 @@ pub async fn run(options: &Options) -> anyhow::Result<Report> {
     sampler::write_csv(&options.out_dir.join("samples.csv"), &samples)?;
     let seen = observer.lock();
     let report = Report::new(report::Inputs {
-        options: options.clone(),
+        duration: options.duration,
+        seed: options.seed,
         pid,
         running,
         panics: log.matches("panicked").count(),
