@@ -184,7 +184,8 @@ function setPage(name, ...content) {
     else link.removeAttribute("aria-current");
   }
   const page = document.getElementById("page");
-  page.replaceChildren(...content);
+  // A page leaves out what it has not got (the plant page's filter below the fold limit).
+  page.replaceChildren(...content.filter((part) => part !== null && part !== undefined));
   indexPage();
 }
 

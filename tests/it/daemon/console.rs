@@ -237,6 +237,19 @@ async fn the_console_shows_commands_and_commissions_the_plant_in_a_real_browser(
         "the page showed the change {:.0} ms after an MQTT subscriber",
         shown_at - broker_at
     );
+    // Nothing on the page but what it draws: no stray text between the heading and the cards.
+    let stray = browser
+        .eval(
+            "return [...document.getElementById('page').childNodes]\
+             .filter((node) => node.nodeType === Node.TEXT_NODE)\
+             .map((node) => node.textContent);",
+        )
+        .await;
+    assert_eq!(
+        stray,
+        serde_json::json!([]),
+        "text outside the page's elements"
+    );
     browser.screenshot(&shots.join("plant.png")).await;
 
     // A command from the page: the seed document's golden frame, and its outcome shown.
