@@ -10,12 +10,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use nix::time::{clock_gettime, ClockId};
-use rtu2mqtt_modbus::crc::crc16;
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
+use rtu2mqtt_sim::wire::crc_ok;
 use rtu2mqtt_sim::{AnswerTiming, RequestRecord};
 use serde_json::Value;
 
 use crate::child::KillOnDrop;
+use crate::hex;
 use crate::pymodbus;
 
 /// pymodbus serving unit 1 on a paced 8N1 line; the process ends on drop.
@@ -89,7 +90,7 @@ impl PacedPymodbus {
             let Ok(entry) = serde_json::from_str::<Value>(line) else {
                 continue;
             };
-            let frame = hex_bytes(&entry["frame"])?;
+            let frame = hex::decode(entry["frame"].as_str().context("a frame in hex")?);
             if entry.get("request").is_some() {
                 let arrived = clock.instant(&entry["at"])?;
                 let silence_before =
@@ -116,25 +117,6 @@ impl PacedPymodbus {
         }
         Ok(records)
     }
-}
-
-fn crc_ok(frame: &[u8]) -> bool {
-    match frame.len().checked_sub(2) {
-        Some(body) if body > 0 => crc16(&frame[..body]).to_le_bytes() == frame[body..],
-        _ => false,
-    }
-}
-
-fn hex_bytes(value: &Value) -> anyhow::Result<Vec<u8>> {
-    let text = value.as_str().context("a frame in hex")?;
-    (0..text.len())
-        .step_by(2)
-        .map(|at| {
-            text.get(at..at + 2)
-                .and_then(|pair| u8::from_str_radix(pair, 16).ok())
-                .context("a frame in hex")
-        })
-        .collect()
 }
 
 /// CLOCK_MONOTONIC (the journal's times) read beside `Instant::now()`, to turn one into the

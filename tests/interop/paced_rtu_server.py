@@ -52,6 +52,11 @@ def no_timer_slack() -> None:
         pass
 
 
+def spaced_hex(frame: bytes) -> str:
+    """A frame as the project's tests write it: upper-case hex bytes, one space apart."""
+    return frame.hex(" ").upper()
+
+
 def sleep_until(deadline_ns: int) -> None:
     remaining = deadline_ns - time.monotonic_ns()
     if remaining > 0:
@@ -69,14 +74,14 @@ class Journal:
     def request(self, at: int, frame: bytes) -> None:
         with self.lock:
             self.requests += 1
-            self.write({"request": self.requests, "at": at, "frame": frame.hex()})
+            self.write({"request": self.requests, "at": at, "frame": spaced_hex(frame)})
 
     def answer(self, frame: bytes, due: int, handed_over: int, written: int) -> None:
         with self.lock:
             self.write(
                 {
                     "answer": self.requests,
-                    "frame": frame.hex(),
+                    "frame": spaced_hex(frame),
                     "due": due,
                     "handed_over": handed_over,
                     "written": written,

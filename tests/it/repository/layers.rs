@@ -7,7 +7,9 @@
 //! up, and so any import circle between top-level modules, fails.
 
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use super::source_scan::{rust_files, skip_item};
 
 /// Lowest first: each module may use only modules listed before it.
 const LAYERS: &[&str] = &[
@@ -24,20 +26,6 @@ const LAYERS: &[&str] = &[
     "app",
 ];
 
-fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        if path.is_dir() {
-            rust_files(&path, found);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            found.push(path);
-        }
-    }
-}
-
 /// The top-level modules `text` names as `crate::<module>`, in the whole file: comments and
 /// the items behind `#[cfg(test)]` aside (test code may reach anywhere), and only those items:
 /// code after an inline test module is read like the code before it.
@@ -47,7 +35,9 @@ fn named_modules(text: &str) -> BTreeSet<String> {
     while let Some(line) = lines.next() {
         let code = line.trim_start();
         if code.starts_with("#[cfg(test)]") {
-            skip_item(&mut lines);
+            if let Some(first) = lines.next() {
+                skip_item(first, &mut lines);
+            }
             continue;
         }
         if code.starts_with("//") {
@@ -65,29 +55,6 @@ fn named_modules(text: &str) -> BTreeSet<String> {
         }
     }
     names
-}
-
-/// Passes over the item that starts at the next line: up to its `;` when it has no body
-/// (`mod tests;`), else to the brace that closes its body.
-fn skip_item<'a>(lines: &mut impl Iterator<Item = &'a str>) {
-    let mut depth = 0i32;
-    let mut opened = false;
-    for line in lines {
-        let code = line.split("//").next().unwrap_or_default();
-        for c in code.chars() {
-            match c {
-                '{' => {
-                    depth += 1;
-                    opened = true;
-                }
-                '}' => depth -= 1,
-                _ => {}
-            }
-        }
-        if (opened && depth <= 0) || (!opened && code.trim_end().ends_with(';')) {
-            return;
-        }
-    }
 }
 
 /// The top-level module a file of `src/` belongs to (None for `lib.rs` and `main.rs`).

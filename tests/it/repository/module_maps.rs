@@ -7,6 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use super::source_scan::{rust_files, skip_item};
+
 /// The folders whose maps are checked, from the repository's root.
 const ROOTS: &[&str] = &[
     "src",
@@ -18,21 +20,14 @@ const ROOTS: &[&str] = &[
     "fuzz/fuzz_targets",
 ];
 
+/// The module maps below `dir`: its `lib.rs`, `main.rs` and `mod.rs` files.
 fn maps(dir: &Path, found: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        let name = entry.file_name();
-        if path.is_dir() {
-            if name != "target" {
-                maps(&path, found);
-            }
-        } else if matches!(name.to_str(), Some("lib.rs" | "main.rs" | "mod.rs")) {
-            found.push(path);
-        }
-    }
+    let mut files = Vec::new();
+    rust_files(dir, &mut files);
+    found.extend(files.into_iter().filter(|path| {
+        path.file_name()
+            .is_some_and(|name| name == "lib.rs" || name == "main.rs" || name == "mod.rs")
+    }));
 }
 
 /// The modules `text` declares (`mod name;`, with any visibility), those behind
@@ -177,19 +172,13 @@ fn homed_items(text: &str) -> Vec<String> {
         "macro_rules!",
     ];
     let mut found = Vec::new();
-    let mut skipping_next = false;
-    let mut depth = 0i32;
-    for line in text.lines() {
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
         let code = line.trim();
-        if depth > 0 {
-            depth += brace_balance(code);
-            continue;
-        }
         if code.starts_with("#[cfg(test)]") || code.starts_with("#[cfg(doctest)]") {
-            skipping_next = true;
-            continue;
-        }
-        if code.starts_with("#") || code.starts_with("//") || code.is_empty() {
+            if let Some(first) = lines.next() {
+                skip_item(first, &mut lines);
+            }
             continue;
         }
         let after_visibility = code
@@ -197,26 +186,12 @@ fn homed_items(text: &str) -> Vec<String> {
             .or_else(|| code.strip_prefix("pub(super) "))
             .or_else(|| code.strip_prefix("pub "))
             .unwrap_or(code);
-        let is_item = ITEMS.iter().any(|item| after_visibility.starts_with(item));
-        if is_item && !skipping_next {
+        if ITEMS.iter().any(|item| after_visibility.starts_with(item)) {
             found.push(code.to_string());
+            skip_item(line, &mut lines);
         }
-        if is_item || skipping_next {
-            depth = brace_balance(code);
-        }
-        skipping_next = false;
     }
     found
-}
-
-fn brace_balance(code: &str) -> i32 {
-    code.chars()
-        .map(|c| match c {
-            '{' => 1,
-            '}' => -1,
-            _ => 0,
-        })
-        .sum()
 }
 
 #[test]
