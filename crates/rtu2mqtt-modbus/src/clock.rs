@@ -8,7 +8,6 @@
 use std::os::fd::{AsFd, AsRawFd, RawFd};
 use std::time::Duration;
 
-use nix::errno::Errno;
 use nix::sys::time::TimeSpec;
 use nix::sys::timerfd::{ClockId, Expiration, TimerFd, TimerFlags, TimerSetTimeFlags};
 use tokio::io::unix::AsyncFd;
@@ -39,7 +38,7 @@ pub async fn sleep_until_precise(deadline: Instant) {
 /// owner (a master): armed again for each wait instead of created, registered with the
 /// reactor, deregistered and closed each time, which saves four system calls per wait.
 /// A wait dropped before its end (a `select!` that took another branch) leaves the timer armed;
-/// the next wait re-arms it, and a stale expiry is read away as `EAGAIN`.
+/// the next wait re-arms it, and a stale expiry is told apart by the clock.
 #[derive(Debug, Default)]
 pub(crate) struct PreciseTimer {
     timer: Option<AsyncFd<Timer>>,
@@ -56,7 +55,9 @@ impl PreciseTimer {
             return;
         }
         let until_deadline = deadline - now;
-        if self.timerfd_sleep(until_deadline).await.is_err() && until_deadline > SPIN_WINDOW {
+        if self.timerfd_sleep(deadline, until_deadline).await.is_err()
+            && until_deadline > SPIN_WINDOW
+        {
             tokio::time::sleep_until(deadline - SPIN_WINDOW).await;
         }
         // The timerfd was armed after `now` was read: it expires at the deadline or later, and
@@ -80,24 +81,26 @@ impl PreciseTimer {
         }
     }
 
-    /// Sleeps `duration` on the one-shot CLOCK_MONOTONIC timerfd watched by the runtime's
-    /// reactor. An error when no timerfd could be had (the caller falls back to the tokio
-    /// timer).
-    async fn timerfd_sleep(&mut self, duration: Duration) -> std::io::Result<()> {
+    /// Sleeps until `deadline` (`duration` from now) on the one-shot CLOCK_MONOTONIC timerfd
+    /// watched by the runtime's reactor. An error when no timerfd could be had (the caller
+    /// falls back to the tokio timer).
+    ///
+    /// The expiry is not read from the timerfd: the clock says whether the deadline has come,
+    /// and re-arming for the next wait resets the timer's count of expirations, after which
+    /// its next expiry is a new edge the reactor reports. That spares a system call per wait.
+    async fn timerfd_sleep(
+        &mut self,
+        deadline: Instant,
+        duration: Duration,
+    ) -> std::io::Result<()> {
         let timer = self.timer()?;
         timer.get_ref().arm(duration)?;
         loop {
             let mut ready = timer.readable().await?;
-            match timer.get_ref().0.wait() {
-                Ok(()) => {
-                    // The expiry is consumed: the next wait sleeps on the reactor at once
-                    // instead of first reading the drained timer (one system call per wait).
-                    ready.clear_ready();
-                    return Ok(());
-                }
-                // Not yet expired, or a stale readiness from a wait that was dropped.
-                Err(Errno::EAGAIN) => ready.clear_ready(),
-                Err(error) => return Err(error.into()),
+            // Readiness left over from a wait that was dropped, or this wait's expiry.
+            ready.clear_ready();
+            if Instant::now() >= deadline {
+                return Ok(());
             }
         }
     }

@@ -238,10 +238,11 @@ impl Master {
                 return Err(Error::LineBusy(patience));
             }
             // Listen all through the silence; the precise timer (a timerfd, not the
-            // millisecond tokio timer) ends the wait as soon as the silence is complete.
+            // millisecond tokio timer) ends the wait as soon as the silence is complete, or
+            // when patience runs out.
             let heard = tokio::select! {
                 biased;
-                read = self.port.read_until(&mut chunk, give_up) => read?,
+                read = self.port.receive(&mut chunk) => Some(read?),
                 () = self.timer.sleep_until(quiet_at.min(give_up)) => None,
             };
             if let Some((count, seen)) = heard {
@@ -326,7 +327,14 @@ impl Master {
                 self.port.stop_listening();
                 self.timer.sleep_until(due).await;
             }
-            if let Some((count, seen)) = self.port.read_until(&mut chunk, until).await? {
+            // The precise timer ends the read: a tokio deadline sooner than the runtime's
+            // planned wake-up would cost the runtime a wake-up of its own to plan again.
+            let heard = tokio::select! {
+                biased;
+                read = self.port.receive(&mut chunk) => Some(read?),
+                () = self.timer.sleep_until(until) => None,
+            };
+            if let Some((count, seen)) = heard {
                 reception.heard(&chunk[..count], seen);
                 self.last_activity = seen;
             } else if let Some(result) = reception.silence(Instant::now()) {

@@ -7,15 +7,16 @@
 //! byte; once bytes have come, a silence longer than the byte timeout ends what is there (a
 //! pause inside an answer up to it is tolerated, and one longer than t1.5 is counted as a long
 //! gap); the answer is complete at its expected length (from the request, 5 bytes for an
-//! exception), framed by [`AnswerFramer`]; once its length is known, its rest is waited for in
-//! one go, not with a wake-up per byte.
+//! exception), framed by [`AnswerFramer`]; once it has begun, the wire time of the shortest
+//! length it can still have (an exception's, until its length is known) is waited for in one
+//! go, not with a wake-up per byte.
 
 use std::time::Duration;
 
 use tokio::time::Instant;
 
 use crate::answer_framing::{AnswerFramer, Framing};
-use crate::codec::{self, MAX_FRAME_LEN};
+use crate::codec::{self, EXCEPTION_FRAME_LEN, MAX_FRAME_LEN};
 use crate::frame::{Request, SlaveId};
 use crate::outcome::{reply_of, Error, Reply};
 use crate::timing::LineTiming;
@@ -94,8 +95,8 @@ pub struct Reception {
     deadline: Instant,
     received: Vec<u8>,
     last_byte_at: Instant,
-    /// The answer's rest has had its wait for its wire time.
-    rest_waited_for: bool,
+    /// The length up to which the answer has had its wait for its wire time (0: none yet).
+    waited_for: usize,
     /// Where `received` stood when the last read was asked for.
     framing: Framing,
     heard: Vec<Heard>,
@@ -120,7 +121,7 @@ impl Reception {
             timing,
             received: Vec::new(),
             last_byte_at: timing.sent_at,
-            rest_waited_for: false,
+            waited_for: 0,
             framing: Framing::NeedMore {
                 needed: request.answer_len(),
             },
@@ -188,21 +189,33 @@ impl Reception {
             } else {
                 self.last_byte_at + self.timing.byte_timeout
             };
-            // Once the length is known (from the third byte on), the rest cannot be complete
-            // before its wire time: it is waited for in one go, not with a wake-up per byte
-            // (a rest longer than the byte timeout in steps of it, each from the bytes that
-            // came in the one before, so that a silence inside it is still noticed at the
-            // limit). Only until the wire time of all but its last byte: that byte's own
-            // arrival wakes the read, so that the answer ends, and t3.5 starts, when it came.
-            // Waking at the whole rest's wire time would start t3.5 late by the wake-up's own
-            // lag and by the lag with which the byte the wait is counted from was seen.
+            // Once the answer has begun, it cannot be complete before the wire time of its
+            // shortest possible length: that is waited for in one go, not with a wake-up per
+            // byte (a rest longer than the byte timeout in steps of it, each from the bytes
+            // that came in the one before, so that a silence inside it is still noticed at the
+            // limit). Until its function code and byte count are in, the answer may yet be an
+            // exception, the shortest there is; from the third byte on its length is known.
+            // Only until the wire time of all but its last byte: that byte's own arrival wakes
+            // the read, so that the answer ends, and t3.5 starts, when it came. Waking at the
+            // whole rest's wire time would start t3.5 late by the wake-up's own lag and by
+            // the lag with which the byte the wait is counted from was seen.
+            let soonest_end = match framing {
+                Framing::NeedMore { needed } if self.received.len() < 3 => {
+                    Some(needed.min(EXCEPTION_FRAME_LEN))
+                }
+                Framing::EchoCandidate if self.received.len() < 3 => Some(EXCEPTION_FRAME_LEN),
+                Framing::NeedMore { needed } => Some(needed),
+                _ => None,
+            };
             let mut rest_due = None;
-            if let Framing::NeedMore { needed } = framing {
-                if self.received.len() >= 3 && !self.rest_waited_for {
-                    let remaining = needed.saturating_sub(self.received.len());
+            if let Some(soonest_end) = soonest_end {
+                if !self.received.is_empty() && self.waited_for < soonest_end {
+                    let remaining = soonest_end.saturating_sub(self.received.len());
                     let due = self.last_byte_at
                         + self.timing.line.frame_time(remaining.saturating_sub(1));
-                    self.rest_waited_for = due <= until;
+                    if due <= until {
+                        self.waited_for = soonest_end;
+                    }
                     if due > now {
                         rest_due = Some(due.min(until));
                     }
@@ -270,7 +283,7 @@ impl Reception {
 mod tests {
     use super::*;
     use crate::codec::encode_answer;
-    use crate::frame::Response;
+    use crate::frame::{ExceptionCode, Response};
     use crate::timing::{CharFormat, Parity};
 
     const READ: Request = Request::ReadHoldingRegisters {
@@ -326,6 +339,46 @@ mod tests {
         assert_eq!(result, Ok(Ok(Response::HoldingRegisters(vec![7, 8]))));
         let heard: Vec<Heard> = reception.take_heard().collect();
         assert_eq!(heard, [Heard::LongGap, Heard::Frame(frame)]);
+    }
+
+    #[test]
+    fn from_the_first_byte_on_the_shortest_answer_still_possible_is_waited_for_in_one_go() {
+        let start = Instant::now();
+        let char_time = reception(start).timing.line.frame_time(1);
+        let frame = answer();
+        let mut reception = reception(start);
+        reception.next(start);
+        reception.heard(&frame[..1], start + ms(10));
+        // The function code and byte count are not in: it may yet be a 5-byte exception,
+        // whose first four bytes are due three characters after the first.
+        let Next::Read { rest_due, .. } = reception.next(start + ms(10)) else {
+            panic!("the answer is awaited");
+        };
+        assert_eq!(rest_due, Some(start + ms(10) + char_time * 3));
+        let head_seen = start + ms(10) + char_time * 3;
+        reception.heard(&frame[1..4], head_seen);
+        // Now it is a 9-byte answer: all but its last byte are due four characters on.
+        let Next::Read { rest_due, .. } = reception.next(head_seen) else {
+            panic!("the rest is awaited");
+        };
+        assert_eq!(rest_due, Some(head_seen + char_time * 4));
+
+        let exception = codec::encode_exception(1, 0x03, ExceptionCode::IllegalDataAddress);
+        let mut reception = self::reception(start);
+        reception.next(start);
+        reception.heard(&exception[..1], start + ms(10));
+        reception.next(start + ms(10));
+        reception.heard(&exception[1..4], head_seen);
+        // An exception's last byte is listened for at once.
+        let Next::Read { rest_due, .. } = reception.next(head_seen) else {
+            panic!("the last byte is awaited");
+        };
+        assert_eq!(rest_due, None);
+        reception.heard(&exception[4..], head_seen + char_time);
+        let Next::Done(result) = reception.next(head_seen + char_time) else {
+            panic!("complete");
+        };
+        assert_eq!(result, Ok(Err(ExceptionCode::IllegalDataAddress)));
     }
 
     #[test]

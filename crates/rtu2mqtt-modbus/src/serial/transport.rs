@@ -115,9 +115,6 @@ pub struct Port {
     /// writes never need the reactor (see [`Port::write_all`]). Declared before `stream`, so
     /// that it is deregistered before the descriptor is closed.
     listening: Option<AsyncFd<Descriptor>>,
-    /// Registered again, and the reactor has not reported on the port since: what it knows
-    /// of the bytes waiting comes only on its next turn, so the port itself is asked.
-    unheard: bool,
     stream: SerialStream,
     path: String,
     pseudo_terminal: bool,
@@ -132,12 +129,11 @@ impl AsRawFd for Descriptor {
     }
 }
 
-/// The registration in `listening`, made for `fd` if there is none (`unheard` is set then).
-fn listening<'a>(
-    listening: &'a mut Option<AsyncFd<Descriptor>>,
-    unheard: &mut bool,
+/// The registration in `listening`, made for `fd` if there is none.
+fn listening(
+    listening: &mut Option<AsyncFd<Descriptor>>,
     fd: RawFd,
-) -> io::Result<&'a AsyncFd<Descriptor>> {
+) -> io::Result<&AsyncFd<Descriptor>> {
     match listening {
         Some(registration) => Ok(registration),
         None => {
@@ -145,10 +141,17 @@ fn listening<'a>(
             // dropped, which happens after this registration is (field order in `Port`).
             let registration =
                 unsafe { AsyncFd::register_with_interest(Descriptor(fd), Interest::READABLE) }?;
-            *unheard = true;
             Ok(listening.insert(registration))
         }
     }
+}
+
+/// Whether a read's error only says that nothing is waiting (or that a signal came first).
+fn nothing_waiting(error: &io::Error) -> bool {
+    matches!(
+        error.kind(),
+        io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+    )
 }
 
 impl std::fmt::Debug for Port {
@@ -232,18 +235,13 @@ impl Port {
         }
         let mut port = Port {
             listening: None,
-            unheard: false,
             stream,
             path,
             pseudo_terminal,
         };
         // Registered at once (with the runtime's I/O driver), so that a failure to register
         // is an error of the opening, not of the first read.
-        listening(
-            &mut port.listening,
-            &mut port.unheard,
-            port.stream.as_raw_fd(),
-        )?;
+        listening(&mut port.listening, port.stream.as_raw_fd())?;
         if !pseudo_terminal {
             port.request_low_latency();
         }
@@ -453,11 +451,22 @@ impl Port {
         buf: &mut [u8],
         deadline: Instant,
     ) -> io::Result<Option<(usize, Instant)>> {
-        match tokio::time::timeout_at(deadline, self.read(buf)).await {
+        match tokio::time::timeout_at(deadline, self.receive(buf)).await {
             Err(_elapsed) => Ok(None),
-            Ok(Ok(0)) if !buf.is_empty() => Err(port_gone(&self.path)),
-            Ok(Ok(count)) => Ok(Some((count, Instant::now()))),
-            Ok(Err(error)) => Err(error),
+            Ok(received) => received.map(Some),
+        }
+    }
+
+    /// Reads what has arrived into `buf`, waiting as long as it takes for at least one byte:
+    /// `count` bytes at the start of `buf`, seen at the instant returned. For a caller that
+    /// ends the wait with a timer of its own (a `select!` beside the master's precise timer),
+    /// which spares the runtime's timer wheel a deadline per read. Errors as
+    /// [`Port::read_until`].
+    pub(crate) async fn receive(&mut self, buf: &mut [u8]) -> io::Result<(usize, Instant)> {
+        match self.read(buf).await {
+            Ok(0) if !buf.is_empty() => Err(port_gone(&self.path)),
+            Ok(count) => Ok((count, Instant::now())),
+            Err(error) => Err(error),
         }
     }
 
@@ -470,64 +479,70 @@ impl Port {
         self.listening = None;
     }
 
-    /// Takes every byte already waiting in the receive buffer without waiting for more. Right
-    /// after the port was registered again it asks the port itself, since the reactor's news
-    /// of the bytes that arrived while it was not listening comes only on its next turn (a
-    /// read that finds nothing leaves the reactor to report the next byte, which it always
-    /// does: the port is registered for edges, and each arrival is one); otherwise the
-    /// reactor's readiness spares a read that would find nothing.
+    /// Takes every byte already waiting in the receive buffer without waiting for more. While
+    /// the port does not listen, the port itself is asked (the reactor has no news of it);
+    /// otherwise the reactor's readiness spares a read that would find nothing.
     pub(crate) fn take_pending(&mut self) -> io::Result<Vec<u8>> {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
-        let registration = listening(
-            &mut self.listening,
-            &mut self.unheard,
-            self.stream.as_raw_fd(),
-        )?;
-        let unheard = self.unheard;
-        let mut reader = &self.stream;
         loop {
-            let read = if unheard {
-                reader.read(&mut chunk)
-            } else {
-                registration.try_io(Interest::READABLE, |_| reader.read(&mut chunk))
+            let mut reader = &self.stream;
+            let read = match self.listening {
+                Some(ref registration) => {
+                    registration.try_io(Interest::READABLE, |_| reader.read(&mut chunk))
+                }
+                None => reader.read(&mut chunk),
             };
             match read {
                 Ok(0) => return Err(port_gone(&self.path)),
                 Ok(count) => pending.extend_from_slice(&chunk[..count]),
-                Err(error) if error.kind() == io::ErrorKind::WouldBlock => return Ok(pending),
                 Err(error) if error.kind() == io::ErrorKind::Interrupted => continue,
+                Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
                 Err(error) => return Err(error),
             }
         }
+        // Drained: from here the reactor hears of every byte that arrives.
+        listening(&mut self.listening, self.stream.as_raw_fd())?;
+        Ok(pending)
     }
 
     /// Waits for received bytes and reads them into `buf`.
+    ///
+    /// While the port does not listen, the bytes that came meanwhile are read from the port
+    /// itself, and it listens again once a read finds it drained: registered when nothing is
+    /// waiting, the registration starts without news of bytes already read (which would cost
+    /// the runtime a turn and a read that finds nothing), and any byte that comes from then on
+    /// is reported.
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let registration = listening(
-            &mut self.listening,
-            &mut self.unheard,
-            self.stream.as_raw_fd(),
-        )?;
-        let mut reader = &self.stream;
-        if self.unheard {
-            // The reactor reports the bytes that came meanwhile only on its next turn, after
-            // a deadline that has passed (the end of a wait for an answer's rest) would have
-            // ended the read: the port is asked first.
-            match reader.read(buf) {
-                Err(error)
-                    if matches!(
-                        error.kind(),
-                        io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
-                    ) => {}
-                result => return result,
+        if self.listening.is_none() {
+            match (&self.stream).read(buf) {
+                // More may be waiting: the next read asks the port again.
+                Ok(count) if count == buf.len() => return Ok(count),
+                Ok(count) => {
+                    listening(&mut self.listening, self.stream.as_raw_fd())?;
+                    return Ok(count);
+                }
+                Err(error) if nothing_waiting(&error) => {}
+                Err(error) => return Err(error),
             }
         }
+        let registration = listening(&mut self.listening, self.stream.as_raw_fd())?;
+        let mut reader = &self.stream;
         loop {
             let mut ready = registration.readable().await?;
-            self.unheard = false;
-            if let Ok(result) = ready.try_io(|_| reader.read(buf)) {
-                return result;
+            match ready.try_io(|_| reader.read(buf)) {
+                Ok(Ok(count)) => {
+                    // A read that did not fill `buf` took everything the port had: the next
+                    // read waits for the reactor's news of a new byte (each arrival is an
+                    // edge) instead of first asking the port and finding nothing. A byte that
+                    // came since is not lost: its edge is reported on the reactor's next turn.
+                    if count < buf.len() {
+                        ready.clear_ready();
+                    }
+                    return Ok(count);
+                }
+                Ok(Err(error)) => return Err(error),
+                Err(_would_block) => continue,
             }
         }
     }
