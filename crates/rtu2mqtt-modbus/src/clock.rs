@@ -3,7 +3,10 @@
 //! on every transaction. This waits on a one-shot timerfd (a kernel high-resolution timer
 //! without slack, registered with the runtime's reactor, so no thread is blocked) set to the
 //! deadline itself. Where no timerfd can be had it falls back to the tokio timer and yields to
-//! the runtime for the last stretch.
+//! the runtime for the last stretch. The end of a line's t3.5, after which the next request
+//! goes out, is waited for sharply: the timer expires earlier by the host's recent wake-up lag
+//! and the thread watches the clock for the rest (at most 150 µs), so that the request does not
+//! carry the lag of a sleeping processor's wake-up.
 
 use std::os::fd::{AsFd, AsRawFd, RawFd};
 use std::time::Duration;
@@ -44,7 +47,12 @@ pub(crate) struct PreciseTimer {
     timer: Option<AsyncFd<Timer>>,
     /// No timerfd could be had: the tokio timer stands in from then on.
     unavailable: bool,
+    /// How late the thread has recently woken after the timer's expiry.
+    wake_lag: Duration,
 }
+
+/// The longest stretch a sharp wait spends watching the clock.
+const MAX_SHARPENING: Duration = Duration::from_micros(150);
 
 impl PreciseTimer {
     /// Waits until `deadline`, overshooting as little as the host allows (see
@@ -64,6 +72,26 @@ impl PreciseTimer {
         // this loop is left at once. Only the tokio timer's fallback yields here.
         while Instant::now() < deadline {
             tokio::task::yield_now().await;
+        }
+    }
+
+    /// Waits until `deadline` and returns as close after it as the thread can: the timerfd is
+    /// set to expire earlier by the host's recent wake-up lag, and the rest is spent watching
+    /// the clock, without giving the thread up (at most [`MAX_SHARPENING`]).
+    pub(crate) async fn sleep_until_sharp(&mut self, deadline: Instant) {
+        let advance = self.wake_lag.min(MAX_SHARPENING);
+        let wake_at = deadline.checked_sub(advance).unwrap_or(deadline);
+        if wake_at > Instant::now() {
+            self.sleep_until(wake_at).await;
+            let lag = Instant::now().saturating_duration_since(wake_at);
+            // A running average of the lag: about half the waits wake before their deadline
+            // and watch the clock for a while, the others are as late as their wake-up beyond
+            // the average. Aiming at the late ones instead would buy little for the time spent
+            // watching the clock on every wait.
+            self.wake_lag = (self.wake_lag * 7 + lag) / 8;
+        }
+        while Instant::now() < deadline {
+            std::hint::spin_loop();
         }
     }
 
@@ -154,6 +182,18 @@ mod tests {
             sleep_until_precise(deadline).await;
             assert!(Instant::now() >= deadline);
         }
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_sharp_wait_never_returns_early_and_learns_the_wake_up_lag() {
+        let mut timer = PreciseTimer::default();
+        for round in 0..40u64 {
+            let deadline = Instant::now() + Duration::from_micros(500 + round * 97 % 3000);
+            timer.sleep_until_sharp(deadline).await;
+            assert!(Instant::now() >= deadline);
+        }
+        // Every wake-up comes some time after the timer's expiry, and the timer has learnt it.
+        assert!(timer.wake_lag > Duration::ZERO);
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -243,7 +243,7 @@ impl Master {
             let heard = tokio::select! {
                 biased;
                 read = self.port.receive(&mut chunk) => Some(read?),
-                () = self.timer.sleep_until(quiet_at.min(give_up)) => None,
+                () = self.timer.sleep_until_sharp(quiet_at.min(give_up)) => None,
             };
             if let Some((count, seen)) = heard {
                 let bytes = chunk[..count].to_vec();

@@ -115,6 +115,10 @@ pub struct Port {
     /// writes never need the reactor (see [`Port::write_all`]). Declared before `stream`, so
     /// that it is deregistered before the descriptor is closed.
     listening: Option<AsyncFd<Descriptor>>,
+    /// Not listening, and the last read took everything the port had: the next read
+    /// registers the port and waits without asking it first, since registering reports any
+    /// byte that came since. A wait without listening ([`Port::stop_listening`]) clears it.
+    drained: bool,
     stream: SerialStream,
     path: String,
     pseudo_terminal: bool,
@@ -235,6 +239,7 @@ impl Port {
         }
         let mut port = Port {
             listening: None,
+            drained: false,
             stream,
             path,
             pseudo_terminal,
@@ -477,6 +482,7 @@ impl Port {
     /// arrived meanwhile at once.
     pub(crate) fn stop_listening(&mut self) {
         self.listening = None;
+        self.drained = false;
     }
 
     /// Takes every byte already waiting in the receive buffer without waiting for more. While
@@ -503,29 +509,34 @@ impl Port {
         }
         // Drained: from here the reactor hears of every byte that arrives.
         listening(&mut self.listening, self.stream.as_raw_fd())?;
+        self.drained = false;
         Ok(pending)
     }
 
     /// Waits for received bytes and reads them into `buf`.
     ///
     /// While the port does not listen, the bytes that came meanwhile are read from the port
-    /// itself, and it listens again once a read finds it drained: registered when nothing is
-    /// waiting, the registration starts without news of bytes already read (which would cost
-    /// the runtime a turn and a read that finds nothing), and any byte that comes from then on
-    /// is reported.
+    /// itself (the reactor would report them only on its next turn, after a deadline that has
+    /// passed would have ended the read). Once a read has found the port drained, it is
+    /// registered when the next read has to wait: a registration made when nothing is waiting
+    /// starts without news of bytes already read (which would cost the runtime a turn and a
+    /// read that finds nothing), and reports any byte that came since. The port is not
+    /// registered at once after such a read, because the master often stops listening right
+    /// after it, for the wire time of the answer's rest.
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        if self.listening.is_none() {
+        if self.listening.is_none() && !self.drained {
             match (&self.stream).read(buf) {
                 // More may be waiting: the next read asks the port again.
                 Ok(count) if count == buf.len() => return Ok(count),
                 Ok(count) => {
-                    listening(&mut self.listening, self.stream.as_raw_fd())?;
+                    self.drained = true;
                     return Ok(count);
                 }
                 Err(error) if nothing_waiting(&error) => {}
                 Err(error) => return Err(error),
             }
         }
+        self.drained = false;
         let registration = listening(&mut self.listening, self.stream.as_raw_fd())?;
         let mut reader = &self.stream;
         loop {
