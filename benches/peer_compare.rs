@@ -5,10 +5,11 @@
 //! from round to round); each runs as its own process against a real mosquitto.
 //!
 //! Printed for each gateway: its CPU in % of one core (utime + stime from /proc/<pid>/stat over
-//! the window), transactions/s (from the simulator's journal), CPU per transaction, its CPU as a
-//! ratio to the simulator's (this process: the simulator and the bench's two MQTT clients, the
-//! same for both gateways), anonymous memory and PSS (/proc/<pid>/smaps_rollup), the idle gap
-//! before a request against t3.5 and the requests sent sooner; and command → new value on MQTT
+//! the window), transactions/s (from the simulator's journal), CPU per transaction (also round
+//! by round), its CPU as a ratio to the simulator's (this process: the simulator and the bench's
+//! two MQTT clients, the same for both gateways), anonymous memory and PSS
+//! (/proc/<pid>/smaps_rollup), the idle gap before a request against t3.5 (also round by round)
+//! and the requests sent sooner; and command → new value on MQTT
 //! p50 / p95 beside its bound, from the frames' lengths at 9600: rtu2mqtt's `…/result` comes
 //! after a read-back (bound: the transaction in flight, the write and its echo, the read-back
 //! and its answer, with t3.5 before each frame), mqmgateway's `state` carries the value it
@@ -343,6 +344,21 @@ fn per_gateway(
         .collect()
 }
 
+/// One figure of every gateway, each round's in the order the rounds ran.
+fn per_round(
+    turns: &[Vec<Turn>],
+    figure: impl Fn(&Turn) -> f64 + Copy,
+    show: fn(f64) -> String,
+) -> Vec<String> {
+    turns
+        .iter()
+        .map(|turns| {
+            let shown: Vec<String> = turns.iter().map(|turn| show(figure(turn))).collect();
+            shown.join(" / ")
+        })
+        .collect()
+}
+
 /// `p50 / p95` of one latency list of every gateway, each over its rounds.
 fn latency_pairs(turns: &[Vec<Turn>], list: fn(&Wire) -> &Vec<Duration>) -> Vec<String> {
     turns
@@ -417,14 +433,17 @@ fn report(simulator: &str, contenders: &[Contender], turns: &[Vec<Turn>]) {
         ),
         "",
     );
+    let cpu_per_transaction =
+        |t: &Turn| t.window.gateway_cpu.as_secs_f64() * 1e6 / t.window.records.len().max(1) as f64;
     row(
         "CPU per transaction",
-        &per_gateway(
-            turns,
-            |t| t.window.gateway_cpu.as_secs_f64() * 1e6 / t.window.records.len().max(1) as f64,
-            |v| format!("{v:.0} µs"),
-        ),
+        &per_gateway(turns, cpu_per_transaction, |v| format!("{v:.0} µs")),
         "",
+    );
+    row(
+        "  round by round (µs)",
+        &per_round(turns, cpu_per_transaction, |v| format!("{v:.0}")),
+        "the gateways' turns of a round run one after the other",
     );
     row(
         "simulator CPU (with this process), % of one core",
@@ -485,6 +504,11 @@ fn report(simulator: &str, contenders: &[Contender], turns: &[Vec<Turn>]) {
         "idle gap before a request p50",
         &per_gateway(turns, |t| millis(t.wire.gap_p50), ms_f),
         &format!("t3.5 = {}", ms_f(millis(timing.t3_5))),
+    );
+    row(
+        "  round by round (ms)",
+        &per_round(turns, |t| millis(t.wire.gap_p50), |v| format!("{v:.2}")),
+        "",
     );
     row(
         "bus efficiency",
