@@ -49,6 +49,8 @@ pub(crate) struct PreciseTimer {
     unavailable: bool,
     /// How late the thread has recently woken after the timer's expiry.
     wake_lag: Duration,
+    /// The deadline the timerfd is armed for, while no wait has seen it pass.
+    armed_until: Option<Instant>,
 }
 
 /// The longest stretch a sharp wait spends watching the clock.
@@ -121,14 +123,35 @@ impl PreciseTimer {
         deadline: Instant,
         duration: Duration,
     ) -> std::io::Result<()> {
+        self.timer()?.get_ref().arm(duration)?;
+        self.armed_until = Some(deadline);
         let timer = self.timer()?;
-        timer.get_ref().arm(duration)?;
         loop {
             let mut ready = timer.readable().await?;
             // Readiness left over from a wait that was dropped, or this wait's expiry.
             ready.clear_ready();
             if Instant::now() >= deadline {
-                return Ok(());
+                break;
+            }
+        }
+        self.armed_until = None;
+        Ok(())
+    }
+
+    /// Disarms the timerfd if a wait dropped before its deadline (a `select!` that took
+    /// another branch) left it armed: on a line that idles until its next poll, the expiry
+    /// would wake the runtime's thread for nothing.
+    pub(crate) fn disarm(&mut self) {
+        let Some(armed_until) = self.armed_until.take() else {
+            return;
+        };
+        if armed_until <= Instant::now() {
+            // Expired already: there is nothing left to spare.
+            return;
+        }
+        if let Some(timer) = &self.timer {
+            if let Err(error) = timer.get_ref().0.unset() {
+                tracing::debug!(%error, "cannot disarm the line's timer");
             }
         }
     }
@@ -194,6 +217,29 @@ mod tests {
         }
         // Every wake-up comes some time after the timer's expiry, and the timer has learnt it.
         assert!(timer.wake_lag > Duration::ZERO);
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_wait_dropped_before_its_deadline_leaves_no_expiry_once_disarmed() {
+        let mut timer = PreciseTimer::default();
+        let far = Instant::now() + Duration::from_millis(50);
+        let dropped = tokio::time::timeout(Duration::from_millis(2), timer.sleep_until(far)).await;
+        assert!(dropped.is_err(), "the wait was dropped before its end");
+        let armed = |timer: &PreciseTimer| {
+            let fd = timer.timer.as_ref().expect("the timerfd was made");
+            fd.get_ref().0.get().expect("the timerfd answers")
+        };
+        assert!(
+            armed(&timer).is_some(),
+            "the dropped wait left the timer armed"
+        );
+        timer.disarm();
+        assert!(armed(&timer).is_none(), "disarmed");
+        // A wait that ran to its end leaves nothing to disarm, and the next wait still works.
+        let deadline = Instant::now() + Duration::from_millis(1);
+        timer.sleep_until(deadline).await;
+        assert!(Instant::now() >= deadline);
+        assert!(timer.armed_until.is_none());
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -159,7 +159,9 @@ impl Master {
             self.timed_out_slave = None;
         }
         let drained_at = self.send(&frame).await?;
-        self.receive_answer(ask, &frame, drained_at).await
+        let answer = self.receive_answer(ask, &frame, drained_at).await;
+        self.timer.disarm();
+        answer
     }
 
     /// Sends `request` to address 0 without waiting for an answer, then keeps the line silent
