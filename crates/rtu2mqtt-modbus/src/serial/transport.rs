@@ -485,21 +485,16 @@ impl Port {
         self.drained = false;
     }
 
-    /// Takes every byte already waiting in the receive buffer without waiting for more. While
-    /// the port does not listen, the port itself is asked (the reactor has no news of it);
-    /// otherwise the reactor's readiness spares a read that would find nothing.
+    /// Takes every byte already waiting in the receive buffer without waiting for more. The
+    /// port itself is asked, not the reactor's readiness: this is the master's last look at
+    /// the line before it sends, and the reactor hears of a byte only on its next turn, which
+    /// does not come while the thread watches the clock for the end of a silence.
     pub(crate) fn take_pending(&mut self) -> io::Result<Vec<u8>> {
         let mut pending = Vec::new();
         let mut chunk = [0u8; 256];
+        let mut reader = &self.stream;
         loop {
-            let mut reader = &self.stream;
-            let read = match self.listening {
-                Some(ref registration) => {
-                    registration.try_io(Interest::READABLE, |_| reader.read(&mut chunk))
-                }
-                None => reader.read(&mut chunk),
-            };
-            match read {
+            match reader.read(&mut chunk) {
                 Ok(0) => return Err(port_gone(&self.path)),
                 Ok(count) => pending.extend_from_slice(&chunk[..count]),
                 Err(error) if error.kind() == io::ErrorKind::Interrupted => continue,
