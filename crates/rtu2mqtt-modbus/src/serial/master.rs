@@ -17,6 +17,9 @@
 //! echo of the request is stripped (announced with `echo`, or detected and reported once).
 //! After a timeout, the next request to the same address waits out a late-answer guard; the
 //! late answer, whenever it comes, is counted in `late_answers`.
+//!
+//! The master learns when each device's answers begin ([`AnswerOnsets`]) and plans the first
+//! read of the next answer by it: one wake-up for all of an answer but its last byte.
 
 use std::time::Duration;
 
@@ -26,6 +29,7 @@ use tracing::Instrument;
 use crate::clock::PreciseTimer;
 use crate::codec::{self, DecodeError, MAX_FRAME_LEN};
 use crate::frame::{FunctionCode, Request, SlaveId};
+use crate::serial::answer_onset::AnswerOnsets;
 use crate::serial::reception::{AnswerTiming, Heard, Next, Reception};
 use crate::transaction::{Ask, Direction, Exchange, LinkCore};
 // How a transaction ends: the outcome types every link shares, where callers have always
@@ -99,6 +103,8 @@ pub struct Master {
     late_answer_counted: bool,
     /// An unannounced adapter echo has been reported.
     echo_warned: bool,
+    /// When each device's answers begin, to plan the first read of its next answer by.
+    answer_onsets: AnswerOnsets,
 }
 
 impl std::fmt::Debug for Master {
@@ -131,6 +137,7 @@ impl Master {
             late_window_open: false,
             late_answer_counted: false,
             echo_warned: false,
+            answer_onsets: AnswerOnsets::default(),
         }
     }
 
@@ -316,10 +323,25 @@ impl Master {
             line: self.timing,
         };
         let mut reception = Reception::new(slave, request, sent, self.options.echo, timing);
+        // An echo comes before the answer: the answer's onset is planned for only without one.
+        if let Some(first_byte_after) = self.answer_onsets.expected(slave) {
+            if !self.options.echo {
+                reception = reception.expecting_first_byte_at(drained_at + first_byte_after);
+            }
+        }
+        let result = self.read_answer(&mut reception).await;
+        if let Some(arrival) = reception.arrival() {
+            self.answer_onsets.learn(slave, arrival);
+        }
+        result
+    }
+
+    /// Reads from the port until `reception` has the answer or knows there is none.
+    async fn read_answer(&mut self, reception: &mut Reception) -> Result<Reply, Error> {
         let mut chunk = [0u8; MAX_FRAME_LEN];
         loop {
             let next = reception.next(Instant::now());
-            self.account(&mut reception);
+            self.account(reception);
             let (until, rest_due) = match next {
                 Next::Done(result) => return result,
                 Next::Read { until, rest_due } => (until, rest_due),
@@ -340,10 +362,10 @@ impl Master {
                 reception.heard(&chunk[..count], seen);
                 self.last_activity = seen;
             } else if let Some(result) = reception.silence(Instant::now()) {
-                self.account(&mut reception);
+                self.account(reception);
                 return result;
             }
-            self.account(&mut reception);
+            self.account(reception);
         }
     }
 

@@ -9,7 +9,9 @@
 //! gap); the answer is complete at its expected length (from the request, 5 bytes for an
 //! exception), framed by [`AnswerFramer`]; once it has begun, the wire time of the shortest
 //! length it can still have (an exception's, until its length is known) is waited for in one
-//! go, not with a wake-up per byte.
+//! go, not with a wake-up per byte. Where the master knows when the device's answers begin
+//! ([`Reception::expecting_first_byte_at`], learned from how its last answer came:
+//! [`Reception::arrival`]), the wait for all but the last byte starts with the request.
 
 use std::time::Duration;
 
@@ -47,6 +49,19 @@ pub enum Next {
     },
     /// The transaction's end: the answer, or why there is none.
     Done(Result<Reply, Error>),
+}
+
+/// How a complete answer's bytes came, for the master to expect the next answer of the same
+/// device. Either way its first byte was due at most `first_byte_after` the request's drain
+/// (the instant its last byte was seen, less the wire time of the rest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Arrival {
+    /// The latest the first byte can have come, from the request's drain.
+    pub first_byte_after: Duration,
+    /// The last byte came on its own, as a wire (or an adapter that passes bytes on as they
+    /// come) delivers it; otherwise with others, as an adapter's latency timer hands bytes
+    /// over in batches (or because a read was late), and the bound is loose.
+    pub paced: bool,
 }
 
 /// What became of bytes received, in the order it happened: for the master's counters, log
@@ -99,6 +114,12 @@ pub struct Reception {
     waited_for: usize,
     /// Where `received` stood when the last read was asked for.
     framing: Framing,
+    /// When the answer's first byte is expected, until the first read has been planned by it.
+    first_byte_expected: Option<Instant>,
+    /// How many bytes the last read brought.
+    last_read_len: usize,
+    /// How the answer came, once it is complete.
+    arrival: Option<Arrival>,
     heard: Vec<Heard>,
 }
 
@@ -125,8 +146,29 @@ impl Reception {
             framing: Framing::NeedMore {
                 needed: request.answer_len(),
             },
+            first_byte_expected: None,
+            last_read_len: 0,
+            arrival: None,
             heard: Vec::new(),
         }
+    }
+
+    /// The device's answers have begun no sooner than `first_byte_at`: instead of a wake-up on
+    /// the first byte and another on the answer's head, the first read waits until all but the
+    /// last byte of the answer of its expected length are due from then, and half a character
+    /// more. An answer that comes
+    /// sooner (an exception, a quicker device) is complete at that read and ends there; one
+    /// that comes later is read as it comes.
+    pub fn expecting_first_byte_at(mut self, first_byte_at: Instant) -> Self {
+        if self.request.answer_len() < MAX_FRAME_LEN {
+            self.first_byte_expected = Some(first_byte_at);
+        }
+        self
+    }
+
+    /// How the answer's bytes came, once it is complete (`None` before, and for no answer).
+    pub fn arrival(&self) -> Option<Arrival> {
+        self.arrival
     }
 
     /// What became of the bytes since this was last asked, oldest first.
@@ -171,6 +213,13 @@ impl Reception {
                     continue;
                 }
                 Framing::Complete(length) => {
+                    let wire_time = self.timing.line.frame_time(length.saturating_sub(1));
+                    self.arrival = Some(Arrival {
+                        first_byte_after: self
+                            .last_byte_at
+                            .saturating_duration_since(self.timing.sent_at + wire_time),
+                        paced: self.last_read_len == 1,
+                    });
                     let trailing = self.received.split_off(length);
                     self.heard.push(Heard::Frame(self.received.clone()));
                     if !trailing.is_empty() {
@@ -208,6 +257,19 @@ impl Reception {
                 _ => None,
             };
             let mut rest_due = None;
+            if self.received.is_empty() {
+                if let Some(first_byte_at) = self.first_byte_expected.take() {
+                    // Half a character on, so that a byte handed over a little late is in and
+                    // the last one, a little early, is not yet.
+                    let all_but_last = self.request.answer_len().saturating_sub(2);
+                    let due = first_byte_at
+                        + self.timing.line.frame_time(all_but_last)
+                        + self.timing.line.frame_time(1) / 2;
+                    if due > now {
+                        rest_due = Some(due.min(until));
+                    }
+                }
+            }
             if let Some(soonest_end) = soonest_end {
                 if !self.received.is_empty() && self.waited_for < soonest_end {
                     let remaining = soonest_end.saturating_sub(self.received.len());
@@ -237,6 +299,7 @@ impl Reception {
         }
         self.received.extend_from_slice(bytes);
         self.last_byte_at = seen;
+        self.last_read_len = bytes.len();
     }
 
     /// Nothing came until the read's `until`, now `now`: the transaction's end, or `None`
@@ -379,6 +442,80 @@ mod tests {
             panic!("complete");
         };
         assert_eq!(result, Ok(Err(ExceptionCode::IllegalDataAddress)));
+    }
+
+    #[test]
+    fn an_answer_expected_to_begin_is_first_read_when_all_but_its_last_byte_are_due() {
+        let start = Instant::now();
+        let char_time = reception(start).timing.line.frame_time(1);
+        let frame = answer();
+        let first_byte_at = start + ms(4);
+        let mut reception = reception(start).expecting_first_byte_at(first_byte_at);
+        // A 9-byte answer: its eighth byte is due seven characters after its first, and the
+        // read half a character later.
+        let Next::Read { until, rest_due } = reception.next(start) else {
+            panic!("the answer is awaited");
+        };
+        assert_eq!(until, start + ms(300));
+        let read_at = first_byte_at + char_time * 7 + char_time / 2;
+        assert_eq!(rest_due, Some(read_at));
+        reception.heard(&frame[..8], read_at);
+        // Its last byte is listened for at once.
+        let Next::Read { rest_due, .. } = reception.next(read_at) else {
+            panic!("the last byte is awaited");
+        };
+        assert_eq!(rest_due, None);
+        let last_seen = read_at + char_time / 2 + ms(1) / 10;
+        reception.heard(&frame[8..], last_seen);
+        let Next::Done(result) = reception.next(last_seen) else {
+            panic!("complete");
+        };
+        assert_eq!(result, Ok(Ok(Response::HoldingRegisters(vec![7, 8]))));
+        // The first byte came at most the wire time of the other eight before the last.
+        assert_eq!(
+            reception.arrival(),
+            Some(Arrival {
+                first_byte_after: last_seen - char_time * 8 - start,
+                paced: true
+            })
+        );
+    }
+
+    #[test]
+    fn an_answer_later_than_expected_is_read_as_it_comes_and_a_sooner_one_is_taken_whole() {
+        let start = Instant::now();
+        let char_time = reception(start).timing.line.frame_time(1);
+        let frame = answer();
+        let mut reception = reception(start).expecting_first_byte_at(start + ms(4));
+        let planned_read = start + ms(4) + char_time * 7 + char_time / 2;
+        reception.next(start);
+        // Nothing had come by the planned read: the next read waits for the first byte.
+        assert!(matches!(
+            reception.next(planned_read),
+            Next::Read { rest_due: None, until } if until == start + ms(300)
+        ));
+        reception.heard(&frame[..1], start + ms(20));
+        let Next::Read { rest_due, .. } = reception.next(start + ms(20)) else {
+            panic!("the answer is awaited");
+        };
+        assert_eq!(rest_due, Some(start + ms(20) + char_time * 3));
+
+        // An exception, sooner than the 9-byte answer expected, is whole at the planned read.
+        let exception = codec::encode_exception(1, 0x03, ExceptionCode::IllegalDataAddress);
+        let mut reception = self::reception(start).expecting_first_byte_at(start + ms(4));
+        reception.next(start);
+        reception.heard(&exception, planned_read);
+        let Next::Done(result) = reception.next(planned_read) else {
+            panic!("complete");
+        };
+        assert_eq!(result, Ok(Err(ExceptionCode::IllegalDataAddress)));
+        assert_eq!(
+            reception.arrival(),
+            Some(Arrival {
+                first_byte_after: planned_read - char_time * 4 - start,
+                paced: false
+            })
+        );
     }
 
     #[test]
