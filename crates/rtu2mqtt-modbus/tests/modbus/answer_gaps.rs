@@ -8,6 +8,9 @@
 //! - A master opened while a device is still answering an earlier request (with pauses inside)
 //!   hears that answer out before its first request, which comes t3.5 or more after its last
 //!   byte.
+//! - A device that answers sooner than the master has learned to expect (a quicker turnaround,
+//!   an exception instead of the answer) has its answer taken whole, and the request after it
+//!   still comes t3.5 or more after its last byte; so does one that answers later.
 
 use std::time::Duration;
 
@@ -43,8 +46,9 @@ fn read_block() -> Request {
     }
 }
 
-/// A paced 9600 8N1 line with one device holding [`REGISTERS`], its answers sent `chunks`.
-fn line(chunks: AnswerChunks) -> VirtualLine {
+/// A paced 9600 8N1 line with one device holding [`REGISTERS`], its answers sent in `chunks`
+/// (byte by byte at the wire's rate without).
+fn line(chunks: Option<AnswerChunks>) -> VirtualLine {
     let mut device = GenericDevice::from_blocks(&[], DEVICE);
     for (at, value) in REGISTERS.iter().enumerate() {
         device.set_holding(at as u16, *value);
@@ -55,7 +59,7 @@ fn line(chunks: AnswerChunks) -> VirtualLine {
         vec![shared],
     )
     .expect("virtual line");
-    line.faults().update(|f| f.answer_chunks = Some(chunks));
+    line.faults().update(|f| f.answer_chunks = chunks);
     line
 }
 
@@ -95,7 +99,7 @@ fn assert_no_request_into_an_answer(records: &[RequestRecord]) {
 
 async fn chunked_answers_are_taken_whole(gap: Duration) {
     const TRANSACTIONS: usize = 12;
-    let line = line(AnswerChunks { bytes: 5, gap });
+    let line = line(Some(AnswerChunks { bytes: 5, gap }));
     let mut master = Master::new(open(&line), timing(), MasterOptions::default());
     let mut replies = Vec::new();
     for _ in 0..TRANSACTIONS {
@@ -151,10 +155,10 @@ async fn pauses_of_16_ms_inside_answers() {
 async fn a_master_started_during_an_answer_waits_for_the_line_to_fall_silent() {
     // One byte every 5 ms plus its wire time: about 100 ms for the 17-byte answer, with
     // pauses longer than t3.5 inside it, as a USB adapter hands an answer over.
-    let line = line(AnswerChunks {
+    let line = line(Some(AnswerChunks {
         bytes: 1,
         gap: Duration::from_millis(5),
-    });
+    }));
     let mut previous = open(&line);
     let frame = codec::encode_request(DEVICE, &read_block()).expect("a valid request");
     previous.write_frame(&frame).await.expect("request written");
@@ -191,4 +195,63 @@ async fn a_master_started_during_an_answer_waits_for_the_line_to_fall_silent() {
     // The rest of the old answer (16 bytes, fewer if some came before the port was open).
     let heard = master.counters().stray_bytes;
     assert!((1..=16).contains(&heard), "{heard} stray bytes");
+}
+
+/// The master plans the first read of an answer by when the device's answers have begun
+/// before. Answers that come sooner than that (the device's turnaround 5 ms shorter, an
+/// exception of 5 bytes where 17 were expected) are whole at the planned read, and later ones
+/// are read as they come: every answer is taken, and every request waits t3.5 after the last
+/// byte before it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_sooner_or_later_than_expected_are_taken_and_heard_out() {
+    let line = line(None);
+    let mut master = Master::new(open(&line), timing(), MasterOptions::default());
+    let registers = Ok(Ok(Response::HoldingRegisters(REGISTERS.to_vec())));
+    let exception = Ok(Err(rtu2mqtt_modbus::ExceptionCode::ServerDeviceBusy));
+    // (the device's extra turnaround, its answer is an exception, transactions)
+    let phases = [
+        (Duration::from_millis(5), false, 6),
+        (Duration::ZERO, false, 4),
+        (Duration::ZERO, true, 3),
+        (Duration::from_millis(8), false, 3),
+        (Duration::ZERO, false, 3),
+    ];
+    let mut expected = Vec::new();
+    let mut replies = Vec::new();
+    for (delay, as_exception, transactions) in phases {
+        line.faults().update(|f| {
+            f.delay = delay;
+            f.exception = if as_exception {
+                rtu2mqtt_sim::faults::Occurrence::ALWAYS
+            } else {
+                rtu2mqtt_sim::faults::Occurrence::NEVER
+            };
+            f.exception_code = Some(rtu2mqtt_modbus::ExceptionCode::ServerDeviceBusy);
+        });
+        for _ in 0..transactions {
+            replies.push(master.transact(DEVICE, &read_block(), TIMEOUT).await);
+            expected.push(if as_exception {
+                exception.clone()
+            } else {
+                registers.clone()
+            });
+        }
+    }
+    line.journal()
+        .wait_for_requests(expected.len(), Duration::from_secs(1))
+        .await;
+    let records = line.journal().requests();
+    assert_eq!(records.len(), expected.len());
+    assert_no_request_into_an_answer(&records);
+    assert_eq!(replies, expected);
+    let counters = master.counters();
+    assert_eq!(
+        (
+            counters.truncated,
+            counters.stray_bytes,
+            counters.timeouts,
+            counters.late_answers
+        ),
+        (0, 0, 0, 0)
+    );
 }
