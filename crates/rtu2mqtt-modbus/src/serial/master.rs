@@ -18,8 +18,8 @@
 //! After a timeout, the next request to the same address waits out a late-answer guard; the
 //! late answer, whenever it comes, is counted in `late_answers`.
 //!
-//! The master learns when each device's answers begin ([`AnswerOnsets`]) and plans the first
-//! read of the next answer by it: one wake-up for all of an answer but its last byte.
+//! The master learns when each device's answers begin (`serial::answer_onset`) and plans the
+//! first read of the next answer by it: one wake-up for all of an answer but its last byte.
 
 use std::time::Duration;
 
