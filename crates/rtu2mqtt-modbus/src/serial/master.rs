@@ -324,8 +324,8 @@ impl Master {
         };
         let mut reception = Reception::new(slave, request, sent, self.options.echo, timing);
         // An echo comes before the answer: the answer's onset is planned for only without one.
-        if let Some(first_byte_after) = self.answer_onsets.expected(slave) {
-            if !self.options.echo {
+        if !self.options.echo {
+            if let Some(first_byte_after) = self.answer_onsets.expected(slave) {
                 reception = reception.expecting_first_byte_at(drained_at + first_byte_after);
             }
         }

@@ -156,9 +156,8 @@ impl Reception {
     /// The device's answers have begun no sooner than `first_byte_at`: instead of a wake-up on
     /// the first byte and another on the answer's head, the first read waits until all but the
     /// last byte of the answer of its expected length are due from then, and half a character
-    /// more. An answer that comes
-    /// sooner (an exception, a quicker device) is complete at that read and ends there; one
-    /// that comes later is read as it comes.
+    /// more. An answer that comes sooner (an exception, a quicker device) is complete at that
+    /// read and ends there; one that comes later is read as it comes.
     pub fn expecting_first_byte_at(mut self, first_byte_at: Instant) -> Self {
         if self.request.answer_len() < MAX_FRAME_LEN {
             self.first_byte_expected = Some(first_byte_at);

@@ -17,8 +17,8 @@ use std::time::Duration;
 use rtu2mqtt_modbus::serial::master::{Master, MasterOptions};
 use rtu2mqtt_modbus::serial::transport::{Port, SerialSettings};
 use rtu2mqtt_modbus::timing::{CharFormat, LineTiming, Parity};
-use rtu2mqtt_modbus::{codec, Request, Response, Transact};
-use rtu2mqtt_sim::faults::AnswerChunks;
+use rtu2mqtt_modbus::{codec, ExceptionCode, Request, Response, Transact};
+use rtu2mqtt_sim::faults::{AnswerChunks, Occurrence};
 use rtu2mqtt_sim::{share, GenericDevice, RequestRecord, ServeOptions, VirtualLine};
 
 const BAUD: u32 = 9600;
@@ -207,7 +207,7 @@ async fn answers_sooner_or_later_than_expected_are_taken_and_heard_out() {
     let line = line(None);
     let mut master = Master::new(open(&line), timing(), MasterOptions::default());
     let registers = Ok(Ok(Response::HoldingRegisters(REGISTERS.to_vec())));
-    let exception = Ok(Err(rtu2mqtt_modbus::ExceptionCode::ServerDeviceBusy));
+    let exception = Ok(Err(ExceptionCode::ServerDeviceBusy));
     // (the device's extra turnaround, its answer is an exception, transactions)
     let phases = [
         (Duration::from_millis(5), false, 6),
@@ -222,11 +222,11 @@ async fn answers_sooner_or_later_than_expected_are_taken_and_heard_out() {
         line.faults().update(|f| {
             f.delay = delay;
             f.exception = if as_exception {
-                rtu2mqtt_sim::faults::Occurrence::ALWAYS
+                Occurrence::ALWAYS
             } else {
-                rtu2mqtt_sim::faults::Occurrence::NEVER
+                Occurrence::NEVER
             };
-            f.exception_code = Some(rtu2mqtt_modbus::ExceptionCode::ServerDeviceBusy);
+            f.exception_code = Some(ExceptionCode::ServerDeviceBusy);
         });
         for _ in 0..transactions {
             replies.push(master.transact(DEVICE, &read_block(), TIMEOUT).await);
